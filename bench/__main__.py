@@ -1,0 +1,65 @@
+"""Run every benchmark module and write the results as one JSON list.
+
+Usage: ``python -m bench [-o bench-results/results.json] [--only AREA ...]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import os
+import pkgutil
+import sys
+import tempfile
+from pathlib import Path
+
+import bench
+from bench.common import Result
+
+
+def _modules(only: list[str]) -> list[str]:
+    names = sorted(
+        m.name for m in pkgutil.iter_modules(bench.__path__) if m.name.startswith("bench_")
+    )
+    if only:
+        names = [n for n in names if n.removeprefix("bench_") in only]
+    return names
+
+
+def _write_atomically(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    with os.fdopen(fd, "w") as f:
+        f.write(text)
+    os.replace(tmp, path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench", description=__doc__)
+    parser.add_argument("-o", "--output", type=Path, default=Path("bench-results/results.json"))
+    parser.add_argument("--only", nargs="*", default=[], help="areas to run, e.g. spec kinematics")
+    args = parser.parse_args(argv)
+    results: list[Result] = []
+    names = _modules(args.only)
+    if not names:
+        print("bench: nothing selected", file=sys.stderr)
+        return 5
+    for name in names:
+        print(f"== {name}", file=sys.stderr, flush=True)
+        module = importlib.import_module(f"bench.{name}")
+        for r in module.run():
+            print(
+                f"  {r['name']:<48} {r['value']:>14.4g} {r['unit']:<10}"
+                f" vs {r['baseline_name']} {r['baseline']:.4g}  ratio {r['ratio']:.3g}",
+                file=sys.stderr,
+                flush=True,
+            )
+            results.append(r)
+    _write_atomically(args.output, json.dumps(results, indent=2) + "\n")
+    print(f"wrote {len(results)} results to {args.output}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,61 @@
+"""Shared helpers for benchmarks: the result record and a small timing loop."""
+
+from __future__ import annotations
+
+import statistics
+import time
+from collections.abc import Callable
+from typing import TypedDict
+
+
+class Result(TypedDict):
+    name: str
+    value: float
+    unit: str
+    baseline_name: str
+    baseline: float
+    ratio: float
+
+
+def result(name: str, value: float, unit: str, baseline_name: str, baseline: float) -> Result:
+    """One benchmark figure beside its baseline; ``ratio`` is value / baseline."""
+    ratio = value / baseline if baseline else float("inf")
+    return Result(
+        name=name,
+        value=float(value),
+        unit=unit,
+        baseline_name=baseline_name,
+        baseline=float(baseline),
+        ratio=float(ratio),
+    )
+
+
+def time_per_call(fn: Callable[[], object], *, min_time: float = 0.2, repeat: int = 5) -> float:
+    """Best-of-``repeat`` mean time of one call of ``fn`` in seconds."""
+    n = 1
+    while True:
+        t0 = time.perf_counter()
+        for _ in range(n):
+            fn()
+        dt = time.perf_counter() - t0
+        if dt >= min_time / repeat or n >= 1 << 24:
+            break
+        n *= 2
+    best = dt / n
+    for _ in range(repeat - 1):
+        t0 = time.perf_counter()
+        for _ in range(n):
+            fn()
+        best = min(best, (time.perf_counter() - t0) / n)
+    return best
+
+
+def percentile(samples: list[float], p: float) -> float:
+    """The p-th percentile (0..100) of ``samples`` by linear interpolation."""
+    if not samples:
+        raise ValueError("no samples")
+    if len(samples) == 1:
+        return samples[0]
+    q = statistics.quantiles(samples, n=1000, method="inclusive")
+    index = min(max(int(round(p * 10)) - 1, 0), len(q) - 1)
+    return q[index]
