@@ -1,0 +1,253 @@
+"""Sans-I/O frame codec: packets to bytes and bytes (as they arrive) back to packets.
+
+No socket, thread or clock here (STYLE.md practice 1). :func:`encode_packet` produces one
+frame; :class:`FrameDecoder` takes bytes in any split or coalesced pieces with
+:meth:`FrameDecoder.feed` and yields :class:`Packet` or :class:`Rejected` events.
+
+A rejection is *recoverable* when the header could be read and the frame's end is known (the
+receiver answers with an error packet and goes on with the next frame) and *fatal* when not
+(the decoder raises; the receiver answers with a request-ID-0 error packet and closes)
+[RS-3.8], [RS-3.9].
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import NoReturn
+
+from spec import wire
+from spec.errors import (
+    BadCrcError,
+    ErrorCode,
+    FrameError,
+    FrameTooLargeError,
+    PeerError,
+    ProtocolError,
+    UsageError,
+    VersionError,
+)
+from spec.params import Value, decode_params, encode_params_parts
+from spec.wire import PacketKind
+
+
+@dataclass(frozen=True, slots=True)
+class Packet:
+    """One decoded frame (PROTOCOL.md section 3)."""
+
+    kind: PacketKind
+    command: int
+    request_id: int
+    params: tuple[Value, ...] = ()
+    version_minor: int = wire.VERSION_MINOR
+
+    @property
+    def error(self) -> tuple[int, str] | None:
+        """(code, message) of an error packet, ``None`` for other kinds."""
+        if self.kind is not PacketKind.ERROR:
+            return None
+        code = self.params[0] if self.params and isinstance(self.params[0], int) else 0
+        text = self.params[1] if len(self.params) > 1 and isinstance(self.params[1], str) else ""
+        return int(code), text
+
+
+def request(command: int, request_id: int, *params: Value) -> Packet:
+    return Packet(PacketKind.REQUEST, command, request_id, tuple(params))
+
+
+def reply_to(req: Packet, *params: Value) -> Packet:
+    """The reply packet for ``req``: same command ID, echoed request ID [RS-3.4]."""
+    return Packet(PacketKind.REPLY, req.command, req.request_id, tuple(params))
+
+
+def error_packet(command: int, request_id: int, code: ErrorCode | int, message: str) -> Packet:
+    """An error packet: parameters (INT code, STRING message) [RS-6.1]."""
+    return Packet(PacketKind.ERROR, command, request_id, (int(code), message))
+
+
+def encode_packet(packet: Packet, max_payload: int = wire.MAX_PAYLOAD) -> bytes:
+    """Encode one frame: header, parameter list, CRC-32 [RS-3.1], [RS-3.6]."""
+    if not 0 <= packet.command <= 0xFFFF:
+        raise UsageError(f"command ID {packet.command} does not fit in 16 bits")
+    if not 0 <= packet.request_id <= 0xFFFFFFFF:
+        raise UsageError(f"request ID {packet.request_id} does not fit in 32 bits")
+    parts = encode_params_parts(packet.params)
+    length = sum(len(p) for p in parts)
+    if length > max_payload:
+        raise UsageError(f"payload of {length} bytes exceeds the maximum of {max_payload}")
+    header = wire.HEADER.pack(
+        wire.MAGIC,
+        wire.VERSION_MAJOR,
+        packet.version_minor,
+        int(packet.kind),
+        0,
+        packet.command,
+        packet.request_id,
+        length,
+    )
+    crc = zlib.crc32(header)
+    for part in parts:
+        crc = zlib.crc32(part, crc)
+    return b"".join([header, *parts, wire.TRAILER.pack(crc)])
+
+
+@dataclass(frozen=True, slots=True)
+class Header:
+    """The fixed 16-byte frame header, decoded without judging it."""
+
+    magic: bytes
+    version_major: int
+    version_minor: int
+    kind: int
+    flags: int
+    command: int
+    request_id: int
+    length: int
+
+    @classmethod
+    def unpack(cls, data: bytes | bytearray | memoryview) -> Header:
+        return cls(*wire.HEADER.unpack_from(data, 0))
+
+
+@dataclass(frozen=True, slots=True)
+class Rejected:
+    """A delimited frame that was rejected; answer with an error packet and go on."""
+
+    header: Header
+    error: PeerError
+
+    @property
+    def code(self) -> ErrorCode:
+        return self.error.code
+
+
+Event = Packet | Rejected
+
+
+@dataclass
+class FrameDecoder:
+    """Incremental decoder: feed bytes, iterate events; raises only :class:`PeerError`.
+
+    ``max_payload`` is this receiver's limit (at most :data:`wire.MAX_PAYLOAD`) [RS-3.5].
+    ``kinds`` are the packet kinds this receiver accepts (a server takes requests only).
+    """
+
+    max_payload: int = wire.DEFAULT_MAX_PAYLOAD
+    kinds: frozenset[PacketKind] = frozenset(PacketKind)
+    _buffer: bytearray = field(default_factory=bytearray, repr=False)
+    _failed: PeerError | None = field(default=None, repr=False)
+
+    def feed(self, data: bytes | bytearray | memoryview) -> None:
+        if self._failed is not None:
+            raise self._failed
+        self._buffer += data
+
+    @property
+    def buffered(self) -> int:
+        """Bytes received but not yet part of a complete frame."""
+        return len(self._buffer)
+
+    @property
+    def in_frame(self) -> bool:
+        """True when a frame has started but not finished (for partial-frame timeouts)."""
+        return bool(self._buffer)
+
+    def events(self) -> Iterator[Event]:
+        """Yield every complete frame in the buffer; stop when more data is needed."""
+        while True:
+            event = self.next_event()
+            if event is None:
+                return
+            yield event
+
+    def next_event(self) -> Event | None:
+        """The next complete event, or ``None`` when more data is needed."""
+        if self._failed is not None:
+            raise self._failed
+        buf = self._buffer
+        if len(buf) < 2:
+            return None
+        if buf[:2] != wire.MAGIC:
+            # [RS-3.8] unusable header: the frame boundary is lost, the connection ends.
+            self._fail(FrameError(f"bad magic {bytes(buf[:2]).hex()}, expected 5253"))
+        if len(buf) < wire.HEADER_SIZE:
+            return None
+        header = Header.unpack(buf)
+        if header.length > self.max_payload:
+            # [RS-3.5] never buffer an oversized frame: reject before reading it.
+            self._fail(
+                FrameTooLargeError(
+                    f"payload length {header.length} exceeds the maximum {self.max_payload}"
+                ),
+            )
+        end = wire.HEADER_SIZE + header.length + wire.TRAILER_SIZE
+        if len(buf) < end:
+            return None
+        frame = memoryview(buf)[:end]
+        try:
+            event: Event = self._decode_frame(header, frame)
+        except PeerError as exc:
+            event = Rejected(header, exc)
+        finally:
+            frame.release()
+        del buf[:end]
+        return event
+
+    def _fail(self, error: PeerError) -> NoReturn:
+        self._failed = error
+        self._buffer.clear()
+        raise error
+
+    def _decode_frame(self, header: Header, frame: memoryview) -> Packet:
+        payload_end = wire.HEADER_SIZE + header.length
+        (crc,) = wire.TRAILER.unpack_from(frame, payload_end)
+        if zlib.crc32(frame[:payload_end]) != crc:
+            raise BadCrcError(f"CRC-32 mismatch (frame says {crc:08x})")
+        if header.version_major != wire.VERSION_MAJOR:
+            raise VersionError(
+                f"protocol version {header.version_major}.{header.version_minor} not supported;"
+                f" this peer speaks {wire.VERSION}"
+            )
+        try:
+            kind = PacketKind(header.kind)
+        except ValueError:
+            raise FrameError(f"unknown packet kind {header.kind}") from None
+        if kind not in self.kinds:
+            raise FrameError(f"packet kind {kind.name} not accepted here")
+        if header.flags != 0:
+            raise FrameError(f"reserved flags must be 0, got 0x{header.flags:02x}")
+        params = decode_params(frame[wire.HEADER_SIZE : payload_end])
+        return Packet(kind, header.command, header.request_id, params, header.version_minor)
+
+
+def decode_packet(data: bytes, max_payload: int = wire.MAX_PAYLOAD) -> Packet:
+    """Decode exactly one complete frame; raise :class:`PeerError` on anything else."""
+    decoder = FrameDecoder(max_payload=max_payload)
+    decoder.feed(data)
+    event = decoder.next_event()
+    if event is None:
+        need = wire.HEADER_SIZE
+        if len(data) >= wire.HEADER_SIZE:
+            need = wire.HEADER_SIZE + Header.unpack(data).length + wire.TRAILER_SIZE
+        raise FrameError(f"truncated frame: {len(data)} of {need} bytes", ErrorCode.BAD_FRAME)
+    if isinstance(event, Rejected):
+        raise event.error
+    if decoder.buffered:
+        raise FrameError(f"{decoder.buffered} bytes after the end of the frame")
+    return event
+
+
+__all__ = [
+    "Event",
+    "FrameDecoder",
+    "Header",
+    "Packet",
+    "ProtocolError",
+    "Rejected",
+    "decode_packet",
+    "encode_packet",
+    "error_packet",
+    "reply_to",
+    "request",
+]

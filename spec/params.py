@@ -1,0 +1,409 @@
+"""The typed, self-describing parameter list (PROTOCOL.md section 4).
+
+A parameter list is a count followed by tagged values. Python values map to wire types as:
+
+========================  =============  ==============================================
+Python value              wire type      notes
+========================  =============  ==============================================
+``int`` (not bool)        INT            signed 64-bit
+``float``                 FLOAT          IEEE 754 binary64
+``bool``                  BOOL           one byte, 0 or 1
+``str``                   STRING         UTF-8, u32 byte length
+``bytes``                 BYTES          u32 length
+:class:`FloatArray`       FLOAT_ARRAY    u32 count + f64 each
+:class:`IntArray`         INT_ARRAY      u32 count + i64 each
+:class:`Joints`           JOINTS         u8 count (1..16) + f64 each, degrees
+:class:`Location`         LOCATION       x, y, z (mm), rx, ry, rz (degrees)
+:class:`Transform`        TRANSFORM      4x4 row-major f64, last row 0 0 0 1
+:class:`Matrix`           MATRIX         u32 rows, u32 cols, f64 row-major
+:class:`Image`            IMAGE          width, height, format, order, u32 length, pixels
+========================  =============  ==============================================
+
+Arrays are packed and unpacked by ``struct`` in one call each: no per-element Python loop.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass
+from typing import TypeVar
+
+from spec import wire
+from spec.errors import ParameterError, UsageError
+from spec.wire import ParamType, PixelFormat, PixelOrder
+
+_T = TypeVar("_T")
+
+
+def _trusted(cls: type[_T], **fields: object) -> _T:
+    """Build a value from fields the decoder already checked, skipping per-element work."""
+    obj = object.__new__(cls)
+    for name, value in fields.items():
+        object.__setattr__(obj, name, value)
+    return obj
+
+
+def _floats(values: object, what: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(v) for v in values)  # type: ignore[attr-defined]
+    except (TypeError, ValueError) as exc:
+        raise UsageError(f"{what}: expected a sequence of numbers ({exc})") from None
+
+
+@dataclass(frozen=True, slots=True)
+class FloatArray:
+    """A list of float64 values (any IEEE value, NaN allowed)."""
+
+    values: tuple[float, ...]
+
+    def __init__(self, values: object) -> None:
+        object.__setattr__(self, "values", _floats(values, "FloatArray"))
+
+
+@dataclass(frozen=True, slots=True)
+class IntArray:
+    """A list of signed 64-bit integers."""
+
+    values: tuple[int, ...]
+
+    def __init__(self, values: object) -> None:
+        try:
+            vals = tuple(int(v) for v in values)  # type: ignore[attr-defined]
+        except (TypeError, ValueError) as exc:
+            raise UsageError(f"IntArray: expected a sequence of integers ({exc})") from None
+        object.__setattr__(self, "values", vals)
+
+
+@dataclass(frozen=True, slots=True)
+class Joints:
+    """Joint positions in degrees, VAL3 zero (arm straight up); 1 to 16 axes."""
+
+    values: tuple[float, ...]
+
+    def __init__(self, values: object) -> None:
+        vals = _floats(values, "Joints")
+        if not 1 <= len(vals) <= wire.MAX_JOINTS:
+            raise UsageError(f"Joints: 1 to {wire.MAX_JOINTS} values, got {len(vals)}")
+        if not all(math.isfinite(v) for v in vals):
+            raise UsageError("Joints: values must be finite")
+        object.__setattr__(self, "values", vals)
+
+
+@dataclass(frozen=True, slots=True)
+class Location:
+    """A VAL3 location: x, y, z in mm, rx, ry, rz in degrees, R = Rx(rx)·Ry(ry)·Rz(rz)."""
+
+    x: float
+    y: float
+    z: float
+    rx: float
+    ry: float
+    rz: float
+
+    def __post_init__(self) -> None:
+        for name in ("x", "y", "z", "rx", "ry", "rz"):
+            value = float(getattr(self, name))
+            if not math.isfinite(value):
+                raise UsageError(f"Location.{name} must be finite")
+            object.__setattr__(self, name, value)
+
+    @classmethod
+    def of(cls, values: object) -> Location:
+        vals = _floats(values, "Location")
+        if len(vals) != 6:
+            raise UsageError(f"Location: 6 values (x, y, z, rx, ry, rz), got {len(vals)}")
+        return cls(*vals)
+
+    def as_tuple(self) -> tuple[float, float, float, float, float, float]:
+        return (self.x, self.y, self.z, self.rx, self.ry, self.rz)
+
+
+IDENTITY = (1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0)
+
+
+@dataclass(frozen=True, slots=True)
+class Transform:
+    """A 4x4 homogeneous transform, 16 values row-major, translation in mm."""
+
+    values: tuple[float, ...] = IDENTITY
+
+    def __init__(self, values: object = IDENTITY) -> None:
+        try:
+            flat = _floats(_flatten(values), "Transform")
+        except TypeError:
+            raise UsageError("Transform: expected 16 numbers or a 4x4 nested sequence") from None
+        if len(flat) != 16:
+            raise UsageError(f"Transform: 16 values, got {len(flat)}")
+        if not all(math.isfinite(v) for v in flat):
+            raise UsageError("Transform: values must be finite")
+        if flat[12:] != (0.0, 0.0, 0.0, 1.0):
+            raise UsageError("Transform: the last row must be 0 0 0 1")
+        object.__setattr__(self, "values", flat)
+
+    def rows(self) -> tuple[tuple[float, ...], ...]:
+        v = self.values
+        return (v[0:4], v[4:8], v[8:12], v[12:16])
+
+
+def _flatten(values: object) -> list[object]:
+    out: list[object] = []
+    for v in values:  # type: ignore[attr-defined]
+        if isinstance(v, int | float):
+            out.append(v)
+        else:
+            out.extend(v)
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class Matrix:
+    """A rows x cols float64 matrix, row-major; e.g. a joint log or profile points."""
+
+    rows: int
+    cols: int
+    values: tuple[float, ...]
+
+    def __init__(self, rows: int, cols: int, values: object) -> None:
+        vals = _floats(values, "Matrix")
+        if rows < 0 or cols < 0 or rows * cols != len(vals):
+            raise UsageError(f"Matrix: {rows}x{cols} needs {rows * cols} values, got {len(vals)}")
+        object.__setattr__(self, "rows", int(rows))
+        object.__setattr__(self, "cols", int(cols))
+        object.__setattr__(self, "values", vals)
+
+    def row(self, i: int) -> tuple[float, ...]:
+        return self.values[i * self.cols : (i + 1) * self.cols]
+
+    def to_rows(self) -> list[tuple[float, ...]]:
+        return [self.row(i) for i in range(self.rows)]
+
+
+@dataclass(frozen=True, slots=True)
+class Image:
+    """A camera frame: ``width`` columns, ``height`` rows, pixel bytes in ``order``."""
+
+    width: int
+    height: int
+    data: bytes
+    format: PixelFormat = PixelFormat.MONO8
+    order: PixelOrder = PixelOrder.ROW_MAJOR
+
+    def __post_init__(self) -> None:
+        if not (0 <= self.width <= 0xFFFF and 0 <= self.height <= 0xFFFF):
+            raise UsageError("Image: width and height must fit in 16 bits")
+        expected = self.width * self.height * wire.BYTES_PER_PIXEL[PixelFormat(self.format)]
+        if len(self.data) != expected:
+            raise UsageError(f"Image: {expected} pixel bytes expected, got {len(self.data)}")
+        if not isinstance(self.data, bytes):
+            object.__setattr__(self, "data", bytes(self.data))
+
+
+Value = (
+    int | float | bool | str | bytes | FloatArray | IntArray | Joints | Location | Transform
+) | (Matrix | Image)
+
+
+def type_of(value: Value) -> ParamType:
+    """The wire type a Python value is encoded as."""
+    if isinstance(value, bool):
+        return ParamType.BOOL
+    if isinstance(value, int):
+        return ParamType.INT
+    kind = _TYPE_OF_CLASS.get(type(value))
+    if kind is None:
+        raise UsageError(f"cannot encode a {type(value).__name__} as a parameter")
+    return kind
+
+
+_TYPE_OF_CLASS: dict[type, ParamType] = {
+    float: ParamType.FLOAT,
+    str: ParamType.STRING,
+    bytes: ParamType.BYTES,
+    FloatArray: ParamType.FLOAT_ARRAY,
+    IntArray: ParamType.INT_ARRAY,
+    Joints: ParamType.JOINTS,
+    Location: ParamType.LOCATION,
+    Transform: ParamType.TRANSFORM,
+    Matrix: ParamType.MATRIX,
+    Image: ParamType.IMAGE,
+}
+
+
+# --- encoding ---------------------------------------------------------------------------------
+
+
+def encode_params(params: tuple[Value, ...] | list[Value]) -> bytes:
+    """Encode a parameter list (count + tagged values)."""
+    return b"".join(encode_params_parts(params))
+
+
+def encode_params_parts(params: tuple[Value, ...] | list[Value]) -> list[bytes]:
+    """The encoded parameter list as chunks, so a frame is joined with one copy."""
+    if len(params) > 0xFFFF:
+        raise UsageError("at most 65535 parameters")
+    parts: list[bytes] = [wire.PARAM_COUNT.pack(len(params))]
+    for value in params:
+        parts.extend(_encode_value(value))
+    return parts
+
+
+def _encode_value(value: Value) -> tuple[bytes, ...]:
+    tag = type_of(value)
+    head = wire.TAG.pack(tag)
+    if tag is ParamType.BOOL:
+        return (head + (b"\x01" if value else b"\x00"),)
+    if tag is ParamType.INT:
+        assert isinstance(value, int)
+        if not -(1 << 63) <= value < (1 << 63):
+            raise UsageError(f"INT out of the signed 64-bit range: {value}")
+        return (head + wire.I64.pack(value),)
+    if isinstance(value, float):
+        return (head + wire.F64.pack(value),)
+    if isinstance(value, str):
+        raw = value.encode("utf-8")
+        return (head + wire.U32.pack(len(raw)) + raw,)
+    if isinstance(value, bytes):
+        return (head + wire.U32.pack(len(value)), value)
+    if isinstance(value, FloatArray):
+        n = len(value.values)
+        return (head + wire.U32.pack(n) + struct.pack(f">{n}d", *value.values),)
+    if isinstance(value, IntArray):
+        n = len(value.values)
+        try:
+            return (head + wire.U32.pack(n) + struct.pack(f">{n}q", *value.values),)
+        except struct.error as exc:
+            raise UsageError(f"IntArray: {exc}") from None
+    if isinstance(value, Joints):
+        n = len(value.values)
+        return (head + wire.U8.pack(n) + struct.pack(f">{n}d", *value.values),)
+    if isinstance(value, Location):
+        return (head + wire.LOCATION.pack(*value.as_tuple()),)
+    if isinstance(value, Transform):
+        return (head + wire.TRANSFORM.pack(*value.values),)
+    if isinstance(value, Matrix):
+        shape = wire.MATRIX_SHAPE.pack(value.rows, value.cols)
+        return (head + shape + struct.pack(f">{len(value.values)}d", *value.values),)
+    assert isinstance(value, Image)
+    meta = wire.IMAGE_HEADER.pack(
+        value.width, value.height, int(value.format), int(value.order), len(value.data)
+    )
+    return (head + meta, value.data)
+
+
+# --- decoding ---------------------------------------------------------------------------------
+
+
+def decode_params(payload: bytes | memoryview) -> tuple[Value, ...]:
+    """Decode a whole payload into its parameter list [RS-4.1]; raise :class:`ParameterError`."""
+    buf = memoryview(payload)
+    if len(buf) < wire.PARAM_COUNT.size:
+        raise ParameterError("payload shorter than the 2-byte parameter count")
+    (count,) = wire.PARAM_COUNT.unpack_from(buf, 0)
+    pos = wire.PARAM_COUNT.size
+    values: list[Value] = []
+    for index in range(count):
+        value, pos = _decode_value(buf, pos, index)
+        values.append(value)
+    if pos != len(buf):
+        # [RS-4.3] the parameter list must fill the payload exactly.
+        raise ParameterError(f"{len(buf) - pos} unexpected bytes after {count} parameters")
+    return tuple(values)
+
+
+def _need(buf: memoryview, pos: int, size: int, index: int, what: str) -> None:
+    if pos + size > len(buf):
+        raise ParameterError(f"parameter {index} ({what}) truncated")
+
+
+def _finite(values: tuple[float, ...], index: int, what: str) -> None:
+    if not all(math.isfinite(v) for v in values):
+        raise ParameterError(f"parameter {index} ({what}) must be finite")
+
+
+def _decode_value(buf: memoryview, pos: int, index: int) -> tuple[Value, int]:
+    _need(buf, pos, 1, index, "type tag")
+    raw_tag = buf[pos]
+    pos += 1
+    try:
+        tag = ParamType(raw_tag)
+    except ValueError:
+        raise ParameterError(f"parameter {index}: unknown type tag 0x{raw_tag:02x}") from None
+    name = tag.name
+    if tag is ParamType.INT:
+        _need(buf, pos, 8, index, name)
+        return wire.I64.unpack_from(buf, pos)[0], pos + 8
+    if tag is ParamType.FLOAT:
+        _need(buf, pos, 8, index, name)
+        return wire.F64.unpack_from(buf, pos)[0], pos + 8
+    if tag is ParamType.BOOL:
+        _need(buf, pos, 1, index, name)
+        if buf[pos] > 1:
+            raise ParameterError(f"parameter {index}: BOOL must be 0 or 1, got {buf[pos]}")
+        return buf[pos] == 1, pos + 1
+    if tag in (ParamType.STRING, ParamType.BYTES):
+        _need(buf, pos, 4, index, name)
+        (n,) = wire.U32.unpack_from(buf, pos)
+        pos += 4
+        _need(buf, pos, n, index, name)
+        raw = bytes(buf[pos : pos + n])
+        if tag is ParamType.BYTES:
+            return raw, pos + n
+        try:
+            return raw.decode("utf-8"), pos + n
+        except UnicodeDecodeError:
+            raise ParameterError(f"parameter {index}: STRING is not valid UTF-8") from None
+    if tag in (ParamType.FLOAT_ARRAY, ParamType.INT_ARRAY):
+        _need(buf, pos, 4, index, name)
+        (n,) = wire.U32.unpack_from(buf, pos)
+        pos += 4
+        _need(buf, pos, 8 * n, index, name)
+        code = "d" if tag is ParamType.FLOAT_ARRAY else "q"
+        vals = struct.unpack_from(f">{n}{code}", buf, pos)
+        if code == "d":
+            return _trusted(FloatArray, values=vals), pos + 8 * n
+        return _trusted(IntArray, values=vals), pos + 8 * n
+    if tag is ParamType.JOINTS:
+        _need(buf, pos, 1, index, name)
+        n = buf[pos]
+        pos += 1
+        if not 1 <= n <= wire.MAX_JOINTS:
+            raise ParameterError(f"parameter {index}: JOINTS count {n} not in 1..16")
+        _need(buf, pos, 8 * n, index, name)
+        joints = struct.unpack_from(f">{n}d", buf, pos)
+        _finite(joints, index, name)
+        return _trusted(Joints, values=joints), pos + 8 * n
+    if tag is ParamType.LOCATION:
+        _need(buf, pos, wire.LOCATION.size, index, name)
+        loc = wire.LOCATION.unpack_from(buf, pos)
+        _finite(loc, index, name)
+        return Location(*loc), pos + wire.LOCATION.size
+    if tag is ParamType.TRANSFORM:
+        _need(buf, pos, wire.TRANSFORM.size, index, name)
+        t = wire.TRANSFORM.unpack_from(buf, pos)
+        _finite(t, index, name)
+        if t[12:] != (0.0, 0.0, 0.0, 1.0):
+            raise ParameterError(f"parameter {index}: TRANSFORM last row must be 0 0 0 1")
+        return _trusted(Transform, values=t), pos + wire.TRANSFORM.size
+    if tag is ParamType.MATRIX:
+        _need(buf, pos, wire.MATRIX_SHAPE.size, index, name)
+        rows, cols = wire.MATRIX_SHAPE.unpack_from(buf, pos)
+        pos += wire.MATRIX_SHAPE.size
+        n = rows * cols
+        _need(buf, pos, 8 * n, index, name)
+        vals = struct.unpack_from(f">{n}d", buf, pos)
+        return _trusted(Matrix, rows=rows, cols=cols, values=vals), pos + 8 * n
+    # IMAGE
+    _need(buf, pos, wire.IMAGE_HEADER.size, index, name)
+    width, height, fmt, order, n = wire.IMAGE_HEADER.unpack_from(buf, pos)
+    pos += wire.IMAGE_HEADER.size
+    try:
+        pixel_format, pixel_order = PixelFormat(fmt), PixelOrder(order)
+    except ValueError:
+        msg = f"parameter {index}: unknown image format {fmt} / order {order}"
+        raise ParameterError(msg) from None
+    if n != width * height * wire.BYTES_PER_PIXEL[pixel_format]:
+        raise ParameterError(f"parameter {index}: IMAGE length {n} != width*height*bpp")
+    _need(buf, pos, n, index, name)
+    image = Image(width, height, bytes(buf[pos : pos + n]), pixel_format, pixel_order)
+    return image, pos + n
