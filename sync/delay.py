@@ -1,0 +1,400 @@
+"""Measuring the time delay ΔT (paper section VI, eqs. 6-7) and checking it (Fig. 9).
+
+The experiment moves the sensor in a sine perpendicular to a straight seam. The robot gives
+the lateral displacement y^R(t_k^R) of the sensor tool from its joints (every T_r = 4 ms);
+the sensor gives y^S(t_i^T), stamped with the trigger send times. Both are upsampled to
+5 kHz (t_j = j · 0.2 ms, linear interpolation) and the mean-squared error is evaluated for
+each candidate delay on the 0.2 ms grid; a parabola through the minimum and its neighbours
+gives the sub-grid estimate.
+
+Sign convention. A reading stamped t_i^T was taken at t_i^S = t_i^T + ΔT (eq. 4), so it must
+match the robot at t_i^T + ΔT. This module therefore minimises
+
+    MSE(ΔT) = mean_j (y^S(t_j) - y^R(t_j + ΔT))^2,
+
+which is eq. 6 with the shift moved to the robot signal; read literally, eq. 6
+(y^S(t_j + ΔT) - y^R(t_j)) has its minimum at -ΔT. The estimate is positive for a sensor
+that measures after the trigger was sent.
+
+Each MSE value is a mean over the samples that overlap for that shift (the overlap shrinks
+as the shift grows); a plain sum would be biased towards shifts with less overlap by a few
+tenths of a millisecond. The estimate includes the *mean* trigger-to-exposure jitter: that
+is the delay the synchronisation should apply.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = [
+    "DEFAULT_GRID_STEP_S",
+    "DelayEstimate",
+    "DelayEstimateError",
+    "NoInteriorMinimumError",
+    "ResidualReport",
+    "ResidualStats",
+    "SineExperiment",
+    "estimate_delay",
+    "residual_after_sync",
+    "simulate_sine_experiment",
+    "upsample",
+]
+
+DEFAULT_GRID_STEP_S = 0.2e-3
+"""Common time grid of section VI: 5 kHz."""
+
+
+class DelayEstimateError(ValueError):
+    """The inputs cannot give a delay estimate (shapes, no overlap, too few samples)."""
+
+
+@dataclass(frozen=True)
+class DelayEstimate:
+    """Result of :func:`estimate_delay`.
+
+    Attributes:
+        delta_t_s: estimated ΔT in seconds (parabola vertex; the grid value at an edge).
+        shifts_s: candidate delays on the grid, shape (S,), seconds.
+        mse: MSE(ΔT) per candidate, shape (S,), in squared input units (mm^2 for mm).
+        overlap: number of grid samples averaged per candidate, shape (S,).
+        min_index: index of the smallest MSE in ``shifts_s``.
+        at_edge: the minimum lies at the edge of the search range (no interior minimum;
+            widen the range).
+        grid_step_s: the grid step (0.2 ms by default).
+    """
+
+    delta_t_s: float
+    shifts_s: NDArray[np.float64]
+    mse: NDArray[np.float64]
+    overlap: NDArray[np.int64]
+    min_index: int
+    at_edge: bool
+    grid_step_s: float
+
+
+class NoInteriorMinimumError(DelayEstimateError):
+    """The MSE minimum is at the edge of the search range; ``estimate`` holds the curve."""
+
+    def __init__(self, estimate: DelayEstimate) -> None:
+        lo, hi = estimate.shifts_s[0], estimate.shifts_s[-1]
+        super().__init__(
+            f"MSE minimum at the edge of the search range [{lo * 1e3:.2f}, {hi * 1e3:.2f}] ms"
+            f" (at {estimate.shifts_s[estimate.min_index] * 1e3:.2f} ms): widen the range"
+        )
+        self.estimate = estimate
+
+
+def _check_signal(name: str, t: NDArray[np.float64], y: NDArray[np.float64]) -> None:
+    if t.ndim != 1 or y.shape != t.shape:
+        raise DelayEstimateError(f"{name}: expected times (N,) and values (N,), got {t.shape}")
+    if t.size < 2:
+        raise DelayEstimateError(f"{name}: need at least 2 samples, got {t.size}")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(y))):
+        raise DelayEstimateError(f"{name}: times and values must be finite")
+    if not np.all(np.diff(t) > 0):
+        raise DelayEstimateError(f"{name}: times must be strictly increasing")
+
+
+def upsample(
+    times: ArrayLike, values: ArrayLike, grid_step_s: float = DEFAULT_GRID_STEP_S
+) -> tuple[int, NDArray[np.float64]]:
+    """Linearly interpolate a signal onto the grid t_j = j · step inside its time span.
+
+    Returns ``(j0, y)``: the first grid index and the values at t_{j0}, t_{j0+1}, ...
+    """
+    t = np.asarray(times, dtype=np.float64)
+    y = np.asarray(values, dtype=np.float64)
+    _check_signal("signal", t, y)
+    if not (math.isfinite(grid_step_s) and grid_step_s > 0):
+        raise DelayEstimateError(f"grid step must be positive, got {grid_step_s}")
+    j0 = math.ceil(t[0] / grid_step_s - 1e-9)
+    j1 = math.floor(t[-1] / grid_step_s + 1e-9)
+    if j1 < j0:
+        raise DelayEstimateError("signal span is shorter than one grid step")
+    grid = np.arange(j0, j1 + 1, dtype=np.float64) * grid_step_s
+    return j0, np.interp(grid, t, y)
+
+
+def _mse_curve(
+    jr: int,
+    yr: NDArray[np.float64],
+    js: int,
+    ys: NDArray[np.float64],
+    shifts: NDArray[np.int64],
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """mean_j (ys[j] - yr[j + m])^2 over the overlap, per shift m (grid steps)."""
+    mse = np.full(shifts.shape[0], np.inf)
+    overlap = np.zeros(shifts.shape[0], dtype=np.int64)
+    r_end = jr + yr.shape[0]
+    s_end = js + ys.shape[0]
+    for n, m in enumerate(shifts.tolist()):
+        lo = max(js, jr - m)
+        hi = min(s_end, r_end - m)
+        if hi - lo < 2:
+            continue
+        e = ys[lo - js : hi - js] - yr[lo + m - jr : hi + m - jr]
+        mse[n] = float(np.dot(e, e)) / (hi - lo)
+        overlap[n] = hi - lo
+    return mse, overlap
+
+
+def estimate_delay(
+    t_robot: ArrayLike,
+    y_robot: ArrayLike,
+    t_trigger: ArrayLike,
+    y_sensor: ArrayLike,
+    *,
+    search_min_s: float = 0.0,
+    search_max_s: float = 20e-3,
+    grid_step_s: float = DEFAULT_GRID_STEP_S,
+    fit_half_width: int = 1,
+    require_interior: bool = True,
+) -> DelayEstimate:
+    """Estimate ΔT from the sine experiment (eqs. 6-7 plus the parabola fit).
+
+    Args:
+        t_robot: robot sample times t_k^R, shape (K,), seconds, strictly increasing.
+        y_robot: sensor-tool lateral displacement from the joints, shape (K,), e.g. mm.
+        t_trigger: trigger send times t_i^T of the sensor readings, shape (I,), seconds.
+        y_sensor: sensor readings y^S, shape (I,), same unit as ``y_robot``.
+        search_min_s, search_max_s: searched delay range in seconds (negative allowed).
+        grid_step_s: the common grid (0.2 ms = 5 kHz).
+        fit_half_width: the parabola is fitted (least squares) through the minimum and this
+            many grid neighbours on each side; 1 is the paper's three-point fit.
+        require_interior: raise :class:`NoInteriorMinimumError` when the minimum is at the
+            edge of the range; otherwise return with ``at_edge=True`` and the grid value.
+
+    Returns:
+        :class:`DelayEstimate` with the MSE curve.
+    """
+    tr = np.asarray(t_robot, dtype=np.float64)
+    yr_in = np.asarray(y_robot, dtype=np.float64)
+    ts = np.asarray(t_trigger, dtype=np.float64)
+    ys_in = np.asarray(y_sensor, dtype=np.float64)
+    _check_signal("robot", tr, yr_in)
+    _check_signal("sensor", ts, ys_in)
+    if fit_half_width < 1:
+        raise DelayEstimateError("fit_half_width must be >= 1")
+    if not (math.isfinite(search_min_s) and math.isfinite(search_max_s)):
+        raise DelayEstimateError("search range must be finite")
+    m_lo = round(search_min_s / grid_step_s)
+    m_hi = round(search_max_s / grid_step_s)
+    if m_hi - m_lo < 2 * fit_half_width:
+        raise DelayEstimateError("search range must span at least 2 * fit_half_width grid steps")
+    jr, yr = upsample(tr, yr_in, grid_step_s)
+    js, ys = upsample(ts, ys_in, grid_step_s)
+    shifts = np.arange(m_lo, m_hi + 1, dtype=np.int64)
+    shifts_s = shifts.astype(np.float64) * grid_step_s
+    mse, overlap = _mse_curve(jr, yr, js, ys, shifts)
+    if not np.all(np.isfinite(mse)):
+        raise DelayEstimateError("robot and sensor signals do not overlap for every searched delay")
+    i = int(np.argmin(mse))
+    h = fit_half_width
+    at_edge = i < h or i > shifts.shape[0] - 1 - h
+    if at_edge:
+        est = DelayEstimate(
+            delta_t_s=float(shifts[i] * grid_step_s),
+            shifts_s=shifts_s,
+            mse=mse,
+            overlap=overlap,
+            min_index=i,
+            at_edge=True,
+            grid_step_s=grid_step_s,
+        )
+        if require_interior:
+            raise NoInteriorMinimumError(est)
+        return est
+    # Fit in grid-step units centred on the minimum, so the normal equations stay well scaled.
+    x = np.arange(-h, h + 1, dtype=np.float64)
+    a, b, _ = np.polyfit(x, mse[i - h : i + h + 1], 2)
+    # Flat or concave around the grid minimum: keep the grid value.
+    vertex = float(np.clip(-b / (2.0 * a), -h, h)) if a > 0 else 0.0
+    return DelayEstimate(
+        delta_t_s=float((shifts[i] + vertex) * grid_step_s),
+        shifts_s=shifts_s,
+        mse=mse,
+        overlap=overlap,
+        min_index=i,
+        at_edge=False,
+        grid_step_s=grid_step_s,
+    )
+
+
+@dataclass(frozen=True)
+class ResidualStats:
+    """Residual y^S(t_i^T) - y^R(t_i^T + ΔT) over the sensor readings inside the robot span.
+
+    ``max_um``, ``rms_um`` and ``sine_amplitude_um`` are in µm when the inputs are in mm (the
+    ``unit_to_um`` factor of :func:`residual_after_sync`). ``sine_amplitude_um`` is the
+    amplitude of a least-squares sine at the experiment frequency (NaN without a frequency).
+    """
+
+    delta_t_s: float
+    times_s: NDArray[np.float64]
+    residual_um: NDArray[np.float64]
+    max_um: float
+    rms_um: float
+    sine_amplitude_um: float
+
+
+@dataclass(frozen=True)
+class ResidualReport:
+    """The residual with the estimated ΔT (Fig. 9) and without synchronisation (ΔT = 0)."""
+
+    synced: ResidualStats
+    unsynced: ResidualStats
+
+
+def _sine_amplitude(t: NDArray[np.float64], r: NDArray[np.float64], frequency_hz: float) -> float:
+    w = 2.0 * math.pi * frequency_hz
+    basis = np.column_stack([np.sin(w * t), np.cos(w * t), np.ones_like(t)])
+    coef, *_ = np.linalg.lstsq(basis, r, rcond=None)
+    return float(math.hypot(coef[0], coef[1]))
+
+
+def _residual(
+    tr: NDArray[np.float64],
+    yr: NDArray[np.float64],
+    ts: NDArray[np.float64],
+    ys: NDArray[np.float64],
+    delta_t_s: float,
+    frequency_hz: float | None,
+    scale: float,
+) -> ResidualStats:
+    t_s = ts + delta_t_s  # eq. 4
+    inside = (t_s >= tr[0]) & (t_s <= tr[-1])
+    if np.count_nonzero(inside) < 4:
+        raise DelayEstimateError("fewer than 4 sensor readings fall inside the robot time span")
+    t_in = t_s[inside]
+    r = (ys[inside] - np.interp(t_in, tr, yr)) * scale
+    amp = math.nan
+    if frequency_hz is not None:
+        amp = _sine_amplitude(t_in, r, frequency_hz)
+    return ResidualStats(
+        delta_t_s=float(delta_t_s),
+        times_s=t_in,
+        residual_um=r,
+        max_um=float(np.max(np.abs(r))),
+        rms_um=float(np.sqrt(np.mean(r * r))),
+        sine_amplitude_um=amp,
+    )
+
+
+def residual_after_sync(
+    t_robot: ArrayLike,
+    y_robot: ArrayLike,
+    t_trigger: ArrayLike,
+    y_sensor: ArrayLike,
+    delta_t_s: float,
+    *,
+    frequency_hz: float | None = None,
+    unit_to_um: float = 1000.0,
+) -> ResidualReport:
+    """Apply ΔT (eq. 4) and compare each reading with the robot interpolated at t_i^T + ΔT.
+
+    Args:
+        t_robot, y_robot: robot times (K,) s and displacements (K,) (mm by default).
+        t_trigger, y_sensor: trigger send times (I,) s and sensor readings (I,).
+        delta_t_s: the delay to apply, seconds.
+        frequency_hz: the sine frequency, for the residual's amplitude at that frequency
+            (a remaining sine means a wrong ΔT).
+        unit_to_um: factor from the input unit to µm (1000 for mm).
+
+    Returns:
+        :class:`ResidualReport`: the same figures with ``delta_t_s`` and with ΔT = 0.
+    """
+    tr = np.asarray(t_robot, dtype=np.float64)
+    yr = np.asarray(y_robot, dtype=np.float64)
+    ts = np.asarray(t_trigger, dtype=np.float64)
+    ys = np.asarray(y_sensor, dtype=np.float64)
+    _check_signal("robot", tr, yr)
+    _check_signal("sensor", ts, ys)
+    if not math.isfinite(delta_t_s):
+        raise DelayEstimateError("delta_t_s must be finite")
+    return ResidualReport(
+        synced=_residual(tr, yr, ts, ys, delta_t_s, frequency_hz, unit_to_um),
+        unsynced=_residual(tr, yr, ts, ys, 0.0, frequency_hz, unit_to_um),
+    )
+
+
+@dataclass(frozen=True)
+class SineExperiment:
+    """Synthetic data of the section VI experiment (see :func:`simulate_sine_experiment`).
+
+    ``t_robot``/``y_robot``: robot times (K,) s and tool displacement (K,) mm;
+    ``t_trigger``/``y_sensor``: trigger send times (I,) s and sensor readings (I,) mm;
+    ``t_exposure``: the true measurement times (I,) s. ``expected_delta_t_s`` is the delay
+    plus the mean jitter, i.e. what the estimator should return.
+    """
+
+    t_robot: NDArray[np.float64]
+    y_robot: NDArray[np.float64]
+    t_trigger: NDArray[np.float64]
+    y_sensor: NDArray[np.float64]
+    t_exposure: NDArray[np.float64]
+    delay_s: float
+    mean_jitter_s: float
+    amplitude_mm: float
+    frequency_hz: float
+
+    @property
+    def expected_delta_t_s(self) -> float:
+        """True delay plus mean trigger-to-exposure jitter, seconds."""
+        return self.delay_s + self.mean_jitter_s
+
+
+def simulate_sine_experiment(
+    rng: np.random.Generator,
+    *,
+    frequency_hz: float = 1.5,
+    amplitude_mm: float = 2.0,
+    duration_s: float = 10.0,
+    delay_s: float = 4.9e-3,
+    robot_period_s: float = 4e-3,
+    trigger_period_s: float = 4e-3,
+    trigger_phase_s: float | None = None,
+    jitter_uniform_s: float = 0.5e-3,
+    jitter_normal_s: float = 0.1e-3,
+    sensor_noise_mm: float = 0.01,
+    robot_noise_mm: float = 0.0,
+) -> SineExperiment:
+    """Generate the sine experiment with the paper's timing.
+
+    The tool follows y(t) = A sin(2π f t) exactly. The robot samples it at k · T_r. Triggers
+    are sent at phase + i · trigger_period (the phase is drawn uniformly in [0, period) when
+    not given, so trigger and robot sample instants are unrelated); each image is taken at
+    t_i^T + delay + U(0, jitter_uniform) + N(0, jitter_normal) and read with N(0, noise).
+    """
+    if not (duration_s > 0 and robot_period_s > 0 and trigger_period_s > 0):
+        raise ValueError("duration and periods must be positive")
+    if trigger_phase_s is None:
+        trigger_phase_s = float(rng.uniform(0.0, trigger_period_s))
+    w = 2.0 * math.pi * frequency_hz
+    t_r = np.arange(0, int(duration_s / robot_period_s + 1e-9) + 1, dtype=np.float64)
+    t_r *= robot_period_s
+    y_r = amplitude_mm * np.sin(w * t_r)
+    if robot_noise_mm > 0:
+        y_r = y_r + rng.normal(0.0, robot_noise_mm, t_r.shape)
+    n_trig = int((duration_s - trigger_phase_s) / trigger_period_s) + 1
+    t_t = np.arange(n_trig, dtype=np.float64) * trigger_period_s + trigger_phase_s
+    t_t = t_t[t_t <= duration_s]
+    jitter = rng.uniform(0.0, jitter_uniform_s, t_t.shape)
+    if jitter_normal_s > 0:
+        jitter = jitter + rng.normal(0.0, jitter_normal_s, t_t.shape)
+    t_x = t_t + delay_s + jitter
+    y_s = amplitude_mm * np.sin(w * t_x) + rng.normal(0.0, sensor_noise_mm, t_t.shape)
+    return SineExperiment(
+        t_robot=t_r,
+        y_robot=y_r,
+        t_trigger=t_t,
+        y_sensor=y_s,
+        t_exposure=t_x,
+        delay_s=delay_s,
+        mean_jitter_s=jitter_uniform_s / 2.0,
+        amplitude_mm=amplitude_mm,
+        frequency_hz=frequency_hz,
+    )
