@@ -1,0 +1,124 @@
+"""Sans-I/O codec of the UDP synchronisation datagrams (PROTOCOL.md section 9).
+
+Trigger: robot -> sensor, index i and send time t_i^T. Data: sensor -> robot, the same index,
+a status, the seam location ^S_G T, a quality figure and the sensor's own timestamps. A bad
+datagram raises :class:`DatagramError`; receivers count it and drop it [SY-1.4].
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+from dataclasses import dataclass
+
+from spec import wire
+from spec.errors import DatagramError, UsageError
+from spec.wire import DatagramKind, SensorStatus
+
+INDEX_MODULUS = 1 << 32
+
+
+@dataclass(frozen=True, slots=True)
+class Trigger:
+    """Trigger datagram: start one acquisition [SY-2.1]."""
+
+    index: int
+    t_trigger: float  # robot clock, s
+
+
+@dataclass(frozen=True, slots=True)
+class SensorData:
+    """Data datagram: the measurement of the acquisition started by trigger ``index``."""
+
+    index: int
+    status: SensorStatus
+    seam: tuple[float, float, float, float, float, float]  # ^S_G T as a VAL3 location
+    quality: float
+    t_trigger: float  # t_i^T echoed from the trigger, robot clock, s
+    t_arrival: float  # sensor clock, s
+    t_exposure_start: float  # sensor clock, s
+    t_exposure_end: float  # sensor clock, s
+
+
+Datagram = Trigger | SensorData
+
+
+def _header(kind: DatagramKind, index: int) -> bytes:
+    if not 0 <= index < INDEX_MODULUS:
+        raise UsageError(f"datagram index {index} does not fit in 32 bits")
+    return wire.DATAGRAM_HEADER.pack(
+        wire.DATAGRAM_MAGIC, wire.VERSION_MAJOR, wire.VERSION_MINOR, int(kind), 0, index
+    )
+
+
+def _seal(body: bytes) -> bytes:
+    return body + wire.TRAILER.pack(zlib.crc32(body))
+
+
+def encode_trigger(trigger: Trigger) -> bytes:
+    return _seal(
+        _header(DatagramKind.TRIGGER, trigger.index) + wire.TRIGGER_BODY.pack(trigger.t_trigger)
+    )
+
+
+def encode_data(data: SensorData) -> bytes:
+    if len(data.seam) != 6:
+        raise UsageError("seam must be a 6-value VAL3 location")
+    body = wire.DATA_BODY.pack(
+        int(data.status),
+        0,
+        *data.seam,
+        data.quality,
+        data.t_trigger,
+        data.t_arrival,
+        data.t_exposure_start,
+        data.t_exposure_end,
+    )
+    return _seal(_header(DatagramKind.DATA, data.index) + body)
+
+
+def encode_datagram(datagram: Datagram) -> bytes:
+    if isinstance(datagram, Trigger):
+        return encode_trigger(datagram)
+    return encode_data(datagram)
+
+
+def decode_datagram(raw: bytes | bytearray | memoryview) -> Datagram:
+    """Decode one datagram; raise :class:`DatagramError` for anything malformed."""
+    buf = bytes(raw)
+    head = wire.DATAGRAM_HEADER.size
+    if len(buf) < head + wire.TRAILER_SIZE:
+        raise DatagramError(f"datagram of {len(buf)} bytes is shorter than a header")
+    magic, major, _minor, kind, flags, index = wire.DATAGRAM_HEADER.unpack_from(buf, 0)
+    if magic != wire.DATAGRAM_MAGIC:
+        raise DatagramError(f"bad datagram magic {magic.hex()}, expected 5359")
+    (crc,) = wire.TRAILER.unpack_from(buf, len(buf) - wire.TRAILER_SIZE)
+    if zlib.crc32(buf[: -wire.TRAILER_SIZE]) != crc:
+        raise DatagramError("datagram CRC-32 mismatch")
+    if major != wire.VERSION_MAJOR:
+        raise DatagramError(f"datagram version {major} not supported")
+    if flags != 0:
+        raise DatagramError(f"reserved datagram flags must be 0, got 0x{flags:02x}")
+    if kind == DatagramKind.TRIGGER:
+        if len(buf) != wire.TRIGGER_SIZE:
+            raise DatagramError(f"trigger datagram must be {wire.TRIGGER_SIZE} bytes")
+        (t_trigger,) = wire.TRIGGER_BODY.unpack_from(buf, head)
+        if not math.isfinite(t_trigger):
+            raise DatagramError("trigger time must be finite")
+        return Trigger(index, t_trigger)
+    if kind == DatagramKind.DATA:
+        if len(buf) != wire.DATA_SIZE:
+            raise DatagramError(f"data datagram must be {wire.DATA_SIZE} bytes")
+        fields = wire.DATA_BODY.unpack_from(buf, head)
+        try:
+            status = SensorStatus(fields[0])
+        except ValueError:
+            raise DatagramError(f"unknown sensor status {fields[0]}") from None
+        seam = fields[2:8]
+        t_arr, t_start, t_end = fields[10:13]
+        if not all(math.isfinite(v) for v in (fields[9], t_arr, t_start, t_end)):
+            raise DatagramError("datagram timestamps must be finite")
+        if status is SensorStatus.FOUND and not all(math.isfinite(v) for v in seam):
+            raise DatagramError("a FOUND seam location must be finite")
+        return SensorData(index, status, seam, fields[8], fields[9], t_arr, t_start, t_end)
+    raise DatagramError(f"unknown datagram kind {kind}")
