@@ -594,12 +594,19 @@ def lookup(command: int, service: str) -> CommandSpec | None:
 
 
 def check_params(
-    specs: tuple[ParamSpec, ...], values: tuple[Value, ...], what: str = "request"
+    specs: tuple[ParamSpec, ...],
+    values: tuple[Value, ...],
+    what: str = "request",
+    *,
+    allow_extra: bool = False,
 ) -> None:
     """Raise :class:`ParameterError` unless ``values`` match ``specs`` in count and type
-    [RS-5.4]."""
+    [RS-5.4]. ``allow_extra`` accepts trailing parameters a newer minor version added
+    (receivers of replies ignore them [RS-5.6])."""
     required = sum(1 for s in specs if not s.optional and not s.repeated)
     repeated = bool(specs) and specs[-1].repeated
+    if allow_extra and len(values) > len(specs) and not repeated:
+        values = values[: len(specs)]
     if len(values) < required or (not repeated and len(values) > len(specs)):
         names = ", ".join(f"{s.name}:{s.type.name}" for s in specs) or "none"
         raise ParameterError(

@@ -1,0 +1,526 @@
+"""The framed TCP server shell both services share (PROTOCOL.md section 7).
+
+A thread per connection reads bytes, feeds the sans-I/O :class:`FrameDecoder` and answers each
+request in order. The shell owns every policy that is not a command's business: the allow-list,
+the client limit, frame size and timeouts, error packets for malformed frames, the common
+commands (Hello, Ping, TakeControl, ReleaseControl, GetTime), control ownership, parameter
+checks against the registry, and statistics. A service implements :class:`Service`.
+
+The server never dies from what a client sends: every rejection becomes an error packet or a
+clean close, and a failing handler becomes an INTERNAL_ERROR reply [RS-7.9].
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import logging
+import selectors
+import signal
+import socket
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from types import FrameType
+from typing import Any
+
+from spec import wire
+from spec.codec import FrameDecoder, Packet, Rejected, encode_packet, error_packet
+from spec.errors import ErrorCode, PeerError, ProtocolError
+from spec.params import IntArray, Value
+from spec.registry import CommandId, CommandSpec, check_params, commands_for, lookup
+from spec.wire import PacketKind
+
+log = logging.getLogger(__name__)
+
+Network = ipaddress.IPv4Network | ipaddress.IPv6Network
+
+
+@dataclass(frozen=True)
+class ServerPolicy:
+    """Connection policies (PROTOCOL.md section 7); the defaults are the spec's SHOULDs."""
+
+    max_clients: int = 64
+    max_payload: int = wire.DEFAULT_MAX_PAYLOAD
+    frame_timeout: float = 5.0  # s to finish a frame once its first byte arrived [RS-7.5]
+    idle_timeout: float = 300.0  # s without any byte before the server closes [RS-7.6]
+    allow: tuple[Network, ...] = ()  # empty: every client that can reach the address
+    token: str | None = None  # TakeControl must present it when set [RS-7.3]
+
+    def allows(self, host: str) -> bool:
+        if not self.allow:
+            return True
+        try:
+            address = ipaddress.ip_address(host.split("%")[0])
+        except ValueError:
+            return False
+        return any(address in net for net in self.allow)
+
+
+def parse_networks(items: Iterable[str]) -> tuple[Network, ...]:
+    """CIDR strings (``10.0.0.0/8``, ``127.0.0.1``) to networks; ValueError names the bad one."""
+    nets: list[Network] = []
+    for item in items:
+        try:
+            nets.append(ipaddress.ip_network(item, strict=False))
+        except ValueError:
+            msg = f"not a network address: {item!r} (use CIDR, e.g. 10.0.0.0/24)"
+            raise ValueError(msg) from None
+    return tuple(nets)
+
+
+@dataclass(frozen=True)
+class Identity:
+    """What Hello reports about the endpoint."""
+
+    service: str
+    vendor: str = "reference"
+    model: str = "emulator"
+    serial: str = "0"
+    software: str = "0.1.0"
+
+
+class Session:
+    """One client connection, as the service sees it."""
+
+    def __init__(self, server: FramedServer, sock: socket.socket, peer: tuple[Any, ...]) -> None:
+        self.server = server
+        self.sock = sock
+        self.peer = peer
+        self.id = next(server._session_ids)
+        self._send_lock = threading.Lock()
+        self.closed = False
+
+    @property
+    def in_control(self) -> bool:
+        return self.server.control_holder is self
+
+    def send(self, packet: Packet) -> None:
+        data = encode_packet(packet, max_payload=wire.MAX_PAYLOAD)
+        with self._send_lock:
+            self.sock.sendall(data)
+        self.server._count("bytes_out", len(data))
+
+    def __repr__(self) -> str:
+        return f"<Session {self.id} {self.peer[0]}:{self.peer[1]}>"
+
+
+class Service:
+    """What a RobotSocket or SensorSocket implementation provides to the shell."""
+
+    identity: Identity
+
+    def handle(
+        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
+        """Execute a request whose parameters already match ``spec``; return the reply
+        parameters or raise :class:`ProtocolError`."""
+        raise ProtocolError(f"{spec.name} not implemented", ErrorCode.NOT_SUPPORTED)
+
+    def implemented(self) -> tuple[int, ...]:
+        """Command IDs this service answers (default: all of its service in the registry)."""
+        return tuple(int(c.id) for c in commands_for(self.identity.service))
+
+    def clock(self) -> float:
+        """The service clock in seconds (GetTime, status timestamps)."""
+        return time.monotonic()
+
+    def on_control_lost(self, session: Session) -> None:
+        """The controlling connection dropped: stop what it started in a controlled way."""
+
+    def on_disconnect(self, session: Session) -> None:
+        """A connection closed (after control was released)."""
+
+
+class FramedServer:
+    """Threaded TCP server shell; ``serve_forever`` in a thread, ``shutdown`` to stop."""
+
+    def __init__(
+        self,
+        service: Service,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        policy: ServerPolicy | None = None,
+    ) -> None:
+        self.service = service
+        self.policy = policy or ServerPolicy()
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        self._listener = socket.socket(family, socket.SOCK_STREAM)
+        self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            self._listener.bind((host, port))
+        except OSError:
+            self._listener.close()
+            raise
+        self._listener.listen(128)
+        self.address: tuple[str, int] = self._listener.getsockname()[:2]
+        self._sessions: set[Session] = set()
+        self._lock = threading.Lock()
+        self._stats: Counter[str] = Counter()
+        self._rejected: Counter[str] = Counter()
+        self._session_ids = iter(range(1, 1 << 62))
+        self._shutdown = threading.Event()
+        self._stopped = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.control_holder: Session | None = None
+        self.handler_errors: list[BaseException] = []
+        self._implemented = frozenset(service.implemented()) | {int(c) for c in _COMMON}
+
+    # --- lifecycle ---------------------------------------------------------------------------
+
+    def start(self) -> FramedServer:
+        """Serve in a background thread; returns self."""
+        self._thread = threading.Thread(
+            target=self.serve_forever, name=f"{self.service.identity.service}-server", daemon=True
+        )
+        self._thread.start()
+        return self
+
+    def serve_forever(self, poll_interval: float = 0.2) -> None:
+        log.info("%s server listening on %s:%d", self.service.identity.service, *self.address[:2])
+        self._listener.setblocking(False)
+        try:
+            with selectors.DefaultSelector() as sel:
+                sel.register(self._listener, selectors.EVENT_READ)
+                while not self._shutdown.is_set():
+                    if sel.select(poll_interval):
+                        self._accept()
+        finally:
+            self._stopped.set()
+
+    def shutdown(self, timeout: float = 5.0) -> None:
+        """Stop accepting, close every connection, wait for the threads."""
+        self._shutdown.set()
+        if self._thread is not None:
+            self._stopped.wait(timeout)
+        with self._lock:
+            sessions = list(self._sessions)
+        for s in sessions:
+            _close_quietly(s.sock)
+        self._listener.close()
+        if self._thread is not None:
+            self._thread.join(timeout)
+
+    def __enter__(self) -> FramedServer:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.shutdown()
+
+    # --- statistics --------------------------------------------------------------------------
+
+    def _count(self, key: str, n: int = 1) -> None:
+        with self._lock:
+            self._stats[key] += n
+
+    def statistics(self) -> dict[str, Any]:
+        """Counters: connections, frames in, replies, errors sent, rejected frames by code."""
+        with self._lock:
+            stats: dict[str, Any] = {
+                k: self._stats.get(k, 0)
+                for k in (
+                    "connections",
+                    "frames_in",
+                    "replies",
+                    "errors_sent",
+                    "rejected",
+                    "refused_busy",
+                    "refused_address",
+                    "timeouts",
+                    "handler_errors",
+                    "bytes_in",
+                    "bytes_out",
+                )
+            }
+            stats["clients"] = len(self._sessions)
+            stats["rejected_by_code"] = dict(self._rejected)
+        return stats
+
+    # --- connections -------------------------------------------------------------------------
+
+    def _accept(self) -> None:
+        try:
+            sock, peer = self._listener.accept()
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:
+            if not self._shutdown.is_set():
+                log.exception("accept failed")
+            return
+        sock.setblocking(True)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        if not self.policy.allows(peer[0]):
+            # [RS-7.7] a client outside the allow-list is closed before any byte is read.
+            self._count("refused_address")
+            log.warning("refused %s: not in the allow-list", peer[0])
+            _close_quietly(sock)
+            return
+        with self._lock:
+            full = len(self._sessions) >= self.policy.max_clients
+            session = Session(self, sock, peer)
+            if not full:
+                self._sessions.add(session)
+                self._stats["connections"] += 1
+        if full:
+            # [RS-7.2] the client over the limit gets BUSY, then the connection closes.
+            self._count("refused_busy")
+            try:
+                sock.settimeout(1.0)
+                session.send(error_packet(0, 0, ErrorCode.BUSY, "client limit reached"))
+            except OSError:
+                pass
+            _close_quietly(sock)
+            return
+        log.info("client %s:%s connected (session %d)", peer[0], peer[1], session.id)
+        threading.Thread(
+            target=self._serve_session, args=(session,), name=f"session-{session.id}", daemon=True
+        ).start()
+
+    def _serve_session(self, session: Session) -> None:
+        try:
+            self._session_loop(session)
+        except OSError as exc:
+            log.info("session %d: connection error: %s", session.id, exc)
+        except BaseException as exc:  # never let a session kill the process silently
+            self.handler_errors.append(exc)
+            log.exception("session %d failed", session.id)
+        finally:
+            self._end_session(session)
+
+    def _session_loop(self, session: Session) -> None:
+        policy = self.policy
+        decoder = FrameDecoder(
+            max_payload=policy.max_payload, kinds=frozenset({PacketKind.REQUEST})
+        )
+        sock = session.sock
+        last_byte = frame_start = time.monotonic()
+        while not self._shutdown.is_set():
+            now = time.monotonic()
+            if decoder.in_frame:
+                deadline, why = frame_start + policy.frame_timeout, "frame stopped half-way"
+            else:
+                deadline, why = last_byte + policy.idle_timeout, "idle"
+            if now >= deadline:
+                self._count("timeouts")
+                self._send_error(session, 0, 0, ErrorCode.TIMEOUT, f"timeout: {why}")
+                return
+            sock.settimeout(min(deadline - now, 1.0))
+            try:
+                data = sock.recv(65536)
+            except TimeoutError:
+                continue
+            if not data:
+                return
+            self._count("bytes_in", len(data))
+            was_in_frame = decoder.in_frame
+            completed = False
+            last_byte = time.monotonic()
+            try:
+                decoder.feed(data)
+                for event in decoder.events():
+                    completed = True
+                    self._count("frames_in")
+                    if isinstance(event, Rejected):
+                        self._reject(session, event)
+                    else:
+                        self._dispatch(session, event)
+            except PeerError as exc:
+                # [RS-3.8] header unusable: say why with request ID 0, then close.
+                self._reject_code(exc.code)
+                self._send_error(session, 0, 0, exc.code, exc.message)
+                return
+            # The partial-frame clock starts with the first byte of the unfinished frame.
+            if decoder.in_frame and (completed or not was_in_frame):
+                frame_start = last_byte
+
+    def _end_session(self, session: Session) -> None:
+        session.closed = True
+        lost_control = False
+        with self._lock:
+            self._sessions.discard(session)
+            if self.control_holder is session:
+                self.control_holder = None
+                lost_control = True
+        _close_quietly(session.sock)
+        if lost_control:
+            log.warning("session %d lost control while connected; stopping", session.id)
+            self._guard(self.service.on_control_lost, session)
+        self._guard(self.service.on_disconnect, session)
+        log.info("session %d closed", session.id)
+
+    def _guard(self, fn: Callable[[Session], None], session: Session) -> None:
+        try:
+            fn(session)
+        except Exception as exc:
+            self.handler_errors.append(exc)
+            log.exception("service hook failed")
+
+    # --- requests ----------------------------------------------------------------------------
+
+    def _reject_code(self, code: ErrorCode) -> None:
+        with self._lock:
+            self._stats["rejected"] += 1
+            self._rejected[code.name] += 1
+
+    def _reject(self, session: Session, event: Rejected) -> None:
+        self._reject_code(event.code)
+        h = event.header
+        self._send_error(session, h.command, h.request_id, event.code, event.error.message)
+
+    def _send_error(
+        self, session: Session, command: int, request_id: int, code: ErrorCode, message: str
+    ) -> None:
+        self._count("errors_sent")
+        try:
+            session.send(error_packet(command, request_id, code, message))
+        except OSError:
+            pass
+
+    def _dispatch(self, session: Session, packet: Packet) -> None:
+        try:
+            params = self._execute(session, packet)
+        except ProtocolError as exc:
+            self._send_error(session, packet.command, packet.request_id, exc.code, exc.message)
+            return
+        except Exception as exc:
+            self._count("handler_errors")
+            self.handler_errors.append(exc)
+            log.exception("handler failed on command 0x%04x", packet.command)
+            message = f"internal error: {type(exc).__name__}"
+            self._send_error(
+                session, packet.command, packet.request_id, ErrorCode.INTERNAL_ERROR, message
+            )
+            return
+        self._count("replies")
+        try:
+            session.send(Packet(PacketKind.REPLY, packet.command, packet.request_id, params))
+        except ProtocolError as exc:  # reply too large to encode: a server-side bug
+            self.handler_errors.append(exc)
+            self._send_error(
+                session, packet.command, packet.request_id, ErrorCode.INTERNAL_ERROR, str(exc)
+            )
+
+    def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
+        service = self.service.identity.service
+        spec = lookup(packet.command, service)
+        if spec is None or packet.command not in self._implemented:
+            raise ProtocolError(
+                f"unknown command 0x{packet.command:04x} for the {service} service",
+                ErrorCode.UNKNOWN_COMMAND,
+            )
+        check_params(spec.params, packet.params, f"{spec.name}")
+        if spec.needs_control and not session.in_control:
+            # [RS-7.4] commands that move or switch anything need control.
+            holder = "another client holds control" if self.control_holder else "take control"
+            raise ProtocolError(f"{spec.name} needs control ({holder})", ErrorCode.NOT_IN_CONTROL)
+        common = _COMMON.get(spec.id)
+        if common is not None:
+            return common(self, session, packet.params)
+        return self.service.handle(session, spec, packet.params)
+
+    # --- common commands ---------------------------------------------------------------------
+
+    def _hello(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        major = params[0]
+        if major != wire.VERSION_MAJOR:
+            # [RS-5.2] a client that cannot speak our major version is told so.
+            raise ProtocolError(
+                f"client speaks {major!r}.x, this server speaks {wire.VERSION}",
+                ErrorCode.UNSUPPORTED_VERSION,
+            )
+        ident = self.service.identity
+        return (
+            wire.VERSION,
+            ident.service,
+            ident.vendor,
+            ident.model,
+            ident.serial,
+            ident.software,
+            IntArray(sorted(self._implemented)),
+            self.policy.max_payload,
+            self.policy.max_clients,
+            float(self.policy.idle_timeout),
+            float(self.policy.frame_timeout),
+        )
+
+    def _ping(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        data = params[0] if params else b""
+        return (data,)
+
+    def _take_control(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        token = params[0]
+        if self.policy.token is not None and token != self.policy.token:
+            raise ProtocolError("control token missing or wrong", ErrorCode.AUTH_FAILED)
+        with self._lock:
+            holder = self.control_holder
+            if holder is not None and holder is not session:
+                raise ProtocolError(
+                    f"control is held by {holder.peer[0]}:{holder.peer[1]}", ErrorCode.BUSY
+                )
+            self.control_holder = session
+        log.info("session %d took control", session.id)
+        return ()
+
+    def _release_control(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        with self._lock:
+            if self.control_holder is session:
+                self.control_holder = None
+                log.info("session %d released control", session.id)
+        return ()
+
+    def _get_time(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        return (float(self.service.clock()),)
+
+
+_Handler = Callable[[FramedServer, Session, tuple[Value, ...]], tuple[Value, ...]]
+_COMMON: dict[int, _Handler] = {
+    CommandId.HELLO: FramedServer._hello,
+    CommandId.PING: FramedServer._ping,
+    CommandId.TAKE_CONTROL: FramedServer._take_control,
+    CommandId.RELEASE_CONTROL: FramedServer._release_control,
+    CommandId.GET_TIME: FramedServer._get_time,
+}
+
+
+def _close_quietly(sock: socket.socket) -> None:
+    try:
+        sock.shutdown(socket.SHUT_RDWR)
+    except OSError:
+        pass
+    sock.close()
+
+
+def serve_until_signal(
+    servers: list[FramedServer], on_stop: Callable[[], None] | None = None
+) -> None:
+    """Run servers (already started) until SIGINT or SIGTERM, then shut them down."""
+    stop = threading.Event()
+
+    def _handler(signum: int, frame: FrameType | None) -> None:
+        log.info("received %s, shutting down", signal.Signals(signum).name)
+        stop.set()
+
+    previous = {s: signal.signal(s, _handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        while not stop.wait(0.5):
+            pass
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+        if on_stop is not None:
+            on_stop()
+        for server in servers:
+            server.shutdown()
+        log.info("stopped")
+
+
+__all__ = [
+    "FramedServer",
+    "Identity",
+    "ServerPolicy",
+    "Service",
+    "Session",
+    "parse_networks",
+    "serve_until_signal",
+]
