@@ -512,7 +512,8 @@ class RobotModel:
 
     def _pick_turn(self, q: Array, ref: Array | None) -> Array:
         """Per joint, the value q + 360k (k in -1, 0, 1) inside the limits closest to ref."""
-        base = q - 360.0 * np.round(q / 360.0)  # in [-180, 180]
+        base = q - 360.0 * np.round(q / 360.0)
+        base = np.where(base <= -180.0, base + 360.0, base)  # (-180, 180]
         cand = base[..., None] + np.array([-360.0, 0.0, 360.0])  # (N, 8, 6, 3)
         lo = self._limits[:, 0, None] - LIMIT_SLACK_DEG
         hi = self._limits[:, 1, None] + LIMIT_SLACK_DEG
