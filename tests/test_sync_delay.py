@@ -1,0 +1,175 @@
+"""Tests for sync.delay: the ΔT estimator of section VI and the residual of Fig. 9.
+
+Synthetic data with the paper's timing: robot samples every 4 ms, triggers at 250 Hz at a
+phase unrelated to the robot samples, true delay 4.9 ms, trigger-to-exposure jitter
+U(0, 0.5 ms) + N(0, 0.1 ms), sensor noise 10 µm, 2 mm sine for 10 s.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+
+from sync.delay import (
+    DelayEstimate,
+    DelayEstimateError,
+    NoInteriorMinimumError,
+    SineExperiment,
+    estimate_delay,
+    residual_after_sync,
+    simulate_sine_experiment,
+    upsample,
+)
+
+TOL_S = 0.06e-3
+
+
+def _estimate(ex: SineExperiment, **kw: Any) -> DelayEstimate:
+    return estimate_delay(ex.t_robot, ex.y_robot, ex.t_trigger, ex.y_sensor, **kw)
+
+
+@pytest.mark.parametrize("freq", [1.5, 5.0])
+@pytest.mark.parametrize("seed", [11, 12])
+def test_estimate_is_delay_plus_mean_jitter(freq: float, seed: int) -> None:
+    ex = simulate_sine_experiment(np.random.default_rng(seed), frequency_hz=freq)
+    assert ex.mean_jitter_s == pytest.approx(0.25e-3)
+    est = _estimate(ex)
+    assert not est.at_edge
+    assert abs(est.delta_t_s - (4.9e-3 + 0.25e-3)) < TOL_S
+    # the grid minimum is the 0.2 ms grid point nearest to the truth
+    assert abs(est.shifts_s[est.min_index] - 5.15e-3) <= 0.1e-3 + TOL_S
+    assert est.shifts_s[0] == 0.0 and est.shifts_s[-1] == pytest.approx(20e-3)
+    assert est.shifts_s[1] - est.shifts_s[0] == pytest.approx(0.2e-3)
+
+
+@pytest.mark.parametrize("shift_ms", [-3.0, 1.7, 6.3])
+def test_shifting_the_true_delay_shifts_the_estimate(shift_ms: float) -> None:
+    base = simulate_sine_experiment(np.random.default_rng(5), frequency_hz=1.5)
+    moved = simulate_sine_experiment(
+        np.random.default_rng(5), frequency_hz=1.5, delay_s=4.9e-3 + shift_ms * 1e-3
+    )
+    e0 = _estimate(base).delta_t_s
+    e1 = _estimate(moved).delta_t_s
+    assert abs((e1 - e0) - shift_ms * 1e-3) < TOL_S
+
+
+def test_drifting_trigger_phase() -> None:
+    # triggers 0.03 % slower than the robot: the phase sweeps through the whole 4 ms
+    ex = simulate_sine_experiment(
+        np.random.default_rng(3), frequency_hz=1.5, trigger_period_s=4.0012e-3
+    )
+    assert abs(_estimate(ex).delta_t_s - ex.expected_delta_t_s) < TOL_S
+
+
+def test_residual_after_sync_at_1_5_hz() -> None:
+    ex = simulate_sine_experiment(np.random.default_rng(21), frequency_hz=1.5)
+    est = _estimate(ex)
+    rep = residual_after_sync(
+        ex.t_robot, ex.y_robot, ex.t_trigger, ex.y_sensor, est.delta_t_s, frequency_hz=1.5
+    )
+    s, u = rep.synced, rep.unsynced
+    assert s.max_um <= 50.0 and s.rms_um <= 15.0
+    assert u.rms_um >= 3 * s.rms_um and u.max_um >= 3 * s.max_um
+    # no sine left at the motion frequency after synchronisation (Fig. 9), a clear one without
+    expected_unsynced = 2000.0 * 2 * math.pi * 1.5 * ex.expected_delta_t_s  # A·ω·ΔT in µm
+    assert u.sine_amplitude_um == pytest.approx(expected_unsynced, rel=0.05)
+    assert s.sine_amplitude_um < 2.0
+    assert s.delta_t_s == est.delta_t_s and u.delta_t_s == 0.0
+    assert s.residual_um.shape == s.times_s.shape
+
+
+def test_residual_after_sync_at_5_hz() -> None:
+    # Jitter matters more at 5 Hz: A·ω = 63 mm/s turns ±0.25 ms into ±16 µm, so the bounds
+    # are wider than at 1.5 Hz (the paper reports ≈ 40 µm at 5 Hz).
+    ex = simulate_sine_experiment(np.random.default_rng(22), frequency_hz=5.0)
+    est = _estimate(ex)
+    rep = residual_after_sync(
+        ex.t_robot, ex.y_robot, ex.t_trigger, ex.y_sensor, est.delta_t_s, frequency_hz=5.0
+    )
+    assert rep.synced.max_um <= 65.0 and rep.synced.rms_um <= 18.0
+    assert rep.unsynced.rms_um >= 3 * rep.synced.rms_um
+    # What remains at 5 Hz is mostly the robot's linear interpolation between 4 ms samples,
+    # about A·ω²·T_r²/12 ≈ 2.6 µm, in phase with the motion; ~1 % of the unsynchronised sine.
+    assert rep.synced.sine_amplitude_um < 6.0
+    assert rep.synced.sine_amplitude_um < 0.02 * rep.unsynced.sine_amplitude_um
+
+
+def test_mse_is_normalised_per_overlap() -> None:
+    # Noise-free signals with the delay exactly on the grid: the MSE at the true shift is 0
+    # and every value is a mean (bounded by the peak-to-peak squared), whatever the overlap.
+    ex = simulate_sine_experiment(
+        np.random.default_rng(0),
+        jitter_uniform_s=0.0,
+        jitter_normal_s=0.0,
+        sensor_noise_mm=0.0,
+        delay_s=5.0e-3,
+        trigger_phase_s=0.0,
+        robot_period_s=0.2e-3,
+        trigger_period_s=0.2e-3,
+        duration_s=2.0,
+    )
+    est = _estimate(ex, search_max_s=200e-3)
+    assert est.shifts_s[est.min_index] == pytest.approx(5.0e-3)
+    assert est.mse[est.min_index] < 1e-20
+    assert np.all(est.mse <= 16.0)
+    assert est.overlap[0] > est.overlap[-1]
+    assert abs(est.delta_t_s - 5.0e-3) < 1e-6
+
+
+def test_parabola_resolves_below_the_grid() -> None:
+    ex = simulate_sine_experiment(
+        np.random.default_rng(0),
+        jitter_uniform_s=0.0,
+        jitter_normal_s=0.0,
+        sensor_noise_mm=0.0,
+        delay_s=4.93e-3,
+        robot_period_s=1e-3,
+        trigger_period_s=1e-3,
+    )
+    est = _estimate(ex)
+    assert abs(est.delta_t_s - 4.93e-3) < 5e-6
+    est5 = _estimate(ex, fit_half_width=3)
+    assert abs(est5.delta_t_s - 4.93e-3) < 5e-6
+
+
+def test_minimum_at_the_edge() -> None:
+    ex = simulate_sine_experiment(np.random.default_rng(1), delay_s=25e-3)
+    with pytest.raises(NoInteriorMinimumError) as info:
+        _estimate(ex)
+    assert info.value.estimate.at_edge
+    est = _estimate(ex, require_interior=False)
+    assert est.at_edge and est.delta_t_s == pytest.approx(20e-3)
+    # a wider range finds it; negative delays can be searched too
+    assert abs(_estimate(ex, search_max_s=40e-3).delta_t_s - 25.25e-3) < TOL_S
+    neg = simulate_sine_experiment(np.random.default_rng(1), delay_s=-3e-3)
+    assert abs(_estimate(neg, search_min_s=-10e-3).delta_t_s + 2.75e-3) < TOL_S
+
+
+def test_input_errors() -> None:
+    with pytest.raises(DelayEstimateError):
+        estimate_delay([0.0, 1.0], [0.0], [0.0, 1.0], [0.0, 1.0])
+    with pytest.raises(DelayEstimateError):
+        estimate_delay([0.0, 1.0, 0.5], [0, 0, 0], [0.0, 1.0], [0.0, 1.0])
+    with pytest.raises(DelayEstimateError):  # no overlap at all
+        estimate_delay([0.0, 0.1], [0, 1], [5.0, 5.1], [0, 1])
+    j0, y = upsample([0.0003, 0.0011], [0.0, 8.0])
+    assert j0 == 2 and y.tolist() == pytest.approx([1.0, 3.0, 5.0, 7.0])
+
+
+def test_cramer_rao_sanity() -> None:
+    """Informative: the spread over seeds is near σ/(A·ω·√(N/2)) with the effective noise."""
+    f, amp = 1.5, 2.0
+    w = 2 * math.pi * f
+    errors = []
+    for seed in range(24):
+        ex = simulate_sine_experiment(np.random.default_rng(100 + seed), frequency_hz=f)
+        errors.append(_estimate(ex).delta_t_s - ex.expected_delta_t_s)
+    # noise plus the jitter seen through the slope: 10 µm ⊕ A·ω·(0.5 ms/√12 ⊕ 0.1 ms)
+    sigma = math.hypot(0.01, amp * w * math.hypot(0.5e-3 / math.sqrt(12), 0.1e-3))
+    bound = sigma / (amp * w * math.sqrt(2500 / 2))
+    std = float(np.std(errors, ddof=1))
+    assert 0.5 * bound < std < 2.0 * bound
+    assert abs(float(np.mean(errors))) < 3 * bound

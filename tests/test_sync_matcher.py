@@ -1,0 +1,300 @@
+"""Tests for sync.matcher: trigger/data bookkeeping, fault counters and in-order release."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sync.joint_buffer import JointBuffer
+from sync.matcher import (
+    INDEX_MODULUS,
+    STATUS_FOUND,
+    DataOutcome,
+    MatcherError,
+    SeamPoint,
+    SensorData,
+    SyncMatcher,
+)
+
+DT = 0.0049  # ΔT, s
+TIMEOUT = 0.05  # s
+A = np.array([10.0, -20.0, 30.0, 5.0, 45.0, -60.0])  # joint offsets, degrees
+B = np.array([12.0, 3.0, -7.0, 40.0, -25.0, 90.0])  # joint rates, degrees/s
+
+
+def q_true(t: np.ndarray | float) -> np.ndarray:
+    """Joints linear in time, so eq. 5 reproduces them exactly."""
+    return A + B * np.asarray(t, dtype=np.float64)[..., None]
+
+
+def _trans(x: float, y: float, z: float) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, 3] = (x, y, z)
+    return m
+
+
+def toy_flange2base(q: np.ndarray) -> np.ndarray:
+    """Stand-in DGM: flange at (q1, q2, q3) mm, no rotation."""
+    out = np.tile(np.eye(4), (q.shape[0], 1, 1))
+    out[:, :3, 3] = q[:, :3]
+    return out
+
+
+S2F = _trans(0.0, 0.0, 100.0)
+
+
+def full_buffer(t_end: float = 2.0) -> JointBuffer:
+    buf = JointBuffer(capacity=2500)
+    t = np.arange(0, int(t_end / 0.004) + 1) * 0.004
+    buf.extend(t, q_true(t))
+    return buf
+
+
+def trig_time(i: int) -> float:
+    return 0.0013 + 0.004 * i  # trigger phase unrelated to the robot's 4 ms samples
+
+
+def data(i: int, status: int = STATUS_FOUND) -> SensorData:
+    # seam offset depends on the index so a mix-up between indices shows
+    return SensorData(i % INDEX_MODULUS, status, _trans(0.01 * i, 1.0, 200.0), quality=0.9)
+
+
+def make_matcher(timeout_s: float = TIMEOUT, history: int = 4096) -> SyncMatcher:
+    return SyncMatcher(
+        delta_t_s=DT,
+        timeout_s=timeout_s,
+        flange2base=toy_flange2base,
+        sensor2flange=S2F,
+        history=history,
+    )
+
+
+def check_points(points: list[SeamPoint], indices: list[int]) -> None:
+    assert [p.index for p in points] == indices
+    for p in points:
+        ts = trig_time(p.index) + DT
+        assert p.t_sensor == pytest.approx(ts, abs=1e-12)
+        np.testing.assert_allclose(p.joints, q_true(ts), atol=1e-9)
+        expected = q_true(ts)[:3] + np.array([0.01 * p.index, 1.0, 300.0])
+        assert p.seam2base is not None
+        np.testing.assert_allclose(p.seam2base[:3, 3], expected, atol=1e-9)
+
+
+def test_in_order_happy_path() -> None:
+    m, buf = make_matcher(), full_buffer()
+    for i in range(50):
+        m.on_trigger(i, trig_time(i))
+        assert m.on_data(data(i), trig_time(i) + 0.012) is DataOutcome.ACCEPTED
+    out = m.poll(1.0, buf)
+    check_points(out, list(range(50)))
+    assert m.trajectory() == out
+    c = m.counters
+    assert (c.triggers, c.data, c.accepted, c.points, c.reordered) == (50, 50, 50, 50, 0)
+    idx, _, base = m.trajectory_arrays()
+    assert idx.tolist() == list(range(50)) and base.shape == (50, 4, 4)
+
+
+def test_waits_when_data_is_newer_than_the_joints() -> None:
+    m = make_matcher()
+    buf = JointBuffer()
+    buf.extend([0.0, 0.004], q_true(np.array([0.0, 0.004])))
+    m.on_trigger(0, 0.0013)  # t_S = 6.2 ms, after the newest joint sample (4 ms)
+    m.on_data(data(0), 0.010)
+    assert m.poll(0.010, buf) == []
+    assert m.pending == 1
+    buf.append(0.008, q_true(0.008))
+    out = m.poll(0.012, buf)
+    assert [p.index for p in out] == [0]
+    np.testing.assert_allclose(out[0].joints, q_true(0.0013 + DT), atol=1e-9)
+
+
+def test_expired_when_joints_have_left_the_buffer() -> None:
+    m = make_matcher()
+    buf = JointBuffer(capacity=3)
+    for k in range(10):
+        buf.append(k * 0.004, q_true(k * 0.004))  # keeps 28..36 ms
+    m.on_trigger(0, 0.0013)
+    m.on_data(data(0), 0.02)
+    m.on_trigger(1, 0.026)  # t_S = 30.9 ms: inside
+    m.on_data(data(1), 0.03)
+    out = m.poll(0.035, buf)
+    assert [p.index for p in out] == [1]
+    assert m.counters.expired == 1 and m.counters.points == 1
+
+
+def test_not_found_is_a_counted_gap() -> None:
+    m, buf = make_matcher(), full_buffer()
+    for i in range(5):
+        m.on_trigger(i, trig_time(i))
+    for i in range(5):
+        m.on_data(data(i, status=1 if i == 2 else STATUS_FOUND), 0.03)
+    out = m.poll(0.03, buf)
+    check_points(out, [0, 1, 3, 4])
+    assert m.counters.not_found == 1 and m.counters.points == 4
+    # a second datagram for the not-found index is a duplicate
+    assert m.on_data(data(2), 0.03) is DataOutcome.DUPLICATE
+
+
+def test_release_waits_for_a_missing_index_until_it_is_lost() -> None:
+    m, buf = make_matcher(), full_buffer()
+    for i in range(3):
+        m.on_trigger(i, trig_time(i))
+    m.on_data(data(0), 0.02)
+    m.on_data(data(2), 0.02)
+    assert [p.index for p in m.poll(0.02, buf)] == [0]  # 2 waits for 1
+    assert [p.index for p in m.poll(trig_time(1) + TIMEOUT + 1e-6, buf)] == [2]
+    assert m.counters.lost == 1
+    assert m.on_data(data(1), 1.0) is DataOutcome.LATE
+    assert m.counters.late == 1
+
+
+def test_data_exactly_at_the_timeout_is_accepted() -> None:
+    m = make_matcher(timeout_s=0.0625)  # binary fractions: now - t_T is exactly the timeout
+    m.on_trigger(0, 0.5)
+    m.on_trigger(1, 0.5)
+    assert m.on_data(data(0), 0.5625) is DataOutcome.ACCEPTED
+    assert m.on_data(data(1), 0.5625 + 1e-9) is DataOutcome.LATE
+
+
+def test_unknown_stale_invalid_and_caller_errors() -> None:
+    m, buf = make_matcher(history=8), full_buffer()
+    assert m.on_data(data(0), 0.0) is DataOutcome.UNKNOWN  # nothing sent yet
+    for i in range(100, 120):
+        m.on_trigger(i, trig_time(i))
+        m.on_data(data(i), trig_time(i) + 0.01)
+        m.poll(trig_time(i) + 0.01, buf)
+    assert m.on_data(data(121), 1.0) is DataOutcome.UNKNOWN  # not sent yet
+    assert m.on_data(data(99), 1.0) is DataOutcome.UNKNOWN  # before the first trigger
+    assert m.on_data(data(101), 1.0) is DataOutcome.STALE  # forgotten (history 8)
+    assert m.on_data(data(118), 1.0) is DataOutcome.DUPLICATE
+    m.on_trigger(120, 0.6)
+    bad = SensorData(120, STATUS_FOUND, [0, 0, float("nan"), 0, 0, 0])
+    assert m.on_data(bad, 0.6) is DataOutcome.INVALID
+    c = m.counters
+    assert (c.unknown, c.stale, c.duplicate, c.invalid) == (3, 1, 1, 1)
+    assert c.data == c.accepted + c.duplicate + c.late + c.unknown + c.stale + c.invalid
+    with pytest.raises(MatcherError):
+        m.on_trigger(120, 0.7)  # not after the previous index
+    with pytest.raises(MatcherError):
+        m.on_trigger(121, 0.1)  # time goes backwards
+    with pytest.raises(MatcherError):
+        m.on_data(SensorData(121, STATUS_FOUND, np.zeros(5)), 0.7)
+    with pytest.raises(MatcherError):
+        SyncMatcher(delta_t_s=DT, flange2base=toy_flange2base)
+
+
+def test_index_wraps_around_u32() -> None:
+    m, buf = make_matcher(), full_buffer()
+    first = INDEX_MODULUS - 5
+    indices = [(first + n) % INDEX_MODULUS for n in range(10)]
+    for n, i in enumerate(indices):
+        m.on_trigger(i, 0.0013 + 0.004 * n)
+    for i in reversed(indices):
+        assert m.on_data(SensorData(i, STATUS_FOUND, np.eye(4)), 0.05) is DataOutcome.ACCEPTED
+    out = m.poll(0.05, buf)
+    assert [p.index for p in out] == indices
+    assert m.counters.reordered == 9
+
+
+def test_val3_location_is_rx_ry_rz() -> None:
+    m = SyncMatcher(delta_t_s=0.0, flange2base=toy_flange2base, sensor2flange=np.eye(4))
+    buf = full_buffer(0.1)
+    m.on_trigger(0, 0.0)
+    # R = Rx(90)·Ry(0)·Rz(90) maps x to z (Rz(90)·Rx(90) would map x to y).
+    m.on_data(SensorData(0, STATUS_FOUND, [1.0, 2.0, 3.0, 90.0, 0.0, 90.0]), 0.01)
+    (p,) = m.poll(0.01, buf)
+    np.testing.assert_allclose(p.seam2sensor[:3, 0], [0.0, 0.0, 1.0], atol=1e-12)
+    np.testing.assert_allclose(p.seam2sensor[:3, 3], [1.0, 2.0, 3.0])
+
+
+def test_status_found_matches_the_wire_spec() -> None:
+    wire = pytest.importorskip("spec.wire")
+    assert wire.SensorStatus.FOUND == STATUS_FOUND
+
+
+def _run_scenario(seed: int, n: int = 300) -> tuple[SyncMatcher, dict[str, object]]:
+    """Triggers every 4 ms; data after 6-30 ms, with injected faults. Returns expectations
+    computed from the injection plan, not from the matcher's rules."""
+    rng = np.random.default_rng(seed)
+    fate = rng.choice(
+        ["ok", "lost", "late", "dup", "notfound"], size=n, p=[0.75, 0.08, 0.05, 0.07, 0.05]
+    )
+    events: list[tuple[float, int, str, int]] = []  # (time, order, kind, index)
+    for i in range(n):
+        t = trig_time(i)
+        events.append((t, 0, "trigger", i))
+        if fate[i] == "lost":
+            continue
+        lat = rng.uniform(0.006, 0.030) if fate[i] != "late" else TIMEOUT + rng.uniform(1e-3, 0.1)
+        events.append((t + lat, 1, "data", i))
+        if fate[i] == "dup":
+            events.append((t + lat + rng.uniform(0.0, 0.02), 1, "data", i))
+    n_unknown = 7
+    for u in range(n_unknown):
+        events.append((trig_time(50 * u) + 0.001, 1, "data", 10 * n + u))
+    events.sort()
+    m, buf = make_matcher(), full_buffer(trig_time(n) + 0.2)
+    released: list[SeamPoint] = []
+    accepted_order: list[int] = []
+    for t, _, kind, i in events:
+        if kind == "trigger":
+            m.on_trigger(i, t)
+        else:
+            status = 1 if fate[i % n] == "notfound" and i < n else STATUS_FOUND
+            if m.on_data(data(i, status), t) is DataOutcome.ACCEPTED:
+                accepted_order.append(i)
+        released += m.poll(t, buf)
+    released += m.poll(trig_time(n) + 1.0, buf)
+    reordered = sum(1 for k, i in enumerate(accepted_order) if i < max(accepted_order[:k] or [-1]))
+    expect = {
+        "indices": [i for i in range(n) if fate[i] in ("ok", "dup")],
+        "lost": int(np.sum((fate == "lost") | (fate == "late"))),
+        "late": int(np.sum(fate == "late")),
+        "duplicate": int(np.sum(fate == "dup")),
+        "not_found": int(np.sum(fate == "notfound")),
+        "unknown": n_unknown,
+        "reordered": reordered,
+        "released": released,
+    }
+    return m, expect
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_injected_faults_never_corrupt_the_trajectory(seed: int) -> None:
+    m, e = _run_scenario(seed)
+    check_points(e["released"], e["indices"])  # type: ignore[arg-type]
+    c = m.counters
+    assert c.lost == e["lost"] and c.late == e["late"]
+    assert c.duplicate == e["duplicate"] and c.unknown == e["unknown"]
+    assert c.not_found == e["not_found"] and c.reordered == e["reordered"]
+    assert c.reordered > 0 and c.expired == 0 and c.stale == 0
+    assert c.points == len(e["indices"])  # type: ignore[arg-type]
+    assert c.triggers == c.points + c.not_found + c.lost + c.expired + m.pending
+    assert m.pending == 0
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(perm=st.permutations(list(range(40))), drop=st.sets(st.integers(0, 39), max_size=8))
+def test_arrival_order_does_not_change_the_trajectory(perm: list[int], drop: set[int]) -> None:
+    buf = full_buffer(0.5)
+    outputs: list[list[SeamPoint]] = []
+    for order in (sorted(perm), perm):
+        m = make_matcher(timeout_s=1.0)
+        for i in range(40):
+            m.on_trigger(i, trig_time(i))
+        got: list[SeamPoint] = []
+        for i in order:
+            if i not in drop:
+                m.on_data(data(i), trig_time(39) + 0.001)
+                got += m.poll(trig_time(39) + 0.001, buf)
+        got += m.poll(10.0, buf)
+        assert m.counters.lost == len(drop)
+        outputs.append(got)
+    expected = [i for i in range(40) if i not in drop]
+    check_points(outputs[0], expected)
+    check_points(outputs[1], expected)
+    for a, b in zip(*outputs, strict=True):
+        assert a.seam2base is not None and b.seam2base is not None
+        np.testing.assert_array_equal(a.seam2base, b.seam2base)
