@@ -24,7 +24,7 @@ import json
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 from typing import Any, Literal
 
@@ -72,7 +72,7 @@ class Config:
 
 #: The 8 configurations in the order of the batch IK's solution axis.
 CONFIGS: tuple[Config, ...] = tuple(
-    Config(s, e, w)  # type: ignore[arg-type]
+    Config(s, e, w)
     for s in ("righty", "lefty")
     for e in ("epositive", "enegative")
     for w in ("wpositive", "wnegative")
@@ -252,9 +252,7 @@ class RobotModel:
                 shoulder_offset_mm=float(data.get("shoulder_offset_mm", 0.0)),
                 lateral_offset_mm=float(data.get("lateral_offset_mm", 0.0)),
                 floor_to_axis2_mm=float(data.get("floor_to_axis2_mm", 0.0)),
-                joint_offsets_deg=tuple(
-                    float(v) for v in data.get("joint_offsets_deg", [0.0] * 6)
-                ),
+                joint_offsets_deg=tuple(float(v) for v in data.get("joint_offsets_deg", [0.0] * 6)),
                 description=str(data.get("description", "")),
             )
         except (KeyError, TypeError, ValueError) as exc:
@@ -697,7 +695,7 @@ def list_models() -> list[str]:
     return sorted(p.stem for p in MODELS_DIR.glob("*.json"))
 
 
-@lru_cache(maxsize=None)
+@cache
 def _bundled(name: str) -> RobotModel:
     return load_model(MODELS_DIR / f"{name}.json")
 

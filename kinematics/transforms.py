@@ -150,7 +150,14 @@ def location_to_transform(loc: Sequence[float] | Array) -> Array:
     _check_finite(arr, "location")
     x, y, z, rx, ry, rz = (float(v) for v in arr)
     a, b, c = math.radians(rx), math.radians(ry), math.radians(rz)
-    sa, ca, sb, cb, sc, cc = math.sin(a), math.cos(a), math.sin(b), math.cos(b), math.sin(c), math.cos(c)
+    sa, ca, sb, cb, sc, cc = (
+        math.sin(a),
+        math.cos(a),
+        math.sin(b),
+        math.cos(b),
+        math.sin(c),
+        math.cos(c),
+    )
     return np.array(
         [
             [cb * cc, -cb * sc, sb, x],
@@ -166,7 +173,8 @@ def transform_to_location(T: Any) -> Array:
     arr = check_transform(T)
     if arr.ndim != 2:
         raise KinematicsError("transform_to_location: expected one (4, 4); use the batch form")
-    return transforms_to_locations(arr[None])[0]
+    out: Array = transforms_to_locations(arr[None])[0]
+    return out
 
 
 def locations_to_transforms(locs: Any) -> Array:
@@ -225,7 +233,8 @@ def quaternion_from_matrix(R: Any) -> Array:
     choice = np.argmax(np.stack([tr, M[..., 0, 0], M[..., 1, 1], M[..., 2, 2]], axis=-1), axis=-1)
     q = np.take_along_axis(cand, choice[..., None, None], axis=-2)[..., 0, :]
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    return np.where(q[..., :1] < 0.0, -q, q)
+    out: Array = np.where(q[..., :1] < 0.0, -q, q)
+    return out
 
 
 def matrix_from_quaternion(q: Any) -> Array:
@@ -281,7 +290,8 @@ def matrix_from_rotvec(v: Any) -> Array:
     K[..., 0, 1], K[..., 0, 2] = -z, y
     K[..., 1, 0], K[..., 1, 2] = z, -x
     K[..., 2, 0], K[..., 2, 1] = -y, x
-    return np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
+    out: Array = np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
+    return out
 
 
 def slerp(q0: Any, q1: Any, s: Any) -> Array:

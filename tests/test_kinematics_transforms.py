@@ -75,9 +75,7 @@ def test_gimbal_lock_reproduces_the_rotation(loc: tuple[float, ...]) -> None:
 
 def test_batch_locations_equal_single() -> None:
     rng = np.random.default_rng(7)
-    locs = np.column_stack(
-        [rng.uniform(-1000, 1000, (50, 3)), rng.uniform(-180, 180, (50, 3))]
-    )
+    locs = np.column_stack([rng.uniform(-1000, 1000, (50, 3)), rng.uniform(-180, 180, (50, 3))])
     Ts = tf.locations_to_transforms(locs)
     assert Ts.shape == (50, 4, 4)
     for loc, T in zip(locs, Ts, strict=True):
