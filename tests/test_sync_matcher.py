@@ -298,3 +298,16 @@ def test_arrival_order_does_not_change_the_trajectory(perm: list[int], drop: set
     for a, b in zip(*outputs, strict=True):
         assert a.seam2base is not None and b.seam2base is not None
         np.testing.assert_array_equal(a.seam2base, b.seam2base)
+
+
+def test_location_convention_matches_the_kinematics_package() -> None:
+    transforms = pytest.importorskip("kinematics.transforms")
+    m = SyncMatcher(delta_t_s=0.0)
+    buf = full_buffer(0.1)
+    rng = np.random.default_rng(4)
+    locs = np.column_stack([rng.normal(0, 50, (5, 3)), rng.uniform(-180, 180, (5, 3))])
+    for i, loc in enumerate(locs):
+        m.on_trigger(i, 0.004 * i)
+        m.on_data(SensorData(i, STATUS_FOUND, loc), 0.03)
+    for p, loc in zip(m.poll(0.03, buf), locs, strict=True):
+        np.testing.assert_allclose(p.seam2sensor, transforms.location_to_transform(loc), atol=1e-12)

@@ -67,3 +67,22 @@ def test_shape_errors() -> None:
         seam2base(q, lambda x: np.zeros((1, 4, 4)), np.eye(4), np.eye(4))
     with pytest.raises(ValueError):
         seam2base(np.zeros(6), _toy_flange2base, np.eye(4), np.eye(4))
+
+
+def test_with_the_rx90b_model() -> None:
+    robot = pytest.importorskip("kinematics.robot")
+    model = robot.get_model()
+    # VAL3 zero: arm straight up, flange at (0, 0, 985) mm pointing up; a sensor 100 mm
+    # further along the flange z axis sees the seam 200 mm ahead of it.
+    q = np.zeros((1, 6))
+    p = seam_positions(q, model.flange2base_batch, _trans(0, 0, 100), _trans(0, 0, 200))
+    np.testing.assert_allclose(p, [[0.0, 0.0, 1285.0]], atol=1e-9)
+    rng = np.random.default_rng(3)
+    qs = rng.uniform(-90, 90, (20, 6))
+    out = seam2base(qs, model.flange2base_batch, _rz(15) @ _trans(5, 0, 90), _trans(1, 2, 250))
+    for n in range(20):
+        np.testing.assert_allclose(
+            out[n],
+            model.flange2base(qs[n]) @ _rz(15) @ _trans(5, 0, 90) @ _trans(1, 2, 250),
+            atol=1e-9,
+        )
