@@ -1,0 +1,150 @@
+"""Command line of the protocol package.
+
+python -m spec decode HEX|FILE|-     dissect a frame or datagram field by field
+python -m spec vectors [--generate]  decode every test vector (or write them, maintainers)
+python -m spec requirements [--json] list the requirement IDs of PROTOCOL.md
+python -m spec doc --check|--write   compare/regenerate PROTOCOL.md's tables from the registry
+python -m spec fuzz --count N --seed S   fuzz the decoders
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import string
+import sys
+from dataclasses import asdict
+from pathlib import Path
+
+from spec import doc, requirements, vectorgen
+from spec.dissect import describe
+from spec.errors import PeerError
+
+
+def _read_input(arg: str) -> bytes:
+    if arg == "-":
+        data = sys.stdin.buffer.read()
+        text = data.decode("ascii", "replace").strip()
+        if text and all(c in string.hexdigits + " \n\r\t:" for c in text):
+            return _hex(text)
+        return data
+    path = Path(arg)
+    if path.exists():
+        raw = path.read_bytes()
+        text = raw.decode("ascii", "replace").strip()
+        if text and all(c in string.hexdigits + " \n\r\t:" for c in text):
+            return _hex(text)
+        return raw
+    return _hex(arg)
+
+
+def _hex(text: str) -> bytes:
+    cleaned = "".join(c for c in text if c not in " \n\r\t:")
+    try:
+        return bytes.fromhex(cleaned)
+    except ValueError:
+        raise ValueError(
+            f"not hex and not a file: {text[:40]!r}{'…' if len(text) > 40 else ''}"
+        ) from None
+
+
+def cmd_decode(args: argparse.Namespace) -> int:
+    try:
+        raw = _read_input(args.input)
+        print(describe(raw))
+    except (ValueError, OSError) as exc:
+        print(f"spec decode: {exc}", file=sys.stderr)
+        return 2
+    except PeerError as exc:
+        print(f"spec decode: invalid: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def cmd_vectors(args: argparse.Namespace) -> int:
+    if args.generate:
+        written = vectorgen.write(force=args.force)
+        for p in written:
+            print(f"wrote {p}")
+        if not written:
+            print("vectors exist; use --force to overwrite them", file=sys.stderr)
+        return 0
+    for name in ("frames.json", "datagrams.json"):
+        for v in vectorgen.load(name):
+            print(f"== {name}:{v['name']}  {v.get('description', '')}")
+            raw = bytes.fromhex(v["hex"])
+            try:
+                print(describe(raw))
+            except PeerError as exc:
+                print(f"rejected: {exc}")
+            if not v["valid"]:
+                print(f"expected: {v['error']}")
+    return 0
+
+
+def cmd_requirements(args: argparse.Namespace) -> int:
+    reqs = requirements.requirements()
+    if args.json:
+        print(json.dumps([asdict(r) for r in reqs], indent=1, ensure_ascii=False))
+    else:
+        for r in reqs:
+            print(f"{r.id:<8} {r.level:<6} {r.text}")
+    return 0
+
+
+def cmd_doc(args: argparse.Namespace) -> int:
+    if args.write:
+        changed = doc.write()
+        print("PROTOCOL.md updated" if changed else "PROTOCOL.md already up to date")
+        return 0
+    diff = doc.differences()
+    if diff:
+        print(f"PROTOCOL.md differs from the registry in: {', '.join(diff)}", file=sys.stderr)
+        return 1
+    print("PROTOCOL.md matches the registry")
+    return 0
+
+
+def cmd_fuzz(args: argparse.Namespace) -> int:
+    from spec import fuzz
+
+    report = fuzz.run(args.count, args.seed)
+    print(f"{report.inputs} inputs, {report.packets} decoded packets, rejected by code:")
+    for code, n in report.rejected.most_common():
+        print(f"  {code:<22} {n}")
+    for data, why in report.failures[:20]:
+        print(f"FAILURE {why}: {data.hex()}")
+    return 1 if report.failures else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    signal.signal(signal.SIGPIPE, signal.SIG_DFL)  # `| head` ends quietly
+    parser = argparse.ArgumentParser(prog="python -m spec", description="protocol tools")
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("decode", help="dissect a frame or datagram (hex, file or - for stdin)")
+    p.add_argument("input")
+    p.set_defaults(fn=cmd_decode)
+    p = sub.add_parser("vectors", help="decode every test vector")
+    p.add_argument("--generate", action="store_true", help="write spec/vectors (maintainers)")
+    p.add_argument("--force", action="store_true")
+    p.set_defaults(fn=cmd_vectors)
+    p = sub.add_parser("requirements", help="list the requirements of PROTOCOL.md")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(fn=cmd_requirements)
+    p = sub.add_parser("doc", help="check or regenerate PROTOCOL.md's tables")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--check", action="store_true", default=True)
+    g.add_argument("--write", action="store_true")
+    p.set_defaults(fn=cmd_doc)
+    p = sub.add_parser("fuzz", help="fuzz the decoders with seeded mutations")
+    p.add_argument("--count", type=int, default=20000)
+    p.add_argument("--seed", type=int, default=1)
+    p.set_defaults(fn=cmd_fuzz)
+    args = parser.parse_args(argv)
+    result: int = args.fn(args)
+    return result
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,132 @@
+"""Human-readable dissection of any frame or datagram, as a protocol analyser prints it."""
+
+from __future__ import annotations
+
+import math
+
+from spec import wire
+from spec.codec import Header, Packet, decode_packet
+from spec.datagrams import SensorData, Trigger, decode_datagram
+from spec.errors import ErrorCode
+from spec.params import (
+    FloatArray,
+    Image,
+    IntArray,
+    Joints,
+    Location,
+    Matrix,
+    Transform,
+    Value,
+    type_of,
+)
+from spec.registry import BY_ID, ParamSpec
+from spec.wire import PacketKind
+
+
+def _short(values: tuple[float, ...] | tuple[int, ...], limit: int = 8) -> str:
+    shown = ", ".join(f"{v:g}" for v in values[:limit])
+    more = f", … ({len(values)} values)" if len(values) > limit else ""
+    return f"[{shown}{more}]"
+
+
+def format_value(value: Value) -> str:
+    """One parameter value as text."""
+    if isinstance(value, bool | int):
+        return str(value)
+    if isinstance(value, float):
+        return f"{value:.17g}" if math.isfinite(value) else str(value)
+    if isinstance(value, str):
+        return repr(value)
+    if isinstance(value, bytes):
+        return f"{len(value)} bytes {value[:32].hex()}{'…' if len(value) > 32 else ''}"
+    if isinstance(value, FloatArray | IntArray | Joints):
+        return _short(value.values)
+    if isinstance(value, Location):
+        return (
+            f"x={value.x:g} y={value.y:g} z={value.z:g} mm, "
+            f"rx={value.rx:g} ry={value.ry:g} rz={value.rz:g} deg"
+        )
+    if isinstance(value, Transform):
+        return " / ".join(_short(row, 4) for row in value.rows())
+    if isinstance(value, Matrix):
+        return f"{value.rows}x{value.cols} {_short(value.values, 6)}"
+    assert isinstance(value, Image)
+    return (
+        f"{value.width}x{value.height} {value.format.name} {value.order.name}, "
+        f"{len(value.data)} bytes"
+    )
+
+
+def _param_specs(packet: Packet) -> tuple[ParamSpec, ...]:
+    spec = BY_ID.get(packet.command)
+    if spec is None:
+        return ()
+    if packet.kind is PacketKind.REQUEST:
+        return spec.params
+    if packet.kind is PacketKind.REPLY:
+        return spec.reply
+    return ()
+
+
+def describe_packet(packet: Packet, raw: bytes) -> list[str]:
+    header = Header.unpack(raw)
+    spec = BY_ID.get(packet.command)
+    name = spec.name if spec else "unknown command"
+    (crc,) = wire.TRAILER.unpack_from(raw, len(raw) - wire.TRAILER_SIZE)
+    lines = [
+        f"frame            {len(raw)} bytes",
+        f"magic            {header.magic.hex()} ({header.magic.decode('ascii', 'replace')})",
+        f"version          {header.version_major}.{header.version_minor}",
+        f"kind             {packet.kind.name} ({int(packet.kind)})",
+        f"flags            0x{header.flags:02x}",
+        f"command          0x{packet.command:04x} {name}" + (f" ({spec.service})" if spec else ""),
+        f"request id       {packet.request_id}",
+        f"payload length   {header.length}",
+        f"crc32            {crc:08x} (ok)",
+        f"parameters       {len(packet.params)}",
+    ]
+    specs = _param_specs(packet)
+    error_names = ("code", "message")
+    for i, value in enumerate(packet.params):
+        label = f"#{i}"
+        unit = ""
+        if packet.kind is PacketKind.ERROR and i < 2:
+            label += f" {error_names[i]}"
+            if i == 0 and isinstance(value, int):
+                try:
+                    unit = f" ({ErrorCode(value).name})"
+                except ValueError:
+                    unit = " (unknown code)"
+        elif i < len(specs):
+            label += f" {specs[i].name}"
+            unit = f" [{specs[i].unit}]" if specs[i].unit else ""
+        lines.append(f"  {label:<22} {type_of(value).name:<12} {format_value(value)}{unit}")
+    return lines
+
+
+def describe_datagram(raw: bytes) -> list[str]:
+    d = decode_datagram(raw)
+    lines = [
+        f"datagram         {len(raw)} bytes",
+        f"kind             {'TRIGGER' if isinstance(d, Trigger) else 'DATA'}",
+        f"index            {d.index}",
+        f"t_trigger        {d.t_trigger:.9f} s (robot clock)",
+    ]
+    if isinstance(d, SensorData):
+        x, y, z, rx, ry, rz = d.seam
+        lines += [
+            f"status           {d.status.name} ({int(d.status)})",
+            f"seam in S        x={x:g} y={y:g} z={z:g} mm, rx={rx:g} ry={ry:g} rz={rz:g} deg",
+            f"quality          {d.quality:g}",
+            f"t_arrival        {d.t_arrival:.9f} s (sensor clock)",
+            f"t_exposure_start {d.t_exposure_start:.9f} s",
+            f"t_exposure_end   {d.t_exposure_end:.9f} s",
+        ]
+    return lines
+
+
+def describe(raw: bytes) -> str:
+    """Dissect one frame or datagram; raises the codec's PeerError when it is malformed."""
+    if raw[:2] == wire.DATAGRAM_MAGIC:
+        return "\n".join(describe_datagram(raw))
+    return "\n".join(describe_packet(decode_packet(raw), raw))
