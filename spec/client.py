@@ -129,6 +129,8 @@ class FramedClient:
             event = self._decoder.next_event()
             if event is not None:
                 if isinstance(event, Packet):
+                    if event.kind is PacketKind.EVENT:
+                        continue  # [RS-3.14] an event is never the reply to a request
                     return event
                 self.close()
                 raise event.error

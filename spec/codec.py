@@ -184,15 +184,14 @@ class FrameDecoder:
         end = wire.HEADER_SIZE + header.length + wire.TRAILER_SIZE
         if len(buf) < end:
             return None
-        frame = memoryview(buf)[:end]
-        try:
-            event: Event = self._decode_frame(header, frame)
-        except PeerError as exc:
-            event = Rejected(header, exc)
-        finally:
-            frame.release()
+        # A copy, not a view: a view (or one held by an exception's traceback) would pin the
+        # buffer and make the ``del`` below fail.
+        frame = bytes(buf[:end])
         del buf[:end]
-        return event
+        try:
+            return self._decode_frame(header, memoryview(frame))
+        except PeerError as exc:
+            return Rejected(header, exc)
 
     def _fail(self, error: PeerError) -> NoReturn:
         self._failed = error
