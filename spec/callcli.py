@@ -1,0 +1,146 @@
+"""The generic ``call`` command line both services share, in the manner of redis-cli.
+
+``python -m robotsocket call HOST:PORT COMMAND [ARGS...]`` parses each argument by the type the
+registry gives the command's parameter, sends one request and prints the reply as JSON (named
+by the registry's reply table). Errors print their code and message and exit non-zero.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from typing import Any
+
+from spec.client import FramedClient
+from spec.errors import ProtocolError, RemoteError
+from spec.jsonform import plain
+from spec.params import FloatArray, IntArray, Joints, Location, Transform, Value
+from spec.registry import BY_ID, COMMANDS, CommandSpec, ParamSpec
+from spec.wire import ParamType
+
+EXIT_REMOTE_ERROR = 1
+EXIT_USAGE = 2
+EXIT_UNREACHABLE = 3
+
+
+def parse_endpoint(text: str, default_port: int) -> tuple[str, int]:
+    """``HOST:PORT``, ``HOST`` or ``[V6]:PORT``; ValueError names the problem."""
+    host, sep, port = text.rpartition(":")
+    if not sep or "]" in port:
+        return text.strip("[]"), default_port
+    try:
+        number = int(port)
+    except ValueError:
+        raise ValueError(f"bad port in {text!r}") from None
+    if not 0 < number < 65536:
+        raise ValueError(f"port out of range in {text!r}")
+    return host.strip("[]") or "127.0.0.1", number
+
+
+def find_command(name: str, service: str) -> CommandSpec:
+    """A command of ``service`` by name (case-insensitive) or by ID (``0x1002``)."""
+    try:
+        number = int(name, 0)
+    except ValueError:
+        number = -1
+    for c in COMMANDS:
+        if service in c.services and (c.name.lower() == name.lower() or int(c.id) == number):
+            return c
+    names = ", ".join(sorted(c.name for c in COMMANDS if service in c.services))
+    raise ValueError(f"unknown {service} command {name!r}; commands: {names}")
+
+
+def _numbers(text: str, what: str) -> list[float]:
+    try:
+        values = [float(x) for x in text.replace(" ", "").split(",") if x != ""]
+    except ValueError:
+        raise ValueError(f"{what}: expected comma-separated numbers, got {text!r}") from None
+    if not all(math.isfinite(v) for v in values):
+        raise ValueError(f"{what}: numbers must be finite")
+    return values
+
+
+def parse_arg(spec: ParamSpec, text: str) -> Value:
+    """Parse one command-line argument as the parameter ``spec`` says."""
+    what = spec.name
+    t = spec.type
+    try:
+        if t is ParamType.INT:
+            return int(text, 0)
+        if t is ParamType.FLOAT:
+            return float(text)
+    except ValueError:
+        raise ValueError(f"{what}: expected a {t.name.lower()}, got {text!r}") from None
+    if t is ParamType.BOOL:
+        lowered = text.lower()
+        if lowered in ("1", "true", "on", "yes"):
+            return True
+        if lowered in ("0", "false", "off", "no"):
+            return False
+        raise ValueError(f"{what}: expected on/off or true/false, got {text!r}")
+    if t is ParamType.STRING:
+        return text
+    if t is ParamType.BYTES:
+        return text.encode("utf-8")
+    if t is ParamType.FLOAT_ARRAY:
+        return FloatArray(_numbers(text, what))
+    if t is ParamType.INT_ARRAY:
+        return IntArray(int(v) for v in _numbers(text, what))
+    if t is ParamType.JOINTS:
+        return Joints(_numbers(text, what))
+    if t is ParamType.LOCATION:
+        values = _numbers(text, what)
+        if len(values) != 6:
+            raise ValueError(f"{what}: a location is x,y,z,rx,ry,rz (6 numbers), got {text!r}")
+        return Location(*values)
+    if t is ParamType.TRANSFORM:
+        return Transform(_numbers(text, what))
+    raise ValueError(f"{what}: {t.name} parameters cannot be given on the command line")
+
+
+def parse_args(spec: CommandSpec, args: list[str]) -> tuple[Value, ...]:
+    required = [p for p in spec.params if not p.optional]
+    if not len(required) <= len(args) <= len(spec.params):
+        usage = " ".join(
+            f"[{p.name}]" if p.optional else f"<{p.name}:{p.type.name.lower()}>"
+            for p in spec.params
+        )
+        raise ValueError(f"usage: {spec.name} {usage}".rstrip())
+    return tuple(parse_arg(p, a) for p, a in zip(spec.params, args, strict=False))
+
+
+def reply_json(spec: CommandSpec, values: tuple[Value, ...]) -> dict[str, Any]:
+    names = [p.name for p in spec.reply]
+    out: dict[str, Any] = {}
+    for i, value in enumerate(values):
+        out[names[i] if i < len(names) else f"extra_{i}"] = plain(value)
+    return out
+
+
+def main_call(
+    service: str, default_port: int, endpoint: str, command: str, args: list[str],
+    timeout: float = 5.0, token: str | None = None,
+) -> int:  # fmt: skip
+    """Run one ``call``; returns the process exit code."""
+    prog = f"python -m {'robotsocket' if service == 'robot' else 'sensorsocket'} call"
+    try:
+        host, port = parse_endpoint(endpoint, default_port)
+        spec = find_command(command, service)
+        params = parse_args(spec, args)
+    except (ValueError, ProtocolError) as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        with FramedClient(host, port, timeout=timeout) as client:
+            if spec.needs_control and spec.name != "TakeControl":
+                client.take_control(token or "")
+            values = client.call(spec.id, *params)
+    except RemoteError as exc:
+        print(f"error {exc.code.name} ({exc.raw_code}): {exc.message}", file=sys.stderr)
+        return EXIT_REMOTE_ERROR
+    except (OSError, ProtocolError) as exc:
+        print(f"{prog}: cannot reach {host}:{port}: {exc}", file=sys.stderr)
+        return EXIT_UNREACHABLE
+    print(json.dumps(reply_json(BY_ID[spec.id], values), indent=2, ensure_ascii=False))
+    return 0
