@@ -16,12 +16,14 @@ from spec.client import FramedClient
 from spec.errors import ProtocolError, RemoteError
 from spec.jsonform import plain
 from spec.params import FloatArray, IntArray, Joints, Location, Transform, Value
-from spec.registry import BY_ID, COMMANDS, CommandSpec, ParamSpec
+from spec.registry import BY_ID, COMMANDS, CommandId, CommandSpec, ParamSpec
 from spec.wire import ParamType
 
 EXIT_REMOTE_ERROR = 1
 EXIT_USAGE = 2
 EXIT_UNREACHABLE = 3
+
+_QUEUED_MOVES = {CommandId.JOINT_MOVE, CommandId.TOOL_MOVE_J, CommandId.TOOL_MOVE_L}
 
 
 def parse_endpoint(text: str, default_port: int) -> tuple[str, int]:
@@ -136,6 +138,10 @@ def main_call(
             if spec.needs_control and spec.name != "TakeControl":
                 client.take_control(token or "")
             values = client.call(spec.id, *params)
+            if spec.id in _QUEUED_MOVES:
+                # Closing the controlling connection stops the arm [RS-7.10]: stay until the
+                # move has ended, as a user of a one-shot command expects.
+                client.call(CommandId.WAIT_END_MOVE, 600.0, timeout=610.0)
     except RemoteError as exc:
         print(f"error {exc.code.name} ({exc.raw_code}): {exc.message}", file=sys.stderr)
         return EXIT_REMOTE_ERROR
