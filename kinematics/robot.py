@@ -492,6 +492,9 @@ class RobotModel:
         T = check_transform(flange2base_T, name="flange2base")
         if T.ndim != 3:
             raise KinematicsError(f"flange2base: expected shape (N, 4, 4), got {T.shape}")
+        return self._ik_batch(T, near)
+
+    def _ik_batch(self, T: Array, near: Any) -> IkBatch:
         ref = None
         if near is not None:
             nr = np.asarray(near, dtype=np.float64)
@@ -625,7 +628,7 @@ class RobotModel:
         ref = None if near is None else np.array(_vector6(near, "near"))
         request = ConfigRequest.parse(config)
         same_as = None if ref is None else self.config_of(ref)
-        batch = self.ik_batch(T[None], near=ref)
+        batch = self._ik_batch(T[None], ref)
         if not np.any(batch.reachable[0]):
             raise UnreachableError(self._why_unreachable(T))
         sols: list[IkSolution] = []
@@ -637,7 +640,7 @@ class RobotModel:
             if not batch.valid[0, k]:
                 continue
             q = batch.joints_deg[0, k].copy()
-            if any(np.allclose(q, s.joints_deg, rtol=0.0, atol=1e-9) for s in sols):
+            if any(float(np.max(np.abs(q - s.joints_deg))) <= 1e-9 for s in sols):
                 continue  # the same joints twice, at a singularity
             names = tuple(
                 nm for nm, f in zip(SINGULARITY_NAMES, batch.singular[0, k], strict=True) if f
