@@ -244,7 +244,7 @@ class TriggerLog:
         return seq
 
 
-@dataclass
+@dataclass(eq=False)
 class SyncMatcher:
     """Matches sensor data to sent triggers and joint samples; releases points in order.
 
