@@ -311,3 +311,38 @@ def test_location_convention_matches_the_kinematics_package() -> None:
         m.on_data(SensorData(i, STATUS_FOUND, loc), 0.03)
     for p, loc in zip(m.poll(0.03, buf), locs, strict=True):
         np.testing.assert_allclose(p.seam2sensor, transforms.location_to_transform(loc), atol=1e-12)
+
+
+@pytest.mark.parametrize(("delta_t_s", "max_um"), [(5.15e-3, 50.0), (0.0, None)])
+def test_straight_seam_seen_from_a_sine_motion(delta_t_s: float, max_um: float | None) -> None:
+    """Section VI through the matcher: the flange moves y = 2 sin(2π·1.5 t) mm across a
+    straight seam at y = 0; the sensor sees the seam at -y(exposure). With the right ΔT the
+    seam comes out straight in the base frame; without it, it comes out as a sine."""
+    rng = np.random.default_rng(8)
+    w = 2 * np.pi * 1.5
+
+    def flange_y(t: np.ndarray | float) -> np.ndarray:
+        return 2.0 * np.sin(w * np.asarray(t))
+
+    buf = JointBuffer()
+    tk = np.arange(0, 2501) * 0.004
+    joints = np.zeros((tk.size, 6))
+    joints[:, 1] = flange_y(tk)
+    joints[:, 2] = 500.0
+    buf.extend(tk[:2500], joints[:2500])
+    m = SyncMatcher(delta_t_s=delta_t_s, flange2base=toy_flange2base, sensor2flange=np.eye(4))
+    out: list[SeamPoint] = []
+    for i in range(2400):
+        t_t = 0.0021 + 0.004 * i
+        t_x = t_t + 4.9e-3 + rng.uniform(0, 0.5e-3) + rng.normal(0, 0.1e-3)
+        m.on_trigger(i, t_t)
+        seen = _trans(0.0, -float(flange_y(t_x)) + rng.normal(0, 0.01), -500.0)
+        m.on_data(SensorData(i, STATUS_FOUND, seen), t_t + 0.02)
+        out += m.poll(t_t + 0.02, buf)
+    y_um = np.array([p.seam2base[1, 3] for p in out if p.seam2base is not None]) * 1000
+    assert len(y_um) >= 2390
+    if max_um is not None:
+        assert np.max(np.abs(y_um)) <= max_um and np.sqrt(np.mean(y_um**2)) <= 15.0
+    else:
+        # a sine of amplitude A·ω·ΔT ≈ 97 µm (rms 69 µm) plus the noise
+        assert np.max(np.abs(y_um)) > 90.0 and np.sqrt(np.mean(y_um**2)) > 55.0
