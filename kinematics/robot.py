@@ -640,6 +640,7 @@ class RobotModel:
             if not batch.valid[0, k]:
                 continue
             q = batch.joints_deg[0, k].copy()
+            q.flags.writeable = False
             if any(float(np.max(np.abs(q - s.joints_deg))) <= 1e-9 for s in sols):
                 continue  # the same joints twice, at a singularity
             names = tuple(
