@@ -515,7 +515,7 @@ class RobotModel:
         """Per joint, the value q + 360k (k in -1, 0, 1) inside the limits closest to ref."""
         base = q - 360.0 * np.round(q / 360.0)
         base = np.where(base <= -180.0, base + 360.0, base)  # (-180, 180]
-        cand = base[..., None] + np.array([-360.0, 0.0, 360.0])  # (N, 8, 6, 3)
+        cand = base[..., None] + np.array([0.0, -360.0, 360.0])  # (N, 8, 6, 3); ties keep base
         lo = self._limits[:, 0, None] - LIMIT_SLACK_DEG
         hi = self._limits[:, 1, None] + LIMIT_SLACK_DEG
         target = np.zeros(6) if ref is None else ref[:, None, :]
