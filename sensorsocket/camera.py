@@ -230,11 +230,12 @@ class StripeRenderer:
         self._za = (pa - c) @ ax[2]
         self._yb = (pb - c) @ ax[1]
         self._zb = (pb - c) @ ax[2]
-        self._half = int(math.ceil(4.0 * st.stripe_sigma_px * 1.1))
+        self._half = math.ceil(4.0 * st.stripe_sigma_px * 1.1)
         self._win = np.arange(2 * self._half + 1)
         self._tile = np.empty((0, 0), dtype=np.uint8)
         self._frames_on_tile = st.noise_refresh_frames
         self._pieces = scene.joint.pieces()
+        self._source = np.array([0.0, 0.0, -cam.laser_standoff_mm])
 
     def _refresh_tile(self) -> None:
         st, cam = self.settings, self.camera
@@ -261,7 +262,12 @@ class StripeRenderer:
     def hits(
         self, columns: NDArray[np.intp], column_times: FloatArray, sensor2base: PoseProvider
     ) -> tuple[NDArray[np.bool_], FloatArray]:
-        """Stripe rows of every sub-column: (hit (N, K), row (N, K)); NaN rows where unlit."""
+        """Lit points of every sub-column and profile piece: (lit (N, K·P), row (N, K·P)).
+
+        A point is lit when the laser plane meets a piece of the surface there and the
+        laser ray from the source does not cross another piece first (shadow); the camera
+        sees every lit point (no occlusion). Rows are NaN where unlit.
+        """
         poses = np.asarray(sensor2base(column_times), dtype=np.float64)
         if poses.shape != (len(columns), 4, 4):
             raise CameraError(f"pose provider returned shape {poses.shape}")
@@ -279,17 +285,30 @@ class StripeRenderer:
         lb = path.lateral(b_k[..., 0], b_k[..., 1])
         za, zb = a_k[..., 2], b_k[..., 2]
         dl, dz = lb - la, zb - za
-        best = np.full(la.shape, np.inf)
+        # laser source per column, for shadows cast by one plate on another
+        src = np.einsum("nij,j->ni", r, self._source) + t
+        l_src = path.lateral(src[:, 0:1], src[:, 1:2])  # (N, 1)
+        z_src = src[:, 2:3]
+        lams = []
         with np.errstate(divide="ignore", invalid="ignore"):
             for p in self._pieces:
                 lam = (p.a + p.b * la - za) / (dz - p.b * dl)
                 lh = la + lam * dl
-                ok = (lam >= 0.0) & (lam <= 1.0) & (lh >= p.lo) & (lh < p.hi) & (lam < best)
-                best = np.where(ok, lam, best)
-        hit = np.isfinite(best)
-        lam = np.where(hit, best, np.nan)
-        ya, za_c = self._ya[columns], self._za[columns]
-        yb, zb_c = self._yb[columns], self._zb[columns]
+                ok = (lam >= 0.0) & (lam <= 1.0) & (lh >= p.lo) & (lh < p.hi)
+                zh = za + lam * dz
+                for q in self._pieces:
+                    if q is p:
+                        continue
+                    # does the laser ray source -> hit cross piece q first?
+                    dls, dzs = lh - l_src, zh - z_src
+                    mu = (q.a + q.b * l_src - z_src) / (dzs - q.b * dls)
+                    lq = l_src + mu * dls
+                    ok &= ~((mu > 0.0) & (mu < 1.0 - 1e-9) & (lq >= q.lo) & (lq < q.hi))
+                lams.append(np.where(ok, lam, np.nan))
+        lam = np.concatenate(lams, axis=1)  # (N, K·P)
+        hit = np.isfinite(lam)
+        ya, za_c = np.tile(self._ya[columns], len(lams)), np.tile(self._za[columns], len(lams))
+        yb, zb_c = np.tile(self._yb[columns], len(lams)), np.tile(self._zb[columns], len(lams))
         v0 = self.camera.principal_point[1]
         rows = v0 + self.camera.focal_px * (ya + lam * (yb - ya)) / (za_c + lam * (zb_c - za_c))
         return hit, rows
@@ -336,9 +355,13 @@ class StripeRenderer:
         if si.size:
             s_eff2 = sigma2 + var[si]
             peak = amp * coverage[si] * np.sqrt(sigma2 / s_eff2)
-            start = np.clip(np.rint(mean[si]).astype(np.intp) - self._half, 0, cam.rows - len(self._win))
+            start = np.clip(
+                np.rint(mean[si]).astype(np.intp) - self._half, 0, cam.rows - len(self._win)
+            )
             idx = start[:, None] + self._win[None, :]
-            signal = peak[:, None] * np.exp(-((idx - mean[si, None]) ** 2) / (2.0 * s_eff2[:, None]))
+            signal = peak[:, None] * np.exp(
+                -((idx - mean[si, None]) ** 2) / (2.0 * s_eff2[:, None])
+            )
             self._expose(frame, cols[si], idx, signal)
         # complex columns (an edge inside the column): every sub-column over the full column
         ci = np.flatnonzero(lit & ~simple)
@@ -370,4 +393,3 @@ def image_rows(frame: U8Array) -> U8Array:
 def frame_from_image(image: U8Array) -> U8Array:
     """Column-major C-contiguous frame (columns, rows) from a (rows, columns) image."""
     return np.ascontiguousarray(np.asarray(image).T)
-

@@ -35,7 +35,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from enum import Enum
+from enum import StrEnum
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -49,7 +49,7 @@ class SceneError(ValueError):
     """A scene, joint or pose parameter is invalid."""
 
 
-class JointType(str, Enum):
+class JointType(StrEnum):
     """Joint geometry; the detector looks for the matching seam feature."""
 
     BUTT = "butt"  # feature: gap between two plates
@@ -238,9 +238,7 @@ class Scene:
 
     def seam_point_w(self, x: FloatArray) -> FloatArray:
         """Seam points in W at stations x (N,) -> (N, 3) mm."""
-        return np.stack(
-            [x, self.path.y(x), np.full_like(x, self.joint.seam_height_mm)], axis=-1
-        )
+        return np.stack([x, self.path.y(x), np.full_like(x, self.joint.seam_height_mm)], axis=-1)
 
     def sensor_over_seam(
         self,
@@ -343,9 +341,9 @@ def scripted_pose(
     def provider(times: FloatArray) -> FloatArray:
         dt = np.asarray(times, dtype=np.float64) - t0_s
         out = np.broadcast_to(t_start, (dt.shape[0], 4, 4)).copy()
-        out[:, :3, 3] += dt[:, None] * v + (sine_amplitude_mm * np.sin(omega * dt))[
-            :, None
-        ] * axis_b
+        out[:, :3, 3] += (
+            dt[:, None] * v + (sine_amplitude_mm * np.sin(omega * dt))[:, None] * axis_b
+        )
         return out
 
     return provider

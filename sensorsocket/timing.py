@@ -146,7 +146,7 @@ class TimingModel:
         t_poll = self.poll_time(t_arrival)
         jitter = float(self.rng.uniform(0.0, self.start_jitter_s)) if self.start_jitter_s else 0.0
         t_start = max(t_poll + self.start_latency_s + jitter, not_before)
-        column_times = t_start + np.arange(n) * dt + exposure / 2.0
+        column_times: FloatArray = t_start + np.arange(n, dtype=np.float64) * dt + exposure / 2.0
         t_end = t_start + (n - 1) * dt + exposure
         return Acquisition(
             t_arrival=t_arrival,

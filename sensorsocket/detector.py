@@ -1,0 +1,524 @@
+"""Stripe and seam detector of the seam-tracking sensor (pure numpy, vectorised over columns).
+
+Input: a frame in readout layout ``(columns, rows)`` (see :mod:`sensorsocket.camera`), any
+integer or float grey levels, from the renderer or from anywhere else (a saved PGM, a real
+camera). Steps:
+
+1. Stripe: per column, the brightest row (argmax), then a fixed window of 2h+1 rows around
+   it and its intensity centroid after subtracting a threshold ``background + k·noise``
+   (background and noise estimated per frame, robustly, from pixels just outside the
+   windows). Second pass with the window re-centred on the centroid. A column is valid when
+   its peak clears the background by ``max(min_contrast_dn, 6·noise)`` and the stripe is not
+   wider than ``max_width_px`` (rms).
+2. Profile: valid centres mapped through the calibration (laser plane + pinhole) to points
+   (0, y, z) in the sensor frame S, mm; isolated outliers (reflections) removed against a
+   5-point running median.
+3. Seam feature for the configured joint type: butt -> the widest gap between two coplanar
+   plates, edges refined to sub-column precision from the stripe mass (a column half over
+   the gap carries half the light); fillet -> the corner where two robust line fits meet;
+   lap -> the largest depth step, the edge refined from the light on either level in the
+   edge column, seam on the lower plate at that edge.
+
+Result: status (``FOUND`` or why not), ^S_G T (4x4 mm; x_G = x_S because one profile does not
+show the seam direction, z_G the surface normal in the laser plane, pointing away from the
+sensor), quality in [0, 1], and the chip column where the seam lies (fractional), which the
+caller turns into the time inside the readout.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sensorsocket.camera import CameraGeometry
+from sensorsocket.scene import FloatArray, JointType
+
+_EYE4 = np.eye(4)
+_EYE4.setflags(write=False)
+
+
+class DetectorError(ValueError):
+    """Invalid detector configuration (bad images give a status, not this)."""
+
+
+class SeamStatus(StrEnum):
+    """Why a seam was or was not reported."""
+
+    FOUND = "found"
+    NO_STRIPE = "no_stripe"  # too few stripe columns: laser off, dark, out of range, noise
+    NO_FEATURE = "no_feature"  # a stripe, but no seam feature of the configured joint type
+    AMBIGUOUS = "ambiguous"  # more than one plausible feature
+    BAD_IMAGE = "bad_image"  # not a 2-D image with enough rows
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Detector thresholds; grey levels in DN, lengths in mm, angles in degrees."""
+
+    joint: JointType = JointType.BUTT
+    half_window: int = 6
+    noise_factor: float = 3.0
+    min_contrast_dn: float = 15.0
+    max_width_px: float = 3.5
+    min_valid_columns: int = 40
+    min_side_points: int = 20
+    outlier_mm: float = 0.15
+    corner_margin_mm: float = 0.3
+    min_gap_mm: float = 0.1
+    max_gap_mm: float = 3.0
+    max_plate_angle_deg: float = 15.0
+    max_mismatch_mm: float = 2.0
+    min_step_mm: float = 0.25
+    min_corner_angle_deg: float = 20.0
+    max_extrapolation_mm: float = 0.5
+    max_rms_mm: float = 0.1
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.joint, JointType):
+            raise DetectorError(f"unknown joint type {self.joint!r}")
+        if not 2 <= self.half_window <= 32:
+            raise DetectorError("half_window must be 2..32 rows")
+        if self.min_valid_columns < 4 or self.min_side_points < 3:
+            raise DetectorError("need at least 4 valid columns and 3 points per side")
+
+
+@dataclass(frozen=True)
+class StripeProfile:
+    """Per-column stripe of a frame (arrays (n,), column ``first_column + i``)."""
+
+    first_column: int
+    rows: FloatArray = field(repr=False)
+    mass: FloatArray = field(repr=False)
+    valid: NDArray[np.bool_] = field(repr=False)
+    background: float
+    noise: float
+    threshold: float
+
+
+@dataclass(frozen=True)
+class Detection:
+    """Outcome of one frame. ``seam2sensor`` is the identity when nothing was found."""
+
+    status: SeamStatus
+    seam2sensor: FloatArray = field(repr=False)
+    quality: float
+    column: float  # chip column of the seam (fractional), NaN if none
+    points: FloatArray = field(repr=False)  # (M, 3) profile points in S, mm
+    point_columns: NDArray[np.intp] = field(repr=False)  # (M,) chip columns of ``points``
+    stripe: StripeProfile | None = field(repr=False, default=None)
+
+    @property
+    def found(self) -> bool:
+        return self.status is SeamStatus.FOUND
+
+
+@dataclass(frozen=True)
+class _Line:
+    """z = a + b·y fitted to n points with rms residual (mm)."""
+
+    a: float
+    b: float
+    rms: float
+    n: int
+
+
+class SeamDetector:
+    """Finds the stripe and the seam in frames of a camera with the given geometry."""
+
+    def __init__(self, camera: CameraGeometry | None = None, config: DetectorConfig | None = None):
+        self.camera = camera if camera is not None else CameraGeometry()
+        self.config = config if config is not None else DetectorConfig()
+        h = self.config.half_window
+        self._win = np.arange(2 * h + 1, dtype=np.float32)
+        self._win_i = np.arange(2 * h + 1)
+        self._win2 = self._win * self._win
+        # calibration per row: the ray through row v meets the laser plane at
+        # y = s(v)·(u - u0)/f, z = c_z + s(v)·rz(v) -- tabulated on rows for speed is not
+        # needed, the closed form is a handful of array operations.
+        self._empty_points = np.zeros((0, 3))
+        self._empty_cols = np.zeros(0, dtype=np.intp)
+
+    # -- stage 1: stripe -------------------------------------------------------------------
+    def stripe(self, frame: NDArray[np.generic], first_column: int = 0) -> StripeProfile:
+        """Sub-pixel stripe rows of every column of ``frame`` (n, rows)."""
+        a = np.ascontiguousarray(frame)
+        n, nrows = a.shape
+        h = self.config.half_window
+        w = 2 * h + 1
+        flat = a.reshape(-1)
+        base = np.arange(n, dtype=np.intp) * nrows
+        peak_row = a.argmax(axis=1)
+        peak = flat[base + peak_row].astype(np.float32)
+        ring = np.concatenate(
+            [np.maximum(peak_row - (h + 3), 0), np.minimum(peak_row + h + 3, nrows - 1)]
+        )
+        samples = flat[np.concatenate([base, base]) + ring].astype(np.float32)
+        background = float(np.median(samples))
+        noise = max(1.4826 * float(np.median(np.abs(samples - background))), 0.5)
+        threshold = background + max(self.config.noise_factor * noise, 1.0)
+        contrast = max(self.config.min_contrast_dn, 6.0 * noise)
+        start = np.clip(peak_row - h, 0, nrows - w)
+        rows = np.zeros(n, dtype=np.float32)
+        rel = np.zeros(n, dtype=np.float32)
+        mass = np.zeros(n, dtype=np.float32)
+        vals = np.zeros((n, w), dtype=np.float32)
+        for second in (False, True):
+            if second:  # re-centre on the first centroid: symmetric window, whole plateau
+                start = np.clip(np.rint(rows).astype(np.intp) - h, 0, nrows - w)
+            vals = flat[(base + start)[:, None] + self._win_i].astype(np.float32)
+            vals -= np.float32(threshold)
+            np.maximum(vals, 0.0, out=vals)
+            mass = vals.sum(axis=1)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                rel = (vals @ self._win) / mass
+            rel = np.where(mass > 0, rel, np.float32(h))
+            rows = rel + start.astype(np.float32)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            spread = (vals @ self._win2) / mass - rel * rel
+        valid = (
+            (peak >= background + contrast) & (mass > 0) & (spread <= self.config.max_width_px**2)
+        )
+        return StripeProfile(
+            first_column=first_column,
+            rows=rows.astype(np.float64),
+            mass=mass.astype(np.float64),
+            valid=valid,
+            background=background,
+            noise=noise,
+            threshold=threshold,
+        )
+
+    def mass_at(
+        self,
+        frame: NDArray[np.generic],
+        stripe: StripeProfile,
+        columns: NDArray[np.intp],
+        rows: FloatArray,
+        half: int,
+    ) -> FloatArray:
+        """Thresholded light in rows ``rows ± half`` of chip ``columns`` (k,) of ``frame``."""
+        nrows = frame.shape[1]
+        local = columns - stripe.first_column
+        ok = (local >= 0) & (local < frame.shape[0]) & np.isfinite(rows)
+        out = np.zeros(len(columns))
+        if not ok.any():
+            return out
+        r = np.rint(rows[ok]).astype(np.intp)
+        idx = r[:, None] + np.arange(-half, half + 1)[None, :]
+        inside = (idx >= 0) & (idx < nrows)
+        vals = np.asarray(frame)[local[ok][:, None], np.clip(idx, 0, nrows - 1)]
+        vals = np.maximum(vals.astype(np.float64) - stripe.threshold, 0.0) * inside
+        out[ok] = vals.sum(axis=1)
+        return out
+
+    # -- stage 2 and 3 ---------------------------------------------------------------------
+    def detect(self, frame: NDArray[np.generic], first_column: int = 0) -> Detection:
+        """Stripe, profile and seam of one frame (n columns, rows) starting at chip column
+        ``first_column``. Never raises on image content; the status says what happened."""
+        a = np.asarray(frame)
+        cfg = self.config
+        if (
+            a.ndim != 2
+            or a.shape[1] < 2 * cfg.half_window + 1
+            or a.shape[0] < 1
+            or not (np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating))
+        ):
+            return self._none(SeamStatus.BAD_IMAGE, None)
+        if np.issubdtype(a.dtype, np.floating) and not np.isfinite(a).all():
+            a = np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)
+        stripe = self.stripe(a, first_column)
+        cols = np.flatnonzero(stripe.valid)
+        if cols.size < cfg.min_valid_columns:
+            return self._none(SeamStatus.NO_STRIPE, stripe)
+        u = cols + first_column
+        pts = self.camera.pixel_to_sensor(u.astype(np.float64), stripe.rows[cols])
+        y, z = pts[:, 1], pts[:, 2]
+        keep = _not_isolated_outliers(z, cfg.outlier_mm)
+        u, y, z, pts = u[keep], y[keep], z[keep], pts[keep]
+        if u.size < cfg.min_valid_columns:
+            return self._none(SeamStatus.NO_STRIPE, stripe, pts, u)
+        if cfg.joint is JointType.BUTT:
+            return self._butt(a, stripe, u, y, z, pts)
+        if cfg.joint is JointType.FILLET:
+            return self._fillet(stripe, u, y, z, pts)
+        return self._lap(a, stripe, u, y, z, pts)
+
+    def _none(
+        self,
+        status: SeamStatus,
+        stripe: StripeProfile | None,
+        pts: FloatArray | None = None,
+        u: NDArray[np.intp] | None = None,
+    ) -> Detection:
+        return Detection(
+            status=status,
+            seam2sensor=_EYE4.copy(),
+            quality=0.0,
+            column=math.nan,
+            points=self._empty_points if pts is None else pts,
+            point_columns=self._empty_cols if u is None else u,
+            stripe=stripe,
+        )
+
+    def _found(
+        self,
+        stripe: StripeProfile,
+        point: FloatArray,
+        slope: float,
+        quality: float,
+        pts: FloatArray,
+        u: NDArray[np.intp],
+    ) -> Detection:
+        t = np.eye(4)
+        norm = math.hypot(1.0, slope)
+        t[:3, 1] = (0.0, 1.0 / norm, slope / norm)
+        t[:3, 2] = (0.0, -slope / norm, 1.0 / norm)
+        t[:3, 3] = point
+        column = float(self.camera.project(np.asarray(point, dtype=np.float64))[0])
+        return Detection(
+            status=SeamStatus.FOUND,
+            seam2sensor=t,
+            quality=float(min(max(quality, 0.0), 1.0)),
+            column=column,
+            points=pts,
+            point_columns=u,
+            stripe=stripe,
+        )
+
+    def _quality(self, n_used: int, n_columns: int, rms: float, feature: float) -> float:
+        coverage = min(1.0, n_used / max(0.5 * n_columns, 1.0))
+        fit = 1.0 / (1.0 + (rms / 0.03) ** 2)
+        return coverage * fit * min(max(feature, 0.0), 1.0)
+
+    def _butt(
+        self,
+        frame: NDArray[np.generic],
+        stripe: StripeProfile,
+        u: NDArray[np.intp],
+        y: FloatArray,
+        z: FloatArray,
+        pts: FloatArray,
+    ) -> Detection:
+        cfg = self.config
+        holes = np.flatnonzero(np.diff(u) > 1)
+        if holes.size == 0:
+            return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
+        widths = y[holes + 1] - y[holes]
+        sides_ok = (holes + 1 >= cfg.min_side_points) & (u.size - holes - 1 >= cfg.min_side_points)
+        cand = (widths >= cfg.min_gap_mm) & (widths <= cfg.max_gap_mm) & sides_ok
+        if not cand.any():
+            return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
+        order = np.argsort(np.where(cand, widths, -1.0))[::-1]
+        best = int(order[0])
+        if order.size > 1 and cand[order[1]] and widths[order[1]] >= 0.6 * widths[best]:
+            return self._none(SeamStatus.AMBIGUOUS, stripe, pts, u)
+        i = int(holes[best])
+        left = _robust_line(y[: i + 1], z[: i + 1])
+        right = _robust_line(y[i + 1 :], z[i + 1 :])
+        if left is None or right is None:
+            return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
+        angle = abs(math.degrees(math.atan(left.b) - math.atan(right.b)))
+        yc = 0.5 * (y[i] + y[i + 1])
+        mismatch = abs((left.a + left.b * yc) - (right.a + right.b * yc))
+        rms = max(left.rms, right.rms)
+        if (
+            angle > cfg.max_plate_angle_deg
+            or mismatch > cfg.max_mismatch_mm
+            or rms > cfg.max_rms_mm
+        ):
+            return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
+        u_left, u_right = int(u[i]), int(u[i + 1])
+        # sub-column edges: light in the edge columns relative to the plate's full columns
+        edge_l = self._coverage(frame, stripe, u_left, u_right, left, side=-1)
+        edge_r = self._coverage(frame, stripe, u_left, u_right, right, side=+1)
+        p_l = self.camera.line_row(np.array(edge_l), left.a, left.b)[1]
+        p_r = self.camera.line_row(np.array(edge_r), right.a, right.b)[1]
+        point = 0.5 * (p_l + p_r)
+        slope = math.tan(0.5 * (math.atan(left.b) + math.atan(right.b)))
+        q = self._quality(left.n + right.n, stripe.rows.size, rms, 1.0)
+        return self._found(stripe, point, slope, q, pts, u)
+
+    def _coverage(
+        self,
+        frame: NDArray[np.generic],
+        stripe: StripeProfile,
+        u_left: int,
+        u_right: int,
+        line: _Line,
+        side: int,
+    ) -> float:
+        """Fractional chip column of a plate edge next to a gap (u_left, u_right).
+
+        The plate ending at u_left (side -1) or starting at u_right (side +1) covers the
+        columns beyond the gap fully; the columns next to the gap carry light in proportion
+        to the part of their width the plate covers.
+        """
+        h = self.config.half_window
+        if side < 0:
+            ref_cols = np.arange(u_left - 10, u_left - 1)
+            edge_cols = (
+                np.array([u_left, u_left + 1]) if u_left + 1 < u_right else np.array([u_left])
+            )
+        else:
+            ref_cols = np.arange(u_right + 2, u_right + 11)
+            edge_cols = (
+                np.array([u_right, u_right - 1]) if u_right - 1 > u_left else np.array([u_right])
+            )
+        all_cols = np.concatenate([ref_cols, edge_cols])
+        rows = self.camera.line_row(all_cols.astype(np.float64), line.a, line.b)[0]
+        m = self.mass_at(frame, stripe, all_cols, rows, h)
+        ref = float(np.median(m[: ref_cols.size])) if ref_cols.size else 0.0
+        if ref <= 0:
+            return float(edge_cols[0]) + 0.5 * side
+        cover = float(np.clip(m[ref_cols.size :] / ref, 0.0, 1.0).sum())
+        if side < 0:
+            return float(u_left) - 0.5 + cover
+        return float(u_right) + 0.5 - cover
+
+    def _fillet(
+        self,
+        stripe: StripeProfile,
+        u: NDArray[np.intp],
+        y: FloatArray,
+        z: FloatArray,
+        pts: FloatArray,
+    ) -> Detection:
+        cfg = self.config
+        # split where the profile is farthest from its chord, then refine at the corner
+        dy, dz = y[-1] - y[0], z[-1] - z[0]
+        dist = np.abs(dy * (z - z[0]) - dz * (y - y[0]))
+        y_split = float(y[int(np.argmax(dist))])
+        left = right = None
+        for _ in range(2):
+            lm = y < y_split - cfg.corner_margin_mm
+            rm = y > y_split + cfg.corner_margin_mm
+            left = _robust_line(y[lm], z[lm])
+            right = _robust_line(y[rm], z[rm])
+            if left is None or right is None or left.b == right.b:
+                return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
+            y_split = (right.a - left.a) / (left.b - right.b)
+        assert left is not None and right is not None
+        if left.n < cfg.min_side_points or right.n < cfg.min_side_points:
+            return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
+        angle = abs(math.degrees(math.atan(left.b) - math.atan(right.b)))
+        rms = max(left.rms, right.rms)
+        z_c = left.a + left.b * y_split
+        gap_to_data = float(np.min(np.hypot(y - y_split, z - z_c)))
+        if (
+            angle < cfg.min_corner_angle_deg
+            or rms > cfg.max_rms_mm
+            or gap_to_data > cfg.max_extrapolation_mm
+            or not (y[0] < y_split < y[-1])
+        ):
+            return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
+        # the corner's normal bisects the plates' directions
+        d_l = np.array([1.0, left.b]) / math.hypot(1.0, left.b)
+        d_r = np.array([1.0, right.b]) / math.hypot(1.0, right.b)
+        d = d_l + d_r
+        slope = float(d[1] / d[0])
+        q = self._quality(
+            left.n + right.n, stripe.rows.size, rms, angle / (2.0 * cfg.min_corner_angle_deg)
+        )
+        return self._found(stripe, np.array([0.0, y_split, z_c]), slope, q, pts, u)
+
+    def _lap(
+        self,
+        frame: NDArray[np.generic],
+        stripe: StripeProfile,
+        u: NDArray[np.intp],
+        y: FloatArray,
+        z: FloatArray,
+        pts: FloatArray,
+    ) -> Detection:
+        cfg = self.config
+        jumps = np.abs(np.diff(z))
+        i = int(np.argmax(jumps))
+        step = float(jumps[i])
+        if step < cfg.min_step_mm:
+            return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
+        others = np.delete(jumps, i)
+        if others.size and float(others.max()) >= max(cfg.min_step_mm, 0.5 * step):
+            return self._none(SeamStatus.AMBIGUOUS, stripe, pts, u)
+        if i + 1 < cfg.min_side_points or u.size - i - 1 < cfg.min_side_points:
+            return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
+        # the two columns next to the step may mix both levels: fit without them
+        left = _robust_line(y[: max(i - 1, 0)], z[: max(i - 1, 0)])
+        right = _robust_line(y[i + 3 :], z[i + 3 :])
+        if left is None or right is None:
+            return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
+        rms = max(left.rms, right.rms)
+        angle = abs(math.degrees(math.atan(left.b) - math.atan(right.b)))
+        if rms > cfg.max_rms_mm or angle > cfg.max_plate_angle_deg:
+            return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
+        y_e = 0.5 * (y[i] + y[i + 1])
+        upper_left = (left.a + left.b * y_e) < (right.a + right.b * y_e)
+        upper, lower = (left, right) if upper_left else (right, left)
+        # The upper plate's edge is lit and seen (its light ends there; the lower plate near
+        # the wall may lie in its laser shadow). Count the upper plate's share of the
+        # columns around the step, each relative to a full upper-plate column, then drop
+        # from the edge perpendicular to the plates onto the lower plate: the inside corner.
+        u_a, u_b = int(u[i]), int(u[i + 1])
+        cols = np.arange(u_a - 1, u_b + 2)
+        ref_idx = (
+            np.arange(max(i - 10, 0), i - 1)
+            if upper_left
+            else np.arange(i + 3, min(i + 12, u.size))
+        )
+        all_cols = np.concatenate([cols, u[ref_idx]])
+        r_up = self.camera.line_row(all_cols.astype(np.float64), upper.a, upper.b)[0]
+        r_lo = self.camera.line_row(cols.astype(np.float64), lower.a, lower.b)[0]
+        sep = float(np.nanmin(np.abs(r_up[: cols.size] - r_lo)))
+        half = int(max(1, min(cfg.half_window, math.floor(sep / 2.0 - 0.5))))
+        m_up = self.mass_at(frame, stripe, all_cols, r_up, half)
+        ref = float(np.median(m_up[cols.size :])) if ref_idx.size else 0.0
+        if ref <= 0.0:
+            return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
+        cover = float(np.clip(m_up[: cols.size] / ref, 0.0, 1.0).sum())
+        u_edge = (cols[0] - 0.5 + cover) if upper_left else (cols[-1] + 0.5 - cover)
+        edge = self.camera.line_row(np.array(u_edge), upper.a, upper.b)[1]
+        d = np.array([1.0, lower.b]) / math.hypot(1.0, lower.b)
+        t = edge[1] * d[0] + (edge[2] - lower.a) * d[1]
+        point = np.array([0.0, t * d[0], lower.a + t * d[1]])
+        q = self._quality(left.n + right.n, stripe.rows.size, rms, step / (2.0 * cfg.min_step_mm))
+        return self._found(stripe, point, lower.b, q, pts, u)
+
+
+def _not_isolated_outliers(z: FloatArray, tol: float) -> NDArray[np.bool_]:
+    """Mask of points within ``tol`` of the 5-point running median of z."""
+    if z.size < 5:
+        return np.ones(z.size, dtype=bool)
+    padded = np.concatenate([z[:1], z[:1], z, z[-1:], z[-1:]])
+    windows = np.lib.stride_tricks.sliding_window_view(padded, 5)
+    med = np.median(windows, axis=1)
+    keep: NDArray[np.bool_] = np.abs(z - med) <= tol
+    return keep
+
+
+def _robust_line(y: FloatArray, z: FloatArray, iterations: int = 2) -> _Line | None:
+    """Least-squares line z = a + b·y, refitted without points beyond 3.5 robust sigma."""
+    if y.size < 3:
+        return None
+    mask = np.ones(y.size, dtype=bool)
+    a = b = rms = 0.0
+    for it in range(iterations + 1):
+        yy, zz = y[mask], z[mask]
+        n = yy.size
+        if n < 3:
+            return None
+        my, mz = yy.mean(), zz.mean()
+        dy = yy - my
+        syy = float(dy @ dy)
+        if syy <= 1e-12:
+            return None
+        b = float(dy @ (zz - mz)) / syy
+        a = float(mz - b * my)
+        res = z - (a + b * y)
+        rms = float(np.sqrt(np.mean(res[mask] ** 2)))
+        if it < iterations:
+            sigma = 1.4826 * float(np.median(np.abs(res[mask])))
+            mask = np.abs(res) <= max(3.5 * sigma, 0.01)
+    return _Line(a=a, b=b, rms=rms, n=int(mask.sum()))
