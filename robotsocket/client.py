@@ -1,0 +1,290 @@
+"""RobotClient: one method per RobotSocket command, VAL3 units, typed exceptions.
+
+Example::
+
+    with RobotClient("127.0.0.1", 4000) as robot:
+        robot.take_control()
+        robot.enable_power()
+        robot.joint_move((0, -30, 90, 0, 60, 0))
+        robot.wait_end_move(30.0)
+        print(robot.herej())
+
+Every error packet raises a :class:`RobotRemoteError` subclass chosen by its error code
+(``NotPoweredError``, ``NotInControlError``, ...) carrying ``code`` and ``message``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from spec.client import ClientTimeout, ConnectionClosed, FramedClient
+from spec.errors import ErrorCode, RemoteError
+from spec.params import Joints, Location, Matrix, Value
+from spec.registry import CommandId
+
+Array = npt.NDArray[np.float64]
+Loc = tuple[float, float, float, float, float, float]
+IDENTITY: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+class RobotRemoteError(RemoteError):
+    """An error packet from the robot server; ``code`` (ErrorCode) and ``message``."""
+
+
+class NotPoweredError(RobotRemoteError):
+    pass
+
+
+class NotInControlError(RobotRemoteError):
+    pass
+
+
+class EmergencyStopError(RobotRemoteError):
+    pass
+
+
+class OutOfRangeError(RobotRemoteError):
+    pass
+
+
+class UnreachableError(RobotRemoteError):
+    pass
+
+
+class SingularityError(RobotRemoteError):
+    pass
+
+
+class BusyError(RobotRemoteError):
+    pass
+
+
+class AuthError(RobotRemoteError):
+    pass
+
+
+class BadParametersError(RobotRemoteError):
+    pass
+
+
+class UnknownCommandError(RobotRemoteError):
+    pass
+
+
+_ERRORS: dict[int, type[RobotRemoteError]] = {
+    ErrorCode.NOT_POWERED: NotPoweredError,
+    ErrorCode.NOT_IN_CONTROL: NotInControlError,
+    ErrorCode.EMERGENCY_STOP: EmergencyStopError,
+    ErrorCode.OUT_OF_RANGE: OutOfRangeError,
+    ErrorCode.UNREACHABLE: UnreachableError,
+    ErrorCode.SINGULARITY: SingularityError,
+    ErrorCode.BUSY: BusyError,
+    ErrorCode.AUTH_FAILED: AuthError,
+    ErrorCode.BAD_PARAMETERS: BadParametersError,
+    ErrorCode.UNKNOWN_COMMAND: UnknownCommandError,
+}
+
+
+@dataclass(frozen=True, slots=True)
+class Status:
+    """GetStatus reply; ``time`` on the robot clock (s)."""
+
+    powered: bool
+    estop: bool
+    moving: bool
+    queue: int
+    in_control: bool
+    controlled: bool
+    last_error: int
+    last_message: str
+    time: float
+
+
+@dataclass(frozen=True, slots=True)
+class MotionDesc:
+    """Motion descriptor: joint speed/accel/decel in %, tool speed mm/s and deg/s, blend mm."""
+
+    joint_speed: float = 10.0
+    joint_accel: float = 100.0
+    joint_decel: float = 100.0
+    tool_speed: float = 250.0
+    tool_rot_speed: float = 90.0
+    blend: float = 0.0
+
+
+def _location(values: Sequence[float] | Location) -> Location:
+    return values if isinstance(values, Location) else Location.of(values)
+
+
+class RobotClient(FramedClient):
+    """Blocking client of a RobotSocket server (see :class:`spec.client.FramedClient` for
+    ``timeout``, ``auto_reconnect``, ``reconnect()`` and the context manager)."""
+
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        *,
+        timeout: float = 5.0,
+        auto_reconnect: bool = False,
+        client_name: str = "robotsocket-client/0.1",
+    ) -> None:
+        super().__init__(
+            host, port, timeout=timeout, auto_reconnect=auto_reconnect, client_name=client_name
+        )
+
+    def __enter__(self) -> RobotClient:
+        return self
+
+    def call(self, command: int, *params: Value, timeout: float | None = None) -> tuple[Value, ...]:
+        try:
+            return super().call(command, *params, timeout=timeout)
+        except RemoteError as exc:
+            if isinstance(exc, RobotRemoteError):
+                raise
+            cls = _ERRORS.get(exc.raw_code, RobotRemoteError)
+            raise cls(exc.raw_code, exc.message, exc.command, exc.request_id) from None
+
+    # --- state -------------------------------------------------------------------------------
+
+    def status(self) -> Status:
+        v = self.call(CommandId.ROBOT_STATUS)
+        return Status(*v)  # type: ignore[arg-type]
+
+    def herej(self) -> Array:
+        """Measured joints (6,) in degrees."""
+        (j,) = self.call(CommandId.HEREJ)
+        assert isinstance(j, Joints)
+        return np.array(j.values)
+
+    def here(
+        self,
+        tool: Sequence[float] | Location = IDENTITY,
+        frame: Sequence[float] | Location = IDENTITY,
+    ) -> Loc:
+        """Location of ``tool`` (relative to the flange) in ``frame`` (relative to the base)."""
+        (loc,) = self.call(CommandId.HERE, _location(tool), _location(frame))
+        assert isinstance(loc, Location)
+        return loc.as_tuple()
+
+    def joint_limits(self) -> Array:
+        """(6, 2) degrees, [lower, upper]."""
+        (m,) = self.call(CommandId.GET_JOINT_LIMITS)
+        assert isinstance(m, Matrix)
+        return np.array(m.values).reshape(m.rows, m.cols)
+
+    def joint_log(self, since: float = -1.0) -> tuple[Array, Array]:
+        """Samples with t_k > since (s): times (N,) robot clock, measured joints (N, 6)."""
+        m, _period = self.call(CommandId.GET_JOINT_LOG, float(since))
+        assert isinstance(m, Matrix)
+        rows = np.array(m.values).reshape(m.rows, m.cols)
+        return rows[:, 0].copy(), rows[:, 1:].copy()
+
+    # --- power and motion --------------------------------------------------------------------
+
+    def enable_power(self) -> None:
+        self.call(CommandId.ENABLE_POWER)
+
+    def disable_power(self) -> None:
+        self.call(CommandId.DISABLE_POWER)
+
+    def joint_move(self, joints: Sequence[float]) -> int:
+        """Queue a joint move to ``joints`` (6,) degrees; returns the move ID at once."""
+        (mid,) = self.call(CommandId.JOINT_MOVE, Joints(joints))
+        assert isinstance(mid, int)
+        return mid
+
+    def tool_move_j(
+        self,
+        loc: Sequence[float] | Location,
+        tool: Sequence[float] | Location = IDENTITY,
+        frame: Sequence[float] | Location = IDENTITY,
+    ) -> int:
+        (mid,) = self.call(CommandId.TOOL_MOVE_J, _location(loc), _location(tool), _location(frame))
+        assert isinstance(mid, int)
+        return mid
+
+    def tool_move_l(
+        self,
+        loc: Sequence[float] | Location,
+        tool: Sequence[float] | Location = IDENTITY,
+        frame: Sequence[float] | Location = IDENTITY,
+    ) -> int:
+        (mid,) = self.call(CommandId.TOOL_MOVE_L, _location(loc), _location(tool), _location(frame))
+        assert isinstance(mid, int)
+        return mid
+
+    def set_motion_desc(self, desc: MotionDesc) -> None:
+        self.call(
+            CommandId.SET_MOTION_DESC,
+            float(desc.joint_speed),
+            float(desc.joint_accel),
+            float(desc.joint_decel),
+            float(desc.tool_speed),
+            float(desc.tool_rot_speed),
+            float(desc.blend),
+        )
+
+    def motion_desc(self) -> MotionDesc:
+        return MotionDesc(*self.call(CommandId.GET_MOTION_DESC))  # type: ignore[arg-type]
+
+    def wait_end_move(self, timeout: float = 60.0) -> bool:
+        """True when the arm settled, False when ``timeout`` s passed first (the socket
+        timeout is extended by the wait)."""
+        (done,) = self.call(CommandId.WAIT_END_MOVE, float(timeout), timeout=timeout + self.timeout)
+        assert isinstance(done, bool)
+        return done
+
+    def stop_move(self) -> None:
+        self.call(CommandId.STOP_MOVE)
+
+    def restart_move(self) -> None:
+        self.call(CommandId.RESTART_MOVE)
+
+    def reset_motion(self) -> None:
+        self.call(CommandId.RESET_MOTION)
+
+    def emergency_stop(self) -> None:
+        self.call(CommandId.EMERGENCY_STOP)
+
+    def reset_emergency_stop(self) -> None:
+        self.call(CommandId.RESET_EMERGENCY_STOP)
+
+    # --- I/O ---------------------------------------------------------------------------------
+
+    def set_output(self, name: str, value: bool) -> None:
+        self.call(CommandId.SET_OUTPUT, name, bool(value))
+
+    def read_io(self, name: str) -> bool:
+        value, _is_output = self.call(CommandId.READ_IO, name)
+        assert isinstance(value, bool)
+        return value
+
+    def list_io(self) -> tuple[list[str], list[str]]:
+        outputs, inputs = self.call(CommandId.LIST_IO)
+        assert isinstance(outputs, str) and isinstance(inputs, str)
+        return [n for n in outputs.split(",") if n], [n for n in inputs.split(",") if n]
+
+
+__all__ = [
+    "AuthError",
+    "BadParametersError",
+    "BusyError",
+    "ClientTimeout",
+    "ConnectionClosed",
+    "EmergencyStopError",
+    "MotionDesc",
+    "NotInControlError",
+    "NotPoweredError",
+    "OutOfRangeError",
+    "RobotClient",
+    "RobotRemoteError",
+    "SingularityError",
+    "Status",
+    "UnknownCommandError",
+    "UnreachableError",
+]

@@ -1,0 +1,438 @@
+"""The robot emulator: a :class:`RobotInterface` over the kinematic model and the generator.
+
+State: power, software emergency stop, motion queue (:class:`TrajectoryGenerator`), named
+digital I/O, and the cyclic joint buffer of (t_k, q_k) (:class:`sync.joint_buffer.JointBuffer`,
+default 10 s deep). Every cycle (T_r = 4 ms) produces a setpoint; the measured joints are the
+setpoints delayed by ``encoder_latency`` seconds (linear interpolation between cycles) plus
+optional Gaussian noise, and are what Herej, Here and the joint log report.
+
+Clocks: ``clock="sim"`` (default) never advances by itself: call :meth:`RobotEmulator.step`
+or :meth:`RobotEmulator.advance_to`; :meth:`wait_end_move` *advances the simulated clock*
+until the motion is done or the timeout (simulated seconds) expires. ``clock="real"`` runs a
+:class:`~robotsocket.clock.RealTimeLoop` thread (call :meth:`start` and :meth:`close`).
+
+Observers: callables in :attr:`RobotEmulator.cycle_hooks` are called every cycle with
+(t_k, q_setpoint (6,), q_measured (6,)) while the emulator's lock is held; keep them short.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from collections import deque
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from kinematics.errors import JointLimitError, KinematicsError
+from kinematics.errors import SingularityError as KinSingularityError
+from kinematics.errors import UnreachableError as KinUnreachableError
+from kinematics.robot import RobotModel, get_model
+from kinematics.transforms import invert, location_to_transform, transform_to_location
+from robotsocket.clock import RealTimeLoop, SimClock
+from robotsocket.interface import (
+    IDENTITY_LOC,
+    Array,
+    BadStateError,
+    BusyError,
+    EmergencyStopError,
+    InvalidArgumentError,
+    Loc,
+    MotionDesc,
+    NotPoweredError,
+    OutOfRangeError,
+    RobotError,
+    RobotInfo,
+    RobotInterface,
+    RobotStatus,
+    SingularityError,
+    UnreachableError,
+)
+from robotsocket.trajectory import PERIOD, Move, TrajectoryGenerator, plan_joint, plan_linear
+from sync.joint_buffer import JointBuffer
+
+log = logging.getLogger(__name__)
+
+#: Start joints (deg): upper arm up, forearm forward, flange pointing down; no singularity.
+HOME = (0.0, 0.0, 90.0, 0.0, 90.0, 0.0)
+OUTPUTS = ("laser", "gas", "crossjet")
+INPUTS = ("laser_ready", "gas_pressure_ok", "door_closed")
+#: Moves that may wait in the queue.
+MAX_QUEUE = 256
+
+CycleHook = Callable[[float, Array, Array], None]
+
+
+def _loc(values: Sequence[float], what: str) -> Array:
+    arr = np.asarray(values, dtype=np.float64)
+    if arr.shape != (6,) or not np.all(np.isfinite(arr)):
+        raise InvalidArgumentError(f"{what}: expected 6 finite numbers (x, y, z, rx, ry, rz)")
+    return location_to_transform(arr)
+
+
+class RobotEmulator(RobotInterface):
+    """An emulated Stäubli arm (default RX90B) behind the robot API.
+
+    ``encoder_latency`` s (>= 0), ``noise_deg`` standard deviation of the measured joints
+    (needs ``rng``), ``buffer_seconds`` depth of the joint log, ``home`` start joints (6,).
+    """
+
+    def __init__(
+        self,
+        model: str | RobotModel = "RX90B",
+        *,
+        clock: str = "sim",
+        period: float = PERIOD,
+        encoder_latency: float = 0.0,
+        noise_deg: float = 0.0,
+        rng: np.random.Generator | None = None,
+        home: Sequence[float] = HOME,
+        buffer_seconds: float = 10.0,
+        serial: str = "EMU-0001",
+    ) -> None:
+        self.model = model if isinstance(model, RobotModel) else get_model(model)
+        if clock not in ("sim", "real"):
+            raise ValueError(f"clock must be 'sim' or 'real', got {clock!r}")
+        if not (math.isfinite(encoder_latency) and encoder_latency >= 0.0):
+            raise ValueError(f"encoder_latency must be >= 0 s, got {encoder_latency}")
+        if noise_deg < 0.0 or (noise_deg > 0.0 and rng is None):
+            raise ValueError("noise_deg must be >= 0 and needs an rng when > 0")
+        self.period = period
+        self.encoder_latency = encoder_latency
+        self.noise_deg = noise_deg
+        self._rng = rng
+        self._serial = serial
+        q0 = self.model.check_joints(home)
+        self._lock = threading.RLock()
+        self._cond = threading.Condition(self._lock)
+        self._waiters = 0
+        self._gen = TrajectoryGenerator(q0, period)
+        self._desc = MotionDesc()
+        self._powered = False
+        self._estop = False
+        self._last_error: RobotError | None = None
+        self._next_move_id = 1
+        self._outputs = dict.fromkeys(OUTPUTS, False)
+        self._inputs = dict.fromkeys(INPUTS, True)
+        self._lag_cycles = math.ceil(encoder_latency / period) + 2
+        self._setpoints: deque[tuple[float, Array]] = deque(maxlen=self._lag_cycles + 1)
+        self._setpoints.append((0.0, q0))
+        self._measured = q0.copy()
+        self._setpoint = q0.copy()
+        self._buffer = JointBuffer(capacity=max(2, round(buffer_seconds / period)))
+        self._buffer.append(0.0, q0)
+        self._idle_since = 0.0
+        self.cycle_hooks: list[CycleHook] = []
+        self._simclock: SimClock | None = None
+        self._loop: RealTimeLoop | None = None
+        if clock == "sim":
+            self._simclock = SimClock(period, self._tick)
+        else:
+            self._loop = RealTimeLoop(period, self._tick)
+
+    # --- clock -------------------------------------------------------------------------------
+
+    @property
+    def simulated(self) -> bool:
+        return self._simclock is not None
+
+    def start(self) -> RobotEmulator:
+        """Start the real-time loop (no-op in simulated mode)."""
+        if self._loop is not None and not self._loop.running:
+            self._loop.start()
+        return self
+
+    def close(self) -> None:
+        if self._loop is not None:
+            self._loop.stop()
+
+    def jitter(self) -> dict[str, float]:
+        """Real-time tick lateness summary (s); empty counts in simulated mode."""
+        if self._loop is None:
+            return {"count": 0, "p50": 0.0, "p99": 0.0, "max": 0.0, "mean": 0.0}
+        return self._loop.jitter()
+
+    def step(self, n_cycles: int = 1) -> None:
+        """Simulated mode: run ``n_cycles`` controller cycles."""
+        if self._simclock is None:
+            raise BadStateError("step() is for the simulated clock; the real clock runs itself")
+        with self._lock:
+            self._simclock.advance(n_cycles)
+
+    def advance_to(self, t: float) -> None:
+        """Simulated mode: run cycles until the robot clock reaches ``t`` seconds."""
+        if self._simclock is None:
+            raise BadStateError("advance_to() is for the simulated clock")
+        with self._lock:
+            n = math.floor(t / self.period + 1e-9) - self._simclock.cycle
+            if n > 0:
+                self._simclock.advance(n)
+
+    @property
+    def cycle(self) -> int:
+        return self._simclock.cycle if self._simclock is not None else self._gen.k
+
+    def _tick(self, k: int) -> None:
+        with self._lock:
+            t = k * self.period
+            q_sp = self._gen.step(k)
+            self._setpoint = q_sp
+            self._setpoints.append((t, q_sp))
+            q_m = self._delayed(t - self.encoder_latency)
+            if self.noise_deg > 0.0 and self._rng is not None:
+                q_m = q_m + self._rng.normal(0.0, self.noise_deg, q_m.shape)
+            self._measured = q_m
+            self._buffer.append(t, q_m)
+            if self._gen.in_motion:
+                self._idle_since = math.inf
+            elif self._idle_since == math.inf:
+                self._idle_since = t
+            for hook in self.cycle_hooks:
+                hook(t, q_sp, q_m)
+            if self._waiters:
+                self._cond.notify_all()
+
+    def _delayed(self, t: float) -> Array:
+        hist = self._setpoints
+        if self.encoder_latency == 0.0 or t <= hist[0][0]:
+            return hist[-1][1] if self.encoder_latency == 0.0 else hist[0][1]
+        for i in range(len(hist) - 1, 0, -1):
+            t0, q0 = hist[i - 1]
+            t1, q1 = hist[i]
+            if t0 <= t <= t1:
+                w = (t - t0) / (t1 - t0)
+                return q0 + w * (q1 - q0)
+        return hist[-1][1]
+
+    # --- RobotInterface ----------------------------------------------------------------------
+
+    def info(self) -> RobotInfo:
+        return RobotInfo("Staubli (emulated)", self.model.name, self._serial)
+
+    def time(self) -> float:
+        if self._loop is not None:
+            return self._loop.now()
+        assert self._simclock is not None
+        return self._simclock.now()
+
+    def _settled(self) -> bool:
+        t = self._gen.k * self.period
+        return self._gen.idle and t >= self._idle_since + self.encoder_latency - 1e-12
+
+    def status(self) -> RobotStatus:
+        with self._lock:
+            return RobotStatus(
+                powered=self._powered,
+                estop=self._estop,
+                moving=self._gen.in_motion or (not self._settled() and not self._gen.held),
+                queue=self._gen.queued,
+                last_error=self._last_error,
+                time=self.time(),
+            )
+
+    def herej(self) -> Array:
+        with self._lock:
+            return np.array(self._measured)
+
+    def setpoint(self) -> Array:
+        """Latest commanded joints (6,) degrees."""
+        with self._lock:
+            return np.array(self._setpoint)
+
+    def here(self, tool: Loc = IDENTITY_LOC, frame: Loc = IDENTITY_LOC) -> Loc:
+        tool_T, frame_T = _loc(tool, "tool"), _loc(frame, "frame")
+        with self._lock:
+            q = np.array(self._measured)
+        T = invert(frame_T) @ self.model.flange2base(q) @ tool_T
+        x, y, z, rx, ry, rz = (float(v) for v in transform_to_location(T))
+        return (x, y, z, rx, ry, rz)
+
+    def joint_limits(self) -> Array:
+        return np.array(self.model.limits)
+
+    def enable_power(self) -> None:
+        with self._lock:
+            if self._estop:
+                raise EmergencyStopError("emergency stop engaged: reset it before power on")
+            if not self._powered:
+                self._powered = True
+                log.info("arm power on")
+
+    def disable_power(self) -> None:
+        with self._lock:
+            self._gen.halt()
+            if self._powered:
+                self._powered = False
+                log.info("arm power off")
+
+    def _check_can_move(self) -> None:
+        if self._estop:
+            raise EmergencyStopError("emergency stop engaged")
+        if not self._powered:
+            raise NotPoweredError("arm power is off: EnablePower first")
+        if len(self._gen.queue) >= MAX_QUEUE:
+            raise BusyError(f"motion queue full ({MAX_QUEUE} moves)")
+
+    def _queue(self, plan: Callable[[int, Array], object]) -> int:
+        with self._lock:
+            try:
+                self._check_can_move()
+                move_id = self._next_move_id
+                move = plan(move_id, self._gen.planned_end())
+            except RobotError as exc:
+                self._last_error = exc
+                raise
+            except KinematicsError as exc:
+                err = _robot_error(exc)
+                self._last_error = err
+                raise err from None
+            assert isinstance(move, Move)
+            self._next_move_id += 1
+            self._gen.enqueue(move)
+            self._idle_since = math.inf
+            log.debug("queued %s move %d", move.kind, move_id)
+            return move_id
+
+    def joint_move(self, joints: Array) -> int:
+        q = np.asarray(joints, dtype=np.float64)
+        if q.shape != (6,) or not np.all(np.isfinite(q)):
+            raise InvalidArgumentError(f"joints: expected 6 finite values, got shape {q.shape}")
+        return self._queue(lambda i, start: plan_joint(i, self.model, start, q, self._desc))
+
+    def _tool_target(self, loc: Loc, tool: Loc, frame: Loc) -> tuple[Array, Array]:
+        tool_T = _loc(tool, "tool")
+        target = _loc(frame, "frame") @ _loc(loc, "location")
+        return target, tool_T
+
+    def tool_move_j(self, loc: Loc, tool: Loc = IDENTITY_LOC, frame: Loc = IDENTITY_LOC) -> int:
+        target, tool_T = self._tool_target(loc, tool, frame)
+        flange = target @ invert(tool_T)
+
+        def plan(i: int, start: Array) -> object:
+            sols = self.model.ik(flange, near=start)
+            return plan_joint(i, self.model, start, sols[0].joints_deg, self._desc)
+
+        return self._queue(plan)
+
+    def tool_move_l(self, loc: Loc, tool: Loc = IDENTITY_LOC, frame: Loc = IDENTITY_LOC) -> int:
+        target, tool_T = self._tool_target(loc, tool, frame)
+        return self._queue(
+            lambda i, start: plan_linear(i, self.model, start, target, tool_T, self._desc)
+        )
+
+    def set_motion_desc(self, desc: MotionDesc) -> None:
+        with self._lock:
+            self._desc = desc
+
+    def motion_desc(self) -> MotionDesc:
+        with self._lock:
+            return self._desc
+
+    def wait_end_move(self, timeout: float) -> bool:
+        if not (math.isfinite(timeout) and 0.0 < timeout <= 3600.0):
+            raise OutOfRangeError(f"timeout must be in (0, 3600] s, got {timeout}")
+        with self._lock:
+            if self._simclock is not None:
+                # Simulated clock: waiting *is* advancing the clock.
+                end = self._simclock.cycle + math.ceil(timeout / self.period)
+                while not self._settled() and self._simclock.cycle < end:
+                    if self._gen.held and not self._gen.in_motion:
+                        # Held by StopMove: nothing can change; let the time pass in one go.
+                        self._simclock.advance(end - self._simclock.cycle)
+                        break
+                    self._simclock.advance(1)
+                return self._settled()
+            self._waiters += 1
+            try:
+                return self._cond.wait_for(self._settled, timeout)
+            finally:
+                self._waiters -= 1
+
+    def stop_move(self) -> None:
+        with self._lock:
+            self._gen.stop()
+
+    def restart_move(self) -> None:
+        with self._lock:
+            if self._estop:
+                raise EmergencyStopError("emergency stop engaged")
+            if not self._powered:
+                raise NotPoweredError("arm power is off")
+            self._gen.restart()
+
+    def reset_motion(self) -> None:
+        with self._lock:
+            self._gen.reset()
+            self._last_error = None
+
+    def on_control_lost(self) -> None:
+        with self._lock:
+            if not self._gen.idle:
+                log.warning("controller lost: decelerating along the path and dropping the queue")
+            self._gen.reset()
+
+    def emergency_stop(self) -> None:
+        with self._lock:
+            self._gen.halt()
+            self._estop = True
+            self._powered = False
+            # Safety: the process outputs (laser, gas, crossjet) go off with the arm.
+            for name in self._outputs:
+                self._outputs[name] = False
+            self._last_error = EmergencyStopError("emergency stop engaged")
+            log.warning("EMERGENCY STOP: motion halted, power and outputs off")
+
+    def reset_emergency_stop(self) -> None:
+        with self._lock:
+            if self._estop:
+                self._estop = False
+                self._last_error = None
+                log.info("emergency stop reset (power stays off)")
+
+    def set_output(self, name: str, value: bool) -> None:
+        with self._lock:
+            if name in self._inputs:
+                raise InvalidArgumentError(f"{name!r} is an input and cannot be set")
+            if name not in self._outputs:
+                raise InvalidArgumentError(
+                    f"unknown output {name!r}; outputs: {', '.join(self._outputs)}"
+                )
+            if self._estop and value:
+                raise EmergencyStopError("emergency stop engaged: outputs stay off")
+            self._outputs[name] = bool(value)
+            log.info("output %s %s", name, "on" if value else "off")
+
+    def set_input(self, name: str, value: bool) -> None:
+        """Emulator side: change a digital input (what the cell's sensors would do)."""
+        with self._lock:
+            if name not in self._inputs:
+                raise InvalidArgumentError(f"unknown input {name!r}")
+            self._inputs[name] = bool(value)
+
+    def read_io(self, name: str) -> tuple[bool, bool]:
+        with self._lock:
+            if name in self._outputs:
+                return self._outputs[name], True
+            if name in self._inputs:
+                return self._inputs[name], False
+        raise InvalidArgumentError(f"unknown I/O {name!r}")
+
+    def list_io(self) -> tuple[list[str], list[str]]:
+        return list(self._outputs), list(self._inputs)
+
+    def joint_log(self, since: float) -> tuple[Array, Array]:
+        with self._lock:
+            times, joints = self._buffer.since(since)
+        keep = times > since
+        return times[keep], joints[keep]
+
+
+def _robot_error(exc: KinematicsError) -> RobotError:
+    if isinstance(exc, KinUnreachableError):
+        return UnreachableError(str(exc))
+    if isinstance(exc, KinSingularityError):
+        return SingularityError(str(exc))
+    if isinstance(exc, JointLimitError):
+        return OutOfRangeError(str(exc))
+    return InvalidArgumentError(str(exc))

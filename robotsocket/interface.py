@@ -1,0 +1,206 @@
+"""The abstract robot API the RobotSocket server calls.
+
+"Robots from different manufacturers can be used as long as they follow the API" (paper,
+section III): an adapter for a real controller subclasses :class:`RobotInterface`; the
+emulator (:mod:`robotsocket.emulator`) is one implementation. Methods take and return plain
+Python and numpy values in VAL3 units (mm, degrees, seconds); no wire types appear here.
+Failures raise a :class:`RobotError` subclass; the service maps each to its wire error code.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+Array = npt.NDArray[np.float64]
+#: A VAL3 location: x, y, z (mm), rx, ry, rz (degrees), R = Rx(rx)·Ry(ry)·Rz(rz).
+Loc = tuple[float, float, float, float, float, float]
+IDENTITY_LOC: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+class RobotError(Exception):
+    """Base of every failure a robot reports; ``str()`` is the human message."""
+
+
+class InvalidArgumentError(RobotError, ValueError):
+    """An argument is malformed (wrong count, not finite, unknown I/O name, bad mdesc)."""
+
+
+class OutOfRangeError(RobotError, ValueError):
+    """A value is outside its allowed range, e.g. a joint limit."""
+
+
+class UnreachableError(RobotError, ValueError):
+    """The location (or a point of the path to it) cannot be reached by the arm."""
+
+
+class SingularityError(RobotError, ValueError):
+    """The path crosses or ends in a singularity."""
+
+
+class NotPoweredError(RobotError):
+    """Arm power is off."""
+
+
+class EmergencyStopError(RobotError):
+    """The emergency stop is engaged."""
+
+
+class BusyError(RobotError):
+    """The motion queue is full."""
+
+
+class BadStateError(RobotError):
+    """Not allowed in the current state."""
+
+
+@dataclass(frozen=True, slots=True)
+class MotionDesc:
+    """Motion descriptor (VAL3 mdesc) for the moves queued after it.
+
+    joint_speed, joint_accel, joint_decel: % of the model's nominal joint speed, acceleration
+    and deceleration (0 < v <= 100). tool_speed: mm/s, tool_rot_speed: deg/s (Cartesian
+    limits, also applied to ToolMoveL only). blend: mm; 0 stops at each target, > 0 blends
+    into the next queued move once the remaining path is shorter than ``blend``.
+    """
+
+    joint_speed: float = 10.0
+    joint_accel: float = 100.0
+    joint_decel: float = 100.0
+    tool_speed: float = 250.0
+    tool_rot_speed: float = 90.0
+    blend: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("joint_speed", "joint_accel", "joint_decel"):
+            v = float(getattr(self, name))
+            if not (math.isfinite(v) and 0.0 < v <= 100.0):
+                raise OutOfRangeError(f"{name} must be in (0, 100] %, got {v}")
+        for name in ("tool_speed", "tool_rot_speed"):
+            v = float(getattr(self, name))
+            if not (math.isfinite(v) and v > 0.0):
+                raise OutOfRangeError(f"{name} must be > 0, got {v}")
+        if not (math.isfinite(self.blend) and self.blend >= 0.0):
+            raise OutOfRangeError(f"blend must be >= 0 mm, got {self.blend}")
+
+
+@dataclass(frozen=True, slots=True)
+class RobotStatus:
+    """Status snapshot. ``queue`` counts moves queued, including the one executing."""
+
+    powered: bool
+    estop: bool
+    moving: bool
+    queue: int
+    last_error: RobotError | None
+    time: float
+
+
+@dataclass(frozen=True, slots=True)
+class RobotInfo:
+    """What Hello reports about the arm."""
+
+    vendor: str
+    model: str
+    serial: str
+    n_joints: int = 6
+
+
+class RobotInterface(ABC):
+    """The robot API the server dispatches to. Implementations must be thread-safe: the
+    server calls them from one thread per connection."""
+
+    period: float = 0.004  # s, controller cycle T_r of the joint log
+
+    @abstractmethod
+    def info(self) -> RobotInfo: ...
+
+    @abstractmethod
+    def time(self) -> float:
+        """Robot clock in seconds: the time base of the joint log and of GetTime."""
+
+    @abstractmethod
+    def status(self) -> RobotStatus: ...
+
+    @abstractmethod
+    def herej(self) -> Array:
+        """Measured joints (6,) in degrees."""
+
+    @abstractmethod
+    def here(self, tool: Loc = IDENTITY_LOC, frame: Loc = IDENTITY_LOC) -> Loc:
+        """Measured location of ``tool`` (relative to the flange) in ``frame`` (relative to
+        the base)."""
+
+    @abstractmethod
+    def joint_limits(self) -> Array:
+        """Joint limits (6, 2) in degrees, [lower, upper]."""
+
+    @abstractmethod
+    def enable_power(self) -> None: ...
+
+    @abstractmethod
+    def disable_power(self) -> None:
+        """Stop at once, empty the queue, switch power off."""
+
+    @abstractmethod
+    def joint_move(self, joints: Array) -> int:
+        """Queue a joint-interpolated move to ``joints`` (6,) degrees; return its move ID."""
+
+    @abstractmethod
+    def tool_move_j(self, loc: Loc, tool: Loc = IDENTITY_LOC, frame: Loc = IDENTITY_LOC) -> int:
+        """Queue a joint-interpolated move of ``tool`` to ``loc`` in ``frame``."""
+
+    @abstractmethod
+    def tool_move_l(self, loc: Loc, tool: Loc = IDENTITY_LOC, frame: Loc = IDENTITY_LOC) -> int:
+        """Queue a straight-line move of ``tool`` to ``loc`` in ``frame``."""
+
+    @abstractmethod
+    def set_motion_desc(self, desc: MotionDesc) -> None: ...
+
+    @abstractmethod
+    def motion_desc(self) -> MotionDesc: ...
+
+    @abstractmethod
+    def wait_end_move(self, timeout: float) -> bool:
+        """Wait until the queue is empty and the arm settled; False when ``timeout`` (s)
+        expired first."""
+
+    @abstractmethod
+    def stop_move(self) -> None:
+        """Decelerate along the path and hold; the queue is kept."""
+
+    @abstractmethod
+    def restart_move(self) -> None: ...
+
+    @abstractmethod
+    def reset_motion(self) -> None:
+        """Decelerate along the path, stop and empty the queue."""
+
+    @abstractmethod
+    def emergency_stop(self) -> None: ...
+
+    @abstractmethod
+    def reset_emergency_stop(self) -> None: ...
+
+    @abstractmethod
+    def set_output(self, name: str, value: bool) -> None: ...
+
+    @abstractmethod
+    def read_io(self, name: str) -> tuple[bool, bool]:
+        """(value, is_output) of a named digital input or output."""
+
+    @abstractmethod
+    def list_io(self) -> tuple[list[str], list[str]]:
+        """(output names, input names)."""
+
+    @abstractmethod
+    def joint_log(self, since: float) -> tuple[Array, Array]:
+        """Logged samples with t_k > ``since`` (s): times (N,) and measured joints (N, 6)."""
+
+    def on_control_lost(self) -> None:
+        """The controlling client vanished: stop in a controlled way, keep power as it is."""
+        self.reset_motion()

@@ -1,0 +1,233 @@
+"""The RobotSocket service: registry commands -> robot interface calls -> reply parameters.
+
+The :class:`~spec.server.FramedServer` shell has already checked the parameters against the
+registry and control ownership when :meth:`RobotService.handle` runs. Handlers live in a dict
+keyed by command ID; :meth:`RobotService.register` adds more (the synchronisation commands
+0x3001-0x3009 plug in this way) and :meth:`implemented` lists exactly what is registered.
+Register extra handlers *before* the server is constructed: the shell reads ``implemented()``
+once, in its constructor.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+
+import numpy as np
+
+from robotsocket.interface import (
+    BadStateError,
+    BusyError,
+    EmergencyStopError,
+    InvalidArgumentError,
+    Loc,
+    MotionDesc,
+    NotPoweredError,
+    OutOfRangeError,
+    RobotError,
+    RobotInterface,
+    SingularityError,
+    UnreachableError,
+)
+from spec.errors import ErrorCode, ProtocolError
+from spec.params import Joints, Location, Matrix, Value
+from spec.registry import CommandId, CommandSpec
+from spec.server import Identity, Service, Session
+
+log = logging.getLogger(__name__)
+
+Handler = Callable[[Session, tuple[Value, ...]], tuple[Value, ...]]
+
+#: Interface error class -> wire error code (most specific first).
+ERROR_CODES: tuple[tuple[type[RobotError], ErrorCode], ...] = (
+    (NotPoweredError, ErrorCode.NOT_POWERED),
+    (EmergencyStopError, ErrorCode.EMERGENCY_STOP),
+    (OutOfRangeError, ErrorCode.OUT_OF_RANGE),
+    (UnreachableError, ErrorCode.UNREACHABLE),
+    (SingularityError, ErrorCode.SINGULARITY),
+    (BusyError, ErrorCode.BUSY),
+    (BadStateError, ErrorCode.BAD_STATE),
+    (InvalidArgumentError, ErrorCode.BAD_PARAMETERS),
+)
+
+
+def error_code(exc: RobotError) -> ErrorCode:
+    """The wire code of an interface error (INTERNAL_ERROR for an unknown subclass)."""
+    for cls, code in ERROR_CODES:
+        if isinstance(exc, cls):
+            return code
+    return ErrorCode.INTERNAL_ERROR
+
+
+def _loc(value: Value) -> Loc:
+    assert isinstance(value, Location)
+    return value.as_tuple()
+
+
+def _float(value: Value) -> float:
+    assert isinstance(value, float)
+    return value
+
+
+class RobotService(Service):
+    """Serves a :class:`RobotInterface` (the emulator or an adapter for a real controller)."""
+
+    def __init__(self, robot: RobotInterface, software: str = "0.1.0") -> None:
+        self.robot = robot
+        info = robot.info()
+        self.identity = Identity("robot", info.vendor, info.model, info.serial, software)
+        self._handlers: dict[int, Handler] = {}
+        C = CommandId
+        for cid, handler in (
+            (C.ROBOT_STATUS, self._status),
+            (C.HEREJ, self._herej),
+            (C.HERE, self._here),
+            (C.ENABLE_POWER, self._enable_power),
+            (C.DISABLE_POWER, self._disable_power),
+            (C.JOINT_MOVE, self._joint_move),
+            (C.TOOL_MOVE_J, self._tool_move_j),
+            (C.TOOL_MOVE_L, self._tool_move_l),
+            (C.SET_MOTION_DESC, self._set_mdesc),
+            (C.GET_MOTION_DESC, self._get_mdesc),
+            (C.WAIT_END_MOVE, self._wait_end_move),
+            (C.STOP_MOVE, self._simple(robot.stop_move)),
+            (C.RESTART_MOVE, self._simple(robot.restart_move)),
+            (C.RESET_MOTION, self._simple(robot.reset_motion)),
+            (C.EMERGENCY_STOP, self._estop),
+            (C.RESET_EMERGENCY_STOP, self._simple(robot.reset_emergency_stop)),
+            (C.SET_OUTPUT, self._set_output),
+            (C.READ_IO, self._read_io),
+            (C.LIST_IO, self._list_io),
+            (C.GET_JOINT_LOG, self._joint_log),
+            (C.GET_JOINT_LIMITS, self._joint_limits),
+        ):
+            self.register(cid, handler)
+
+    # --- extension ---------------------------------------------------------------------------
+
+    def register(self, command: int, handler: Handler) -> None:
+        """Serve ``command`` with ``handler(session, params) -> reply params``; a handler may
+        raise :class:`ProtocolError` or :class:`RobotError`. Replaces an existing handler."""
+        self._handlers[int(command)] = handler
+
+    def implemented(self) -> tuple[int, ...]:
+        return tuple(sorted(self._handlers))
+
+    # --- Service -----------------------------------------------------------------------------
+
+    def handle(
+        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
+        handler = self._handlers.get(int(spec.id))
+        if handler is None:
+            raise ProtocolError(f"{spec.name} not implemented", ErrorCode.UNKNOWN_COMMAND)
+        try:
+            return handler(session, params)
+        except RobotError as exc:
+            raise ProtocolError(str(exc), error_code(exc)) from None
+
+    def clock(self) -> float:
+        return self.robot.time()
+
+    def on_control_lost(self, session: Session) -> None:
+        self.robot.on_control_lost()
+
+    # --- handlers ----------------------------------------------------------------------------
+
+    @staticmethod
+    def _simple(fn: Callable[[], None]) -> Handler:
+        def handler(session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+            fn()
+            return ()
+
+        return handler
+
+    def _status(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        st = self.robot.status()
+        err = st.last_error
+        return (
+            st.powered,
+            st.estop,
+            st.moving,
+            st.queue,
+            session.in_control,
+            session.server.control_holder is not None,
+            0 if err is None else int(error_code(err)),
+            "" if err is None else str(err),
+            float(st.time),
+        )
+
+    def _herej(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        return (Joints(self.robot.herej().tolist()),)
+
+    def _here(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        return (Location(*self.robot.here(_loc(params[0]), _loc(params[1]))),)
+
+    def _enable_power(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        self.robot.enable_power()
+        return ()
+
+    def _disable_power(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        self.robot.disable_power()
+        return ()
+
+    def _joint_move(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        joints = params[0]
+        assert isinstance(joints, Joints)
+        if len(joints.values) != 6:
+            raise InvalidArgumentError(f"JointMove needs 6 joints, got {len(joints.values)}")
+        return (self.robot.joint_move(np.array(joints.values)),)
+
+    def _tool_move_j(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        return (self.robot.tool_move_j(_loc(params[0]), _loc(params[1]), _loc(params[2])),)
+
+    def _tool_move_l(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        return (self.robot.tool_move_l(_loc(params[0]), _loc(params[1]), _loc(params[2])),)
+
+    def _set_mdesc(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        self.robot.set_motion_desc(MotionDesc(*(_float(p) for p in params)))
+        return ()
+
+    def _get_mdesc(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        d = self.robot.motion_desc()
+        return (
+            d.joint_speed,
+            d.joint_accel,
+            d.joint_decel,
+            d.tool_speed,
+            d.tool_rot_speed,
+            d.blend,
+        )
+
+    def _wait_end_move(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        return (self.robot.wait_end_move(_float(params[0])),)
+
+    def _estop(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        log.warning("emergency stop requested by session %d (%s)", session.id, session.peer[0])
+        self.robot.emergency_stop()
+        return ()
+
+    def _set_output(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        name, value = params
+        assert isinstance(name, str) and isinstance(value, bool)
+        self.robot.set_output(name, value)
+        return ()
+
+    def _read_io(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        name = params[0]
+        assert isinstance(name, str)
+        value, is_output = self.robot.read_io(name)
+        return (value, is_output)
+
+    def _list_io(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        outputs, inputs = self.robot.list_io()
+        return (",".join(outputs), ",".join(inputs))
+
+    def _joint_log(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        times, joints = self.robot.joint_log(_float(params[0]))
+        rows = np.column_stack([times, joints]) if len(times) else np.zeros((0, 7))
+        return (Matrix(rows.shape[0], 7, rows.ravel().tolist()), float(self.robot.period))
+
+    def _joint_limits(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        lim = self.robot.joint_limits()
+        return (Matrix(6, 2, lim.ravel().tolist()),)
