@@ -1,0 +1,218 @@
+"""Triangulation geometry, stripe renderer, frame layout, PGM files and the emulator."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sensorsocket.camera import (
+    CameraError,
+    CameraGeometry,
+    RenderSettings,
+    StripeRenderer,
+    frame_from_image,
+    image_rows,
+)
+from sensorsocket.detector import SeamDetector, SeamStatus
+from sensorsocket.emulator import CameraEmulator, SettingsError
+from sensorsocket.pgm import PgmError, parse_pgm, read_frame, read_pgm, write_frame
+from sensorsocket.scene import Joint, Scene, SeamPath, fixed_pose, scripted_pose
+from sensorsocket.timing import TimingModel
+
+CAM = CameraGeometry()
+
+
+def test_documented_field_of_view() -> None:
+    fov = CAM.field_of_view()
+    assert fov["width_mm"] == pytest.approx(20.48, abs=0.01)
+    assert fov["depth_mm"] == pytest.approx(14.6, abs=0.1)
+    assert fov["z_min_mm"] < 0 < fov["z_max_mm"]
+    assert CAM.baseline_mm == pytest.approx(64 * np.sin(np.radians(45)))
+    # the optical axis meets the laser plane at the sensor-frame origin (image centre)
+    np.testing.assert_allclose(CAM.pixel_to_sensor(np.array(255.5), np.array(127.5)), 0, atol=1e-12)
+
+
+def test_triangulation_by_hand() -> None:
+    # a point at depth z on the laser line under the camera: the pinhole at
+    # (-D sinθ, 0, -D cosθ) sees it at angle atan(z sinθ / (D + z cosθ)) off axis
+    z = 3.0
+    d, th = 64.0, np.radians(45.0)
+    u, v = CAM.project(np.array([0.0, 0.0, z]))
+    expected = 127.5 + 1600.0 * (z * np.sin(th)) / (d + z * np.cos(th))
+    assert float(u) == pytest.approx(255.5)
+    assert float(v) == pytest.approx(expected)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(-0.5, 511.5), st.floats(-0.5, 255.5))
+def test_pixel_to_sensor_round_trip(u: float, v: float) -> None:
+    p = CAM.pixel_to_sensor(np.array(u), np.array(v))
+    assert float(p[0]) == 0.0
+    uu, vv = CAM.project(p)
+    assert float(uu) == pytest.approx(u, abs=1e-9)
+    assert float(vv) == pytest.approx(v, abs=1e-9)
+
+
+def _scene_and_pose(joint: Joint, **kw: float) -> tuple[Scene, np.ndarray]:
+    scene = Scene(joint, SeamPath.straight())
+    return scene, scene.sensor_over_seam(0.0, **kw)
+
+
+def test_frame_layout_is_column_major() -> None:
+    scene, pose = _scene_and_pose(Joint.lap(1.0), seam_y_mm=2.0)
+    r = StripeRenderer(scene, rng=np.random.default_rng(1))
+    frame, truth = r.render(0, np.zeros(512), fixed_pose(pose))
+    assert frame.shape == (512, 256) and frame.dtype == np.uint8
+    assert frame.flags.c_contiguous
+    assert frame.strides == (256, 1)  # one column = 256 contiguous bytes
+    # the stripe's brightest row in column u is the truth row of column u
+    u = 100
+    assert abs(int(frame[u].argmax()) - truth.center_row[u]) <= 1.0
+    rows = image_rows(frame)
+    assert rows.shape == (256, 512) and rows[int(truth.center_row[u] + 0.5), u] == frame[u].max()
+    np.testing.assert_array_equal(frame_from_image(rows), frame)
+
+
+def test_readout_window_and_laser_off() -> None:
+    scene, pose = _scene_and_pose(Joint.butt(0.5))
+    r = StripeRenderer(scene, rng=np.random.default_rng(2))
+    frame, truth = r.render(100, np.zeros(200), fixed_pose(pose))
+    assert not frame[:100].any() and not frame[300:].any()
+    assert frame[100:300].max() > 100
+    dark, _ = r.render(0, np.zeros(512), fixed_pose(pose), laser_on=False)
+    assert dark.max() < 40  # background and read noise only
+    with pytest.raises(CameraError):
+        r.render(500, np.zeros(20), fixed_pose(pose))
+
+
+def test_background_noise_statistics_are_honest() -> None:
+    s = RenderSettings(background_dn=20.0, read_noise_dn=3.0, noise_refresh_frames=4)
+    scene, pose = _scene_and_pose(Joint.butt(0.5))
+    r = StripeRenderer(scene, settings=s, rng=np.random.default_rng(3))
+    darks = np.stack(
+        [r.render(0, np.zeros(512), fixed_pose(pose), laser_on=False)[0] for _ in range(8)]
+    ).astype(float)
+    assert darks.mean() == pytest.approx(20.0, abs=0.05)
+    assert darks.std() == pytest.approx(3.0, abs=0.1)
+    # different frames do not repeat the same noise pixel for pixel
+    corr = np.corrcoef(darks[0].ravel(), darks[1].ravel())[0, 1]
+    assert abs(corr) < 0.05
+
+
+@pytest.mark.parametrize("read_noise", [0.5, 1.5, 2.5])
+def test_stripe_centre_accuracy(read_noise: float) -> None:
+    """Sub-pixel stripe centre ≤ 0.05 px rms, bias ≤ 0.01 px, against the rendered truth."""
+    rng = np.random.default_rng(int(read_noise * 10))
+    scene = Scene(Joint.lap(1.0))
+    r = StripeRenderer(scene, settings=RenderSettings(read_noise_dn=read_noise), rng=rng)
+    det = SeamDetector()
+    errors = []
+    for _ in range(20):
+        pose = scene.sensor_over_seam(
+            0.0,
+            seam_y_mm=rng.uniform(-2, 2),
+            seam_z_mm=rng.uniform(-3, 3),
+            roll_deg=rng.uniform(-8, 8),
+        )
+        frame, truth = r.render(0, np.zeros(512), fixed_pose(pose))
+        stripe = det.stripe(frame)
+        use = truth.simple & (truth.coverage == 1.0)
+        assert stripe.valid[use].mean() > 0.99
+        errors.append((stripe.rows - truth.center_row)[use & stripe.valid])
+    e = np.concatenate(errors)
+    assert e.size > 9000
+    assert np.sqrt(np.mean(e**2)) <= 0.05
+    assert abs(e.mean()) <= 0.01
+
+
+def test_motion_during_readout_shows_in_the_image() -> None:
+    """Columns are exposed one after another: column u shows the pose at its own time."""
+    scene = Scene(Joint.lap(1.0))
+    pose = scene.sensor_over_seam(0.0, seam_y_mm=-8.0)
+    times = np.arange(512) * 3.5e-3 / 512
+    r = StripeRenderer(scene, rng=np.random.default_rng(4))
+    away = pose[:3, 2] * -1000.0  # the sensor moves away from the plate at 1 m/s
+    _, t_move = r.render(0, times, scripted_pose(pose, velocity_mm_s=away))
+    for u in (40, 200, 450):
+        # still sensor where the moving one was when column u was exposed
+        still = pose.copy()
+        still[:3, 3] += away * times[u]
+        _, t_still = r.render(0, times, fixed_pose(still))
+        assert t_move.center_row[u] == pytest.approx(t_still.center_row[u], abs=1e-9)
+    # and the motion is visible: by column 450 the plate looks about 3 mm deeper
+    _, t_start = r.render(0, times, fixed_pose(pose))
+    assert t_move.center_row[450] - t_start.center_row[450] > 40.0
+
+
+def test_pgm_round_trip(tmp_path: Path) -> None:
+    scene, pose = _scene_and_pose(Joint.fillet())
+    frame, _ = StripeRenderer(scene, rng=np.random.default_rng(5)).render(
+        0, np.zeros(512), fixed_pose(pose)
+    )
+    path = tmp_path / "frame.pgm"
+    write_frame(path, frame)
+    data = path.read_bytes()
+    assert data.startswith(b"P5\n512 256\n255\n") and len(data) == 15 + 512 * 256
+    np.testing.assert_array_equal(read_frame(path), frame)
+    assert read_pgm(path).shape == (256, 512)
+    assert not list(tmp_path.glob("*.tmp"))
+    plain = parse_pgm(b"P2\n# comment\n3 2\n15\n0 1 2\n3 4 15\n")
+    np.testing.assert_array_equal(plain, [[0, 1, 2], [3, 4, 15]])
+    for bad in (b"P6\n1 1\n255\n\x00", b"P5\n4 4\n255\n\x00", b"P5\nx 4\n255\n"):
+        with pytest.raises(PgmError):
+            parse_pgm(bad)
+
+
+def _emulator(**kw: object) -> CameraEmulator:
+    scene = Scene(Joint.butt(0.4))
+    rng = np.random.default_rng(6)
+    return CameraEmulator(
+        scene,
+        fixed_pose(scene.sensor_over_seam(0.0, seam_y_mm=1.0)),
+        TimingModel(rng=rng),
+        rng=rng,
+    )
+
+
+def test_emulator_acquire_and_measure() -> None:
+    emu = _emulator()
+    f0 = emu.acquire(1.0)
+    f1 = emu.acquire(1.004)
+    assert (f0.index, f1.index) == (0, 1)
+    assert f0.image.shape == (512, 256) and f0.rows_view.shape == (256, 512)
+    a = f1.acquisition
+    assert 1.004 <= a.t_poll <= a.t_exposure_start <= 1.004 + 0.5e-3
+    assert a.t_exposure_end - a.t_exposure_start == pytest.approx(3.5e-3)
+    m = emu.measure(f1)
+    assert m.found and m.status is SeamStatus.FOUND and 0.5 < m.quality <= 1.0
+    assert m.seam2sensor[1, 3] == pytest.approx(1.0, abs=0.01)
+    assert (m.t_arrival, m.t_exposure_start, m.t_exposure_end) == (
+        1.004,
+        a.t_exposure_start,
+        a.t_exposure_end,
+    )
+    # the seam sits right of the centre column, so it was exposed after mid-readout
+    assert a.t_exposure_start + 1.75e-3 < m.t_seam < a.t_exposure_end
+
+
+def test_emulator_laser_off_and_settings() -> None:
+    emu = _emulator()
+    emu.set_laser(False)
+    m = emu.measure(emu.acquire(0.0))
+    assert not m.found and m.status is SeamStatus.NO_STRIPE
+    emu.set_laser(True)
+    s = emu.configure(first_column=200, n_columns=128, exposure_s=20e-6)
+    assert (s.first_column, s.n_columns) == (200, 128)
+    assert emu.acquisition_time() == pytest.approx(3.5e-3 / 4)
+    f = emu.acquire(1.0)
+    assert f.window.shape == (128, 256) and not f.image[:200].any()
+    m = emu.measure(f)
+    assert m.found and m.seam_column == pytest.approx(280.5, abs=0.5)
+    with pytest.raises(SettingsError):
+        emu.configure(first_column=500, n_columns=64)
+    with pytest.raises(SettingsError):
+        emu.configure(exposure_s=1.0)
