@@ -186,10 +186,15 @@ class FrameDecoder:
             return None
         # A copy, not a view: a view (or one held by an exception's traceback) would pin the
         # buffer and make the ``del`` below fail.
-        frame = bytes(buf[:end])
-        del buf[:end]
+        if end == len(buf):
+            frame = bytes(buf)
+            buf.clear()
+        else:
+            with memoryview(buf) as view, view[:end] as head:
+                frame = bytes(head)
+            del buf[:end]
         try:
-            return self._decode_frame(header, memoryview(frame))
+            return _decode_frame(header, memoryview(frame), self.kinds)
         except PeerError as exc:
             return Rejected(header, exc)
 
@@ -198,30 +203,39 @@ class FrameDecoder:
         self._buffer.clear()
         raise error
 
-    def _decode_frame(self, header: Header, frame: memoryview) -> Packet:
-        payload_end = wire.HEADER_SIZE + header.length
-        (crc,) = wire.TRAILER.unpack_from(frame, payload_end)
-        if zlib.crc32(frame[:payload_end]) != crc:
-            raise BadCrcError(f"CRC-32 mismatch (frame says {crc:08x})")
-        if header.version_major != wire.VERSION_MAJOR:
-            raise VersionError(
-                f"protocol version {header.version_major}.{header.version_minor} not supported;"
-                f" this peer speaks {wire.VERSION}"
-            )
-        try:
-            kind = PacketKind(header.kind)
-        except ValueError:
-            raise FrameError(f"unknown packet kind {header.kind}") from None
-        if kind not in self.kinds:
-            raise FrameError(f"packet kind {kind.name} not accepted here")
-        if header.flags != 0:
-            raise FrameError(f"reserved flags must be 0, got 0x{header.flags:02x}")
-        params = decode_params(frame[wire.HEADER_SIZE : payload_end])
-        return Packet(kind, header.command, header.request_id, params, header.version_minor)
+
+def _decode_frame(header: Header, frame: memoryview, kinds: frozenset[PacketKind]) -> Packet:
+    payload_end = wire.HEADER_SIZE + header.length
+    (crc,) = wire.TRAILER.unpack_from(frame, payload_end)
+    if zlib.crc32(frame[:payload_end]) != crc:
+        raise BadCrcError(f"CRC-32 mismatch (frame says {crc:08x})")
+    if header.version_major != wire.VERSION_MAJOR:
+        raise VersionError(
+            f"protocol version {header.version_major}.{header.version_minor} not supported;"
+            f" this peer speaks {wire.VERSION}"
+        )
+    try:
+        kind = PacketKind(header.kind)
+    except ValueError:
+        raise FrameError(f"unknown packet kind {header.kind}") from None
+    if kind not in kinds:
+        raise FrameError(f"packet kind {kind.name} not accepted here")
+    if header.flags != 0:
+        raise FrameError(f"reserved flags must be 0, got 0x{header.flags:02x}")
+    params = decode_params(frame[wire.HEADER_SIZE : payload_end])
+    return Packet(kind, header.command, header.request_id, params, header.version_minor)
 
 
 def decode_packet(data: bytes, max_payload: int = wire.MAX_PAYLOAD) -> Packet:
     """Decode exactly one complete frame; raise :class:`PeerError` on anything else."""
+    if (
+        len(data) >= wire.FRAME_OVERHEAD
+        and data[:2] == wire.MAGIC
+        and len(data) == wire.FRAME_OVERHEAD + Header.unpack(data).length
+        and Header.unpack(data).length <= max_payload
+    ):
+        # Fast path for exactly one frame: no buffering copy.
+        return _decode_frame(Header.unpack(data), memoryview(data), frozenset(PacketKind))
     decoder = FrameDecoder(max_payload=max_payload)
     decoder.feed(data)
     event = decoder.next_event()

@@ -1,0 +1,56 @@
+"""``python -m spec`` as a user runs it: real subprocesses."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+from spec.vectorgen import load
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run(*args: str, stdin: str | None = None) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "spec", *args],
+        capture_output=True,
+        text=True,
+        input=stdin,
+        cwd=ROOT,
+        timeout=60,
+    )
+
+
+def test_decode_hex_prints_every_field() -> None:
+    hex_text = next(v["hex"] for v in load("frames.json") if v["name"] == "reply-herej")
+    r = run("decode", hex_text)
+    assert r.returncode == 0, r.stderr
+    assert "Herej" in r.stdout and "REPLY" in r.stdout and "[10, -20, 90, 0, 45, 0]" in r.stdout
+    assert "[deg]" in r.stdout and "crc32" in r.stdout
+
+
+def test_decode_a_file_and_stdin(tmp_path: Path) -> None:
+    raw = bytes.fromhex(next(v["hex"] for v in load("datagrams.json") if v["name"] == "trigger"))
+    f = tmp_path / "trigger.bin"
+    f.write_bytes(raw)
+    r = run("decode", str(f))
+    assert r.returncode == 0 and "TRIGGER" in r.stdout and "index            42" in r.stdout
+    r = run("decode", "-", stdin=raw.hex(" "))
+    assert r.returncode == 0 and "TRIGGER" in r.stdout
+
+
+def test_decode_bad_input_is_one_line_and_exit_2() -> None:
+    for arg in ("not-hex", "5253", "52530100"):
+        r = run("decode", arg)
+        assert r.returncode == 2
+        assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
+    bad_crc = next(v["hex"] for v in load("frames.json") if v["name"] == "bad-crc")
+    r = run("decode", bad_crc)
+    assert r.returncode == 2 and "BAD_CRC" in r.stderr
+
+
+def test_doc_check_and_requirements_listing() -> None:
+    assert run("doc", "--check").returncode == 0
+    r = run("requirements")
+    assert r.returncode == 0 and "RS-3.1" in r.stdout and "MUST" in r.stdout

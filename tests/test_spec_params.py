@@ -1,0 +1,134 @@
+"""Round-trip properties of the parameter list and the frame codec."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from spec.codec import FrameDecoder, Packet, decode_packet, encode_packet, request
+from spec.errors import ParameterError, UsageError
+from spec.params import (
+    FloatArray,
+    Image,
+    IntArray,
+    Joints,
+    Location,
+    Matrix,
+    Transform,
+    Value,
+    decode_params,
+    encode_params,
+)
+from spec.wire import PacketKind, PixelFormat, PixelOrder
+
+finite = st.floats(allow_nan=False, allow_infinity=False)
+anyfloat = st.floats(allow_nan=False)  # NaN != NaN; checked separately below
+
+
+@st.composite
+def images(draw: st.DrawFn) -> Image:
+    w = draw(st.integers(0, 12))
+    h = draw(st.integers(0, 12))
+    fmt = draw(st.sampled_from(list(PixelFormat)))
+    n = w * h * (1 if fmt is PixelFormat.MONO8 else 2)
+    return Image(w, h, draw(st.binary(min_size=n, max_size=n)), fmt,
+                 draw(st.sampled_from(list(PixelOrder))))  # fmt: skip
+
+
+@st.composite
+def matrices(draw: st.DrawFn) -> Matrix:
+    rows, cols = draw(st.integers(0, 6)), draw(st.integers(0, 6))
+    return Matrix(rows, cols, draw(st.lists(anyfloat, min_size=rows * cols, max_size=rows * cols)))
+
+
+@st.composite
+def transforms(draw: st.DrawFn) -> Transform:
+    return Transform(draw(st.lists(finite, min_size=12, max_size=12)) + [0.0, 0.0, 0.0, 1.0])
+
+
+values: st.SearchStrategy[Value] = st.one_of(
+    st.integers(-(2**63), 2**63 - 1),
+    anyfloat,
+    st.booleans(),
+    st.text(max_size=40),
+    st.binary(max_size=64),
+    st.lists(anyfloat, max_size=20).map(FloatArray),
+    st.lists(st.integers(-(2**63), 2**63 - 1), max_size=20).map(IntArray),
+    st.lists(finite, min_size=1, max_size=16).map(Joints),
+    st.lists(finite, min_size=6, max_size=6).map(Location.of),
+    transforms(),
+    matrices(),
+    images(),
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(values, max_size=8))
+def test_any_parameter_list_round_trips(params: list[Value]) -> None:
+    assert decode_params(encode_params(params)) == tuple(params)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(values, max_size=6),
+    st.sampled_from(list(PacketKind)),
+    st.integers(0, 0xFFFF),
+    st.integers(0, 0xFFFFFFFF),
+)
+def test_any_packet_round_trips_whole_and_split(
+    params: list[Value], kind: PacketKind, command: int, request_id: int
+) -> None:
+    packet = Packet(kind, command, request_id, tuple(params))
+    raw = encode_packet(packet)
+    assert decode_packet(raw) == packet
+    decoder = FrameDecoder()
+    out = []
+    for i in range(0, len(raw), 5):
+        decoder.feed(raw[i : i + 5])
+        out.extend(decoder.events())
+    assert out == [packet]
+
+
+def test_nan_float_round_trips_bit_exact() -> None:
+    (back,) = decode_params(encode_params([math.nan]))
+    assert isinstance(back, float) and math.isnan(back)
+
+
+def test_bool_is_not_encoded_as_int() -> None:
+    assert encode_params([True])[2] == 0x03
+    assert encode_params([1])[2] == 0x01
+
+
+@pytest.mark.parametrize(
+    "build",
+    [
+        lambda: Joints([]),
+        lambda: Joints([math.nan] * 6),
+        lambda: Joints(range(17)),
+        lambda: Location(0, 0, math.inf, 0, 0, 0),
+        lambda: Location.of([1, 2, 3]),
+        lambda: Transform([1.0] * 16),
+        lambda: Matrix(2, 2, [1.0]),
+        lambda: Image(2, 2, b"\x00"),
+        lambda: encode_params([2**63]),
+        lambda: encode_params([object()]),  # type: ignore[list-item]
+        lambda: encode_packet(request(0x10000, 1)),
+    ],
+)
+def test_unencodable_values_raise_usage_error(build: object) -> None:
+    with pytest.raises(UsageError):
+        build()  # type: ignore[operator]
+
+
+def test_large_arrays_and_images_decode() -> None:
+    image = Image(512, 256, bytes(range(256)) * 512)
+    log = Matrix(2500, 7, [float(i) for i in range(2500 * 7)])
+    assert decode_params(encode_params([image, log])) == (image, log)
+
+
+def test_payload_must_be_filled_exactly() -> None:
+    with pytest.raises(ParameterError):
+        decode_params(encode_params([1]) + b"\x00")

@@ -1,0 +1,296 @@
+"""The framed server shell and client over real loopback sockets (port 0, timeouts)."""
+
+from __future__ import annotations
+
+import socket
+import time
+from collections.abc import Iterator
+
+import pytest
+
+from spec import wire
+from spec.client import ClientTimeout, ConnectionClosed, FramedClient
+from spec.codec import FrameDecoder, Packet, encode_packet, request
+from spec.errors import ErrorCode, ProtocolError, RemoteError
+from spec.params import Joints, Value
+from spec.registry import CommandId, CommandSpec
+from spec.server import FramedServer, Identity, ServerPolicy, Service, Session, parse_networks
+from spec.wire import PacketKind
+
+
+class EchoRobot(Service):
+    """Answers Herej with fixed joints, fails on purpose on GetJointLimits."""
+
+    identity = Identity("robot", vendor="test", model="echo")
+
+    def __init__(self) -> None:
+        self.lost_control: list[int] = []
+
+    def implemented(self) -> tuple[int, ...]:
+        return (CommandId.HEREJ, CommandId.ENABLE_POWER, CommandId.GET_JOINT_LIMITS)
+
+    def handle(
+        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
+        if spec.id == CommandId.HEREJ:
+            return (Joints([1, 2, 3, 4, 5, 6]),)
+        if spec.id == CommandId.ENABLE_POWER:
+            return ()
+        raise ZeroDivisionError("deliberate handler bug")
+
+    def on_control_lost(self, session: Session) -> None:
+        self.lost_control.append(session.id)
+
+
+@pytest.fixture
+def server() -> Iterator[FramedServer]:
+    srv = FramedServer(EchoRobot(), policy=ServerPolicy(max_clients=4, frame_timeout=0.5))
+    srv.start()
+    yield srv
+    srv.shutdown()
+
+
+def raw_conn(srv: FramedServer) -> socket.socket:
+    s = socket.create_connection(srv.address, timeout=3)
+    return s
+
+
+def read_packets(sock: socket.socket, n: int) -> list[Packet]:
+    decoder = FrameDecoder()
+    out: list[Packet] = []
+    while len(out) < n:
+        data = sock.recv(65536)
+        if not data:
+            break
+        decoder.feed(data)
+        out.extend(e for e in decoder.events() if isinstance(e, Packet))
+    return out
+
+
+def test_hello_reports_identity_commands_and_limits(server: FramedServer) -> None:
+    with FramedClient(*server.address) as c:
+        info = c.hello()
+    assert info["version"] == "1.0" and info["service"] == "robot" and info["model"] == "echo"
+    commands = set(info["commands"].values)  # type: ignore[union-attr]
+    assert {CommandId.HELLO, CommandId.PING, CommandId.HEREJ} <= commands
+    assert CommandId.HERE not in commands  # [RS-5.3] only what it implements
+    assert info["max_clients"] == 4
+
+
+def test_hello_with_another_major_version_is_refused(server: FramedServer) -> None:
+    with FramedClient(*server.address) as c, pytest.raises(RemoteError) as info:
+        c.call(CommandId.HELLO, 2, 0, "future-client")
+    assert info.value.code is ErrorCode.UNSUPPORTED_VERSION
+
+
+def test_unknown_and_unimplemented_commands(server: FramedServer) -> None:
+    with FramedClient(*server.address) as c:
+        for command in (CommandId.HERE, CommandId.GET_DATA, 0x7777):
+            with pytest.raises(RemoteError) as info:
+                c.call(command)
+            assert info.value.code is ErrorCode.UNKNOWN_COMMAND
+        assert c.ping(b"still alive") == b"still alive"  # [RS-5.1] connection stays open
+
+
+def test_bad_parameters_are_refused_before_execution(server: FramedServer) -> None:
+    with FramedClient(*server.address) as c:
+        with pytest.raises(RemoteError) as info:
+            c.call(CommandId.HEREJ, 1)
+        assert info.value.code is ErrorCode.BAD_PARAMETERS
+        with pytest.raises(RemoteError) as info:
+            c.call(CommandId.TAKE_CONTROL, 5)
+        assert info.value.code is ErrorCode.BAD_PARAMETERS
+
+
+def test_control_is_needed_and_held_by_one_connection(server: FramedServer) -> None:
+    with FramedClient(*server.address) as a, FramedClient(*server.address) as b:
+        with pytest.raises(RemoteError) as info:
+            a.call(CommandId.ENABLE_POWER)
+        assert info.value.code is ErrorCode.NOT_IN_CONTROL
+        a.take_control()
+        a.take_control()  # the holder may take it again
+        a.call(CommandId.ENABLE_POWER)
+        with pytest.raises(RemoteError) as info:
+            b.take_control()
+        assert info.value.code is ErrorCode.BUSY
+        with pytest.raises(RemoteError) as info:
+            b.call(CommandId.ENABLE_POWER)
+        assert info.value.code is ErrorCode.NOT_IN_CONTROL
+        b.release_control()  # harmless without control [RS-7.11]
+        a.release_control()
+        b.take_control()
+        b.call(CommandId.ENABLE_POWER)
+
+
+def test_losing_the_controlling_connection_calls_the_service_hook(server: FramedServer) -> None:
+    c = FramedClient(*server.address)
+    c.take_control()
+    c.close()
+    deadline = time.monotonic() + 3
+    service = server.service
+    assert isinstance(service, EchoRobot)
+    while not service.lost_control and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert service.lost_control
+    assert server.control_holder is None
+
+
+def test_token_protects_control() -> None:
+    srv = FramedServer(EchoRobot(), policy=ServerPolicy(token="s3cret")).start()
+    try:
+        with FramedClient(*srv.address) as c:
+            with pytest.raises(RemoteError) as info:
+                c.take_control("wrong")
+            assert info.value.code is ErrorCode.AUTH_FAILED
+            c.take_control("s3cret")
+    finally:
+        srv.shutdown()
+
+
+def test_handler_bug_becomes_internal_error_and_server_survives(server: FramedServer) -> None:
+    with FramedClient(*server.address) as c:
+        with pytest.raises(RemoteError) as info:
+            c.call(CommandId.GET_JOINT_LIMITS)
+        assert info.value.code is ErrorCode.INTERNAL_ERROR
+        assert c.call(CommandId.HEREJ) == (Joints([1, 2, 3, 4, 5, 6]),)
+    assert len(server.handler_errors) == 1
+    server.handler_errors.clear()
+
+
+def test_pipelined_requests_in_one_segment_are_answered_in_order(server: FramedServer) -> None:
+    with raw_conn(server) as s:
+        s.sendall(
+            b"".join(encode_packet(request(CommandId.PING, i, bytes([i]))) for i in range(1, 21))
+        )
+        replies = read_packets(s, 20)
+    assert [p.request_id for p in replies] == list(range(1, 21))
+    assert [p.params[0] for p in replies] == [bytes([i]) for i in range(1, 21)]
+
+
+def test_byte_by_byte_delivery(server: FramedServer) -> None:
+    frame = encode_packet(request(CommandId.HEREJ, 77))
+    with raw_conn(server) as s:
+        s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        for b in frame:
+            s.send(bytes([b]))
+        (reply,) = read_packets(s, 1)
+    assert reply.kind is PacketKind.REPLY and reply.request_id == 77
+
+
+def test_bad_crc_is_answered_and_the_connection_goes_on(server: FramedServer) -> None:
+    bad = bytearray(encode_packet(request(CommandId.HEREJ, 5)))
+    bad[-1] ^= 0xFF
+    with raw_conn(server) as s:
+        s.sendall(bytes(bad) + encode_packet(request(CommandId.HEREJ, 6)))
+        err, ok = read_packets(s, 2)
+    assert err.kind is PacketKind.ERROR and err.request_id == 5
+    assert err.error is not None and err.error[0] == ErrorCode.BAD_CRC
+    assert ok.kind is PacketKind.REPLY and ok.request_id == 6
+
+
+def test_garbage_gets_bad_frame_then_close(server: FramedServer) -> None:
+    with raw_conn(server) as s:
+        s.sendall(b"GET / HTTP/1.1\r\n\r\n")
+        (err,) = read_packets(s, 1)
+        assert err.request_id == 0 and err.error is not None
+        assert err.error[0] == ErrorCode.BAD_FRAME
+        assert s.recv(10) == b""  # closed
+    assert server.statistics()["rejected_by_code"]["BAD_FRAME"] == 1
+
+
+def test_oversized_length_is_refused_before_reading(server: FramedServer) -> None:
+    header = wire.HEADER.pack(wire.MAGIC, 1, 0, 1, 0, CommandId.PING, 9, wire.MAX_PAYLOAD)
+    with raw_conn(server) as s:
+        s.sendall(header)
+        (err,) = read_packets(s, 1)
+    assert err.error is not None and err.error[0] == ErrorCode.FRAME_TOO_LARGE
+
+
+def test_a_frame_that_stops_half_way_times_out(server: FramedServer) -> None:
+    with raw_conn(server) as s:
+        s.sendall(b"R")
+        t0 = time.monotonic()
+        (err,) = read_packets(s, 1)
+        waited = time.monotonic() - t0
+        assert s.recv(10) == b""
+    assert err.error is not None and err.error[0] == ErrorCode.TIMEOUT
+    assert waited >= 0.4  # the 0.5 s frame timeout, not an immediate close
+    with FramedClient(*server.address) as c:  # [RS-7.9] still serving
+        assert c.ping() == b""
+
+
+def test_client_over_the_limit_gets_busy(server: FramedServer) -> None:
+    clients = [FramedClient(*server.address) for _ in range(4)]
+    try:
+        for c in clients:
+            c.ping()
+        with raw_conn(server) as s:
+            (err,) = read_packets(s, 1)
+            assert err.error is not None and err.error[0] == ErrorCode.BUSY
+            assert s.recv(10) == b""
+    finally:
+        for c in clients:
+            c.close()
+    assert server.statistics()["refused_busy"] == 1
+
+
+def test_allow_list_refuses_other_networks() -> None:
+    policy = ServerPolicy(allow=parse_networks(["10.0.0.0/8"]))
+    srv = FramedServer(EchoRobot(), policy=policy).start()
+    try:
+        with pytest.raises((ConnectionClosed, ProtocolError, OSError)):
+            with FramedClient(*srv.address, timeout=2) as c:
+                c.ping()
+        assert srv.statistics()["refused_address"] == 1
+    finally:
+        srv.shutdown()
+    with pytest.raises(ValueError, match="not a network"):
+        parse_networks(["10.0.0.0/33"])
+
+
+def test_client_timeout_is_typed() -> None:
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(1)
+    try:
+        c = FramedClient(*listener.getsockname(), timeout=0.2)
+        with pytest.raises(ClientTimeout):
+            c.ping()
+        assert not c.connected
+    finally:
+        listener.close()
+
+
+def test_client_rejects_a_reply_with_the_wrong_request_id() -> None:
+    from spec.errors import PeerError
+
+    listener = socket.socket()
+    listener.bind(("127.0.0.1", 0))
+    listener.listen(1)
+    import threading
+
+    def serve() -> None:
+        conn, _ = listener.accept()
+        with conn:
+            conn.recv(1000)
+            conn.sendall(encode_packet(Packet(PacketKind.REPLY, CommandId.PING, 999, (b"",))))
+            time.sleep(0.2)
+
+    t = threading.Thread(target=serve, daemon=True)
+    t.start()
+    try:
+        with FramedClient(*listener.getsockname(), timeout=2) as c, pytest.raises(PeerError):
+            c.ping()
+    finally:
+        t.join(2)
+        listener.close()
+
+
+def test_statistics_account_for_frames_and_errors(server: FramedServer) -> None:
+    with FramedClient(*server.address) as c:
+        c.ping()
+        with pytest.raises(RemoteError):
+            c.call(0x7777)
+    stats = server.statistics()
+    assert stats["frames_in"] == 2 and stats["replies"] == 1 and stats["errors_sent"] == 1
+    assert stats["connections"] == 1
