@@ -57,5 +57,5 @@ def percentile(samples: list[float], p: float) -> float:
     if len(samples) == 1:
         return samples[0]
     q = statistics.quantiles(samples, n=1000, method="inclusive")
-    index = min(max(int(round(p * 10)) - 1, 0), len(q) - 1)
+    index = min(max(round(p * 10) - 1, 0), len(q) - 1)
     return q[index]

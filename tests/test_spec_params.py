@@ -46,7 +46,7 @@ def matrices(draw: st.DrawFn) -> Matrix:
 
 @st.composite
 def transforms(draw: st.DrawFn) -> Transform:
-    return Transform(draw(st.lists(finite, min_size=12, max_size=12)) + [0.0, 0.0, 0.0, 1.0])
+    return Transform([*draw(st.lists(finite, min_size=12, max_size=12)), 0.0, 0.0, 0.0, 1.0])
 
 
 values: st.SearchStrategy[Value] = st.one_of(

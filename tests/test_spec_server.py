@@ -238,9 +238,11 @@ def test_allow_list_refuses_other_networks() -> None:
     policy = ServerPolicy(allow=parse_networks(["10.0.0.0/8"]))
     srv = FramedServer(EchoRobot(), policy=policy).start()
     try:
-        with pytest.raises((ConnectionClosed, ProtocolError, OSError)):
-            with FramedClient(*srv.address, timeout=2) as c:
-                c.ping()
+        with (
+            pytest.raises((ConnectionClosed, ProtocolError, OSError)),
+            FramedClient(*srv.address, timeout=2) as c,
+        ):
+            c.ping()
         assert srv.statistics()["refused_address"] == 1
     finally:
         srv.shutdown()
