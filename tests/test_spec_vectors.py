@@ -102,7 +102,8 @@ def test_datagram_vectors(vector: dict[str, Any]) -> None:
         assert isinstance(d, SensorData)
         assert d.status.name == want["status"]
         seam = [float(x) for x in want["seam"]]
-        assert all(a == b or (math.isnan(a) and math.isnan(b)) for a, b in zip(d.seam, seam, strict=True))
+        pairs = zip(d.seam, seam, strict=True)
+        assert all(a == b or (math.isnan(a) and math.isnan(b)) for a, b in pairs)
         assert (d.t_arrival, d.t_exposure_start, d.t_exposure_end) == (
             want["t_arrival"],
             want["t_exposure_start"],
