@@ -1,8 +1,8 @@
 """Stripe and seam detector of the seam-tracking sensor (pure numpy, vectorised over columns).
 
-Input: a frame in readout layout ``(columns, rows)`` (see :mod:`sensorsocket.camera`), any
-integer or float grey levels, from the renderer or from anywhere else (a saved PGM, a real
-camera). Steps:
+Input: a frame in readout layout ``(columns, rows)`` (see :mod:`sensorsocket.camera`), from
+the renderer or from anywhere else (a saved PGM, a real camera): uint8 as is; 16-bit
+integers scaled by 1/256, floats in [0, 1] by 255, so thresholds stay in 8-bit DN. Steps:
 
 1. Stripe: per column, the brightest row (argmax), then a fixed window of 2h+1 rows around
    it and its intensity centroid after subtracting a threshold ``background + k·noise``
@@ -228,8 +228,8 @@ class SeamDetector:
             or not (np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating))
         ):
             return self._none(SeamStatus.BAD_IMAGE, None)
-        if np.issubdtype(a.dtype, np.floating) and not np.isfinite(a).all():
-            a = np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0)
+        if a.dtype != np.uint8:
+            a = _to_dn(a)
         stripe = self.stripe(a, first_column)
         cols = np.flatnonzero(stripe.valid)
         if cols.size < cfg.min_valid_columns:
@@ -485,6 +485,17 @@ class SeamDetector:
         point = np.array([0.0, t * d[0], lower.a + t * d[1]])
         q = self._quality(left.n + right.n, stripe.rows.size, rms, step / (2.0 * cfg.min_step_mm))
         return self._found(stripe, point, lower.b, q, pts, u)
+
+
+def _to_dn(a: NDArray[np.generic]) -> NDArray[np.float32]:
+    """Grey levels on the 8-bit scale the thresholds are in: 16-bit integers / 256, floats
+    in [0, 1] × 255, other numbers as they are; NaN and infinities become 0."""
+    f = np.nan_to_num(a.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+    if a.dtype.itemsize >= 2 and np.issubdtype(a.dtype, np.integer) and f.max() > 255:
+        f *= np.float32(1.0 / 256.0)
+    elif np.issubdtype(a.dtype, np.floating) and f.size and f.min() >= 0.0 and f.max() <= 1.0:
+        f *= np.float32(255.0)
+    return f
 
 
 def _not_isolated_outliers(z: FloatArray, tol: float) -> NDArray[np.bool_]:

@@ -80,7 +80,7 @@ def test_frame_layout_is_column_major() -> None:
 def test_readout_window_and_laser_off() -> None:
     scene, pose = _scene_and_pose(Joint.butt(0.5))
     r = StripeRenderer(scene, rng=np.random.default_rng(2))
-    frame, truth = r.render(100, np.zeros(200), fixed_pose(pose))
+    frame, _ = r.render(100, np.zeros(200), fixed_pose(pose))
     assert not frame[:100].any() and not frame[300:].any()
     assert frame[100:300].max() > 100
     dark, _ = r.render(0, np.zeros(512), fixed_pose(pose), laser_on=False)
