@@ -1,0 +1,175 @@
+"""SensorClient: one typed method per SensorSocket command (PROTOCOL.md section 5.4).
+
+Errors arrive as :class:`spec.errors.RemoteError` with the wire code (e.g. NO_DATA before the
+first measurement, OUT_OF_RANGE, NOT_IN_CONTROL).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from spec.client import FramedClient
+from spec.errors import PeerError
+from spec.params import Image, Location, Matrix, Value
+from spec.registry import CommandId
+from spec.wire import PixelFormat, PixelOrder, SensorStatus
+
+
+@dataclass(frozen=True)
+class SensorState:
+    """GetStatus reply; ``time`` on the sensor clock (s)."""
+
+    laser: bool
+    frames: int
+    last_index: int
+    in_control: bool
+    controlled: bool
+    time: float
+
+
+@dataclass(frozen=True)
+class SeamData:
+    """GetData reply: ``seam`` is ^S_G T as a VAL3 location (mm, deg), None unless FOUND."""
+
+    index: int
+    status: SensorStatus
+    seam: tuple[float, float, float, float, float, float] | None
+    quality: float
+    t_arrival: float
+    t_exposure_start: float
+    t_exposure_end: float
+
+    @property
+    def found(self) -> bool:
+        return self.status is SensorStatus.FOUND
+
+
+@dataclass(frozen=True)
+class Settings:
+    """GetSettings reply; times in s, columns in px."""
+
+    laser: bool
+    exposure: float
+    first_column: int
+    columns: int
+    acquisition_time: float
+    width: int
+    height: int
+
+
+def _f(v: Value) -> float:
+    if not isinstance(v, float):
+        raise PeerError(f"expected FLOAT in reply, got {type(v).__name__}")
+    return v
+
+
+def _i(v: Value) -> int:
+    if not isinstance(v, int) or isinstance(v, bool):
+        raise PeerError(f"expected INT in reply, got {type(v).__name__}")
+    return v
+
+
+def _b(v: Value) -> bool:
+    if not isinstance(v, bool):
+        raise PeerError(f"expected BOOL in reply, got {type(v).__name__}")
+    return v
+
+
+def image_to_array(image: Image) -> NDArray[np.uint8] | NDArray[np.uint16]:
+    """An IMAGE parameter as a (height rows, width columns) array, whatever its order."""
+    dtype = np.uint8 if image.format is PixelFormat.MONO8 else np.dtype(">u2")
+    flat = np.frombuffer(image.data, dtype=dtype)
+    if image.order is PixelOrder.COLUMN_MAJOR:
+        arr = flat.reshape(image.width, image.height).T
+    else:
+        arr = flat.reshape(image.height, image.width)
+    if image.format is PixelFormat.MONO16:
+        return np.ascontiguousarray(arr, dtype=np.uint16)
+    return np.ascontiguousarray(arr)
+
+
+class SensorClient(FramedClient):
+    """Blocking client of a SensorSocket server (default port 2000)."""
+
+    def __init__(
+        self,
+        host: str,
+        port: int = 2000,
+        *,
+        timeout: float = 5.0,
+        auto_reconnect: bool = False,
+        client_name: str = "sensorsocket-client/0.1",
+    ) -> None:
+        super().__init__(
+            host, port, timeout=timeout, auto_reconnect=auto_reconnect, client_name=client_name
+        )
+
+    def status(self) -> SensorState:
+        v = self.call(CommandId.SENSOR_STATUS)
+        return SensorState(_b(v[0]), _i(v[1]), _i(v[2]), _b(v[3]), _b(v[4]), _f(v[5]))
+
+    def get_data(self) -> SeamData:
+        """The latest measurement (paper: data = GetData())."""
+        v = self.call(CommandId.GET_DATA)
+        status = SensorStatus(_i(v[1]))
+        loc = v[2]
+        if not isinstance(loc, Location):
+            raise PeerError("GetData: seam must be a LOCATION")
+        seam = loc.as_tuple() if status is SensorStatus.FOUND else None
+        return SeamData(_i(v[0]), status, seam, _f(v[3]), _f(v[4]), _f(v[5]), _f(v[6]))
+
+    def get_image_raw(self, region: tuple[int, int, int, int] | None = None) -> tuple[int, Image]:
+        """(index, IMAGE) of the latest frame; ``region`` = (column, row, width, height)."""
+        params: tuple[int, ...] = () if region is None else tuple(int(x) for x in region)
+        v = self.call(CommandId.GET_IMAGE, *params)
+        image = v[1]
+        if not isinstance(image, Image):
+            raise PeerError("GetImage: expected an IMAGE")
+        return _i(v[0]), image
+
+    def get_image(
+        self, region: tuple[int, int, int, int] | None = None
+    ) -> tuple[int, NDArray[np.uint8] | NDArray[np.uint16]]:
+        """(index, image (rows, columns)) of the latest frame (paper: image = GetImage())."""
+        index, image = self.get_image_raw(region)
+        return index, image_to_array(image)
+
+    def get_profile(self) -> tuple[int, NDArray[np.float64]]:
+        """(index, stripe points (N, 3) mm in the sensor frame)."""
+        v = self.call(CommandId.GET_PROFILE)
+        m = v[1]
+        if not isinstance(m, Matrix):
+            raise PeerError("GetProfile: expected a MATRIX")
+        return _i(v[0]), np.asarray(m.values, dtype=np.float64).reshape(m.rows, m.cols)
+
+    def set_laser(self, on: bool) -> None:
+        self.call(CommandId.SET_LASER, bool(on))
+
+    def set_exposure(self, exposure_s: float) -> None:
+        self.call(CommandId.SET_EXPOSURE, float(exposure_s))
+
+    def set_readout_window(self, first_column: int, columns: int) -> float:
+        """Returns the resulting acquisition time (s)."""
+        (t,) = self.call(CommandId.SET_READOUT_WINDOW, int(first_column), int(columns))[:1]
+        return _f(t)
+
+    def get_settings(self) -> Settings:
+        v = self.call(CommandId.GET_SETTINGS)
+        return Settings(_b(v[0]), _f(v[1]), _i(v[2]), _i(v[3]), _f(v[4]), _i(v[5]), _i(v[6]))
+
+    def acquire(self) -> int:
+        """Software trigger; returns the index of the new measurement."""
+        return _i(self.call(CommandId.ACQUIRE)[0])
+
+    def get_trigger_endpoint(self) -> tuple[str, int]:
+        v = self.call(CommandId.GET_TRIGGER_ENDPOINT)
+        host = v[0]
+        if not isinstance(host, str):
+            raise PeerError("GetTriggerEndpoint: host must be a STRING")
+        return host, _i(v[1])
+
+
+__all__ = ["SeamData", "SensorClient", "SensorState", "Settings", "image_to_array"]

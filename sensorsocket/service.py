@@ -1,0 +1,179 @@
+"""SensorSocket: the sensor commands (PROTOCOL.md section 5.4) on the shared framed server.
+
+The shell (:class:`spec.server.FramedServer`) does Hello, Ping, control, GetTime, parameter
+checks, limits and error packets; :class:`SensorService` answers the sensor commands from a
+:class:`~sensorsocket.sensor.Sensor`.
+
+Images go on the wire as IMAGE MONO8 ROW_MAJOR (row 0 first), width = columns; the sensor
+keeps frames in readout (column-major) order and transposes on the way out. A measurement
+that is not FOUND carries a location of six zeros in GetData (LOCATION values must be finite
+on the wire; the status says the location is void) [SS-5.8].
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from sensorsocket.sensor import Reading, Sensor, SensorError
+from spec.errors import ErrorCode, ProtocolError
+from spec.params import Image, Location, Matrix, Value
+from spec.registry import CommandId, CommandSpec
+from spec.server import Identity, Service, Session
+from spec.wire import PixelFormat, PixelOrder, SensorStatus
+
+IDENTITY = Identity(
+    service="sensor", vendor="reference", model="seam-tracker-emulator 512x256", serial="0"
+)
+
+Handler = Callable[[Session, tuple[Value, ...]], tuple[Value, ...]]
+
+
+class SensorService(Service):
+    """Sensor commands over a :class:`Sensor`; ``trigger_endpoint`` is reported by
+    GetTriggerEndpoint ((host, 0) when UDP triggering is off)."""
+
+    def __init__(
+        self,
+        sensor: Sensor,
+        *,
+        identity: Identity = IDENTITY,
+        trigger_endpoint: tuple[str, int] = ("", 0),
+    ) -> None:
+        self.sensor = sensor
+        self.identity = identity
+        self.trigger_endpoint = trigger_endpoint
+        self._handlers: dict[int, Handler] = {
+            CommandId.SENSOR_STATUS: self._status,
+            CommandId.GET_DATA: self._get_data,
+            CommandId.GET_IMAGE: self._get_image,
+            CommandId.GET_PROFILE: self._get_profile,
+            CommandId.SET_LASER: self._set_laser,
+            CommandId.SET_EXPOSURE: self._set_exposure,
+            CommandId.SET_READOUT_WINDOW: self._set_readout_window,
+            CommandId.GET_SETTINGS: self._get_settings,
+            CommandId.ACQUIRE: self._acquire,
+            CommandId.GET_TRIGGER_ENDPOINT: self._trigger_endpoint,
+        }
+
+    def clock(self) -> float:
+        return self.sensor.clock()
+
+    def handle(
+        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
+        handler = self._handlers.get(spec.id)
+        if handler is None:
+            raise ProtocolError(f"{spec.name} not implemented", ErrorCode.NOT_SUPPORTED)
+        try:
+            return handler(session, params)
+        except SensorError as exc:
+            raise ProtocolError(str(exc), ErrorCode.OUT_OF_RANGE) from None
+
+    # --- read-only --------------------------------------------------------------------------
+
+    def _latest(self) -> Reading:
+        reading = self.sensor.latest
+        if reading is None:
+            # [SS-5.2] nothing measured yet: NO_DATA.
+            raise ProtocolError("no measurement yet: trigger or Acquire first", ErrorCode.NO_DATA)
+        return reading
+
+    def _status(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        latest = self.sensor.latest
+        return (
+            self.sensor.settings.laser,
+            self.sensor.frames,
+            -1 if latest is None else latest.index,
+            session.in_control,
+            session.server.control_holder is not None,
+            float(self.sensor.clock()),
+        )
+
+    def _get_data(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        r = self._latest()
+        found = r.status is SensorStatus.FOUND
+        seam = Location(*r.seam) if found else Location(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        # [SS-5.1] index, status, ^S_G T, quality, and the three sensor-clock times, which
+        # satisfy t_arrival <= t_exposure_start <= t_exposure_end [SS-5.5].
+        return (
+            r.index,
+            int(r.status),
+            seam,
+            float(r.quality),
+            float(r.t_arrival),
+            float(r.t_exposure_start),
+            float(r.t_exposure_end),
+        )
+
+    def _get_image(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        r = self._latest()
+        width, height = self.sensor.width, self.sensor.height
+        ints = [int(p) for p in params if isinstance(p, int)]
+        column = ints[0] if len(ints) > 0 else 0
+        row = ints[1] if len(ints) > 1 else 0
+        w = ints[2] if len(ints) > 2 else width - column
+        h = ints[3] if len(ints) > 3 else height - row
+        if not (
+            0 <= column < width and 0 <= row < height and w >= 1 and h >= 1
+            and column + w <= width and row + h <= height
+        ):  # fmt: skip
+            # [SS-5.4] a region outside the sensor is OUT_OF_RANGE.
+            raise ProtocolError(
+                f"region column={column} row={row} width={w} height={h} is not inside the "
+                f"{width}x{height} sensor",
+                ErrorCode.OUT_OF_RANGE,
+            )
+        # [SS-5.3] the frame is (columns, rows) in readout order; rows go on the wire.
+        pixels = r.frame[column : column + w, row : row + h].T.tobytes()
+        image = Image(w, h, pixels, PixelFormat.MONO8, PixelOrder.ROW_MAJOR)
+        return (r.index, image)
+
+    def _get_profile(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        r = self._latest()
+        # [SS-5.9] N x 3 stripe points in S, mm.
+        points = np.ascontiguousarray(r.points, dtype=np.float64).reshape(-1, 3)
+        return (r.index, Matrix(points.shape[0], 3, points.ravel().tolist()))
+
+    def _get_settings(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        s = self.sensor.settings
+        return (
+            s.laser,
+            float(s.exposure_s),
+            s.first_column,
+            s.columns,
+            float(self.sensor.acquisition_time()),
+            self.sensor.width,
+            self.sensor.height,
+        )
+
+    def _trigger_endpoint(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        host, port = self.trigger_endpoint
+        return (host, int(port))
+
+    # --- need control (checked by the shell) [RS-7.4] ---------------------------------------
+
+    def _set_laser(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        self.sensor.set_laser(bool(params[0]))
+        return ()
+
+    def _set_exposure(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        exposure = params[0]
+        assert isinstance(exposure, float)
+        # [SS-5.6] outside 1e-6..0.01 s: OUT_OF_RANGE (SensorError is mapped in handle).
+        self.sensor.set_exposure(exposure if math.isfinite(exposure) else math.nan)
+        return ()
+
+    def _set_readout_window(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        first, columns = params
+        assert isinstance(first, int) and isinstance(columns, int)
+        # [SS-5.6] [SS-5.7] replies with the acquisition time, proportional to the columns.
+        return (float(self.sensor.set_readout_window(first, columns)),)
+
+    def _acquire(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        return (self.sensor.acquire().index,)
+
+
+__all__ = ["IDENTITY", "SensorService"]
