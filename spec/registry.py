@@ -49,6 +49,7 @@ class CommandId(IntEnum):
     LIST_IO = 0x1013
     GET_JOINT_LOG = 0x1014
     GET_JOINT_LIMITS = 0x1015
+    TOOL_MOVE_TRAJECTORY = 0x1016
 
     SENSOR_STATUS = 0x2001
     GET_DATA = 0x2002
@@ -364,6 +365,22 @@ COMMANDS: tuple[CommandSpec, ...] = (
         "robot",
         "Joint limits of the arm.",
         reply=(P("limits", T.MATRIX, "deg", "6 x 2: min, max per joint"),),
+    ),
+    CommandSpec(
+        CommandId.TOOL_MOVE_TRAJECTORY,
+        "ToolMoveTrajectory",
+        "robot",
+        "Queue a timed Cartesian path: the tool passes location k at times[k] after the move "
+        "starts (e.g. the sine of the ΔT experiment); linear in between.",
+        params=(
+            P("times", T.FLOAT_ARRAY, "s", "increasing, from 0; at most 60 s"),
+            P("locations", T.MATRIX, "mm, deg", "N x 6 tool locations x, y, z, rx, ry, rz"),
+            _TOOL,
+            _FRAME,
+        ),
+        reply=(_MOVE_ID,),
+        needs_control=True,
+        moves=True,
     ),
     # --- sensor -------------------------------------------------------------------------
     CommandSpec(
