@@ -61,6 +61,12 @@ class CameraGeometry:
             value = getattr(self, name)
             if not (value > 0 and math.isfinite(value)):
                 raise CameraError(f"{name} must be positive")
+        th = math.radians(self.triangulation_angle_deg)
+        object.__setattr__(self, "_sin", math.sin(th))
+        object.__setattr__(self, "_cos", math.cos(th))
+
+    _sin: float = field(init=False, repr=False, compare=False, default=0.0)
+    _cos: float = field(init=False, repr=False, compare=False, default=0.0)
 
     @property
     def focal_px(self) -> float:
@@ -92,27 +98,33 @@ class CameraGeometry:
         return np.array([[0.0, 1.0, 0.0], [-c, 0.0, s], [s, 0.0, c]])
 
     def pixel_to_sensor(self, u: FloatArray, v: FloatArray) -> FloatArray:
-        """Points on the laser plane seen at pixel (u, v) (any shape) -> (..., 3) mm in S."""
+        """Points on the laser plane seen at pixel (u, v) (any shape) -> (..., 3) mm in S.
+
+        With k = (u - u0)/f and t = (v - v0)/f (f in pixels), the ray meets x_S = 0 at
+        z = t·D / (sin θ - t·cos θ) and y = k·(D + z·cos θ).
+        """
         u0, v0 = self.principal_point
         f = self.focal_px
-        ax = self.axes
-        a = (np.asarray(u, dtype=np.float64) - u0) / f
-        b = (np.asarray(v, dtype=np.float64) - v0) / f
-        c = self.center
-        # ray r = z_c + a·x_c + b·y_c; x_c has no x_S component
-        rx = ax[2, 0] + b * ax[1, 0]
-        ry = a
-        rz = ax[2, 2] + b * ax[1, 2]
-        s = -c[0] / rx
-        return np.stack([np.zeros_like(s), s * ry, c[2] + s * rz], axis=-1)
+        s, c, d = self._sin, self._cos, self.working_distance_mm
+        k = (np.asarray(u, dtype=np.float64) - u0) / f
+        t = (np.asarray(v, dtype=np.float64) - v0) / f
+        z = t * d / (s - t * c)
+        y = k * (d + z * c)
+        return np.stack([np.zeros_like(z), y, z], axis=-1)
 
     def project(self, points: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Pixel coordinates (u, v) of points (..., 3) in S."""
-        d = np.asarray(points, dtype=np.float64) - self.center
-        cam = d @ self.axes.T
+        """Pixel coordinates (u, v) of points (..., 3) in S.
+
+        Camera coordinates of (x, y, z): X = y, Y = z·sin θ - x·cos θ,
+        Z = D + x·sin θ + z·cos θ.
+        """
+        p = np.asarray(points, dtype=np.float64)
+        x, y, z = p[..., 0], p[..., 1], p[..., 2]
+        s, c = self._sin, self._cos
+        zc = self.working_distance_mm + x * s + z * c
         u0, v0 = self.principal_point
         f = self.focal_px
-        return u0 + f * cam[..., 0] / cam[..., 2], v0 + f * cam[..., 1] / cam[..., 2]
+        return u0 + f * y / zc, v0 + f * (z * s - x * c) / zc
 
     def column_lines(self, u: FloatArray, margin_px: float = 8.0) -> tuple[FloatArray, FloatArray]:
         """End points (..., 3) in S of the laser-plane line seen by column u.
@@ -126,13 +138,15 @@ class CameraGeometry:
 
     def line_row(self, u: FloatArray, a: float, b: float) -> tuple[FloatArray, FloatArray]:
         """Where column u meets the profile line z = a + b·y: (row v, point (..., 3) in S)."""
-        pa, pb = self.column_lines(u)
-        dy = pb[..., 1] - pa[..., 1]
-        dz = pb[..., 2] - pa[..., 2]
+        s, c, d = self._sin, self._cos, self.working_distance_mm
+        u0, v0 = self.principal_point
+        f = self.focal_px
+        k = (np.asarray(u, dtype=np.float64) - u0) / f
         with np.errstate(divide="ignore", invalid="ignore"):
-            lam = (a + b * pa[..., 1] - pa[..., 2]) / (dz - b * dy)
-        p = pa + lam[..., None] * (pb - pa)
-        return self.project(p)[1], p
+            y = k * (d + a * c) / (1.0 - k * b * c)
+        z = a + b * y
+        v = v0 + f * z * s / (d + z * c)
+        return v, np.stack([np.zeros_like(y), y, z], axis=-1)
 
     def field_of_view(self) -> dict[str, float]:
         """Width at z_S = 0 and depth range along the laser (mm)."""

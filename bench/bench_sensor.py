@@ -1,0 +1,70 @@
+"""Camera emulator throughput: detector and renderer frames per second.
+
+Baselines measured in the same run: the detector against reading the same frames' bytes
+once (numpy sum over a uint64 view: the memory-read floor of any detector), the renderer
+against drawing one frame of fresh Gaussian noise (what a naive renderer pays before it
+draws any stripe).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bench.common import Result, result, time_per_call
+from sensorsocket.camera import StripeRenderer
+from sensorsocket.detector import DetectorConfig, SeamDetector
+from sensorsocket.scene import Joint, Scene, fixed_pose
+
+N_FRAMES = 32
+
+
+def _frames(scene: Scene, rng: np.random.Generator) -> list[np.ndarray]:
+    renderer = StripeRenderer(scene, rng=rng)
+    out = []
+    for _ in range(N_FRAMES):
+        pose = scene.sensor_over_seam(
+            0.0, seam_y_mm=rng.uniform(-3, 3), seam_z_mm=rng.uniform(-2, 2)
+        )
+        out.append(renderer.render(0, np.zeros(512), fixed_pose(pose))[0])
+    return out
+
+
+def _cycle(fn, items):  # type: ignore[no-untyped-def]
+    state = {"i": 0}
+
+    def call() -> object:
+        i = state["i"]
+        state["i"] = (i + 1) % len(items)
+        return fn(items[i])
+
+    return call
+
+
+def run() -> list[Result]:
+    rng = np.random.default_rng(2024)
+    results: list[Result] = []
+    for joint in (Joint.butt(0.4), Joint.fillet(), Joint.lap(1.0)):
+        scene = Scene(joint)
+        frames = _frames(scene, rng)
+        det = SeamDetector(config=DetectorConfig(joint=joint.kind))
+        words = [f.view(np.uint64) for f in frames]
+        t_read = time_per_call(_cycle(lambda w: w.sum(), words))
+        t_det = time_per_call(_cycle(det.detect, frames))
+        t_stripe = time_per_call(_cycle(det.stripe, frames))
+        name = joint.kind.value
+        results.append(
+            result(f"sensor.detect.{name}", 1 / t_det, "frames/s", "memory read", 1 / t_read)
+        )
+        results.append(
+            result(f"sensor.stripe.{name}", 1 / t_stripe, "frames/s", "memory read", 1 / t_read)
+        )
+    scene = Scene(Joint.butt(0.4))
+    renderer = StripeRenderer(scene, rng=rng)
+    pose = fixed_pose(scene.sensor_over_seam(0.0, seam_y_mm=1.0))
+    times = np.arange(512) * 3.5e-3 / 512
+    t_render = time_per_call(lambda: renderer.render(0, times, pose))
+    t_noise = time_per_call(lambda: rng.standard_normal((512, 256), dtype=np.float32))
+    results.append(
+        result("sensor.render.butt", 1 / t_render, "frames/s", "fresh frame noise", 1 / t_noise)
+    )
+    return results
