@@ -1,0 +1,198 @@
+"""Robot emulator in simulated time: power, e-stop, I/O, joint log, latency, hooks (no I/O)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from kinematics.robot import get_model
+from kinematics.transforms import invert, location_to_transform, transform_to_location
+from robotsocket.emulator import HOME, RobotEmulator
+from robotsocket.interface import (
+    EmergencyStopError,
+    InvalidArgumentError,
+    MotionDesc,
+    NotPoweredError,
+    OutOfRangeError,
+    UnreachableError,
+)
+
+MODEL = get_model("RX90B")
+TARGET = np.array([30.0, -20.0, 100.0, 10.0, 45.0, -30.0])
+
+
+def powered(**kw: object) -> RobotEmulator:
+    robot = RobotEmulator(**kw)  # type: ignore[arg-type]
+    robot.enable_power()
+    return robot
+
+
+def test_motion_needs_power_and_no_estop() -> None:
+    robot = RobotEmulator()
+    with pytest.raises(NotPoweredError):
+        robot.joint_move(TARGET)
+    assert isinstance(robot.status().last_error, NotPoweredError)
+    robot.emergency_stop()
+    with pytest.raises(EmergencyStopError):
+        robot.enable_power()
+    robot.reset_emergency_stop()
+    robot.enable_power()
+    assert robot.joint_move(TARGET) == 1
+
+
+def test_wait_end_move_advances_the_simulated_clock_to_the_exact_target() -> None:
+    robot = powered()
+    robot.joint_move(TARGET)
+    assert robot.status().moving and robot.time() == 0.0
+    assert robot.wait_end_move(30.0)
+    assert np.array_equal(robot.herej(), TARGET)
+    st = robot.status()
+    assert not st.moving and st.queue == 0 and st.time > 0.5
+
+
+def test_estop_halts_at_once_and_switches_outputs_off() -> None:
+    robot = powered()
+    robot.set_output("laser", True)
+    robot.joint_move(TARGET)
+    robot.step(50)
+    q = robot.herej()
+    robot.emergency_stop()
+    robot.step(50)
+    assert np.array_equal(robot.herej(), q)
+    st = robot.status()
+    assert st.estop and not st.powered and st.queue == 0
+    assert robot.read_io("laser") == (False, True)
+    with pytest.raises(EmergencyStopError):
+        robot.set_output("laser", True)
+
+
+def test_disable_power_stops_motion() -> None:
+    robot = powered()
+    robot.joint_move(TARGET)
+    robot.step(30)
+    robot.disable_power()
+    q = robot.herej()
+    robot.step(30)
+    assert np.array_equal(robot.herej(), q) and not robot.status().powered
+
+
+def test_io_by_name() -> None:
+    robot = RobotEmulator()
+    outputs, inputs = robot.list_io()
+    assert {"laser", "gas", "crossjet"} <= set(outputs) and inputs
+    robot.set_output("gas", True)
+    assert robot.read_io("gas") == (True, True)
+    assert robot.read_io(inputs[0])[1] is False
+    with pytest.raises(InvalidArgumentError):
+        robot.set_output(inputs[0], True)
+    with pytest.raises(InvalidArgumentError):
+        robot.read_io("nope")
+
+
+def test_joint_log_is_on_the_4ms_grid_and_10s_deep() -> None:
+    robot = powered()
+    robot.step(3000)
+    t, q = robot.joint_log(-1.0)
+    assert len(t) == 2500 and q.shape == (2500, 6)
+    np.testing.assert_allclose(np.diff(t), 0.004, rtol=1e-9)
+    assert t[-1] == pytest.approx(3000 * 0.004)
+    t2, _ = robot.joint_log(t[-3])
+    assert list(t2) == list(t[-2:])  # strictly after ``since``
+
+
+def test_measured_joints_are_delayed_setpoints() -> None:
+    latency = 0.010  # 2.5 cycles
+    robot = powered(encoder_latency=latency)
+    seen: list[tuple[float, np.ndarray, np.ndarray]] = []
+    robot.cycle_hooks.append(lambda t, sp, m: seen.append((t, sp.copy(), m.copy())))
+    robot.joint_move(TARGET)
+    assert robot.wait_end_move(30.0)
+    times = np.array([s[0] for s in seen])
+    sp = np.array([s[1] for s in seen])
+    meas = np.array([s[2] for s in seen])
+    np.testing.assert_allclose(np.diff(times), 0.004)
+    # Independent: interpolate the setpoint sequence at t - latency.
+    expect = np.column_stack([np.interp(times - latency, times, sp[:, j]) for j in range(6)])
+    k = times - latency >= times[0]
+    np.testing.assert_allclose(meas[k], expect[k], atol=1e-9)
+    assert np.array_equal(robot.herej(), TARGET)  # settled: waited for the latency too
+
+
+def test_noise_needs_rng_and_is_reproducible() -> None:
+    with pytest.raises(ValueError):
+        RobotEmulator(noise_deg=0.01)
+    a = RobotEmulator(noise_deg=0.01, rng=np.random.default_rng(7))
+    b = RobotEmulator(noise_deg=0.01, rng=np.random.default_rng(7))
+    a.step(10)
+    b.step(10)
+    assert np.array_equal(a.herej(), b.herej()) and not np.array_equal(a.herej(), HOME)
+
+
+def test_here_with_tool_and_frame_matches_the_dgm() -> None:
+    robot = RobotEmulator()
+    tool = (10.0, 20.0, 150.0, 0.0, 30.0, 0.0)
+    frame = (500.0, -200.0, 100.0, 0.0, 0.0, 90.0)
+    got = np.array(robot.here(tool, frame))
+    T = invert(location_to_transform(frame)) @ MODEL.flange2base(np.array(HOME))
+    want = transform_to_location(T @ location_to_transform(tool))
+    np.testing.assert_allclose(got, want, atol=1e-9)
+
+
+def same_pose(a: object, b: object) -> None:
+    """Locations compared as transforms (angles are equal modulo 360)."""
+    np.testing.assert_allclose(location_to_transform(a), location_to_transform(b), atol=1e-6)  # type: ignore[arg-type]
+
+
+def test_tool_moves_reach_their_location() -> None:
+    robot = powered()
+    robot.set_motion_desc(MotionDesc(joint_speed=50.0))
+    tool = (0.0, 0.0, 100.0, 0.0, 0.0, 0.0)
+    start = np.array(robot.here(tool))
+    goal = tuple(start + np.array([100.0, 50.0, -50.0, 0.0, 0.0, 10.0]))
+    robot.tool_move_l(goal, tool)  # type: ignore[arg-type]
+    assert robot.wait_end_move(30.0)
+    same_pose(robot.here(tool), goal)
+    goal2 = tuple(start + np.array([-50.0, -150.0, 20.0, 0.0, 0.0, 0.0]))
+    robot.tool_move_j(goal2, tool)  # type: ignore[arg-type]
+    assert robot.wait_end_move(30.0)
+    same_pose(robot.here(tool), goal2)
+    with pytest.raises(UnreachableError):
+        robot.tool_move_j((3000.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+    with pytest.raises(OutOfRangeError):
+        robot.joint_move(np.array([170.0, 0.0, 90.0, 0.0, 90.0, 0.0]))
+    with pytest.raises(OutOfRangeError):
+        robot.wait_end_move(0.0)
+
+
+def test_reset_motion_keeps_power() -> None:
+    robot = powered()
+    robot.joint_move(TARGET)
+    robot.joint_move(np.array(HOME))
+    robot.step(40)
+    robot.on_control_lost()
+    assert robot.wait_end_move(10.0)
+    st = robot.status()
+    assert st.powered and st.queue == 0
+    assert not np.allclose(robot.herej(), TARGET)
+
+
+def test_real_time_clock_ticks_and_reports_jitter() -> None:
+    robot = RobotEmulator(clock="real").start()
+    try:
+        deadline = time.monotonic() + 5.0
+        while robot.cycle < 25 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        robot.enable_power()
+        robot.joint_move(np.array([1.0, 0.0, 90.0, 0.0, 90.0, 0.0]))
+        assert robot.wait_end_move(10.0)
+        assert np.array_equal(robot.herej(), [1.0, 0.0, 90.0, 0.0, 90.0, 0.0])
+        with pytest.raises(Exception, match="simulated"):
+            robot.step(1)
+    finally:
+        robot.close()
+    j = robot.jitter()
+    assert j["count"] >= 25 and 0.0 <= j["p50"] <= j["p99"] <= j["max"]
+    t, _ = robot.joint_log(-1.0)
+    np.testing.assert_allclose(np.diff(t), 0.004, rtol=1e-9)
