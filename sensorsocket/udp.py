@@ -16,9 +16,9 @@ import socket
 import threading
 from collections import Counter, deque
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
-from sensorsocket.sensor import NAN_LOCATION, Clock, Sensor
+from sensorsocket.sensor import NAN_LOCATION, Clock, Reading
 from spec.datagrams import INDEX_MODULUS, SensorData, Trigger, decode_datagram, encode_data
 from spec.errors import DatagramError
 from spec.wire import SensorStatus
@@ -34,6 +34,20 @@ def serial_newer(a: int, b: int) -> bool:
     """True when index ``a`` is after ``b`` in serial-number arithmetic (RFC 1982) [SY-1.3]."""
     d = (a - b) % INDEX_MODULUS
     return 0 < d < _HALF
+
+
+class Acquirer(Protocol):
+    """What the handler needs from the sensor (:class:`~sensorsocket.sensor.Sensor`)."""
+
+    def busy(self, t_arrival: float) -> bool: ...
+
+    def acquire(
+        self,
+        t_arrival: float | None = None,
+        *,
+        index: int | None = None,
+        t_trigger: float = math.nan,
+    ) -> Reading: ...
 
 
 @dataclass(frozen=True)
@@ -69,7 +83,7 @@ class TriggerHandler:
     ``t_done + network_delay_s`` on the sensor clock.
     """
 
-    def __init__(self, sensor: Sensor, *, network_delay_s: float = 0.0) -> None:
+    def __init__(self, sensor: Acquirer, *, network_delay_s: float = 0.0) -> None:
         if not (network_delay_s >= 0 and math.isfinite(network_delay_s)):
             raise ValueError(f"network_delay_s must be >= 0, got {network_delay_s}")
         self.sensor = sensor
@@ -283,4 +297,11 @@ class TriggerListener:
                 log.debug("sendto %s: %s", target, exc)
 
 
-__all__ = ["HISTORY", "TriggerHandler", "TriggerListener", "TriggerReply", "serial_newer"]
+__all__ = [
+    "HISTORY",
+    "Acquirer",
+    "TriggerHandler",
+    "TriggerListener",
+    "TriggerReply",
+    "serial_newer",
+]

@@ -1,0 +1,262 @@
+"""Command line of the SensorSocket emulator.
+
+python -m sensorsocket serve [--host H] [--port 2000] [--udp-port 2001|0|auto] [--joint J]
+                             [--seam S] [--motion M] [--clock real|sim] [--allow CIDR ...]
+                             [--token-file F] [--seed N] [--network-delay S]
+python -m sensorsocket call HOST:PORT COMMAND [ARGS...]
+python -m sensorsocket snapshot HOST:PORT -o frame.pgm|frame.png [--acquire]
+
+Errors: one line on stderr; exit 2 for usage errors, 1 for an error reply, 3 when the server
+cannot be reached.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from sensorsocket.client import SensorClient
+from sensorsocket.pgm import write_pgm
+from sensorsocket.sensor import Reading, SensorError, SimClock, build_sensor
+from sensorsocket.service import SensorService
+from sensorsocket.udp import TriggerHandler, TriggerListener
+from spec.callcli import EXIT_REMOTE_ERROR, EXIT_UNREACHABLE, EXIT_USAGE, main_call, parse_endpoint
+from spec.errors import ErrorCode, ProtocolError, RemoteError
+from spec.server import FramedServer, ServerPolicy, parse_networks, serve_until_signal
+
+PROG = "python -m sensorsocket"
+DEFAULT_PORT = 2000
+DEFAULT_UDP_PORT = 2001
+log = logging.getLogger("sensorsocket")
+
+
+class _UsageError(Exception):
+    pass
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> Any:  # one line and exit 2, no usage dump
+        raise _UsageError(message)
+
+
+def _parser() -> _Parser:
+    p = _Parser(prog=PROG, description="SensorSocket seam-tracking sensor emulator")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    s = sub.add_parser("serve", help="run the sensor server (TCP) and trigger listener (UDP)")
+    s.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
+    s.add_argument("--port", type=int, default=DEFAULT_PORT, help="TCP port, 0 = any free")
+    s.add_argument(
+        "--udp-port", default=str(DEFAULT_UDP_PORT), help="UDP trigger port; 0 = off, auto = any"
+    )
+    s.add_argument("--joint", choices=("butt", "fillet", "lap"), default="butt")
+    s.add_argument("--seam", choices=("straight", "sine"), default="straight")
+    s.add_argument(
+        "--motion", default="fixed", help="fixed | sine:AMP_MM:FREQ_HZ | scan:SPEED_MM_S"
+    )
+    s.add_argument("--clock", choices=("real", "sim"), default="real")
+    s.add_argument("--allow", nargs="+", default=[], metavar="CIDR", help="client allow-list")
+    s.add_argument("--token-file", help="file holding the TakeControl token")
+    s.add_argument("--seed", type=int, default=0, help="random seed of the emulator")
+    s.add_argument("--network-delay", type=float, default=0.0, help="modelled UDP reply delay (s)")
+    c = sub.add_parser("call", help="send one command and print the reply as JSON")
+    c.add_argument("endpoint", metavar="HOST:PORT")
+    c.add_argument("name", metavar="COMMAND")
+    c.add_argument("args", nargs="*")
+    c.add_argument("--timeout", type=float, default=5.0)
+    c.add_argument("--token-file", help="file holding the TakeControl token")
+    n = sub.add_parser("snapshot", help="save the latest frame as PGM (or PNG)")
+    n.add_argument("endpoint", metavar="HOST:PORT")
+    n.add_argument("-o", "--output", required=True, help="frame.pgm or frame.png")
+    n.add_argument("--acquire", action="store_true", help="take control and acquire first")
+    n.add_argument("--timeout", type=float, default=5.0)
+    n.add_argument("--token-file", help="file holding the TakeControl token")
+    return p
+
+
+def _token(path: str | None) -> str | None:
+    if path is None:
+        return None
+    try:
+        return Path(path).read_text(encoding="utf-8").strip()
+    except OSError as exc:
+        raise _UsageError(f"cannot read token file {path}: {exc.strerror}") from None
+
+
+def _udp_port(text: str) -> int | None:
+    """None = off, 0 = any free port."""
+    if text == "auto":
+        return 0
+    try:
+        port = int(text)
+    except ValueError:
+        raise _UsageError(f"--udp-port: expected a port number, 0 or auto, got {text!r}") from None
+    if not 0 <= port < 65536:
+        raise _UsageError(f"--udp-port out of range: {port}")
+    return None if port == 0 else port
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    if not 0 <= args.port < 65536:
+        raise _UsageError(f"--port out of range: {args.port}")
+    if not args.network_delay >= 0:
+        raise _UsageError("--network-delay must be >= 0 s")
+    udp_port = _udp_port(args.udp_port)
+    token = _token(args.token_file)
+    try:
+        allow = parse_networks(args.allow)
+    except ValueError as exc:
+        raise _UsageError(str(exc)) from None
+    sim = args.clock == "sim"
+    if sim:
+        sim_clock = SimClock()
+        clock = sim_clock
+
+        def step(reading: Reading) -> None:
+            # A free-running simulated sensor: its clock moves to the end of each frame.
+            sim_clock.set(reading.t_done)
+
+        after = step
+    else:
+        clock, after = time.monotonic, None  # type: ignore[assignment]
+    try:
+        sensor = build_sensor(
+            joint=args.joint,
+            seam=args.seam,
+            motion=args.motion,
+            seed=args.seed,
+            clock=clock,
+            after_acquire=after,
+        )
+    except SensorError as exc:
+        raise _UsageError(str(exc)) from None
+    service = SensorService(sensor)
+    policy = ServerPolicy(allow=allow, token=token)
+    listener: TriggerListener | None = None
+    try:
+        server = FramedServer(service, args.host, args.port, policy)
+        if udp_port is not None:
+            handler = TriggerHandler(sensor, network_delay_s=args.network_delay)
+            listener = TriggerListener(handler, args.host, udp_port, clock=clock, hold=not sim)
+    except OSError as exc:
+        print(f"{PROG} serve: cannot bind {args.host}: {exc.strerror or exc}", file=sys.stderr)
+        return EXIT_USAGE
+    host, port = server.address
+    udp = f"{listener.address[0]}:{listener.address[1]}" if listener else "off"
+    service.trigger_endpoint = listener.address if listener else (host, 0)
+    log.info(
+        "sensorsocket serving tcp %s:%d udp %s (joint %s, seam %s, motion %s, clock %s, seed %d)",
+        host, port, udp, args.joint, args.seam, args.motion, args.clock, args.seed,
+    )  # fmt: skip
+    if listener is not None:
+        listener.start()
+    server.start()
+
+    def stop() -> None:
+        if listener is not None:
+            log.info("trigger statistics: %s", listener.statistics())
+            listener.stop()
+        log.info("server statistics: %s", server.statistics())
+
+    serve_until_signal([server], on_stop=stop)
+    return 0
+
+
+def _require_matplotlib() -> None:
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise _UsageError("PNG output needs matplotlib, which is not installed; use .pgm") from None
+
+
+def _write_png(path: Path, image: Any) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib import pyplot as plt
+
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp.png")
+    os.close(fd)
+    try:
+        plt.imsave(tmp, image, cmap="gray", vmin=0, vmax=255, format="png")
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def _fetch(client: SensorClient, acquire: bool, token: str | None) -> tuple[int, Any]:
+    """The latest frame; acquire one first (briefly holding control) when asked or when the
+    sensor has not measured yet."""
+    if not acquire:
+        try:
+            return client.get_image()
+        except RemoteError as exc:
+            if exc.code is not ErrorCode.NO_DATA:
+                raise
+    client.take_control(token or "")
+    client.acquire()
+    client.release_control()
+    return client.get_image()
+
+
+def cmd_snapshot(args: argparse.Namespace) -> int:
+    out = Path(args.output)
+    suffix = out.suffix.lower()
+    if suffix not in (".pgm", ".png"):
+        raise _UsageError(f"output must end in .pgm or .png, got {args.output!r}")
+    if not out.parent.is_dir():
+        raise _UsageError(f"output directory {str(out.parent)!r} does not exist")
+    token = _token(args.token_file)
+    try:
+        host, port = parse_endpoint(args.endpoint, DEFAULT_PORT)
+    except ValueError as exc:
+        raise _UsageError(str(exc)) from None
+    if suffix == ".png":
+        _require_matplotlib()
+    try:
+        client = SensorClient(host, port, timeout=args.timeout)
+        try:
+            index, image = _fetch(client, args.acquire, token)
+        finally:
+            client.close()
+    except RemoteError as exc:
+        print(f"error {exc.code.name} ({exc.raw_code}): {exc.message}", file=sys.stderr)
+        return EXIT_REMOTE_ERROR
+    except (OSError, ProtocolError) as exc:
+        print(f"{PROG} snapshot: cannot reach {host}:{port}: {exc}", file=sys.stderr)
+        return EXIT_UNREACHABLE
+    if suffix == ".png":
+        _write_png(out, image)
+    else:
+        write_pgm(out, image)
+    print(f"wrote {out} ({image.shape[1]}x{image.shape[0]}, frame {index})")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    logging.basicConfig(
+        level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
+    try:
+        args = _parser().parse_args(argv)
+        if args.command == "serve":
+            return cmd_serve(args)
+        if args.command == "snapshot":
+            return cmd_snapshot(args)
+        token = _token(args.token_file)
+        return main_call(
+            "sensor", DEFAULT_PORT, args.endpoint, args.name, args.args, args.timeout, token
+        )
+    except _UsageError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+
+
+if __name__ == "__main__":
+    sys.exit(main())
