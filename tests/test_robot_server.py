@@ -1,0 +1,283 @@
+"""RobotSocket over real loopback sockets: every command, its reply and its errors; control."""
+
+from __future__ import annotations
+
+import socket
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from robotsocket.client import (
+    AuthError,
+    BadParametersError,
+    BusyError,
+    EmergencyStopError,
+    MotionDesc,
+    NotInControlError,
+    NotPoweredError,
+    OutOfRangeError,
+    RobotClient,
+    SingularityError,
+    UnknownCommandError,
+    UnreachableError,
+)
+from robotsocket.emulator import HOME, RobotEmulator
+from robotsocket.service import RobotService
+from spec.codec import encode_packet, request
+from spec.errors import ErrorCode
+from spec.params import Joints, Location
+from spec.registry import CommandId, commands_for
+from spec.server import FramedServer, ServerPolicy
+
+TARGET = (30.0, -20.0, 100.0, 10.0, 45.0, -30.0)
+
+
+@pytest.fixture
+def robot() -> RobotEmulator:
+    return RobotEmulator()
+
+
+@pytest.fixture
+def server(robot: RobotEmulator) -> Iterator[FramedServer]:
+    srv = FramedServer(RobotService(robot), "127.0.0.1", 0, ServerPolicy(token="s3cret"))
+    with srv:
+        yield srv
+    assert not srv.handler_errors
+
+
+@pytest.fixture
+def client(server: FramedServer) -> Iterator[RobotClient]:
+    with RobotClient(*server.address, timeout=10.0) as c:
+        yield c
+
+
+def test_hello_lists_what_the_service_implements(client: RobotClient) -> None:
+    info = client.hello()
+    assert info["service"] == "robot" and info["model"] == "RX90B"
+    ids = set(info["commands"].values)  # type: ignore[union-attr]
+    robot_ids = {int(c.id) for c in commands_for("robot") if c.service == "robot"}
+    robot_ids -= {int(CommandId.TOOL_MOVE_TRAJECTORY)}  # not implemented yet
+    assert robot_ids <= ids
+    assert int(CommandId.START_TRIGGERS) not in ids  # sync commands: not registered here
+
+
+def test_read_only_commands_need_no_control(client: RobotClient) -> None:
+    assert np.array_equal(client.herej(), HOME)
+    st = client.status()
+    assert not st.powered and not st.in_control and not st.controlled and st.queue == 0
+    assert client.here() == pytest.approx((450.0, 0.0, 365.0, 180.0, 0.0, 180.0), abs=1e-9)
+    lim = client.joint_limits()
+    assert lim.shape == (6, 2) and lim[0, 1] == 160.0
+    assert client.motion_desc() == MotionDesc()
+    t, q = client.joint_log()
+    assert len(t) == 1 and np.array_equal(q[0], HOME)
+    assert client.read_io("laser") is False
+    assert "crossjet" in client.list_io()[0]
+    assert client.get_time() == 0.0
+    assert client.ping(b"abc") == b"abc"
+
+
+@pytest.mark.parametrize(
+    ("call", "args"),
+    [
+        ("enable_power", ()),
+        ("disable_power", ()),
+        ("joint_move", (TARGET,)),
+        ("tool_move_j", ((400.0, 0.0, 400.0, 180.0, 0.0, 180.0),)),
+        ("tool_move_l", ((400.0, 0.0, 400.0, 180.0, 0.0, 180.0),)),
+        ("set_motion_desc", (MotionDesc(),)),
+        ("stop_move", ()),
+        ("restart_move", ()),
+        ("reset_motion", ()),
+        ("reset_emergency_stop", ()),
+        ("set_output", ("laser", True)),
+    ],
+)
+def test_commands_that_move_or_switch_need_control(
+    client: RobotClient, call: str, args: tuple[object, ...]
+) -> None:
+    with pytest.raises(NotInControlError) as info:
+        getattr(client, call)(*args)
+    assert info.value.code is ErrorCode.NOT_IN_CONTROL and "control" in info.value.message
+
+
+def test_token_is_checked(client: RobotClient) -> None:
+    with pytest.raises(AuthError):
+        client.take_control("wrong")
+    client.take_control("s3cret")
+    assert client.status().in_control
+
+
+def test_full_motion_session(client: RobotClient, robot: RobotEmulator) -> None:
+    client.take_control("s3cret")
+    with pytest.raises(NotPoweredError):
+        client.joint_move(TARGET)
+    assert client.status().last_error == ErrorCode.NOT_POWERED
+    client.enable_power()
+    client.set_motion_desc(MotionDesc(joint_speed=50.0, tool_speed=200.0, blend=0.0))
+    assert client.motion_desc().joint_speed == 50.0
+    assert client.joint_move(TARGET) == 1
+    st = client.status()
+    assert st.moving and st.queue == 1 and st.in_control and st.controlled
+    assert client.wait_end_move(30.0) is True
+    assert np.array_equal(client.herej(), TARGET)
+    assert client.status().time > 0.0
+    start = np.array(client.here())
+    goal = start + np.array([50.0, 0.0, -30.0, 0.0, 0.0, 0.0])
+    client.tool_move_l(goal)
+    assert client.wait_end_move(30.0)
+    assert client.here() == pytest.approx(tuple(goal), abs=1e-6)
+    client.tool_move_j(start)
+    assert client.wait_end_move(30.0)
+    assert client.here() == pytest.approx(tuple(start), abs=1e-6)
+    t, _ = client.joint_log(0.5)
+    assert np.all(t > 0.5) and np.allclose(np.diff(t), 0.004)
+    client.set_output("laser", True)
+    assert client.read_io("laser") is True
+    client.disable_power()
+    assert not client.status().powered
+
+
+def test_motion_errors(client: RobotClient) -> None:
+    client.take_control("s3cret")
+    client.enable_power()
+    with pytest.raises(OutOfRangeError, match="J1"):
+        client.joint_move((170.0, 0.0, 90.0, 0.0, 90.0, 0.0))
+    with pytest.raises(UnreachableError):
+        client.tool_move_l((2000.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+    with pytest.raises(UnreachableError):
+        client.tool_move_j((2000.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+    client.joint_move((0.0, 10.0, 90.0, 0.0, 30.0, 0.0))
+    with pytest.raises(SingularityError):
+        client.tool_move_l(tuple(_flange_loc((0.0, 10.0, 90.0, 0.0, -30.0, 0.0))))
+    with pytest.raises(OutOfRangeError):
+        client.set_motion_desc(MotionDesc(joint_speed=150.0))
+    with pytest.raises(BadParametersError):
+        client.joint_move((1.0, 2.0, 3.0))
+    with pytest.raises(BadParametersError):
+        client.set_output("nope", True)
+    with pytest.raises(BadParametersError):
+        client.call(CommandId.JOINT_MOVE, 1.0)  # wrong type
+    with pytest.raises(BadParametersError):
+        client.call(CommandId.HERE, Location(0, 0, 0, 0, 0, 0))  # missing frame
+    with pytest.raises(UnknownCommandError):
+        client.call(0x1FFF)
+    with pytest.raises(UnknownCommandError):
+        client.call(CommandId.STOP_TRIGGERS)
+    client.emergency_stop()
+    with pytest.raises(EmergencyStopError):
+        client.enable_power()
+    st = client.status()
+    assert st.estop and st.last_error == ErrorCode.EMERGENCY_STOP
+    client.reset_emergency_stop()
+    client.enable_power()
+
+
+def _flange_loc(q: tuple[float, ...]) -> np.ndarray:
+    from kinematics.robot import get_model
+    from kinematics.transforms import transform_to_location
+
+    return transform_to_location(get_model().flange2base(np.array(q)))
+
+
+def test_stop_restart_and_reset(client: RobotClient, robot: RobotEmulator) -> None:
+    client.take_control("s3cret")
+    client.enable_power()
+    client.joint_move(TARGET)
+    robot.step(40)
+    client.stop_move()
+    assert client.wait_end_move(1.0) is False  # held: the queue is kept
+    st = client.status()
+    assert not st.moving and st.queue == 1
+    client.restart_move()
+    assert client.wait_end_move(30.0)
+    assert np.array_equal(client.herej(), TARGET)
+    client.joint_move(HOME)
+    robot.step(40)
+    client.reset_motion()
+    assert client.wait_end_move(10.0)
+    assert client.status().queue == 0 and not np.allclose(client.herej(), HOME)
+
+
+def test_emergency_stop_is_open_to_everyone(server: FramedServer, client: RobotClient) -> None:
+    client.take_control("s3cret")
+    client.enable_power()
+    client.joint_move(TARGET)
+    with RobotClient(*server.address) as other:
+        other.emergency_stop()
+    st = client.status()
+    assert st.estop and not st.powered and st.queue == 0
+
+
+def test_two_clients_compete_for_control(server: FramedServer) -> None:
+    with RobotClient(*server.address) as a, RobotClient(*server.address) as b:
+        a.take_control("s3cret")
+        with pytest.raises(BusyError):
+            b.take_control("s3cret")
+        with pytest.raises(NotInControlError, match="another client"):
+            b.enable_power()
+        a.enable_power()
+        assert b.status().controlled and not b.status().in_control
+        b.release_control()  # harmless: b does not hold it
+        assert a.status().in_control
+        a.release_control()
+        b.take_control("s3cret")
+        b.disable_power()
+        with pytest.raises(NotInControlError):
+            a.enable_power()
+
+
+def test_controller_disconnect_during_a_move_stops_on_the_path() -> None:
+    robot = RobotEmulator(clock="real").start()
+    srv = FramedServer(RobotService(robot), "127.0.0.1", 0).start()
+    try:
+        c = RobotClient(*srv.address)
+        c.take_control()
+        c.enable_power()
+        c.set_motion_desc(MotionDesc(joint_speed=5.0))
+        c.joint_move(TARGET)
+        c.joint_move(HOME)
+        deadline = time.monotonic() + 5.0
+        while robot.cycle < 60 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        c.close()  # the controller vanishes mid-move
+        with RobotClient(*srv.address) as watcher:
+            deadline = time.monotonic() + 5.0
+            while watcher.status().moving and time.monotonic() < deadline:
+                time.sleep(0.02)
+            st = watcher.status()
+            q = watcher.herej()
+        assert not st.moving and st.queue == 0 and st.powered  # power stays as it was
+        frac = (q - np.array(HOME)) / (np.array(TARGET) - np.array(HOME))
+        assert 0.0 < frac[0] < 1.0
+        np.testing.assert_allclose(frac, frac[0], atol=1e-9)  # stopped on the joint line
+    finally:
+        srv.shutdown()
+        robot.close()
+    assert not srv.handler_errors
+
+
+def test_extra_handlers_can_be_registered() -> None:
+    service = RobotService(RobotEmulator())
+    service.register(CommandId.STOP_TRIGGERS, lambda session, params: ())
+    assert int(CommandId.STOP_TRIGGERS) in service.implemented()
+    with FramedServer(service, "127.0.0.1", 0) as srv, RobotClient(*srv.address) as c:
+        c.take_control()
+        assert c.call(CommandId.STOP_TRIGGERS) == ()
+
+
+def test_raw_frames_get_the_request_id_echoed(server: FramedServer) -> None:
+    with socket.create_connection(server.address, timeout=5.0) as s:
+        s.sendall(encode_packet(request(CommandId.HEREJ, 77)))
+        s.sendall(encode_packet(request(CommandId.JOINT_MOVE, 78, Joints(TARGET))))
+        from spec.codec import FrameDecoder
+
+        dec = FrameDecoder()
+        got = []
+        while len(got) < 2:
+            dec.feed(s.recv(4096))
+            got.extend(dec.events())
+    assert [p.request_id for p in got] == [77, 78]  # type: ignore[union-attr]
+    assert got[1].error[0] == ErrorCode.NOT_IN_CONTROL  # type: ignore[union-attr]
