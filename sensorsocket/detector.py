@@ -157,8 +157,8 @@ class SeamDetector:
             [np.maximum(peak_row - (h + 3), 0), np.minimum(peak_row + h + 3, nrows - 1)]
         )
         samples = flat[np.concatenate([base, base]) + ring].astype(np.float32)
-        background = float(np.median(samples))
-        noise = max(1.4826 * float(np.median(np.abs(samples - background))), 0.5)
+        background = _median(samples)
+        noise = max(1.4826 * _median(np.abs(samples - background)), 0.5)
         threshold = background + max(self.config.noise_factor * noise, 1.0)
         contrast = max(self.config.min_contrast_dn, 6.0 * noise)
         start = np.clip(peak_row - h, 0, nrows - w)
@@ -371,7 +371,7 @@ class SeamDetector:
         all_cols = np.concatenate([ref_cols, edge_cols])
         rows = self.camera.line_row(all_cols.astype(np.float64), line.a, line.b)[0]
         m = self.mass_at(frame, stripe, all_cols, rows, h)
-        ref = float(np.median(m[: ref_cols.size])) if ref_cols.size else 0.0
+        ref = _median(m[: ref_cols.size]) if ref_cols.size else 0.0
         if ref <= 0:
             return float(edge_cols[0]) + 0.5 * side
         cover = float(np.clip(m[ref_cols.size :] / ref, 0.0, 1.0).sum())
@@ -474,7 +474,7 @@ class SeamDetector:
         sep = float(np.nanmin(np.abs(r_up[: cols.size] - r_lo)))
         half = int(max(1, min(cfg.half_window, math.floor(sep / 2.0 - 0.5))))
         m_up = self.mass_at(frame, stripe, all_cols, r_up, half)
-        ref = float(np.median(m_up[cols.size :])) if ref_idx.size else 0.0
+        ref = _median(m_up[cols.size :]) if ref_idx.size else 0.0
         if ref <= 0.0:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         cover = float(np.clip(m_up[: cols.size] / ref, 0.0, 1.0).sum())
@@ -498,38 +498,52 @@ def _to_dn(a: NDArray[np.generic]) -> NDArray[np.float32]:
     return f
 
 
+def _median(x: NDArray[np.floating]) -> float:
+    """Median of a non-empty 1-D array (np.partition; np.median's wrapper costs more)."""
+    n = x.size
+    k = n // 2
+    p = np.partition(x, k)
+    if n % 2:
+        return float(p[k])
+    return 0.5 * (float(p[k]) + float(p[:k].max()))
+
+
 def _not_isolated_outliers(z: FloatArray, tol: float) -> NDArray[np.bool_]:
-    """Mask of points within ``tol`` of the 5-point running median of z."""
-    if z.size < 5:
+    """Mask of points within ``tol`` of the 3-point running median of z (drops glints)."""
+    if z.size < 3:
         return np.ones(z.size, dtype=bool)
-    padded = np.concatenate([z[:1], z[:1], z, z[-1:], z[-1:]])
-    windows = np.lib.stride_tricks.sliding_window_view(padded, 5)
-    med = np.median(windows, axis=1)
-    keep: NDArray[np.bool_] = np.abs(z - med) <= tol
+    a, b, c = z[:-2], z[1:-1], z[2:]
+    med = np.maximum(np.minimum(a, b), np.minimum(np.maximum(a, b), c))
+    keep = np.ones(z.size, dtype=bool)
+    keep[1:-1] = np.abs(b - med) <= tol
     return keep
 
 
 def _robust_line(y: FloatArray, z: FloatArray, iterations: int = 2) -> _Line | None:
     """Least-squares line z = a + b·y, refitted without points beyond 3.5 robust sigma."""
-    if y.size < 3:
+    n_all = y.size
+    if n_all < 3:
         return None
-    mask = np.ones(y.size, dtype=bool)
+    yy, zz = y, z
     a = b = rms = 0.0
+    n = n_all
     for it in range(iterations + 1):
-        yy, zz = y[mask], z[mask]
         n = yy.size
         if n < 3:
             return None
-        my, mz = yy.mean(), zz.mean()
+        my = float(yy.sum()) / n
+        mz = float(zz.sum()) / n
         dy = yy - my
         syy = float(dy @ dy)
         if syy <= 1e-12:
             return None
         b = float(dy @ (zz - mz)) / syy
-        a = float(mz - b * my)
-        res = z - (a + b * y)
-        rms = float(np.sqrt(np.mean(res[mask] ** 2)))
+        a = mz - b * my
+        res = zz - (a + b * yy)
+        rms = math.sqrt(float(res @ res) / n)
         if it < iterations:
-            sigma = 1.4826 * float(np.median(np.abs(res[mask])))
-            mask = np.abs(res) <= max(3.5 * sigma, 0.01)
-    return _Line(a=a, b=b, rms=rms, n=int(mask.sum()))
+            all_res = np.abs(z - (a + b * y))
+            sigma = 1.4826 * _median(np.abs(res))
+            keep = all_res <= max(3.5 * sigma, 0.01)
+            yy, zz = y[keep], z[keep]
+    return _Line(a=a, b=b, rms=rms, n=n)
