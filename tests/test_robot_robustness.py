@@ -59,9 +59,11 @@ def _mutations(rng: np.random.Generator, rid: int) -> tuple[bytes, ErrorCode | N
             False,
         )
     if kind == 2:
-        return _frame(CommandId.HEREJ, rid, b"\x00\x00", kind=int(rng.choice([0, 2, 5, 255]))), ErrorCode.BAD_FRAME, False  # fmt: skip
+        bad_kind = int(rng.choice([0, 2, 5, 255]))
+        return _frame(CommandId.HEREJ, rid, b"\x00\x00", kind=bad_kind), ErrorCode.BAD_FRAME, False
     if kind == 3:
-        return _frame(CommandId.HEREJ, rid, b"\x00\x00", flags=int(rng.integers(1, 256))), ErrorCode.BAD_FRAME, False  # fmt: skip
+        flags = int(rng.integers(1, 256))
+        return _frame(CommandId.HEREJ, rid, b"\x00\x00", flags=flags), ErrorCode.BAD_FRAME, False
     if kind == 4:  # random payload with a correct CRC: the parameter decoder judges it
         payload = rng.bytes(int(rng.integers(0, 40)))
         if rng.random() < 0.5:
