@@ -107,6 +107,9 @@ class SensorClient(FramedClient):
             host, port, timeout=timeout, auto_reconnect=auto_reconnect, client_name=client_name
         )
 
+    def __enter__(self) -> SensorClient:
+        return self
+
     def status(self) -> SensorState:
         v = self.call(CommandId.SENSOR_STATUS)
         return SensorState(_b(v[0]), _i(v[1]), _i(v[2]), _b(v[3]), _b(v[4]), _f(v[5]))
@@ -121,8 +124,8 @@ class SensorClient(FramedClient):
         seam = loc.as_tuple() if status is SensorStatus.FOUND else None
         return SeamData(_i(v[0]), status, seam, _f(v[3]), _f(v[4]), _f(v[5]), _f(v[6]))
 
-    def get_image_raw(self, region: tuple[int, int, int, int] | None = None) -> tuple[int, Image]:
-        """(index, IMAGE) of the latest frame; ``region`` = (column, row, width, height)."""
+    def get_image_raw(self, region: tuple[int, ...] | None = None) -> tuple[int, Image]:
+        """(index, IMAGE) of the latest frame; ``region`` = (column, row, width, height), trailing values optional."""
         params: tuple[int, ...] = () if region is None else tuple(int(x) for x in region)
         v = self.call(CommandId.GET_IMAGE, *params)
         image = v[1]
@@ -131,7 +134,7 @@ class SensorClient(FramedClient):
         return _i(v[0]), image
 
     def get_image(
-        self, region: tuple[int, int, int, int] | None = None
+        self, region: tuple[int, ...] | None = None
     ) -> tuple[int, NDArray[np.uint8] | NDArray[np.uint16]]:
         """(index, image (rows, columns)) of the latest frame (paper: image = GetImage())."""
         index, image = self.get_image_raw(region)
