@@ -125,7 +125,8 @@ class SensorClient(FramedClient):
         return SeamData(_i(v[0]), status, seam, _f(v[3]), _f(v[4]), _f(v[5]), _f(v[6]))
 
     def get_image_raw(self, region: tuple[int, ...] | None = None) -> tuple[int, Image]:
-        """(index, IMAGE) of the latest frame; ``region`` = (column, row, width, height), trailing values optional."""
+        """(index, IMAGE) of the latest frame; ``region`` = (column, row, width, height),
+        trailing values optional (the rest of the sensor)."""
         params: tuple[int, ...] = () if region is None else tuple(int(x) for x in region)
         v = self.call(CommandId.GET_IMAGE, *params)
         image = v[1]
