@@ -1,0 +1,117 @@
+"""python -m robotsocket: serve, call, watch."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from robotsocket.__main__ import main
+from robotsocket.emulator import RobotEmulator
+from robotsocket.service import RobotService
+from spec.server import FramedServer, ServerPolicy
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture
+def endpoint(tmp_path: Path) -> Iterator[str]:
+    (tmp_path / "token").write_text("tok\n")
+    srv = FramedServer(RobotService(RobotEmulator()), "127.0.0.1", 0, ServerPolicy(token="tok"))
+    with srv:
+        yield f"127.0.0.1:{srv.address[1]}"
+
+
+def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_call_prints_json_and_errors(
+    endpoint: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code, out, _ = run(capsys, "call", endpoint, "HEREJ")
+    assert code == 0 and json.loads(out) == {"joints": [0.0, 0.0, 90.0, 0.0, 90.0, 0.0]}
+    tok = ["--token-file", str(tmp_path / "token")]
+    code, _, err = run(capsys, "call", endpoint, "jointmove", "0,-30,90,0,60,0", *tok)
+    assert code == 1 and "NOT_POWERED" in err and "10" in err
+    assert run(capsys, "call", endpoint, "EnablePower", *tok)[0] == 0
+    code, out, _ = run(capsys, "call", endpoint, "jointmove", "0,-30,90,0,60,0", *tok)
+    assert code == 0 and json.loads(out) == {"move_id": 1, "done": True}
+    code, out, _ = run(capsys, "call", endpoint, "herej")
+    assert json.loads(out)["joints"] == [0.0, -30.0, 90.0, 0.0, 60.0, 0.0]
+    code, out, _ = run(capsys, "call", endpoint, "here", "0,0,100,0,0,0")
+    assert code == 0 and len(json.loads(out)["location"]) == 6
+    code, out, _ = run(capsys, "call", endpoint, "setoutput", "laser", "on", *tok)
+    assert code == 0
+    code, out, _ = run(capsys, "call", endpoint, "readio", "laser")
+    assert json.loads(out) == {"value": True, "is_output": True}
+    code, _, err = run(capsys, "call", endpoint, "EnablePower")
+    assert code == 1 and "AUTH_FAILED" in err
+    code, _, err = run(capsys, "call", endpoint, "toolmovel", "5000,0,0,0,0,0", *tok)
+    assert code == 1 and "UNREACHABLE" in err
+    code, out, _ = run(capsys, "call", endpoint, "getjointlimits")
+    assert json.loads(out)["limits"][0] == [-160.0, 160.0]
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["call", "nohost", "herej"],
+        ["call", "127.0.0.1:1", "nosuchcommand"],
+        ["call", "127.0.0.1:1", "jointmove"],
+        ["call", "127.0.0.1:1", "jointmove", "a,b"],
+        ["call", "127.0.0.1:1", "setoutput", "laser", "maybe"],
+    ],
+)
+def test_usage_errors_exit_2(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = run(capsys, *argv)
+    assert code == 2 and err.startswith("error: ") and err.count("\n") == 1
+
+
+def test_connection_refused_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = run(capsys, "call", "127.0.0.1:1", "herej")
+    assert code == 1 and err.startswith("error") and "Traceback" not in err
+
+
+def test_watch_stops_after_count(endpoint: str, capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, _ = run(capsys, "watch", endpoint, "--count", "3", "--interval", "0.01")
+    lines = out.strip().splitlines()
+    assert code == 0 and len(lines) == 3 and all("power=off" in ln for ln in lines)
+
+
+def test_serve_runs_until_sigint() -> None:
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "robotsocket", "serve", "--port", "0", "--clock", "sim"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        cwd=ROOT,
+    )
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        assert line.startswith("listening on 127.0.0.1:")
+        port = line.rsplit(":", 1)[1].strip()
+        out = subprocess.run(
+            [sys.executable, "-m", "robotsocket", "call", f"127.0.0.1:{port}", "gettime"],
+            capture_output=True, text=True, env=env, cwd=ROOT, timeout=30,
+        )  # fmt: skip
+        assert out.returncode == 0 and json.loads(out.stdout) == {"time": 0.0}
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=15)
+        assert proc.returncode == 0
+        assert "simulated" in err and "statistics" in err
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
