@@ -1,0 +1,276 @@
+"""The sensor's UDP trigger handling (PROTOCOL.md section 9): the pure handler without
+sockets, then a real loopback exchange with the listener thread."""
+
+from __future__ import annotations
+
+import math
+import socket
+import struct
+import time
+import zlib
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sensorsocket.emulator import CameraEmulator
+from sensorsocket.scene import fixed_pose
+from sensorsocket.sensor import Reading, Sensor, SimClock, make_scene
+from sensorsocket.timing import TimingModel
+from sensorsocket.udp import HISTORY, TriggerHandler, TriggerListener, serial_newer
+from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data, encode_trigger
+from spec.wire import SensorStatus
+
+SEAM_Y, SEAM_Z = -0.8, 0.3
+
+
+def make_sensor(seed: int = 5, *, seam_y: float = SEAM_Y) -> Sensor:
+    scene = make_scene("fillet", "straight")
+    pose = fixed_pose(scene.sensor_over_seam(0.0, seam_y_mm=seam_y, seam_z_mm=SEAM_Z))
+    rng = np.random.default_rng(seed)
+    emulator = CameraEmulator(scene, pose, TimingModel(rng=rng), rng=rng)
+    return Sensor(emulator, clock=SimClock())
+
+
+def trig(index: int, t: float = 1.5) -> bytes:
+    return encode_trigger(Trigger(index, t))
+
+
+def data_of(reply: bytes | None) -> SensorData:
+    assert reply is not None
+    d = decode_datagram(reply)
+    assert isinstance(d, SensorData)
+    return d
+
+
+class StubSensor:
+    """A zero-cost sensor for properties of the handler: always FOUND, never busy."""
+
+    def __init__(self) -> None:
+        self.acquired: list[int] = []
+
+    def busy(self, t_arrival: float) -> bool:
+        return False
+
+    def acquire(
+        self, t_arrival: float | None = None, *, index: int | None = None, t_trigger: float = 0.0
+    ) -> Reading:
+        assert t_arrival is not None and index is not None
+        self.acquired.append(index)
+        eye = np.eye(4)
+        return Reading(
+            index, SensorStatus.FOUND, eye, (0.0, 1.0, 2.0, 0.0, 0.0, 0.0), 0.9, t_trigger,
+            t_arrival, t_arrival + 1e-4, t_arrival + 2e-4, t_arrival + 3e-4,
+            np.zeros((512, 256), np.uint8), np.zeros((0, 3)), eye,
+        )  # fmt: skip
+
+
+# --- pure handler ---------------------------------------------------------------------------
+
+
+def test_valid_trigger_gets_one_measured_reply() -> None:
+    sensor = make_sensor()
+    handler = TriggerHandler(sensor)
+    d = data_of(handler.handle(trig(7, t=123.25), 2.0))
+    # [SY-2.1] same index, t_i^T echoed; [SY-2.6] ordered sensor timestamps
+    assert (d.index, d.t_trigger, d.t_arrival) == (7, 123.25, 2.0)
+    assert d.t_arrival <= d.t_exposure_start <= d.t_exposure_end
+    # 4 kHz poll and 0.25 ms start jitter: the exposure starts within 0.5 ms of the arrival
+    assert d.t_exposure_start - d.t_arrival <= 0.5e-3
+    assert d.t_exposure_end - d.t_exposure_start == pytest.approx(3.5e-3)
+    assert d.status is SensorStatus.FOUND and 0.5 < d.quality <= 1.0
+    assert abs(d.seam[1] - SEAM_Y) < 0.05 and abs(d.seam[2] - SEAM_Z) < 0.05
+    reading = sensor.latest
+    assert reading is not None and reading.index == 7 and reading.seam == d.seam
+    assert handler.statistics()["replies"] == handler.statistics()["found"] == 1
+
+
+def test_reply_time_models_processing_and_network_delay() -> None:
+    sensor = make_sensor()
+    handler = TriggerHandler(sensor, network_delay_s=2e-3)
+    reply = handler.process(trig(1), 5.0)
+    assert reply is not None
+    reading = sensor.latest
+    assert reading is not None
+    assert reply.t_send == pytest.approx(reading.t_done + 2e-3)
+    assert reading.t_done >= reading.t_exposure_end
+
+
+def test_duplicates_reordered_and_malformed_are_counted_exactly() -> None:
+    handler = TriggerHandler(make_sensor())
+    t = 0.0
+    statuses: dict[int, SensorStatus] = {}
+    for i in (0, 1, 2, 4):
+        t += 0.01
+        statuses[i] = data_of(handler.handle(trig(i), t)).status
+    # [SY-2.2] a duplicate gets no second reply and no acquisition
+    frames = handler.sensor.frames  # type: ignore[attr-defined]
+    assert handler.handle(trig(2), t + 0.01) is None
+    assert handler.handle(trig(4), t + 0.02) is None
+    assert handler.sensor.frames == frames  # type: ignore[attr-defined]
+    # [SY-2.3] older than one served: OVERRUN, never silence; [SY-2.7] NaN location
+    late = data_of(handler.handle(trig(3, t=9.0), t + 0.03))
+    assert late.status is SensorStatus.OVERRUN and late.index == 3 and late.t_trigger == 9.0
+    assert all(math.isnan(v) for v in late.seam)
+    assert handler.handle(trig(3), t + 0.04) is None  # answered once, even as OVERRUN
+    good = trig(5)
+    bad = [
+        good[:-1],  # short
+        good + b"\x00",  # long
+        b"XY" + good[2:],  # magic (CRC no longer matches either)
+        good[:-4] + struct.pack(">I", zlib.crc32(good[:-4]) ^ 1),  # CRC
+        b"",
+        encode_data(SensorData(5, SensorStatus.FOUND, (0.0,) * 6, 1.0, 0.0, 0.0, 0.0, 0.0)),
+    ]
+    head = bytearray(good[:-4])
+    head[2] = 2  # version 2
+    bad.append(bytes(head) + struct.pack(">I", zlib.crc32(bytes(head))))
+    for b in bad:
+        assert handler.handle(b, t + 0.05) is None  # [SY-1.4] silently dropped
+    assert data_of(handler.handle(good, t + 0.06)).status is SensorStatus.FOUND
+    stats = handler.statistics()
+    assert stats == {
+        "datagrams": 4 + 2 + 2 + len(bad) + 1,
+        "malformed": len(bad) - 1,
+        "unexpected": 1,
+        "triggers": 9,
+        "duplicates": 3,
+        "reordered": 1,
+        "overruns": 1,
+        "replies": 6,
+        "found": 5,
+        "not_found": 0,
+        "laser_off": 0,
+        "errors": 0,
+    }
+    assert set(statuses.values()) == {SensorStatus.FOUND}
+
+
+def test_busy_sensor_answers_overrun() -> None:
+    handler = TriggerHandler(make_sensor())
+    replies = [data_of(handler.handle(trig(i), 1.0)) for i in range(4)]  # all at once
+    # [SY-2.8] the third and fourth would wait more than a frame for the chip
+    assert replies[0].status is SensorStatus.FOUND
+    assert [r.status for r in replies[2:]] == [SensorStatus.OVERRUN] * 2
+    overruns = sum(r.status is SensorStatus.OVERRUN for r in replies)
+    assert handler.statistics()["overruns"] == overruns
+    assert handler.statistics()["reordered"] == 0
+    for r in replies:
+        assert r.t_arrival <= r.t_exposure_start <= r.t_exposure_end  # [SY-2.6]
+
+
+def test_laser_off_and_not_found_carry_nan() -> None:
+    sensor = make_sensor()
+    handler = TriggerHandler(sensor)
+    sensor.set_laser(False)
+    d = data_of(handler.handle(trig(0), 1.0))
+    assert d.status is SensorStatus.LASER_OFF and all(math.isnan(v) for v in d.seam)
+    far = TriggerHandler(make_sensor(seam_y=40.0))  # the seam is outside the field of view
+    d = data_of(far.handle(trig(0), 1.0))
+    assert d.status is SensorStatus.NOT_FOUND and all(math.isnan(v) for v in d.seam)  # [SY-2.7]
+    assert (handler.statistics()["laser_off"], far.statistics()["not_found"]) == (1, 1)
+
+
+def test_index_wraps_and_history_is_bounded() -> None:
+    handler = TriggerHandler(StubSensor())
+    top = (1 << 32) - 1
+    assert serial_newer(0, top) and not serial_newer(top, 0)
+    assert data_of(handler.handle(trig(top), 1.0)).status is SensorStatus.FOUND
+    assert data_of(handler.handle(trig(0), 1.1)).status is SensorStatus.FOUND  # [SY-1.3]
+    for i in range(1, HISTORY + 1):
+        handler.handle(trig(i), 2.0)
+    # index 0 fell out of the duplicate window: answered again, as OVERRUN (older)
+    assert data_of(handler.handle(trig(0), 3.0)).status is SensorStatus.OVERRUN
+    assert handler.handle(trig(HISTORY), 3.0) is None  # still within the window
+
+
+@settings(max_examples=200, deadline=None, derandomize=True)
+@given(st.lists(st.integers(0, 40), max_size=60))
+def test_every_trigger_index_is_answered_exactly_once(indices: list[int]) -> None:
+    stub = StubSensor()
+    handler = TriggerHandler(stub)
+    answered: list[int] = []
+    measured: list[int] = []
+    newest = -1
+    for k, i in enumerate(indices):
+        reply = handler.handle(trig(i), float(k))
+        if reply is None:
+            assert i in answered  # only duplicates are silent [SY-2.2]
+            continue
+        d = data_of(reply)
+        assert d.index == i and i not in answered
+        answered.append(i)
+        # [SY-2.3] in-order triggers are measured, older ones are OVERRUN
+        expect = SensorStatus.FOUND if i > newest else SensorStatus.OVERRUN
+        assert d.status is expect
+        if expect is SensorStatus.FOUND:
+            measured.append(i)
+        newest = max(newest, i)
+    assert sorted(answered) == sorted(set(indices))
+    assert stub.acquired == measured  # only in-order, first-time triggers acquire
+    s = handler.statistics()
+    assert s["triggers"] == len(indices) == s["replies"] + s["duplicates"]
+    assert s["replies"] == s["found"] + s["overruns"]
+
+
+# --- real sockets ---------------------------------------------------------------------------
+
+
+@pytest.fixture
+def listener() -> Iterator[TriggerListener]:
+    sensor = make_sensor()
+    sensor.clock = time.monotonic
+    lst = TriggerListener(TriggerHandler(sensor), "127.0.0.1", 0, clock=time.monotonic)
+    lst.start()
+    yield lst
+    lst.stop()
+
+
+def receive(sock: socket.socket, count: int, wait: float = 3.0) -> list[SensorData]:
+    out: list[SensorData] = []
+    deadline = time.monotonic() + wait
+    while len(out) < count and time.monotonic() < deadline:
+        sock.settimeout(max(0.01, deadline - time.monotonic()))
+        try:
+            raw, _ = sock.recvfrom(2048)
+        except TimeoutError:
+            break
+        d = decode_datagram(raw)
+        assert isinstance(d, SensorData)
+        out.append(d)
+    return out
+
+
+def test_loopback_exchange(listener: TriggerListener) -> None:
+    robot = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    robot.bind(("127.0.0.1", 0))
+    robot.settimeout(3.0)
+    try:
+        sent_at: dict[int, float] = {}
+        plan: list[int | bytes] = [0, 1, 2, 2, b"junk", 4, 3, 4, trig(9)[:-2], 5]
+        for item in plan:
+            if isinstance(item, bytes):
+                robot.sendto(item, listener.address)
+                continue
+            sent_at.setdefault(item, time.monotonic())
+            robot.sendto(trig(item, t=100.0 + item), listener.address)
+            time.sleep(0.006)  # 166 Hz: the chip is free again for every trigger
+        replies = receive(robot, 6)
+        # no second reply for the duplicates, none for junk: wait a little for strays
+        replies += receive(robot, 1, wait=0.3)
+    finally:
+        robot.close()
+    by_index = {d.index: d for d in replies}
+    assert len(replies) == 6 and sorted(by_index) == [0, 1, 2, 3, 4, 5]
+    assert by_index[3].status is SensorStatus.OVERRUN  # reordered [SY-2.3]
+    for i in (0, 1, 2, 4, 5):
+        d = by_index[i]
+        assert d.status is SensorStatus.FOUND and d.t_trigger == 100.0 + i
+        assert abs(d.seam[1] - SEAM_Y) < 0.05
+        assert sent_at[i] <= d.t_arrival <= d.t_exposure_start <= d.t_exposure_end
+    stats = listener.statistics()
+    assert stats["datagrams"] == len(plan)
+    assert (stats["malformed"], stats["duplicates"], stats["reordered"]) == (2, 2, 1)
+    assert stats["replies"] == stats["sent"] == 6 and stats["send_errors"] == 0
