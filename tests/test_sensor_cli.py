@@ -1,0 +1,175 @@
+"""``python -m sensorsocket`` in real subprocesses: serve on port 0, call, snapshot, UDP,
+graceful SIGTERM, and one-line usage errors with exit code 2."""
+
+from __future__ import annotations
+
+import json
+import re
+import select
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sensorsocket.pgm import read_pgm
+from spec.datagrams import SensorData, Trigger, decode_datagram, encode_trigger
+from spec.wire import SensorStatus
+
+ROOT = Path(__file__).resolve().parents[1]
+PY = sys.executable
+
+
+def cli(*args: str, timeout: float = 20.0) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [PY, "-m", "sensorsocket", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        cwd=ROOT,
+    )
+
+
+class Served:
+    def __init__(self, proc: subprocess.Popen[str], tcp: str, udp: tuple[str, int]) -> None:
+        self.proc, self.tcp, self.udp = proc, tcp, udp
+
+
+@pytest.fixture(scope="module")
+def served() -> Iterator[Served]:
+    proc = subprocess.Popen(
+        [PY, "-m", "sensorsocket", "serve", "--port", "0", "--udp-port", "auto",
+         "--clock", "sim", "--joint", "lap", "--seed", "7"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+    )  # fmt: skip
+    assert proc.stderr is not None
+    try:
+        ready, _, _ = select.select([proc.stderr], [], [], 20.0)
+        assert ready, "the server printed nothing within 20 s"
+        first = proc.stderr.readline()
+        m = re.search(r"tcp ([\d.]+):(\d+) udp ([\d.]+):(\d+)", first)
+        assert m, first
+        yield Served(proc, f"{m[1]}:{m[2]}", (m[3], int(m[4])))
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+def call(served: Served, *args: str) -> dict[str, object]:
+    r = cli("call", served.tcp, *args)
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert isinstance(out, dict)
+    return out
+
+
+def test_call_acquire_and_get_data(served: Served) -> None:
+    assert call(served, "GetSettings")["columns"] == 512
+    index = call(served, "Acquire")["index"]
+    data = call(served, "GetData")
+    assert data["index"] == index and data["status"] == int(SensorStatus.FOUND)
+    seam = data["seam"]
+    assert isinstance(seam, dict) and abs(seam["y"]) < 0.05 and abs(seam["z"]) < 0.05
+    assert call(served, "SetReadoutWindow", "0", "256") == {"acquisition_time": 0.00175}
+    call(served, "SetReadoutWindow", "0", "512")
+
+
+def test_call_errors(served: Served) -> None:
+    r = cli("call", served.tcp, "SetReadoutWindow", "500", "100")
+    assert r.returncode == 1 and r.stderr.startswith("error OUT_OF_RANGE")
+    r = cli("call", served.tcp, "NoSuchCommand")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_snapshot_writes_the_frame(served: Served, tmp_path: Path) -> None:
+    out = tmp_path / "frame.pgm"
+    r = cli("snapshot", served.tcp, "-o", str(out), "--acquire")
+    assert r.returncode == 0, r.stderr
+    image = read_pgm(out)
+    assert image.shape == (256, 512) and image.dtype == np.uint8
+    assert image.max() > 100 and np.median(image) < 30  # a bright stripe on a dark chip
+    assert [p.name for p in tmp_path.iterdir()] == ["frame.pgm"]  # no temporary left
+
+
+def test_udp_trigger_through_the_cli_server(served: Served) -> None:
+    robot = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    robot.settimeout(5.0)
+    try:
+        robot.sendto(encode_trigger(Trigger(42, 3.25)), served.udp)
+        raw, _ = robot.recvfrom(2048)
+    finally:
+        robot.close()
+    d = decode_datagram(raw)
+    assert isinstance(d, SensorData) and (d.index, d.t_trigger) == (42, 3.25)
+    assert d.status is SensorStatus.FOUND
+    assert d.t_arrival <= d.t_exposure_start <= d.t_exposure_end
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["serve", "--joint", "spiral"],
+        ["serve", "--port", "70000"],
+        ["serve", "--udp-port", "x"],
+        ["serve", "--allow", "not-a-net"],
+        ["serve", "--motion", "sine:2"],
+        ["serve", "--token-file", "/nonexistent/token"],
+        ["call", "127.0.0.1:notaport", "GetData"],
+        ["call", "127.0.0.1:1", "SetLaser", "maybe"],
+        ["snapshot", "127.0.0.1:1", "-o", "frame.jpg"],
+        ["snapshot", "127.0.0.1:1"],
+        ["frobnicate"],
+        [],
+    ],
+)
+def test_bad_arguments_one_line_exit_2(args: list[str]) -> None:
+    r = cli(*args)
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+
+
+def test_unreachable_server_exit_3() -> None:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]  # bound, not listening: connection refused
+        r = cli("call", f"127.0.0.1:{port}", "GetStatus")
+    assert r.returncode == 3 and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_sigterm_stops_gracefully() -> None:
+    proc = subprocess.Popen(
+        [PY, "-m", "sensorsocket", "serve", "--port", "0", "--udp-port", "0"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+    )
+    assert proc.stderr is not None
+    try:
+        ready, _, _ = select.select([proc.stderr], [], [], 20.0)
+        assert ready
+        first = proc.stderr.readline()
+        assert "udp off" in first
+        time.sleep(0.2)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0
+    assert "SIGTERM" in err and "stopped" in err and "Traceback" not in err
