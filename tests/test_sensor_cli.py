@@ -98,8 +98,8 @@ def test_snapshot_writes_the_frame(served: Served, tmp_path: Path) -> None:
     out = tmp_path / "frame.pgm"
     r = cli("snapshot", served.tcp, "-o", str(out), "--acquire")
     assert r.returncode == 0, r.stderr
-    image = read_pgm(out)
-    assert image.shape == (256, 512) and image.dtype == np.uint8
+    image = np.asarray(read_pgm(out), dtype=np.uint8)
+    assert image.shape == (256, 512) and read_pgm(out).dtype == np.uint8
     assert image.max() > 100 and np.median(image) < 30  # a bright stripe on a dark chip
     assert [p.name for p in tmp_path.iterdir()] == ["frame.pgm"]  # no temporary left
 
