@@ -204,6 +204,9 @@ class FrameDecoder:
         raise error
 
 
+_KINDS = {int(k): k for k in PacketKind}
+
+
 def _decode_frame(header: Header, frame: memoryview, kinds: frozenset[PacketKind]) -> Packet:
     payload_end = wire.HEADER_SIZE + header.length
     (crc,) = wire.TRAILER.unpack_from(frame, payload_end)
@@ -214,10 +217,9 @@ def _decode_frame(header: Header, frame: memoryview, kinds: frozenset[PacketKind
             f"protocol version {header.version_major}.{header.version_minor} not supported;"
             f" this peer speaks {wire.VERSION}"
         )
-    try:
-        kind = PacketKind(header.kind)
-    except ValueError:
-        raise FrameError(f"unknown packet kind {header.kind}") from None
+    kind = _KINDS.get(header.kind)
+    if kind is None:
+        raise FrameError(f"unknown packet kind {header.kind}")
     if kind not in kinds:
         raise FrameError(f"packet kind {kind.name} not accepted here")
     if header.flags != 0:

@@ -311,6 +311,9 @@ def decode_params(payload: bytes | memoryview) -> tuple[Value, ...]:
     return tuple(values)
 
 
+_TAGS = {int(t): t for t in ParamType}
+
+
 def _need(buf: memoryview, pos: int, size: int, index: int, what: str) -> None:
     if pos + size > len(buf):
         raise ParameterError(f"parameter {index} ({what}) truncated")
@@ -325,10 +328,9 @@ def _decode_value(buf: memoryview, pos: int, index: int) -> tuple[Value, int]:
     _need(buf, pos, 1, index, "type tag")
     raw_tag = buf[pos]
     pos += 1
-    try:
-        tag = ParamType(raw_tag)
-    except ValueError:
-        raise ParameterError(f"parameter {index}: unknown type tag 0x{raw_tag:02x}") from None
+    tag = _TAGS.get(raw_tag)
+    if tag is None:
+        raise ParameterError(f"parameter {index}: unknown type tag 0x{raw_tag:02x}")
     name = tag.name
     if tag is ParamType.INT:
         _need(buf, pos, 8, index, name)

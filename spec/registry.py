@@ -620,6 +620,10 @@ def check_params(
     """Raise :class:`ParameterError` unless ``values`` match ``specs`` in count and type
     [RS-5.4]. ``allow_extra`` accepts trailing parameters a newer minor version added
     (receivers of replies ignore them [RS-5.6])."""
+    if len(values) == len(specs) and all(
+        type_of(v) is s.type for v, s in zip(values, specs, strict=True)
+    ):
+        return  # the common case: exactly the declared parameters
     required = sum(1 for s in specs if not s.optional and not s.repeated)
     repeated = bool(specs) and specs[-1].repeated
     if allow_extra and len(values) > len(specs) and not repeated:

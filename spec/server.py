@@ -312,7 +312,8 @@ class FramedServer:
                 continue
             if not data:
                 return
-            self._count("bytes_in", len(data))
+            with self._lock:
+                self._stats["bytes_in"] += len(data)
             was_in_frame = decoder.in_frame
             completed = False
             last_byte = time.monotonic()
@@ -320,7 +321,6 @@ class FramedServer:
                 decoder.feed(data)
                 for event in decoder.events():
                     completed = True
-                    self._count("frames_in")
                     if isinstance(event, Rejected):
                         self._reject(session, event)
                     else:
@@ -364,6 +364,7 @@ class FramedServer:
             self._rejected[code.name] += 1
 
     def _reject(self, session: Session, event: Rejected) -> None:
+        self._count("frames_in")
         self._reject_code(event.code)
         h = event.header
         self._send_error(session, h.command, h.request_id, event.code, event.error.message)
@@ -378,6 +379,8 @@ class FramedServer:
             pass
 
     def _dispatch(self, session: Session, packet: Packet) -> None:
+        with self._lock:
+            self._stats["frames_in"] += 1
         try:
             params = self._execute(session, packet)
         except ProtocolError as exc:
@@ -392,9 +395,9 @@ class FramedServer:
                 session, packet.command, packet.request_id, ErrorCode.INTERNAL_ERROR, message
             )
             return
-        self._count("replies")
         try:
             session.send(Packet(PacketKind.REPLY, packet.command, packet.request_id, params))
+            self._count("replies")
         except ProtocolError as exc:  # reply too large to encode: a server-side bug
             self.handler_errors.append(exc)
             self._send_error(
