@@ -29,7 +29,12 @@ from kinematics.errors import JointLimitError, KinematicsError
 from kinematics.errors import SingularityError as KinSingularityError
 from kinematics.errors import UnreachableError as KinUnreachableError
 from kinematics.robot import RobotModel, get_model
-from kinematics.transforms import invert, location_to_transform, transform_to_location
+from kinematics.transforms import (
+    invert,
+    location_to_transform,
+    locations_to_transforms,
+    transform_to_location,
+)
 from robotsocket.clock import RealTimeLoop, SimClock
 from robotsocket.interface import (
     IDENTITY_LOC,
@@ -49,6 +54,7 @@ from robotsocket.interface import (
     SingularityError,
     UnreachableError,
 )
+from robotsocket.timed_path import plan_timed
 from robotsocket.trajectory import PERIOD, Move, TrajectoryGenerator, plan_joint, plan_linear
 from sync.joint_buffer import JointBuffer
 
@@ -319,6 +325,19 @@ class RobotEmulator(RobotInterface):
         target, tool_T = self._tool_target(loc, tool, frame)
         return self._queue(
             lambda i, start: plan_linear(i, self.model, start, target, tool_T, self._desc)
+        )
+
+    def tool_move_trajectory(self, times: Array, locations: Array, tool: Loc, frame: Loc) -> int:
+        t = np.asarray(times, dtype=np.float64)
+        locs = np.asarray(locations, dtype=np.float64)
+        if locs.ndim != 2 or locs.shape[1] != 6:
+            raise InvalidArgumentError(f"locations must be an N x 6 matrix, got {locs.shape}")
+        if not np.all(np.isfinite(locs)):
+            raise OutOfRangeError("locations must be finite")
+        tool_T = _loc(tool, "tool")
+        poses = _loc(frame, "frame") @ locations_to_transforms(locs)
+        return self._queue(
+            lambda i, start: plan_timed(i, self.model, start, t, poses, tool_T, period=self.period)
         )
 
     def set_motion_desc(self, desc: MotionDesc) -> None:

@@ -201,6 +201,12 @@ class RobotInterface(ABC):
     def joint_log(self, since: float) -> tuple[Array, Array]:
         """Logged samples with t_k > ``since`` (s): times (N,) and measured joints (N, 6)."""
 
+    def tool_move_trajectory(self, times: Array, locations: Array, tool: Loc, frame: Loc) -> int:
+        """Queue a timed path: ``tool`` passes location k of ``locations`` (N, 6) (mm, deg,
+        in ``frame``) at ``times[k]`` (N,) s after the move starts [RS-5.23]. Optional:
+        a robot without it answers UNKNOWN_COMMAND."""
+        raise NotImplementedError
+
     def on_control_lost(self) -> None:
         """The controlling client vanished: stop in a controlled way, keep power as it is."""
         self.reset_motion()

@@ -30,7 +30,7 @@ from robotsocket.interface import (
     UnreachableError,
 )
 from spec.errors import ErrorCode, ProtocolError
-from spec.params import Joints, Location, Matrix, Value
+from spec.params import FloatArray, Joints, Location, Matrix, Value
 from spec.registry import CommandId, CommandSpec
 from spec.server import Identity, Service, Session
 
@@ -100,6 +100,7 @@ class RobotService(Service):
             (C.LIST_IO, self._list_io),
             (C.GET_JOINT_LOG, self._joint_log),
             (C.GET_JOINT_LIMITS, self._joint_limits),
+            (C.TOOL_MOVE_TRAJECTORY, self._tool_move_trajectory),
         ):
             self.register(cid, handler)
 
@@ -183,6 +184,24 @@ class RobotService(Service):
 
     def _tool_move_l(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
         return (self.robot.tool_move_l(_loc(params[0]), _loc(params[1]), _loc(params[2])),)
+
+    def _tool_move_trajectory(
+        self, session: Session, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
+        times, locations, tool, frame = params
+        assert isinstance(times, FloatArray) and isinstance(locations, Matrix)
+        if locations.cols != 6:
+            raise InvalidArgumentError(f"locations must have 6 columns, got {locations.cols}")
+        locs = np.array(locations.values, dtype=np.float64).reshape(locations.rows, 6)
+        try:
+            move_id = self.robot.tool_move_trajectory(
+                np.array(times.values, dtype=np.float64), locs, _loc(tool), _loc(frame)
+            )
+        except NotImplementedError:
+            raise ProtocolError(
+                "ToolMoveTrajectory not implemented", ErrorCode.UNKNOWN_COMMAND
+            ) from None
+        return (move_id,)
 
     def _set_mdesc(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
         self.robot.set_motion_desc(MotionDesc(*(_float(p) for p in params)))

@@ -1,0 +1,544 @@
+"""Robot side of the UDP synchronisation (paper section V, PROTOCOL.md section 9).
+
+Three layers, the lower ones pure (time is an input):
+
+- :class:`TriggerScheduler` decides *when* triggers go out: at a fixed rate or at explicit
+  robot-clock times, independent of the robot's 4 ms sample time (the paper stresses this).
+- :class:`RobotSyncCore` is the robot's bookkeeping: it numbers and encodes triggers, records
+  t_i^T, decodes data datagrams (counting malformed ones [SY-1.4]), feeds the
+  :class:`~sync.matcher.SyncMatcher` (eq. 4-5, with its lost/late/duplicate/reordered/
+  expired rules) and turns released points into rows of GetSeamPoints (eq. 2-3).
+- :class:`UdpSyncEndpoint` is the thin thread: one UDP socket, triggers sent at their due
+  time on a clock callable, data datagrams received and fed to the core.
+
+:class:`DelayLink` is a modelled network for simulated time: datagrams go in with a send time
+and come out at their arrival time, with optional loss, duplication and extra delay (which
+reorders), so the emulated cell and the tests drive the same core without sockets.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import logging
+import math
+import select
+import socket
+import threading
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from kinematics.transforms import transforms_to_locations
+from spec.datagrams import INDEX_MODULUS, SensorData, Trigger, decode_datagram, encode_trigger
+from spec.errors import DatagramError
+from spec.registry import SEAM_POINT_COLUMNS
+from sync.joint_buffer import JointBuffer
+from sync.matcher import STATUS_FOUND, DataOutcome, SeamPoint, SyncMatcher
+from sync.matcher import SensorData as MatcherData
+from sync.seam_chain import FlangeToBase
+
+__all__ = [
+    "MAX_RATE_HZ",
+    "DelayLink",
+    "RobotSyncCore",
+    "SyncStateError",
+    "TriggerScheduler",
+    "UdpSyncEndpoint",
+]
+
+log = logging.getLogger(__name__)
+
+MAX_RATE_HZ = 1000.0
+"""Highest trigger rate StartTriggers accepts [SY-5.3]."""
+
+Clock = Callable[[], float]
+JointSource = Callable[[float], tuple[NDArray[np.float64], NDArray[np.float64]]]
+"""``joints_since(t) -> (times (N,) s, joints (N, 6) deg)`` with times > t."""
+
+
+class SyncStateError(ValueError):
+    """A caller mistake: a bad rate, non-increasing times, or triggering before an endpoint."""
+
+
+class TriggerScheduler:
+    """When to send triggers: a fixed rate (``count`` of them, 0 = until stopped) or explicit
+    increasing times, seconds on the robot clock. Pure: :meth:`pop_due` takes ``now``."""
+
+    def __init__(self) -> None:
+        self._times: list[float] = []  # explicit schedule, increasing; consumed from _pos
+        self._pos = 0
+        self._rate = 0.0
+        self._t_next = math.inf
+        self._remaining = 0  # rate mode: triggers left, -1 = unlimited
+
+    @property
+    def active(self) -> bool:
+        """True while triggers remain to be sent."""
+        return self.next_due() is not None
+
+    @property
+    def rate(self) -> float:
+        """The rate in force (Hz); 0 for an explicit schedule or when stopped."""
+        return self._rate if self.active else 0.0
+
+    def start_rate(self, rate_hz: float, count: int, t_first: float) -> None:
+        """Send ``count`` triggers (0: until stopped) every 1/rate s from ``t_first`` (s)."""
+        if not (math.isfinite(rate_hz) and 0.0 < rate_hz <= MAX_RATE_HZ):
+            raise SyncStateError(f"rate must be in (0, {MAX_RATE_HZ:g}] Hz, got {rate_hz}")
+        if count < 0:
+            raise SyncStateError(f"count must be >= 0, got {count}")
+        if not math.isfinite(t_first):
+            raise SyncStateError("start time must be finite")
+        self.stop()
+        self._rate = float(rate_hz)
+        self._t_first = float(t_first)
+        self._n_sent = 0
+        self._t_next = float(t_first)
+        self._remaining = count if count > 0 else -1
+
+    def schedule(self, times: Sequence[float]) -> None:
+        """Send one trigger at each of ``times`` (s, strictly increasing); replaces any plan."""
+        t = [float(x) for x in times]
+        if not all(math.isfinite(x) for x in t):
+            raise SyncStateError("trigger times must be finite")
+        if any(b <= a for a, b in itertools.pairwise(t)):
+            raise SyncStateError("trigger times must increase")
+        self.stop()
+        self._times = t
+
+    def stop(self) -> None:
+        """Drop every trigger not yet sent."""
+        self._times = []
+        self._pos = 0
+        self._rate = 0.0
+        self._t_next = math.inf
+        self._remaining = 0
+
+    def next_due(self) -> float | None:
+        """Time (s) of the next trigger, ``None`` when nothing is planned."""
+        if self._pos < len(self._times):
+            return self._times[self._pos]
+        if self._remaining != 0:
+            return self._t_next
+        return None
+
+    def pop_due(self, now: float) -> list[float]:
+        """Scheduled times <= ``now`` (s), in order; they count as sent."""
+        out: list[float] = []
+        while self._pos < len(self._times) and self._times[self._pos] <= now:
+            out.append(self._times[self._pos])
+            self._pos += 1
+        while self._remaining != 0 and self._t_next <= now:
+            out.append(self._t_next)
+            self._n_sent += 1
+            # t_first + n / rate, not repeated addition: no drift over long runs.
+            self._t_next = self._t_first + self._n_sent / self._rate
+            if self._remaining > 0:
+                self._remaining -= 1
+        return out
+
+
+@dataclass
+class _Stats:
+    received: int = 0
+    malformed: int = 0
+    unexpected: int = 0
+
+
+class RobotSyncCore:
+    """The robot's synchronisation state, without I/O.
+
+    Args:
+        delta_t_s: ΔT of eq. 4 (s); change it with :meth:`set_delay`.
+        flange2base: batch DGM (M, 6) deg -> (M, 4, 4) mm for the base-frame columns of the
+            seam points (eq. 2-3); ``None`` leaves them NaN.
+        sensor2flange: ^N_S T (4, 4) mm; settable attribute.
+        timeout_s: loss timeout [SY-3.3].
+        joint_capacity: samples of the joint buffer used for matching (10 s at 4 ms).
+        max_points: seam points kept for GetSeamPoints (oldest dropped first).
+
+    Thread-safe: every public method takes the core's lock.
+    """
+
+    def __init__(
+        self,
+        *,
+        delta_t_s: float = 0.0,
+        flange2base: FlangeToBase | None = None,
+        sensor2flange: ArrayLike | None = None,
+        timeout_s: float = 0.1,
+        joint_capacity: int = 2500,
+        max_points: int = 200_000,
+        first_index: int = 0,
+    ) -> None:
+        self.lock = threading.RLock()
+        self.scheduler = TriggerScheduler()
+        self.matcher = SyncMatcher(delta_t_s=delta_t_s, timeout_s=timeout_s, history=8192)
+        self.joints = JointBuffer(capacity=joint_capacity)
+        self.flange2base = flange2base
+        self.sensor2flange = (
+            np.eye(4) if sensor2flange is None else np.asarray(sensor2flange, dtype=np.float64)
+        )
+        self.max_points = max_points
+        self._next_index = first_index % INDEX_MODULUS
+        self._rows: list[NDArray[np.float64]] = []
+        self._row_index: list[int] = []
+        self._stats = _Stats()
+        self._joint_t = -math.inf
+
+    # --- configuration ------------------------------------------------------------------------
+
+    @property
+    def delta_t_s(self) -> float:
+        return self.matcher.delta_t_s
+
+    def set_delay(self, delta_t_s: float) -> None:
+        """ΔT (s) for data synchronised from now on [SY-5.2]."""
+        if not math.isfinite(delta_t_s):
+            raise SyncStateError("delta_t must be finite")
+        with self.lock:
+            self.matcher.delta_t_s = float(delta_t_s)
+
+    @property
+    def next_index(self) -> int:
+        return self._next_index
+
+    # --- triggers ----------------------------------------------------------------------------
+
+    def start_rate(self, rate_hz: float, count: int, t_first: float) -> int:
+        """Plan rate triggering; returns the index the first trigger will carry."""
+        with self.lock:
+            self.scheduler.start_rate(rate_hz, count, t_first)
+            return self._next_index
+
+    def schedule(self, times: Sequence[float]) -> int:
+        """Plan triggers at explicit times; returns the first index."""
+        with self.lock:
+            self.scheduler.schedule(times)
+            return self._next_index
+
+    def stop(self) -> None:
+        with self.lock:
+            self.scheduler.stop()
+
+    def next_due(self) -> float | None:
+        with self.lock:
+            return self.scheduler.next_due()
+
+    def due_triggers(self, now: float) -> list[tuple[int, float]]:
+        """Triggers due by ``now`` as (index, scheduled time); call :meth:`sent` for each."""
+        with self.lock:
+            out = []
+            for t in self.scheduler.pop_due(now):
+                out.append((self._next_index, t))
+                self._next_index = (self._next_index + 1) % INDEX_MODULUS
+            return out
+
+    def sent(self, index: int, t_trigger: float) -> bytes:
+        """Record trigger ``index`` as sent at ``t_trigger`` (s, robot clock): t_i^T.
+
+        Returns the datagram to put on the wire.
+        """
+        with self.lock:
+            self.matcher.on_trigger(index, t_trigger)
+            return encode_trigger(Trigger(index, t_trigger))
+
+    # --- data --------------------------------------------------------------------------------
+
+    def on_datagram(self, raw: bytes, now: float) -> DataOutcome | None:
+        """One datagram received at ``now`` (s). Malformed ones are counted and dropped
+        [SY-1.4] (``None``); a trigger sent back at us is counted as unexpected."""
+        try:
+            decoded = decode_datagram(raw)
+        except DatagramError as exc:
+            with self.lock:
+                self._stats.malformed += 1
+            log.debug("dropped malformed datagram: %s", exc)
+            return None
+        with self.lock:
+            if not isinstance(decoded, SensorData):
+                self._stats.unexpected += 1
+                return None
+            self._stats.received += 1
+            return self.matcher.on_data(
+                MatcherData(
+                    index=decoded.index,
+                    status=int(decoded.status),
+                    seam2sensor=decoded.seam if decoded.status == STATUS_FOUND else np.zeros(6),
+                    quality=decoded.quality,
+                    sensor_times=(
+                        decoded.t_arrival,
+                        decoded.t_exposure_start,
+                        decoded.t_exposure_end,
+                    ),
+                ),
+                now,
+            )
+
+    def add_joints(self, times: ArrayLike, joints: ArrayLike) -> None:
+        """Append measured joint samples (N,) s, (N, 6) deg; samples not newer than the last
+        one are skipped (a source may repeat its tail)."""
+        t = np.asarray(times, dtype=np.float64).reshape(-1)
+        q = np.asarray(joints, dtype=np.float64).reshape(t.shape[0], -1)
+        with self.lock:
+            keep = t > self._joint_t
+            if np.any(keep):
+                self.joints.extend(t[keep], q[keep])
+                self._joint_t = float(t[keep][-1])
+
+    def poll(self, now: float) -> list[SeamPoint]:
+        """Declare lost triggers, match data whose t_i^S the joints cover, store released
+        points (in index order) as seam-point rows; returns the released points."""
+        with self.lock:
+            points = self.matcher.poll(now, self.joints)
+            if points:
+                self._store(points)
+            return points
+
+    def _store(self, points: list[SeamPoint]) -> None:
+        g2s = np.stack([p.seam2sensor for p in points])
+        rows = np.full((len(points), len(SEAM_POINT_COLUMNS)), np.nan)
+        rows[:, 0] = [p.index for p in points]
+        rows[:, 1] = [p.t_trigger for p in points]
+        rows[:, 2] = [p.t_sensor for p in points]
+        rows[:, 3] = STATUS_FOUND
+        rows[:, 4] = [p.quality for p in points]
+        rows[:, 5:11] = transforms_to_locations(g2s)
+        if self.flange2base is not None:
+            q = np.stack([p.joints for p in points])
+            base = np.matmul(self.flange2base(q), np.matmul(self.sensor2flange, g2s))
+            rows[:, 11:17] = transforms_to_locations(base)
+        self._rows.extend(rows)
+        self._row_index.extend(p.index for p in points)
+        excess = len(self._rows) - self.max_points
+        if excess > 0:
+            del self._rows[:excess]
+            del self._row_index[:excess]
+
+    def points_since(self, since: int, limit: int = 20_000) -> NDArray[np.float64]:
+        """Seam-point rows (N, 17) (columns ``SEAM_POINT_COLUMNS``) with index > ``since``,
+        in index order, at most ``limit`` of them."""
+        with self.lock:
+            idx = np.asarray(self._row_index, dtype=np.int64)
+            k = int(np.searchsorted(idx, since, side="right")) if idx.size else 0
+            sel = self._rows[k : k + limit]
+            if not sel:
+                return np.zeros((0, len(SEAM_POINT_COLUMNS)))
+            return np.array(sel)
+
+    def statistics(self) -> dict[str, int]:
+        """The GetSyncStatistics counters (stale data is counted as late)."""
+        with self.lock:
+            c = self.matcher.counters
+            return {
+                "sent": c.triggers,
+                "received": self._stats.received,
+                "matched": c.points,
+                "lost": c.lost,
+                "late": c.late + c.stale,
+                "duplicate": c.duplicate,
+                "reordered": c.reordered,
+                "unknown": c.unknown,
+                "expired": c.expired,
+                "malformed": self._stats.malformed,
+                "pending": self.matcher.pending,
+                "not_found": c.not_found,
+                "invalid": c.invalid,
+                "unexpected": self._stats.unexpected,
+            }
+
+
+class DelayLink:
+    """A modelled one-way network for simulated time.
+
+    ``send(t, datagram)`` queues a datagram sent at ``t`` (s); it arrives at ``t + delay()``
+    unless lost. Faults (each with its own probability, drawn from ``rng``): loss,
+    duplication (a second copy with its own delay) and an extra delay of ``reorder_delay_s``
+    (which makes it overtake nothing but be overtaken: reordering).
+    """
+
+    def __init__(
+        self,
+        *,
+        delay_s: float = 0.0,
+        jitter_s: float = 0.0,
+        rng: np.random.Generator | None = None,
+        loss: float = 0.0,
+        duplicate: float = 0.0,
+        reorder: float = 0.0,
+        reorder_delay_s: float = 0.01,
+    ) -> None:
+        if delay_s < 0 or jitter_s < 0 or jitter_s / 2 > delay_s + 1e-15:
+            raise ValueError("need delay_s >= jitter_s / 2 >= 0")
+        for name, p in (("loss", loss), ("duplicate", duplicate), ("reorder", reorder)):
+            if not 0.0 <= p <= 1.0:
+                raise ValueError(f"{name} must be a probability, got {p}")
+        if (jitter_s or loss or duplicate or reorder) and rng is None:
+            raise ValueError("jitter and faults need an rng")
+        self.delay_s = delay_s
+        self.jitter_s = jitter_s
+        self.rng = rng
+        self.loss = loss
+        self.duplicate = duplicate
+        self.reorder = reorder
+        self.reorder_delay_s = reorder_delay_s
+        self._queue: list[tuple[float, int, bytes]] = []
+        self._seq = 0
+        self.counts = {"sent": 0, "lost": 0, "duplicated": 0, "delayed": 0, "delivered": 0}
+
+    def _delay(self) -> float:
+        d = self.delay_s
+        if self.jitter_s and self.rng is not None:
+            d += float(self.rng.uniform(-self.jitter_s / 2, self.jitter_s / 2))
+        return d
+
+    def _chance(self, p: float) -> bool:
+        return p > 0.0 and self.rng is not None and float(self.rng.random()) < p
+
+    def send(self, t: float, datagram: bytes) -> None:
+        self.counts["sent"] += 1
+        if self._chance(self.loss):
+            self.counts["lost"] += 1
+            return
+        copies = 2 if self._chance(self.duplicate) else 1
+        self.counts["duplicated"] += copies - 1
+        for _ in range(copies):
+            d = self._delay()
+            if self._chance(self.reorder):
+                self.counts["delayed"] += 1
+                d += self.reorder_delay_s
+            self._seq += 1
+            heapq.heappush(self._queue, (t + d, self._seq, datagram))
+
+    def next_arrival(self) -> float | None:
+        return self._queue[0][0] if self._queue else None
+
+    def deliver(self, until: float) -> list[tuple[float, bytes]]:
+        """Datagrams arriving at or before ``until`` (s): (arrival time, bytes), in order."""
+        out = []
+        while self._queue and self._queue[0][0] <= until:
+            t, _, data = heapq.heappop(self._queue)
+            out.append((t, data))
+        self.counts["delivered"] += len(out)
+        return out
+
+
+class UdpSyncEndpoint:
+    """The robot's UDP endpoint: a thread that sends due triggers to the sensor, receives
+    data datagrams and keeps the core's joint buffer and matcher going.
+
+    ``clock`` gives robot-clock seconds; t_i^T is read from it just before each ``sendto``.
+    ``joints_since(t)`` supplies new measured joints (e.g. the robot's joint log).
+    ``poll_interval_s`` bounds how long data waits for matching when nothing arrives.
+    """
+
+    def __init__(
+        self,
+        core: RobotSyncCore,
+        *,
+        clock: Clock,
+        joints_since: JointSource,
+        host: str = "0.0.0.0",
+        port: int = 0,
+        poll_interval_s: float = 0.005,
+    ) -> None:
+        self.core = core
+        self.clock = clock
+        self.joints_since = joints_since
+        self.poll_interval_s = poll_interval_s
+        self.target: tuple[str, int] | None = None
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        self._sock = socket.socket(family, socket.SOCK_DGRAM)
+        try:
+            self._sock.bind((host, port))
+        except OSError:
+            self._sock.close()
+            raise
+        self._sock.setblocking(False)
+        self.address: tuple[str, int] = self._sock.getsockname()[:2]
+        self._stop = threading.Event()
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._thread: threading.Thread | None = None
+        self.send_errors = 0
+
+    def set_target(self, host: str, port: int) -> None:
+        """Where triggers go (the sensor's trigger listener)."""
+        self.target = (host, port)
+        self.wake()
+
+    def wake(self) -> None:
+        """Re-read the schedule now (after StartTriggers / ScheduleTriggers)."""
+        try:
+            self._wake_w.send(b"x")
+        except OSError:
+            pass
+
+    def start(self) -> UdpSyncEndpoint:
+        self._thread = threading.Thread(target=self._run, name="robot-sync-udp", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self, timeout: float = 2.0) -> None:
+        self._stop.set()
+        self.wake()
+        if self._thread is not None:
+            self._thread.join(timeout)
+        self._sock.close()
+        self._wake_r.close()
+        self._wake_w.close()
+
+    def _run(self) -> None:
+        last_joint_t = -math.inf
+        while not self._stop.is_set():
+            now = self.clock()
+            due = self.core.next_due()
+            timeout = self.poll_interval_s
+            if due is not None:
+                timeout = min(timeout, max(0.0, due - now))
+            try:
+                readable, _, _ = select.select([self._sock, self._wake_r], [], [], timeout)
+            except (OSError, ValueError):
+                return
+            if self._wake_r in readable:
+                try:
+                    self._wake_r.recv(4096)
+                except OSError:
+                    pass
+            self._send_due()
+            if self._sock in readable:
+                self._receive_all()
+            try:
+                t, q = self.joints_since(last_joint_t)
+                if len(t):
+                    self.core.add_joints(t, q)
+                    last_joint_t = float(t[-1])
+                self.core.poll(self.clock())
+            except Exception:  # the endpoint must survive a bad joint source
+                log.exception("synchronisation poll failed")
+
+    def _send_due(self) -> None:
+        for index, _scheduled in self.core.due_triggers(self.clock()):
+            target = self.target
+            t_send = self.clock()
+            data = self.core.sent(index, t_send)
+            if target is None:
+                continue
+            try:
+                self._sock.sendto(data, target)
+            except OSError as exc:
+                self.send_errors += 1
+                log.debug("trigger sendto %s: %s", target, exc)
+
+    def _receive_all(self) -> None:
+        while True:
+            try:
+                raw, _ = self._sock.recvfrom(2048)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as exc:
+                log.debug("recvfrom: %s", exc)
+                return
+            self.core.on_datagram(raw, self.clock())
