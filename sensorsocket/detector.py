@@ -133,16 +133,35 @@ class SeamDetector:
         self.camera = camera if camera is not None else CameraGeometry()
         self.config = config if config is not None else DetectorConfig()
         h = self.config.half_window
-        self._win = np.arange(2 * h + 1, dtype=np.float32)
         self._win_i = np.arange(2 * h + 1)
-        self._win2 = self._win * self._win
-        # calibration per row: the ray through row v meets the laser plane at
-        # y = s(v)·(u - u0)/f, z = c_z + s(v)·rz(v) -- tabulated on rows for speed is not
-        # needed, the closed form is a handful of array operations.
+        win = np.arange(2 * h + 1, dtype=np.float32)
+        # (3, w): a window's mass, first and second moment are one matrix product
+        self._win_col = self._win_i[:, None]
+        self._win_moments = np.stack([np.ones_like(win), win, win * win])
+        self._zeros_cache: dict[int, NDArray[np.float32]] = {}
+        # closed-form calibration (see CameraGeometry.pixel_to_sensor), constants as floats
+        cam = self.camera
+        th = math.radians(cam.triangulation_angle_deg)
+        self._sin, self._cos = math.sin(th), math.cos(th)
+        self._u0, self._v0 = cam.principal_point
+        self._f = cam.focal_px
+        self._d = cam.working_distance_mm
+        # k = (u - u0)/f of every chip column: the profile mapping looks it up
+        self._k = (np.arange(cam.columns, dtype=np.float64) - self._u0) / self._f
         self._empty_points = np.zeros((0, 3))
         self._empty_cols = np.zeros(0, dtype=np.intp)
 
     # -- stage 1: stripe -------------------------------------------------------------------
+    def _zeros(self, n: int) -> NDArray[np.float32]:
+        """Read-only zeros (w, n): ``np.maximum`` with an array operand takes its SIMD loop,
+        with a scalar it does not. Cached per frame width; never written, so thread-safe."""
+        z = self._zeros_cache.get(n)
+        if z is None:
+            z = np.zeros((self._win_i.size, n), dtype=np.float32)
+            z.setflags(write=False)
+            self._zeros_cache[n] = z
+        return z
+
     def stripe(self, frame: NDArray[np.generic], first_column: int = 0) -> StripeProfile:
         """Sub-pixel stripe rows of every column of ``frame`` (n, rows)."""
         a = np.ascontiguousarray(frame)
@@ -150,38 +169,58 @@ class SeamDetector:
         h = self.config.half_window
         w = 2 * h + 1
         flat = a.reshape(-1)
-        base = np.arange(n, dtype=np.intp) * nrows
-        peak_row = a.argmax(axis=1)
-        peak = flat[base + peak_row].astype(np.float32)
-        ring = np.concatenate(
-            [np.maximum(peak_row - (h + 3), 0), np.minimum(peak_row + h + 3, nrows - 1)]
-        )
-        samples = flat[np.concatenate([base, base]) + ring].astype(np.float32)
+        base = np.arange(0, n * nrows, nrows, dtype=np.intp)
+        # numpy's argmax has no SIMD loop for 8-bit integers: on int32 it is 2x faster,
+        # conversion included; ties resolve to the first maximum either way
+        search = a.astype(np.int32) if a.dtype.itemsize == 1 else a
+        peak_row = search.argmax(axis=1)
+        peak = flat.take(peak_row + base).astype(np.float32)
+        ring = np.empty(2 * n, dtype=np.intp)
+        lo, hi = ring[:n], ring[n:]
+        np.subtract(peak_row, h + 3, out=lo)
+        np.maximum(lo, 0, out=lo)
+        np.add(peak_row, h + 3, out=hi)
+        np.minimum(hi, nrows - 1, out=hi)
+        lo += base
+        hi += base
+        samples = flat.take(ring).astype(np.float32)
         background = _median(samples)
-        noise = max(1.4826 * _median(np.abs(samples - background)), 0.5)
+        np.subtract(samples, background, out=samples)
+        noise = max(1.4826 * _median(np.abs(samples, out=samples)), 0.5)
         threshold = background + max(self.config.noise_factor * noise, 1.0)
         contrast = max(self.config.min_contrast_dn, 6.0 * noise)
-        start = np.clip(peak_row - h, 0, nrows - w)
-        rows = np.zeros(n, dtype=np.float32)
-        rel = np.zeros(n, dtype=np.float32)
-        mass = np.zeros(n, dtype=np.float32)
-        vals = np.zeros((n, w), dtype=np.float32)
+        thr32 = np.float32(threshold)
+        # windows as (w, n): elementwise work runs along the long axis
+        index = np.empty((w, n), dtype=np.intp)
+        moments = np.empty((3, n), dtype=np.float32)
+        zeros = self._zeros(n)
+        mass = moments[0]
+        positive = np.empty(n, dtype=bool)
+        rel = np.empty(n, dtype=np.float32)
+        rows = np.empty(n, dtype=np.float32)
+        start = peak_row - h
         for second in (False, True):
             if second:  # re-centre on the first centroid: symmetric window, whole plateau
-                start = np.clip(np.rint(rows).astype(np.intp) - h, 0, nrows - w)
-            vals = flat[(base + start)[:, None] + self._win_i].astype(np.float32)
-            vals -= np.float32(threshold)
-            np.maximum(vals, 0.0, out=vals)
-            mass = vals.sum(axis=1)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                rel = (vals @ self._win) / mass
-            rel = np.where(mass > 0, rel, np.float32(h))
-            rows = rel + start.astype(np.float32)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            spread = (vals @ self._win2) / mass - rel * rel
-        valid = (
-            (peak >= background + contrast) & (mass > 0) & (spread <= self.config.max_width_px**2)
-        )
+                start = np.rint(rows).astype(np.intp)
+                start -= h
+            np.clip(start, 0, nrows - w, out=start)
+            start_f = start.astype(np.float32)
+            start += base
+            np.add(self._win_col, start, out=index)
+            vals = flat.take(index).astype(np.float32)
+            vals -= thr32
+            np.maximum(vals, zeros, out=vals)
+            np.matmul(self._win_moments, vals, out=moments)
+            np.greater(mass, 0.0, out=positive)
+            rel.fill(h)
+            np.divide(moments[1], mass, out=rel, where=positive)
+            np.add(rel, start_f, out=rows)
+        spread = np.full(n, np.inf, dtype=np.float32)
+        np.divide(moments[2], mass, out=spread, where=positive)
+        spread -= rel * rel
+        valid = peak >= background + contrast
+        valid &= positive
+        valid &= spread <= self.config.max_width_px**2
         return StripeProfile(
             first_column=first_column,
             rows=rows.astype(np.float64),
@@ -502,10 +541,10 @@ def _median(x: NDArray[np.floating]) -> float:
     """Median of a non-empty 1-D array (np.partition; np.median's wrapper costs more)."""
     n = x.size
     k = n // 2
-    p = np.partition(x, k)
     if n % 2:
-        return float(p[k])
-    return 0.5 * (float(p[k]) + float(p[:k].max()))
+        return float(np.partition(x, k)[k])
+    p = np.partition(x, (k - 1, k))
+    return 0.5 * (float(p[k]) + float(p[k - 1]))
 
 
 def _not_isolated_outliers(z: FloatArray, tol: float) -> NDArray[np.bool_]:
