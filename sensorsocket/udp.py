@@ -281,20 +281,25 @@ class TriggerListener:
                 continue
             if reply is None:
                 continue
-            due = reply.t_send if self.hold else -math.inf
+            if not self.hold or reply.t_send <= self.clock():
+                self._send(reply.data, source)  # due now: skip the queue
+                continue
             self._seq += 1
-            heapq.heappush(self._pending, (due, self._seq, reply.data, source))
+            heapq.heappush(self._pending, (reply.t_send, self._seq, reply.data, source))
 
     def _send_due(self) -> None:
         now = self.clock()
         while self._pending and self._pending[0][0] <= now:
             _, _, data, target = heapq.heappop(self._pending)
-            try:
-                self._sock.sendto(data, target)
-                self._sent += 1
-            except OSError as exc:
-                self._send_errors += 1
-                log.debug("sendto %s: %s", target, exc)
+            self._send(data, target)
+
+    def _send(self, data: bytes, target: Any) -> None:
+        try:
+            self._sock.sendto(data, target)
+            self._sent += 1
+        except OSError as exc:
+            self._send_errors += 1
+            log.debug("sendto %s: %s", target, exc)
 
 
 __all__ = [
