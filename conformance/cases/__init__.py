@@ -1,0 +1,14 @@
+"""The conformance cases, one module per section; importing this package registers them."""
+
+from __future__ import annotations
+
+from conformance.cases import (  # noqa: F401  (imported for their registrations)
+    commands,
+    control,
+    framing,
+    negotiation,
+    robot,
+    robustness,
+    sensor,
+    sync,
+)

@@ -1,0 +1,188 @@
+"""Helpers the case modules share: hand-built frames and valid arguments per command."""
+
+from __future__ import annotations
+
+import math
+import struct
+import zlib
+
+from spec import wire
+from spec.codec import Packet
+from spec.params import Location, Value, encode_params
+from spec.registry import CommandId as C
+from spec.registry import CommandSpec
+from spec.wire import PacketKind
+
+from conformance.connection import Conn
+from conformance.context import Context
+from conformance.model import Fail, NotApplicable, Skip
+
+IDENTITY = Location(0, 0, 0, 0, 0, 0)
+
+
+def seal(header_and_payload: bytes) -> bytes:
+    """Append the CRC-32 trailer [RS-3.6]."""
+    return header_and_payload + struct.pack(">I", zlib.crc32(header_and_payload))
+
+
+def raw_frame(
+    command: int,
+    request_id: int,
+    params: tuple[Value, ...] = (),
+    *,
+    payload: bytes | None = None,
+    kind: int = PacketKind.REQUEST,
+    major: int = wire.VERSION_MAJOR,
+    minor: int = wire.VERSION_MINOR,
+    flags: int = 0,
+    magic: bytes = wire.MAGIC,
+    length: int | None = None,
+    crc_ok: bool = True,
+) -> bytes:
+    """A frame with any header field set by hand (for the negative cases)."""
+    body = encode_params(params) if payload is None else payload
+    n = len(body) if length is None else length
+    header = wire.HEADER.pack(magic, major, minor, kind, flags, command, request_id, n)
+    framed = seal(header + body)
+    if not crc_ok:
+        framed = framed[:-1] + bytes([framed[-1] ^ 0xFF])
+    return framed
+
+
+def retarget(frame: bytes, command: int) -> bytes:
+    """The same frame with another command ID; the CRC is resealed only if it was valid."""
+    if len(frame) < wire.HEADER_SIZE + wire.TRAILER_SIZE:
+        return frame
+    body = frame[:-4]
+    crc_was_ok = zlib.crc32(body) == struct.unpack(">I", frame[-4:])[0]
+    new = body[:6] + struct.pack(">H", command) + body[8:]
+    if crc_was_ok:
+        return seal(new)
+    return new + frame[-4:]
+
+
+def expect_error_echo(answer: Packet, request_id: int, code: int, command: int) -> None:
+    """[RS-3.9] a usable header gets an error echoing its request ID."""
+    got = answer.error
+    if got is None or got[0] != code or answer.request_id != request_id:
+        raise Fail(
+            "wrong answer to a malformed frame with a usable header",
+            f"error {_name(code)} echoing request ID {request_id}",
+            f"{answer.kind.name} request ID {answer.request_id}"
+            + (f" error {_name(got[0])}: {got[1]}" if got else ""),
+            requirement="RS-3.9",
+        )
+    if answer.command != command:
+        raise Fail(
+            "the error does not echo the command ID",
+            f"command 0x{command:04x}",
+            f"command 0x{answer.command:04x}",
+            requirement="RS-3.4",
+        )
+
+
+def _name(code: int) -> str:
+    from spec.errors import ErrorCode
+
+    try:
+        return ErrorCode(code).name
+    except ValueError:
+        return str(code)
+
+
+def still_answers(conn: Conn, what: str) -> None:
+    """The same connection still answers a Ping after a recoverable error [RS-3.9]."""
+    try:
+        reply = conn.ok(C.PING, b"after")
+    except Fail as exc:
+        raise Fail(
+            f"the connection does not go on after {what}",
+            "Ping echoed on the same connection",
+            exc.actual if exc.actual is not None else exc.message,
+            requirement="RS-3.9",
+        ) from None
+    except Exception as exc:
+        raise Fail(
+            f"the connection does not go on after {what}",
+            "Ping echoed on the same connection",
+            f"{type(exc).__name__}: {exc}",
+            requirement="RS-3.9",
+        ) from None
+    if reply[:1] != (b"after",):
+        raise Fail("Ping does not echo its bytes", b"after", reply[:1], requirement="RS-5.8")
+
+
+def io_names(conn: Conn) -> tuple[list[str], list[str]]:
+    """(outputs, inputs) from ListIO."""
+    outputs, inputs = conn.ok(C.LIST_IO)[:2]
+    assert isinstance(outputs, str) and isinstance(inputs, str)
+    return (
+        [n.strip() for n in outputs.split(",") if n.strip()],
+        [n.strip() for n in inputs.split(",") if n.strip()],
+    )
+
+
+def valid_args(ctx: Context, conn: Conn, spec: CommandSpec) -> tuple[Value, ...]:
+    """Correct arguments for ``spec`` that change nothing (current values where possible)."""
+    c = spec.id
+    if c == C.HELLO:
+        return (1, 0, "conformance")
+    if c == C.PING:
+        return (b"\x00\x01conformance\xff",)
+    if c == C.TAKE_CONTROL:
+        return (ctx.options.token,)
+    if c == C.HERE:
+        return (IDENTITY, IDENTITY)
+    if c == C.JOINT_MOVE:
+        return conn.ok(C.HEREJ)[:1]
+    if c in (C.TOOL_MOVE_J, C.TOOL_MOVE_L):
+        here = conn.ok(C.HERE, IDENTITY, IDENTITY)[0]
+        return (here, IDENTITY, IDENTITY)
+    if c == C.SET_MOTION_DESC:
+        return conn.ok(C.GET_MOTION_DESC)[:6]
+    if c == C.WAIT_END_MOVE:
+        return (0.05,)
+    if c in (C.SET_OUTPUT, C.READ_IO):
+        outputs, inputs = io_names(conn) if C.LIST_IO in ctx.advertised else ([], [])
+        names = outputs if c == C.SET_OUTPUT else outputs + inputs
+        if not names:
+            raise NotApplicable("the robot lists no digital I/O")
+        if c == C.READ_IO:
+            return (names[0],)
+        value = conn.ok(C.READ_IO, names[0])[0]
+        return (names[0], value)
+    if c == C.GET_JOINT_LOG:
+        now = conn.ok(C.GET_TIME)[0]
+        assert isinstance(now, float)
+        return (now - 0.1,)
+    if c == C.GET_IMAGE:
+        return ()
+    if c == C.SET_LASER:
+        return conn.ok(C.SENSOR_STATUS)[:1]
+    if c == C.SET_EXPOSURE:
+        return conn.ok(C.GET_SETTINGS)[1:2]
+    if c == C.SET_READOUT_WINDOW:
+        return conn.ok(C.GET_SETTINGS)[2:4]
+    if c == C.SET_SENSOR_ENDPOINT:
+        cfg = conn.ok(C.GET_SYNC_CONFIG)
+        return cfg[0:2]
+    if c == C.SET_SYNC_DELAY:
+        return conn.ok(C.GET_SYNC_CONFIG)[2:3]
+    if c == C.SET_SENSOR_TOOL:
+        return conn.ok(C.GET_SYNC_CONFIG)[3:4]
+    if c in (C.START_TRIGGERS, C.SCHEDULE_TRIGGERS):
+        raise Skip("covered by the sync cases (needs a UDP sink)")
+    if c == C.GET_SEAM_POINTS:
+        return (-1,)
+    if spec.params:
+        raise Skip(f"no neutral arguments known for {spec.name}")
+    return ()
+
+
+def wrong_type(spec_type: wire.ParamType) -> Value:
+    """A value of a type other than ``spec_type``."""
+    return "wrong type" if spec_type is not wire.ParamType.STRING else 12345
+
+
+def finite(*values: float) -> bool:
+    return all(math.isfinite(v) for v in values)

@@ -1,0 +1,253 @@
+"""Generic command coverage, generated from the command registry (PROTOCOL.md section 5).
+
+For every command of the service: ``commands.<group>.<Name>.reply`` sends correct arguments
+that change nothing and checks the reply against the reply table [RS-5.5];
+``.bad_params`` sends wrong counts and types and expects BAD_PARAMETERS [RS-5.4];
+``.not_in_control`` sends a *control* command from a connection without control and expects
+NOT_IN_CONTROL [RS-7.4]. A command the endpoint does not advertise is not applicable. Commands
+that move or switch (and EmergencyStop) need ``--allow-motion``.
+
+Safety note: without ``--allow-motion`` a moving command is only ever sent with a wrong
+parameter count, which a conforming server rejects before anything executes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from spec.errors import ErrorCode
+from spec.params import (
+    FloatArray,
+    Image,
+    IntArray,
+    Joints,
+    Location,
+    Matrix,
+    Transform,
+    Value,
+)
+from spec.registry import COMMANDS, CommandSpec
+from spec.registry import CommandId as C
+from spec.wire import ParamType
+
+from conformance.cases._util import valid_args, wrong_type
+from conformance.connection import Conn
+from conformance.context import Context
+from conformance.model import Case, Fail, Informational, Skip, add_case
+
+#: Errors a correct request may get in some states of the endpoint (not a reply-table break).
+STATE_ERRORS = (
+    ErrorCode.NO_DATA,
+    ErrorCode.BAD_STATE,
+    ErrorCode.NOT_POWERED,
+    ErrorCode.EMERGENCY_STOP,
+)
+
+#: Commands the generic `.reply` case leaves to dedicated cases.
+DEDICATED = {C.START_TRIGGERS, C.SCHEDULE_TRIGGERS}
+
+
+def dummy(t: ParamType) -> Value:
+    """A value of wire type ``t`` (used where the count, not the value, is under test)."""
+    values: dict[ParamType, Value] = {
+        ParamType.INT: 0,
+        ParamType.FLOAT: 0.0,
+        ParamType.BOOL: False,
+        ParamType.STRING: "",
+        ParamType.BYTES: b"",
+        ParamType.FLOAT_ARRAY: FloatArray([]),
+        ParamType.INT_ARRAY: IntArray([]),
+        ParamType.JOINTS: Joints([0.0] * 6),
+        ParamType.LOCATION: Location(0, 0, 0, 0, 0, 0),
+        ParamType.TRANSFORM: Transform(),
+        ParamType.MATRIX: Matrix(0, 0, []),
+        ParamType.IMAGE: Image(0, 0, b""),
+    }
+    return values[t]
+
+
+def _dangerous(spec: CommandSpec) -> bool:
+    return spec.moves or spec.id == C.EMERGENCY_STOP
+
+
+def _group(spec: CommandSpec) -> str:
+    return spec.service
+
+
+def _service(spec: CommandSpec) -> str:
+    return "any" if spec.service == "common" else ("robot" if spec.service == "sync" else spec.service)
+
+
+def _reply_case(spec: CommandSpec) -> Callable[[Context], str | None]:
+    def run(ctx: Context) -> str | None:
+        if spec.id in DEDICATED:
+            raise Skip(f"{spec.name} is covered by the sync cases (needs a UDP sink)")
+        if _dangerous(spec):
+            ctx.require_motion(spec.name)
+        conn = ctx.connect()
+        if spec.needs_control:
+            ctx.take_control(conn)
+        try:
+            args = valid_args(ctx, conn, spec)
+            answer = conn.call(spec.id, *args, timeout=ctx.timeout * 2)
+            if answer.error is not None and answer.error[0] in STATE_ERRORS:
+                raise Informational(
+                    f"{spec.name} answered {ErrorCode(answer.error[0]).name} in the current"
+                    f" state ({answer.error[1]}); reply types not checked"
+                )
+            if answer.error is not None:
+                code, message = answer.error
+                raise Fail(
+                    f"{spec.name} with correct arguments was refused",
+                    "a reply",
+                    f"error {code}: {message}",
+                    requirement="RS-5.3" if code == ErrorCode.UNKNOWN_COMMAND else "RS-5.5",
+                )
+            # Re-check the reply's parameters against the table (conn.ok does the same check).
+            from spec.registry import check_params
+
+            try:
+                check_params(spec.reply, answer.params, f"{spec.name} reply", allow_extra=True)
+            except Exception as exc:
+                raise Fail(
+                    f"{spec.name} reply does not match the reply table",
+                    ", ".join(f"{p.name}:{p.type.name}" for p in spec.reply) or "no parameters",
+                    str(exc),
+                    requirement="RS-5.5",
+                ) from None
+            if spec.id == C.EMERGENCY_STOP and C.RESET_EMERGENCY_STOP in ctx.advertised:
+                ctx.take_control(conn)
+                conn.ok(C.RESET_EMERGENCY_STOP)
+        finally:
+            if spec.needs_control:
+                _release(conn)
+        return None
+
+    run.__doc__ = f"{spec.name} with correct arguments: a reply as in its reply table."
+    return run
+
+
+def _release(conn: Conn) -> None:
+    try:
+        conn.call(C.RELEASE_CONTROL)
+    except Exception:
+        pass
+
+
+def _bad_params_case(spec: CommandSpec) -> Callable[[Context], str | None]:
+    def run(ctx: Context) -> str | None:
+        conn = ctx.connect()
+        accept: tuple[int, ...] = (ErrorCode.BAD_PARAMETERS,)
+        holding = False
+        if spec.needs_control:
+            if _dangerous(spec) and not ctx.options.allow_motion:
+                # Without control nothing may execute either way: both answers are safe ones.
+                accept = (ErrorCode.BAD_PARAMETERS, ErrorCode.NOT_IN_CONTROL)
+            else:
+                ctx.take_control(conn)
+                holding = True
+        try:
+            good = tuple(dummy(p.type) for p in spec.params)
+            trials: list[tuple[str, tuple[Value, ...]]] = [
+                ("one parameter too many", (*good, 0)),
+            ]
+            if spec.params:
+                first = spec.params[0]
+                trials.append(
+                    (f"{first.name} of the wrong type", (wrong_type(first.type), *good[1:]))
+                )
+            if any(not p.optional for p in spec.params):
+                trials.append(("no parameters", ()))
+            for what, args in trials:
+                answer = conn.call(spec.id, *args)
+                got = answer.error
+                if got is None or got[0] not in accept:
+                    raise Fail(
+                        f"{spec.name} with {what} is not refused with BAD_PARAMETERS",
+                        " or ".join(ErrorCode(c).name for c in accept),
+                        "a reply" if got is None else f"error {got[0]}: {got[1]}",
+                        requirement="RS-5.4",
+                    )
+        finally:
+            if holding:
+                _release(conn)
+        return None
+
+    run.__doc__ = f"{spec.name} with a wrong parameter count or type: BAD_PARAMETERS."
+    return run
+
+
+def _not_in_control_case(spec: CommandSpec) -> Callable[[Context], str | None]:
+    def run(ctx: Context) -> str | None:
+        if _dangerous(spec):
+            ctx.require_motion(f"{spec.name} without control")
+        if spec.id in DEDICATED:
+            args: tuple[Value, ...] = tuple(dummy(p.type) for p in spec.params)
+            if spec.id == C.START_TRIGGERS:
+                args = (10.0, 1)
+            else:
+                args = (FloatArray([1e9]),)
+        else:
+            args = tuple(dummy(p.type) for p in spec.params)
+            if _dangerous(spec):
+                # A server that ignored control would execute this: make it a no-op target.
+                probe = ctx.connect()
+                args = valid_args(ctx, probe, spec)
+        conn = ctx.connect()  # a fresh connection never holds control
+        conn.error(spec.id, ErrorCode.NOT_IN_CONTROL, *args)
+        return None
+
+    run.__doc__ = f"{spec.name} from a connection without control: NOT_IN_CONTROL."
+    return run
+
+
+def _register() -> None:
+    for spec in COMMANDS:
+        base = f"commands.{_group(spec)}.{spec.name}"
+        common = {
+            "level": "MUST",
+            "motion": False,
+            "service": _service(spec),
+            "commands": (int(spec.id),),
+            "order": 40,
+        }
+        add_case(
+            Case(
+                id=f"{base}.reply",
+                fn=_reply_case(spec),
+                requirements=("RS-5.5", "RS-5.3"),
+                tags=("commands", spec.service),
+                profiles=("core", "full") + (("smoke",) if not spec.params else ()),
+                budget=8.0,
+                title=f"{spec.name}: correct arguments give a reply matching its table",
+                **common,  # type: ignore[arg-type]
+            )
+        )
+        add_case(
+            Case(
+                id=f"{base}.bad_params",
+                fn=_bad_params_case(spec),
+                requirements=("RS-5.4",),
+                tags=("commands", "parameters", spec.service),
+                profiles=("core", "full"),
+                budget=8.0,
+                title=f"{spec.name}: wrong parameter count or type gives BAD_PARAMETERS",
+                **common,  # type: ignore[arg-type]
+            )
+        )
+        if spec.needs_control:
+            add_case(
+                Case(
+                    id=f"{base}.not_in_control",
+                    fn=_not_in_control_case(spec),
+                    requirements=("RS-7.4",),
+                    tags=("commands", "control", spec.service),
+                    profiles=("core", "full"),
+                    budget=8.0,
+                    title=f"{spec.name} without control gives NOT_IN_CONTROL",
+                    **common,  # type: ignore[arg-type]
+                )
+            )
+
+
+_register()

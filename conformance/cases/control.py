@@ -1,0 +1,227 @@
+"""Control ownership and several clients (PROTOCOL.md section 7)."""
+
+from __future__ import annotations
+
+import statistics
+import threading
+import time
+
+from spec.errors import ErrorCode
+from spec.registry import CommandId as C
+
+from conformance.connection import Closed
+from conformance.context import Context
+from conformance.model import EndpointTimeout, Fail, NotApplicable, Skip, case
+
+
+def _read_only(ctx: Context) -> int:
+    return int(C.ROBOT_STATUS if ctx.service == "robot" else C.SENSOR_STATUS)
+
+
+def _control_probe(ctx: Context) -> int:
+    """A control command that changes nothing and that the endpoint advertises."""
+    for c in (C.RESET_MOTION, C.STOP_TRIGGERS, C.ACQUIRE, C.SET_LASER):
+        if c in ctx.advertised:
+            return int(c)
+    raise NotApplicable("the endpoint offers no harmless control command to probe with")
+
+
+@case("control.take_release", requirements=["RS-7.11", "RS-7.8"], tags=["control"])
+def take_release(ctx: Context) -> None:
+    """TakeControl twice succeeds for the holder; ReleaseControl twice is harmless."""
+    conn = ctx.connect()
+    conn.ok(C.RELEASE_CONTROL)  # not holding it: no error [RS-7.11]
+    ctx.take_control(conn)
+    conn.ok(C.TAKE_CONTROL, ctx.options.token)  # the holder again [RS-7.8]
+    conn.ok(C.RELEASE_CONTROL)
+    conn.ok(C.RELEASE_CONTROL)
+
+
+@case("control.exclusive", requirements=["RS-7.8", "RS-7.11"], tags=["control", "concurrency"])
+def exclusive(ctx: Context) -> None:
+    """While A holds control B gets BUSY; after A releases, B takes it."""
+    a, b = ctx.connect(), ctx.connect()
+    ctx.take_control(a)
+    try:
+        b.error(C.TAKE_CONTROL, ErrorCode.BUSY, ctx.options.token)
+        a.ok(C.RELEASE_CONTROL)
+        b.ok(C.TAKE_CONTROL, ctx.options.token)
+        a.error(C.TAKE_CONTROL, ErrorCode.BUSY, ctx.options.token)
+    finally:
+        b.call(C.RELEASE_CONTROL)
+
+
+@case("control.read_only_open", requirements=["RS-7.4"], tags=["control", "concurrency"])
+def read_only_open(ctx: Context) -> None:
+    """While A holds control, B's read-only commands are answered and its control ones are not."""
+    a, b = ctx.connect(), ctx.connect()
+    ctx.take_control(a)
+    try:
+        b.ok(_read_only(ctx))
+        b.ok(C.GET_TIME)
+        probe = _control_probe(ctx)
+        args = (False,) if probe == C.SET_LASER else ()
+        if probe == C.SET_LASER:
+            args = (bool(a.ok(C.SENSOR_STATUS)[0]),)
+        b.error(probe, ErrorCode.NOT_IN_CONTROL, *args)
+    finally:
+        a.call(C.RELEASE_CONTROL)
+
+
+@case("control.released_on_close", requirements=["RS-7.8"], tags=["control"])
+def released_on_close(ctx: Context) -> None:
+    """When the holder disconnects, another connection can take control."""
+    a = ctx.connect()
+    ctx.take_control(a)
+    a.close()
+    b = ctx.connect()
+    deadline = time.monotonic() + ctx.timeout
+    while True:
+        answer = b.call(C.TAKE_CONTROL, ctx.options.token)
+        if answer.error is None:
+            break
+        if time.monotonic() > deadline:
+            raise Fail(
+                "control is not freed when its holder disconnects",
+                "TakeControl succeeds on another connection",
+                f"error {answer.error[0]}: {answer.error[1]}",
+            )
+        time.sleep(0.02)
+    b.ok(C.RELEASE_CONTROL)
+
+
+@case("control.token", requirements=["RS-7.3"], tags=["control", "security"])
+def token(ctx: Context) -> str:
+    """A wrong control token gets AUTH_FAILED (not applicable when no token is configured)."""
+    conn = ctx.connect()
+    answer = conn.call(C.TAKE_CONTROL, ctx.options.token + "-wrong-conformance-token")
+    if answer.error is None:
+        conn.call(C.RELEASE_CONTROL)
+        if ctx.options.token:
+            raise Fail("a wrong token was accepted", "AUTH_FAILED", "control granted")
+        raise NotApplicable("the endpoint has no control token (any token is accepted)")
+    if answer.error[0] != ErrorCode.AUTH_FAILED:
+        raise Fail("wrong error for a wrong token", "AUTH_FAILED", answer.error)
+    if not ctx.options.token:
+        return "a token is configured; pass it with --token to run the control cases"
+    return "wrong token refused"
+
+
+@case(
+    "connections.several_clients",
+    requirements=["RS-7.1"],
+    tags=["concurrency"],
+    profiles=("smoke", "core", "full"),
+)
+def several_clients(ctx: Context) -> None:
+    """Eight connections, interleaved requests: each gets its own answers."""
+    conns = [ctx.connect() for _ in range(8)]
+    for round_ in range(3):
+        for i, conn in enumerate(conns):
+            conn.request(C.PING, f"{i}/{round_}".encode(), request_id=1000 * i + round_ + 1)
+        for i in reversed(range(len(conns))):
+            answer = conns[i].recv_packet()
+            want = (f"{i}/{round_}".encode(),)
+            if answer.request_id != 1000 * i + round_ + 1 or answer.params[:1] != want:
+                raise Fail("a connection got a wrong answer", want, answer.params[:1])
+
+
+@case(
+    "connections.max_clients",
+    requirements=["RS-7.2"],
+    tags=["concurrency", "limits"],
+    profiles=("full",),
+    budget=30.0,
+    order=65,
+)
+def max_clients(ctx: Context) -> str:
+    """Connections beyond max_clients get BUSY with request ID 0 and are closed."""
+    limit = int(ctx.hello.number("max_clients", 0)) if ctx.hello else 0
+    if not 0 < limit <= 256:
+        raise Skip(f"max_clients {limit} is not in 1..256; not tried")
+    conns = []
+    try:
+        for i in range(limit + 2):
+            conn = ctx.connect()
+            conns.append(conn)
+            conn.request(C.PING, b"n", request_id=i + 1)
+            try:
+                answer = conn.recv_packet()
+            except Closed:
+                raise Fail(
+                    "a connection over the limit was closed without an error frame",
+                    "error BUSY, request ID 0",
+                    "closed silently",
+                    requirement="RS-7.2",
+                ) from None
+            if answer.error is None:
+                continue
+            if answer.error[0] != ErrorCode.BUSY or answer.request_id != 0:
+                raise Fail("wrong refusal over the limit", "BUSY with request ID 0", answer.error)
+            try:
+                conn.expect_closed(ctx.timeout)
+            except EndpointTimeout:
+                raise Fail("the refused connection stays open", "closed", "open") from None
+            if i < limit - 1:
+                # Sessions of earlier cases may still be closing; accept a small slack.
+                ctx.details["busy_at"] = i + 1
+            return f"connection {i + 1} refused with BUSY (max_clients {limit})"
+        raise Fail(
+            "no connection was refused",
+            f"BUSY at connection {limit + 1}",
+            f"{limit + 2} accepted",
+            requirement="RS-7.2",
+        )
+    finally:
+        for conn in conns:
+            conn.close()
+
+
+@case(
+    "connections.load.round_trip",
+    requirements=["RS-7.1", "RS-3.10"],
+    tags=["concurrency", "measurement"],
+    profiles=("core", "full"),
+    budget=20.0,
+)
+def load_round_trip(ctx: Context) -> str:
+    """Four clients send 50 Pings each at the same time; all answered; round trips measured."""
+    errors: list[str] = []
+    rtts: list[float] = []
+    lock = threading.Lock()
+    conns = [ctx.connect() for _ in range(4)]
+
+    def client(i: int) -> None:
+        conn = conns[i]
+        try:
+            for k in range(50):
+                data = f"{i}:{k}".encode()
+                t0 = time.perf_counter()
+                reply = conn.ok(C.PING, data)
+                dt = time.perf_counter() - t0
+                if reply[:1] != (data,):
+                    errors.append(f"client {i} request {k}: echo {reply[:1]!r}")
+                    return
+                with lock:
+                    rtts.append(dt)
+        except Exception as exc:  # reported below
+            errors.append(f"client {i}: {type(exc).__name__}: {exc}")
+
+    threads = [threading.Thread(target=client, args=(i,)) for i in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    if errors:
+        raise Fail("concurrent clients did not all get their answers", "200 echoes", errors[0])
+    rtts.sort()
+    q = statistics.quantiles(rtts, n=100, method="inclusive")
+    ctx.measure(
+        "tcp_round_trip",
+        samples=len(rtts),
+        p50_ms=round(q[49] * 1000, 4),
+        p90_ms=round(q[89] * 1000, 4),
+        p99_ms=round(q[98] * 1000, 4),
+        max_ms=round(rtts[-1] * 1000, 4),
+    )
+    return f"Ping round trip p50 {q[49] * 1000:.3f} ms, p99 {q[98] * 1000:.3f} ms"

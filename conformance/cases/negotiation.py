@@ -1,0 +1,216 @@
+"""Negotiation: Hello, version, advertised commands and limits (PROTOCOL.md 1, 5.1, 5.2)."""
+
+from __future__ import annotations
+
+from spec import wire
+from spec.codec import Packet
+from spec.errors import ErrorCode
+from spec.registry import CommandId as C
+from spec.registry import commands_for
+
+from conformance.cases._util import raw_frame
+from conformance.context import HELLO_FIELDS, Context
+from conformance.model import Fail, Informational, case
+
+SMOKE = ("smoke", "core", "full")
+
+
+@case(
+    "negotiation.hello.reply",
+    requirements=["RS-5.2", "RS-5.5", "RS-1.1"],
+    tags=["negotiation"],
+    profiles=SMOKE,
+    order=10,
+)
+def hello_reply(ctx: Context) -> str:
+    """Hello returns version, service, identity, commands and limits with the table's types."""
+    conn = ctx.connect()
+    params = conn.ok(C.HELLO, 1, 0, "conformance")
+    fields = dict(zip(HELLO_FIELDS, params, strict=False))
+    version = fields["version"]
+    assert isinstance(version, str)
+    if not version.startswith(f"{wire.VERSION_MAJOR}."):
+        raise Fail("Hello reports another major version", "1.x", version, requirement="RS-5.2")
+    if fields["service"] != ctx.service:
+        raise Fail("Hello names another service", ctx.service, fields["service"])
+    ctx.details["hello"] = {k: repr(v) for k, v in fields.items()}
+    return f"{fields['vendor']} {fields['model']} serial {fields['serial']} version {version}"
+
+
+@case(
+    "negotiation.hello.major_mismatch",
+    requirements=["RS-5.2"],
+    tags=["negotiation", "errors"],
+    profiles=SMOKE,
+    order=10,
+)
+def hello_major_mismatch(ctx: Context) -> None:
+    """A client speaking major version 2 gets UNSUPPORTED_VERSION."""
+    conn = ctx.connect()
+    conn.error(C.HELLO, ErrorCode.UNSUPPORTED_VERSION, 2, 0, "conformance-v2")
+    conn.ok(C.PING, b"still open")
+
+
+@case(
+    "negotiation.hello.commands_ranges",
+    requirements=["RS-5.7", "RS-5.3"],
+    tags=["negotiation"],
+    order=10,
+)
+def commands_ranges(ctx: Context) -> str:
+    """Advertised command IDs lie in the common, own-service, vendor or experimental ranges."""
+    conn = ctx.connect()
+    params = conn.ok(C.HELLO, 1, 0, "conformance")
+    fields = dict(zip(HELLO_FIELDS, params, strict=False))
+    from spec.params import IntArray
+
+    cmds = fields["commands"]
+    assert isinstance(cmds, IntArray)
+    own = [wire.COMMON_RANGE, wire.VENDOR_RANGE, wire.EXPERIMENTAL_RANGE]
+    own += [wire.ROBOT_RANGE, wire.SYNC_RANGE] if ctx.service == "robot" else [wire.SENSOR_RANGE]
+    bad = [c for c in cmds.values if not any(c in r for r in own)]
+    if bad:
+        raise Fail(
+            "Hello advertises command IDs outside the ranges of this service",
+            "IDs in 0x0001-0x0FFF, the service's range, 0x8000-0xBFFF or 0xC000-0xFFFE",
+            ", ".join(f"0x{c:04x}" for c in bad),
+            requirement="RS-5.7",
+        )
+    for needed in (C.HELLO, C.PING, C.TAKE_CONTROL, C.RELEASE_CONTROL, C.GET_TIME):
+        if needed not in cmds.values:
+            raise Fail(
+                "Hello does not list a common command it must answer",
+                f"0x{int(needed):04x} in commands",
+                sorted(cmds.values),
+                requirement="RS-5.3",
+            )
+    vendor = [c for c in cmds.values if c in wire.VENDOR_RANGE or c in wire.EXPERIMENTAL_RANGE]
+    return f"{len(cmds.values)} commands, {len(vendor)} vendor/experimental"
+
+
+@case(
+    "negotiation.hello.commands_complete",
+    requirements=["RS-5.3", "RS-5.1"],
+    tags=["negotiation"],
+    budget=15.0,
+    order=11,
+)
+def commands_complete(ctx: Context) -> str:
+    """Registry commands not advertised in Hello are answered with UNKNOWN_COMMAND."""
+    conn = ctx.connect()
+    advertised = ctx.hello.commands if ctx.hello else frozenset()
+    checked = 0
+    for spec in commands_for(ctx.service):
+        if spec.id in advertised:
+            continue
+        if (spec.moves or spec.id == C.EMERGENCY_STOP) and not ctx.options.allow_motion:
+            continue  # it could move, stop or switch something if the server does implement it
+        # Without control and with arguments that cannot execute, a server that does implement
+        # the command answers NOT_IN_CONTROL or BAD_PARAMETERS; only UNKNOWN_COMMAND is right.
+        answer = conn.call(spec.id)
+        checked += 1
+        got = answer.error
+        if got is None or got[0] != ErrorCode.UNKNOWN_COMMAND:
+            raise Fail(
+                f"{spec.name} (0x{int(spec.id):04x}) is answered but not listed in Hello",
+                "UNKNOWN_COMMAND for a command missing from Hello's list",
+                answer.kind.name if got is None else f"error {ErrorCode(got[0]).name}",
+                requirement="RS-5.3",
+            )
+    return f"{checked} unlisted registry commands answered UNKNOWN_COMMAND"
+
+
+@case(
+    "negotiation.hello.limits",
+    requirements=["RS-3.5"],
+    tags=["negotiation", "limits"],
+    profiles=SMOKE,
+    order=10,
+)
+def hello_limits(ctx: Context) -> str:
+    """Hello's limits are sane: 0 < max_payload <= 16 MiB, clients >= 1, timeouts > 0."""
+    conn = ctx.connect()
+    params = conn.ok(C.HELLO, 1, 0, "conformance")
+    f = dict(zip(HELLO_FIELDS, params, strict=False))
+    mp, mc, idle, ft = f["max_payload"], f["max_clients"], f["idle_timeout"], f["frame_timeout"]
+    assert isinstance(mp, int) and isinstance(mc, int)
+    assert isinstance(idle, float) and isinstance(ft, float)
+    if not 0 < mp <= wire.MAX_PAYLOAD:
+        raise Fail("max_payload out of range", f"1..{wire.MAX_PAYLOAD}", mp, requirement="RS-3.5")
+    if mc < 1:
+        raise Fail("max_clients below 1", ">= 1", mc)
+    if not (idle > 0 and ft > 0):
+        raise Fail("timeouts must be positive", "> 0 s", (idle, ft))
+    return f"max_payload {mp} B, max_clients {mc}, idle {idle:g} s, frame {ft:g} s"
+
+
+@case(
+    "negotiation.minor_version_higher",
+    requirements=["RS-1.2", "RS-3.2"],
+    tags=["negotiation", "framing"],
+    order=10,
+)
+def minor_version_higher(ctx: Context) -> None:
+    """A frame with version 1.7 is accepted (same major version)."""
+    conn = ctx.connect()
+    conn.send(raw_frame(C.PING, 77, (b"minor",), minor=7), "Ping in a version 1.7 frame")
+    answer = conn.recv_packet()
+    if answer.error is not None or answer.request_id != 77 or answer.params[:1] != (b"minor",):
+        raise Fail(
+            "a frame with a higher minor version is not accepted",
+            "Ping reply echoing b'minor' to request 77",
+            _describe(answer),
+            requirement="RS-1.2",
+        )
+
+
+def _describe(p: Packet) -> str:
+    if p.error is not None:
+        return f"error {p.error[0]}: {p.error[1]} (request ID {p.request_id})"
+    return f"{p.kind.name} request ID {p.request_id} params {p.params!r}"
+
+
+@case(
+    "negotiation.port.default",
+    requirements=["RS-2.3"],
+    level="INFO",
+    tags=["negotiation"],
+    order=10,
+)
+def default_port(ctx: Context) -> str:
+    """The endpoint's port against the default (4000 robot, 2000 sensor); configurable."""
+    default = 4000 if ctx.service == "robot" else 2000
+    if ctx.port == default:
+        return f"listens on the default port {default}"
+    raise Informational(f"listens on port {ctx.port}, the default is {default} (configurable)")
+
+
+@case(
+    "negotiation.client.hello_first",
+    requirements=["RS-5.9"],
+    level="INFO",
+    tags=["negotiation", "client-side"],
+    order=10,
+)
+def client_hello_first(ctx: Context) -> str:
+    """Client-side rule, not observable at a server: the harness sends Hello first itself."""
+    conn = ctx.connect(hello=True)
+    conn.ok(C.PING, b"")
+    return "client-side rule; the harness negotiates with Hello before any other request"
+
+
+@case(
+    "negotiation.request_id.max",
+    requirements=["RS-3.13", "RS-3.4"],
+    level="SHOULD",
+    tags=["negotiation", "framing"],
+    order=10,
+)
+def request_id_max(ctx: Context) -> None:
+    """Request IDs 4 294 967 295 and then 1 (the wrap) are echoed."""
+    conn = ctx.connect()
+    for rid in (0xFFFFFFFF, 1):
+        conn.send(raw_frame(C.PING, rid, (b"w",)), f"Ping id {rid}")
+        answer = conn.recv_packet()
+        if answer.request_id != rid:
+            raise Fail("request ID not echoed across the wrap", rid, answer.request_id)

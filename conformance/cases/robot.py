@@ -1,0 +1,468 @@
+"""Robot service rules (PROTOCOL.md sections 5.3, 7 and 8).
+
+Motion cases (``motion=True``) run only with ``--allow-motion``. Their motions are small and
+documented: joint 1 turns by +2 degrees at 5 % joint speed and comes back; no other joint
+moves. Before moving they check the arm is still and powered on by the case itself; after a
+case the motion descriptor in force before it is restored.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+from spec.errors import ErrorCode
+from spec.params import Joints, Location, Matrix, Value
+from spec.registry import CommandId as C
+
+from conformance.cases._util import IDENTITY
+from conformance.connection import Conn
+from conformance.context import Context
+from conformance.model import Fail, Informational, Skip, case
+
+Mat = list[list[float]]
+
+STEP_DEG = 2.0  # the documented motion: joint 1 by +2 degrees and back
+SLOW = 5.0  # % of nominal joint speed, acceleration and deceleration
+
+
+def loc_to_matrix(loc: Location) -> Mat:
+    """4x4 homogeneous matrix of a VAL3 location, R = Rx(rx)·Ry(ry)·Rz(rz) [RS-8.2]."""
+    a, b, c = (math.radians(v) for v in (loc.rx, loc.ry, loc.rz))
+    ca, sa, cb, sb, cc, sc = math.cos(a), math.sin(a), math.cos(b), math.sin(b), math.cos(c), math.sin(c)
+    rx = [[1, 0, 0], [0, ca, -sa], [0, sa, ca]]
+    ry = [[cb, 0, sb], [0, 1, 0], [-sb, 0, cb]]
+    rz = [[cc, -sc, 0], [sc, cc, 0], [0, 0, 1]]
+    r = _mul3(_mul3(rx, ry), rz)
+    return [
+        [*r[0], loc.x],
+        [*r[1], loc.y],
+        [*r[2], loc.z],
+        [0.0, 0.0, 0.0, 1.0],
+    ]
+
+
+def _mul3(a: list[list[float]], b: list[list[float]]) -> list[list[float]]:
+    return [[sum(a[i][k] * b[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
+
+
+def mul(a: Mat, b: Mat) -> Mat:
+    return [[sum(a[i][k] * b[k][j] for k in range(4)) for j in range(4)] for i in range(4)]
+
+
+def inv(t: Mat) -> Mat:
+    """Inverse of a rigid transform."""
+    rt = [[t[j][i] for j in range(3)] for i in range(3)]
+    p = [-sum(rt[i][k] * t[k][3] for k in range(3)) for i in range(3)]
+    return [[*rt[0], p[0]], [*rt[1], p[1]], [*rt[2], p[2]], [0.0, 0.0, 0.0, 1.0]]
+
+
+def max_diff(a: Mat, b: Mat) -> tuple[float, float]:
+    """(largest translation difference in mm, largest rotation-matrix entry difference)."""
+    dp = max(abs(a[i][3] - b[i][3]) for i in range(3))
+    dr = max(abs(a[i][j] - b[i][j]) for i in range(3) for j in range(3))
+    return dp, dr
+
+
+def _joints(conn: Conn) -> list[float]:
+    j = conn.ok(C.HEREJ)[0]
+    assert isinstance(j, Joints)
+    return list(j.values)
+
+
+def _limits(conn: Conn) -> list[tuple[float, float]]:
+    m = conn.ok(C.GET_JOINT_LIMITS)[0]
+    assert isinstance(m, Matrix)
+    return [(r[0], r[1]) for r in m.to_rows()] if m.cols >= 2 else []
+
+
+def _status(conn: Conn) -> dict[str, Value]:
+    names = ("powered", "estop", "moving", "queue", "in_control", "controlled", "last_error",
+             "last_message", "time")  # fmt: skip
+    return dict(zip(names, conn.ok(C.ROBOT_STATUS), strict=False))
+
+
+@case(
+    "robot.herej.six_joints",
+    requirements=["RS-5.10", "RS-8.1", "RS-8.3"],
+    tags=["robot"],
+    service="robot",
+    profiles=("smoke", "core", "full"),
+    commands=[C.HEREJ, C.GET_JOINT_LIMITS],
+)
+def herej_six_joints(ctx: Context) -> str:
+    """Herej gives six finite joints in degrees, inside the robot's joint limits."""
+    conn = ctx.connect()
+    q = _joints(conn)
+    if len(q) != 6 or not all(math.isfinite(v) for v in q):
+        raise Fail("Herej does not give six finite joints", "6 finite values", q, requirement="RS-5.10")
+    limits = _limits(conn)
+    if len(limits) != 6 or any(lo >= hi for lo, hi in limits):
+        raise Fail("GetJointLimits is not a 6 x 2 (min, max) matrix", "6 rows min < max", limits)
+    if all(abs(v) <= 2 * math.pi + 1e-6 for pair in limits for v in pair):
+        raise Fail(
+            "joint limits look like radians", "degrees", limits, requirement="RS-8.1"
+        )
+    outside = [i + 1 for i, (v, (lo, hi)) in enumerate(zip(q, limits, strict=True)) if not lo - 0.5 <= v <= hi + 0.5]
+    if outside:
+        raise Fail("joints outside the joint limits", limits, q, requirement="RS-8.3")
+    return "joints " + ", ".join(f"{v:.2f}" for v in q)
+
+
+@case(
+    "robot.here.frames",
+    requirements=["RS-5.16", "RS-8.1", "RS-8.2"],
+    tags=["robot", "kinematics"],
+    service="robot",
+    commands=[C.HERE, C.ROBOT_STATUS],
+)
+def here_frames(ctx: Context) -> str:
+    """Here(tool, frame) equals frame^-1 · Here(flange, world) · tool, VAL3 RxRyRz angles."""
+    conn = ctx.connect()
+    if _status(conn).get("moving"):
+        raise Skip("the arm is moving; Here would change between the calls")
+    tool = Location(10.0, -20.0, 100.0, 30.0, -45.0, 60.0)
+    frame = Location(500.0, -200.0, 50.0, 10.0, 20.0, 30.0)
+    flange = conn.ok(C.HERE, IDENTITY, IDENTITY)[0]
+    got = conn.ok(C.HERE, tool, frame)[0]
+    assert isinstance(flange, Location) and isinstance(got, Location)
+    want = mul(mul(inv(loc_to_matrix(frame)), loc_to_matrix(flange)), loc_to_matrix(tool))
+    dp, dr = max_diff(loc_to_matrix(got), want)
+    if dp > 0.01 or dr > 1e-4:
+        raise Fail(
+            "Here(tool, frame) is not frame^-1 · flange · tool (mm, degrees, R = Rx·Ry·Rz)",
+            [round(want[i][3], 3) for i in range(3)],
+            got.as_tuple(),
+            requirement="RS-5.16",
+        )
+    return f"flange at {flange.x:.1f}, {flange.y:.1f}, {flange.z:.1f} mm"
+
+
+@case(
+    "robot.jointlog.order",
+    requirements=["RS-5.17", "RS-8.4"],
+    tags=["robot", "time"],
+    service="robot",
+    commands=[C.GET_JOINT_LOG],
+)
+def jointlog_order(ctx: Context) -> str:
+    """GetJointLog(since) gives samples with t > since, increasing, on the GetTime clock."""
+    conn = ctx.connect()
+    t0 = conn.ok(C.GET_TIME)[0]
+    assert isinstance(t0, float)
+    time.sleep(0.05)
+    log, period = conn.ok(C.GET_JOINT_LOG, t0 - 0.2)[:2]
+    t1 = conn.ok(C.GET_TIME)[0]
+    assert isinstance(log, Matrix) and isinstance(period, float) and isinstance(t1, float)
+    if log.rows == 0:
+        raise Fail("the joint log has no samples for the last 0.2 s", "samples", "none")
+    if log.cols != 7:
+        raise Fail("joint log rows are not (t, q1..q6)", 7, log.cols, requirement="RS-5.17")
+    ts = [log.values[i * 7] for i in range(log.rows)]
+    if ts[0] <= t0 - 0.2:
+        raise Fail("a sample not newer than since", f"> {t0 - 0.2}", ts[0], requirement="RS-5.17")
+    if any(b <= a for a, b in zip(ts, ts[1:], strict=False)):
+        raise Fail("joint log times do not increase", "increasing", ts[:10], requirement="RS-5.17")
+    if ts[-1] > t1 + 0.001 or ts[-1] < t0 - 1.0:
+        raise Fail(
+            "joint log times are not on the GetTime clock",
+            f"between {t0 - 1.0:.3f} and {t1:.3f}",
+            ts[-1],
+            requirement="RS-5.17",
+        )
+    ctx.measure("joint_log", period_s=period, samples_last_0_2s=log.rows)
+    return f"{log.rows} samples, period {period * 1000:.3g} ms"
+
+
+@case(
+    "robot.jointlog.capacity",
+    requirements=["RS-5.18"],
+    level="SHOULD",
+    tags=["robot"],
+    service="robot",
+    commands=[C.GET_JOINT_LOG],
+)
+def jointlog_capacity(ctx: Context) -> str:
+    """The joint buffer spans at least 10 s (informational while the server is younger)."""
+    conn = ctx.connect()
+    log, period = conn.ok(C.GET_JOINT_LOG, -1.0)[:2]
+    assert isinstance(log, Matrix) and isinstance(period, float)
+    if log.rows < 2:
+        raise Informational("fewer than two samples in the buffer")
+    span = log.values[(log.rows - 1) * log.cols] - log.values[0]
+    if span >= 10.0 - 2 * period:
+        return f"buffer spans {span:.2f} s ({log.rows} samples)"
+    raise Informational(f"buffer spans {span:.2f} s; the server may have started < 10 s ago")
+
+
+@case(
+    "robot.motiondesc.range",
+    requirements=["RS-5.19"],
+    tags=["robot", "limits"],
+    service="robot",
+    commands=[C.SET_MOTION_DESC, C.GET_MOTION_DESC],
+)
+def motiondesc_range(ctx: Context) -> None:
+    """SetMotionDesc values out of range give OUT_OF_RANGE and change nothing."""
+    conn = ctx.connect()
+    ctx.take_control(conn)
+    try:
+        before = conn.ok(C.GET_MOTION_DESC)[:6]
+        good = [float(v) for v in before]  # type: ignore[arg-type]
+        for index, bad in ((0, 0.0), (0, 150.0), (1, -1.0), (2, 101.0), (3, 0.0), (4, -5.0),
+                           (5, -1.0)):  # fmt: skip
+            args = list(good)
+            args[index] = bad
+            conn.error(C.SET_MOTION_DESC, ErrorCode.OUT_OF_RANGE, *args)
+        after = conn.ok(C.GET_MOTION_DESC)[:6]
+        if after != before:
+            raise Fail("a refused SetMotionDesc changed the descriptor", before, after)
+    finally:
+        conn.call(C.RELEASE_CONTROL)
+
+
+@case(
+    "robot.io.unknown_name",
+    requirements=["RS-5.21"],
+    tags=["robot", "io"],
+    service="robot",
+    commands=[C.READ_IO],
+)
+def io_unknown_name(ctx: Context) -> None:
+    """ReadIO (and, with --allow-motion, SetOutput) of an unknown name give OUT_OF_RANGE."""
+    conn = ctx.connect()
+    conn.error(C.READ_IO, ErrorCode.OUT_OF_RANGE, "no-such-io-conformance")
+    if ctx.options.allow_motion and C.SET_OUTPUT in ctx.advertised:
+        ctx.take_control(conn)
+        try:
+            conn.error(C.SET_OUTPUT, ErrorCode.OUT_OF_RANGE, "no-such-io-conformance", False)
+        finally:
+            conn.call(C.RELEASE_CONTROL)
+
+
+# --- motion (only with --allow-motion) ------------------------------------------------------
+
+
+class _Motion:
+    """Control, power and a slow motion descriptor for one motion case; restores on exit."""
+
+    def __init__(self, ctx: Context) -> None:
+        self.ctx = ctx
+        self.conn = ctx.connect()
+        self.saved: tuple[Value, ...] = ()
+
+    def __enter__(self) -> _Motion:
+        conn = self.conn
+        self.ctx.take_control(conn)
+        status = _status(conn)
+        if status.get("moving"):
+            raise Skip("the arm is already moving")
+        if status.get("estop"):
+            conn.ok(C.RESET_EMERGENCY_STOP)
+        self.saved = conn.ok(C.GET_MOTION_DESC)[:6]
+        conn.ok(C.SET_MOTION_DESC, SLOW, SLOW, SLOW, 50.0, 20.0, 0.0)
+        return self
+
+    def power(self) -> None:
+        self.conn.ok(C.ENABLE_POWER)
+
+    def __exit__(self, *exc: object) -> None:
+        try:
+            if self.saved and not self.conn.closed:
+                self.conn.call(C.SET_MOTION_DESC, *self.saved)
+            if not self.conn.closed:
+                self.conn.call(C.RELEASE_CONTROL)
+        except Exception:
+            pass
+
+
+def _wait_still(conn: Conn, timeout: float) -> bool:
+    done = conn.ok(C.WAIT_END_MOVE, timeout, timeout=timeout + 5.0)[0]
+    return bool(done)
+
+
+MOTION = [C.JOINT_MOVE, C.ENABLE_POWER, C.DISABLE_POWER, C.WAIT_END_MOVE, C.SET_MOTION_DESC]
+
+
+@case(
+    "robot.motion.not_powered",
+    requirements=["RS-5.12"],
+    tags=["robot", "motion"],
+    service="robot",
+    motion=True,
+    commands=MOTION,
+)
+def motion_not_powered(ctx: Context) -> None:
+    """With power off, JointMove gives NOT_POWERED and queues nothing (no motion happens)."""
+    with _Motion(ctx) as m:
+        conn = m.conn
+        conn.ok(C.DISABLE_POWER)
+        q = _joints(conn)
+        q[0] += STEP_DEG
+        conn.error(C.JOINT_MOVE, ErrorCode.NOT_POWERED, Joints(q))
+        status = _status(conn)
+        if status.get("queue") != 0 or status.get("moving"):
+            raise Fail("a refused move was queued", "queue 0, not moving", status, requirement="RS-5.12")
+
+
+@case(
+    "robot.motion.estop",
+    requirements=["RS-5.13", "RS-5.20"],
+    tags=["robot", "motion", "control"],
+    service="robot",
+    motion=True,
+    commands=[*MOTION, C.EMERGENCY_STOP, C.RESET_EMERGENCY_STOP, C.ROBOT_STATUS],
+)
+def motion_estop(ctx: Context) -> None:
+    """EmergencyStop from a connection without control stops, powers off; moves get
+    EMERGENCY_STOP until ResetEmergencyStop (power stays off)."""
+    with _Motion(ctx) as m:
+        conn = m.conn
+        m.power()
+        other = ctx.connect()
+        other.ok(C.EMERGENCY_STOP)  # no control needed [RS-5.20]
+        status = _status(conn)
+        if not status.get("estop") or status.get("powered") or status.get("queue") != 0:
+            raise Fail(
+                "EmergencyStop did not engage, power off and empty the queue",
+                "estop true, powered false, queue 0",
+                status,
+                requirement="RS-5.20",
+            )
+        q = _joints(conn)
+        q[0] += STEP_DEG
+        conn.error(C.JOINT_MOVE, ErrorCode.EMERGENCY_STOP, Joints(q))
+        conn.ok(C.RESET_EMERGENCY_STOP)
+        status = _status(conn)
+        if status.get("estop") or status.get("powered"):
+            raise Fail("after ResetEmergencyStop", "estop false, powered false", status)
+
+
+@case(
+    "robot.motion.out_of_range",
+    requirements=["RS-5.14"],
+    tags=["robot", "motion", "limits"],
+    service="robot",
+    motion=True,
+    commands=[*MOTION, C.GET_JOINT_LIMITS],
+)
+def motion_out_of_range(ctx: Context) -> None:
+    """A JointMove target 5 degrees beyond a joint limit gives OUT_OF_RANGE; nothing moves."""
+    with _Motion(ctx) as m:
+        conn = m.conn
+        m.power()
+        limits = _limits(conn)
+        q = _joints(conn)
+        q[0] = limits[0][1] + 5.0
+        conn.error(C.JOINT_MOVE, ErrorCode.OUT_OF_RANGE, Joints(q))
+        if _status(conn).get("queue") != 0:
+            raise Fail("a refused move was queued", 0, _status(conn).get("queue"))
+
+
+@case(
+    "robot.motion.unreachable",
+    requirements=["RS-5.15"],
+    tags=["robot", "motion", "limits"],
+    service="robot",
+    motion=True,
+    commands=[*MOTION, C.TOOL_MOVE_J, C.TOOL_MOVE_L],
+)
+def motion_unreachable(ctx: Context) -> None:
+    """ToolMoveJ/L to a point 20 m away give UNREACHABLE; nothing is queued."""
+    with _Motion(ctx) as m:
+        conn = m.conn
+        m.power()
+        far = Location(20000.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        conn.error(C.TOOL_MOVE_J, ErrorCode.UNREACHABLE, far, IDENTITY, IDENTITY)
+        conn.error(
+            C.TOOL_MOVE_L, (ErrorCode.UNREACHABLE, ErrorCode.SINGULARITY), far, IDENTITY, IDENTITY
+        )
+        if _status(conn).get("queue") != 0:
+            raise Fail("a refused move was queued", 0, _status(conn).get("queue"))
+
+
+@case(
+    "robot.motion.queued",
+    requirements=["RS-5.11", "RS-5.22"],
+    tags=["robot", "motion"],
+    service="robot",
+    motion=True,
+    budget=60.0,
+    commands=[*MOTION, C.ROBOT_STATUS],
+)
+def motion_queued(ctx: Context) -> str:
+    """JointMove (+2 degrees on joint 1, 5 % speed) replies at once; WaitEndMove is false before
+    the end and true after; the arm comes back."""
+    with _Motion(ctx) as m:
+        conn = m.conn
+        m.power()
+        start = _joints(conn)
+        target = list(start)
+        target[0] += STEP_DEG
+        t0 = time.monotonic()
+        conn.ok(C.JOINT_MOVE, Joints(target))
+        reply_s = time.monotonic() - t0
+        status = _status(conn)
+        still_moving = bool(status.get("moving")) or int(status.get("queue") or 0) > 0  # type: ignore[call-overload]
+        early = conn.ok(C.WAIT_END_MOVE, 0.001)[0] if still_moving else None
+        if not _wait_still(conn, 30.0):
+            raise Fail("WaitEndMove(30 s) did not see the end of a 2 degree move", True, False)
+        move_s = time.monotonic() - t0
+        reached = _joints(conn)
+        if abs(reached[0] - target[0]) > 0.05:
+            raise Fail("the arm did not reach the target", target[0], reached[0])
+        conn.ok(C.JOINT_MOVE, Joints(start))
+        _wait_still(conn, 30.0)
+        if not still_moving:
+            raise Fail(
+                "JointMove did not return before the move ended",
+                "reply while the move is queued or running",
+                f"reply after {reply_s:.3f} s with the move already over",
+                requirement="RS-5.11",
+            )
+        if early is not False:
+            raise Fail("WaitEndMove(1 ms) during a move", False, early, requirement="RS-5.22")
+        ctx.measure("joint_move_2deg", reply_s=round(reply_s, 4), move_s=round(move_s, 3))
+        return f"reply after {reply_s * 1000:.1f} ms, move took {move_s:.2f} s"
+
+
+@case(
+    "robot.motion.control_lost",
+    requirements=["RS-7.10"],
+    tags=["robot", "motion", "control"],
+    service="robot",
+    motion=True,
+    budget=60.0,
+    commands=[*MOTION, C.ROBOT_STATUS],
+)
+def motion_control_lost(ctx: Context) -> str:
+    """When the controlling connection closes mid-move the arm stops, the queue empties and
+    power stays on."""
+    watcher = ctx.connect()
+    with _Motion(ctx) as m:
+        conn = m.conn
+        m.power()
+        start = _joints(conn)
+        target = list(start)
+        target[0] += STEP_DEG
+        conn.ok(C.JOINT_MOVE, Joints(target))
+        conn.ok(C.JOINT_MOVE, Joints(start))
+        conn.close()
+    deadline = time.monotonic() + 10.0
+    status = _status(watcher)
+    while time.monotonic() < deadline:
+        status = _status(watcher)
+        if not status.get("moving") and status.get("queue") == 0:
+            break
+        time.sleep(0.05)
+    else:
+        raise Fail("the arm did not stop after the controller left", "stopped, queue 0", status,
+                   requirement="RS-7.10")  # fmt: skip
+    if not status.get("powered"):
+        raise Fail("power changed when control was lost", "powered", status, requirement="RS-7.10")
+    # Bring joint 1 back to where it started.
+    ctx.take_control(watcher)
+    watcher.ok(C.JOINT_MOVE, Joints(start))
+    _wait_still(watcher, 30.0)
+    watcher.call(C.RELEASE_CONTROL)
+    return "stopped and emptied the queue; power stayed on"

@@ -1,0 +1,199 @@
+"""Command line: ``python -m conformance {robot,sensor,sync} [HOST:PORT] [options]``.
+
+Exit codes:
+
+====  =====================================================================================
+code  meaning
+====  =====================================================================================
+0     conformant: no MUST failed (SHOULD failures too, with ``--strict``)
+1     a MUST requirement failed
+2     only SHOULD requirements failed, and ``--strict`` was given
+3     usage error or harness fault (a case crashed inside the harness; bad option or file)
+4     endpoint unreachable, or it stopped answering (errors and timeouts, never fails)
+5     nothing selected (no case matches the profile, globs and tags)
+====  =====================================================================================
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import NoReturn
+
+from spec.registry import BY_ID, COMMANDS
+
+from conformance import SUITE_VERSION, TOOL_VERSION
+from conformance.context import Options
+from conformance.model import PROFILES, CaseResult, all_cases
+from conformance.reference import ReferenceUnavailable, start
+from conformance.report import (
+    load_expectations,
+    terminal,
+    to_json,
+    to_junit,
+    to_markdown,
+    write_atomic,
+)
+from conformance.runner import (
+    EXIT_NOTHING_SELECTED,
+    EXIT_USAGE,
+    RunResult,
+    Selection,
+    exit_code,
+    run,
+)
+
+EPILOG = """exit codes: 0 conformant; 1 a MUST failed; 2 only SHOULD failures (with --strict);
+3 usage or harness error; 4 endpoint unreachable or stopped answering; 5 nothing selected.
+Without HOST:PORT the reference server of the service is started in-process."""
+
+
+class UsageError(Exception):
+    """A bad command line or input file (exit code 3)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> NoReturn:
+        raise UsageError(message)
+
+
+def parse_endpoint(text: str) -> tuple[str, int]:
+    host, sep, port = text.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise UsageError(f"endpoint must be HOST:PORT, got {text!r}")
+    return host.strip("[]"), int(port)
+
+
+def parse_capabilities(path: str) -> frozenset[int]:
+    """Command IDs a capability file declares not offered: {"not_offered": [name or id]}."""
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise UsageError(f"cannot read capability file {path}: {exc}") from None
+    names = {c.name: int(c.id) for c in COMMANDS}
+    out: set[int] = set()
+    for item in data.get("not_offered", []) if isinstance(data, dict) else []:
+        if isinstance(item, int) and item in BY_ID:
+            out.add(item)
+        elif isinstance(item, str) and item in names:
+            out.add(names[item])
+        elif isinstance(item, str) and item.lower().startswith("0x"):
+            out.add(int(item, 16))
+        else:
+            raise UsageError(f"capability file {path}: unknown command {item!r}")
+    return frozenset(out)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(
+        prog="python -m conformance",
+        description="Check a robot, sensor or UDP sync endpoint against PROTOCOL.md.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("service", choices=["robot", "sensor", "sync"])
+    p.add_argument("endpoint", nargs="?", help="HOST:PORT (default: start our reference server)")
+    p.add_argument("--udp", metavar="HOST:PORT", help="the sensor's trigger endpoint (sync)")
+    p.add_argument("--list", action="store_true", help="list the selected cases and exit")
+    p.add_argument("--profile", choices=PROFILES, default="core")
+    p.add_argument("--select", action="append", default=[], metavar="GLOB")
+    p.add_argument("--exclude", action="append", default=[], metavar="GLOB")
+    p.add_argument("--tag", action="append", default=[])
+    p.add_argument("--timeout-scale", type=float, default=1.0, metavar="F")
+    p.add_argument("--expect", metavar="FILE", help="known failures: case IDs, one per line")
+    p.add_argument("--capabilities", metavar="FILE", help='JSON {"not_offered": [...]}')
+    p.add_argument("--allow-motion", action="store_true", help="run cases that move or switch")
+    p.add_argument("--token", default="", help="the endpoint's control token")
+    p.add_argument("--fuzz", type=int, default=0, metavar="N")
+    p.add_argument("--seed", type=int, default=1, metavar="S")
+    p.add_argument("--json", metavar="FILE")
+    p.add_argument("--junit", metavar="FILE")
+    p.add_argument("--markdown", metavar="FILE")
+    p.add_argument("--strict", action="store_true", help="SHOULD failures give exit code 2")
+    p.add_argument("-v", "--verbose", action="store_true", help="print every case")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    p.add_argument("--version", action="version", version=f"conformance {TOOL_VERSION} suite {SUITE_VERSION}")
+    return p
+
+
+def write_reports(args: argparse.Namespace, result: RunResult) -> None:
+    if args.json:
+        write_atomic(args.json, json.dumps(to_json(result, args.strict), indent=1) + "\n")
+    if args.junit:
+        write_atomic(args.junit, to_junit(result, args.strict))
+    if args.markdown:
+        write_atomic(args.markdown, to_markdown(result, args.strict))
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    try:
+        return _main(argv)
+    except UsageError as exc:
+        print(f"conformance: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except OSError as exc:
+        print(f"conformance: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+
+
+def _main(argv: Sequence[str] | None) -> int:
+    args = build_parser().parse_args(argv)
+    # An in-process reference server logs through `logging`; keep the report readable.
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.ERROR)
+    if not args.timeout_scale > 0:
+        raise UsageError("--timeout-scale must be > 0")
+    if args.fuzz < 0:
+        raise UsageError("--fuzz must be >= 0")
+    selection = Selection(
+        args.profile,
+        tuple(args.select),
+        tuple(args.exclude),
+        tuple(args.tag),
+        include=("robustness.fuzz",) if args.fuzz else (),  # --fuzz adds the fuzz case
+    )
+    cases = selection.pick(all_cases(), args.service)
+    if args.list:
+        for c in cases:
+            flags = " motion" if c.motion else ""
+            print(f"{c.id:<52} {c.level:<6} {','.join(c.requirements):<28} {c.title}{flags}")
+        return 0 if cases else EXIT_NOTHING_SELECTED
+    options = Options(
+        allow_motion=args.allow_motion,
+        timeout_scale=args.timeout_scale,
+        token=args.token,
+        fuzz=args.fuzz,
+        seed=args.seed,
+        not_offered=parse_capabilities(args.capabilities) if args.capabilities else frozenset(),
+    )
+    expect = load_expectations(args.expect) if args.expect else frozenset()
+    endpoint = args.udp if args.service == "sync" and args.udp else args.endpoint
+    reference = None
+    if endpoint:
+        host, port = parse_endpoint(endpoint)
+    else:
+        try:
+            reference = start(args.service)
+        except ReferenceUnavailable as exc:
+            print(f"conformance: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+        host, port = reference.host, reference.port
+        if not args.quiet:
+            print(f"started the reference {args.service} endpoint on {host}:{port}", file=sys.stderr)
+
+    def progress(r: CaseResult) -> None:
+        if not args.quiet:
+            print(f"  {r.outcome.value:<14} {r.case.id}", file=sys.stderr, flush=True)
+
+    try:
+        result = run(args.service, host, port, options, selection, expect, progress)
+    finally:
+        if reference is not None:
+            reference.stop()
+    write_reports(args, result)
+    if not args.quiet or result.results:
+        sys.stdout.write(terminal(result, args.strict, args.verbose))
+    return exit_code(result, args.strict)

@@ -1,0 +1,221 @@
+"""What a case gets: the endpoint, the negotiated capabilities, options and logged sockets."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from spec.params import IntArray, Value
+from spec.registry import BY_ID, CommandId, commands_for
+from spec.wire import PacketKind
+
+from conformance.connection import Closed, Conn, UdpConn, WireLog
+from conformance.model import (
+    EndpointGone,
+    EndpointTimeout,
+    Fail,
+    NotApplicable,
+    Skip,
+)
+
+HELLO_FIELDS = (
+    "version",
+    "service",
+    "vendor",
+    "model",
+    "serial",
+    "software",
+    "commands",
+    "max_payload",
+    "max_clients",
+    "idle_timeout",
+    "frame_timeout",
+)
+
+
+@dataclass
+class Options:
+    """Run options that cases read."""
+
+    allow_motion: bool = False
+    timeout_scale: float = 1.0
+    token: str = ""  # control token of the endpoint, if it has one
+    fuzz: int = 0
+    seed: int = 1
+    reply_timeout: float = 2.0  # s before scaling: how long one answer may take
+    not_offered: frozenset[int] = frozenset()  # from a capability file
+
+
+@dataclass
+class Hello:
+    """The endpoint's Hello reply, by field name."""
+
+    fields: dict[str, Value]
+
+    @property
+    def commands(self) -> frozenset[int]:
+        cmds = self.fields.get("commands")
+        return frozenset(cmds.values) if isinstance(cmds, IntArray) else frozenset()
+
+    def number(self, name: str, default: float) -> float:
+        value = self.fields.get(name)
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            return float(value)
+        return default
+
+    def text(self, name: str) -> str:
+        value = self.fields.get(name)
+        return value if isinstance(value, str) else ""
+
+
+@dataclass
+class Shared:
+    """State shared by the cases of one run (measurements, UDP index counter)."""
+
+    measurements: dict[str, dict[str, Any]] = field(default_factory=dict)
+    next_index: int = 1000
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def take_indices(self, n: int) -> int:
+        """``n`` fresh trigger indices, never used before in this run."""
+        with self.lock:
+            first = self.next_index
+            self.next_index += n + 16  # a gap, so no two cases look like one sequence
+            return first
+
+
+class Context:
+    """Handed to every case: endpoint, service, negotiated Hello, options, sockets."""
+
+    def __init__(
+        self,
+        service: str,
+        host: str,
+        port: int,
+        options: Options,
+        hello: Hello | None,
+        shared: Shared,
+    ) -> None:
+        self.service = service
+        self.host = host
+        self.port = port
+        self.options = options
+        self.hello = hello
+        self.shared = shared
+        self.log = WireLog()
+        self.details: dict[str, Any] = {}
+        self._conns: list[Conn | UdpConn] = []
+        self._lock = threading.Lock()
+
+    # --- time ----------------------------------------------------------------------------------
+
+    @property
+    def timeout(self) -> float:
+        """How long one answer may take (s), after --timeout-scale."""
+        return self.options.reply_timeout * self.options.timeout_scale
+
+    def scaled(self, seconds: float) -> float:
+        return seconds * self.options.timeout_scale
+
+    # --- capabilities --------------------------------------------------------------------------
+
+    @property
+    def advertised(self) -> frozenset[int]:
+        """Command IDs the endpoint offers: its Hello list, minus a capability file's exclusions."""
+        if self.hello is not None and self.hello.commands:
+            cmds = self.hello.commands
+        else:
+            cmds = frozenset(int(c.id) for c in commands_for(self.service))
+        return cmds - self.options.not_offered
+
+    def require(self, *commands: int) -> None:
+        """Raise NotApplicable unless every command is advertised."""
+        missing = [c for c in commands if c not in self.advertised]
+        if missing:
+            names = ", ".join(BY_ID[c].name if c in BY_ID else f"0x{c:04x}" for c in missing)
+            raise NotApplicable(f"the endpoint does not offer {names}")
+
+    def require_motion(self, what: str) -> None:
+        if not self.options.allow_motion:
+            raise Skip(f"{what}: moves the robot or switches an output; needs --allow-motion")
+
+    # --- sockets -------------------------------------------------------------------------------
+
+    def connect(self, hello: bool = False) -> Conn:
+        """A new logged TCP connection; optionally negotiate with Hello first [RS-5.9]."""
+        try:
+            sock = socket.create_connection((self.host, self.port), timeout=self.timeout)
+        except TimeoutError:
+            raise EndpointTimeout(f"connect to {self.host}:{self.port} timed out") from None
+        except OSError as exc:
+            raise EndpointGone(f"cannot connect to {self.host}:{self.port}: {exc}") from None
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        with self._lock:
+            number = len(self._conns) + 1
+            conn = Conn(sock, self.log, number, self.timeout)
+            self._conns.append(conn)
+        self.log.add("--", number, b"", f"connected to {self.host}:{self.port}")
+        if hello:
+            conn.ok(CommandId.HELLO, 1, 0, "conformance")
+        return conn
+
+    def udp(self) -> UdpConn:
+        """A new logged UDP socket aimed at the endpoint (the sensor's trigger listener)."""
+        family = socket.AF_INET6 if ":" in self.host else socket.AF_INET
+        sock = socket.socket(family, socket.SOCK_DGRAM)
+        sock.bind(("::" if family == socket.AF_INET6 else "0.0.0.0", 0))
+        with self._lock:
+            number = len(self._conns) + 1
+            conn = UdpConn(sock, (self.host, self.port), self.log, number)
+            self._conns.append(conn)
+        return conn
+
+    def take_control(self, conn: Conn) -> None:
+        answer = conn.call(CommandId.TAKE_CONTROL, self.options.token)
+        if answer.kind is PacketKind.ERROR:
+            code, message = answer.error or (0, "")
+            raise Skip(f"cannot take control of the endpoint (error {code}: {message})")
+
+    def probe(self) -> None:
+        """Liveness probe: a new connection answers Ping [RS-7.9]; raise Fail otherwise."""
+        payload = b"conformance-liveness"
+        deadline = time.monotonic() + self.timeout * 2
+        last = ""
+        # The endpoint may still be closing the previous connection: retry briefly.
+        while time.monotonic() < deadline:
+            try:
+                conn = self.connect()
+                try:
+                    reply = conn.ok(CommandId.PING, payload)
+                finally:
+                    conn.close()
+                if reply[:1] != (payload,):
+                    last = f"Ping echoed {reply[:1]!r}"
+                    break
+                return
+            except (EndpointGone, Closed) as exc:
+                last = str(exc)
+                time.sleep(0.05)
+            except EndpointTimeout as exc:
+                last = str(exc)
+                break
+        raise Fail(
+            "the endpoint no longer answers after the input (liveness probe)",
+            "a new connection whose Ping is echoed",
+            last,
+            requirement="RS-7.9",
+        )
+
+    def measure(self, name: str, **values: Any) -> None:
+        """Record a measurement (reported apart from verdicts)."""
+        with self.shared.lock:
+            self.shared.measurements[name] = values
+
+    def close_all(self) -> None:
+        with self._lock:
+            conns = list(self._conns)
+        for c in conns:
+            c.close()

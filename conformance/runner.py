@@ -1,0 +1,275 @@
+"""Select cases, negotiate with the endpoint, run each case in its time budget, judge it."""
+
+from __future__ import annotations
+
+import fnmatch
+import logging
+import socket
+import threading
+import time
+import traceback
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+from spec import wire
+from spec.registry import CommandId
+
+from conformance.connection import Closed, WireLog
+from conformance.context import HELLO_FIELDS, Context, Hello, Options, Shared
+from conformance.model import (
+    Case,
+    CaseResult,
+    EndpointGone,
+    EndpointTimeout,
+    Fail,
+    Informational,
+    NotApplicable,
+    Outcome,
+    Skip,
+    all_cases,
+)
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Selection:
+    """Which cases to run: profile, globs on case IDs, tags."""
+
+    profile: str = "core"
+    select: tuple[str, ...] = ()
+    exclude: tuple[str, ...] = ()
+    tags: tuple[str, ...] = ()
+    include: tuple[str, ...] = ()  # case IDs selected whatever the rest says (e.g. --fuzz)
+
+    def pick(self, cases: Iterable[Case], service: str) -> list[Case]:
+        out = []
+        for c in cases:
+            if not c.applies_to(service):
+                continue
+            if c.id in self.include:
+                out.append(c)
+                continue
+            if self.select:
+                if not any(fnmatch.fnmatchcase(c.id, g) for g in self.select):
+                    continue
+            elif self.profile not in c.profiles:
+                continue
+            if any(fnmatch.fnmatchcase(c.id, g) for g in self.exclude):
+                continue
+            if self.tags and not set(self.tags) & set(c.tags):
+                continue
+            out.append(c)
+        return out
+
+
+@dataclass
+class RunResult:
+    """Everything a report needs."""
+
+    service: str
+    endpoint: str
+    options: Options
+    profile: str
+    hello: Hello | None
+    reachable: bool
+    negotiation_error: str
+    results: list[CaseResult] = field(default_factory=list)
+    measurements: dict[str, dict[str, Any]] = field(default_factory=dict)
+    started: float = 0.0  # wall clock (s since the epoch)
+    duration: float = 0.0  # s
+    harness_errors: int = 0  # cases that ended in ERROR because of a harness fault
+
+
+def negotiate(service: str, host: str, port: int, options: Options) -> tuple[bool, Hello | None, str]:
+    """Connect and send Hello: (reachable, hello or None, error text)."""
+    if service == "sync":
+        return True, None, ""
+    timeout = options.reply_timeout * options.timeout_scale
+    try:
+        sock = socket.create_connection((host, port), timeout=timeout)
+    except OSError as exc:
+        return False, None, f"cannot connect to {host}:{port}: {exc}"
+    ctx = Context(service, host, port, options, None, Shared())
+    from conformance.connection import Conn
+
+    conn = Conn(sock, WireLog(), 1, timeout)
+    try:
+        params = conn.ok(CommandId.HELLO, wire.VERSION_MAJOR, wire.VERSION_MINOR, "conformance")
+    except (Fail, EndpointTimeout, EndpointGone, Closed) as exc:
+        return True, None, f"Hello failed: {exc}"
+    finally:
+        conn.close()
+        ctx.close_all()
+    return True, Hello(dict(zip(HELLO_FIELDS, params, strict=False))), ""
+
+
+def _judge(case: Case, exc: Fail) -> Outcome:
+    if case.level == "MUST":
+        return Outcome.FAIL
+    if case.level == "SHOULD":
+        return Outcome.NON_STRICT
+    return Outcome.INFORMATIONAL
+
+
+def run_case(case: Case, ctx: Context) -> CaseResult:
+    """Run one case in a worker thread, bounded by its budget."""
+    result = CaseResult(case, Outcome.ERROR)
+    budget = ctx.scaled(case.budget)
+    box: dict[str, Any] = {}
+
+    def work() -> None:
+        try:
+            box["note"] = case.fn(ctx)
+        except BaseException as exc:
+            box["exc"] = exc
+            box["tb"] = traceback.format_exc()
+
+    t0 = time.monotonic()
+    worker = threading.Thread(target=work, name=f"case-{case.id}", daemon=True)
+    worker.start()
+    worker.join(budget)
+    hung = worker.is_alive()
+    ctx.close_all()  # unblocks a hung worker: its socket calls fail and it ends
+    if hung:
+        worker.join(1.0)
+    result.duration = time.monotonic() - t0
+    exc = box.get("exc")
+    if hung:
+        result.outcome = Outcome.TIMEOUT
+        result.message = f"the case did not finish within its budget of {budget:.3g} s"
+    elif exc is None:
+        note = box.get("note")
+        result.outcome = Outcome.INFORMATIONAL if case.level == "INFO" else Outcome.PASS
+        result.message = note if isinstance(note, str) else ""
+    elif isinstance(exc, Fail):
+        result.outcome = _judge(case, exc)
+        req = f" [{exc.requirement}]" if exc.requirement else ""
+        result.message = exc.message + req
+        result.expected = exc.expected
+        result.actual = exc.actual
+    elif isinstance(exc, NotApplicable):
+        result.outcome, result.message = Outcome.NOT_APPLICABLE, str(exc)
+    elif isinstance(exc, Skip):
+        result.outcome, result.message = Outcome.SKIPPED, str(exc)
+    elif isinstance(exc, Informational):
+        result.outcome, result.message = Outcome.INFORMATIONAL, str(exc)
+    elif isinstance(exc, EndpointTimeout):
+        result.outcome, result.message = Outcome.TIMEOUT, str(exc)
+    elif isinstance(exc, EndpointGone | Closed):
+        result.outcome, result.message = Outcome.ERROR, f"endpoint: {exc}"
+        result.details["endpoint_error"] = True
+    else:
+        result.outcome = Outcome.ERROR
+        result.message = f"harness fault: {type(exc).__name__}: {exc}"
+        result.details["harness_error"] = True
+        result.details["traceback"] = box.get("tb", "")
+    result.wire = list(ctx.log.entries)
+    result.wire_truncated = ctx.log.dropped
+    result.details.update(ctx.details)
+    return result
+
+
+def alive(host: str, port: int, options: Options) -> tuple[Outcome, str]:
+    """(PASS, '') when the endpoint still answers Ping on a new connection, else the outcome
+    the remaining cases get (TIMEOUT when it hangs, ERROR when it refuses) and why."""
+    ctx = Context("robot", host, port, options, None, Shared())
+    try:
+        conn = ctx.connect()
+        conn.ok(CommandId.PING, b"alive")
+        return Outcome.PASS, ""
+    except EndpointTimeout as exc:
+        return Outcome.TIMEOUT, str(exc)
+    except (Fail, EndpointGone, Closed) as exc:
+        return Outcome.ERROR, str(exc) or type(exc).__name__
+    finally:
+        ctx.close_all()
+
+
+def run(
+    service: str,
+    host: str,
+    port: int,
+    options: Options,
+    selection: Selection,
+    expect: frozenset[str] = frozenset(),
+    progress: Callable[[CaseResult], None] | None = None,
+) -> RunResult:
+    """Negotiate, then run the selected cases in order; never raises for endpoint faults."""
+    started = time.time()
+    t0 = time.monotonic()
+    cases = selection.pick(all_cases(), service)
+    reachable, hello, why = negotiate(service, host, port, options)
+    run_result = RunResult(
+        service, f"{host}:{port}", options, selection.profile, hello, reachable, why
+    )
+    run_result.started = started
+    shared = Shared(next_index=1000 + (options.seed % 1000) * 1_000_000)
+    dead = "" if reachable else why
+    dead_outcome = Outcome.ERROR
+    for case in cases:
+        if dead:
+            result = CaseResult(case, dead_outcome, f"not run: endpoint {dead}")
+            result.details["endpoint_error"] = True
+        elif case.motion and not options.allow_motion:
+            result = CaseResult(
+                case, Outcome.SKIPPED, "moves the robot or switches an output: needs --allow-motion"
+            )
+        else:
+            ctx = Context(service, host, port, options, hello, shared)
+            missing = [c for c in case.commands if c not in ctx.advertised]
+            if missing:
+                names = ", ".join(f"0x{c:04x}" for c in missing)
+                result = CaseResult(case, Outcome.NOT_APPLICABLE, f"not offered: {names}")
+            else:
+                result = run_case(case, ctx)
+                if result.outcome in (Outcome.TIMEOUT, Outcome.ERROR) and service != "sync":
+                    # One dead endpoint must not cost every remaining case its full budget.
+                    dead_outcome, dead = alive(host, port, options)
+                    if dead:
+                        dead = f"stopped answering after {case.id} ({dead})"
+        if case.id in expect:
+            if result.outcome in (Outcome.FAIL, Outcome.NON_STRICT):
+                result.known_failure = True
+            elif result.outcome is Outcome.PASS:
+                result.unexpected_pass = True
+        if result.details.get("harness_error"):
+            run_result.harness_errors += 1
+        run_result.results.append(result)
+        if progress is not None:
+            progress(result)
+    run_result.measurements = shared.measurements
+    run_result.duration = time.monotonic() - t0
+    return run_result
+
+
+#: Exit codes of ``python -m conformance`` (documented in the README and ``--help``).
+EXIT_CONFORMANT = 0
+EXIT_MUST_FAILED = 1
+EXIT_SHOULD_FAILED = 2
+EXIT_USAGE = 3
+EXIT_UNREACHABLE = 4
+EXIT_NOTHING_SELECTED = 5
+
+
+def exit_code(run_result: RunResult, strict: bool = False) -> int:
+    """The process exit code for a run (see the table in :mod:`conformance.cli`)."""
+    results = run_result.results
+    if not results:
+        return EXIT_NOTHING_SELECTED
+    if not run_result.reachable:
+        return EXIT_UNREACHABLE
+    fresh = [r for r in results if not r.known_failure]
+    if any(r.outcome is Outcome.FAIL for r in fresh):
+        return EXIT_MUST_FAILED
+    if any(
+        r.outcome in (Outcome.ERROR, Outcome.TIMEOUT) and not r.details.get("harness_error")
+        for r in fresh
+    ):
+        return EXIT_UNREACHABLE
+    if run_result.harness_errors:
+        return EXIT_USAGE
+    if strict and any(r.outcome is Outcome.NON_STRICT for r in fresh):
+        return EXIT_SHOULD_FAILED
+    return EXIT_CONFORMANT
