@@ -240,17 +240,24 @@ class SeamDetector:
         half: int,
     ) -> FloatArray:
         """Thresholded light in rows ``rows ± half`` of chip ``columns`` (k,) of ``frame``."""
-        nrows = frame.shape[1]
+        ncols, nrows = frame.shape[0], frame.shape[1]
         local = columns - stripe.first_column
-        ok = (local >= 0) & (local < frame.shape[0]) & np.isfinite(rows)
+        ok = (local >= 0) & (local < ncols) & np.isfinite(rows)
         out = np.zeros(len(columns))
         if not ok.any():
             return out
-        r = np.rint(rows[ok]).astype(np.intp)
-        idx = r[:, None] + np.arange(-half, half + 1)[None, :]
+        every = bool(ok.all())
+        if not every:
+            local, rows = local[ok], rows[ok]
+        idx = np.rint(rows).astype(np.intp)[:, None] + np.arange(-half, half + 1)
         inside = (idx >= 0) & (idx < nrows)
-        vals = np.asarray(frame)[local[ok][:, None], np.clip(idx, 0, nrows - 1)]
-        vals = np.maximum(vals.astype(np.float64) - stripe.threshold, 0.0) * inside
+        np.clip(idx, 0, nrows - 1, out=idx)
+        vals = np.asarray(frame)[local[:, None], idx].astype(np.float64)
+        vals -= stripe.threshold
+        np.maximum(vals, 0.0, out=vals)
+        vals *= inside
+        if every:
+            return vals.sum(axis=1)
         out[ok] = vals.sum(axis=1)
         return out
 
@@ -274,10 +281,13 @@ class SeamDetector:
         if cols.size < cfg.min_valid_columns:
             return self._none(SeamStatus.NO_STRIPE, stripe)
         u = cols + first_column
-        pts = self.camera.pixel_to_sensor(u.astype(np.float64), stripe.rows[cols])
-        y, z = pts[:, 1], pts[:, 2]
+        y, z = self._profile(u, stripe.rows.take(cols))
         keep = _not_isolated_outliers(z, cfg.outlier_mm)
-        u, y, z, pts = u[keep], y[keep], z[keep], pts[keep]
+        if not keep.all():
+            u, y, z = u[keep], y[keep], z[keep]
+        pts = np.zeros((u.size, 3))
+        pts[:, 1] = y
+        pts[:, 2] = z
         if u.size < cfg.min_valid_columns:
             return self._none(SeamStatus.NO_STRIPE, stripe, pts, u)
         if cfg.joint is JointType.BUTT:
@@ -285,6 +295,43 @@ class SeamDetector:
         if cfg.joint is JointType.FILLET:
             return self._fillet(stripe, u, y, z, pts)
         return self._lap(a, stripe, u, y, z, pts)
+
+    def _profile(self, u: NDArray[np.intp], v: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """(y, z) in S (mm) of stripe rows v at chip columns u (sorted), the arithmetic of
+        :meth:`CameraGeometry.pixel_to_sensor` with k = (u - u0)/f looked up per column."""
+        if u[0] >= 0 and u[-1] < self._k.size:
+            k = self._k.take(u)
+        else:
+            k = (u.astype(np.float64) - self._u0) / self._f
+        t = (v - self._v0) / self._f
+        z = t * self._d
+        t *= self._cos
+        np.subtract(self._sin, t, out=t)
+        z /= t
+        y = z * self._cos
+        y += self._d
+        y *= k
+        return y, z
+
+    def _rows(self, u: FloatArray, a: FloatArray | float, b: FloatArray | float) -> FloatArray:
+        """Row v where chip column u (k,) meets the profile line z = a + b·y (scalars or
+        per-column (k,)): the arithmetic of :meth:`CameraGeometry.line_row`, rows only."""
+        s, c, d, f = self._sin, self._cos, self._d, self._f
+        k = (u - self._u0) / f
+        with np.errstate(divide="ignore", invalid="ignore"):
+            y = k * (d + a * c) / (1.0 - k * b * c)
+            z = a + b * y
+            return self._v0 + f * z * s / (d + z * c)
+
+    def _line_point(self, u: float, a: float, b: float) -> tuple[float, float]:
+        """(y, z) in S (mm) where chip column u meets the profile line z = a + b·y (NaN where
+        the column's ray runs parallel to the line)."""
+        k = (u - self._u0) / self._f
+        den = 1.0 - k * b * self._cos
+        if den == 0.0:
+            return math.nan, math.nan
+        y = k * (self._d + a * self._cos) / den
+        return y, a + b * y
 
     def _none(
         self,
@@ -306,23 +353,28 @@ class SeamDetector:
     def _found(
         self,
         stripe: StripeProfile,
-        point: FloatArray,
+        y: float,
+        z: float,
         slope: float,
         quality: float,
         pts: FloatArray,
         u: NDArray[np.intp],
     ) -> Detection:
-        t = np.eye(4)
+        """FOUND with the seam at (0, y, z) in S (mm), the plates' slope dz/dy; a seam
+        that is not finite (a degenerate fit) is no feature."""
+        zc = self._d + z * self._cos  # camera depth of the seam point, see project()
+        if not (math.isfinite(y) and math.isfinite(z) and math.isfinite(slope) and zc != 0.0):
+            return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         norm = math.hypot(1.0, slope)
-        t[:3, 1] = (0.0, 1.0 / norm, slope / norm)
-        t[:3, 2] = (0.0, -slope / norm, 1.0 / norm)
-        t[:3, 3] = point
-        column = float(self.camera.project(np.asarray(point, dtype=np.float64))[0])
+        cy, sy = 1.0 / norm, slope / norm
+        t = np.array(
+            [[1.0, 0.0, 0.0, 0.0], [0.0, cy, -sy, y], [0.0, sy, cy, z], [0.0, 0.0, 0.0, 1.0]]
+        )
         return Detection(
             status=SeamStatus.FOUND,
             seam2sensor=t,
             quality=float(min(max(quality, 0.0), 1.0)),
-            column=column,
+            column=self._u0 + self._f * y / zc,
             points=pts,
             point_columns=u,
             stripe=stripe,
@@ -349,11 +401,14 @@ class SeamDetector:
         widths = y[holes + 1] - y[holes]
         sides_ok = (holes + 1 >= cfg.min_side_points) & (u.size - holes - 1 >= cfg.min_side_points)
         cand = (widths >= cfg.min_gap_mm) & (widths <= cfg.max_gap_mm) & sides_ok
-        if not cand.any():
+        found = np.flatnonzero(cand).tolist()
+        if not found:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
-        order = np.argsort(np.where(cand, widths, -1.0))[::-1]
-        best = int(order[0])
-        if order.size > 1 and cand[order[1]] and widths[order[1]] >= 0.6 * widths[best]:
+        # widest candidate (the last of equal widths); a second one at least 0.6 as wide
+        # makes the seam ambiguous
+        w_list = widths.tolist()
+        best = max(found, key=lambda j: (w_list[j], j))
+        if any(j != best and w_list[j] >= 0.6 * w_list[best] for j in found):
             return self._none(SeamStatus.AMBIGUOUS, stripe, pts, u)
         i = int(holes[best])
         left = _robust_line(y[: i + 1], z[: i + 1])
@@ -361,7 +416,7 @@ class SeamDetector:
         if left is None or right is None:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         angle = abs(math.degrees(math.atan(left.b) - math.atan(right.b)))
-        yc = 0.5 * (y[i] + y[i + 1])
+        yc = 0.5 * (float(y[i]) + float(y[i + 1]))
         mismatch = abs((left.a + left.b * yc) - (right.a + right.b * yc))
         rms = max(left.rms, right.rms)
         if (
@@ -370,16 +425,13 @@ class SeamDetector:
             or rms > cfg.max_rms_mm
         ):
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
-        u_left, u_right = int(u[i]), int(u[i + 1])
         # sub-column edges: light in the edge columns relative to the plate's full columns
-        edge_l = self._coverage(frame, stripe, u_left, u_right, left, side=-1)
-        edge_r = self._coverage(frame, stripe, u_left, u_right, right, side=+1)
-        p_l = self.camera.line_row(np.array(edge_l), left.a, left.b)[1]
-        p_r = self.camera.line_row(np.array(edge_r), right.a, right.b)[1]
-        point = 0.5 * (p_l + p_r)
+        edge_l, edge_r = self._coverage(frame, stripe, int(u[i]), int(u[i + 1]), left, right)
+        y_l, z_l = self._line_point(edge_l, left.a, left.b)
+        y_r, z_r = self._line_point(edge_r, right.a, right.b)
         slope = math.tan(0.5 * (math.atan(left.b) + math.atan(right.b)))
         q = self._quality(left.n + right.n, stripe.rows.size, rms, 1.0)
-        return self._found(stripe, point, slope, q, pts, u)
+        return self._found(stripe, 0.5 * (y_l + y_r), 0.5 * (z_l + z_r), slope, q, pts, u)
 
     def _coverage(
         self,
@@ -387,36 +439,37 @@ class SeamDetector:
         stripe: StripeProfile,
         u_left: int,
         u_right: int,
-        line: _Line,
-        side: int,
-    ) -> float:
-        """Fractional chip column of a plate edge next to a gap (u_left, u_right).
+        left: _Line,
+        right: _Line,
+    ) -> tuple[float, float]:
+        """Fractional chip columns of both plate edges next to a gap (u_left, u_right).
 
-        The plate ending at u_left (side -1) or starting at u_right (side +1) covers the
-        columns beyond the gap fully; the columns next to the gap carry light in proportion
-        to the part of their width the plate covers.
+        The plate ending at u_left (line ``left``) or starting at u_right (``right``)
+        covers the columns beyond the gap fully; the columns next to the gap carry light in
+        proportion to the part of their width the plate covers. One gather for both sides.
         """
-        h = self.config.half_window
-        if side < 0:
-            ref_cols = np.arange(u_left - 10, u_left - 1)
-            edge_cols = (
-                np.array([u_left, u_left + 1]) if u_left + 1 < u_right else np.array([u_left])
-            )
-        else:
-            ref_cols = np.arange(u_right + 2, u_right + 11)
-            edge_cols = (
-                np.array([u_right, u_right - 1]) if u_right - 1 > u_left else np.array([u_right])
-            )
-        all_cols = np.concatenate([ref_cols, edge_cols])
-        rows = self.camera.line_row(all_cols.astype(np.float64), line.a, line.b)[0]
-        m = self.mass_at(frame, stripe, all_cols, rows, h)
-        ref = _median(m[: ref_cols.size]) if ref_cols.size else 0.0
-        if ref <= 0:
-            return float(edge_cols[0]) + 0.5 * side
-        cover = float(np.clip(m[ref_cols.size :] / ref, 0.0, 1.0).sum())
-        if side < 0:
-            return float(u_left) - 0.5 + cover
-        return float(u_right) + 0.5 - cover
+        n_ref = 9
+        edge_l = [u_left, u_left + 1] if u_left + 1 < u_right else [u_left]
+        edge_r = [u_right, u_right - 1] if u_right - 1 > u_left else [u_right]
+        cols_l = list(range(u_left - 10, u_left - 1)) + edge_l
+        cols_r = list(range(u_right + 2, u_right + 11)) + edge_r
+        n_l = len(cols_l)
+        cols = np.array(cols_l + cols_r)
+        a = np.full(cols.size, right.a)
+        a[:n_l] = left.a
+        b = np.full(cols.size, right.b)
+        b[:n_l] = left.b
+        rows = self._rows(cols.astype(np.float64), a, b)
+        m = self.mass_at(frame, stripe, cols, rows, self.config.half_window).tolist()
+        out = []
+        for side, masses, edge in ((-1, m[:n_l], edge_l), (1, m[n_l:], edge_r)):
+            ref = sorted(masses[:n_ref])[n_ref // 2]
+            if ref <= 0:
+                out.append(edge[0] + 0.5 * side)
+                continue
+            cover = sum(min(max(x / ref, 0.0), 1.0) for x in masses[n_ref:])
+            out.append(edge[0] - 0.5 + cover if side < 0 else edge[0] + 0.5 - cover)
+        return out[0], out[1]
 
     def _fillet(
         self,
@@ -428,8 +481,9 @@ class SeamDetector:
     ) -> Detection:
         cfg = self.config
         # split where the profile is farthest from its chord, then refine at the corner
-        dy, dz = y[-1] - y[0], z[-1] - z[0]
-        dist = np.abs(dy * (z - z[0]) - dz * (y - y[0]))
+        y0, z0 = float(y[0]), float(z[0])
+        dy, dz = float(y[-1]) - y0, float(z[-1]) - z0
+        dist = np.abs(dy * (z - z0) - dz * (y - y0))
         y_split = float(y[int(np.argmax(dist))])
         left = right = None
         for _ in range(2):
@@ -446,23 +500,22 @@ class SeamDetector:
         angle = abs(math.degrees(math.atan(left.b) - math.atan(right.b)))
         rms = max(left.rms, right.rms)
         z_c = left.a + left.b * y_split
-        gap_to_data = float(np.min(np.hypot(y - y_split, z - z_c)))
         if (
             angle < cfg.min_corner_angle_deg
             or rms > cfg.max_rms_mm
-            or gap_to_data > cfg.max_extrapolation_mm
-            or not (y[0] < y_split < y[-1])
+            or not (y0 < y_split < float(y[-1]))
         ):
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
+        gap_to_data = float(np.hypot(y - y_split, z - z_c).min())
+        if gap_to_data > cfg.max_extrapolation_mm:
+            return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         # the corner's normal bisects the plates' directions
-        d_l = np.array([1.0, left.b]) / math.hypot(1.0, left.b)
-        d_r = np.array([1.0, right.b]) / math.hypot(1.0, right.b)
-        d = d_l + d_r
-        slope = float(d[1] / d[0])
+        n_l, n_r = math.hypot(1.0, left.b), math.hypot(1.0, right.b)
+        slope = (left.b / n_l + right.b / n_r) / (1.0 / n_l + 1.0 / n_r)
         q = self._quality(
             left.n + right.n, stripe.rows.size, rms, angle / (2.0 * cfg.min_corner_angle_deg)
         )
-        return self._found(stripe, np.array([0.0, y_split, z_c]), slope, q, pts, u)
+        return self._found(stripe, y_split, z_c, slope, q, pts, u)
 
     def _lap(
         self,
@@ -479,9 +532,11 @@ class SeamDetector:
         step = float(jumps[i])
         if step < cfg.min_step_mm:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
-        others = np.delete(jumps, i)
-        if others.size and float(others.max()) >= max(cfg.min_step_mm, 0.5 * step):
-            return self._none(SeamStatus.AMBIGUOUS, stripe, pts, u)
+        # the largest of the other jumps is the second largest of all
+        if jumps.size > 1:
+            second = float(np.partition(jumps, jumps.size - 2)[-2])
+            if second >= max(cfg.min_step_mm, 0.5 * step):
+                return self._none(SeamStatus.AMBIGUOUS, stripe, pts, u)
         if i + 1 < cfg.min_side_points or u.size - i - 1 < cfg.min_side_points:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         # the two columns next to the step may mix both levels: fit without them
@@ -493,7 +548,7 @@ class SeamDetector:
         angle = abs(math.degrees(math.atan(left.b) - math.atan(right.b)))
         if rms > cfg.max_rms_mm or angle > cfg.max_plate_angle_deg:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
-        y_e = 0.5 * (y[i] + y[i + 1])
+        y_e = 0.5 * (float(y[i]) + float(y[i + 1]))
         upper_left = (left.a + left.b * y_e) < (right.a + right.b * y_e)
         upper, lower = (left, right) if upper_left else (right, left)
         # The upper plate's edge is lit and seen (its light ends there; the lower plate near
@@ -501,29 +556,33 @@ class SeamDetector:
         # columns around the step, each relative to a full upper-plate column, then drop
         # from the edge perpendicular to the plates onto the lower plate: the inside corner.
         u_a, u_b = int(u[i]), int(u[i + 1])
-        cols = np.arange(u_a - 1, u_b + 2)
-        ref_idx = (
-            np.arange(max(i - 10, 0), i - 1)
-            if upper_left
-            else np.arange(i + 3, min(i + 12, u.size))
-        )
-        all_cols = np.concatenate([cols, u[ref_idx]])
-        r_up = self.camera.line_row(all_cols.astype(np.float64), upper.a, upper.b)[0]
-        r_lo = self.camera.line_row(cols.astype(np.float64), lower.a, lower.b)[0]
-        sep = float(np.nanmin(np.abs(r_up[: cols.size] - r_lo)))
+        n_cols = u_b - u_a + 3
+        ref_cols = u[max(i - 10, 0) : i - 1] if upper_left else u[i + 3 : min(i + 12, u.size)]
+        all_cols = np.concatenate([np.arange(u_a - 1, u_b + 2), ref_cols])
+        # rows of the upper line at all columns, of the lower line at the step's columns
+        uc = np.concatenate([all_cols, all_cols[:n_cols]]).astype(np.float64)
+        a = np.full(uc.size, lower.a)
+        a[: all_cols.size] = upper.a
+        b = np.full(uc.size, lower.b)
+        b[: all_cols.size] = upper.b
+        rows = self._rows(uc, a, b)
+        r_up = rows[: all_cols.size]
+        sep = float(np.fmin.reduce(np.abs(r_up[:n_cols] - rows[all_cols.size :])))
+        if not math.isfinite(sep):
+            return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         half = int(max(1, min(cfg.half_window, math.floor(sep / 2.0 - 0.5))))
         m_up = self.mass_at(frame, stripe, all_cols, r_up, half)
-        ref = _median(m_up[cols.size :]) if ref_idx.size else 0.0
+        ref = _median(m_up[n_cols:]) if ref_cols.size else 0.0
         if ref <= 0.0:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
-        cover = float(np.clip(m_up[: cols.size] / ref, 0.0, 1.0).sum())
-        u_edge = (cols[0] - 0.5 + cover) if upper_left else (cols[-1] + 0.5 - cover)
-        edge = self.camera.line_row(np.array(u_edge), upper.a, upper.b)[1]
-        d = np.array([1.0, lower.b]) / math.hypot(1.0, lower.b)
-        t = edge[1] * d[0] + (edge[2] - lower.a) * d[1]
-        point = np.array([0.0, t * d[0], lower.a + t * d[1]])
+        cover = float(np.clip(m_up[:n_cols] / ref, 0.0, 1.0).sum())
+        u_edge = (u_a - 1.5 + cover) if upper_left else (u_b + 1.5 - cover)
+        e_y, e_z = self._line_point(u_edge, upper.a, upper.b)
+        n_lo = math.hypot(1.0, lower.b)
+        d_y, d_z = 1.0 / n_lo, lower.b / n_lo
+        t = e_y * d_y + (e_z - lower.a) * d_z
         q = self._quality(left.n + right.n, stripe.rows.size, rms, step / (2.0 * cfg.min_step_mm))
-        return self._found(stripe, point, lower.b, q, pts, u)
+        return self._found(stripe, t * d_y, lower.a + t * d_z, lower.b, q, pts, u)
 
 
 def _to_dn(a: NDArray[np.generic]) -> NDArray[np.float32]:
@@ -559,30 +618,40 @@ def _not_isolated_outliers(z: FloatArray, tol: float) -> NDArray[np.bool_]:
 
 
 def _robust_line(y: FloatArray, z: FloatArray, iterations: int = 2) -> _Line | None:
-    """Least-squares line z = a + b·y, refitted without points beyond 3.5 robust sigma."""
+    """Least-squares line z = a + b·y, refitted without points beyond 3.5 robust sigma.
+
+    Each fit is one moment product (3, 3) of the kept rows of [1, y, z], centred on the end
+    points' midpoint so that the closed-form sums lose no precision.
+    """
     n_all = y.size
     if n_all < 3:
         return None
-    yy, zz = y, z
+    cy = 0.5 * (float(y[0]) + float(y[-1]))
+    cz = 0.5 * (float(z[0]) + float(z[-1]))
+    q = np.empty((n_all, 3))
+    q[:, 0] = 1.0
+    np.subtract(y, cy, out=q[:, 1])
+    np.subtract(z, cz, out=q[:, 2])
+    qk = q
+    keep: NDArray[np.bool_] | None = None
     a = b = rms = 0.0
     n = n_all
     for it in range(iterations + 1):
-        n = yy.size
+        n = qk.shape[0]
         if n < 3:
             return None
-        my = float(yy.sum()) / n
-        mz = float(zz.sum()) / n
-        dy = yy - my
-        syy = float(dy @ dy)
-        if syy <= 1e-12:
+        (_, sy, sz), (_, syy, syz), (_, _, szz) = (qk.T @ qk).tolist()
+        my, mz = sy / n, sz / n
+        syy_c = syy - sy * my
+        if syy_c <= 1e-12 or syy_c <= 1e-10 * syy:
             return None
-        b = float(dy @ (zz - mz)) / syy
+        syz_c = syz - sy * mz
+        b = syz_c / syy_c
         a = mz - b * my
-        res = zz - (a + b * yy)
-        rms = math.sqrt(float(res @ res) / n)
+        rms = math.sqrt(max(szz - sz * mz - b * syz_c, 0.0) / n)
         if it < iterations:
-            all_res = np.abs(z - (a + b * y))
-            sigma = 1.4826 * _median(np.abs(res))
-            keep = all_res <= max(3.5 * sigma, 0.01)
-            yy, zz = y[keep], z[keep]
-    return _Line(a=a, b=b, rms=rms, n=n)
+            res = np.abs(q @ np.array([-a, -b, 1.0]))
+            sigma = 1.4826 * _median(res if keep is None else res[keep])
+            keep = res <= max(3.5 * sigma, 0.01)
+            qk = q[keep]
+    return _Line(a=a + cz - b * cy, b=b, rms=rms, n=n)
