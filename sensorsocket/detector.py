@@ -256,9 +256,10 @@ class SeamDetector:
         vals -= stripe.threshold
         np.maximum(vals, 0.0, out=vals)
         vals *= inside
+        sums: FloatArray = vals.sum(axis=1)
         if every:
-            return vals.sum(axis=1)
-        out[ok] = vals.sum(axis=1)
+            return sums
+        out[ok] = sums
         return out
 
     # -- stage 2 and 3 ---------------------------------------------------------------------
