@@ -1,0 +1,486 @@
+"""The ΔT experiment of section VI through the public protocol (any conforming robot + sensor).
+
+The sensor is moved in a sine of amplitude A and frequency f along y of its own frame S,
+perpendicular to a straight seam that the user has put in the middle of the field of view,
+starting from the current pose. Through the protocol only:
+
+1. Hello (the robot's model, for the DGM), TakeControl, the sensor's trigger endpoint
+   (GetTriggerEndpoint) given to the robot (SetSensorEndpoint), the sensor tool ^N_S T
+   (GetSyncConfig), EnablePower, the start pose Here(^N_S T, world);
+2. StartTriggers at ``trigger_rate_hz``, then ToolMoveTrajectory with the sensor tool: rest,
+   a sine with raised-cosine ramps in and out, rest (sampled every 4 ms);
+3. while the arm moves (WaitEndMove in chunks): GetJointLog and GetSeamPoints.
+
+y^R(t_k^R) is the sensor origin's displacement along y of the start frame S0, from the
+logged joints through DGM(q) · ^N_S T (eq. 2-3); y^S(t_i^T) is the seam's y in S (column
+``sy`` of GetSeamPoints) relative to its value at rest, negated (the seam moves the other way
+in S), stamped with t_i^T. :func:`sync.delay.estimate_delay` gives ΔT (eq. 6-7 + parabola) and
+:func:`sync.delay.residual_after_sync` the residual with and without it (Fig. 9).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from kinematics.robot import get_model
+from kinematics.transforms import location_to_transform
+from spec.client import FramedClient
+from spec.params import FloatArray, IntArray, Location, Matrix, Value
+from spec.registry import SEAM_POINT_COLUMNS, CommandId
+from sync.delay import DelayEstimate, ResidualReport, estimate_delay, residual_after_sync
+
+__all__ = [
+    "DEFAULT_SWEEP_HZ",
+    "DelayResult",
+    "ExperimentData",
+    "ExperimentError",
+    "ExperimentSettings",
+    "analyse",
+    "record_sine",
+    "run_delay_experiment",
+    "run_sweep",
+    "sine_path",
+    "write_json",
+    "write_plots",
+]
+
+F64 = NDArray[np.float64]
+Progress = Callable[[float, str], None]
+
+#: Frequencies of the sweep (Fig. 8), Hz.
+DEFAULT_SWEEP_HZ = (0.1, 0.2, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 7.0, 10.0)
+_SY = SEAM_POINT_COLUMNS.index("sy")
+_TT = SEAM_POINT_COLUMNS.index("t_trigger")
+_IDX = SEAM_POINT_COLUMNS.index("index")
+_IDENTITY = Location(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+class ExperimentError(RuntimeError):
+    """The experiment cannot run or gave too little data (message says why)."""
+
+
+@dataclass(frozen=True)
+class ExperimentSettings:
+    """The sine motion (mm, Hz, s), triggering and estimation settings.
+
+    ``duration_s`` is the length of the sine including its ramps (raised cosine,
+    ``ramp_s``, default one period clipped to 0.25..1 s); ``rest_s`` of stillness before and
+    after. ``search_*_s`` bound the ΔT search. ``model`` overrides the robot's model name.
+    ``apply`` sets the robot's ΔT to the estimate afterwards (SetSyncDelay).
+    """
+
+    frequency_hz: float = 1.5
+    amplitude_mm: float = 2.0
+    duration_s: float = 10.0
+    trigger_rate_hz: float = 250.0
+    ramp_s: float | None = None
+    rest_s: float = 0.2
+    search_min_s: float = 0.0
+    search_max_s: float = 20e-3
+    model: str | None = None
+    apply: bool = False
+    token: str = ""
+    chunk_s: float = 1.0
+    sample_period_s: float = 0.004
+
+    def __post_init__(self) -> None:
+        checks = (
+            ("frequency_hz", 0.0 < self.frequency_hz <= 50.0),
+            ("amplitude_mm", 0.0 < self.amplitude_mm <= 20.0),
+            ("duration_s", 0.0 < self.duration_s <= 600.0),
+            ("trigger_rate_hz", 0.0 < self.trigger_rate_hz <= 1000.0),
+            ("rest_s", 0.0 <= self.rest_s <= 10.0),
+            ("search range", self.search_min_s < self.search_max_s),
+        )
+        for name, ok in checks:
+            if not ok:
+                raise ExperimentError(f"{name} out of range")
+
+    @property
+    def ramp(self) -> float:
+        if self.ramp_s is not None:
+            return min(self.ramp_s, self.duration_s / 2)
+        return min(max(0.25, 1.0 / self.frequency_hz), 1.0, self.duration_s / 2)
+
+    @property
+    def total_s(self) -> float:
+        return self.duration_s + 2 * self.rest_s
+
+
+def sine_path(s: ExperimentSettings) -> tuple[F64, F64]:
+    """The commanded lateral displacement: times (N,) s on the 4 ms grid from 0, y (N,) mm."""
+    n = math.ceil(s.total_s / s.sample_period_s - 1e-9)
+    t = np.arange(n + 1) * s.sample_period_s
+    tau = t - s.rest_s
+    inside = (tau >= 0) & (tau <= s.duration_s)
+    r = s.ramp
+    w = np.clip(np.minimum(tau, s.duration_s - tau) / r, 0.0, 1.0)
+    w = 0.5 - 0.5 * np.cos(np.pi * w)
+    y: F64 = np.where(inside, s.amplitude_mm * w * np.sin(2 * np.pi * s.frequency_hz * tau), 0.0)
+    return t.astype(np.float64), y
+
+
+@dataclass(frozen=True)
+class ExperimentData:
+    """Recorded signals: robot (K,) times s and y^R mm; sensor (I,) t_i^T s and y^S mm."""
+
+    t_robot: F64
+    y_robot: F64
+    t_trigger: F64
+    y_sensor: F64
+    t_start: float
+    model: str
+    statistics: dict[str, int] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class DelayResult:
+    """One experiment: the settings, the data, the estimate and the residuals."""
+
+    settings: ExperimentSettings
+    data: ExperimentData
+    estimate: DelayEstimate
+    residual: ResidualReport
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def delta_t_ms(self) -> float:
+        return self.estimate.delta_t_s * 1e3
+
+    def summary(self) -> dict[str, Any]:
+        """Scalars only (the sweep table)."""
+        syn, uns = self.residual.synced, self.residual.unsynced
+        out: dict[str, Any] = {
+            "frequency_hz": self.settings.frequency_hz,
+            "amplitude_mm": self.settings.amplitude_mm,
+            "duration_s": self.settings.duration_s,
+            "delta_t_ms": self.delta_t_ms,
+            "at_edge": self.estimate.at_edge,
+            "residual_max_um": syn.max_um,
+            "residual_rms_um": syn.rms_um,
+            "residual_sine_amplitude_um": syn.sine_amplitude_um,
+            "unsynced_max_um": uns.max_um,
+            "unsynced_rms_um": uns.rms_um,
+            "unsynced_sine_amplitude_um": uns.sine_amplitude_um,
+            "n_robot": int(self.data.t_robot.size),
+            "n_sensor": int(self.data.t_trigger.size),
+        }
+        out.update(self.extra)
+        return out
+
+    def to_json(self) -> dict[str, Any]:
+        out = self.summary()
+        out["model"] = self.data.model
+        out["statistics"] = self.data.statistics
+        out["mse_curve"] = {
+            "delta_t_ms": (self.estimate.shifts_s * 1e3).round(4).tolist(),
+            "mse_um2": (self.estimate.mse * 1e6).tolist(),
+        }
+        return out
+
+
+def _f(v: Value) -> float:
+    assert isinstance(v, float)
+    return v
+
+
+def _matrix(v: Value) -> F64:
+    assert isinstance(v, Matrix)
+    return np.array(v.values, dtype=np.float64).reshape(v.rows, v.cols)
+
+
+def _endpoint(sensor: FramedClient) -> tuple[str, int]:
+    host, port = sensor.call(CommandId.GET_TRIGGER_ENDPOINT)
+    assert isinstance(host, str) and isinstance(port, int)
+    if port == 0:
+        raise ExperimentError("the sensor reports no UDP trigger endpoint")
+    if host in ("", "0.0.0.0", "::"):
+        host = sensor.host
+    return host, port
+
+
+def record_sine(
+    robot: FramedClient,
+    sensor: FramedClient | None,
+    settings: ExperimentSettings,
+    progress: Progress | None = None,
+) -> ExperimentData:
+    """Run the sine motion with triggering and collect y^R and y^S (see module docstring).
+
+    ``sensor`` is used only to ask for its trigger endpoint; with ``None`` the robot must
+    already know it (SetSensorEndpoint).
+    """
+    s = settings
+    info = robot.hello()
+    model_name = s.model or str(info.get("model", ""))
+    try:
+        model = get_model(model_name)
+    except Exception as exc:  # unknown name: say which and how to override
+        raise ExperimentError(f"no kinematic model {model_name!r}: use --model") from exc
+    commands = info.get("commands")
+    if isinstance(commands, IntArray):
+        needed = (CommandId.TOOL_MOVE_TRAJECTORY, CommandId.START_TRIGGERS)
+        missing = [c.name for c in needed if int(c) not in commands.values]
+        if missing:
+            raise ExperimentError(f"the robot does not implement {', '.join(missing)}")
+    robot.take_control(s.token)
+    if sensor is not None:
+        sensor.hello()
+        host, port = _endpoint(sensor)
+        robot.call(CommandId.SET_SENSOR_ENDPOINT, host, port)
+    config = robot.call(CommandId.GET_SYNC_CONFIG)
+    if not config[1]:
+        raise ExperimentError("the robot has no sensor endpoint: give --sensor")
+    tool = config[3]
+    assert isinstance(tool, Location)
+    status = robot.call(CommandId.ROBOT_STATUS)
+    if not status[0]:
+        robot.call(CommandId.ENABLE_POWER)
+    if status[2]:
+        robot.call(CommandId.WAIT_END_MOVE, 30.0, timeout=35.0)
+    (loc0,) = robot.call(CommandId.HERE, tool, _IDENTITY)
+    assert isinstance(loc0, Location)
+    times, y = sine_path(s)
+    locs = np.zeros((times.size, 6))
+    locs[:, 1] = y
+    t_start = _f(robot.get_time())
+    log_since = t_start - 0.1
+    count = math.ceil((s.total_s + 0.1) * s.trigger_rate_hz)
+    (first,) = robot.call(CommandId.START_TRIGGERS, float(s.trigger_rate_hz), count)
+    assert isinstance(first, int)
+    try:
+        robot.call(
+            CommandId.TOOL_MOVE_TRAJECTORY,
+            FloatArray(times.tolist()),
+            Matrix(times.size, 6, locs.ravel().tolist()),
+            tool,
+            loc0,
+        )
+        logs: list[F64] = []
+        points: list[F64] = []
+        since_index = first - 1
+        done = False
+        while True:
+            if not done:
+                (d,) = robot.call(
+                    CommandId.WAIT_END_MOVE, float(s.chunk_s), timeout=s.chunk_s + 10.0
+                )
+                done = bool(d)
+            (log,) = robot.call(CommandId.GET_JOINT_LOG, float(log_since))[:1]
+            rows = _matrix(log)
+            if rows.size:
+                logs.append(rows)
+                log_since = float(rows[-1, 0])
+            while True:
+                (pts,) = robot.call(CommandId.GET_SEAM_POINTS, since_index)
+                prow = _matrix(pts)
+                if not prow.size:
+                    break
+                points.append(prow)
+                since_index = int(prow[-1, _IDX])
+            now = _f(robot.get_time())
+            if progress is not None:
+                frac = min(1.0, (now - t_start) / s.total_s)
+                progress(frac, f"{now - t_start:6.2f} s of {s.total_s:.2f} s")
+            if done:
+                break
+    finally:
+        robot.call(CommandId.STOP_TRIGGERS)
+    stats_values = robot.call(CommandId.GET_SYNC_STATISTICS)
+    names = ("sent", "received", "matched", "lost", "late", "duplicate", "reordered",
+             "unknown", "expired", "malformed", "pending")  # fmt: skip
+    stats = {k: int(v) for k, v in zip(names, stats_values, strict=False) if isinstance(v, int)}
+    if not logs or not points:
+        raise ExperimentError(
+            f"no data: {sum(len(x) for x in logs)} joint samples, "
+            f"{sum(len(x) for x in points)} seam points (is the seam in view?)"
+        )
+    jl = np.vstack(logs)
+    pt = np.vstack(points)
+    s0 = location_to_transform(np.array(loc0.as_tuple()))
+    s2f = location_to_transform(np.array(tool.as_tuple()))
+    poses = model.flange2base_batch(jl[:, 1:7]) @ s2f
+    # y of the sensor origin in the start frame S0: (R0^T (p - p0))_y
+    y_r = (poses[:, :3, 3] - s0[:3, 3]) @ s0[:3, 1]
+    t_t = pt[:, _TT]
+    sy = pt[:, _SY]
+    rest = t_t < t_start + 0.8 * s.rest_s
+    sy_ref = float(np.median(sy[rest])) if np.count_nonzero(rest) >= 5 else float(np.mean(sy))
+    order = np.argsort(t_t, kind="stable")
+    return ExperimentData(
+        t_robot=jl[:, 0],
+        y_robot=y_r,
+        t_trigger=t_t[order],
+        y_sensor=(sy_ref - sy)[order],
+        t_start=t_start,
+        model=model.name,
+        statistics=stats,
+    )
+
+
+def analyse(
+    data: ExperimentData, settings: ExperimentSettings, *, require_interior: bool = True
+) -> DelayResult:
+    """Estimate ΔT (eq. 6-7) and the residual with and without it."""
+    s = settings
+    t_r, y_r = data.t_robot, data.y_robot
+    keep = (data.t_trigger >= t_r[0] - s.search_min_s) & (
+        data.t_trigger <= t_r[-1] - s.search_max_s
+    )
+    t_t, y_s = data.t_trigger[keep], data.y_sensor[keep]
+    if t_t.size < 10:
+        raise ExperimentError(f"only {t_t.size} sensor readings overlap the joint log")
+    est = estimate_delay(
+        t_r,
+        y_r,
+        t_t,
+        y_s,
+        search_min_s=s.search_min_s,
+        search_max_s=s.search_max_s,
+        require_interior=require_interior,
+    )
+    res = residual_after_sync(t_r, y_r, t_t, y_s, est.delta_t_s, frequency_hz=s.frequency_hz)
+    return DelayResult(s, data, est, res)
+
+
+def run_delay_experiment(
+    robot: tuple[str, int],
+    sensor: tuple[str, int] | None,
+    settings: ExperimentSettings,
+    *,
+    progress: Progress | None = None,
+    timeout: float = 30.0,
+    require_interior: bool = True,
+) -> DelayResult:
+    """Connect, record the sine, analyse; optionally apply the estimate (SetSyncDelay)."""
+    with FramedClient(*robot, timeout=timeout, client_name="sync-delay") as rc:
+        if sensor is not None:
+            with FramedClient(*sensor, timeout=timeout, client_name="sync-delay") as sc:
+                data = record_sine(rc, sc, settings, progress)
+        else:
+            data = record_sine(rc, None, settings, progress)
+        result = analyse(data, settings, require_interior=require_interior)
+        if settings.apply:
+            rc.call(CommandId.SET_SYNC_DELAY, float(result.estimate.delta_t_s))
+        rc.release_control()
+    return result
+
+
+def run_sweep(
+    robot: tuple[str, int],
+    sensor: tuple[str, int] | None,
+    settings: ExperimentSettings,
+    frequencies: Sequence[float] = DEFAULT_SWEEP_HZ,
+    *,
+    progress: Progress | None = None,
+) -> list[DelayResult]:
+    """Fig. 8: the experiment at each frequency (at least two periods each)."""
+    out = []
+    for n, f in enumerate(frequencies):
+        s = ExperimentSettings(
+            **{
+                **settings.__dict__,
+                "frequency_hz": float(f),
+                "duration_s": max(settings.duration_s, 2.0 / f),
+                "ramp_s": None,
+            }
+        )
+
+        def step(frac: float, msg: str, n: int = n, f: float = f) -> None:
+            if progress is not None:
+                progress((n + frac) / len(frequencies), f"{f:g} Hz: {msg}")
+
+        out.append(run_delay_experiment(robot, sensor, s, progress=step, require_interior=False))
+    return out
+
+
+def write_json(path: str | Path, obj: Any) -> None:
+    """Write ``obj`` as JSON atomically (temporary file in the same directory, rename)."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=p.name + ".", suffix=".tmp", dir=p.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            json.dump(obj, fh, indent=1, allow_nan=True)
+            fh.write("\n")
+        os.replace(tmp, p)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+class PlotUnavailableError(ExperimentError):
+    """matplotlib is not installed."""
+
+
+def write_plots(
+    directory: str | Path, result: DelayResult | None, sweep: Sequence[DelayResult] = ()
+) -> list[Path]:
+    """The paper's figures 6-9 as PNG under ``directory``; returns the files written."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise PlotUnavailableError(
+            "plots need matplotlib: pip install matplotlib (or the 'plot' extra)"
+        ) from None
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    files: list[Path] = []
+
+    def save(fig: Any, name: str) -> None:
+        path = d / name
+        fig.tight_layout()
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        files.append(path)
+
+    if result is not None:
+        data, t0 = result.data, result.data.t_start
+        fig, (a, b) = plt.subplots(2, 1, figsize=(8, 6))
+        for ax in (a, b):
+            ax.plot(data.t_robot - t0, data.y_robot, ".-", ms=2, lw=0.8, label="$y^R(t_k^R)$")
+            ax.plot(data.t_trigger - t0, data.y_sensor, ".", ms=2, label="$y^S(t_i^T)$")
+            ax.set_xlabel("time (s)")
+            ax.set_ylabel("y (mm)")
+        b.set_xlim(2.0 - 0.03, 2.0 + 0.03)
+        a.legend()
+        a.set_title(f"Fig. 6: sine motion at {result.settings.frequency_hz:g} Hz")
+        save(fig, "fig6_sine.png")
+        est = result.estimate
+        fig, ax = plt.subplots(figsize=(6, 4))
+        ax.plot(est.shifts_s * 1e3, est.mse * 1e6, ".-")
+        ax.axvline(est.delta_t_s * 1e3, color="r", lw=0.8)
+        ax.set_xlabel("ΔT (ms)")
+        ax.set_ylabel("MSE (µm²)")
+        ax.set_title(f"Fig. 7: MSE(ΔT), minimum at {est.delta_t_s * 1e3:.3f} ms")
+        save(fig, "fig7_mse.png")
+        syn = result.residual.synced
+        fig, ax = plt.subplots(figsize=(8, 3.5))
+        ax.plot(syn.times_s - t0, syn.residual_um, lw=0.6)
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("residual (µm)")
+        ax.set_title(f"Fig. 9: residual after synchronisation (max {syn.max_um:.1f} µm)")
+        save(fig, "fig9_residual.png")
+    if sweep:
+        fig, ax = plt.subplots(figsize=(6, 4))
+        f = [r.settings.frequency_hz for r in sweep]
+        ax.semilogx(f, [r.delta_t_ms for r in sweep], "o-")
+        ax.set_xlabel("frequency (Hz)")
+        ax.set_ylabel("ΔT (ms)")
+        ax.set_title("Fig. 8: ΔT against the sine frequency")
+        ax.grid(True, which="both", lw=0.3)
+        save(fig, "fig8_sweep.png")
+    return files
