@@ -54,6 +54,7 @@ class FramedClient:
         self._sock: socket.socket | None = None
         self._decoder = FrameDecoder(max_payload=wire.MAX_PAYLOAD)
         self._next_id = 1
+        self._scratch = bytearray(1 << 18)  # reused receive buffer: no allocation per recv
         self._lock = threading.RLock()
         self.server_info: dict[str, Value] = {}
         self.connect()
@@ -140,17 +141,18 @@ class FramedClient:
                 raise ClientTimeout(f"no reply within {timeout:.3g} s")
             self._sock.settimeout(remaining)
             try:
-                chunk = self._sock.recv(1 << 20)
+                n = self._sock.recv_into(self._scratch)
             except TimeoutError:
                 continue
             except OSError as exc:
                 self.close()
                 raise ConnectionClosed(f"connection lost: {exc}") from None
-            if not chunk:
+            if not n:
                 self.close()
                 raise ConnectionClosed("server closed the connection")
             try:
-                self._decoder.feed(chunk)
+                with memoryview(self._scratch) as view, view[:n] as chunk:
+                    self._decoder.feed(chunk)
             except PeerError:
                 self.close()
                 raise

@@ -13,6 +13,7 @@ receiver answers with an error packet and goes on with the next frame) and *fata
 from __future__ import annotations
 
 import zlib
+from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import NoReturn
@@ -135,23 +136,31 @@ class FrameDecoder:
 
     max_payload: int = wire.DEFAULT_MAX_PAYLOAD
     kinds: frozenset[PacketKind] = frozenset(PacketKind)
-    _buffer: bytearray = field(default_factory=bytearray, repr=False)
+    # Received bytes as a queue of chunks: a large frame arriving in many pieces is joined
+    # once when complete (no growing buffer, no quadratic copying); ``_offset`` is where the
+    # unread part of the first chunk starts.
+    _chunks: deque[bytes] = field(default_factory=deque, repr=False)
+    _offset: int = field(default=0, repr=False)
+    _size: int = field(default=0, repr=False)
     _failed: PeerError | None = field(default=None, repr=False)
 
     def feed(self, data: bytes | bytearray | memoryview) -> None:
         if self._failed is not None:
             raise self._failed
-        self._buffer += data
+        if data:
+            chunk = data if isinstance(data, bytes) else bytes(data)
+            self._chunks.append(chunk)
+            self._size += len(chunk)
 
     @property
     def buffered(self) -> int:
         """Bytes received but not yet part of a complete frame."""
-        return len(self._buffer)
+        return self._size
 
     @property
     def in_frame(self) -> bool:
         """True when a frame has started but not finished (for partial-frame timeouts)."""
-        return bool(self._buffer)
+        return self._size > 0
 
     def events(self) -> Iterator[Event]:
         """Yield every complete frame in the buffer; stop when more data is needed."""
@@ -161,19 +170,33 @@ class FrameDecoder:
                 return
             yield event
 
+    def _contiguous(self, n: int) -> bytes:
+        """The first chunk, merged with the following ones until it holds ``n`` unread bytes
+        (the caller checked ``_size >= n``)."""
+        first = self._chunks[0]
+        if len(first) - self._offset < n:
+            parts = [first[self._offset :], *list(self._chunks)[1:]]
+            first = b"".join(parts)
+            self._chunks = deque([first])
+            self._offset = 0
+        return first
+
     def next_event(self) -> Event | None:
         """The next complete event, or ``None`` when more data is needed."""
         if self._failed is not None:
             raise self._failed
-        buf = self._buffer
-        if len(buf) < 2:
+        if self._size < 2:
             return None
-        if buf[:2] != wire.MAGIC:
+        data = self._contiguous(2)
+        off = self._offset
+        if data[off : off + 2] != wire.MAGIC:
             # [RS-3.8] unusable header: the frame boundary is lost, the connection ends.
-            self._fail(FrameError(f"bad magic {bytes(buf[:2]).hex()}, expected 5253"))
-        if len(buf) < wire.HEADER_SIZE:
+            self._fail(FrameError(f"bad magic {data[off : off + 2].hex()}, expected 5253"))
+        if self._size < wire.HEADER_SIZE:
             return None
-        header = Header.unpack(buf)
+        data = self._contiguous(wire.HEADER_SIZE)
+        off = self._offset
+        header = Header(*wire.HEADER.unpack_from(data, off))
         if header.length > self.max_payload:
             # [RS-3.5] never buffer an oversized frame: reject before reading it.
             self._fail(
@@ -182,17 +205,16 @@ class FrameDecoder:
                 ),
             )
         end = wire.HEADER_SIZE + header.length + wire.TRAILER_SIZE
-        if len(buf) < end:
+        if self._size < end:
             return None
-        # A copy, not a view: a view (or one held by an exception's traceback) would pin the
-        # buffer and make the ``del`` below fail.
-        if end == len(buf):
-            frame = bytes(buf)
-            buf.clear()
-        else:
-            with memoryview(buf) as view, view[:end] as head:
-                frame = bytes(head)
-            del buf[:end]
+        data = self._contiguous(end)
+        off = self._offset
+        frame = data if off == 0 and len(data) == end else data[off : off + end]
+        self._offset += end
+        self._size -= end
+        if self._offset == len(data):
+            self._chunks.popleft()
+            self._offset = 0
         try:
             return _decode_frame(header, memoryview(frame), self.kinds)
         except PeerError as exc:
@@ -200,7 +222,8 @@ class FrameDecoder:
 
     def _fail(self, error: PeerError) -> NoReturn:
         self._failed = error
-        self._buffer.clear()
+        self._chunks.clear()
+        self._offset = self._size = 0
         raise error
 
 
