@@ -11,6 +11,7 @@ from __future__ import annotations
 import socket
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from spec import wire
@@ -65,6 +66,8 @@ class Conn:
         self.events_seen = 0
         self.closed = False
         self._next_id = 1
+        #: Set by the context: True when the endpoint still answers on a new connection.
+        self.alive: Callable[[], bool] | None = None
 
     # --- raw bytes ---------------------------------------------------------------------------
 
@@ -186,6 +189,15 @@ class Conn:
         try:
             answer = self.recv_packet(timeout)
         except Closed as exc:
+            name = BY_ID[command].name if command in BY_ID else f"0x{command:04x}"
+            if self.alive is not None and self.alive():
+                # The endpoint lives on: closing instead of answering breaks [RS-6.2].
+                raise Fail(
+                    f"the endpoint closed the connection instead of answering {name}",
+                    "exactly one reply or error frame",
+                    f"connection closed ({exc})",
+                    requirement="RS-6.2",
+                ) from None
             raise EndpointGone(f"the endpoint closed the connection instead of answering: {exc}")
         check_echo(answer, command, rid)
         return answer

@@ -158,6 +158,7 @@ class Context:
             conn = Conn(sock, self.log, number, self.timeout)
             self._conns.append(conn)
         self.log.add("--", number, b"", f"connected to {self.host}:{self.port}")
+        conn.alive = self.alive
         if hello:
             conn.ok(CommandId.HELLO, 1, 0, "conformance")
         return conn
@@ -178,6 +179,15 @@ class Context:
         if answer.kind is PacketKind.ERROR:
             code, message = answer.error or (0, "")
             raise Skip(f"cannot take control of the endpoint (error {code}: {message})")
+
+    def alive(self) -> bool:
+        """True when a new connection's Ping is echoed (quietly; not part of the wire log)."""
+        try:
+            with socket.create_connection((self.host, self.port), timeout=self.timeout) as sock:
+                conn = Conn(sock, WireLog(), 0, self.timeout)
+                return conn.ok(CommandId.PING, b"alive")[:1] == (b"alive",)
+        except Exception:
+            return False
 
     def probe(self) -> None:
         """Liveness probe: a new connection answers Ping [RS-7.9]; raise Fail otherwise."""

@@ -157,6 +157,11 @@ def run_case(case: Case, ctx: Context) -> CaseResult:
         result.outcome, result.message = Outcome.INFORMATIONAL, str(exc)
     elif isinstance(exc, EndpointTimeout):
         result.outcome, result.message = Outcome.TIMEOUT, str(exc)
+    elif isinstance(exc, Closed) and ctx.alive():
+        # Closed where an answer was due, while the endpoint lives on: [RS-6.2] is broken.
+        result.outcome = Outcome.FAIL if case.level == "MUST" else Outcome.NON_STRICT
+        result.message = "the endpoint closed the connection where an answer was due [RS-6.2]"
+        result.expected, result.actual = "exactly one reply or error frame", f"closed ({exc})"
     elif isinstance(exc, EndpointGone | Closed):
         result.outcome, result.message = Outcome.ERROR, f"endpoint: {exc}"
         result.details["endpoint_error"] = True

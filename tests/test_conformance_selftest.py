@@ -1,0 +1,712 @@
+"""The harness tests itself: small conforming servers score 100 %, and deliberately broken
+servers are caught by the case IDs each test names. A hanging or crashing server gives
+timeout or error, never fail.
+
+The conforming servers here are minimal :class:`spec.server.Service` implementations (no
+motion), independent of robotsocket/sensorsocket; the broken ones override one hook each, or
+are tiny raw-socket servers for framing-level breakage.
+"""
+
+from __future__ import annotations
+
+import socket
+import struct
+import threading
+import time
+import zlib
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import pytest
+
+from conformance.context import Options
+from conformance.model import Outcome
+from conformance.runner import RunResult, Selection, exit_code, run
+from kinematics.transforms import concat, invert, location_to_transform, transform_to_location
+from spec import wire
+from spec.codec import FrameDecoder, Packet, Rejected, encode_packet
+from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data
+from spec.errors import DatagramError, ErrorCode, ProtocolError
+from spec.params import Image, Joints, Location, Matrix, Value
+from spec.registry import CommandId as C
+from spec.registry import BY_ID, CommandSpec, check_params
+from spec.server import FramedServer, Identity, ServerPolicy, Service, Session
+from spec.wire import PacketKind, SensorStatus
+
+SCALE = 0.1  # --timeout-scale of these tests: answers within 0.2 s, budgets a tenth
+POLICY = ServerPolicy(max_clients=16, max_payload=64 * 1024, frame_timeout=0.3, idle_timeout=1.0)
+
+# --- minimal conforming services ------------------------------------------------------------
+
+
+class MiniRobot(Service):
+    """A robot service without motion: status, joints, Here, motion descriptor, I/O, log."""
+
+    identity = Identity("robot", vendor="test", model="mini-robot", serial="1")
+    COMMANDS = (C.ROBOT_STATUS, C.HEREJ, C.HERE, C.SET_MOTION_DESC, C.GET_MOTION_DESC,
+                C.WAIT_END_MOVE, C.STOP_MOVE, C.RESET_MOTION, C.READ_IO, C.LIST_IO,
+                C.GET_JOINT_LOG, C.GET_JOINT_LIMITS)  # fmt: skip
+
+    def __init__(self) -> None:
+        self.q = [5.0, -10.0, 90.0, 0.0, 45.0, 0.0]
+        self.mdesc = [10.0, 10.0, 10.0, 250.0, 45.0, 0.0]
+        self.outputs = {"laser": False, "gas": False}
+        self.inputs = {"ready": True}
+        self.t0 = time.monotonic()
+
+    def implemented(self) -> tuple[int, ...]:
+        return tuple(int(c) for c in self.COMMANDS)
+
+    def flange(self) -> Any:
+        # Any smooth function of the joints will do for Here's frame algebra.
+        q = self.q
+        return location_to_transform([400 + q[0], q[1], 600 + q[2], q[3], q[4] + 90, q[5]])
+
+    def handle(
+        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
+        c, now = spec.id, self.clock()
+        if c == C.ROBOT_STATUS:
+            held = session.server.control_holder
+            return (False, False, False, 0, held is session, held is not None, 0, "", now)
+        if c == C.HEREJ:
+            return (Joints(self.q),)
+        if c == C.HERE:
+            tool, frame = params
+            assert isinstance(tool, Location) and isinstance(frame, Location)
+            t = concat(invert(location_to_transform(frame.as_tuple())), self.flange(),
+                       location_to_transform(tool.as_tuple()))  # fmt: skip
+            return (Location.of(transform_to_location(t)),)
+        if c == C.GET_MOTION_DESC:
+            return tuple(self.mdesc)
+        if c == C.SET_MOTION_DESC:
+            v = [float(p) for p in params]  # type: ignore[arg-type]
+            if not (all(0 < x <= 100 for x in v[:3]) and v[3] > 0 and v[4] > 0 and v[5] >= 0):
+                raise ProtocolError("motion descriptor out of range", ErrorCode.OUT_OF_RANGE)
+            self.mdesc = v
+            return ()
+        if c == C.WAIT_END_MOVE:
+            return (True,)
+        if c in (C.STOP_MOVE, C.RESET_MOTION):
+            return ()
+        if c == C.LIST_IO:
+            return (",".join(self.outputs), ",".join(self.inputs))
+        if c == C.READ_IO:
+            name = params[0]
+            if name in self.outputs:
+                return (self.outputs[str(name)], True)
+            if name in self.inputs:
+                return (self.inputs[str(name)], False)
+            raise ProtocolError(f"no I/O named {name!r}", ErrorCode.OUT_OF_RANGE)
+        if c == C.GET_JOINT_LOG:
+            since = float(params[0])  # type: ignore[arg-type]
+            k1 = int((now - self.t0) / 0.004)
+            k0 = max(0, k1 - 2500)
+            rows = [[self.t0 + k * 0.004, *self.q] for k in range(k0, k1 + 1)]
+            rows = [r for r in rows if r[0] > since]
+            return (Matrix(len(rows), 7, [v for r in rows for v in r]), 0.004)
+        if c == C.GET_JOINT_LIMITS:
+            lims = [(-160, 160), (-137.5, 137.5), (-142.5, 142.5), (-270, 270), (-105, 120),
+                    (-270, 270)]  # fmt: skip
+            return (Matrix(6, 2, [v for r in lims for v in r]),)
+        raise ProtocolError(f"{spec.name} not implemented", ErrorCode.NOT_SUPPORTED)
+
+
+class MiniSensor(Service):
+    """A sensor service with a synthetic 64 x 32 camera."""
+
+    identity = Identity("sensor", vendor="test", model="mini-sensor", serial="2")
+    W, H = 64, 32
+
+    def __init__(self) -> None:
+        self.laser = True
+        self.exposure = 1e-4
+        self.window = (0, self.W)
+        self.index = -1
+        self.reading: tuple[Any, ...] | None = None
+        self.lock = threading.Lock()
+
+    def acq_time(self) -> float:
+        return 3.5e-3 * self.window[1] / self.W
+
+    def handle(
+        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
+        c = spec.id
+        with self.lock:
+            if c == C.SENSOR_STATUS:
+                held = session.server.control_holder
+                return (self.laser, self.index + 1, self.index, held is session,
+                        held is not None, self.clock())  # fmt: skip
+            if c == C.ACQUIRE:
+                self.index += 1
+                t = self.clock()
+                if self.laser:
+                    seam, status = Location(0, 1.25, 80, 0, 0, 0), int(SensorStatus.FOUND)
+                else:
+                    seam, status = Location(0, 0, 0, 0, 0, 0), int(SensorStatus.LASER_OFF)
+                self.reading = (self.index, status, seam, 0.9, t, t + 1e-5, t + self.acq_time())
+                return (self.index,)
+            if c == C.GET_DATA:
+                if self.reading is None:
+                    raise ProtocolError("no measurement yet", ErrorCode.NO_DATA)
+                return self.reading
+            if c == C.GET_IMAGE:
+                if self.reading is None:
+                    raise ProtocolError("no image yet", ErrorCode.NO_DATA)
+                col, row, w, h = (list(params) + [0, 0, self.W, self.H][len(params) :])[:4]
+                assert all(isinstance(v, int) for v in (col, row, w, h))
+                if not (0 <= col and 0 <= row and 0 < w and 0 < h  # type: ignore[operator]
+                        and col + w <= self.W and row + h <= self.H):  # type: ignore[operator]  # fmt: skip
+                    raise ProtocolError("region outside the sensor", ErrorCode.OUT_OF_RANGE)
+                return (self.index, Image(int(w), int(h), bytes(int(w) * int(h))))  # type: ignore[call-overload]
+            if c == C.GET_PROFILE:
+                if self.reading is None:
+                    raise ProtocolError("no profile yet", ErrorCode.NO_DATA)
+                return (self.index, Matrix(2, 3, [0, 1, 80, 1, 1, 80]))
+            if c == C.SET_LASER:
+                self.laser = bool(params[0])
+                return ()
+            if c == C.SET_EXPOSURE:
+                e = float(params[0])  # type: ignore[arg-type]
+                if not 1e-6 <= e <= 0.01:
+                    raise ProtocolError("exposure out of range", ErrorCode.OUT_OF_RANGE)
+                self.exposure = e
+                return ()
+            if c == C.SET_READOUT_WINDOW:
+                first, cols = int(params[0]), int(params[1])  # type: ignore[call-overload]
+                if not (0 <= first and 0 < cols and first + cols <= self.W):
+                    raise ProtocolError("window out of range", ErrorCode.OUT_OF_RANGE)
+                self.window = (first, cols)
+                return (self.acq_time(),)
+            if c == C.GET_SETTINGS:
+                return (self.laser, self.exposure, *self.window, self.acq_time(), self.W, self.H)
+            if c == C.GET_TRIGGER_ENDPOINT:
+                return ("", 0)
+        raise ProtocolError(f"{spec.name} not implemented", ErrorCode.NOT_SUPPORTED)
+
+
+@contextmanager
+def serving(server: FramedServer) -> Iterator[tuple[str, int]]:
+    server.start()
+    try:
+        yield server.address
+    finally:
+        server.shutdown()
+
+
+def check(
+    service: str,
+    address: tuple[str, int],
+    select: tuple[str, ...] = (),
+    profile: str = "core",
+    scale: float = SCALE,
+) -> RunResult:
+    options = Options(timeout_scale=scale)
+    return run(service, address[0], address[1], options, Selection(profile, select))
+
+
+def outcomes(result: RunResult) -> dict[str, Outcome]:
+    return {r.case.id: r.outcome for r in result.results}
+
+
+def problems(result: RunResult) -> dict[str, str]:
+    return {r.case.id: f"{r.outcome.value}: {r.message}" for r in result.results if r.is_problem}
+
+
+# --- the conforming servers score 100 % ------------------------------------------------------
+
+
+def test_minimal_robot_scores_100_percent() -> None:
+    with serving(FramedServer(MiniRobot(), policy=POLICY)) as address:
+        result = check("robot", address, profile="full")
+    assert problems(result) == {}
+    assert exit_code(result) == 0
+    got = outcomes(result)
+    assert got["robot.here.frames"] is Outcome.PASS
+    assert got["commands.robot.JointMove.reply"] is Outcome.NOT_APPLICABLE  # not offered
+    assert got["robot.motion.queued"] is Outcome.SKIPPED  # needs --allow-motion
+    assert got["timeouts.frame"] is Outcome.PASS
+
+
+def test_minimal_sensor_scores_100_percent() -> None:
+    with serving(FramedServer(MiniSensor(), policy=POLICY)) as address:
+        result = check("sensor", address, profile="full")
+    assert problems(result) == {}
+    assert exit_code(result) == 0
+    got = outcomes(result)
+    for case_id in ("sensor.getdata.no_data", "sensor.laser_off", "sensor.image.region",
+                    "limits.max_payload.accepted", "connections.max_clients"):  # fmt: skip
+        assert got[case_id] is Outcome.PASS, case_id
+
+
+# --- broken TCP servers built on the shell ---------------------------------------------------
+
+
+@pytest.fixture
+def send_hook(monkeypatch: pytest.MonkeyPatch) -> Any:
+    """Install a byte-level rewrite of every frame one server sends."""
+
+    def install(server: FramedServer, mangle: Any) -> None:
+        original = Session.send
+
+        def send(self: Session, packet: Packet) -> None:
+            if self.server is not server:
+                original(self, packet)
+                return
+            data = mangle(encode_packet(packet, max_payload=wire.MAX_PAYLOAD), packet)
+            if data:
+                with self._send_lock:
+                    self.sock.sendall(data)
+
+        monkeypatch.setattr(Session, "send", send)
+
+    return install
+
+
+def _reseal(frame: bytes) -> bytes:
+    return frame[:-4] + struct.pack(">I", zlib.crc32(frame[:-4]))
+
+
+def _caught(result: RunResult, *case_ids: str) -> None:
+    got = outcomes(result)
+    for case_id in case_ids:
+        assert got[case_id] is Outcome.FAIL, (case_id, problems(result).get(case_id, got[case_id]))
+    assert exit_code(result) == 1
+
+
+def test_wrong_request_id_echo_is_caught(send_hook: Any) -> None:
+    server = FramedServer(MiniRobot(), policy=POLICY)
+
+    def mangle(frame: bytes, packet: Packet) -> bytes:
+        rid = (packet.request_id + 1) % (1 << 32) if packet.request_id else 0
+        return _reseal(frame[:8] + struct.pack(">I", rid) + frame[12:])
+
+    send_hook(server, mangle)
+    with serving(server) as address:
+        result = check("robot", address, ("framing.reply.echo", "framing.pipelined.ordered",
+                                          "framing.crc.bad"))  # fmt: skip
+    _caught(result, "framing.reply.echo", "framing.pipelined.ordered", "framing.crc.bad")
+
+
+def test_bad_crc_in_replies_is_caught(send_hook: Any) -> None:
+    server = FramedServer(MiniSensor(), policy=POLICY)
+    send_hook(server, lambda frame, packet: frame[:-1] + bytes([frame[-1] ^ 0x55]))
+    with serving(server) as address:
+        result = check("sensor", address, ("framing.ping.echo", "negotiation.hello.reply"))
+    _caught(result, "framing.ping.echo", "negotiation.hello.reply")
+    assert "RS-3.6" in {r.message.split("[")[-1].rstrip("]") for r in result.results}
+
+
+def test_length_field_in_host_byte_order_is_caught(send_hook: Any) -> None:
+    server = FramedServer(MiniSensor(), policy=POLICY)
+
+    def mangle(frame: bytes, packet: Packet) -> bytes:
+        (length,) = struct.unpack_from(">I", frame, 12)
+        return _reseal(frame[:12] + struct.pack("<I", length) + frame[16:])
+
+    send_hook(server, mangle)
+    with serving(server) as address:
+        result = check("sensor", address, ("framing.byte_order.header", "framing.ping.echo"))
+    _caught(result, "framing.byte_order.header", "framing.ping.echo")
+    failed = next(r for r in result.results if r.case.id == "framing.byte_order.header")
+    assert failed.wire and any(e.direction == "<-" for e in failed.wire)  # bytes are shown
+
+
+def test_error_frame_without_message_is_caught(send_hook: Any) -> None:
+    server = FramedServer(MiniRobot(), policy=POLICY)
+
+    def mangle(frame: bytes, packet: Packet) -> bytes:
+        if packet.kind is not PacketKind.ERROR:
+            return frame
+        return encode_packet(Packet(packet.kind, packet.command, packet.request_id, packet.params[:1]))
+
+    send_hook(server, mangle)
+    with serving(server) as address:
+        result = check("robot", address, ("framing.error.shape", "framing.kind.not_request"))
+    _caught(result, "framing.error.shape", "framing.kind.not_request")
+
+
+class WrongCodeServer(FramedServer):
+    """Answers an unknown command with BAD_PARAMETERS instead of UNKNOWN_COMMAND."""
+
+    def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
+        try:
+            return super()._execute(session, packet)
+        except ProtocolError as exc:
+            if exc.code is ErrorCode.UNKNOWN_COMMAND:
+                raise ProtocolError("bad", ErrorCode.BAD_PARAMETERS) from None
+            raise
+
+
+def test_wrong_error_code_is_caught() -> None:
+    with serving(WrongCodeServer(MiniRobot(), policy=POLICY)) as address:
+        result = check("robot", address, ("framing.error.shape", "negotiation.hello.*"))
+    _caught(result, "framing.error.shape", "negotiation.hello.commands_complete")
+
+
+class ClosingServer(FramedServer):
+    """Closes the connection on an unknown command instead of answering."""
+
+    def _dispatch(self, session: Session, packet: Packet) -> None:
+        if packet.command not in self._implemented:
+            session.sock.shutdown(socket.SHUT_RDWR)
+            return
+        super()._dispatch(session, packet)
+
+
+def test_closing_on_unknown_command_is_caught() -> None:
+    with serving(ClosingServer(MiniRobot(), policy=POLICY)) as address:
+        result = check("robot", address, ("framing.error.shape", "framing.reply.echo"))
+    _caught(result, "framing.error.shape", "framing.reply.echo")
+    assert "RS-6.2" in problems(result)["framing.error.shape"]
+
+
+class NoControlCheckServer(FramedServer):
+    """Lets every connection run control commands."""
+
+    def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
+        holder = self.control_holder
+        self.control_holder = session
+        try:
+            return super()._execute(session, packet)
+        finally:
+            if packet.command != C.TAKE_CONTROL:
+                self.control_holder = holder
+
+
+def test_missing_control_check_is_caught() -> None:
+    with serving(NoControlCheckServer(MiniSensor(), policy=POLICY)) as address:
+        result = check("sensor", address, ("commands.sensor.*.not_in_control", "control.*"))
+    _caught(result, "commands.sensor.SetExposure.not_in_control",
+            "commands.sensor.Acquire.not_in_control", "control.read_only_open")  # fmt: skip
+
+
+class NoParamCheckServer(FramedServer):
+    """Skips the parameter check of one command (GetSettings takes anything)."""
+
+    def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
+        if packet.command == C.GET_SETTINGS:
+            packet = Packet(packet.kind, packet.command, packet.request_id, ())
+        return super()._execute(session, packet)
+
+
+def test_missing_parameter_check_is_caught() -> None:
+    with serving(NoParamCheckServer(MiniSensor(), policy=POLICY)) as address:
+        result = check("sensor", address, ("commands.sensor.GetSettings.*",))
+    _caught(result, "commands.sensor.GetSettings.bad_params")
+    assert outcomes(result)["commands.sensor.GetSettings.reply"] is Outcome.PASS
+
+
+class UnlistedCommandService(MiniRobot):
+    """Leaves GetJointLimits out of Hello's list."""
+
+    def implemented(self) -> tuple[int, ...]:
+        return tuple(c for c in super().implemented() if c != C.GET_JOINT_LIMITS)
+
+
+class UnlistedServer(FramedServer):
+    """Answers GetJointLimits although Hello does not list it."""
+
+    def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
+        if packet.command == C.GET_JOINT_LIMITS:
+            spec = BY_ID[C.GET_JOINT_LIMITS]
+            check_params(spec.params, packet.params)
+            return self.service.handle(session, spec, packet.params)
+        return super()._execute(session, packet)
+
+
+def test_command_missing_from_hello_is_caught() -> None:
+    with serving(UnlistedServer(UnlistedCommandService(), policy=POLICY)) as address:
+        result = check("robot", address, ("negotiation.hello.commands_complete",))
+    _caught(result, "negotiation.hello.commands_complete")
+
+
+class BadCrcClosesServer(FramedServer):
+    """Closes the connection on a bad CRC instead of going on with the next frame."""
+
+    def _reject(self, session: Session, event: Rejected) -> None:
+        super()._reject(session, event)
+        if event.code is ErrorCode.BAD_CRC:
+            session.sock.shutdown(socket.SHUT_RDWR)
+
+
+def test_closing_after_bad_crc_is_caught() -> None:
+    with serving(BadCrcClosesServer(MiniSensor(), policy=POLICY)) as address:
+        result = check("sensor", address, ("framing.crc.bad", "robustness.corpus.bad-crc"))
+    _caught(result, "framing.crc.bad", "robustness.corpus.bad-crc")
+
+
+# --- broken raw-socket servers ---------------------------------------------------------------
+
+
+class RawServer:
+    """A tiny TCP server in a thread; ``handle(conn)`` is the whole behaviour."""
+
+    def __init__(self, handle: Any) -> None:
+        self.handle = handle
+        self.listener = socket.create_server(("127.0.0.1", 0))
+        self.address = self.listener.getsockname()[:2]
+        self.stop = threading.Event()
+        self.conns: list[socket.socket] = []
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+
+    def _serve(self) -> None:
+        self.listener.settimeout(0.05)
+        while not self.stop.is_set():
+            try:
+                conn, _ = self.listener.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            self.conns.append(conn)
+            threading.Thread(target=self._run, args=(conn,), daemon=True).start()
+
+    def _run(self, conn: socket.socket) -> None:
+        try:
+            self.handle(conn, self)
+        except OSError:
+            pass
+        finally:
+            conn.close()
+
+    def __enter__(self) -> tuple[str, int]:
+        self.thread.start()
+        return self.address
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop.set()
+        self.listener.close()
+        for c in self.conns:
+            try:
+                c.close()
+            except OSError:
+                pass
+        self.thread.join(2)
+
+
+def _answer(req: Packet) -> Packet:
+    """Answers of a tiny sensor that knows Hello, Ping and GetTime."""
+    from spec.params import IntArray
+
+    if req.command == C.HELLO:
+        params: tuple[Value, ...] = ("1.0", "sensor", "raw", "raw", "0", "0",
+                                     IntArray([1, 2, 3, 4, 5]), 65536, 16, 300.0, 5.0)  # fmt: skip
+    elif req.command == C.PING:
+        params = req.params[:1] or (b"",)
+    elif req.command == C.GET_TIME:
+        params = (time.monotonic(),)
+    else:
+        return Packet(PacketKind.ERROR, req.command, req.request_id, (5, "unknown"))
+    return Packet(PacketKind.REPLY, req.command, req.request_id, params)
+
+
+def ignores_length(conn: socket.socket, server: RawServer) -> None:
+    """Takes every received chunk as exactly one frame, whatever its length field says."""
+    while True:
+        chunk = conn.recv(65536)
+        if not chunk:
+            return
+        if len(chunk) < 20:
+            continue
+        header = wire.HEADER.unpack_from(chunk)
+        from spec.params import decode_params
+
+        try:
+            params = decode_params(chunk[16:-4])
+        except Exception:
+            params = ()
+        req = Packet(PacketKind.REQUEST, header[5], header[6], params)
+        conn.sendall(encode_packet(_answer(req)))
+
+
+def never_answers(conn: socket.socket, server: RawServer) -> None:
+    while conn.recv(65536):
+        pass
+
+
+def slow(conn: socket.socket, server: RawServer) -> None:
+    decoder = FrameDecoder()
+    while True:
+        chunk = conn.recv(65536)
+        if not chunk:
+            return
+        decoder.feed(chunk)
+        for event in decoder.events():
+            if isinstance(event, Packet):
+                time.sleep(0.5)
+                conn.sendall(encode_packet(_answer(event)))
+
+
+def test_ignoring_the_length_field_is_caught() -> None:
+    with RawServer(ignores_length) as address:
+        result = check("sensor", address, ("framing.coalesced", "framing.pipelined.ordered",
+                                           "framing.length.over_limit"))  # fmt: skip
+    got = outcomes(result)
+    assert got["framing.coalesced"] in (Outcome.FAIL, Outcome.TIMEOUT)
+    assert got["framing.length.over_limit"] is Outcome.FAIL
+    assert Outcome.FAIL in got.values()
+
+
+def test_never_answering_gives_timeouts_not_fails() -> None:
+    with RawServer(never_answers) as address:
+        result = check("sensor", address, ("framing.*", "negotiation.*"))
+    got = set(outcomes(result).values())
+    assert Outcome.FAIL not in got
+    assert Outcome.TIMEOUT in got
+    assert exit_code(result) == 4
+
+
+def test_slow_answers_give_timeouts_not_fails() -> None:
+    with RawServer(slow) as address:
+        result = check("sensor", address, ("framing.ping.echo", "framing.reply.echo"))
+    assert set(outcomes(result).values()) == {Outcome.TIMEOUT}
+    assert exit_code(result) == 4
+
+
+class CrashingServer(FramedServer):
+    """Stops serving (as if the process died) after N requests."""
+
+    limit = 40
+
+    def _dispatch(self, session: Session, packet: Packet) -> None:
+        with self._lock:
+            self._stats["seen"] += 1
+            seen = self._stats["seen"]
+        if seen > self.limit:
+            self._shutdown.set()
+            self._listener.close()
+            for s in list(self._sessions):
+                try:
+                    s.sock.shutdown(socket.SHUT_RDWR)
+                except OSError:
+                    pass
+            return
+        super()._dispatch(session, packet)
+
+
+def test_crashing_server_gives_errors_not_fails() -> None:
+    server = CrashingServer(MiniSensor(), policy=POLICY)
+    with serving(server) as address:
+        result = check("sensor", address, ("negotiation.*", "framing.*", "commands.*"))
+    got = [r.outcome for r in result.results]
+    assert Outcome.FAIL not in got
+    assert Outcome.PASS in got  # the cases before the crash ran
+    assert got[-1] is Outcome.ERROR  # the cases after it are errors ("not run")
+    assert exit_code(result) == 4
+
+
+def test_unreachable_endpoint_gives_errors_and_exit_4() -> None:
+    sock = socket.socket()
+    sock.bind(("127.0.0.1", 0))
+    address = sock.getsockname()[:2]
+    sock.close()  # nobody listens there now
+    result = check("robot", address, ("framing.*",))
+    assert not result.reachable
+    assert {r.outcome for r in result.results} == {Outcome.ERROR}
+    assert exit_code(result) == 4
+
+
+# --- the UDP sync endpoint -------------------------------------------------------------------
+
+
+class MiniTriggerListener:
+    """A sensor trigger endpoint with switchable faults."""
+
+    def __init__(self, *, drop_every: int = 0, duplicate: bool = False,
+                 answer_malformed: bool = False, no_dedup: bool = False,
+                 delay: float = 0.0, bad_times: bool = False) -> None:  # fmt: skip
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.05)
+        self.address = self.sock.getsockname()[:2]
+        self.drop_every, self.duplicate, self.delay = drop_every, duplicate, delay
+        self.answer_malformed, self.no_dedup, self.bad_times = answer_malformed, no_dedup, bad_times
+        self.seen: set[int] = set()
+        self.count = 0
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            try:
+                raw, source = self.sock.recvfrom(2048)
+            except (TimeoutError, OSError):
+                continue
+            t = time.monotonic()
+            try:
+                trig = decode_datagram(raw)
+            except DatagramError:
+                if self.answer_malformed:
+                    self.sock.sendto(b"SY?", source)
+                continue
+            if not isinstance(trig, Trigger):
+                continue
+            if trig.index in self.seen and not self.no_dedup:
+                continue
+            self.seen.add(trig.index)
+            self.count += 1
+            if self.drop_every and self.count % self.drop_every == 0:
+                continue
+            end = t - 1e-3 if self.bad_times else t + 3.6e-3
+            data = encode_data(SensorData(trig.index, SensorStatus.FOUND,
+                                          (0.0, 1.0, 80.0, 0.0, 0.0, 0.0), 0.9, trig.t_trigger,
+                                          t, t + 1e-4, end))  # fmt: skip
+            if self.delay:
+                time.sleep(self.delay)
+            for _ in range(2 if self.duplicate else 1):
+                self.sock.sendto(data, source)
+
+    def __enter__(self) -> tuple[str, int]:
+        self.thread.start()
+        return self.address
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop.set()
+        self.thread.join(2)
+        self.sock.close()
+
+
+def sync_check(listener: MiniTriggerListener, select: tuple[str, ...] = ()) -> RunResult:
+    with listener as address:
+        return check("sync", address, select, profile="full", scale=0.5)
+
+
+def test_minimal_trigger_listener_scores_100_percent() -> None:
+    result = sync_check(MiniTriggerListener())
+    assert problems(result) == {}
+    assert exit_code(result) == 0
+    assert result.measurements["udp_trigger_to_data"]["loss"] == 0.0
+
+
+def test_udp_endpoint_dropping_data_is_caught() -> None:
+    result = sync_check(MiniTriggerListener(drop_every=3), ("sync.trigger.answer",))
+    _caught(result, "sync.trigger.answer")
+
+
+def test_udp_endpoint_duplicating_data_is_caught() -> None:
+    result = sync_check(MiniTriggerListener(duplicate=True),
+                        ("sync.trigger.answer", "sync.duplicate.once"))  # fmt: skip
+    _caught(result, "sync.trigger.answer", "sync.duplicate.once")
+
+
+def test_udp_endpoint_answering_duplicate_triggers_is_caught() -> None:
+    result = sync_check(MiniTriggerListener(no_dedup=True), ("sync.duplicate.once",))
+    _caught(result, "sync.duplicate.once")
+
+
+def test_udp_endpoint_answering_malformed_triggers_is_caught() -> None:
+    result = sync_check(MiniTriggerListener(answer_malformed=True), ("sync.malformed.silent",))
+    _caught(result, "sync.malformed.silent")
+
+
+def test_udp_endpoint_answering_late_is_caught() -> None:
+    result = sync_check(MiniTriggerListener(delay=0.12), ("sync.trigger.deadline",))
+    _caught(result, "sync.trigger.deadline")
+
+
+def test_udp_endpoint_with_timestamps_out_of_order_is_caught() -> None:
+    result = sync_check(MiniTriggerListener(bad_times=True), ("sync.timestamps.order",))
+    _caught(result, "sync.timestamps.order")
