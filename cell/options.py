@@ -1,0 +1,37 @@
+"""Command-line options of the cell's timing, shared by ``python -m cell`` and
+``python -m sync delay --emulate`` (milliseconds, Hz and µm on the command line)."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+__all__ = ["add_timing_options", "timing_kwargs"]
+
+#: (option, CellTiming field, factor to SI, default on the command line, help)
+_OPTIONS: tuple[tuple[str, str, float, float, str], ...] = (
+    ("--encoder-latency-ms", "encoder_latency_s", 1e-3, 2.8, "measured joints lag (ms)"),
+    ("--trigger-poll-hz", "poll_rate_hz", 1.0, 4000.0, "sensor trigger polling rate (Hz)"),
+    ("--start-jitter-ms", "start_jitter_s", 1e-3, 0.25, "uniform start jitter width (ms)"),
+    ("--start-latency-ms", "start_latency_s", 1e-3, 0.0, "fixed start latency (ms)"),
+    ("--acquisition-ms", "acquisition_s", 1e-3, 3.5, "full-frame readout time (ms)"),
+    ("--processing-ms", "processing_s", 1e-3, 1.0, "image processing time (ms)"),
+    ("--network-delay-ms", "network_delay_s", 1e-3, 0.1, "mean one-way UDP delay (ms, sim)"),
+    ("--network-jitter-ms", "network_jitter_s", 1e-3, 0.1, "UDP delay jitter width (ms, sim)"),
+    ("--sensor-noise-um", "sensor_noise_mm", 1e-3, 10.0, "extra seam noise, 1 sigma (µm)"),
+)
+
+
+def add_timing_options(parser: argparse.ArgumentParser) -> None:
+    """Add the timing options (group "cell timing")."""
+    group = parser.add_argument_group("cell timing (the true ΔT follows from these)")
+    for option, _field, _factor, default, text in _OPTIONS:
+        group.add_argument(option, type=float, default=default, help=f"{text}, default {default:g}")
+
+
+def timing_kwargs(args: argparse.Namespace) -> dict[str, Any]:
+    """CellTiming keyword arguments (SI units) from parsed options."""
+    out: dict[str, Any] = {}
+    for option, name, factor, _default, _text in _OPTIONS:
+        out[name] = getattr(args, option.lstrip("-").replace("-", "_")) * factor
+    return out
