@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import math
 import sys
 import time
 from collections.abc import Sequence
@@ -26,127 +25,32 @@ from kinematics.errors import KinematicsError
 from robotsocket.client import RobotClient
 from robotsocket.emulator import RobotEmulator
 from robotsocket.service import RobotService
+from spec import callcli
 from spec.client import ClientTimeout, ConnectionClosed
 from spec.errors import ProtocolError, RemoteError
-from spec.params import (
-    FloatArray,
-    Image,
-    IntArray,
-    Joints,
-    Location,
-    Matrix,
-    Transform,
-    Value,
-)
-from spec.registry import COMMANDS, CommandId, CommandSpec, ParamSpec
 from spec.server import FramedServer, ServerPolicy, parse_networks, serve_until_signal
-from spec.wire import ParamType
 
 log = logging.getLogger("robotsocket")
 
-#: Commands after which ``call`` waits for the end of the move.
-MOTION = frozenset(
-    {CommandId.JOINT_MOVE, CommandId.TOOL_MOVE_J, CommandId.TOOL_MOVE_L, CommandId.RESTART_MOVE}
-)
+DEFAULT_PORT = 4000
 
 
 class CliError(Exception):
     """A user mistake on the command line: one line on stderr, exit code 2."""
 
 
-def robot_commands() -> dict[str, CommandSpec]:
-    """Robot-service commands by lower-case name."""
-    return {c.name.lower(): c for c in COMMANDS if "robot" in c.services}
-
-
 def parse_endpoint(text: str) -> tuple[str, int]:
-    host, sep, port = text.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise CliError(f"expected HOST:PORT, got {text!r}")
-    return host.strip("[]"), int(port)
-
-
-def _numbers(text: str, what: str) -> list[float]:
     try:
-        vals = [float(v) for v in text.replace(" ", "").split(",") if v != ""]
-    except ValueError:
-        raise CliError(f"{what}: expected comma-separated numbers, got {text!r}") from None
-    if not all(math.isfinite(v) for v in vals):
-        raise CliError(f"{what}: numbers must be finite")
-    return vals
-
-
-def parse_value(spec: ParamSpec, text: str) -> Value:
-    """One command-line argument as the registry's parameter type."""
-    t, name = spec.type, spec.name
-    try:
-        if t is ParamType.INT:
-            return int(text, 0)
-        if t is ParamType.FLOAT:
-            return float(text)
-        if t is ParamType.BOOL:
-            low = text.lower()
-            if low in ("on", "true", "1", "yes"):
-                return True
-            if low in ("off", "false", "0", "no"):
-                return False
-            raise CliError(f"{name}: expected on/off/true/false, got {text!r}")
-        if t is ParamType.STRING:
-            return text
-        if t is ParamType.BYTES:
-            return text.encode("utf-8")
-        if t is ParamType.JOINTS:
-            return Joints(_numbers(text, name))
-        if t is ParamType.LOCATION:
-            return Location.of(_numbers(text, name))
-        if t is ParamType.FLOAT_ARRAY:
-            return FloatArray(_numbers(text, name))
-        if t is ParamType.INT_ARRAY:
-            return IntArray(int(v) for v in _numbers(text, name))
-        if t is ParamType.TRANSFORM:
-            return Transform(_numbers(text, name))
+        return callcli.parse_endpoint(text, DEFAULT_PORT)
     except ValueError as exc:
-        if isinstance(exc, CliError):
-            raise
-        raise CliError(f"{name}: {exc}") from None
-    raise CliError(f"{name}: parameters of type {t.name} cannot be given on the command line")
-
-
-def parse_args_for(spec: CommandSpec, args: Sequence[str]) -> tuple[Value, ...]:
-    specs = spec.params
-    if len(args) > len(specs):
-        raise CliError(f"{spec.name} takes at most {len(specs)} arguments, got {len(args)}")
-    values = [parse_value(s, a) for s, a in zip(specs, args, strict=False)]
-    for s in specs[len(args) :]:
-        if s.type is ParamType.LOCATION and s.name in ("tool", "frame"):
-            values.append(Location(0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
-        elif not s.optional:
-            usage = " ".join(f"{p.name}:{p.type.name}" for p in specs)
-            raise CliError(f"{spec.name}: missing {s.name} (usage: {spec.name} {usage})")
-    return tuple(values)
-
-
-def to_json(value: Value) -> object:
-    if isinstance(value, Joints | FloatArray | IntArray | Transform):
-        return list(value.values)
-    if isinstance(value, Location):
-        return list(value.as_tuple())
-    if isinstance(value, Matrix):
-        return [list(r) for r in value.to_rows()]
-    if isinstance(value, bytes):
-        return value.hex()
-    if isinstance(value, Image):
-        return {"width": value.width, "height": value.height, "bytes": len(value.data)}
-    return value
+        raise CliError(str(exc)) from None
 
 
 def read_token(path: Path | None) -> str:
-    if path is None:
-        return ""
     try:
-        return path.read_text(encoding="utf-8").strip()
-    except OSError as exc:
-        raise CliError(f"cannot read token file {path}: {exc.strerror}") from None
+        return callcli.read_token(path)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
 
 
 # --- serve ------------------------------------------------------------------------------------
@@ -201,23 +105,10 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 
 def cmd_call(args: argparse.Namespace) -> int:
-    host, port = parse_endpoint(args.endpoint)
-    spec = robot_commands().get(args.command.lower())
-    if spec is None:
-        known = ", ".join(sorted(c.name for c in robot_commands().values()))
-        raise CliError(f"unknown command {args.command!r}; known: {known}")
-    params = parse_args_for(spec, args.args)
-    with RobotClient(host, port, timeout=args.timeout) as client:
-        if spec.needs_control:
-            client.take_control(read_token(args.token_file))
-        values = client.call(spec.id, *params)
-        reply = {p.name: to_json(v) for p, v in zip(spec.reply, values, strict=False)}
-        if spec.id in MOTION and not args.no_wait:
-            reply["done"] = client.wait_end_move(args.wait)
-        if spec.needs_control:
-            client.release_control()
-    print(json.dumps(reply))
-    return 0
+    return callcli.main_call(
+        "robot", DEFAULT_PORT, args.endpoint, args.command, args.args, args.timeout,
+        read_token(args.token_file), None if args.no_wait else args.wait,
+    )  # fmt: skip
 
 
 # --- watch ------------------------------------------------------------------------------------

@@ -1,15 +1,19 @@
 """The generic ``call`` command line both services share, in the manner of redis-cli.
 
 ``python -m robotsocket call HOST:PORT COMMAND [ARGS...]`` parses each argument by the type the
-registry gives the command's parameter, sends one request and prints the reply as JSON (named
-by the registry's reply table). Errors print their code and message and exit non-zero.
+registry gives the command's parameter (joints and locations as comma-separated numbers,
+booleans as on/off), sends one request and prints the reply as JSON named by the registry's
+reply table. A command that needs control takes it first (with the token) and gives it back.
+Exit codes: 0 ok, 1 error reply (code and message on stderr), 2 usage, 3 unreachable.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
 import sys
+from pathlib import Path
 from typing import Any
 
 from spec.client import FramedClient
@@ -23,7 +27,13 @@ EXIT_REMOTE_ERROR = 1
 EXIT_USAGE = 2
 EXIT_UNREACHABLE = 3
 
-_QUEUED_MOVES = {CommandId.JOINT_MOVE, CommandId.TOOL_MOVE_J, CommandId.TOOL_MOVE_L}
+_QUEUED_MOVES = {
+    CommandId.JOINT_MOVE,
+    CommandId.TOOL_MOVE_J,
+    CommandId.TOOL_MOVE_L,
+    CommandId.TOOL_MOVE_TRAJECTORY,
+    CommandId.RESTART_MOVE,
+}
 
 
 def parse_endpoint(text: str, default_port: int) -> tuple[str, int]:
@@ -101,15 +111,40 @@ def parse_arg(spec: ParamSpec, text: str) -> Value:
     raise ValueError(f"{what}: {t.name} parameters cannot be given on the command line")
 
 
+#: Trailing parameters that may be left off on the command line: the identity location.
+_IDENTITY_DEFAULTS = {"tool", "frame"}
+
+
+def _defaultable(p: ParamSpec) -> bool:
+    return p.optional or (p.type is ParamType.LOCATION and p.name in _IDENTITY_DEFAULTS)
+
+
 def parse_args(spec: CommandSpec, args: list[str]) -> tuple[Value, ...]:
-    required = [p for p in spec.params if not p.optional]
-    if not len(required) <= len(args) <= len(spec.params):
+    """Parse a command's arguments; a trailing tool or frame left off is the identity."""
+    required = len(spec.params)
+    while required and _defaultable(spec.params[required - 1]):
+        required -= 1
+    if not required <= len(args) <= len(spec.params):
         usage = " ".join(
-            f"[{p.name}]" if p.optional else f"<{p.name}:{p.type.name.lower()}>"
+            f"[{p.name}]" if _defaultable(p) else f"<{p.name}:{p.type.name.lower()}>"
             for p in spec.params
         )
         raise ValueError(f"usage: {spec.name} {usage}".rstrip())
-    return tuple(parse_arg(p, a) for p, a in zip(spec.params, args, strict=False))
+    values = [parse_arg(p, a) for p, a in zip(spec.params, args, strict=False)]
+    for p in spec.params[len(args) :]:
+        if not p.optional:
+            values.append(Location(0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+    return tuple(values)
+
+
+def read_token(path: str | os.PathLike[str] | None) -> str:
+    """The control token in a file (stripped), or "" without a file; ValueError if unreadable."""
+    if path is None:
+        return ""
+    try:
+        return Path(path).read_text(encoding="utf-8").strip()
+    except OSError as exc:
+        raise ValueError(f"cannot read token file {path}: {exc.strerror}") from None
 
 
 def reply_json(spec: CommandSpec, values: tuple[Value, ...]) -> dict[str, Any]:
@@ -122,31 +157,35 @@ def reply_json(spec: CommandSpec, values: tuple[Value, ...]) -> dict[str, Any]:
 
 def main_call(
     service: str, default_port: int, endpoint: str, command: str, args: list[str],
-    timeout: float = 5.0, token: str | None = None,
+    timeout: float = 5.0, token: str | None = None, wait: float | None = 60.0,
 ) -> int:  # fmt: skip
-    """Run one ``call``; returns the process exit code."""
-    prog = f"python -m {'robotsocket' if service == 'robot' else 'sensorsocket'} call"
+    """Run one ``call``; returns the process exit code (0 ok, 1 error reply, 2 usage,
+    3 unreachable). A queued move is followed by WaitEndMove up to ``wait`` seconds
+    (``None``: return at once), because closing the controlling connection stops the arm
+    [RS-7.10]; the reply then has ``"done"``."""
     try:
         host, port = parse_endpoint(endpoint, default_port)
         spec = find_command(command, service)
         params = parse_args(spec, args)
     except (ValueError, ProtocolError) as exc:
-        print(f"{prog}: {exc}", file=sys.stderr)
+        print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     try:
         with FramedClient(host, port, timeout=timeout) as client:
-            if spec.needs_control and spec.name != "TakeControl":
+            take = spec.needs_control and spec.id != CommandId.TAKE_CONTROL
+            if take:
                 client.take_control(token or "")
             values = client.call(spec.id, *params)
-            if spec.id in _QUEUED_MOVES:
-                # Closing the controlling connection stops the arm [RS-7.10]: stay until the
-                # move has ended, as a user of a one-shot command expects.
-                client.call(CommandId.WAIT_END_MOVE, 600.0, timeout=610.0)
+            reply = reply_json(BY_ID[spec.id], values)
+            if spec.id in _QUEUED_MOVES and wait is not None:
+                reply["done"] = client.call(CommandId.WAIT_END_MOVE, wait, timeout=wait + 10)[0]
+            if take:
+                client.release_control()
     except RemoteError as exc:
         print(f"error {exc.code.name} ({exc.raw_code}): {exc.message}", file=sys.stderr)
         return EXIT_REMOTE_ERROR
     except (OSError, ProtocolError) as exc:
-        print(f"{prog}: cannot reach {host}:{port}: {exc}", file=sys.stderr)
+        print(f"error: cannot reach {host}:{port}: {exc}", file=sys.stderr)
         return EXIT_UNREACHABLE
-    print(json.dumps(reply_json(BY_ID[spec.id], values), indent=2, ensure_ascii=False))
+    print(json.dumps(reply, ensure_ascii=False))
     return 0

@@ -64,7 +64,7 @@ def test_call_prints_json_and_errors(
 @pytest.mark.parametrize(
     "argv",
     [
-        ["call", "nohost", "herej"],
+        ["call", "nohost:port", "herej"],
         ["call", "127.0.0.1:1", "nosuchcommand"],
         ["call", "127.0.0.1:1", "jointmove"],
         ["call", "127.0.0.1:1", "jointmove", "a,b"],
@@ -78,7 +78,7 @@ def test_usage_errors_exit_2(argv: list[str], capsys: pytest.CaptureFixture[str]
 
 def test_connection_refused_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
     code, _, err = run(capsys, "call", "127.0.0.1:1", "herej")
-    assert code == 1 and err.startswith("error") and "Traceback" not in err
+    assert code == 3 and err.startswith("error") and "Traceback" not in err
 
 
 def test_watch_stops_after_count(endpoint: str, capsys: pytest.CaptureFixture[str]) -> None:
