@@ -344,7 +344,7 @@ class FramedServer:
                 lost_control = True
         _close_quietly(session.sock)
         if lost_control:
-            log.warning("session %d lost control while connected; stopping", session.id)
+            log.info("session %d closed while holding control: controlled stop", session.id)
             self._guard(self.service.on_control_lost, session)
         self._guard(self.service.on_disconnect, session)
         log.info("session %d closed", session.id)
