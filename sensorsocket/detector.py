@@ -117,6 +117,19 @@ class Detection:
 
 
 @dataclass(frozen=True)
+class _ShapeConstants:
+    """Read-only arrays for frames of n columns: flat offset of each column (n,), bounds
+    (n,) for clipping ring rows and window starts, the window fill h (n,), zeros (n, w)."""
+
+    base: NDArray[np.intp]
+    low: NDArray[np.intp]
+    ring_high: NDArray[np.intp]
+    start_high: NDArray[np.intp]
+    fill: NDArray[np.float32]
+    zeros: NDArray[np.float32]
+
+
+@dataclass(frozen=True)
 class _Line:
     """z = a + b·y fitted to n points with rms residual (mm)."""
 
@@ -133,12 +146,10 @@ class SeamDetector:
         self.camera = camera if camera is not None else CameraGeometry()
         self.config = config if config is not None else DetectorConfig()
         h = self.config.half_window
-        self._win_i = np.arange(2 * h + 1)
         win = np.arange(2 * h + 1, dtype=np.float32)
         # (3, w): a window's mass, first and second moment are one matrix product
-        self._win_col = self._win_i[:, None]
         self._win_moments = np.stack([np.ones_like(win), win, win * win])
-        self._zeros_cache: dict[int, NDArray[np.float32]] = {}
+        self._shape_cache: dict[tuple[int, int], _ShapeConstants] = {}
         # closed-form calibration (see CameraGeometry.pixel_to_sensor), constants as floats
         cam = self.camera
         th = math.radians(cam.triangulation_angle_deg)
@@ -152,15 +163,26 @@ class SeamDetector:
         self._empty_cols = np.zeros(0, dtype=np.intp)
 
     # -- stage 1: stripe -------------------------------------------------------------------
-    def _zeros(self, n: int) -> NDArray[np.float32]:
-        """Read-only zeros (w, n): ``np.maximum`` with an array operand takes its SIMD loop,
-        with a scalar it does not. Cached per frame width; never written, so thread-safe."""
-        z = self._zeros_cache.get(n)
-        if z is None:
-            z = np.zeros((self._win_i.size, n), dtype=np.float32)
-            z.setflags(write=False)
-            self._zeros_cache[n] = z
-        return z
+    def _shape_constants(self, n: int, nrows: int) -> _ShapeConstants:
+        """Read-only index and bound arrays for frames (n, nrows), cached per shape: a
+        detector sees one frame shape over and over. Never written, so thread-safe."""
+        key = (n, nrows)
+        c = self._shape_cache.get(key)
+        if c is None:
+            w = self._win_moments.shape[1]
+            h = self.config.half_window
+            c = _ShapeConstants(
+                base=np.arange(0, n * nrows, nrows, dtype=np.intp),
+                low=np.zeros(n, dtype=np.intp),
+                ring_high=np.full(n, nrows - 1, dtype=np.intp),
+                start_high=np.full(n, nrows - w, dtype=np.intp),
+                fill=np.full(n, h, dtype=np.float32),
+                zeros=np.zeros((n, w), dtype=np.float32),
+            )
+            for arr in (c.base, c.low, c.ring_high, c.start_high, c.fill, c.zeros):
+                arr.setflags(write=False)
+            self._shape_cache[key] = c
+        return c
 
     def stripe(self, frame: NDArray[np.generic], first_column: int = 0) -> StripeProfile:
         """Sub-pixel stripe rows of every column of ``frame`` (n, rows)."""
@@ -169,7 +191,8 @@ class SeamDetector:
         h = self.config.half_window
         w = 2 * h + 1
         flat = a.reshape(-1)
-        base = np.arange(0, n * nrows, nrows, dtype=np.intp)
+        c = self._shape_constants(n, nrows)
+        base = c.base
         # numpy's argmax has no SIMD loop for 8-bit integers: on int32 it is 2x faster,
         # conversion included; ties resolve to the first maximum either way
         search = a.astype(np.int32) if a.dtype.itemsize == 1 else a
@@ -177,10 +200,11 @@ class SeamDetector:
         peak = flat.take(peak_row + base).astype(np.float32)
         ring = np.empty(2 * n, dtype=np.intp)
         lo, hi = ring[:n], ring[n:]
+        # bounds as arrays: numpy's integer maximum/minimum with a scalar is 2x slower
         np.subtract(peak_row, h + 3, out=lo)
-        np.maximum(lo, 0, out=lo)
+        np.maximum(lo, c.low, out=lo)
         np.add(peak_row, h + 3, out=hi)
-        np.minimum(hi, nrows - 1, out=hi)
+        np.minimum(hi, c.ring_high, out=hi)
         lo += base
         hi += base
         samples = flat.take(ring).astype(np.float32)
@@ -190,29 +214,32 @@ class SeamDetector:
         threshold = background + max(self.config.noise_factor * noise, 1.0)
         contrast = max(self.config.min_contrast_dn, 6.0 * noise)
         thr32 = np.float32(threshold)
-        # windows as (w, n): elementwise work runs along the long axis
-        index = np.empty((w, n), dtype=np.intp)
+        # every run of w pixels of the frame as a row of a strided view: a window is one
+        # fancy index (its flat start), no (n, w) index array to build
+        windows = np.ndarray(
+            (flat.size - w + 1, w), flat.dtype, flat, 0, (flat.itemsize, flat.itemsize)
+        )
         moments = np.empty((3, n), dtype=np.float32)
-        zeros = self._zeros(n)
         mass = moments[0]
         positive = np.empty(n, dtype=bool)
         rel = np.empty(n, dtype=np.float32)
         rows = np.empty(n, dtype=np.float32)
-        start = peak_row - h
+        start = peak_row
+        start -= h
         for second in (False, True):
             if second:  # re-centre on the first centroid: symmetric window, whole plateau
                 start = np.rint(rows).astype(np.intp)
                 start -= h
-            np.clip(start, 0, nrows - w, out=start)
+            np.maximum(start, c.low, out=start)
+            np.minimum(start, c.start_high, out=start)
             start_f = start.astype(np.float32)
             start += base
-            np.add(self._win_col, start, out=index)
-            vals = flat.take(index).astype(np.float32)
+            vals = windows[start].astype(np.float32)
             vals -= thr32
-            np.maximum(vals, zeros, out=vals)
-            np.matmul(self._win_moments, vals, out=moments)
+            np.maximum(vals, c.zeros, out=vals)  # an array operand takes the SIMD loop
+            np.matmul(self._win_moments, vals.T, out=moments)
             np.greater(mass, 0.0, out=positive)
-            rel.fill(h)
+            np.copyto(rel, c.fill)
             np.divide(moments[1], mass, out=rel, where=positive)
             np.add(rel, start_f, out=rows)
         spread = np.full(n, np.inf, dtype=np.float32)
