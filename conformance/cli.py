@@ -143,7 +143,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _main(argv: Sequence[str] | None) -> int:
     args = build_parser().parse_args(argv)
     # An in-process reference server logs through `logging`; keep the report readable.
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.ERROR)
+    logging.basicConfig(level=logging.ERROR)
     if not args.timeout_scale > 0:
         raise UsageError("--timeout-scale must be > 0")
     if args.fuzz < 0:

@@ -8,7 +8,7 @@ import zlib
 
 from spec import wire
 from spec.codec import Packet
-from spec.params import Location, Value, encode_params
+from spec.params import FloatArray, Location, Matrix, Value, encode_params
 from spec.registry import CommandId as C
 from spec.registry import CommandSpec
 from spec.wire import PacketKind
@@ -138,6 +138,10 @@ def valid_args(ctx: Context, conn: Conn, spec: CommandSpec) -> tuple[Value, ...]
     if c in (C.TOOL_MOVE_J, C.TOOL_MOVE_L):
         here = conn.ok(C.HERE, IDENTITY, IDENTITY)[0]
         return (here, IDENTITY, IDENTITY)
+    if c == C.TOOL_MOVE_TRAJECTORY:
+        here = conn.ok(C.HERE, IDENTITY, IDENTITY)[0]
+        assert isinstance(here, Location)
+        return (FloatArray([0.0, 0.5]), Matrix(2, 6, here.as_tuple() * 2), IDENTITY, IDENTITY)
     if c == C.SET_MOTION_DESC:
         return conn.ok(C.GET_MOTION_DESC)[:6]
     if c == C.WAIT_END_MOVE:

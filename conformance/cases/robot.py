@@ -12,7 +12,7 @@ import math
 import time
 
 from spec.errors import ErrorCode
-from spec.params import Joints, Location, Matrix, Value
+from spec.params import FloatArray, Joints, Location, Matrix, Value
 from spec.registry import CommandId as C
 
 from conformance.cases._util import IDENTITY
@@ -466,3 +466,82 @@ def motion_control_lost(ctx: Context) -> str:
     _wait_still(watcher, 30.0)
     watcher.call(C.RELEASE_CONTROL)
     return "stopped and emptied the queue; power stayed on"
+
+
+@case(
+    "robot.motion.trajectory_refused",
+    requirements=["RS-5.23"],
+    tags=["robot", "motion", "limits"],
+    service="robot",
+    motion=True,
+    commands=[*MOTION, C.TOOL_MOVE_TRAJECTORY, C.HERE],
+)
+def trajectory_refused(ctx: Context) -> None:
+    """ToolMoveTrajectory refuses bad timing, mismatched counts, too-fast and unreachable
+    paths before moving; nothing is queued."""
+    with _Motion(ctx) as m:
+        conn = m.conn
+        m.power()
+        here = conn.ok(C.HERE, IDENTITY, IDENTITY)[0]
+        assert isinstance(here, Location)
+        p = here.as_tuple()
+        away = (p[0], p[1], p[2] - 50.0, *p[3:])  # reachable, but not in 4 ms
+        far = (20000.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        bad: list[tuple[str, list[float], list[tuple[float, ...]], tuple[int, ...]]] = [
+            ("times not starting at 0", [0.5, 1.0], [p, p], (ErrorCode.OUT_OF_RANGE,)),
+            ("decreasing times", [0.0, 1.0, 0.5], [p, p, p], (ErrorCode.OUT_OF_RANGE,)),
+            ("2 times for 3 locations", [0.0, 1.0], [p, p, p],
+             (ErrorCode.OUT_OF_RANGE, ErrorCode.BAD_PARAMETERS)),
+            ("50 mm in 4 ms", [0.0, 0.004], [p, away], (ErrorCode.OUT_OF_RANGE,)),
+            ("a point 20 m away", [0.0, 30.0], [p, far],
+             (ErrorCode.UNREACHABLE, ErrorCode.OUT_OF_RANGE)),
+        ]  # fmt: skip
+        for what, times, locs, codes in bad:
+            answer = conn.call(C.TOOL_MOVE_TRAJECTORY, FloatArray(times),
+                               Matrix(len(locs), 6, [v for loc in locs for v in loc]),
+                               IDENTITY, IDENTITY)  # fmt: skip
+            if answer.error is None or answer.error[0] not in codes:
+                raise Fail(
+                    f"ToolMoveTrajectory with {what} is not refused",
+                    " or ".join(ErrorCode(c).name for c in codes),
+                    "accepted" if answer.error is None else answer.error,
+                    requirement="RS-5.23",
+                )
+        status = _status(conn)
+        if status.get("queue") != 0 or status.get("moving"):
+            raise Fail("a refused path was queued", "queue 0", status, requirement="RS-5.23")
+
+
+@case(
+    "robot.motion.trajectory_tracking",
+    requirements=["RS-5.24"],
+    level="SHOULD",
+    tags=["robot", "motion"],
+    service="robot",
+    motion=True,
+    budget=60.0,
+    commands=[*MOTION, C.TOOL_MOVE_TRAJECTORY, C.HERE],
+)
+def trajectory_tracking(ctx: Context) -> str:
+    """A 2 mm out-and-back timed path (2 s, at rest at both ends) ends within 0.01 mm of its
+    last point (the harness has no kinematic model to check the 4 ms samples themselves)."""
+    with _Motion(ctx) as m:
+        conn = m.conn
+        m.power()
+        here = conn.ok(C.HERE, IDENTITY, IDENTITY)[0]
+        assert isinstance(here, Location)
+        p = here.as_tuple()
+        times = [0.1 * k for k in range(21)]
+        # x(t) = 2 mm * sin^2(pi t / T): starts and ends at rest.
+        locs = [(p[0] + 2.0 * math.sin(math.pi * t / 2.0) ** 2, *p[1:]) for t in times]
+        conn.ok(C.TOOL_MOVE_TRAJECTORY, FloatArray(times),
+                Matrix(len(locs), 6, [v for loc in locs for v in loc]), IDENTITY, IDENTITY)  # fmt: skip
+        if not _wait_still(conn, 30.0):
+            raise Fail("the timed path did not end", True, False)
+        end = conn.ok(C.HERE, IDENTITY, IDENTITY)[0]
+        assert isinstance(end, Location)
+        err = math.dist(end.as_tuple()[:3], locs[-1][:3])
+        if err > 0.01:
+            raise Fail("the path's end is missed", "<= 0.01 mm", f"{err:.4f} mm",
+                       requirement="RS-5.24")  # fmt: skip
+        return f"end error {err * 1000:.2f} µm"
