@@ -24,8 +24,6 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import NoReturn
 
-from spec.registry import BY_ID, COMMANDS
-
 from conformance import SUITE_VERSION, TOOL_VERSION
 from conformance.context import Options
 from conformance.model import PROFILES, CaseResult, all_cases
@@ -46,6 +44,7 @@ from conformance.runner import (
     exit_code,
     run,
 )
+from spec.registry import BY_ID, COMMANDS
 
 EPILOG = """exit codes: 0 conformant; 1 a MUST failed; 2 only SHOULD failures (with --strict);
 3 usage or harness error; 4 endpoint unreachable or stopped answering; 5 nothing selected.
@@ -116,7 +115,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--strict", action="store_true", help="SHOULD failures give exit code 2")
     p.add_argument("-v", "--verbose", action="store_true", help="print every case")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
-    p.add_argument("--version", action="version", version=f"conformance {TOOL_VERSION} suite {SUITE_VERSION}")
+    p.add_argument(
+        "--version", action="version", version=f"conformance {TOOL_VERSION} suite {SUITE_VERSION}"
+    )
     return p
 
 
@@ -182,7 +183,9 @@ def _main(argv: Sequence[str] | None) -> int:
             return EXIT_USAGE
         host, port = reference.host, reference.port
         if not args.quiet:
-            print(f"started the reference {args.service} endpoint on {host}:{port}", file=sys.stderr)
+            print(
+                f"started the reference {args.service} endpoint on {host}:{port}", file=sys.stderr
+            )
 
     def progress(r: CaseResult) -> None:
         if not args.quiet:

@@ -14,14 +14,13 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from conformance.model import EndpointGone, EndpointTimeout, Fail, WireEntry
 from spec import wire
 from spec.codec import FrameDecoder, Packet, Rejected, encode_packet, request
 from spec.errors import ErrorCode, PeerError
 from spec.params import Value
 from spec.registry import BY_ID, check_params
 from spec.wire import PacketKind
-
-from conformance.model import EndpointGone, EndpointTimeout, Fail, WireEntry
 
 MAX_LOG_ENTRIES = 200  # per case
 MAX_LOG_BYTES = 4096  # bytes kept of one send or receive
@@ -44,7 +43,9 @@ class WireLog:
             if len(data) > MAX_LOG_BYTES:
                 note = f"{note} (first {MAX_LOG_BYTES} of {len(data)} bytes)".strip()
                 data = data[:MAX_LOG_BYTES]
-            self.entries.append(WireEntry(time.monotonic() - self.start, direction, conn, data, note))
+            self.entries.append(
+                WireEntry(time.monotonic() - self.start, direction, conn, data, note)
+            )
 
 
 class Closed(Exception):
@@ -198,7 +199,9 @@ class Conn:
                     f"connection closed ({exc})",
                     requirement="RS-6.2",
                 ) from None
-            raise EndpointGone(f"the endpoint closed the connection instead of answering: {exc}")
+            raise EndpointGone(
+                f"the endpoint closed the connection instead of answering: {exc}"
+            ) from None
         check_echo(answer, command, rid)
         return answer
 
@@ -227,7 +230,11 @@ class Conn:
         return answer.params
 
     def error(
-        self, command: int, code: int | tuple[int, ...], *params: Value, timeout: float | None = None
+        self,
+        command: int,
+        code: int | tuple[int, ...],
+        *params: Value,
+        timeout: float | None = None,
     ) -> Packet:
         """Call and require an error frame with ``code`` (or one of several codes)."""
         answer = self.call(command, *params, timeout=timeout)
@@ -279,8 +286,7 @@ def check_echo(answer: Packet, command: int, request_id: int) -> None:
         raise Fail(
             "the answer does not echo the request's command ID and request ID",
             f"command 0x{command:04x}, request ID {request_id}",
-            f"command 0x{answer.command:04x}, request ID {answer.request_id}"
-            f" ({answer.kind.name})",
+            f"command 0x{answer.command:04x}, request ID {answer.request_id} ({answer.kind.name})",
             requirement="RS-3.4",
         )
 

@@ -8,10 +8,6 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from spec.params import IntArray, Value
-from spec.registry import BY_ID, CommandId, commands_for
-from spec.wire import PacketKind
-
 from conformance.connection import Closed, Conn, UdpConn, WireLog
 from conformance.model import (
     EndpointGone,
@@ -20,6 +16,9 @@ from conformance.model import (
     NotApplicable,
     Skip,
 )
+from spec.params import IntArray, Value
+from spec.registry import BY_ID, CommandId, commands_for
+from spec.wire import PacketKind
 
 HELLO_FIELDS = (
     "version",

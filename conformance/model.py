@@ -12,14 +12,14 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from enum import Enum
+from enum import StrEnum
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from conformance.context import Context
 
 
-class Outcome(str, Enum):
+class Outcome(StrEnum):
     """Verdict of one case."""
 
     PASS = "pass"

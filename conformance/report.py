@@ -16,11 +16,10 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
-from spec import wire
-
 from conformance import SUITE_VERSION, TOOL, TOOL_VERSION
 from conformance.model import CaseResult, Outcome
 from conformance.runner import RunResult, exit_code
+from spec import wire
 
 SCHEMA_VERSION = 1
 ORDER = [o.value for o in Outcome]
@@ -168,7 +167,8 @@ def to_junit(run: RunResult, strict: bool = False) -> str:
                 c["skipped"] += 1
             elif r.message or r.outcome is Outcome.NON_STRICT:
                 out = ET.SubElement(tc, "system-out")
-                out.text = f"{r.outcome.value}: {r.message}\n{text if r.outcome is Outcome.NON_STRICT else ''}"
+                extra = text if r.outcome is Outcome.NON_STRICT else ""
+                out.text = f"{r.outcome.value}: {r.message}\n{extra}"
             c["tests"] += 1
         for key in ("tests", "failures", "errors", "skipped"):
             suite.set(key, str(c[key]))
@@ -189,7 +189,9 @@ def _failure_text(r: CaseResult, max_entries: int = 40) -> str:
         lines.append("bytes exchanged (time since case start, connection, direction):")
         lines += ["  " + e.render() for e in r.wire[-max_entries:]]
         if len(r.wire) > max_entries or r.wire_truncated:
-            lines.append(f"  ({len(r.wire) - max_entries + r.wire_truncated} earlier entries left out)")
+            lines.append(
+                f"  ({len(r.wire) - max_entries + r.wire_truncated} earlier entries left out)"
+            )
     return "\n".join(lines)
 
 
@@ -199,7 +201,8 @@ def to_markdown(run: RunResult, strict: bool = False) -> str:
         "",
         f"- tool {TOOL} {TOOL_VERSION}, suite {SUITE_VERSION}, protocol {wire.VERSION}",
         f"- profile `{run.profile}`, seed {run.options.seed}, timeout scale"
-        f" {run.options.timeout_scale:g}, motion {'allowed' if run.options.allow_motion else 'not allowed'}",
+        f" {run.options.timeout_scale:g}, motion"
+        f" {'allowed' if run.options.allow_motion else 'not allowed'}",
     ]
     if run.hello is not None:
         h = run.hello
@@ -212,10 +215,16 @@ def to_markdown(run: RunResult, strict: bool = False) -> str:
     lines.append(f"- exit code {exit_code(run, strict)}, {run.duration:.2f} s")
     lines += ["", "| outcome | count |", "|---|---:|"]
     lines += [f"| {k} | {v} |" for k, v in counts(run.results).items() if v]
-    lines += ["", "| case | requirements | level | outcome | time (s) | message |", "|---|---|---|---|---:|---|"]
+    lines += [
+        "",
+        "| case | requirements | level | outcome | time (s) | message |",
+        "|---|---|---|---|---:|---|",
+    ]
     for r in run.results:
         msg = r.message.replace("|", "\\|").replace("\n", " ")
-        mark = " (known)" if r.known_failure else (" (unexpected pass)" if r.unexpected_pass else "")
+        mark = (
+            " (known)" if r.known_failure else (" (unexpected pass)" if r.unexpected_pass else "")
+        )
         lines.append(
             f"| `{r.case.id}` | {', '.join(r.case.requirements)} | {r.case.level} |"
             f" {r.outcome.value}{mark} | {r.duration:.3f} | {msg} |"
@@ -224,7 +233,14 @@ def to_markdown(run: RunResult, strict: bool = False) -> str:
     if problems:
         lines += ["", "## Failures, errors and timeouts", ""]
         for r in problems:
-            lines += [f"### `{r.case.id}` ({r.outcome.value})", "", "```", _failure_text(r), "```", ""]
+            lines += [
+                f"### `{r.case.id}` ({r.outcome.value})",
+                "",
+                "```",
+                _failure_text(r),
+                "```",
+                "",
+            ]
     if run.measurements:
         lines += ["", "## Measurements (not verdicts)", ""]
         for name, values in run.measurements.items():
@@ -234,7 +250,9 @@ def to_markdown(run: RunResult, strict: bool = False) -> str:
 
 def terminal(run: RunResult, strict: bool = False, verbose: bool = False) -> str:
     """The readable summary: per section counts, then every problem with its bytes."""
-    out = [f"conformance {run.service} {run.endpoint}  profile {run.profile}  seed {run.options.seed}"]
+    out = [
+        f"conformance {run.service} {run.endpoint}  profile {run.profile}  seed {run.options.seed}"
+    ]
     if run.hello is not None:
         h = run.hello
         out.append(
@@ -257,7 +275,8 @@ def terminal(run: RunResult, strict: bool = False, verbose: bool = False) -> str
     for r in run.results:
         if verbose or (r.is_problem and not r.known_failure) or r.unexpected_pass:
             flag = " (unexpected pass)" if r.unexpected_pass else ""
-            out.append(f"{r.outcome.value.upper():<14} {r.case.id} [{', '.join(r.case.requirements)}]{flag}")
+            reqs = ", ".join(r.case.requirements)
+            out.append(f"{r.outcome.value.upper():<14} {r.case.id} [{reqs}]{flag}")
             if r.is_problem:
                 out += ["    " + line for line in _failure_text(r, 12).splitlines()]
             elif r.message:
@@ -268,7 +287,8 @@ def terminal(run: RunResult, strict: bool = False, verbose: bool = False) -> str
             out.append(f"  {name}: " + ", ".join(f"{k} {v}" for k, v in values.items()))
     total = counts(run.results)
     out.append(
-        "total: " + ", ".join(f"{v} {k}" for k, v in total.items() if v)
+        "total: "
+        + ", ".join(f"{v} {k}" for k, v in total.items() if v)
         + f"  ({run.duration:.2f} s)  exit {exit_code(run, strict)}"
     )
     return "\n".join(out) + "\n"

@@ -12,9 +12,6 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from spec import wire
-from spec.registry import CommandId
-
 from conformance.connection import Closed, WireLog
 from conformance.context import HELLO_FIELDS, Context, Hello, Options, Shared
 from conformance.model import (
@@ -29,6 +26,8 @@ from conformance.model import (
     Skip,
     all_cases,
 )
+from spec import wire
+from spec.registry import CommandId
 
 log = logging.getLogger(__name__)
 
@@ -82,7 +81,9 @@ class RunResult:
     harness_errors: int = 0  # cases that ended in ERROR because of a harness fault
 
 
-def negotiate(service: str, host: str, port: int, options: Options) -> tuple[bool, Hello | None, str]:
+def negotiate(
+    service: str, host: str, port: int, options: Options
+) -> tuple[bool, Hello | None, str]:
     """Connect and send Hello: (reachable, hello or None, error text)."""
     if service == "sync":
         return True, None, ""

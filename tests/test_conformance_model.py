@@ -73,8 +73,19 @@ def test_selection_globs_tags_and_profiles() -> None:
 
 
 def _case(id: str, level: str = "MUST") -> Case:
-    return Case(id, lambda ctx: None, ("RS-3.4",), level, ("framing",), ("core",), 1.0, False,
-                "any", (), "a case")  # fmt: skip
+    return Case(
+        id,
+        lambda ctx: None,
+        ("RS-3.4",),
+        level,
+        ("framing",),
+        ("core",),
+        1.0,
+        False,
+        "any",
+        (),
+        "a case",
+    )
 
 
 def _run(*outcomes: Outcome, reachable: bool = True) -> RunResult:
@@ -129,8 +140,16 @@ def test_json_report_schema() -> None:
 
 
 def test_junit_distinguishes_failure_error_and_skipped() -> None:
-    xml = to_junit(_run(Outcome.PASS, Outcome.FAIL, Outcome.ERROR, Outcome.TIMEOUT,
-                        Outcome.NOT_APPLICABLE, Outcome.NON_STRICT))  # fmt: skip
+    xml = to_junit(
+        _run(
+            Outcome.PASS,
+            Outcome.FAIL,
+            Outcome.ERROR,
+            Outcome.TIMEOUT,
+            Outcome.NOT_APPLICABLE,
+            Outcome.NON_STRICT,
+        )
+    )
     root = ET.fromstring(xml)
     assert root.get("tests") == "6"
     assert root.get("failures") == "1" and root.get("errors") == "2" and root.get("skipped") == "1"
@@ -139,7 +158,11 @@ def test_junit_distinguishes_failure_error_and_skipped() -> None:
     assert cases["framing.c2"].find("error") is not None
     assert cases["framing.c1"].find("failure").text is not None  # type: ignore[union-attr]
     assert "52 53 01" in cases["framing.c1"].find("failure").text  # type: ignore[union-attr,operator]
-    props = [p.get("value") for p in cases["framing.c0"].iter("property") if p.get("name") == "requirement"]
+    props = [
+        p.get("value")
+        for p in cases["framing.c0"].iter("property")
+        if p.get("name") == "requirement"
+    ]
     assert props == ["RS-3.4"]
     strict = ET.fromstring(to_junit(_run(Outcome.NON_STRICT), strict=True))
     assert strict.get("failures") == "1"
@@ -195,8 +218,18 @@ def test_cli_usage_errors_exit_3(capsys: pytest.CaptureFixture[str]) -> None:
 def test_cli_unreachable_writes_every_report(tmp_path: Path) -> None:
     port = _free_port()
     paths = {k: tmp_path / f"r.{k}" for k in ("json", "junit", "markdown")}
-    code = main(["sensor", f"127.0.0.1:{port}", "--profile", "smoke", "-q",
-                 "--timeout-scale", "0.1", *(a for k, p in paths.items() for a in (f"--{k}", str(p)))])  # fmt: skip
+    code = main(
+        [
+            "sensor",
+            f"127.0.0.1:{port}",
+            "--profile",
+            "smoke",
+            "-q",
+            "--timeout-scale",
+            "0.1",
+            *(a for k, p in paths.items() for a in (f"--{k}", str(p))),
+        ]
+    )
     assert code == 4
     data = json.loads(paths["json"].read_text())
     assert data["reachable"] is False and data["exit_code"] == 4

@@ -29,8 +29,8 @@ from spec.codec import FrameDecoder, Packet, Rejected, encode_packet
 from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data
 from spec.errors import DatagramError, ErrorCode, ProtocolError
 from spec.params import Image, Joints, Location, Matrix, Value
-from spec.registry import CommandId as C
 from spec.registry import BY_ID, CommandSpec, check_params
+from spec.registry import CommandId as C
 from spec.server import FramedServer, Identity, ServerPolicy, Service, Session
 from spec.wire import PacketKind, SensorStatus
 
@@ -44,9 +44,20 @@ class MiniRobot(Service):
     """A robot service without motion: status, joints, Here, motion descriptor, I/O, log."""
 
     identity = Identity("robot", vendor="test", model="mini-robot", serial="1")
-    COMMANDS = (C.ROBOT_STATUS, C.HEREJ, C.HERE, C.SET_MOTION_DESC, C.GET_MOTION_DESC,
-                C.WAIT_END_MOVE, C.STOP_MOVE, C.RESET_MOTION, C.READ_IO, C.LIST_IO,
-                C.GET_JOINT_LOG, C.GET_JOINT_LIMITS)  # fmt: skip
+    COMMANDS = (
+        C.ROBOT_STATUS,
+        C.HEREJ,
+        C.HERE,
+        C.SET_MOTION_DESC,
+        C.GET_MOTION_DESC,
+        C.WAIT_END_MOVE,
+        C.STOP_MOVE,
+        C.RESET_MOTION,
+        C.READ_IO,
+        C.LIST_IO,
+        C.GET_JOINT_LOG,
+        C.GET_JOINT_LIMITS,
+    )
 
     def __init__(self) -> None:
         self.q = [5.0, -10.0, 90.0, 0.0, 45.0, 0.0]
@@ -75,8 +86,11 @@ class MiniRobot(Service):
         if c == C.HERE:
             tool, frame = params
             assert isinstance(tool, Location) and isinstance(frame, Location)
-            t = concat(invert(location_to_transform(frame.as_tuple())), self.flange(),
-                       location_to_transform(tool.as_tuple()))  # fmt: skip
+            t = concat(
+                invert(location_to_transform(frame.as_tuple())),
+                self.flange(),
+                location_to_transform(tool.as_tuple()),
+            )
             return (Location.of(transform_to_location(t)),)
         if c == C.GET_MOTION_DESC:
             return tuple(self.mdesc)
@@ -107,8 +121,14 @@ class MiniRobot(Service):
             rows = [r for r in rows if r[0] > since]
             return (Matrix(len(rows), 7, [v for r in rows for v in r]), 0.004)
         if c == C.GET_JOINT_LIMITS:
-            lims = [(-160, 160), (-137.5, 137.5), (-142.5, 142.5), (-270, 270), (-105, 120),
-                    (-270, 270)]  # fmt: skip
+            lims = [
+                (-160, 160),
+                (-137.5, 137.5),
+                (-142.5, 142.5),
+                (-270, 270),
+                (-105, 120),
+                (-270, 270),
+            ]
             return (Matrix(6, 2, [v for r in lims for v in r]),)
         raise ProtocolError(f"{spec.name} not implemented", ErrorCode.NOT_SUPPORTED)
 
@@ -137,8 +157,14 @@ class MiniSensor(Service):
         with self.lock:
             if c == C.SENSOR_STATUS:
                 held = session.server.control_holder
-                return (self.laser, self.index + 1, self.index, held is session,
-                        held is not None, self.clock())  # fmt: skip
+                return (
+                    self.laser,
+                    self.index + 1,
+                    self.index,
+                    held is session,
+                    held is not None,
+                    self.clock(),
+                )
             if c == C.ACQUIRE:
                 self.index += 1
                 t = self.clock()
@@ -157,8 +183,14 @@ class MiniSensor(Service):
                     raise ProtocolError("no image yet", ErrorCode.NO_DATA)
                 col, row, w, h = (list(params) + [0, 0, self.W, self.H][len(params) :])[:4]
                 assert all(isinstance(v, int) for v in (col, row, w, h))
-                if not (0 <= col and 0 <= row and 0 < w and 0 < h  # type: ignore[operator]
-                        and col + w <= self.W and row + h <= self.H):  # type: ignore[operator]  # fmt: skip
+                if not (
+                    col >= 0
+                    and row >= 0
+                    and w > 0
+                    and h > 0  # type: ignore[operator]
+                    and col + w <= self.W
+                    and row + h <= self.H
+                ):  # type: ignore[operator]
                     raise ProtocolError("region outside the sensor", ErrorCode.OUT_OF_RANGE)
                 return (self.index, Image(int(w), int(h), bytes(int(w) * int(h))))  # type: ignore[call-overload]
             if c == C.GET_PROFILE:
@@ -176,7 +208,7 @@ class MiniSensor(Service):
                 return ()
             if c == C.SET_READOUT_WINDOW:
                 first, cols = int(params[0]), int(params[1])  # type: ignore[call-overload]
-                if not (0 <= first and 0 < cols and first + cols <= self.W):
+                if not (first >= 0 and cols > 0 and first + cols <= self.W):
                     raise ProtocolError("window out of range", ErrorCode.OUT_OF_RANGE)
                 self.window = (first, cols)
                 return (self.acq_time(),)
@@ -236,8 +268,13 @@ def test_minimal_sensor_scores_100_percent() -> None:
     assert problems(result) == {}
     assert exit_code(result) == 0
     got = outcomes(result)
-    for case_id in ("sensor.getdata.no_data", "sensor.laser_off", "sensor.image.region",
-                    "limits.max_payload.accepted", "connections.max_clients"):  # fmt: skip
+    for case_id in (
+        "sensor.getdata.no_data",
+        "sensor.laser_off",
+        "sensor.image.region",
+        "limits.max_payload.accepted",
+        "connections.max_clients",
+    ):
         assert got[case_id] is Outcome.PASS, case_id
 
 
@@ -285,8 +322,9 @@ def test_wrong_request_id_echo_is_caught(send_hook: Any) -> None:
 
     send_hook(server, mangle)
     with serving(server) as address:
-        result = check("robot", address, ("framing.reply.echo", "framing.pipelined.ordered",
-                                          "framing.crc.bad"))  # fmt: skip
+        result = check(
+            "robot", address, ("framing.reply.echo", "framing.pipelined.ordered", "framing.crc.bad")
+        )
     _caught(result, "framing.reply.echo", "framing.pipelined.ordered", "framing.crc.bad")
 
 
@@ -320,7 +358,9 @@ def test_error_frame_without_message_is_caught(send_hook: Any) -> None:
     def mangle(frame: bytes, packet: Packet) -> bytes:
         if packet.kind is not PacketKind.ERROR:
             return frame
-        return encode_packet(Packet(packet.kind, packet.command, packet.request_id, packet.params[:1]))
+        return encode_packet(
+            Packet(packet.kind, packet.command, packet.request_id, packet.params[:1])
+        )
 
     send_hook(server, mangle)
     with serving(server) as address:
@@ -379,8 +419,12 @@ class NoControlCheckServer(FramedServer):
 def test_missing_control_check_is_caught() -> None:
     with serving(NoControlCheckServer(MiniSensor(), policy=POLICY)) as address:
         result = check("sensor", address, ("commands.sensor.*.not_in_control", "control.*"))
-    _caught(result, "commands.sensor.SetExposure.not_in_control",
-            "commands.sensor.Acquire.not_in_control", "control.read_only_open")  # fmt: skip
+    _caught(
+        result,
+        "commands.sensor.SetExposure.not_in_control",
+        "commands.sensor.Acquire.not_in_control",
+        "control.read_only_open",
+    )
 
 
 class NoParamCheckServer(FramedServer):
@@ -492,8 +536,19 @@ def _answer(req: Packet) -> Packet:
     from spec.params import IntArray
 
     if req.command == C.HELLO:
-        params: tuple[Value, ...] = ("1.0", "sensor", "raw", "raw", "0", "0",
-                                     IntArray([1, 2, 3, 4, 5]), 65536, 16, 300.0, 5.0)  # fmt: skip
+        params: tuple[Value, ...] = (
+            "1.0",
+            "sensor",
+            "raw",
+            "raw",
+            "0",
+            "0",
+            IntArray([1, 2, 3, 4, 5]),
+            65536,
+            16,
+            300.0,
+            5.0,
+        )
     elif req.command == C.PING:
         params = req.params[:1] or (b"",)
     elif req.command == C.GET_TIME:
@@ -542,8 +597,11 @@ def slow(conn: socket.socket, server: RawServer) -> None:
 
 def test_ignoring_the_length_field_is_caught() -> None:
     with RawServer(ignores_length) as address:
-        result = check("sensor", address, ("framing.coalesced", "framing.pipelined.ordered",
-                                           "framing.length.over_limit"))  # fmt: skip
+        result = check(
+            "sensor",
+            address,
+            ("framing.coalesced", "framing.pipelined.ordered", "framing.length.over_limit"),
+        )
     got = outcomes(result)
     assert got["framing.coalesced"] in (Outcome.FAIL, Outcome.TIMEOUT)
     assert got["framing.length.over_limit"] is Outcome.FAIL
@@ -615,9 +673,16 @@ def test_unreachable_endpoint_gives_errors_and_exit_4() -> None:
 class MiniTriggerListener:
     """A sensor trigger endpoint with switchable faults."""
 
-    def __init__(self, *, drop_every: int = 0, duplicate: bool = False,
-                 answer_malformed: bool = False, no_dedup: bool = False,
-                 delay: float = 0.0, bad_times: bool = False) -> None:  # fmt: skip
+    def __init__(
+        self,
+        *,
+        drop_every: int = 0,
+        duplicate: bool = False,
+        answer_malformed: bool = False,
+        no_dedup: bool = False,
+        delay: float = 0.0,
+        bad_times: bool = False,
+    ) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
         self.sock.settimeout(0.05)
@@ -651,9 +716,18 @@ class MiniTriggerListener:
             if self.drop_every and self.count % self.drop_every == 0:
                 continue
             end = t - 1e-3 if self.bad_times else t + 3.6e-3
-            data = encode_data(SensorData(trig.index, SensorStatus.FOUND,
-                                          (0.0, 1.0, 80.0, 0.0, 0.0, 0.0), 0.9, trig.t_trigger,
-                                          t, t + 1e-4, end))  # fmt: skip
+            data = encode_data(
+                SensorData(
+                    trig.index,
+                    SensorStatus.FOUND,
+                    (0.0, 1.0, 80.0, 0.0, 0.0, 0.0),
+                    0.9,
+                    trig.t_trigger,
+                    t,
+                    t + 1e-4,
+                    end,
+                )
+            )
             if self.delay:
                 time.sleep(self.delay)
             for _ in range(2 if self.duplicate else 1):
@@ -687,8 +761,9 @@ def test_udp_endpoint_dropping_data_is_caught() -> None:
 
 
 def test_udp_endpoint_duplicating_data_is_caught() -> None:
-    result = sync_check(MiniTriggerListener(duplicate=True),
-                        ("sync.trigger.answer", "sync.duplicate.once"))  # fmt: skip
+    result = sync_check(
+        MiniTriggerListener(duplicate=True), ("sync.trigger.answer", "sync.duplicate.once")
+    )
     _caught(result, "sync.trigger.answer", "sync.duplicate.once")
 
 

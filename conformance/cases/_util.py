@@ -6,16 +6,15 @@ import math
 import struct
 import zlib
 
+from conformance.connection import Conn
+from conformance.context import Context
+from conformance.model import Fail, NotApplicable, Skip
 from spec import wire
 from spec.codec import Packet
 from spec.params import FloatArray, Location, Matrix, Value, encode_params
 from spec.registry import CommandId as C
 from spec.registry import CommandSpec
 from spec.wire import PacketKind
-
-from conformance.connection import Conn
-from conformance.context import Context
-from conformance.model import Fail, NotApplicable, Skip
 
 IDENTITY = Location(0, 0, 0, 0, 0, 0)
 

@@ -15,6 +15,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from conformance.cases._util import valid_args, wrong_type
+from conformance.connection import Conn
+from conformance.context import Context
+from conformance.model import Case, Fail, Informational, Skip, add_case
 from spec.errors import ErrorCode
 from spec.params import (
     FloatArray,
@@ -29,11 +33,6 @@ from spec.params import (
 from spec.registry import COMMANDS, CommandSpec
 from spec.registry import CommandId as C
 from spec.wire import ParamType
-
-from conformance.cases._util import valid_args, wrong_type
-from conformance.connection import Conn
-from conformance.context import Context
-from conformance.model import Case, Fail, Informational, Skip, add_case
 
 #: Errors a correct request may get in some states of the endpoint (not a reply-table break).
 STATE_ERRORS = (
@@ -75,7 +74,9 @@ def _group(spec: CommandSpec) -> str:
 
 
 def _service(spec: CommandSpec) -> str:
-    return "any" if spec.service == "common" else ("robot" if spec.service == "sync" else spec.service)
+    return (
+        "any" if spec.service == "common" else ("robot" if spec.service == "sync" else spec.service)
+    )
 
 
 def _reply_case(spec: CommandSpec) -> Callable[[Context], str | None]:
@@ -182,11 +183,9 @@ def _not_in_control_case(spec: CommandSpec) -> Callable[[Context], str | None]:
         if _dangerous(spec):
             ctx.require_motion(f"{spec.name} without control")
         if spec.id in DEDICATED:
-            args: tuple[Value, ...] = tuple(dummy(p.type) for p in spec.params)
-            if spec.id == C.START_TRIGGERS:
-                args = (10.0, 1)
-            else:
-                args = (FloatArray([1e9]),)
+            args: tuple[Value, ...] = (
+                (10.0, 1) if spec.id == C.START_TRIGGERS else (FloatArray([1e9]),)
+            )
         else:
             args = tuple(dummy(p.type) for p in spec.params)
             if _dangerous(spec):

@@ -6,12 +6,11 @@ import statistics
 import threading
 import time
 
-from spec.errors import ErrorCode
-from spec.registry import CommandId as C
-
 from conformance.connection import Closed
 from conformance.context import Context
 from conformance.model import EndpointTimeout, Fail, NotApplicable, Skip, case
+from spec.errors import ErrorCode
+from spec.registry import CommandId as C
 
 
 def _read_only(ctx: Context) -> int:

@@ -3,19 +3,19 @@ frame errors (PROTOCOL.md sections 2, 3 and 6)."""
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
-
-from spec import wire
-from spec.codec import Packet, encode_packet, request
-from spec.errors import ErrorCode
-from spec.registry import CommandId as C
-from spec.wire import PacketKind
 
 from conformance.cases._util import expect_error_echo, raw_frame, still_answers
 from conformance.connection import Closed
 from conformance.context import Context
 from conformance.model import EndpointTimeout, Fail, Informational, case
+from spec import wire
+from spec.codec import Packet, encode_packet, request
+from spec.errors import ErrorCode
+from spec.registry import CommandId as C
+from spec.wire import PacketKind
 
 SMOKE = ("smoke", "core", "full")
 
@@ -75,7 +75,7 @@ def float64_time(ctx: Context) -> str:
         times.append(t)
     if not all(math.isfinite(t) and abs(t) < 1e11 for t in times):
         raise Fail("GetTime is not a plausible float64 in seconds", "finite, |t| < 1e11", times)
-    if any(b < a for a, b in zip(times, times[1:], strict=False)):
+    if any(b < a for a, b in itertools.pairwise(times)):
         raise Fail("GetTime went backwards", "monotonic", times, requirement="RS-8.4")
     if times[-1] - times[0] > 10 * ctx.timeout + 1:
         raise Fail("GetTime advanced far faster than real time", "seconds", times)
@@ -138,7 +138,9 @@ def pipelined(ctx: Context) -> None:
     got = [conn.recv_packet() for _ in sent]
     order = [(p.command, p.request_id) for p in got]
     if order != sent:
-        raise Fail("pipelined requests are not answered in order", sent, order, requirement="RS-3.10")
+        raise Fail(
+            "pipelined requests are not answered in order", sent, order, requirement="RS-3.10"
+        )
     extra = conn.quiet(ctx.scaled(0.1))
     if extra:
         raise Fail("more answers than requests", 20, 20 + len(extra), requirement="RS-6.2")
@@ -243,7 +245,9 @@ def magic_bad(ctx: Context) -> None:
 )
 def length_over_limit(ctx: Context) -> None:
     """A length above the announced maximum is refused from the header alone (no payload sent)."""
-    limit = int(ctx.hello.number("max_payload", wire.MAX_PAYLOAD)) if ctx.hello else wire.MAX_PAYLOAD
+    limit = (
+        int(ctx.hello.number("max_payload", wire.MAX_PAYLOAD)) if ctx.hello else wire.MAX_PAYLOAD
+    )
     limit = min(limit, wire.MAX_PAYLOAD)
     header = wire.HEADER.pack(wire.MAGIC, 1, 0, PacketKind.REQUEST, 0, C.PING, 35, limit + 1)
     _fatal(ctx, header, (ErrorCode.FRAME_TOO_LARGE,), f"a header announcing {limit + 1} bytes")

@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
+from conformance.cases._util import raw_frame
+from conformance.context import HELLO_FIELDS, Context
+from conformance.model import Fail, Informational, case
 from spec import wire
 from spec.codec import Packet
 from spec.errors import ErrorCode
 from spec.registry import CommandId as C
 from spec.registry import commands_for
-
-from conformance.cases._util import raw_frame
-from conformance.context import HELLO_FIELDS, Context
-from conformance.model import Fail, Informational, case
 
 SMOKE = ("smoke", "core", "full")
 
@@ -34,7 +33,8 @@ def hello_reply(ctx: Context) -> str:
     if fields["service"] != ctx.service:
         raise Fail("Hello names another service", ctx.service, fields["service"])
     ctx.details["hello"] = {k: repr(v) for k, v in fields.items()}
-    return f"{fields['vendor']} {fields['model']} serial {fields['serial']} version {version}"
+    ident = " ".join(str(fields[k]) for k in ("vendor", "model"))
+    return f"{ident} serial {fields['serial']!s} version {version}"
 
 
 @case(

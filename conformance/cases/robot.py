@@ -8,17 +8,17 @@ case the motion descriptor in force before it is restored.
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
-
-from spec.errors import ErrorCode
-from spec.params import FloatArray, Joints, Location, Matrix, Value
-from spec.registry import CommandId as C
 
 from conformance.cases._util import IDENTITY
 from conformance.connection import Conn
 from conformance.context import Context
 from conformance.model import Fail, Informational, Skip, case
+from spec.errors import ErrorCode
+from spec.params import FloatArray, Joints, Location, Matrix, Value
+from spec.registry import CommandId as C
 
 Mat = list[list[float]]
 
@@ -29,10 +29,17 @@ SLOW = 5.0  # % of nominal joint speed, acceleration and deceleration
 def loc_to_matrix(loc: Location) -> Mat:
     """4x4 homogeneous matrix of a VAL3 location, R = Rx(rx)·Ry(ry)·Rz(rz) [RS-8.2]."""
     a, b, c = (math.radians(v) for v in (loc.rx, loc.ry, loc.rz))
-    ca, sa, cb, sb, cc, sc = math.cos(a), math.sin(a), math.cos(b), math.sin(b), math.cos(c), math.sin(c)
-    rx = [[1, 0, 0], [0, ca, -sa], [0, sa, ca]]
-    ry = [[cb, 0, sb], [0, 1, 0], [-sb, 0, cb]]
-    rz = [[cc, -sc, 0], [sc, cc, 0], [0, 0, 1]]
+    ca, sa, cb, sb, cc, sc = (
+        math.cos(a),
+        math.sin(a),
+        math.cos(b),
+        math.sin(b),
+        math.cos(c),
+        math.sin(c),
+    )
+    rx = [[1.0, 0.0, 0.0], [0.0, ca, -sa], [0.0, sa, ca]]
+    ry = [[cb, 0.0, sb], [0.0, 1.0, 0.0], [-sb, 0.0, cb]]
+    rz = [[cc, -sc, 0.0], [sc, cc, 0.0], [0.0, 0.0, 1.0]]
     r = _mul3(_mul3(rx, ry), rz)
     return [
         [*r[0], loc.x],
@@ -77,8 +84,17 @@ def _limits(conn: Conn) -> list[tuple[float, float]]:
 
 
 def _status(conn: Conn) -> dict[str, Value]:
-    names = ("powered", "estop", "moving", "queue", "in_control", "controlled", "last_error",
-             "last_message", "time")  # fmt: skip
+    names = (
+        "powered",
+        "estop",
+        "moving",
+        "queue",
+        "in_control",
+        "controlled",
+        "last_error",
+        "last_message",
+        "time",
+    )
     return dict(zip(names, conn.ok(C.ROBOT_STATUS), strict=False))
 
 
@@ -95,15 +111,19 @@ def herej_six_joints(ctx: Context) -> str:
     conn = ctx.connect()
     q = _joints(conn)
     if len(q) != 6 or not all(math.isfinite(v) for v in q):
-        raise Fail("Herej does not give six finite joints", "6 finite values", q, requirement="RS-5.10")
+        raise Fail(
+            "Herej does not give six finite joints", "6 finite values", q, requirement="RS-5.10"
+        )
     limits = _limits(conn)
     if len(limits) != 6 or any(lo >= hi for lo, hi in limits):
         raise Fail("GetJointLimits is not a 6 x 2 (min, max) matrix", "6 rows min < max", limits)
     if all(abs(v) <= 2 * math.pi + 1e-6 for pair in limits for v in pair):
-        raise Fail(
-            "joint limits look like radians", "degrees", limits, requirement="RS-8.1"
-        )
-    outside = [i + 1 for i, (v, (lo, hi)) in enumerate(zip(q, limits, strict=True)) if not lo - 0.5 <= v <= hi + 0.5]
+        raise Fail("joint limits look like radians", "degrees", limits, requirement="RS-8.1")
+    outside = [
+        i + 1
+        for i, (v, (lo, hi)) in enumerate(zip(q, limits, strict=True))
+        if not lo - 0.5 <= v <= hi + 0.5
+    ]
     if outside:
         raise Fail("joints outside the joint limits", limits, q, requirement="RS-8.3")
     return "joints " + ", ".join(f"{v:.2f}" for v in q)
@@ -161,7 +181,7 @@ def jointlog_order(ctx: Context) -> str:
     ts = [log.values[i * 7] for i in range(log.rows)]
     if ts[0] <= t0 - 0.2:
         raise Fail("a sample not newer than since", f"> {t0 - 0.2}", ts[0], requirement="RS-5.17")
-    if any(b <= a for a, b in zip(ts, ts[1:], strict=False)):
+    if any(b <= a for a, b in itertools.pairwise(ts)):
         raise Fail("joint log times do not increase", "increasing", ts[:10], requirement="RS-5.17")
     if ts[-1] > t1 + 0.001 or ts[-1] < t0 - 1.0:
         raise Fail(
@@ -209,8 +229,15 @@ def motiondesc_range(ctx: Context) -> None:
     try:
         before = conn.ok(C.GET_MOTION_DESC)[:6]
         good = [float(v) for v in before]  # type: ignore[arg-type]
-        for index, bad in ((0, 0.0), (0, 150.0), (1, -1.0), (2, 101.0), (3, 0.0), (4, -5.0),
-                           (5, -1.0)):  # fmt: skip
+        for index, bad in (
+            (0, 0.0),
+            (0, 150.0),
+            (1, -1.0),
+            (2, 101.0),
+            (3, 0.0),
+            (4, -5.0),
+            (5, -1.0),
+        ):
             args = list(good)
             args[index] = bad
             conn.error(C.SET_MOTION_DESC, ErrorCode.OUT_OF_RANGE, *args)
@@ -302,7 +329,9 @@ def motion_not_powered(ctx: Context) -> None:
         conn.error(C.JOINT_MOVE, ErrorCode.NOT_POWERED, Joints(q))
         status = _status(conn)
         if status.get("queue") != 0 or status.get("moving"):
-            raise Fail("a refused move was queued", "queue 0, not moving", status, requirement="RS-5.12")
+            raise Fail(
+                "a refused move was queued", "queue 0, not moving", status, requirement="RS-5.12"
+            )
 
 
 @case(
@@ -403,7 +432,8 @@ def motion_queued(ctx: Context) -> str:
         conn.ok(C.JOINT_MOVE, Joints(target))
         reply_s = time.monotonic() - t0
         status = _status(conn)
-        still_moving = bool(status.get("moving")) or int(status.get("queue") or 0) > 0  # type: ignore[call-overload]
+        queue = status.get("queue")
+        still_moving = bool(status.get("moving")) or (isinstance(queue, int) and queue > 0)
         early = conn.ok(C.WAIT_END_MOVE, 0.001)[0] if still_moving else None
         if not _wait_still(conn, 30.0):
             raise Fail("WaitEndMove(30 s) did not see the end of a 2 degree move", True, False)
@@ -456,8 +486,12 @@ def motion_control_lost(ctx: Context) -> str:
             break
         time.sleep(0.05)
     else:
-        raise Fail("the arm did not stop after the controller left", "stopped, queue 0", status,
-                   requirement="RS-7.10")  # fmt: skip
+        raise Fail(
+            "the arm did not stop after the controller left",
+            "stopped, queue 0",
+            status,
+            requirement="RS-7.10",
+        )
     if not status.get("powered"):
         raise Fail("power changed when control was lost", "powered", status, requirement="RS-7.10")
     # Bring joint 1 back to where it started.
@@ -490,16 +524,28 @@ def trajectory_refused(ctx: Context) -> None:
         bad: list[tuple[str, list[float], list[tuple[float, ...]], tuple[int, ...]]] = [
             ("times not starting at 0", [0.5, 1.0], [p, p], (ErrorCode.OUT_OF_RANGE,)),
             ("decreasing times", [0.0, 1.0, 0.5], [p, p, p], (ErrorCode.OUT_OF_RANGE,)),
-            ("2 times for 3 locations", [0.0, 1.0], [p, p, p],
-             (ErrorCode.OUT_OF_RANGE, ErrorCode.BAD_PARAMETERS)),
+            (
+                "2 times for 3 locations",
+                [0.0, 1.0],
+                [p, p, p],
+                (ErrorCode.OUT_OF_RANGE, ErrorCode.BAD_PARAMETERS),
+            ),
             ("50 mm in 4 ms", [0.0, 0.004], [p, away], (ErrorCode.OUT_OF_RANGE,)),
-            ("a point 20 m away", [0.0, 30.0], [p, far],
-             (ErrorCode.UNREACHABLE, ErrorCode.OUT_OF_RANGE)),
-        ]  # fmt: skip
+            (
+                "a point 20 m away",
+                [0.0, 30.0],
+                [p, far],
+                (ErrorCode.UNREACHABLE, ErrorCode.OUT_OF_RANGE),
+            ),
+        ]
         for what, times, locs, codes in bad:
-            answer = conn.call(C.TOOL_MOVE_TRAJECTORY, FloatArray(times),
-                               Matrix(len(locs), 6, [v for loc in locs for v in loc]),
-                               IDENTITY, IDENTITY)  # fmt: skip
+            answer = conn.call(
+                C.TOOL_MOVE_TRAJECTORY,
+                FloatArray(times),
+                Matrix(len(locs), 6, [v for loc in locs for v in loc]),
+                IDENTITY,
+                IDENTITY,
+            )
             if answer.error is None or answer.error[0] not in codes:
                 raise Fail(
                     f"ToolMoveTrajectory with {what} is not refused",
@@ -534,14 +580,20 @@ def trajectory_tracking(ctx: Context) -> str:
         times = [0.1 * k for k in range(21)]
         # x(t) = 2 mm * sin^2(pi t / T): starts and ends at rest.
         locs = [(p[0] + 2.0 * math.sin(math.pi * t / 2.0) ** 2, *p[1:]) for t in times]
-        conn.ok(C.TOOL_MOVE_TRAJECTORY, FloatArray(times),
-                Matrix(len(locs), 6, [v for loc in locs for v in loc]), IDENTITY, IDENTITY)  # fmt: skip
+        conn.ok(
+            C.TOOL_MOVE_TRAJECTORY,
+            FloatArray(times),
+            Matrix(len(locs), 6, [v for loc in locs for v in loc]),
+            IDENTITY,
+            IDENTITY,
+        )
         if not _wait_still(conn, 30.0):
             raise Fail("the timed path did not end", True, False)
         end = conn.ok(C.HERE, IDENTITY, IDENTITY)[0]
         assert isinstance(end, Location)
         err = math.dist(end.as_tuple()[:3], locs[-1][:3])
         if err > 0.01:
-            raise Fail("the path's end is missed", "<= 0.01 mm", f"{err:.4f} mm",
-                       requirement="RS-5.24")  # fmt: skip
+            raise Fail(
+                "the path's end is missed", "<= 0.01 mm", f"{err:.4f} mm", requirement="RS-5.24"
+            )
         return f"end error {err * 1000:.2f} µm"

@@ -10,13 +10,6 @@ import time
 import zlib
 from collections.abc import Callable
 
-from spec import wire
-from spec.codec import encode_packet, request
-from spec.errors import ErrorCode
-from spec.fuzz import mutate
-from spec.registry import CommandId as C
-from spec.vectorgen import load
-
 from conformance.cases._util import expect_error_echo, retarget, still_answers
 from conformance.connection import Closed
 from conformance.context import Context
@@ -29,6 +22,12 @@ from conformance.model import (
     add_case,
     case,
 )
+from spec import wire
+from spec.codec import encode_packet, request
+from spec.errors import ErrorCode
+from spec.fuzz import mutate
+from spec.registry import CommandId as C
+from spec.vectorgen import load
 
 #: Requirement IDs per corpus vector (the vectors' own names, spec/vectors/frames.json).
 VECTOR_RULES: dict[str, tuple[str, ...]] = {
@@ -159,7 +158,8 @@ def _register_corpus() -> None:
                 requirements=(*rules, "RS-7.9"),
                 level="MUST",
                 tags=("robustness", "corpus"),
-                profiles=("full", "robustness") + (("core",) if not name.startswith("trunc") else ()),
+                profiles=("full", "robustness")
+                + (("core",) if not name.startswith("trunc") else ()),
                 budget=10.0,
                 motion=False,
                 service="any",
@@ -270,7 +270,9 @@ def fuzz(ctx: Context) -> str:
             conn.close()
             ctx.probe()
         except (Fail, EndpointGone, EndpointTimeout) as exc:
-            failures.append({"index": i, "seed": ctx.options.seed, "hex": data.hex(), "why": str(exc)})
+            failures.append(
+                {"index": i, "seed": ctx.options.seed, "hex": data.hex(), "why": str(exc)}
+            )
             if len(failures) >= 5:
                 break
             try:

@@ -5,19 +5,32 @@ from __future__ import annotations
 
 import math
 
+from conformance.connection import Conn
+from conformance.context import Context
+from conformance.model import Fail, Informational, NotApplicable, case
 from spec.errors import ErrorCode
 from spec.params import Image, Location, Matrix, Value
 from spec.registry import CommandId as C
 from spec.wire import BYTES_PER_PIXEL, PixelFormat, PixelOrder, SensorStatus
 
-from conformance.connection import Conn
-from conformance.context import Context
-from conformance.model import Fail, Informational, NotApplicable, case
-
-GET_DATA_FIELDS = ("index", "status", "seam", "quality", "t_arrival", "t_exposure_start",
-                   "t_exposure_end")  # fmt: skip
-SETTINGS_FIELDS = ("laser", "exposure", "first_column", "columns", "acquisition_time", "width",
-                   "height")  # fmt: skip
+GET_DATA_FIELDS = (
+    "index",
+    "status",
+    "seam",
+    "quality",
+    "t_arrival",
+    "t_exposure_start",
+    "t_exposure_end",
+)
+SETTINGS_FIELDS = (
+    "laser",
+    "exposure",
+    "first_column",
+    "columns",
+    "acquisition_time",
+    "width",
+    "height",
+)
 
 
 def _data(conn: Conn) -> dict[str, Value]:
@@ -48,7 +61,7 @@ def getdata_no_data(ctx: Context) -> None:
     conn = ctx.connect()
     last_index = conn.ok(C.SENSOR_STATUS)[2]
     if last_index != -1:
-        raise NotApplicable(f"the sensor has measured already (last_index {last_index})")
+        raise NotApplicable(f"the sensor has measured already (last_index {last_index!r})")
     conn.error(C.GET_DATA, ErrorCode.NO_DATA)
 
 
@@ -83,11 +96,16 @@ def acquire_data(ctx: Context) -> str:
     ta, ts, te = d["t_arrival"], d["t_exposure_start"], d["t_exposure_end"]
     assert isinstance(ta, float) and isinstance(ts, float) and isinstance(te, float)
     if not ta <= ts <= te:
-        raise Fail("timestamps out of order", "t_arrival <= t_start <= t_end", (ta, ts, te),
-                   requirement="SS-5.5")  # fmt: skip
+        raise Fail(
+            "timestamps out of order",
+            "t_arrival <= t_start <= t_end",
+            (ta, ts, te),
+            requirement="SS-5.5",
+        )
     if not t0 - 1e-6 <= ta <= t1 + 1e-6:
-        raise Fail("measurement times are not on the GetTime clock", (t0, t1), ta,
-                   requirement="RS-8.4")  # fmt: skip
+        raise Fail(
+            "measurement times are not on the GetTime clock", (t0, t1), ta, requirement="RS-8.4"
+        )
     return f"index {index}, status {status}, acquisition {1000 * (te - ts):.2f} ms"
 
 
@@ -111,8 +129,12 @@ def image_full(ctx: Context) -> str:
     if got_index != index:
         raise Fail("GetImage is not the latest acquisition", index, got_index, requirement="SS-5.3")
     if (image.width, image.height) != (s["width"], s["height"]):
-        raise Fail("GetImage is not the full frame", (s["width"], s["height"]),
-                   (image.width, image.height), requirement="SS-5.3")  # fmt: skip
+        raise Fail(
+            "GetImage is not the full frame",
+            (s["width"], s["height"]),
+            (image.width, image.height),
+            requirement="SS-5.3",
+        )
     if image.format not in set(PixelFormat) or image.order not in set(PixelOrder):
         raise Fail("unknown image format or order", "known values", (image.format, image.order))
     bpp = BYTES_PER_PIXEL[PixelFormat(image.format)]
@@ -225,14 +247,19 @@ def laser_off(ctx: Context) -> None:
         conn.call(C.SET_LASER, bool(was_on))
         conn.call(C.RELEASE_CONTROL)
     if d["index"] != index or d["status"] != SensorStatus.LASER_OFF:
-        raise Fail("a laser-off measurement", "status LASER_OFF (2)", d["status"],
-                   requirement="SS-5.8")  # fmt: skip
+        raise Fail(
+            "a laser-off measurement", "status LASER_OFF (2)", d["status"], requirement="SS-5.8"
+        )
     seam = d["seam"]
     assert isinstance(seam, Location)
     values = seam.as_tuple()
     if not (all(v == 0.0 for v in values) or all(math.isnan(v) for v in values)):
-        raise Fail("a laser-off measurement carries a seam", "six zeros or NaN", values,
-                   requirement="SS-5.8")  # fmt: skip
+        raise Fail(
+            "a laser-off measurement carries a seam",
+            "six zeros or NaN",
+            values,
+            requirement="SS-5.8",
+        )
 
 
 @case(

@@ -15,6 +15,9 @@ import socket
 import statistics
 import time
 
+from conformance.connection import UdpConn
+from conformance.context import Context
+from conformance.model import Fail, Informational, NotApplicable, case
 from spec import wire
 from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data, encode_trigger
 from spec.errors import DatagramError, ErrorCode
@@ -22,10 +25,6 @@ from spec.params import FloatArray, Matrix
 from spec.registry import CommandId as C
 from spec.vectorgen import load
 from spec.wire import SensorStatus
-
-from conformance.connection import UdpConn
-from conformance.context import Context
-from conformance.model import Fail, Informational, NotApplicable, case
 
 DEADLINE = 0.100  # s, [SY-2.4]
 Received = tuple[SensorData, float]  # data and our monotonic arrival time (s)
@@ -53,8 +52,12 @@ def _exchange(
                     requirement="SY-1.2" if "bytes" in str(exc) else "SY-1.1",
                 ) from None
             if not isinstance(d, SensorData):
-                raise Fail("the sensor sent a trigger back", "a data datagram", "a trigger",
-                           requirement="SY-1.1")  # fmt: skip
+                raise Fail(
+                    "the sensor sent a trigger back",
+                    "a data datagram",
+                    "a trigger",
+                    requirement="SY-1.1",
+                )
             got.setdefault(d.index, []).append((d, t))
 
     for k, index in enumerate(indices):
@@ -85,20 +88,29 @@ def trigger_answer(ctx: Context) -> str:
     sent, got = _exchange(ctx, u, indices, 0.010, ctx.scaled(0.3))
     missing = [i for i in indices if i not in got]
     if missing:
-        raise Fail("triggers without a data datagram", "one datagram per trigger",
-                   f"none for {len(missing)} of 20: {missing[:5]}", requirement="SY-2.1")  # fmt: skip
+        raise Fail(
+            "triggers without a data datagram",
+            "one datagram per trigger",
+            f"none for {len(missing)} of 20: {missing[:5]}",
+            requirement="SY-2.1",
+        )
     multi = [i for i in indices if len(got[i]) > 1]
     if multi:
-        raise Fail("more than one datagram for a trigger", 1, {i: len(got[i]) for i in multi},
-                   requirement="SY-2.1")  # fmt: skip
+        raise Fail(
+            "more than one datagram for a trigger",
+            1,
+            {i: len(got[i]) for i in multi},
+            requirement="SY-2.1",
+        )
     stray = sorted(set(got) - set(indices))
     if stray:
         raise Fail("data for indices never triggered", indices[:3], stray[:5], requirement="SY-2.1")
     bad_echo = [i for i in indices if got[i][0][0].t_trigger != _t_trigger(i)]
     if bad_echo:
         i = bad_echo[0]
-        raise Fail("t_i^T is not echoed", _t_trigger(i), got[i][0][0].t_trigger,
-                   requirement="SY-2.1")  # fmt: skip
+        raise Fail(
+            "t_i^T is not echoed", _t_trigger(i), got[i][0][0].t_trigger, requirement="SY-2.1"
+        )
     lat = sorted(got[i][0][1] - sent[i] for i in indices)
     ctx.details["latency_ms"] = [round(v * 1000, 3) for v in lat]
     return f"20 of 20 answered, latency median {statistics.median(lat) * 1000:.2f} ms"
@@ -121,8 +133,12 @@ def trigger_deadline(ctx: Context) -> str:
         raise Fail("no data datagram at all", "answers", "none", requirement="SY-2.1")
     worst = max(lat, key=lambda i: lat[i])
     if lat[worst] > DEADLINE:
-        raise Fail("a data datagram later than 100 ms", "<= 100 ms",
-                   f"{lat[worst] * 1000:.1f} ms for index {worst}", requirement="SY-2.4")  # fmt: skip
+        raise Fail(
+            "a data datagram later than 100 ms",
+            "<= 100 ms",
+            f"{lat[worst] * 1000:.1f} ms for index {worst}",
+            requirement="SY-2.4",
+        )
     return f"worst {lat[worst] * 1000:.2f} ms"
 
 
@@ -145,8 +161,12 @@ def trigger_deadline_acq(ctx: Context) -> str:
         d, t = got[i][0]
         bound = (d.t_exposure_end - d.t_arrival) + 0.020
         if t - sent[i] > bound:
-            raise Fail("data later than acquisition + 20 ms", f"<= {bound * 1000:.2f} ms",
-                       f"{(t - sent[i]) * 1000:.2f} ms", requirement="SY-2.5")  # fmt: skip
+            raise Fail(
+                "data later than acquisition + 20 ms",
+                f"<= {bound * 1000:.2f} ms",
+                f"{(t - sent[i]) * 1000:.2f} ms",
+                requirement="SY-2.5",
+            )
     return "all within acquisition + 20 ms"
 
 
@@ -168,15 +188,22 @@ def timestamps_order(ctx: Context) -> str:
         for d, _t in answers:
             statuses.add(d.status.name)
             if not d.t_arrival <= d.t_exposure_start <= d.t_exposure_end:
-                raise Fail("sensor timestamps out of order", "arrival <= start <= end",
-                           (d.t_arrival, d.t_exposure_start, d.t_exposure_end),
-                           requirement="SY-2.6")  # fmt: skip
+                raise Fail(
+                    "sensor timestamps out of order",
+                    "arrival <= start <= end",
+                    (d.t_arrival, d.t_exposure_start, d.t_exposure_end),
+                    requirement="SY-2.6",
+                )
             if d.status is not SensorStatus.FOUND:
                 zero = all(v == 0.0 for v in d.seam)
                 nan = all(math.isnan(v) for v in d.seam)
                 if not (zero or nan):
-                    raise Fail("a non-found datagram carries a seam", "six NaN or six zeros",
-                               d.seam, requirement="SY-2.7")  # fmt: skip
+                    raise Fail(
+                        "a non-found datagram carries a seam",
+                        "six NaN or six zeros",
+                        d.seam,
+                        requirement="SY-2.7",
+                    )
     return "statuses seen: " + ", ".join(sorted(statuses))
 
 
@@ -195,14 +222,21 @@ def malformed_silent(ctx: Context) -> str:
         u.send(bytes.fromhex(str(v["hex"])), f"malformed datagram {v['name']}")
     answers = u.collect(ctx.scaled(0.2) + 0.05)
     if answers:
-        raise Fail("the sensor answered a malformed datagram", "silence",
-                   f"{len(answers)} datagram(s), first {answers[0][0][:12].hex()}",
-                   requirement="SY-1.4")  # fmt: skip
+        raise Fail(
+            "the sensor answered a malformed datagram",
+            "silence",
+            f"{len(answers)} datagram(s), first {answers[0][0][:12].hex()}",
+            requirement="SY-1.4",
+        )
     index = ctx.shared.take_indices(1)
     _sent, got = _exchange(ctx, u, [index], 0.0, ctx.scaled(0.3))
     if index not in got:
-        raise Fail("no answer to a valid trigger after malformed ones", "an answer", "silence",
-                   requirement="SY-2.1")  # fmt: skip
+        raise Fail(
+            "no answer to a valid trigger after malformed ones",
+            "an answer",
+            "silence",
+            requirement="SY-2.1",
+        )
     return f"{len(vectors)} malformed datagrams ignored"
 
 
@@ -248,8 +282,12 @@ def reordered_answered(ctx: Context) -> str:
     first = ctx.shared.take_indices(3)
     _sent, got = _exchange(ctx, u, [first + 2, first + 1], 0.02, ctx.scaled(0.3))
     if first + 1 not in got:
-        raise Fail("a reordered trigger got no answer", "OVERRUN or a measurement", "silence",
-                   requirement="SY-2.3")  # fmt: skip
+        raise Fail(
+            "a reordered trigger got no answer",
+            "OVERRUN or a measurement",
+            "silence",
+            requirement="SY-2.3",
+        )
     return f"answered with status {got[first + 1][0][0].status.name}"
 
 
@@ -267,8 +305,12 @@ def index_wrap(ctx: Context) -> None:
     _sent, got = _exchange(ctx, u, indices, 0.01, ctx.scaled(0.3))
     missing = [i for i in indices if i not in got]
     if missing:
-        raise Fail("triggers across the index wrap not answered", indices, sorted(got),
-                   requirement="SY-1.3")  # fmt: skip
+        raise Fail(
+            "triggers across the index wrap not answered",
+            indices,
+            sorted(got),
+            requirement="SY-1.3",
+        )
 
 
 @case(
@@ -301,19 +343,38 @@ def measure_stream(ctx: Context) -> str:
         max_ms=round(lat[-1] * 1000, 4),
         jitter_ms=round(statistics.pstdev(lat) * 1000, 4),
     )
-    return f"loss {loss:.1%}, p50 {q[49] * 1000:.2f} ms, jitter {statistics.pstdev(lat) * 1000:.2f} ms"
+    return (
+        f"loss {loss:.1%}, p50 {q[49] * 1000:.2f} ms, jitter {statistics.pstdev(lat) * 1000:.2f} ms"
+    )
 
 
 # --- the robot's side: the harness plays the sensor ---------------------------------------
 
 ROBOT_SYNC = [C.SET_SENSOR_ENDPOINT, C.GET_SYNC_CONFIG, C.START_TRIGGERS, C.STOP_TRIGGERS]
 CONFIG_FIELDS = ("host", "port", "delta_t", "sensor2flange", "triggering", "rate")
-STAT_FIELDS = ("sent", "received", "matched", "lost", "late", "duplicate", "reordered",
-               "unknown", "expired", "malformed", "pending")  # fmt: skip
+STAT_FIELDS = (
+    "sent",
+    "received",
+    "matched",
+    "lost",
+    "late",
+    "duplicate",
+    "reordered",
+    "unknown",
+    "expired",
+    "malformed",
+    "pending",
+)
+
+
+def _int(value: object) -> int:
+    return value if isinstance(value, int) else 0
 
 
 def _sink(ctx: Context, local_host: str) -> socket.socket:
-    sock = socket.socket(socket.AF_INET6 if ":" in local_host else socket.AF_INET, socket.SOCK_DGRAM)
+    sock = socket.socket(
+        socket.AF_INET6 if ":" in local_host else socket.AF_INET, socket.SOCK_DGRAM
+    )
     sock.bind((local_host, 0))
     return sock
 
@@ -331,7 +392,7 @@ def before_endpoint(ctx: Context) -> None:
     conn = ctx.connect()
     cfg = dict(zip(CONFIG_FIELDS, conn.ok(C.GET_SYNC_CONFIG), strict=False))
     if cfg["port"] != 0:
-        raise NotApplicable(f"a sensor endpoint is already set ({cfg['host']}:{cfg['port']})")
+        raise NotApplicable(f"a sensor endpoint is already set ({cfg['host']!r}:{cfg['port']!r})")
     ctx.take_control(conn)
     try:
         conn.error(C.START_TRIGGERS, ErrorCode.BAD_STATE, 10.0, 1)
@@ -371,8 +432,19 @@ def sync_ranges(ctx: Context) -> None:
 
 @case(
     "robot.sync.matching",
-    requirements=["SY-3.1", "SY-3.2", "SY-3.3", "SY-3.4", "SY-3.6", "SY-5.1", "SY-5.2",
-                  "SY-1.1", "SY-1.2", "SY-1.3", "SY-1.4"],  # fmt: skip
+    requirements=[
+        "SY-3.1",
+        "SY-3.2",
+        "SY-3.3",
+        "SY-3.4",
+        "SY-3.6",
+        "SY-5.1",
+        "SY-5.2",
+        "SY-1.1",
+        "SY-1.2",
+        "SY-1.3",
+        "SY-1.4",
+    ],
     tags=["sync", "robot"],
     service="robot",
     commands=[*ROBOT_SYNC, C.GET_SYNC_STATISTICS, C.GET_SEAM_POINTS],
@@ -399,7 +471,7 @@ def sync_matching(ctx: Context) -> str:
         while time.monotonic() < deadline and len(triggers) < 10:
             got = u.recv(0.02)
             now = time.monotonic()
-            for when, data, addr, note in [d for d in due if d[0] <= now]:
+            for _when, data, addr, note in [d for d in due if d[0] <= now]:
                 u.target = addr
                 u.send(data, note)
             due = [d for d in due if d[0] > now]
@@ -409,16 +481,33 @@ def sync_matching(ctx: Context) -> str:
             try:
                 trig = decode_datagram(raw)
             except DatagramError as exc:
-                raise Fail("the robot sent a malformed trigger", "a 22-byte trigger", str(exc),
-                           requirement="SY-1.1")  # fmt: skip
+                raise Fail(
+                    "the robot sent a malformed trigger",
+                    "a 22-byte trigger",
+                    str(exc),
+                    requirement="SY-1.1",
+                ) from None
             if not isinstance(trig, Trigger) or len(raw) != wire.TRIGGER_SIZE:
-                raise Fail("the robot sent something else than a trigger", "trigger", raw.hex(),
-                           requirement="SY-1.2")  # fmt: skip
+                raise Fail(
+                    "the robot sent something else than a trigger",
+                    "trigger",
+                    raw.hex(),
+                    requirement="SY-1.2",
+                )
             k = (trig.index - first) % (1 << 32)
             triggers.append((trig, source))
-            data = encode_data(SensorData(trig.index, SensorStatus.FOUND,
-                                          (0.0, 1.25, 80.0, 0.0, 0.0, 0.0), 0.9, trig.t_trigger,
-                                          t, t + 1e-4, t + 3.6e-3))  # fmt: skip
+            data = encode_data(
+                SensorData(
+                    trig.index,
+                    SensorStatus.FOUND,
+                    (0.0, 1.25, 80.0, 0.0, 0.0, 0.0),
+                    0.9,
+                    trig.t_trigger,
+                    t,
+                    t + 1e-4,
+                    t + 3.6e-3,
+                )
+            )
             u.target = source
             if k in (0, 6, 7, 8, 9):
                 u.send(data, f"data {trig.index}")
@@ -435,8 +524,9 @@ def sync_matching(ctx: Context) -> str:
                 u.send(data, f"data {trig.index} before its predecessor")
                 if held is not None:
                     u.send(held, "held data sent after its successor (reordered)")
-                unknown = SensorData((first + 5000) % (1 << 32), SensorStatus.FOUND,
-                                     (0.0,) * 6, 0.5, 0.0, t, t, t)  # fmt: skip
+                unknown = SensorData(
+                    (first + 5000) % (1 << 32), SensorStatus.FOUND, (0.0,) * 6, 0.5, 0.0, t, t, t
+                )
                 u.send(encode_data(unknown), "data for an index never sent")
                 u.send(b"SY" + b"\x00" * 20, "malformed datagram")
         end = time.monotonic() + 0.4
@@ -459,32 +549,58 @@ def sync_matching(ctx: Context) -> str:
         sink.close()
     indices = [t.index for t, _ in triggers]
     if len(indices) < 10:
-        raise Fail("the robot did not send the 10 triggers asked for", 10, len(indices),
-                   requirement="SY-1.3")  # fmt: skip
+        raise Fail(
+            "the robot did not send the 10 triggers asked for",
+            10,
+            len(indices),
+            requirement="SY-1.3",
+        )
     if indices != [(first + k) % (1 << 32) for k in range(10)]:
-        raise Fail("trigger indices do not increase by one", f"{first}..{first + 9}", indices,
-                   requirement="SY-1.3")  # fmt: skip
-    diff = {k: int(after[k]) - int(before[k]) for k in STAT_FIELDS}  # type: ignore[call-overload]
+        raise Fail(
+            "trigger indices do not increase by one",
+            f"{first}..{first + 9}",
+            indices,
+            requirement="SY-1.3",
+        )
+    diff = {k: _int(after[k]) - _int(before[k]) for k in STAT_FIELDS}
     ctx.details["statistics_delta"] = diff
-    for name, rule, least in (("duplicate", "SY-3.2", 1), ("unknown", "SY-3.1", 1),
-                              ("reordered", "SY-3.4", 1), ("late", "SY-3.3", 1),
-                              ("lost", "SY-3.6", 2), ("malformed", "SY-1.4", 1)):  # fmt: skip
+    for name, rule, least in (
+        ("duplicate", "SY-3.2", 1),
+        ("unknown", "SY-3.1", 1),
+        ("reordered", "SY-3.4", 1),
+        ("late", "SY-3.3", 1),
+        ("lost", "SY-3.6", 2),
+        ("malformed", "SY-1.4", 1),
+    ):
         if diff[name] < least:
-            raise Fail(f"the robot's '{name}' counter did not count the fault", f">= {least}",
-                       diff[name], requirement=rule)  # fmt: skip
+            raise Fail(
+                f"the robot's '{name}' counter did not count the fault",
+                f">= {least}",
+                diff[name],
+                requirement=rule,
+            )
     assert isinstance(points, Matrix) and isinstance(delta_t, float)
     rows = points.to_rows()
     got_idx = [int(r[0]) for r in rows]
     if got_idx != sorted(got_idx):
-        raise Fail("seam points are not ordered by index", sorted(got_idx), got_idx,
-                   requirement="SY-5.1")  # fmt: skip
+        raise Fail(
+            "seam points are not ordered by index", sorted(got_idx), got_idx, requirement="SY-5.1"
+        )
     want = {indices[k] for k in (0, 1, 4, 5, 6, 7, 8, 9)}
     if not want <= set(got_idx):
-        raise Fail("answered triggers missing from the seam points", sorted(want), got_idx,
-                   requirement="SY-3.6")  # fmt: skip
+        raise Fail(
+            "answered triggers missing from the seam points",
+            sorted(want),
+            got_idx,
+            requirement="SY-3.6",
+        )
     if indices[2] in got_idx or indices[3] in got_idx:
-        raise Fail("a lost or late trigger produced a seam point", "no point", got_idx,
-                   requirement="SY-3.3")  # fmt: skip
+        raise Fail(
+            "a lost or late trigger produced a seam point",
+            "no point",
+            got_idx,
+            requirement="SY-3.3",
+        )
     for r in rows:
         if abs(r[2] - (r[1] + delta_t)) > 1e-9:
             raise Fail("t_S is not t_T + ΔT", r[1] + delta_t, r[2], requirement="SY-5.2")
@@ -505,4 +621,3 @@ def sync_expired(ctx: Context) -> str:
         " the 100 ms loss timeout turns into 'late' first; and 'never extrapolates' has no"
         " wire-visible effect beyond SY-5.2. Checked by the robot's own tests."
     )
-
