@@ -99,7 +99,7 @@ def _fmt(loc: Any) -> str:
 
 def _robot_tour(robot: FramedClient) -> None:
     info = robot.hello()
-    print(f"robot: {info['vendor']} {info['model']} ({info['service']}, {info['version']})")
+    print(f"robot: {info['vendor']!s} {info['model']!s} ({info['service']!s}, {info['version']!s})")
     robot.take_control("")
     robot.call(CommandId.ENABLE_POWER)
     (q,) = robot.call(CommandId.HEREJ)
@@ -125,7 +125,7 @@ def _robot_tour(robot: FramedClient) -> None:
 
 def _sensor_tour(sensor: FramedClient, out: Path) -> None:
     info = sensor.hello()
-    print(f"sensor: {info['vendor']} {info['model']}")
+    print(f"sensor: {info['vendor']!s} {info['model']!s}")
     sensor.take_control("")
     (index,) = sensor.call(CommandId.ACQUIRE)
     time.sleep(0.05)
@@ -138,8 +138,10 @@ def _sensor_tour(sensor: FramedClient, out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     path = out / "frame.pgm"
     write_pgm(path, pixels)
-    print(f"  Acquire -> frame {index}: {image.width}x{image.height} written to {path}")
-    print(f"  GetData: status {data[1]}, seam in S = {_fmt(seam.as_tuple())}, q {data[3]:.2f}")
+    print(f"  Acquire -> frame {index!s}: {image.width}x{image.height} written to {path}")
+    quality = data[3]
+    assert isinstance(quality, float)
+    print(f"  GetData: status {data[1]!s}, seam in S = {_fmt(seam.as_tuple())}, q {quality:.2f}")
     sensor.release_control()
 
 

@@ -1,0 +1,164 @@
+"""The ΔT experiment on the full emulated chain: robot emulator -> joint log; camera emulator
+renders and detects -> UDP data; everything through RobotSocket/SensorSocket."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from cell.cell import CellTiming, EmulatedCell
+from spec.client import FramedClient
+from spec.errors import ErrorCode, RemoteError
+from spec.params import FloatArray, Location, Matrix
+from spec.registry import SEAM_POINT_COLUMNS, CommandId
+from sync.experiment import ExperimentSettings, run_delay_experiment
+from sync.udp import DelayLink
+
+PAPER = CellTiming()  # 4 ms samples, 0.6 ms jitter, 10 µm noise
+
+
+def test_paper_timing_full_chain() -> None:
+    with EmulatedCell(clock="sim", seed=1, timing=PAPER) as cell:
+        r = run_delay_experiment(
+            cell.robot_address, cell.sensor_address, ExperimentSettings(duration_s=10.0)
+        )
+        truth = cell.true_delta_t_s()
+    assert truth == pytest.approx(4.9e-3, abs=1e-9)
+    assert abs(r.estimate.delta_t_s - truth) <= 0.06e-3
+    syn, uns = r.residual.synced, r.residual.unsynced
+    assert syn.max_um <= 50.0 and syn.rms_um <= 15.0
+    assert uns.max_um >= 3 * syn.max_um and uns.rms_um >= 3 * syn.rms_um
+    assert syn.sine_amplitude_um < 2.0  # no sine left at 1.5 Hz
+    assert r.data.statistics["lost"] == 0 and r.data.statistics["matched"] > 2400
+
+
+def test_encoder_latency_moves_the_estimate_by_the_same_amount() -> None:
+    s = ExperimentSettings(duration_s=3.0)
+    est = []
+    for latency in (2.8e-3, 3.8e-3):
+        timing = replace(PAPER, encoder_latency_s=latency)
+        with EmulatedCell(clock="sim", seed=3, timing=timing) as cell:
+            est.append(run_delay_experiment(cell.robot_address, cell.sensor_address, s))
+    shift = est[1].estimate.delta_t_s - est[0].estimate.delta_t_s
+    assert shift == pytest.approx(1.0e-3, abs=0.02e-3)
+
+
+def test_injected_faults_do_not_corrupt_the_seam_trajectory() -> None:
+    cell = EmulatedCell(clock="sim", seed=5, timing=PAPER)
+    rng = np.random.default_rng(11)
+    cell.uplink = DelayLink(delay_s=1e-4, jitter_s=1e-4, rng=rng, loss=0.03)
+    cell.downlink = DelayLink(rng=rng, duplicate=0.05, reorder=0.05, reorder_delay_s=0.02)
+    with cell:
+        r = run_delay_experiment(
+            cell.robot_address, cell.sensor_address, ExperimentSettings(duration_s=3.0)
+        )
+        rows = cell.core.points_since(-1)
+    st = r.data.statistics
+    assert st["lost"] > 0 and st["duplicate"] > 0 and st["reordered"] > 0
+    idx = rows[:, SEAM_POINT_COLUMNS.index("index")]
+    assert np.all(np.diff(idx) > 0)
+    assert abs(r.estimate.delta_t_s - 4.9e-3) < 0.1e-3
+    assert r.residual.synced.rms_um <= 15.0
+
+
+def test_real_time_over_sockets() -> None:
+    with EmulatedCell(clock="real", seed=2, timing=PAPER) as cell:
+        first = cell.core.next_index
+        r = run_delay_experiment(
+            cell.robot_address,
+            cell.sensor_address,
+            ExperimentSettings(duration_s=3.0, trigger_rate_hz=100.0),
+        )
+        truth = cell.measured_delta_t(first)
+    assert abs(r.estimate.delta_t_s - truth) <= 0.2e-3
+
+
+def test_sync_commands_over_the_protocol() -> None:
+    with EmulatedCell(clock="sim", seed=0) as cell, FramedClient(*cell.robot_address) as rc:
+        rc.hello()
+        rc.take_control("")
+        with pytest.raises(RemoteError) as e:
+            rc.call(CommandId.START_TRIGGERS, 100.0, 0)
+        assert e.value.code == ErrorCode.BAD_STATE  # [SY-5.4]
+        rc.call(CommandId.SET_SENSOR_ENDPOINT, *cell.udp_address)
+        for bad in (0.0, 1001.0):
+            with pytest.raises(RemoteError) as e:
+                rc.call(CommandId.START_TRIGGERS, bad, 0)
+            assert e.value.code == ErrorCode.OUT_OF_RANGE  # [SY-5.3]
+        with pytest.raises(RemoteError) as e:
+            rc.call(CommandId.SCHEDULE_TRIGGERS, FloatArray([0.2, 0.1]))
+        assert e.value.code == ErrorCode.OUT_OF_RANGE
+        rc.call(CommandId.SET_SYNC_DELAY, 0.0049)
+        tool = Location(40.0, 0.0, 200.0, 0.0, 0.0, 0.0)
+        rc.call(CommandId.SET_SENSOR_TOOL, tool)
+        host, port, dt, s2f, triggering, rate = rc.call(CommandId.GET_SYNC_CONFIG)
+        assert (host, port) == cell.udp_address and dt == pytest.approx(0.0049)
+        assert isinstance(s2f, Location) and s2f.as_tuple() == pytest.approx(tool.as_tuple())
+        assert triggering is False
+        # explicit, non-periodic trigger times; the arm stands still over the seam
+        (first,) = rc.call(CommandId.SCHEDULE_TRIGGERS, FloatArray([0.0113, 0.0171, 0.05]))
+        # the arm stands still, so WaitEndMove returns at once: let simulated time pass
+        cell.advance(0.1)
+        (pts,) = rc.call(CommandId.GET_SEAM_POINTS, -1)
+        assert isinstance(pts, Matrix) and pts.rows == 3 and pts.cols == 17
+        rows = np.array(pts.values).reshape(3, 17)
+        np.testing.assert_allclose(rows[:, 1], [0.0113, 0.0171, 0.05])
+        np.testing.assert_allclose(rows[:, 2] - rows[:, 1], 0.0049)
+        # the seam in the base frame is where the cell put it: under the ready sensor pose
+        seam_b = cell.ready_sensor2base()[:3, 3]
+        np.testing.assert_allclose(rows[:, 11:14], np.tile(seam_b, (3, 1)), atol=0.05)
+        stats = rc.call(CommandId.GET_SYNC_STATISTICS)
+        assert stats[0] == 3 and stats[2] == 3 and first == 0
+
+
+def test_tool_move_trajectory_tracks_and_refuses_bad_paths() -> None:
+    with EmulatedCell(clock="sim", seed=0) as cell, FramedClient(*cell.robot_address) as rc:
+        rc.hello()
+        rc.take_control("")
+        rc.call(CommandId.ENABLE_POWER)
+        tool = Location(*cell.sensor_tool)
+        world = Location(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        (loc0,) = rc.call(CommandId.HERE, tool, world)
+        t = np.arange(0, 251) * 0.004
+        y = 1.0 - np.cos(2 * np.pi * t)  # starts and ends at rest
+        locs = np.zeros((t.size, 6))
+        locs[:, 1] = y
+        with pytest.raises(RemoteError) as e:  # times must start at 0 [RS-5.23]
+            rc.call(
+                CommandId.TOOL_MOVE_TRAJECTORY,
+                FloatArray((t + 0.1).tolist()),
+                Matrix(t.size, 6, locs.ravel().tolist()),
+                tool,
+                loc0,
+            )
+        assert e.value.code == ErrorCode.OUT_OF_RANGE
+        with pytest.raises(RemoteError) as e:  # a 20 mm jump at once is too fast
+            jump = locs.copy()
+            jump[1:, 0] += 20.0
+            rc.call(
+                CommandId.TOOL_MOVE_TRAJECTORY,
+                FloatArray(t.tolist()),
+                Matrix(t.size, 6, jump.ravel().tolist()),
+                tool,
+                loc0,
+            )
+        assert e.value.code == ErrorCode.OUT_OF_RANGE
+        t_start = cell.robot.time()
+        rc.call(
+            CommandId.TOOL_MOVE_TRAJECTORY,
+            FloatArray(t.tolist()),
+            Matrix(t.size, 6, locs.ravel().tolist()),
+            tool,
+            loc0,
+        )
+        rc.call(CommandId.WAIT_END_MOVE, 5.0)
+        # setpoints vs the commanded path on the 4 ms grid [RS-5.24]
+        times, q = cell._truth.samples()
+        sel = (times > t_start) & (times <= t_start + 1.0 + 1e-9)
+        poses = cell.robot.model.flange2base_batch(q[sel]) @ cell.sensor2flange
+        s0 = cell.ready_sensor2base()
+        y_done = (poses[:, :3, 3] - s0[:3, 3]) @ s0[:3, 1]
+        expect = 1.0 - np.cos(2 * np.pi * (times[sel] - t_start))
+        assert np.max(np.abs(y_done - expect)) < 0.01

@@ -1,0 +1,192 @@
+"""Robot-side synchronisation core, scheduler, delay link and the real UDP endpoint."""
+
+from __future__ import annotations
+
+import math
+import socket
+import time
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data
+from spec.registry import SEAM_POINT_COLUMNS
+from spec.wire import SensorStatus
+from sync.udp import DelayLink, RobotSyncCore, SyncStateError, TriggerScheduler, UdpSyncEndpoint
+
+PERIOD = 0.004
+
+
+def test_rate_schedule_is_drift_free_and_counts() -> None:
+    s = TriggerScheduler()
+    s.start_rate(250.0, 1000, 0.0013)
+    times = s.pop_due(10.0)
+    assert len(times) == 1000
+    assert times[-1] == pytest.approx(0.0013 + 999 / 250.0, abs=1e-12)
+    assert not s.active and s.next_due() is None
+
+
+def test_schedule_rejects_non_increasing_and_bad_rates() -> None:
+    s = TriggerScheduler()
+    with pytest.raises(SyncStateError):
+        s.schedule([0.1, 0.1])
+    with pytest.raises(SyncStateError):
+        s.start_rate(0.0, 1, 0.0)
+    with pytest.raises(SyncStateError):
+        s.start_rate(1001.0, 1, 0.0)
+    s.schedule([0.3, 0.1 + 0.25, 0.9])  # need not be periodic
+    assert s.pop_due(0.5) == [0.3, 0.35]
+    s.stop()
+    assert s.pop_due(5.0) == []
+
+
+def _data(
+    index: int, t_trigger: float, y: float, status: SensorStatus = SensorStatus.FOUND
+) -> bytes:
+    seam = (0.0, y, 0.0, 0.0, 0.0, 0.0) if status is SensorStatus.FOUND else (math.nan,) * 6
+    return encode_data(SensorData(index, status, seam, 0.9, t_trigger, 0.0, 0.0, 0.0))
+
+
+def _run_chain(
+    rng: np.random.Generator,
+    link: DelayLink,
+    delta_t: float = 4.9e-3,
+    duration: float = 2.0,
+) -> tuple[RobotSyncCore, dict[int, float]]:
+    """Triggers every 4 ms (phase 1.3 ms) through ``link``; the 'sensor' answers with the
+    joint-1 value at t_T + ΔT as its seam y, 5 ms later. Returns the core and the truth."""
+    core = RobotSyncCore(delta_t_s=delta_t)
+    core.start_rate(250.0, 0, 0.0013)
+    truth: dict[int, float] = {}
+    k = 0
+    while k * PERIOD < duration:
+        k += 1
+        t = k * PERIOD
+        q = np.full(6, 10.0 * math.sin(2 * math.pi * t))
+        core.add_joints(np.array([t]), q[None, :])
+        for index, t_send in core.due_triggers(t):
+            raw = core.sent(index, t_send)
+            truth[index] = 10.0 * math.sin(2 * math.pi * (t_send + delta_t))
+            link.send(t_send, _data(index, t_send, truth[index]))
+            assert isinstance(decode_datagram(raw), Trigger)
+        for t_arr, raw in link.deliver(t):
+            core.on_datagram(raw, t_arr)
+        core.poll(t)
+    return core, truth
+
+
+def test_clean_link_matches_every_point_exactly() -> None:
+    rng = np.random.default_rng(1)
+    core, truth = _run_chain(rng, DelayLink(delay_s=5e-3))
+    rows = core.points_since(-1)
+    st_ = core.statistics()
+    assert st_["matched"] == rows.shape[0] >= len(truth) - 3
+    idx = rows[:, SEAM_POINT_COLUMNS.index("index")].astype(int)
+    assert np.all(np.diff(idx) == 1)
+    # t_S = t_T + ΔT [SY-5.2]
+    t_t = rows[:, SEAM_POINT_COLUMNS.index("t_trigger")]
+    t_s = rows[:, SEAM_POINT_COLUMNS.index("t_sync")]
+    np.testing.assert_allclose(t_s - t_t, 4.9e-3, atol=1e-12)
+    assert st_["lost"] == st_["duplicate"] == st_["reordered"] == st_["malformed"] == 0
+
+
+def test_faults_never_corrupt_the_trajectory() -> None:
+    """Injected loss, duplication and reordering: points stay in index order, each once,
+    each with its own data; the counters add up."""
+    rng = np.random.default_rng(7)
+    link = DelayLink(
+        delay_s=5e-3, rng=rng, loss=0.05, duplicate=0.05, reorder=0.1, reorder_delay_s=0.012
+    )
+    core, truth = _run_chain(rng, link)
+    rows = core.points_since(-1)
+    idx = rows[:, SEAM_POINT_COLUMNS.index("index")].astype(int)
+    assert np.all(np.diff(idx) > 0)  # strictly increasing: ordered, no duplicates
+    sy = rows[:, SEAM_POINT_COLUMNS.index("sy")]
+    np.testing.assert_allclose(sy, [truth[i] for i in idx], atol=1e-9)
+    s = core.statistics()
+    # every injected copy is dropped as a duplicate (12 ms extra delay < 100 ms timeout)
+    assert s["duplicate"] == link.counts["duplicated"]
+    assert s["reordered"] > 0 and s["lost"] > 0
+    assert s["matched"] + s["lost"] + s["expired"] + s["pending"] + s["not_found"] == s["sent"]
+
+
+def test_malformed_datagrams_are_counted_and_dropped() -> None:
+    core = RobotSyncCore()
+    assert core.on_datagram(b"garbage", 0.0) is None
+    good = bytearray(_data(0, 0.0, 1.0))
+    good[-1] ^= 0xFF  # CRC
+    assert core.on_datagram(bytes(good), 0.0) is None
+    assert core.statistics()["malformed"] == 2
+    assert core.statistics()["unknown"] == 0
+
+
+def test_data_newer_than_joints_waits_and_old_data_expires() -> None:
+    core = RobotSyncCore(delta_t_s=0.01, joint_capacity=10)
+    core.schedule([0.001, 0.2])
+    for k in range(1, 4):  # joints at 4, 8, 12 ms
+        core.add_joints([k * PERIOD], np.full((1, 6), float(k)))
+    for index, t in core.due_triggers(0.25):
+        core.sent(index, t)
+    core.on_datagram(_data(0, 0.001, 0.0), 0.012)
+    (p,) = core.poll(0.012)  # t_S = 11 ms lies inside the buffer: eq. 5
+    np.testing.assert_allclose(p.joints, 2.75)
+    core.on_datagram(_data(1, 0.2, 0.0), 0.25)
+    assert core.poll(0.25) == []  # t_S = 210 ms, joints end at 12 ms: wait, no extrapolation
+    assert core.statistics()["pending"] == 1
+    for k in range(4, 80):  # the 10-sample buffer now starts at 280 ms
+        core.add_joints([k * PERIOD], np.full((1, 6), float(k)))
+    core.poll(0.33)
+    s = core.statistics()
+    assert s["expired"] == 1 and s["matched"] == 1  # t_S left the buffer: dropped [SY-3.5]
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.floats(0.0, 1.0), min_size=1, max_size=40, unique=True))
+def test_explicit_times_are_sent_exactly_once_in_order(times: list[float]) -> None:
+    s = TriggerScheduler()
+    ordered = sorted(times)
+    s.schedule(ordered)
+    out: list[float] = []
+    for now in np.linspace(0, 1.0, 17):
+        out += s.pop_due(float(now))
+    assert out == ordered
+
+
+def test_udp_endpoint_over_loopback() -> None:
+    """The real endpoint: triggers reach a socket, answers come back and are matched."""
+    core = RobotSyncCore(delta_t_s=0.0)
+    t0 = time.monotonic()
+
+    def clock() -> float:
+        return time.monotonic() - t0
+
+    def joints_since(t: float) -> tuple[np.ndarray, np.ndarray]:
+        now = clock()
+        ks = np.arange(math.floor(max(t, 0) / PERIOD) + 1, math.floor(now / PERIOD) + 1)
+        return ks * PERIOD, np.zeros((ks.size, 6))
+
+    sensor = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sensor.bind(("127.0.0.1", 0))
+    sensor.settimeout(2.0)
+    ep = UdpSyncEndpoint(core, clock=clock, joints_since=joints_since, host="127.0.0.1")
+    ep.set_target(*sensor.getsockname()[:2])
+    ep.start()
+    try:
+        core.start_rate(100.0, 10, clock() + 0.01)
+        ep.wake()
+        for _ in range(10):
+            raw, src = sensor.recvfrom(2048)
+            trig = decode_datagram(raw)
+            assert isinstance(trig, Trigger)
+            sensor.sendto(_data(trig.index, trig.t_trigger, 0.5), src)
+            sensor.sendto(b"not a datagram", src)
+        deadline = time.monotonic() + 3.0
+        while core.statistics()["matched"] < 10 and time.monotonic() < deadline:
+            time.sleep(0.02)
+    finally:
+        ep.stop()
+        sensor.close()
+    s = core.statistics()
+    assert s["sent"] == 10 and s["matched"] == 10 and s["malformed"] == 10
