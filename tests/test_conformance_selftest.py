@@ -785,3 +785,78 @@ def test_udp_endpoint_answering_late_is_caught() -> None:
 def test_udp_endpoint_with_timestamps_out_of_order_is_caught() -> None:
     result = sync_check(MiniTriggerListener(bad_times=True), ("sync.timestamps.order",))
     _caught(result, "sync.timestamps.order")
+
+
+# --- fuzzing, expectations and the command line against a live server ------------------------
+
+
+class DiesOnBadParameters(FramedServer):
+    """Stops serving (a crash) on the first request whose parameters cannot be decoded."""
+
+    def _reject(self, session: Session, event: Rejected) -> None:
+        if event.code is ErrorCode.BAD_PARAMETERS:
+            self._shutdown.set()
+            self._listener.close()
+            session.sock.shutdown(socket.SHUT_RDWR)
+            return
+        super()._reject(session, event)
+
+
+def test_fuzz_failure_is_reported_with_a_replayable_input() -> None:
+    server = DiesOnBadParameters(MiniSensor(), policy=POLICY)
+    with serving(server) as address:
+        options = Options(timeout_scale=SCALE, fuzz=40, seed=1)
+        result = run("sensor", *address, options, Selection(select=("robustness.fuzz",)))
+    (fuzz,) = result.results
+    assert fuzz.outcome is Outcome.FAIL
+    failure = fuzz.details["fuzz_failures"][0]
+    assert failure["seed"] == 1 and bytes.fromhex(failure["hex"])
+    # The failing input, sent alone, breaks a fresh server the same way: it replays.
+    server2 = DiesOnBadParameters(MiniSensor(), policy=POLICY)
+    with serving(server2) as (host, port):
+        with socket.create_connection((host, port), timeout=1) as sock:
+            sock.sendall(bytes.fromhex(failure["hex"]))
+            sock.settimeout(1)
+            try:
+                while sock.recv(4096):
+                    pass
+            except OSError:
+                pass
+        time.sleep(0.3)
+        with pytest.raises(OSError), socket.create_connection((host, port), timeout=1) as s2:
+            s2.sendall(b"x")
+            assert s2.recv(1)  # a closed listener refuses; reaching here would be a miss
+
+
+def test_cli_expectations_and_reports(tmp_path: Any) -> None:
+    from conformance.cli import main
+
+    known = tmp_path / "known.txt"
+    known.write_text("framing.crc.bad\nframing.ping.echo\n")
+    out = tmp_path / "r.json"
+    with serving(BadCrcClosesServer(MiniSensor(), policy=POLICY)) as (host, port):
+        code = main(
+            [
+                "sensor",
+                f"{host}:{port}",
+                "--select",
+                "framing.crc.bad",
+                "--select",
+                "framing.ping.echo",
+                "--expect",
+                str(known),
+                "--timeout-scale",
+                str(SCALE),
+                "--json",
+                str(out),
+                "-q",
+            ]
+        )
+    import json
+
+    data = json.loads(out.read_text())
+    cases = {c["id"]: c for c in data["cases"]}
+    assert code == 0  # the only failure is a known one
+    assert cases["framing.crc.bad"]["outcome"] == "fail"
+    assert cases["framing.crc.bad"]["known_failure"] is True
+    assert cases["framing.ping.echo"]["unexpected_pass"] is True
