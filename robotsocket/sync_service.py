@@ -95,6 +95,11 @@ class SyncService:
     # --- plain API (also used by the emulated cell) ------------------------------------------
 
     def set_endpoint(self, host: str, port: int) -> None:
+        """Where triggers go; ("", 0), what GetSyncConfig reports before, clears it."""
+        if host == "" and port == 0:
+            self.endpoint = None
+            self.transport.set_target("", 0)
+            return
         if not host or not 0 < port < 65536:
             raise OutOfRangeError(f"bad sensor endpoint {host!r}:{port}")
         self.endpoint = (host, int(port))

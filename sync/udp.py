@@ -465,8 +465,8 @@ class UdpSyncEndpoint:
         self.send_errors = 0
 
     def set_target(self, host: str, port: int) -> None:
-        """Where triggers go (the sensor's trigger listener)."""
-        self.target = (host, port)
+        """Where triggers go (the sensor's trigger listener); port 0: nowhere."""
+        self.target = (host, port) if port else None
         self.wake()
 
     def wake(self) -> None:
