@@ -9,6 +9,7 @@ are tiny raw-socket servers for framing-level breakage.
 
 from __future__ import annotations
 
+import itertools
 import socket
 import struct
 import threading
@@ -26,7 +27,7 @@ from conformance.runner import RunResult, Selection, exit_code, run
 from kinematics.transforms import concat, invert, location_to_transform, transform_to_location
 from spec import wire
 from spec.codec import FrameDecoder, Packet, Rejected, encode_packet
-from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data
+from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data, encode_trigger
 from spec.errors import DatagramError, ErrorCode, ProtocolError
 from spec.params import Image, Joints, Location, Matrix, Value
 from spec.registry import BY_ID, CommandSpec, check_params
@@ -860,3 +861,192 @@ def test_cli_expectations_and_reports(tmp_path: Any) -> None:
     assert cases["framing.crc.bad"]["outcome"] == "fail"
     assert cases["framing.crc.bad"]["known_failure"] is True
     assert cases["framing.ping.echo"]["unexpected_pass"] is True
+
+
+# --- the robot's synchronisation side ----------------------------------------------------------
+
+
+class MiniSyncRobot(MiniRobot):
+    """MiniRobot plus the synchronisation commands: sends triggers over UDP and matches the
+    data that comes back by index, with the counters of PROTOCOL.md section 9."""
+
+    COMMANDS = (
+        *MiniRobot.COMMANDS,
+        C.SET_SENSOR_ENDPOINT,
+        C.SET_SYNC_DELAY,
+        C.SET_SENSOR_TOOL,
+        C.GET_SYNC_CONFIG,
+        C.START_TRIGGERS,
+        C.SCHEDULE_TRIGGERS,
+        C.STOP_TRIGGERS,
+        C.GET_SEAM_POINTS,
+        C.GET_SYNC_STATISTICS,
+    )
+    LOSS_TIMEOUT = 0.1
+
+    def __init__(self, *, count_duplicates: bool = True) -> None:
+        super().__init__()
+        self.count_duplicates = count_duplicates
+        self.endpoint: tuple[str, int] = ("", 0)
+        self.delta_t = 0.005
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.01)
+        self.next_index = 7
+        self.sent: dict[int, float] = {}  # index -> t_T, awaiting data
+        self.lost: set[int] = set()
+        self.done: set[int] = set()
+        self.points: dict[int, list[float]] = {}
+        self.stats = dict.fromkeys(
+            (
+                "sent",
+                "received",
+                "matched",
+                "lost",
+                "late",
+                "duplicate",
+                "reordered",
+                "unknown",
+                "expired",
+                "malformed",
+                "pending",
+            ),
+            0,
+        )
+        self.to_send = 0
+        self.rate = 0.0
+        self.lock = threading.Lock()
+        self.stop = threading.Event()
+        threading.Thread(target=self._loop, daemon=True).start()
+
+    def _loop(self) -> None:
+        next_t = time.monotonic()
+        while not self.stop.is_set():
+            now = time.monotonic()
+            with self.lock:
+                if self.to_send and now >= next_t and self.endpoint[1]:
+                    i, self.next_index = self.next_index, self.next_index + 1
+                    self.sent[i] = now
+                    self.to_send -= 1
+                    self.stats["sent"] += 1
+                    self.sock.sendto(encode_trigger(Trigger(i, now)), self.endpoint)
+                    next_t = now + 1.0 / self.rate
+                for i, t in list(self.sent.items()):
+                    if now - t > self.LOSS_TIMEOUT:
+                        del self.sent[i]
+                        self.lost.add(i)
+                        self.stats["lost"] += 1
+            try:
+                raw, _src = self.sock.recvfrom(2048)
+            except (TimeoutError, OSError):
+                continue
+            with self.lock:
+                self._on_data(raw)
+
+    def _on_data(self, raw: bytes) -> None:
+        try:
+            d = decode_datagram(raw)
+        except DatagramError:
+            self.stats["malformed"] += 1
+            return
+        if not isinstance(d, SensorData):
+            self.stats["malformed"] += 1
+            return
+        self.stats["received"] += 1
+        i = d.index
+        if i in self.done:
+            self.stats["duplicate"] += 1 if self.count_duplicates else 0
+        elif i in self.lost:
+            self.stats["late"] += 1
+        elif i not in self.sent:
+            self.stats["unknown"] += 1
+        else:
+            t_t = self.sent.pop(i)
+            if self.done and i < max(self.done):
+                self.stats["reordered"] += 1
+            self.done.add(i)
+            self.stats["matched"] += 1
+            self.points[i] = [
+                i,
+                t_t,
+                t_t + self.delta_t,
+                int(d.status),
+                d.quality,
+                *d.seam,
+                *([0.0] * 6),
+            ]
+
+    def handle(
+        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
+        c = spec.id
+        with self.lock:
+            if c == C.SET_SENSOR_ENDPOINT:
+                self.endpoint = (str(params[0]), int(params[1]))  # type: ignore[call-overload]
+                return ()
+            if c == C.SET_SYNC_DELAY:
+                self.delta_t = float(params[0])  # type: ignore[arg-type]
+                return ()
+            if c == C.SET_SENSOR_TOOL:
+                return ()
+            if c == C.GET_SYNC_CONFIG:
+                return (
+                    *self.endpoint,
+                    self.delta_t,
+                    Location(0, 0, 0, 0, 0, 0),
+                    bool(self.to_send),
+                    self.rate,
+                )
+            if c in (C.START_TRIGGERS, C.SCHEDULE_TRIGGERS):
+                if not self.endpoint[1]:
+                    raise ProtocolError("no sensor endpoint", ErrorCode.BAD_STATE)
+                if c == C.START_TRIGGERS:
+                    rate, count = float(params[0]), int(params[1])  # type: ignore[arg-type,call-overload]
+                    if not 0 < rate <= 1000:
+                        raise ProtocolError("rate out of range", ErrorCode.OUT_OF_RANGE)
+                    self.rate, self.to_send = rate, count
+                    return (self.next_index,)
+                times = params[0].values  # type: ignore[union-attr]
+                if any(b <= a for a, b in itertools.pairwise(times)):
+                    raise ProtocolError("times must increase", ErrorCode.OUT_OF_RANGE)
+                raise ProtocolError("scheduling not offered", ErrorCode.NOT_SUPPORTED)
+            if c == C.STOP_TRIGGERS:
+                self.to_send = 0
+                return ()
+            if c == C.GET_SEAM_POINTS:
+                since = int(params[0])  # type: ignore[call-overload]
+                rows = [self.points[i] for i in sorted(self.points) if i > since]
+                return (Matrix(len(rows), 17, [v for r in rows for v in r]),)
+            if c == C.GET_SYNC_STATISTICS:
+                return tuple(
+                    self.stats[k] if k != "pending" else len(self.sent) for k in self.stats
+                )
+        return super().handle(session, spec, params)
+
+
+ROBOT_SYNC_CASES = ("robot.sync.*", "commands.sync.*")
+
+
+def test_minimal_sync_robot_scores_100_percent() -> None:
+    service = MiniSyncRobot()
+    try:
+        with serving(FramedServer(service, policy=POLICY)) as address:
+            result = check("robot", address, ROBOT_SYNC_CASES, scale=0.5)
+    finally:
+        service.stop.set()
+    assert problems(result) == {}
+    got = outcomes(result)
+    assert got["robot.sync.matching"] is Outcome.PASS
+    assert got["robot.sync.before_endpoint"] is Outcome.PASS
+    assert got["robot.sync.ranges"] is Outcome.PASS
+
+
+def test_robot_not_counting_duplicates_is_caught() -> None:
+    service = MiniSyncRobot(count_duplicates=False)
+    try:
+        with serving(FramedServer(service, policy=POLICY)) as address:
+            result = check("robot", address, ("robot.sync.matching",), scale=0.5)
+    finally:
+        service.stop.set()
+    _caught(result, "robot.sync.matching")
+    assert "SY-3.2" in problems(result)["robot.sync.matching"]
