@@ -1050,3 +1050,35 @@ def test_robot_not_counting_duplicates_is_caught() -> None:
         service.stop.set()
     _caught(result, "robot.sync.matching")
     assert "SY-3.2" in problems(result)["robot.sync.matching"]
+
+
+def test_capability_file_makes_cases_not_applicable(tmp_path: Any) -> None:
+    import json
+
+    from conformance.cli import main
+
+    caps = tmp_path / "caps.json"
+    caps.write_text(json.dumps({"not_offered": ["GetImage", "0x2004"]}))
+    out = tmp_path / "r.json"
+    with serving(FramedServer(MiniSensor(), policy=POLICY)) as (host, port):
+        code = main(
+            [
+                "sensor",
+                f"{host}:{port}",
+                "--select",
+                "commands.sensor.GetImage.*",
+                "--select",
+                "commands.sensor.GetProfile.reply",
+                "--select",
+                "sensor.image.*",
+                "--capabilities",
+                str(caps),
+                "--json",
+                str(out),
+                "-q",
+            ]
+        )
+    assert code == 0
+    data = json.loads(out.read_text())
+    assert {c["outcome"] for c in data["cases"]} == {"not-applicable"}
+    assert len(data["cases"]) == 5
