@@ -93,7 +93,7 @@ def test_sync_commands_over_the_protocol() -> None:
         rc.call(CommandId.SET_SYNC_DELAY, 0.0049)
         tool = Location(40.0, 0.0, 200.0, 0.0, 0.0, 0.0)
         rc.call(CommandId.SET_SENSOR_TOOL, tool)
-        host, port, dt, s2f, triggering, rate = rc.call(CommandId.GET_SYNC_CONFIG)
+        host, port, dt, s2f, triggering, _rate = rc.call(CommandId.GET_SYNC_CONFIG)
         assert (host, port) == cell.udp_address and dt == pytest.approx(0.0049)
         assert isinstance(s2f, Location) and s2f.as_tuple() == pytest.approx(tool.as_tuple())
         assert triggering is False
