@@ -1082,3 +1082,9 @@ def test_capability_file_makes_cases_not_applicable(tmp_path: Any) -> None:
     data = json.loads(out.read_text())
     assert {c["outcome"] for c in data["cases"]} == {"not-applicable"}
     assert len(data["cases"]) == 5
+
+
+def test_silent_udp_endpoint_gives_timeouts_not_fails() -> None:
+    result = sync_check(MiniTriggerListener(drop_every=1), ("sync.trigger.*", "sync.duplicate.*"))
+    assert {r.outcome for r in result.results} == {Outcome.TIMEOUT}
+    assert exit_code(result) == 4

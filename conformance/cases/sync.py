@@ -17,7 +17,7 @@ import time
 
 from conformance.connection import UdpConn
 from conformance.context import Context
-from conformance.model import Fail, Informational, NotApplicable, case
+from conformance.model import EndpointTimeout, Fail, Informational, NotApplicable, case
 from spec import wire
 from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data, encode_trigger
 from spec.errors import DatagramError, ErrorCode
@@ -66,6 +66,9 @@ def _exchange(
         if k + 1 < len(indices):
             take(u.collect(spacing))
     take(u.collect(wait))
+    if indices and not got:
+        # Total silence cannot be told from a dead endpoint: a timeout, never a fail.
+        raise EndpointTimeout(f"no datagram at all for {len(indices)} trigger(s)")
     return sent, got
 
 
@@ -257,6 +260,8 @@ def duplicate_once(ctx: Context) -> None:
     u.send(trigger, f"trigger {index} a third time")
     later = u.collect(ctx.scaled(0.2) + 0.05)
     n = sum(1 for data, _s, _t in first + later if _index_of(data) == index)
+    if n == 0:
+        raise EndpointTimeout(f"no data datagram for trigger {index}")
     if n != 1:
         raise Fail("a duplicated trigger is not answered exactly once", 1, n, requirement="SY-2.2")
 
