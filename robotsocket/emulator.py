@@ -411,10 +411,11 @@ class RobotEmulator(RobotInterface):
 
     def set_output(self, name: str, value: bool) -> None:
         with self._lock:
+            # [RS-5.21] a name the robot does not have (as an output) is out of range.
             if name in self._inputs:
-                raise InvalidArgumentError(f"{name!r} is an input and cannot be set")
+                raise OutOfRangeError(f"{name!r} is an input and cannot be set")
             if name not in self._outputs:
-                raise InvalidArgumentError(
+                raise OutOfRangeError(
                     f"unknown output {name!r}; outputs: {', '.join(self._outputs)}"
                 )
             if self._estop and value:
@@ -435,7 +436,7 @@ class RobotEmulator(RobotInterface):
                 return self._outputs[name], True
             if name in self._inputs:
                 return self._inputs[name], False
-        raise InvalidArgumentError(f"unknown I/O {name!r}")
+        raise OutOfRangeError(f"unknown I/O {name!r}")  # [RS-5.21]
 
     def list_io(self) -> tuple[list[str], list[str]]:
         return list(self._outputs), list(self._inputs)

@@ -12,7 +12,6 @@ from kinematics.transforms import invert, location_to_transform, transform_to_lo
 from robotsocket.emulator import HOME, RobotEmulator
 from robotsocket.interface import (
     EmergencyStopError,
-    InvalidArgumentError,
     MotionDesc,
     NotPoweredError,
     OutOfRangeError,
@@ -85,9 +84,9 @@ def test_io_by_name() -> None:
     robot.set_output("gas", True)
     assert robot.read_io("gas") == (True, True)
     assert robot.read_io(inputs[0])[1] is False
-    with pytest.raises(InvalidArgumentError):
+    with pytest.raises(OutOfRangeError):  # [RS-5.21]
         robot.set_output(inputs[0], True)
-    with pytest.raises(InvalidArgumentError):
+    with pytest.raises(OutOfRangeError):
         robot.read_io("nope")
 
 
