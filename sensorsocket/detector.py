@@ -159,6 +159,7 @@ class SeamDetector:
         self._d = cam.working_distance_mm
         # k = (u - u0)/f of every chip column: the profile mapping looks it up
         self._k = (np.arange(cam.columns, dtype=np.float64) - self._u0) / self._f
+        self._offsets: dict[int, NDArray[np.intp]] = {}
         self._empty_points = np.zeros((0, 3))
         self._empty_cols = np.zeros(0, dtype=np.intp)
 
@@ -267,25 +268,37 @@ class SeamDetector:
         half: int,
     ) -> FloatArray:
         """Thresholded light in rows ``rows ± half`` of chip ``columns`` (k,) of ``frame``."""
-        ncols, nrows = frame.shape[0], frame.shape[1]
+        f = np.asarray(frame)
+        ncols, nrows = f.shape[0], f.shape[1]
         local = columns - stripe.first_column
-        ok = (local >= 0) & (local < ncols) & np.isfinite(rows)
-        out = np.zeros(len(columns))
-        if not ok.any():
-            return out
+        ok = np.isfinite(rows)
+        ok &= local >= 0
+        ok &= local < ncols
         every = bool(ok.all())
         if not every:
+            if not ok.any():
+                return np.zeros(len(columns))
             local, rows = local[ok], rows[ok]
-        idx = np.rint(rows).astype(np.intp)[:, None] + np.arange(-half, half + 1)
-        inside = (idx >= 0) & (idx < nrows)
-        np.clip(idx, 0, nrows - 1, out=idx)
-        vals = np.asarray(frame)[local[:, None], idx].astype(np.float64)
+        offsets = self._offsets.get(half)
+        if offsets is None:
+            offsets = np.arange(-half, half + 1)
+            offsets.setflags(write=False)
+            self._offsets[half] = offsets
+        idx = np.rint(rows).astype(np.intp)[:, None] + offsets
+        rows_in = np.clip(idx, 0, nrows - 1)
+        inside = rows_in == idx
+        if f.flags.c_contiguous:
+            rows_in += (local * nrows)[:, None]
+            vals = f.reshape(-1).take(rows_in).astype(np.float64)
+        else:
+            vals = f[local[:, None], rows_in].astype(np.float64)
         vals -= stripe.threshold
         np.maximum(vals, 0.0, out=vals)
         vals *= inside
         sums: FloatArray = vals.sum(axis=1)
         if every:
             return sums
+        out = np.zeros(len(columns))
         out[ok] = sums
         return out
 
@@ -341,7 +354,7 @@ class SeamDetector:
         y *= k
         return y, z
 
-    def _rows(self, u: FloatArray, a: FloatArray | float, b: FloatArray | float) -> FloatArray:
+    def _rows(self, u: NDArray[np.intp], a: FloatArray, b: FloatArray) -> FloatArray:
         """Row v where chip column u (k,) meets the profile line z = a + b·y (scalars or
         per-column (k,)): the arithmetic of :meth:`CameraGeometry.line_row`, rows only."""
         s, c, d, f = self._sin, self._cos, self._d, self._f
@@ -483,11 +496,9 @@ class SeamDetector:
         cols_r = list(range(u_right + 2, u_right + 11)) + edge_r
         n_l = len(cols_l)
         cols = np.array(cols_l + cols_r)
-        a = np.full(cols.size, right.a)
-        a[:n_l] = left.a
-        b = np.full(cols.size, right.b)
-        b[:n_l] = left.b
-        rows = self._rows(cols.astype(np.float64), a, b)
+        n_r = cols.size - n_l
+        a, b = np.array([[left.a] * n_l + [right.a] * n_r, [left.b] * n_l + [right.b] * n_r])
+        rows = self._rows(cols, a, b)
         m = self.mass_at(frame, stripe, cols, rows, self.config.half_window).tolist()
         out = []
         for side, masses, edge in ((-1, m[:n_l], edge_l), (1, m[n_l:], edge_r)):
@@ -588,7 +599,7 @@ class SeamDetector:
         ref_cols = u[max(i - 10, 0) : i - 1] if upper_left else u[i + 3 : min(i + 12, u.size)]
         all_cols = np.concatenate([np.arange(u_a - 1, u_b + 2), ref_cols])
         # rows of the upper line at all columns, of the lower line at the step's columns
-        uc = np.concatenate([all_cols, all_cols[:n_cols]]).astype(np.float64)
+        uc = np.concatenate([all_cols, all_cols[:n_cols]])
         a = np.full(uc.size, lower.a)
         a[: all_cols.size] = upper.a
         b = np.full(uc.size, lower.b)
@@ -634,6 +645,17 @@ def _median(x: NDArray[np.floating]) -> float:
     return 0.5 * (float(p[k]) + float(p[k - 1]))
 
 
+def _median_of_copy(x: FloatArray) -> float:
+    """:func:`_median` of an array the caller no longer needs (partitioned in place)."""
+    n = x.size
+    k = n // 2
+    if n % 2:
+        x.partition(k)
+        return float(x[k])
+    x.partition((k - 1, k))
+    return 0.5 * (float(x[k]) + float(x[k - 1]))
+
+
 def _not_isolated_outliers(z: FloatArray, tol: float) -> NDArray[np.bool_]:
     """Mask of points within ``tol`` of the 3-point running median of z (drops glints)."""
     if z.size < 3:
@@ -648,27 +670,28 @@ def _not_isolated_outliers(z: FloatArray, tol: float) -> NDArray[np.bool_]:
 def _robust_line(y: FloatArray, z: FloatArray, iterations: int = 2) -> _Line | None:
     """Least-squares line z = a + b·y, refitted without points beyond 3.5 robust sigma.
 
-    Each fit is one moment product (3, 3) of the kept rows of [1, y, z], centred on the end
-    points' midpoint so that the closed-form sums lose no precision.
+    Each fit is one moment product (3, 3) of the kept columns of [1, y, z] (3, n), centred
+    on the end points' midpoint so that the closed-form sums lose no precision.
     """
     n_all = y.size
     if n_all < 3:
         return None
     cy = 0.5 * (float(y[0]) + float(y[-1]))
     cz = 0.5 * (float(z[0]) + float(z[-1]))
-    q = np.empty((n_all, 3))
-    q[:, 0] = 1.0
-    np.subtract(y, cy, out=q[:, 1])
-    np.subtract(z, cz, out=q[:, 2])
+    q = np.empty((3, n_all))
+    q[0] = 1.0
+    np.subtract(y, cy, out=q[1])
+    np.subtract(z, cz, out=q[2])
     qk = q
     keep: NDArray[np.bool_] | None = None
     a = b = rms = 0.0
     n = n_all
     for it in range(iterations + 1):
-        n = qk.shape[0]
+        n = qk.shape[1]
         if n < 3:
             return None
-        (_, sy, sz), (_, syy, syz), (_, _, szz) = (qk.T @ qk).tolist()
+        # ndarray.dot: the same BLAS product as @ with less per-call overhead
+        (_, sy, sz), (_, syy, syz), (_, _, szz) = qk.dot(qk.T).tolist()
         my, mz = sy / n, sz / n
         syy_c = syy - sy * my
         if syy_c <= 1e-12 or syy_c <= 1e-10 * syy:
@@ -678,8 +701,8 @@ def _robust_line(y: FloatArray, z: FloatArray, iterations: int = 2) -> _Line | N
         a = mz - b * my
         rms = math.sqrt(max(szz - sz * mz - b * syz_c, 0.0) / n)
         if it < iterations:
-            res = np.abs(q @ np.array([-a, -b, 1.0]))
-            sigma = 1.4826 * _median(res if keep is None else res[keep])
+            res = np.abs(np.array([-a, -b, 1.0]).dot(q))
+            sigma = 1.4826 * _median_of_copy(res.copy() if keep is None else res[keep])
             keep = res <= max(3.5 * sigma, 0.01)
-            qk = q[keep]
+            qk = q.compress(keep, axis=1)
     return _Line(a=a + cz - b * cy, b=b, rms=rms, n=n)
