@@ -156,7 +156,7 @@ def test_motion_errors(client: RobotClient) -> None:
         client.set_motion_desc(MotionDesc(joint_speed=150.0))
     with pytest.raises(BadParametersError):
         client.joint_move((1.0, 2.0, 3.0))
-    with pytest.raises(BadParametersError):
+    with pytest.raises(OutOfRangeError):  # [RS-5.21]
         client.set_output("nope", True)
     with pytest.raises(BadParametersError):
         client.call(CommandId.JOINT_MOVE, 1.0)  # wrong type
