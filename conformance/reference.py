@@ -49,15 +49,20 @@ def start(service: str) -> Reference:
 def _robot() -> Reference:
     from robotsocket.emulator import RobotEmulator
     from robotsocket.service import RobotService
+    from robotsocket.sync_service import attach_udp_sync
     from spec.server import FramedServer
 
     robot = RobotEmulator("RX90B", clock="real")
-    server = FramedServer(RobotService(robot), "127.0.0.1", 0)
+    service = RobotService(robot)
+    _, endpoint = attach_udp_sync(service, robot, host="127.0.0.1")
+    server = FramedServer(service, "127.0.0.1", 0)
     robot.start()
+    endpoint.start()
     server.start()
 
     def stop() -> None:
         server.shutdown()
+        endpoint.stop()
         robot.close()
 
     return Reference(server.address[0], server.address[1], stop)

@@ -25,6 +25,7 @@ from kinematics.errors import KinematicsError
 from robotsocket.client import RobotClient
 from robotsocket.emulator import RobotEmulator
 from robotsocket.service import RobotService
+from robotsocket.sync_service import attach_udp_sync
 from spec import callcli
 from spec.client import ClientTimeout, ConnectionClosed
 from spec.errors import ProtocolError, RemoteError
@@ -68,11 +69,16 @@ def cmd_serve(args: argparse.Namespace) -> int:
     except (ValueError, KinematicsError) as exc:
         raise CliError(str(exc)) from None
     policy = ServerPolicy(max_clients=args.max_clients, allow=allow, token=token)
+    service = RobotService(robot)
     try:
-        server = FramedServer(RobotService(robot), args.host, args.port, policy)
+        # The synchronisation commands (0x3001-0x3009) and their UDP endpoint, registered
+        # before the server reads the service's command list.
+        _, endpoint = attach_udp_sync(service, robot, host=args.host, port=args.udp_port)
+        server = FramedServer(service, args.host, args.port, policy)
     except OSError as exc:
         raise CliError(f"cannot listen on {args.host}:{args.port}: {exc.strerror}") from None
     robot.start()
+    endpoint.start()
     log.info(
         "robot %s emulator, %s clock, encoder latency %.1f ms, control token %s, allow %s",
         robot.model.name,
@@ -85,6 +91,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     print(f"listening on {server.address[0]}:{server.address[1]}", flush=True)
 
     def on_stop() -> None:
+        endpoint.stop()
         robot.close()
         j = robot.jitter()
         if j["count"]:
@@ -148,6 +155,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--allow", nargs="*", metavar="CIDR", help="client networks allowed")
     s.add_argument("--token-file", type=Path, help="file holding the TakeControl token")
     s.add_argument("--encoder-latency-ms", type=float, default=0.0)
+    s.add_argument(
+        "--udp-port", type=int, default=0, help="UDP port of the trigger/data endpoint (0 = any)"
+    )
     s.add_argument("--max-clients", type=int, default=64)
     s.set_defaults(fn=cmd_serve)
     c = sub.add_parser("call", help="send one command, print the reply as JSON")

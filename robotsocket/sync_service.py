@@ -206,7 +206,7 @@ def attach_udp_sync(
     service: RobotService,
     robot: RobotInterface,
     *,
-    host: str = "0.0.0.0",
+    host: str = "127.0.0.1",
     port: int = 0,
     delta_t_s: float = 0.0,
     sensor2flange: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),

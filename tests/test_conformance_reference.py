@@ -13,8 +13,7 @@ from conformance.runner import Selection, run
 
 #: Known defects of the reference implementations, by case ID.
 KNOWN_DEFECTS: dict[str, set[str]] = {
-    # RS-5.21: ReadIO of an unknown name answers BAD_PARAMETERS instead of OUT_OF_RANGE.
-    "robot": {"robot.io.unknown_name"},
+    "robot": set(),
     "sensor": set(),
     "sync": set(),
 }
