@@ -118,13 +118,14 @@ class Detection:
 
 @dataclass(frozen=True)
 class _ShapeConstants:
-    """Read-only arrays for frames of n columns: flat offset of each column (n,), bounds
-    (n,) for clipping ring rows and window starts, the window fill h (n,), zeros (n, w)."""
+    """Read-only arrays for frames (n, rows): flat offset of each column (n,), bounds (n,)
+    for clipping ring rows, the clamped window start for a centre row (rows,), the window
+    fill h (n,), zeros (n, w)."""
 
     base: NDArray[np.intp]
     low: NDArray[np.intp]
     ring_high: NDArray[np.intp]
-    start_high: NDArray[np.intp]
+    start_of_row: NDArray[np.intp]
     fill: NDArray[np.float32]
     zeros: NDArray[np.float32]
 
@@ -159,7 +160,7 @@ class SeamDetector:
         self._d = cam.working_distance_mm
         # k = (u - u0)/f of every chip column: the profile mapping looks it up
         self._k = (np.arange(cam.columns, dtype=np.float64) - self._u0) / self._f
-        self._offsets: dict[int, NDArray[np.intp]] = {}
+        self._windows: dict[int, tuple[NDArray[np.intp], FloatArray]] = {}
         self._empty_points = np.zeros((0, 3))
         self._empty_cols = np.zeros(0, dtype=np.intp)
 
@@ -176,11 +177,11 @@ class SeamDetector:
                 base=np.arange(0, n * nrows, nrows, dtype=np.intp),
                 low=np.zeros(n, dtype=np.intp),
                 ring_high=np.full(n, nrows - 1, dtype=np.intp),
-                start_high=np.full(n, nrows - w, dtype=np.intp),
+                start_of_row=np.clip(np.arange(nrows) - h, 0, nrows - w),
                 fill=np.full(n, h, dtype=np.float32),
                 zeros=np.zeros((n, w), dtype=np.float32),
             )
-            for arr in (c.base, c.low, c.ring_high, c.start_high, c.fill, c.zeros):
+            for arr in (c.base, c.low, c.ring_high, c.start_of_row, c.fill, c.zeros):
                 arr.setflags(write=False)
             self._shape_cache[key] = c
         return c
@@ -225,14 +226,11 @@ class SeamDetector:
         positive = np.empty(n, dtype=bool)
         rel = np.empty(n, dtype=np.float32)
         rows = np.empty(n, dtype=np.float32)
-        start = peak_row
-        start -= h
+        # window start of a window centred on row r, clamped to the frame: c.start_of_row[r]
+        start = c.start_of_row.take(peak_row)
         for second in (False, True):
             if second:  # re-centre on the first centroid: symmetric window, whole plateau
-                start = np.rint(rows).astype(np.intp)
-                start -= h
-            np.maximum(start, c.low, out=start)
-            np.minimum(start, c.start_high, out=start)
+                start = c.start_of_row.take(np.rint(rows).astype(np.intp), mode="clip")
             start_f = start.astype(np.float32)
             start += base
             vals = windows[start].astype(np.float32)
@@ -279,13 +277,16 @@ class SeamDetector:
             if not ok.any():
                 return np.zeros(len(columns))
             local, rows = local[ok], rows[ok]
-        offsets = self._offsets.get(half)
-        if offsets is None:
-            offsets = np.arange(-half, half + 1)
-            offsets.setflags(write=False)
-            self._offsets[half] = offsets
+        window = self._windows.get(half)
+        if window is None:  # row offsets (2·half+1,) and ones to sum a window with
+            window = (np.arange(-half, half + 1), np.ones(2 * half + 1))
+            for arr in window:
+                arr.setflags(write=False)
+            self._windows[half] = window
+        offsets, ones = window
         idx = np.rint(rows).astype(np.intp)[:, None] + offsets
-        rows_in = np.clip(idx, 0, nrows - 1)
+        rows_in = np.maximum(idx, 0)  # np.clip costs more than both on small arrays
+        np.minimum(rows_in, nrows - 1, out=rows_in)
         inside = rows_in == idx
         if f.flags.c_contiguous:
             rows_in += (local * nrows)[:, None]
@@ -295,7 +296,7 @@ class SeamDetector:
         vals -= stripe.threshold
         np.maximum(vals, 0.0, out=vals)
         vals *= inside
-        sums: FloatArray = vals.sum(axis=1)
+        sums: FloatArray = vals.dot(ones)
         if every:
             return sums
         out = np.zeros(len(columns))
@@ -436,22 +437,24 @@ class SeamDetector:
         pts: FloatArray,
     ) -> Detection:
         cfg = self.config
-        holes = np.flatnonzero(np.diff(u) > 1)
+        holes = ((u[1:] - u[:-1]) > 1).nonzero()[0]
         if holes.size == 0:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
-        widths = y[holes + 1] - y[holes]
-        sides_ok = (holes + 1 >= cfg.min_side_points) & (u.size - holes - 1 >= cfg.min_side_points)
-        cand = (widths >= cfg.min_gap_mm) & (widths <= cfg.max_gap_mm) & sides_ok
-        found = np.flatnonzero(cand).tolist()
+        widths = (y[1:] - y[:-1]).take(holes)
+        # few holes in a usable profile: plain Python beats a dozen numpy calls
+        n, m = u.size, cfg.min_side_points
+        found = [
+            (w, i)
+            for i, w in zip(holes.tolist(), widths.tolist(), strict=True)
+            if cfg.min_gap_mm <= w <= cfg.max_gap_mm and i + 1 >= m and n - i - 1 >= m
+        ]
         if not found:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         # widest candidate (the last of equal widths); a second one at least 0.6 as wide
         # makes the seam ambiguous
-        w_list = widths.tolist()
-        best = max(found, key=lambda j: (w_list[j], j))
-        if any(j != best and w_list[j] >= 0.6 * w_list[best] for j in found):
+        best_w, i = max(found)
+        if any(j != i and w >= 0.6 * best_w for w, j in found):
             return self._none(SeamStatus.AMBIGUOUS, stripe, pts, u)
-        i = int(holes[best])
         left = _robust_line(y[: i + 1], z[: i + 1])
         right = _robust_line(y[i + 1 :], z[i + 1 :])
         if left is None or right is None:
