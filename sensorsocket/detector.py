@@ -131,6 +131,15 @@ class _ShapeConstants:
 
 
 @dataclass(frozen=True)
+class _Centred:
+    """A profile as rows [1, y - cy, z - cz] (3, n), mm, and its centre (cy, cz)."""
+
+    q: FloatArray
+    cy: float
+    cz: float
+
+
+@dataclass(frozen=True)
 class _Line:
     """z = a + b·y fitted to n points with rms residual (mm)."""
 
@@ -455,8 +464,9 @@ class SeamDetector:
         best_w, i = max(found)
         if any(j != i and w >= 0.6 * best_w for w, j in found):
             return self._none(SeamStatus.AMBIGUOUS, stripe, pts, u)
-        left = _robust_line(y[: i + 1], z[: i + 1])
-        right = _robust_line(y[i + 1 :], z[i + 1 :])
+        p = _centred(y, z)
+        left = _robust_line(p, slice(0, i + 1))
+        right = _robust_line(p, slice(i + 1, None))
         if left is None or right is None:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         angle = abs(math.degrees(math.atan(left.b) - math.atan(right.b)))
@@ -528,11 +538,12 @@ class SeamDetector:
         dist = np.abs(dy * (z - z0) - dz * (y - y0))
         y_split = float(y[int(np.argmax(dist))])
         left = right = None
+        p = _centred(y, z)
         for _ in range(2):
             lm = y < y_split - cfg.corner_margin_mm
             rm = y > y_split + cfg.corner_margin_mm
-            left = _robust_line(y[lm], z[lm])
-            right = _robust_line(y[rm], z[rm])
+            left = _robust_line(p, lm)
+            right = _robust_line(p, rm)
             if left is None or right is None or left.b == right.b:
                 return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
             y_split = (right.a - left.a) / (left.b - right.b)
@@ -582,8 +593,9 @@ class SeamDetector:
         if i + 1 < cfg.min_side_points or u.size - i - 1 < cfg.min_side_points:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         # the two columns next to the step may mix both levels: fit without them
-        left = _robust_line(y[: max(i - 1, 0)], z[: max(i - 1, 0)])
-        right = _robust_line(y[i + 3 :], z[i + 3 :])
+        p = _centred(y, z)
+        left = _robust_line(p, slice(0, max(i - 1, 0)))
+        right = _robust_line(p, slice(i + 3, None))
         if left is None or right is None:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         rms = max(left.rms, right.rms)
@@ -670,25 +682,31 @@ def _not_isolated_outliers(z: FloatArray, tol: float) -> NDArray[np.bool_]:
     return keep
 
 
-def _robust_line(y: FloatArray, z: FloatArray, iterations: int = 2) -> _Line | None:
-    """Least-squares line z = a + b·y, refitted without points beyond 3.5 robust sigma.
-
-    Each fit is one moment product (3, 3) of the kept columns of [1, y, z] (3, n), centred
-    on the end points' midpoint so that the closed-form sums lose no precision.
-    """
-    n_all = y.size
-    if n_all < 3:
-        return None
+def _centred(y: FloatArray, z: FloatArray) -> _Centred:
+    """Rows [1, y - cy, z - cz] (3, n) of a profile for :func:`_robust_line`, centred on
+    the end points' midpoint (cy, cz) so that the closed-form moment sums lose no
+    precision; built once per frame, each fit takes a slice or a subset of columns."""
     cy = 0.5 * (float(y[0]) + float(y[-1]))
     cz = 0.5 * (float(z[0]) + float(z[-1]))
-    q = np.empty((3, n_all))
+    q = np.empty((3, y.size))
     q[0] = 1.0
     np.subtract(y, cy, out=q[1])
     np.subtract(z, cz, out=q[2])
+    return _Centred(q, cy, cz)
+
+
+def _robust_line(
+    p: _Centred, columns: slice | NDArray[np.bool_], iterations: int = 2
+) -> _Line | None:
+    """Least-squares line z = a + b·y through the ``columns`` of profile ``p``, refitted
+    without points beyond 3.5 robust sigma. Each fit is one moment product (3, 3)."""
+    q = p.q[:, columns] if isinstance(columns, slice) else p.q.compress(columns, axis=1)
+    n = q.shape[1]
+    if n < 3:
+        return None
     qk = q
     keep: NDArray[np.bool_] | None = None
     a = b = rms = 0.0
-    n = n_all
     for it in range(iterations + 1):
         n = qk.shape[1]
         if n < 3:
@@ -708,4 +726,4 @@ def _robust_line(y: FloatArray, z: FloatArray, iterations: int = 2) -> _Line | N
             sigma = 1.4826 * _median_of_copy(res.copy() if keep is None else res[keep])
             keep = res <= max(3.5 * sigma, 0.01)
             qk = q.compress(keep, axis=1)
-    return _Line(a=a + cz - b * cy, b=b, rms=rms, n=n)
+    return _Line(a=a + p.cz - b * p.cy, b=b, rms=rms, n=n)
