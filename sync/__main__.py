@@ -49,7 +49,8 @@ def _parser() -> _Parser:
     p = _Parser(prog=PROG, description="Robot-sensor synchronisation tools.")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
     for name in ("delay", "sweep"):
-        d = sub.add_parser(name, help="measure ΔT with the sine experiment (section VI)")
+        what = "the frequency sweep of Fig. 8" if name == "sweep" else "the sine experiment"
+        d = sub.add_parser(name, help=f"measure ΔT with {what} (section VI)")
         d.add_argument("--robot", type=_endpoint, help="RobotSocket HOST:PORT")
         d.add_argument("--sensor", type=_endpoint, help="SensorSocket HOST:PORT")
         d.add_argument("--frequency", type=float, default=1.5, help="sine frequency (Hz)")

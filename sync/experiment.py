@@ -442,20 +442,33 @@ def write_plots(
 
     def save(fig: Any, name: str) -> None:
         path = d / name
+        tmp = d / f".{name}.tmp.png"
         fig.tight_layout()
-        fig.savefig(path, dpi=110)
+        fig.savefig(tmp, dpi=110)
         plt.close(fig)
+        os.replace(tmp, path)  # a reader never sees half a figure
         files.append(path)
 
     if result is not None:
         data, t0 = result.data, result.data.t_start
+        tr, ts = data.t_robot - t0, data.t_trigger - t0
+        inside = (tr >= ts.min()) & (tr <= ts.max())  # the robot log also holds the approach
         fig, (a, b) = plt.subplots(2, 1, figsize=(8, 6))
         for ax in (a, b):
-            ax.plot(data.t_robot - t0, data.y_robot, ".-", ms=2, lw=0.8, label="$y^R(t_k^R)$")
-            ax.plot(data.t_trigger - t0, data.y_sensor, ".", ms=2, label="$y^S(t_i^T)$")
+            ax.plot(tr[inside], data.y_robot[inside], ".-", ms=3, lw=0.8, label="$y^R(t_k^R)$")
+            ax.plot(ts, data.y_sensor, ".", ms=3, label="$y^S(t_i^T)$")
             ax.set_xlabel("time (s)")
             ax.set_ylabel("y (mm)")
-        b.set_xlim(2.0 - 0.03, 2.0 + 0.03)
+        # Zoom on the rising zero crossing nearest the middle, where the delay shows.
+        rising = np.flatnonzero((data.y_sensor[:-1] < 0) & (data.y_sensor[1:] >= 0))
+        mid = 0.5 * (ts.min() + ts.max())
+        tc = ts[rising[np.argmin(np.abs(ts[rising] - mid))]] if rising.size else mid
+        b.set_xlim(tc - 0.015, tc + 0.015)
+        window = (ts > tc - 0.015) & (ts < tc + 0.015)
+        if window.any():
+            lo, hi = data.y_sensor[window].min(), data.y_sensor[window].max()
+            b.set_ylim(lo - 0.1 * (hi - lo + 1e-3), hi + 0.1 * (hi - lo + 1e-3))
+        b.set_title("zoom: y^S stamped at t^T runs ΔT ahead of the robot log y^R")
         a.legend()
         a.set_title(f"Fig. 6: sine motion at {result.settings.frequency_hz:g} Hz")
         save(fig, "fig6_sine.png")
