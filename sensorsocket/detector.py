@@ -286,13 +286,7 @@ class SeamDetector:
             if not ok.any():
                 return np.zeros(len(columns))
             local, rows = local[ok], rows[ok]
-        window = self._windows.get(half)
-        if window is None:  # row offsets (2·half+1,) and ones to sum a window with
-            window = (np.arange(-half, half + 1), np.ones(2 * half + 1))
-            for arr in window:
-                arr.setflags(write=False)
-            self._windows[half] = window
-        offsets, ones = window
+        offsets, ones = self._window(half)
         idx = np.rint(rows).astype(np.intp)[:, None] + offsets
         rows_in = np.maximum(idx, 0)  # np.clip costs more than both on small arrays
         np.minimum(rows_in, nrows - 1, out=rows_in)
@@ -373,6 +367,68 @@ class SeamDetector:
             y = k * (d + a * c) / (1.0 - k * b * c)
             z = a + b * y
             return self._v0 + f * z * s / (d + z * c)
+
+    def _line_v(self, u: float, a: float, b: float) -> float:
+        """Row where chip column u meets the profile line z = a + b·y (NaN if nowhere)."""
+        z = self._line_point(u, a, b)[1]
+        den = self._d + z * self._cos
+        if den == 0.0 or not math.isfinite(den):
+            return math.nan
+        return self._v0 + self._f * z * self._sin / den
+
+    def _line_rows(self, cols: list[int], line: _Line) -> list[float]:
+        """Rows where chip columns ``cols`` meet a profile line. The image of a line is a
+        straight line, so two exact end points give all (equal to line_row to ~1e-13 px)."""
+        if not cols:
+            return []
+        u1, u2 = min(cols), max(cols)
+        v1 = self._line_v(u1, line.a, line.b)
+        if u2 == u1:
+            return [v1] * len(cols)
+        v2 = self._line_v(u2, line.a, line.b)
+        slope = (v2 - v1) / (u2 - u1)
+        return [v1 + (c - u1) * slope for c in cols]
+
+    def _light(
+        self,
+        frame: NDArray[np.generic],
+        stripe: StripeProfile,
+        cols: list[int],
+        rows: list[float],
+        half: int,
+    ) -> list[float]:
+        """:meth:`mass_at` for a few columns given as lists, with fewer numpy calls."""
+        f = np.asarray(frame)
+        ncols, nrows = f.shape[0], f.shape[1]
+        first = stripe.first_column
+        if (
+            not f.flags.c_contiguous
+            or min(cols) < first
+            or max(cols) >= first + ncols
+            or not all(abs(r) < 1e9 for r in rows)  # also False for NaN
+        ):
+            return list(self.mass_at(f, stripe, np.array(cols), np.array(rows), half).tolist())
+        offsets, ones = self._window(half)
+        idx = np.array([round(r) for r in rows])[:, None] + offsets  # round: half to even
+        rows_in = np.maximum(idx, 0)
+        np.minimum(rows_in, nrows - 1, out=rows_in)
+        inside = rows_in == idx
+        rows_in += np.array([(c - first) * nrows for c in cols])[:, None]
+        vals = f.reshape(-1).take(rows_in).astype(np.float64)
+        vals -= stripe.threshold
+        np.maximum(vals, 0.0, out=vals)
+        vals *= inside
+        return list(vals.dot(ones).tolist())
+
+    def _window(self, half: int) -> tuple[NDArray[np.intp], FloatArray]:
+        """Row offsets -half..half and ones of that length (read-only, cached per half)."""
+        window = self._windows.get(half)
+        if window is None:
+            window = (np.arange(-half, half + 1), np.ones(2 * half + 1))
+            for arr in window:
+                arr.setflags(write=False)
+            self._windows[half] = window
+        return window
 
     def _line_point(self, u: float, a: float, b: float) -> tuple[float, float]:
         """(y, z) in S (mm) where chip column u meets the profile line z = a + b·y (NaN where
@@ -508,14 +564,11 @@ class SeamDetector:
         cols_l = list(range(u_left - 10, u_left - 1)) + edge_l
         cols_r = list(range(u_right + 2, u_right + 11)) + edge_r
         n_l = len(cols_l)
-        cols = np.array(cols_l + cols_r)
-        n_r = cols.size - n_l
-        a, b = np.array([[left.a] * n_l + [right.a] * n_r, [left.b] * n_l + [right.b] * n_r])
-        rows = self._rows(cols, a, b)
-        m = self.mass_at(frame, stripe, cols, rows, self.config.half_window).tolist()
+        rows = self._line_rows(cols_l, left) + self._line_rows(cols_r, right)
+        m = self._light(frame, stripe, cols_l + cols_r, rows, self.config.half_window)
         out = []
         for side, masses, edge in ((-1, m[:n_l], edge_l), (1, m[n_l:], edge_r)):
-            ref = sorted(masses[:n_ref])[n_ref // 2]
+            ref = _list_median(masses[:n_ref])
             if ref <= 0:
                 out.append(edge[0] + 0.5 * side)
                 continue
@@ -612,24 +665,19 @@ class SeamDetector:
         u_a, u_b = int(u[i]), int(u[i + 1])
         n_cols = u_b - u_a + 3
         ref_cols = u[max(i - 10, 0) : i - 1] if upper_left else u[i + 3 : min(i + 12, u.size)]
-        all_cols = np.concatenate([np.arange(u_a - 1, u_b + 2), ref_cols])
-        # rows of the upper line at all columns, of the lower line at the step's columns
-        uc = np.concatenate([all_cols, all_cols[:n_cols]])
-        a = np.full(uc.size, lower.a)
-        a[: all_cols.size] = upper.a
-        b = np.full(uc.size, lower.b)
-        b[: all_cols.size] = upper.b
-        rows = self._rows(uc, a, b)
-        r_up = rows[: all_cols.size]
-        sep = float(np.fmin.reduce(np.abs(r_up[:n_cols] - rows[all_cols.size :])))
+        all_cols = list(range(u_a - 1, u_b + 2)) + ref_cols.tolist()
+        r_up = self._line_rows(all_cols, upper)
+        r_lo = self._line_rows(all_cols[:n_cols], lower)
+        gaps = [abs(p - q) for p, q in zip(r_up, r_lo, strict=False)]
+        sep = min((g for g in gaps if not math.isnan(g)), default=math.nan)
         if not math.isfinite(sep):
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         half = int(max(1, min(cfg.half_window, math.floor(sep / 2.0 - 0.5))))
-        m_up = self.mass_at(frame, stripe, all_cols, r_up, half)
-        ref = _median(m_up[n_cols:]) if ref_cols.size else 0.0
+        m_up = self._light(frame, stripe, all_cols, r_up, half)
+        ref = _list_median(m_up[n_cols:]) if ref_cols.size else 0.0
         if ref <= 0.0:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
-        cover = float(np.clip(m_up[:n_cols] / ref, 0.0, 1.0).sum())
+        cover = sum(min(max(x / ref, 0.0), 1.0) for x in m_up[:n_cols])
         u_edge = (u_a - 1.5 + cover) if upper_left else (u_b + 1.5 - cover)
         e_y, e_z = self._line_point(u_edge, upper.a, upper.b)
         n_lo = math.hypot(1.0, lower.b)
@@ -658,6 +706,13 @@ def _median(x: NDArray[np.floating]) -> float:
         return float(np.partition(x, k)[k])
     p = np.partition(x, (k - 1, k))
     return 0.5 * (float(p[k]) + float(p[k - 1]))
+
+
+def _list_median(x: list[float]) -> float:
+    """:func:`_median` of a short non-empty list."""
+    s = sorted(x)
+    k = len(s) // 2
+    return s[k] if len(s) % 2 else 0.5 * (s[k] + s[k - 1])
 
 
 def _median_of_copy(x: FloatArray) -> float:
