@@ -118,13 +118,12 @@ class Detection:
 
 @dataclass(frozen=True)
 class _ShapeConstants:
-    """Read-only arrays for frames (n, rows): flat offset of each column (n,), bounds (n,)
-    for clipping ring rows, the clamped window start for a centre row (rows,), the window
+    """Read-only arrays for frames (n, rows): flat offset of each column (n,), the clamped
+    background rows (2, rows) and window start (rows,) for a peak or centre row, the window
     fill h (n,), zeros (n, w)."""
 
     base: NDArray[np.intp]
-    low: NDArray[np.intp]
-    ring_high: NDArray[np.intp]
+    ring_of_row: NDArray[np.intp]
     start_of_row: NDArray[np.intp]
     fill: NDArray[np.float32]
     zeros: NDArray[np.float32]
@@ -184,13 +183,17 @@ class SeamDetector:
             h = self.config.half_window
             c = _ShapeConstants(
                 base=np.arange(0, n * nrows, nrows, dtype=np.intp),
-                low=np.zeros(n, dtype=np.intp),
-                ring_high=np.full(n, nrows - 1, dtype=np.intp),
+                ring_of_row=np.stack(
+                    [
+                        np.maximum(np.arange(nrows) - (h + 3), 0),
+                        np.minimum(np.arange(nrows) + (h + 3), nrows - 1),
+                    ]
+                ),
                 start_of_row=np.clip(np.arange(nrows) - h, 0, nrows - w),
                 fill=np.full(n, h, dtype=np.float32),
                 zeros=np.zeros((n, w), dtype=np.float32),
             )
-            for arr in (c.base, c.low, c.ring_high, c.start_of_row, c.fill, c.zeros):
+            for arr in (c.base, c.ring_of_row, c.start_of_row, c.fill, c.zeros):
                 arr.setflags(write=False)
             self._shape_cache[key] = c
         return c
@@ -209,16 +212,10 @@ class SeamDetector:
         search = a.astype(np.int32) if a.dtype.itemsize == 1 else a
         peak_row = search.argmax(axis=1)
         peak = flat.take(peak_row + base).astype(np.float32)
-        ring = np.empty(2 * n, dtype=np.intp)
-        lo, hi = ring[:n], ring[n:]
-        # bounds as arrays: numpy's integer maximum/minimum with a scalar is 2x slower
-        np.subtract(peak_row, h + 3, out=lo)
-        np.maximum(lo, c.low, out=lo)
-        np.add(peak_row, h + 3, out=hi)
-        np.minimum(hi, c.ring_high, out=hi)
-        lo += base
-        hi += base
-        samples = flat.take(ring).astype(np.float32)
+        # the rows just outside the window above and below the peak, clamped: (2, n)
+        ring = c.ring_of_row.take(peak_row, axis=1)
+        ring += base
+        samples = flat.take(ring.reshape(-1)).astype(np.float32)
         background = _median(samples)
         np.subtract(samples, background, out=samples)
         noise = max(1.4826 * _median(np.abs(samples, out=samples)), 0.5)
@@ -233,7 +230,6 @@ class SeamDetector:
         moments = np.empty((3, n), dtype=np.float32)
         mass = moments[0]
         positive = np.empty(n, dtype=bool)
-        rel = np.empty(n, dtype=np.float32)
         rows = np.empty(n, dtype=np.float32)
         # window start of a window centred on row r, clamped to the frame: c.start_of_row[r]
         start = c.start_of_row.take(peak_row)
@@ -247,7 +243,7 @@ class SeamDetector:
             np.maximum(vals, c.zeros, out=vals)  # an array operand takes the SIMD loop
             np.matmul(self._win_moments, vals.T, out=moments)
             np.greater(mass, 0.0, out=positive)
-            np.copyto(rel, c.fill)
+            rel = c.fill.copy()  # h where a window has no light: rows = window centre
             np.divide(moments[1], mass, out=rel, where=positive)
             np.add(rel, start_f, out=rows)
         spread = np.full(n, np.inf, dtype=np.float32)
@@ -316,10 +312,10 @@ class SeamDetector:
             a.ndim != 2
             or a.shape[1] < 2 * cfg.half_window + 1
             or a.shape[0] < 1
-            or not (np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating))
+            or a.dtype.kind not in "iuf"  # integers and floats, as np.issubdtype would say
         ):
             return self._none(SeamStatus.BAD_IMAGE, None)
-        if a.dtype != np.uint8:
+        if a.dtype.type is not np.uint8:
             a = _to_dn(a)
         stripe = self.stripe(a, first_column)
         cols = np.flatnonzero(stripe.valid)
