@@ -11,8 +11,8 @@ from kinematics.robot import get_model
 from robotsocket.interface import MotionDesc, OutOfRangeError, SingularityError, UnreachableError
 from robotsocket.trajectory import (
     PERIOD,
-    Trapezoid,
     TrajectoryGenerator,
+    Trapezoid,
     joint_limits_of,
     nominal_limits,
     plan_joint,
