@@ -775,6 +775,10 @@ def _robust_line(
         if it < iterations:
             res = np.abs(np.array([-a, -b, 1.0]).dot(q))
             sigma = 1.4826 * _median_of_copy(res.copy() if keep is None else res[keep])
-            keep = res <= max(3.5 * sigma, 0.01)
+            new_keep = res <= max(3.5 * sigma, 0.01)
+            # the same points as in this fit: every further fit would repeat it exactly
+            if new_keep.all() if keep is None else not (new_keep ^ keep).any():
+                break
+            keep = new_keep
             qk = q.compress(keep, axis=1)
     return _Line(a=a + p.cz - b * p.cy, b=b, rms=rms, n=n)
