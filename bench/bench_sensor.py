@@ -1,9 +1,9 @@
 """Camera emulator throughput: detector and renderer frames per second.
 
 Baselines measured in the same run: the detector against reading the same frames' bytes
-once (numpy sum over a uint64 view: the memory-read floor of any detector), the renderer
-against drawing one frame of fresh Gaussian noise (what a naive renderer pays before it
-draws any stripe).
+once (numpy sum over a uint64 view: the memory-read floor of any detector), the seam stage
+(detect minus stripe, µs per frame) against the stripe stage, the renderer against drawing
+one frame of fresh Gaussian noise (what a naive renderer pays before it draws any stripe).
 """
 
 from __future__ import annotations
@@ -63,6 +63,16 @@ def run() -> list[Result]:
         )
         results.append(
             result(f"sensor.stripe.{name}", 1 / t_stripe, "frames/s", "memory read", 1 / t_read)
+        )
+        # the seam stage alone (profile, outliers, feature): detect minus its stripe stage
+        results.append(
+            result(
+                f"sensor.seam_stage.{name}",
+                max(t_det - t_stripe, 0.0) * 1e6,
+                "us/frame",
+                "stripe stage",
+                t_stripe * 1e6,
+            )
         )
     scene = Scene(Joint.butt(0.4))
     renderer = StripeRenderer(scene, rng=rng)
