@@ -199,9 +199,9 @@ def test_random_images_never_raise(seed: int, kind: JointType, n_columns: int) -
         assert not d.found
 
 
-def _naive_stripe(frame: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray, float]:
+def _naive_stripe(frame: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray]:
     """Two-pass windowed centroid per column in plain Python loops (the documented method),
-    given the threshold the detector estimated; returns (rows, mass, threshold)."""
+    given the threshold the detector estimated; returns (rows, mass)."""
     det = SeamDetector(CAM, DetectorConfig(half_window=h))
     thr = det.stripe(frame).threshold  # background/noise estimate: checked separately
     n, nrows = frame.shape
@@ -216,14 +216,14 @@ def _naive_stripe(frame: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray, fl
             rel = (win @ np.arange(w)) / m if m > 0 else float(h)
             rows[col], mass[col] = start + rel, m
             start = min(max(int(np.rint(start + rel)) - h, 0), nrows - w)
-    return rows, mass, thr
+    return rows, mass
 
 
 @pytest.mark.parametrize("h", [3, 6])
 def test_stripe_matches_a_per_column_loop(h: int) -> None:
     frame = _frame(Joint.lap(1.0), seed=21, seam_y_mm=1.3)[:200]
     stripe = SeamDetector(CAM, DetectorConfig(half_window=h)).stripe(frame)
-    rows, mass, thr = _naive_stripe(frame, h)
+    rows, mass = _naive_stripe(frame, h)
     # background = median of the pixels at h+3 rows above and below each peak
     peak = frame.argmax(axis=1)
     ring = np.concatenate(
