@@ -48,6 +48,7 @@ from enum import Enum
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from kinematics.transforms import location_to_transform
 from sync.interpolate import InterpStatus, interpolate_joints
 from sync.joint_buffer import JointBuffer
 from sync.seam_chain import FlangeToBase
@@ -76,32 +77,11 @@ class MatcherError(ValueError):
     """A caller mistake: bad trigger order, bad shapes or times. Peer mistakes never raise."""
 
 
-def _location_to_matrix(loc: NDArray[np.float64]) -> NDArray[np.float64]:
-    """VAL3 location (x, y, z mm, rx, ry, rz degrees), R = Rx·Ry·Rz -> 4x4."""
-    x, y, z, rx, ry, rz = loc.tolist()
-    a, b, c = math.radians(rx), math.radians(ry), math.radians(rz)
-    ca, sa, cb, sb, cc, sc = (
-        math.cos(a),
-        math.sin(a),
-        math.cos(b),
-        math.sin(b),
-        math.cos(c),
-        math.sin(c),
-    )
-    return np.array(
-        [
-            [cb * cc, -cb * sc, sb, x],
-            [ca * sc + sa * sb * cc, ca * cc - sa * sb * sc, -sa * cb, y],
-            [sa * sc - ca * sb * cc, sa * cc + ca * sb * sc, ca * cb, z],
-            [0.0, 0.0, 0.0, 1.0],
-        ]
-    )
-
-
 def _as_transform(seam2sensor: ArrayLike) -> NDArray[np.float64]:
     a = np.asarray(seam2sensor, dtype=np.float64)
     if a.shape == (6,):
-        a = _location_to_matrix(a)
+        # A non-finite pose stays NaN: the caller counts it as invalid, a peer's data never raises.
+        a = location_to_transform(a) if np.all(np.isfinite(a)) else np.full((4, 4), np.nan)
     elif a.shape != (4, 4):
         raise MatcherError(f"seam2sensor must be a 6-float location or 4x4, got shape {a.shape}")
     return a
