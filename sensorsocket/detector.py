@@ -588,14 +588,24 @@ class SeamDetector:
         y_split = float(y[int(np.argmax(dist))])
         left = right = None
         p = _centred(y, z)
+        lm_prev = rm_prev = None
         for _ in range(2):
             lm = y < y_split - cfg.corner_margin_mm
             rm = y > y_split + cfg.corner_margin_mm
+            # the same sides as before: the same lines and corner (often, as the corner
+            # moves by less than a column)
+            if (
+                lm_prev is not None
+                and rm_prev is not None
+                and not ((lm ^ lm_prev).any() or (rm ^ rm_prev).any())
+            ):
+                break
             left = _robust_line(p, lm)
             right = _robust_line(p, rm)
             if left is None or right is None or left.b == right.b:
                 return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
             y_split = (right.a - left.a) / (left.b - right.b)
+            lm_prev, rm_prev = lm, rm
         assert left is not None and right is not None
         if left.n < cfg.min_side_points or right.n < cfg.min_side_points:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
