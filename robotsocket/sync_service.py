@@ -21,7 +21,7 @@ from kinematics.transforms import location_to_transform, transform_to_location
 from robotsocket.interface import BadStateError, Loc, OutOfRangeError, RobotInterface
 from robotsocket.service import Handler, RobotService
 from spec.params import FloatArray, Location, Matrix, Value
-from spec.registry import SEAM_POINT_COLUMNS, CommandId
+from spec.registry import BY_ID, SEAM_POINT_COLUMNS, CommandId
 from spec.server import Session
 from sync.seam_chain import FlangeToBase
 from sync.udp import RobotSyncCore, SyncStateError, UdpSyncEndpoint
@@ -186,19 +186,7 @@ class SyncService:
 
     def _statistics(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
         s = self.core.statistics()
-        keys = (
-            "sent",
-            "received",
-            "matched",
-            "lost",
-            "late",
-            "duplicate",
-            "reordered",
-            "unknown",
-            "expired",
-            "malformed",
-            "pending",
-        )
+        keys = [p.name for p in BY_ID[CommandId.GET_SYNC_STATISTICS].reply]
         return tuple(s[k] for k in keys)
 
 

@@ -22,6 +22,7 @@ from spec import wire
 from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data, encode_trigger
 from spec.errors import DatagramError, ErrorCode
 from spec.params import FloatArray, Matrix
+from spec.registry import BY_ID
 from spec.registry import CommandId as C
 from spec.vectorgen import load
 from spec.wire import SensorStatus
@@ -356,20 +357,8 @@ def measure_stream(ctx: Context) -> str:
 # --- the robot's side: the harness plays the sensor ---------------------------------------
 
 ROBOT_SYNC = [C.SET_SENSOR_ENDPOINT, C.GET_SYNC_CONFIG, C.START_TRIGGERS, C.STOP_TRIGGERS]
-CONFIG_FIELDS = ("host", "port", "delta_t", "sensor2flange", "triggering", "rate")
-STAT_FIELDS = (
-    "sent",
-    "received",
-    "matched",
-    "lost",
-    "late",
-    "duplicate",
-    "reordered",
-    "unknown",
-    "expired",
-    "malformed",
-    "pending",
-)
+CONFIG_FIELDS = tuple(p.name for p in BY_ID[C.GET_SYNC_CONFIG].reply)
+STAT_FIELDS = tuple(p.name for p in BY_ID[C.GET_SYNC_STATISTICS].reply)
 
 
 def _int(value: object) -> int:
