@@ -354,16 +354,6 @@ class SeamDetector:
         y *= k
         return y, z
 
-    def _rows(self, u: NDArray[np.intp], a: FloatArray, b: FloatArray) -> FloatArray:
-        """Row v where chip column u (k,) meets the profile line z = a + b·y (scalars or
-        per-column (k,)): the arithmetic of :meth:`CameraGeometry.line_row`, rows only."""
-        s, c, d, f = self._sin, self._cos, self._d, self._f
-        k = (u - self._u0) / f
-        with np.errstate(divide="ignore", invalid="ignore"):
-            y = k * (d + a * c) / (1.0 - k * b * c)
-            z = a + b * y
-            return self._v0 + f * z * s / (d + z * c)
-
     def _line_v(self, u: float, a: float, b: float) -> float:
         """Row where chip column u meets the profile line z = a + b·y (NaN if nowhere)."""
         z = self._line_point(u, a, b)[1]
