@@ -320,8 +320,12 @@ class EmulatedCell:
         """True sensor poses (N, 4, 4) at robot-clock ``times`` (N,) s: the setpoints,
         linear between cycles, extrapolated past the latest one."""
         t = np.asarray(times, dtype=np.float64)
+        if not len(t):
+            return np.empty((0, 4, 4))
         with self._truth_lock:
-            buf_t, buf_q = self._truth.since(-math.inf) if len(t) else (t, t)
+            # Only the samples around the query: the interval of the earliest query time and
+            # at least the last three samples (extrapolation), not the whole 8 s buffer.
+            buf_t, buf_q = self._truth.covering(float(t.min()) - 2.0 * self.robot.period)
         q, status = interpolate_joints(buf_t, buf_q, t)
         old = status == InterpStatus.TOO_OLD
         if np.any(old):

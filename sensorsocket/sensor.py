@@ -89,8 +89,9 @@ class Reading:
     columns outside the readout window zero. ``seam2sensor`` (4, 4) mm and ``seam``
     (x, y, z mm, rx, ry, rz deg) are NaN unless status is FOUND. ``points`` (N, 3) mm are the
     stripe points in S. ``truth_seam2sensor`` (4, 4) is the scene's true seam frame at the
-    time of the seam column (middle of the exposure when not found); NaN where the laser
-    plane misses the seam.
+    time of the seam column (middle of the exposure when not found), NaN where the laser
+    plane misses the seam; ``None`` unless the sensor was built with ``keep_truth=True``
+    (computing it costs as much as detecting the seam, and only tests need it).
     """
 
     index: int
@@ -105,7 +106,7 @@ class Reading:
     t_done: float
     frame: U8Array = field(repr=False)
     points: FloatArray = field(repr=False)
-    truth_seam2sensor: FloatArray = field(repr=False)
+    truth_seam2sensor: FloatArray | None = field(repr=False, default=None)
     detector_status: str = ""
 
 
@@ -152,7 +153,8 @@ def make_scene(joint: str = "butt", seam: str = "straight") -> Scene:
 class Sensor:
     """Seam-tracking sensor: a :class:`CameraEmulator` plus a clock, the software trigger
     counter and the latest reading. ``after_acquire`` is called with every reading (e.g. to
-    step a simulated clock to ``t_done``)."""
+    step a simulated clock to ``t_done``). ``keep_truth`` fills
+    :attr:`Reading.truth_seam2sensor` (the scene's true seam pose) in every reading."""
 
     def __init__(
         self,
@@ -160,10 +162,12 @@ class Sensor:
         *,
         clock: Clock,
         after_acquire: Callable[[Reading], None] | None = None,
+        keep_truth: bool = False,
     ) -> None:
         self.emulator = emulator
         self.clock = clock
         self.after_acquire = after_acquire
+        self.keep_truth = keep_truth
         self._lock = threading.RLock()
         self._latest: Reading | None = None
         self._busy_until = -math.inf
@@ -280,12 +284,14 @@ class Sensor:
             g2s = np.full((4, 4), np.nan)
             seam = NAN_LOCATION
             quality = 0.0
-        t_truth = (
-            m.t_seam
-            if status is SensorStatus.FOUND and math.isfinite(m.t_seam)
-            else (0.5 * (acq.t_exposure_start + acq.t_exposure_end))
-        )
-        truth = self.scene.seam2sensor(self.emulator.sensor2base(np.array([t_truth])))[0]
+        truth = None
+        if self.keep_truth:
+            t_truth = (
+                m.t_seam
+                if status is SensorStatus.FOUND and math.isfinite(m.t_seam)
+                else (0.5 * (acq.t_exposure_start + acq.t_exposure_end))
+            )
+            truth = self.scene.seam2sensor(self.emulator.sensor2base(np.array([t_truth])))[0]
         image = frame.image
         image.setflags(write=False)
         return Reading(
@@ -315,14 +321,16 @@ def build_sensor(
     clock: Clock,
     timing: TimingModel | None = None,
     after_acquire: Callable[[Reading], None] | None = None,
+    keep_truth: bool = False,
 ) -> Sensor:
-    """A standalone sensor over a standard scene (see :func:`make_scene`, :func:`motion_pose`)."""
+    """A standalone sensor over a standard scene (see :func:`make_scene`, :func:`motion_pose`);
+    ``keep_truth`` as for :class:`Sensor`."""
     scene = make_scene(joint, seam)
     rng = np.random.default_rng(seed)
     pose = motion_pose(scene, motion, t0=clock())
     timing = timing if timing is not None else TimingModel(rng=rng)
     emulator = CameraEmulator(scene, pose, timing, rng=rng)
-    return Sensor(emulator, clock=clock, after_acquire=after_acquire)
+    return Sensor(emulator, clock=clock, after_acquire=after_acquire, keep_truth=keep_truth)
 
 
 __all__ = [

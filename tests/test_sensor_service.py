@@ -34,7 +34,7 @@ def make_sensor(seed: int = 3, clock: SimClock | None = None) -> Sensor:
     pose = fixed_pose(scene.sensor_over_seam(0.0, seam_y_mm=SEAM_Y, seam_z_mm=SEAM_Z))
     rng = np.random.default_rng(seed)
     emulator = CameraEmulator(scene, pose, TimingModel(rng=rng), rng=rng)
-    return Sensor(emulator, clock=clock or SimClock(10.0))
+    return Sensor(emulator, clock=clock or SimClock(10.0), keep_truth=True)
 
 
 class Rig:
@@ -139,6 +139,7 @@ def test_acquire_then_get_data_matches_the_scene(rig: Rig, client: SensorClient)
     x, y, z, rx, ry, rz = data.seam
     assert abs(x) < 1e-9 and abs(y - SEAM_Y) < 0.03 and abs(z - SEAM_Z) < 0.03
     assert abs(rx) < 1.0 and abs(ry) < 1e-6 and abs(rz) < 1e-6
+    assert reading.truth_seam2sensor is not None
     truth = reading.truth_seam2sensor[:3, 3]
     assert np.allclose(truth, [0.0, SEAM_Y, SEAM_Z], atol=1e-9)
     # [SS-5.5] timestamps ordered; the exposure window is the acquisition time (3.5 ms)
