@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from sensorsocket.scene import FloatArray, PoseProvider, Scene
+from sensorsocket.scene import FloatArray, Piece, PoseProvider, Scene
 
 U8Array = NDArray[np.uint8]
 
@@ -212,6 +212,30 @@ class RenderTruth:
     simple: NDArray[np.bool_] = field(repr=False)
 
 
+def _cut(p: Piece, l0: FloatArray, z0: FloatArray, dl: FloatArray, dz: FloatArray) -> FloatArray:
+    """Parameter λ where the segment (l0, z0) + λ·(dl, dz) meets the line h = a + b·l of
+    piece ``p``; a flat piece (b = 0) skips the products with zero."""
+    if p.b == 0.0:
+        out: FloatArray = (p.a - z0) / dz
+    else:
+        out = (p.a + p.b * l0 - z0) / (dz - p.b * dl)
+    return out
+
+
+@dataclass(frozen=True)
+class _Columns:
+    """Constants of a set of N read columns: laser-line end points in S (N, 3) mm, and the
+    camera-frame Y and Z of the sub-column end points with their spans (N, K·P), tiled once
+    per profile piece."""
+
+    a_s: FloatArray
+    b_s: FloatArray
+    ya: FloatArray
+    dy: FloatArray
+    za: FloatArray
+    dz: FloatArray
+
+
 class StripeRenderer:
     """Renders column-major 512x256 uint8 frames of a scene seen from moving poses."""
 
@@ -250,6 +274,26 @@ class StripeRenderer:
         self._frames_on_tile = st.noise_refresh_frames
         self._pieces = scene.joint.pieces()
         self._source = np.array([0.0, 0.0, -cam.laser_standoff_mm])
+        self._windows: dict[tuple[int, int], _Columns] = {}
+
+    def _columns(self, columns: NDArray[np.intp]) -> _Columns:
+        """Per-column constants of ``columns`` (N,): the same for every frame of a window."""
+        n_pieces = len(self._pieces)
+        ya, za = np.tile(self._ya[columns], n_pieces), np.tile(self._za[columns], n_pieces)
+        yb, zb = np.tile(self._yb[columns], n_pieces), np.tile(self._zb[columns], n_pieces)
+        return _Columns(
+            a_s=self._a_s[columns], b_s=self._b_s[columns], ya=ya, dy=yb - ya, za=za, dz=zb - za
+        )
+
+    def _window(self, first_column: int, n_columns: int) -> _Columns:
+        key = (first_column, n_columns)
+        w = self._windows.get(key)
+        if w is None:
+            if len(self._windows) >= 8:  # a few readout windows in use at a time
+                self._windows.clear()
+            w = self._columns(np.arange(first_column, first_column + n_columns))
+            self._windows[key] = w
+        return w
 
     def _refresh_tile(self) -> None:
         st, cam = self.settings, self.camera
@@ -282,49 +326,59 @@ class StripeRenderer:
         laser ray from the source does not cross another piece first (shadow); the camera
         sees every lit point (no occlusion). Rows are NaN where unlit.
         """
+        columns = np.asarray(columns, dtype=np.intp)
+        return self._hits(self._columns(columns), column_times, sensor2base)
+
+    def _hits(
+        self, col: _Columns, column_times: FloatArray, sensor2base: PoseProvider
+    ) -> tuple[NDArray[np.bool_], FloatArray]:
         poses = np.asarray(sensor2base(column_times), dtype=np.float64)
-        if poses.shape != (len(columns), 4, 4):
+        n = col.a_s.shape[0]
+        if poses.shape != (n, 4, 4):
             raise CameraError(f"pose provider returned shape {poses.shape}")
         s2w = self.scene.base2workpiece @ poses
         r, t = s2w[:, :3, :3], s2w[:, :3, 3]
-        a_w = np.einsum("nij,nj->ni", r, self._a_s[columns]) + t
-        b_w = np.einsum("nij,nj->ni", r, self._b_s[columns]) + t
+        a_w = np.einsum("nij,nj->ni", r, col.a_s) + t
+        b_w = np.einsum("nij,nj->ni", r, col.b_s) + t
         da_w = r @ self._da
         db_w = r @ self._db
-        d = self._delta[None, :, None]
-        a_k = a_w[:, None, :] + d * da_w[:, None, :]  # (N, K, 3)
-        b_k = b_w[:, None, :] + d * db_w[:, None, :]
+        d = self._delta[None, :]
+        # sub-column end points (N, K) per coordinate; x only matters on a curved seam
         path = self.scene.path
-        la = path.lateral(a_k[..., 0], a_k[..., 1])
-        lb = path.lateral(b_k[..., 0], b_k[..., 1])
-        za, zb = a_k[..., 2], b_k[..., 2]
+        ya_k = a_w[:, 1:2] + d * da_w[:, 1:2]
+        yb_k = b_w[:, 1:2] + d * db_w[:, 1:2]
+        za = a_w[:, 2:3] + d * da_w[:, 2:3]
+        zb = b_w[:, 2:3] + d * db_w[:, 2:3]
+        if path.straight_line:
+            la, lb = ya_k, yb_k
+        else:
+            la = path.lateral(a_w[:, 0:1] + d * da_w[:, 0:1], ya_k)
+            lb = path.lateral(b_w[:, 0:1] + d * db_w[:, 0:1], yb_k)
         dl, dz = lb - la, zb - za
         # laser source per column, for shadows cast by one plate on another
         src = np.einsum("nij,j->ni", r, self._source) + t
         l_src = path.lateral(src[:, 0:1], src[:, 1:2])  # (N, 1)
         z_src = src[:, 2:3]
-        lams = []
+        lam = np.empty((n, len(self._pieces) * self._delta.shape[0]))
+        k = self._delta.shape[0]
         with np.errstate(divide="ignore", invalid="ignore"):
-            for p in self._pieces:
-                lam = (p.a + p.b * la - za) / (dz - p.b * dl)
-                lh = la + lam * dl
-                ok = (lam >= 0.0) & (lam <= 1.0) & (lh >= p.lo) & (lh < p.hi)
-                zh = za + lam * dz
+            for i, p in enumerate(self._pieces):
+                lam_p = _cut(p, la, za, dl, dz)
+                lh = la + lam_p * dl
+                ok = (lam_p >= 0.0) & (lam_p <= 1.0) & (lh >= p.lo) & (lh < p.hi)
+                zh = za + lam_p * dz
                 for q in self._pieces:
                     if q is p:
                         continue
                     # does the laser ray source -> hit cross piece q first?
                     dls, dzs = lh - l_src, zh - z_src
-                    mu = (q.a + q.b * l_src - z_src) / (dzs - q.b * dls)
+                    mu = _cut(q, l_src, z_src, dls, dzs)
                     lq = l_src + mu * dls
                     ok &= ~((mu > 0.0) & (mu < 1.0 - 1e-9) & (lq >= q.lo) & (lq < q.hi))
-                lams.append(np.where(ok, lam, np.nan))
-        lam = np.concatenate(lams, axis=1)  # (N, K·P)
-        hit = np.isfinite(lam)
-        ya, za_c = np.tile(self._ya[columns], len(lams)), np.tile(self._za[columns], len(lams))
-        yb, zb_c = np.tile(self._yb[columns], len(lams)), np.tile(self._zb[columns], len(lams))
-        v0 = self.camera.principal_point[1]
-        rows = v0 + self.camera.focal_px * (ya + lam * (yb - ya)) / (za_c + lam * (zb_c - za_c))
+                np.copyto(lam[:, i * k : (i + 1) * k], np.where(ok, lam_p, np.nan))
+            hit = np.isfinite(lam)
+            v0 = self.camera.principal_point[1]
+            rows = v0 + self.camera.focal_px * (col.ya + lam * col.dy) / (col.za + lam * col.dz)
         return hit, rows
 
     def render(
@@ -345,7 +399,9 @@ class StripeRenderer:
         n = int(np.shape(column_times)[0])
         if first_column < 0 or n < 1 or first_column + n > cam.columns:
             raise CameraError(f"readout window {first_column}+{n} outside 0..{cam.columns}")
-        frame = np.zeros((cam.columns, cam.rows), dtype=np.uint8)
+        # every pixel of a full-chip readout is written by the background
+        full = first_column == 0 and n == cam.columns
+        frame = (np.empty if full else np.zeros)((cam.columns, cam.rows), dtype=np.uint8)
         self.background(first_column, n, frame)
         cols = np.arange(first_column, first_column + n)
         exposure = st.reference_exposure_s if exposure_s is None else exposure_s
@@ -353,9 +409,10 @@ class StripeRenderer:
         if not laser_on or amp <= 0.0:
             empty = np.full(n, np.nan)
             return frame, RenderTruth(empty, np.zeros(n), np.zeros(n, dtype=bool))
-        hit, rows = self.hits(cols, np.asarray(column_times, dtype=np.float64), sensor2base)
+        times = np.asarray(column_times, dtype=np.float64)
+        hit, rows = self._hits(self._window(first_column, n), times, sensor2base)
         k = st.subsamples
-        count = hit.sum(axis=1)
+        count = np.count_nonzero(hit, axis=1)
         coverage = count / k
         rz = np.where(hit, rows, 0.0)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -394,9 +451,12 @@ class StripeRenderer:
         st = self.settings
         var = signal * signal * st.speckle_contrast**2 + st.shot_gain_dn * signal
         noise = self._rng.standard_normal(signal.shape) * np.sqrt(var)
-        c = cols[:, None]
-        value = frame[c, idx] + signal + noise + 0.5
-        frame[c, idx] = np.clip(value, 0.0, 255.0).astype(np.uint8)
+        # flat indices into the C-contiguous frame: one gather and one scatter
+        flat = frame.reshape(-1)
+        at = cols[:, None] * frame.shape[1] + idx
+        value = flat[at] + signal + noise + 0.5
+        np.clip(value, 0.0, 255.0, out=value)
+        flat[at] = value.astype(np.uint8)
 
 
 def image_rows(frame: U8Array) -> U8Array:
