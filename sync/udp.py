@@ -54,6 +54,9 @@ log = logging.getLogger(__name__)
 MAX_RATE_HZ = 1000.0
 """Highest trigger rate StartTriggers accepts [SY-5.3]."""
 
+_ROW_BATCH = 1024
+"""Released points converted to seam-point rows in one batch at the latest."""
+
 Clock = Callable[[], float]
 JointSource = Callable[[float], tuple[NDArray[np.float64], NDArray[np.float64]]]
 """``joints_since(t) -> (times (N,) s, joints (N, 6) deg)`` with times > t."""
@@ -178,16 +181,40 @@ class RobotSyncCore:
         self.scheduler = TriggerScheduler()
         self.matcher = SyncMatcher(delta_t_s=delta_t_s, timeout_s=timeout_s, history=8192)
         self.joints = JointBuffer(capacity=joint_capacity)
-        self.flange2base = flange2base
-        self.sensor2flange = (
+        self._flange2base = flange2base
+        self._sensor2flange = (
             np.eye(4) if sensor2flange is None else np.asarray(sensor2flange, dtype=np.float64)
         )
         self.max_points = max_points
         self._next_index = first_index % INDEX_MODULUS
         self._rows: list[NDArray[np.float64]] = []
         self._row_index: list[int] = []
+        # Released points not yet turned into rows: converted in one batch when rows are read
+        # (or the batch is full), not one datagram at a time.
+        self._pending: list[SeamPoint] = []
         self._stats = _Stats()
         self._joint_t = -math.inf
+
+    @property
+    def flange2base(self) -> FlangeToBase | None:
+        return self._flange2base
+
+    @flange2base.setter
+    def flange2base(self, value: FlangeToBase | None) -> None:
+        with self.lock:
+            self._flush()  # points released so far keep the kinematics of their release
+            self._flange2base = value
+
+    @property
+    def sensor2flange(self) -> NDArray[np.float64]:
+        """^N_S T (4, 4) mm used for the base-frame columns of points released from now on."""
+        return self._sensor2flange
+
+    @sensor2flange.setter
+    def sensor2flange(self, value: ArrayLike) -> None:
+        with self.lock:
+            self._flush()
+            self._sensor2flange = np.asarray(value, dtype=np.float64)
 
     # --- configuration ------------------------------------------------------------------------
 
@@ -299,6 +326,16 @@ class RobotSyncCore:
             return points
 
     def _store(self, points: list[SeamPoint]) -> None:
+        self._pending.extend(points)
+        if len(self._pending) >= _ROW_BATCH:
+            self._flush()
+
+    def _flush(self) -> None:
+        """Turn the pending points into seam-point rows (caller holds the lock)."""
+        points = self._pending
+        if not points:
+            return
+        self._pending = []
         g2s = np.stack([p.seam2sensor for p in points])
         rows = np.full((len(points), len(SEAM_POINT_COLUMNS)), np.nan)
         rows[:, 0] = [p.index for p in points]
@@ -307,9 +344,9 @@ class RobotSyncCore:
         rows[:, 3] = STATUS_FOUND
         rows[:, 4] = [p.quality for p in points]
         rows[:, 5:11] = transforms_to_locations(g2s)
-        if self.flange2base is not None:
+        if self._flange2base is not None:
             q = np.stack([p.joints for p in points])
-            base = np.matmul(self.flange2base(q), np.matmul(self.sensor2flange, g2s))
+            base = np.matmul(self._flange2base(q), np.matmul(self._sensor2flange, g2s))
             rows[:, 11:17] = transforms_to_locations(base)
         self._rows.extend(rows)
         self._row_index.extend(p.index for p in points)
@@ -322,6 +359,7 @@ class RobotSyncCore:
         """Seam-point rows (N, 17) (columns ``SEAM_POINT_COLUMNS``) with index > ``since``,
         in index order, at most ``limit`` of them."""
         with self.lock:
+            self._flush()
             idx = np.asarray(self._row_index, dtype=np.int64)
             k = int(np.searchsorted(idx, since, side="right")) if idx.size else 0
             sel = self._rows[k : k + limit]

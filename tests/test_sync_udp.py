@@ -112,6 +112,43 @@ def test_faults_never_corrupt_the_trajectory() -> None:
     assert s["matched"] + s["lost"] + s["expired"] + s["pending"] + s["not_found"] == s["sent"]
 
 
+def _flange_up(q: np.ndarray) -> np.ndarray:
+    """A stand-in DGM: the flange 1000 mm above the base, translated by joint 1 along x."""
+    out = np.broadcast_to(np.eye(4), (len(q), 4, 4)).copy()
+    out[:, 0, 3] = q[:, 0]
+    out[:, 2, 3] = 1000.0
+    return out
+
+
+def test_rows_keep_the_sensor_tool_in_force_at_their_release() -> None:
+    """Points released before a SetSensorTool keep the old ^N_S T in their base columns,
+    however late the rows are read; the ones released after it use the new tool."""
+    core = RobotSyncCore(delta_t_s=0.0, flange2base=_flange_up, sensor2flange=np.eye(4))
+    core.schedule([0.0013 + PERIOD * i for i in range(50)])
+    bz = SEAM_POINT_COLUMNS.index("bz")
+    for k in range(1, 60):
+        t = k * PERIOD
+        if k == 30:
+            tool = np.eye(4)
+            tool[2, 3] = 200.0
+            core.sensor2flange = tool
+        core.add_joints(np.array([t]), np.full((1, 6), 5.0))
+        for index, t_send in core.due_triggers(t):
+            core.sent(index, t_send)
+            core.on_datagram(_data(index, t_send, 0.25), t)
+        core.poll(t)
+    rows = core.points_since(-1)
+    assert rows.shape[0] >= 45
+    t_sync = rows[:, SEAM_POINT_COLUMNS.index("t_sync")]
+    # a point is released in the cycle whose joints first cover its t_sync (ΔT = 0)
+    after = t_sync > 29 * PERIOD
+    assert 0 < np.count_nonzero(after) < len(rows)
+    # seam at (0, 0.25, 0) in S: base z = 1000, + 200 once the new tool is in force
+    np.testing.assert_allclose(rows[~after, bz], 1000.0, atol=1e-9)
+    np.testing.assert_allclose(rows[after, bz], 1200.0, atol=1e-9)
+    np.testing.assert_allclose(rows[:, SEAM_POINT_COLUMNS.index("by")], 0.25, atol=1e-9)
+
+
 def test_malformed_datagrams_are_counted_and_dropped() -> None:
     core = RobotSyncCore()
     assert core.on_datagram(b"garbage", 0.0) is None
