@@ -326,14 +326,19 @@ class EmulatedCell:
             # Only the samples around the query: the interval of the earliest query time and
             # at least the last three samples (extrapolation), not the whole 8 s buffer.
             buf_t, buf_q = self._truth.covering(float(t.min()) - 2.0 * self.robot.period)
-        q, status = interpolate_joints(buf_t, buf_q, t)
-        old = status == InterpStatus.TOO_OLD
-        if np.any(old):
-            q[old] = buf_q[0]
-        new = status == InterpStatus.NOT_YET
-        if np.any(new):
-            q[new] = _extrapolate(buf_t[-3:], buf_q[-3:], t[new])
-        out: FloatArray = self.robot.model.flange2base_batch(q) @ self.sensor2flange
+        if len(buf_t) >= 2 and buf_t[0] <= t.min() and t.max() <= buf_t[-1]:
+            q = _lerp(buf_t, buf_q, t)  # the simulated cell's case: motion known
+        else:
+            q, status = interpolate_joints(buf_t, buf_q, t)
+            old = status == InterpStatus.TOO_OLD
+            if np.any(old):
+                q[old] = buf_q[0]
+            new = status == InterpStatus.NOT_YET
+            if np.any(new):
+                q[new] = _extrapolate(buf_t[-3:], buf_q[-3:], t[new])
+        f2b = self.robot.model.flange2base_batch(q)
+        # one (4N, 4) @ (4, 4) product instead of N small ones
+        out: FloatArray = (f2b.reshape(-1, 4) @ self.sensor2flange).reshape(-1, 4, 4)
         return out
 
     # --- the clock ---------------------------------------------------------------------------
@@ -481,6 +486,19 @@ class EmulatedCell:
             "jitter_width_ms": t.jitter_width_s() * 1e3,
             "true_delta_t_ms": self.true_delta_t_s() * 1e3,
         }
+
+
+def _lerp(t: FloatArray, q: FloatArray, query: FloatArray) -> FloatArray:
+    """Joints (M, J) at ``query`` times (M,) inside the samples t (N >= 2,), q (N, J):
+    :func:`~sync.interpolate.interpolate_joints` without its checks and status (same
+    arithmetic, same values)."""
+    k = np.clip(np.searchsorted(t, query, side="right") - 1, 0, len(t) - 2)
+    t0, t1 = t[k], t[k + 1]
+    w = ((query - t0) / (t1 - t0))[:, None]
+    q0, q1 = q[k], q[k + 1]
+    v = (1.0 - w) * q0 + w * q1
+    out: FloatArray = np.clip(v, np.minimum(q0, q1), np.maximum(q0, q1), out=v)
+    return out
 
 
 def _extrapolate(t: FloatArray, q: FloatArray, query: FloatArray) -> FloatArray:

@@ -212,6 +212,15 @@ class RenderTruth:
     simple: NDArray[np.bool_] = field(repr=False)
 
 
+def _left_multiply(a: FloatArray, b: FloatArray) -> FloatArray:
+    """``a @ b`` for one (4, 4) ``a`` and a stack (N, 4, 4) ``b``, as one (4, 4N) product:
+    a single BLAS call instead of N small ones."""
+    n = b.shape[0]
+    wide = np.ascontiguousarray(b.transpose(1, 0, 2)).reshape(4, 4 * n)
+    out: FloatArray = (a @ wide).reshape(4, n, 4).transpose(1, 0, 2)
+    return out
+
+
 def _cut(p: Piece, l0: FloatArray, z0: FloatArray, dl: FloatArray, dz: FloatArray) -> FloatArray:
     """Parameter λ where the segment (l0, z0) + λ·(dl, dz) meets the line h = a + b·l of
     piece ``p``; a flat piece (b = 0) skips the products with zero."""
@@ -336,31 +345,32 @@ class StripeRenderer:
         n = col.a_s.shape[0]
         if poses.shape != (n, 4, 4):
             raise CameraError(f"pose provider returned shape {poses.shape}")
-        s2w = self.scene.base2workpiece @ poses
+        s2w = _left_multiply(self.scene.base2workpiece, poses)
         r, t = s2w[:, :3, :3], s2w[:, :3, 3]
         a_w = np.einsum("nij,nj->ni", r, col.a_s) + t
         b_w = np.einsum("nij,nj->ni", r, col.b_s) + t
         da_w = r @ self._da
         db_w = r @ self._db
-        d = self._delta[None, :]
-        # sub-column end points (N, K) per coordinate; x only matters on a curved seam
-        path = self.scene.path
-        ya_k = a_w[:, 1:2] + d * da_w[:, 1:2]
-        yb_k = b_w[:, 1:2] + d * db_w[:, 1:2]
-        za = a_w[:, 2:3] + d * da_w[:, 2:3]
-        zb = b_w[:, 2:3] + d * db_w[:, 2:3]
-        if path.straight_line:
-            la, lb = ya_k, yb_k
-        else:
-            la = path.lateral(a_w[:, 0:1] + d * da_w[:, 0:1], ya_k)
-            lb = path.lateral(b_w[:, 0:1] + d * db_w[:, 0:1], yb_k)
-        dl, dz = lb - la, zb - za
-        # laser source per column, for shadows cast by one plate on another
-        src = np.einsum("nij,j->ni", r, self._source) + t
-        l_src = path.lateral(src[:, 0:1], src[:, 1:2])  # (N, 1)
-        z_src = src[:, 2:3]
-        lam = np.empty((n, len(self._pieces) * self._delta.shape[0]))
+        # sub-column end points A, B: (2 ends, 3 coordinates, N, K), each (N, K) plane
+        # contiguous; x only matters on a curved seam
         k = self._delta.shape[0]
+        ends = np.stack([a_w.T, b_w.T])[..., None]
+        steps = np.stack([da_w.T, db_w.T])[..., None]
+        sub = ends + self._delta * steps
+        path = self.scene.path
+        za, zb = sub[0, 2], sub[1, 2]
+        if path.straight_line:
+            la, lb = sub[0, 1], sub[1, 1]
+        else:
+            la = path.lateral(sub[0, 0], sub[0, 1])
+            lb = path.lateral(sub[1, 0], sub[1, 1])
+        dl, dz = lb - la, zb - za
+        # laser source per column, for shadows cast by one plate on another; spread over
+        # the K sub-columns once so the shadow tests below run on contiguous (N, K) arrays
+        src = np.einsum("nij,j->ni", r, self._source) + t
+        l_src = np.repeat(path.lateral(src[:, 0:1], src[:, 1:2]), k, axis=1)
+        z_src = np.repeat(src[:, 2:3], k, axis=1)
+        lam = np.empty((n, len(self._pieces) * k))
         with np.errstate(divide="ignore", invalid="ignore"):
             for i, p in enumerate(self._pieces):
                 lam_p = _cut(p, la, za, dl, dz)
