@@ -217,3 +217,24 @@ def test_emulator_laser_off_and_settings() -> None:
         emu.configure(first_column=500, n_columns=64)
     with pytest.raises(SettingsError):
         emu.configure(exposure_s=1.0)
+
+
+def test_hits_of_any_column_set_match_the_full_window() -> None:
+    """Columns are independent: hits() on scattered columns (own constants) equals the same
+    columns of a full-window render pass (cached constants), for a moving sensor."""
+    scene = Scene(Joint.lap(), SeamPath.paper_sine())
+    pose = scripted_pose(
+        scene.sensor_over_seam(3.0, 0.8, -0.4, 10.0), velocity_mm_s=(50.0, 0.0, 0.0)
+    )
+    renderer = StripeRenderer(scene, rng=np.random.default_rng(0))
+    times = np.arange(512) * 6.8e-6
+    hit_all, rows_all = renderer.hits(np.arange(512), times, pose)
+    pick = np.array([3, 17, 200, 255, 256, 400, 511])
+    hit, rows = renderer.hits(pick, times[pick], pose)
+    assert hit.any()
+    assert np.array_equal(hit, hit_all[pick])
+    np.testing.assert_allclose(rows[hit], rows_all[pick][hit], rtol=0, atol=1e-9)
+    # the cached window path gives the same rows as the public one
+    win_hit, win_rows = renderer._hits(renderer._window(0, 512), times, pose)
+    assert np.array_equal(win_hit, hit_all)
+    assert np.array_equal(win_rows[win_hit], rows_all[hit_all])

@@ -29,12 +29,21 @@ SEAM_Y, SEAM_Z = 1.2, 0.5  # mm: where the seam lies in the sensor frame (truth)
 TIMEOUT = 5.0
 
 
-def make_sensor(seed: int = 3, clock: SimClock | None = None) -> Sensor:
+def make_sensor(seed: int = 3, clock: SimClock | None = None, *, keep_truth: bool = True) -> Sensor:
     scene = make_scene("butt", "straight")
     pose = fixed_pose(scene.sensor_over_seam(0.0, seam_y_mm=SEAM_Y, seam_z_mm=SEAM_Z))
     rng = np.random.default_rng(seed)
     emulator = CameraEmulator(scene, pose, TimingModel(rng=rng), rng=rng)
-    return Sensor(emulator, clock=clock or SimClock(10.0), keep_truth=True)
+    return Sensor(emulator, clock=clock or SimClock(10.0), keep_truth=keep_truth)
+
+
+def test_truth_is_opt_in_and_does_not_change_the_measurement() -> None:
+    with_truth, without = make_sensor(keep_truth=True), make_sensor(keep_truth=False)
+    for t in (10.0, 10.004, 10.008):
+        a, b = with_truth.acquire(t), without.acquire(t)
+        assert b.truth_seam2sensor is None and a.truth_seam2sensor is not None
+        np.testing.assert_allclose(a.truth_seam2sensor[:3, 3], [0.0, SEAM_Y, SEAM_Z], atol=1e-9)
+        assert np.array_equal(a.frame, b.frame) and a.seam == b.seam and a.status is b.status
 
 
 class Rig:
