@@ -25,7 +25,7 @@ from __future__ import annotations
 import logging
 import math
 import threading
-from collections.abc import Sequence
+from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -149,8 +149,10 @@ class _NoisyHandler(TriggerHandler):
         self.noise_mm = noise_mm
         self._rng = rng
 
-    def process(self, datagram: bytes, t_arrival: float) -> TriggerReply | None:
-        reply = super().process(datagram, t_arrival)
+    def process(
+        self, datagram: bytes, t_arrival: float, source: Hashable = None
+    ) -> TriggerReply | None:
+        reply = super().process(datagram, t_arrival, source)
         if reply is None or self.noise_mm <= 0 or reply.status is not SensorStatus.FOUND:
             return reply
         d = decode_datagram(reply.data)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import math
+import secrets
 from typing import Protocol
 
 import numpy as np
@@ -206,6 +207,9 @@ def attach_udp_sync(
         delta_t_s=delta_t_s,
         flange2base=flange2base_for(robot),
         sensor2flange=location_to_transform(np.array(sensor2flange, dtype=np.float64)),
+        # A random first index: a restarted robot is not taken for a repeat of its previous
+        # run by a sensor that remembers answered indices [SY-2.2].
+        first_index=secrets.randbelow(1 << 30),
     )
     endpoint = UdpSyncEndpoint(
         core, clock=robot.time, joints_since=robot.joint_log, host=host, port=port

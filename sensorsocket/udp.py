@@ -14,8 +14,9 @@ import math
 import select
 import socket
 import threading
-from collections import Counter, deque
-from dataclasses import dataclass
+from collections import Counter, OrderedDict, deque
+from collections.abc import Hashable
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from sensorsocket.sensor import NAN_LOCATION, Clock, Reading
@@ -27,6 +28,7 @@ log = logging.getLogger(__name__)
 
 #: Indices remembered for duplicate detection [SY-2.2].
 HISTORY = 1024
+MAX_SOURCES = 64  # trigger senders remembered at once (least recently heard forgotten first)
 _HALF = INDEX_MODULUS // 2
 
 
@@ -76,6 +78,21 @@ _COUNTERS = (
 )
 
 
+@dataclass
+class _History:
+    """The indices one trigger source has been answered for (the last :data:`HISTORY`)."""
+
+    answered: set[int] = field(default_factory=set)
+    order: deque[int] = field(default_factory=deque)
+    newest: int | None = None
+
+    def remember(self, index: int) -> None:
+        self.answered.add(index)
+        self.order.append(index)
+        if len(self.order) > HISTORY:
+            self.answered.discard(self.order.popleft())
+
+
 class TriggerHandler:
     """Pure trigger logic: decode, deduplicate, acquire, encode the reply.
 
@@ -89,21 +106,24 @@ class TriggerHandler:
         self.sensor = sensor
         self.network_delay_s = network_delay_s
         self._lock = threading.Lock()
-        self._answered: set[int] = set()
-        self._order: deque[int] = deque()
-        self._newest: int | None = None
+        # Index history per trigger source: a restarted robot (a new socket) or a second
+        # robot starts its own index sequence and must not be taken for duplicates.
+        self._sources: OrderedDict[Hashable, _History] = OrderedDict()
         self._counts: Counter[str] = Counter()
 
     def statistics(self) -> dict[str, int]:
         with self._lock:
             return {k: self._counts.get(k, 0) for k in _COUNTERS}
 
-    def handle(self, datagram: bytes, t_arrival: float) -> bytes | None:
-        """The reply datagram for ``datagram`` arriving at ``t_arrival``, or None."""
-        reply = self.process(datagram, t_arrival)
+    def handle(self, datagram: bytes, t_arrival: float, source: Hashable = None) -> bytes | None:
+        """The reply datagram for ``datagram`` arriving at ``t_arrival`` from ``source`` (the
+        sender's address), or None."""
+        reply = self.process(datagram, t_arrival, source)
         return None if reply is None else reply.data
 
-    def process(self, datagram: bytes, t_arrival: float) -> TriggerReply | None:
+    def process(
+        self, datagram: bytes, t_arrival: float, source: Hashable = None
+    ) -> TriggerReply | None:
         """Like :meth:`handle`, with the modelled send time of the reply."""
         with self._lock:
             self._counts["datagrams"] += 1
@@ -119,17 +139,18 @@ class TriggerHandler:
                 return None
             self._counts["triggers"] += 1
             index = decoded.index
-            if index in self._answered:
+            history = self._history(source)
+            if index in history.answered:
                 # [SY-2.2] a duplicate starts no acquisition and gets no second reply.
                 self._counts["duplicates"] += 1
                 return None
-            self._remember(index)
-            newest = self._newest
+            history.remember(index)
+            newest = history.newest
             if newest is not None and not serial_newer(index, newest):
                 # [SY-2.3] an older index than one already served: OVERRUN, never silence.
                 self._counts["reordered"] += 1
                 return self._overrun(decoded, t_arrival)
-            self._newest = index
+            history.newest = index
             if self.sensor.busy(t_arrival):
                 # [SY-2.8] the chip is still busy with earlier triggers: OVERRUN.
                 return self._overrun(decoded, t_arrival)
@@ -153,11 +174,15 @@ class TriggerHandler:
             self._count_reply(status)
         return TriggerReply(encode_data(data), reading.t_done + self.network_delay_s, index, status)
 
-    def _remember(self, index: int) -> None:
-        self._answered.add(index)
-        self._order.append(index)
-        if len(self._order) > HISTORY:
-            self._answered.discard(self._order.popleft())
+    def _history(self, source: Hashable) -> _History:
+        history = self._sources.get(source)
+        if history is None:
+            history = self._sources[source] = _History()
+            if len(self._sources) > MAX_SOURCES:
+                self._sources.popitem(last=False)
+        else:
+            self._sources.move_to_end(source)
+        return history
 
     def _overrun(self, trigger: Trigger, t_arrival: float) -> TriggerReply:
         self._counts["overruns"] += 1
@@ -275,7 +300,7 @@ class TriggerListener:
                 return
             t_arrival = self.clock()
             try:
-                reply = self.handler.process(datagram, t_arrival)
+                reply = self.handler.process(datagram, t_arrival, source)
             except Exception:  # the listener must survive any sensor failure
                 log.exception("trigger handling failed")
                 continue

@@ -98,6 +98,23 @@ def test_reply_time_models_processing_and_network_delay() -> None:
     assert reading.t_done >= reading.t_exposure_end
 
 
+def test_index_history_is_kept_per_trigger_source() -> None:
+    """A restarted robot (new source port) starting again at index 0 is measured, not taken
+    for duplicates or reordered triggers of the previous run [SY-2.2]."""
+    handler = TriggerHandler(make_sensor())
+    old, new = ("127.0.0.1", 40000), ("127.0.0.1", 40001)
+    t = 0.0
+    for i in range(50):
+        t += 0.01
+        assert data_of(handler.handle(trig(i), t, old)).status is SensorStatus.FOUND
+    assert handler.handle(trig(7), t + 0.01, old) is None  # a duplicate from the same source
+    for i in range(3):
+        t += 0.01
+        assert data_of(handler.handle(trig(i), t, new)).status is SensorStatus.FOUND
+    stats = handler.statistics()
+    assert stats["duplicates"] == 1 and stats["reordered"] == 0 and stats["found"] == 53
+
+
 def test_duplicates_reordered_and_malformed_are_counted_exactly() -> None:
     handler = TriggerHandler(make_sensor())
     t = 0.0
