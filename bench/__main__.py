@@ -9,14 +9,13 @@ import argparse
 import importlib
 import json
 import logging
-import os
 import pkgutil
 import sys
-import tempfile
 from pathlib import Path
 
 import bench
 from bench.common import Result
+from spec.files import write_atomically
 
 
 def _modules(only: list[str]) -> list[str]:
@@ -26,14 +25,6 @@ def _modules(only: list[str]) -> list[str]:
     if only:
         names = [n for n in names if n.removeprefix("bench_") in only]
     return names
-
-
-def _write_atomically(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-    os.replace(tmp, path)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -60,7 +51,8 @@ def main(argv: list[str] | None = None) -> int:
                 flush=True,
             )
             results.append(r)
-    _write_atomically(args.output, json.dumps(results, indent=2) + "\n")
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    write_atomically(args.output, json.dumps(results, indent=2) + "\n")
     print(f"wrote {len(results)} results to {args.output}", file=sys.stderr)
     return 0
 

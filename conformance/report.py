@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 import xml.etree.ElementTree as ET
 from collections import Counter
 from pathlib import Path
@@ -20,6 +18,7 @@ from conformance import SUITE_VERSION, TOOL, TOOL_VERSION
 from conformance.model import CaseResult, Outcome
 from conformance.runner import RunResult, exit_code
 from spec import wire
+from spec.files import write_atomically
 
 SCHEMA_VERSION = 1
 ORDER = [o.value for o in Outcome]
@@ -27,19 +26,7 @@ ORDER = [o.value for o in Outcome]
 
 def write_atomic(path: str | Path, text: str) -> None:
     """Write ``text`` to ``path`` so readers see the old file or the whole new one."""
-    target = Path(path)
-    directory = target.parent if str(target.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=directory)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, target)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    write_atomically(path, text)
 
 
 def counts(results: list[CaseResult]) -> dict[str, int]:

@@ -14,9 +14,7 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -28,6 +26,7 @@ from sensorsocket.service import SensorService
 from sensorsocket.udp import TriggerHandler, TriggerListener
 from spec.callcli import EXIT_REMOTE_ERROR, EXIT_UNREACHABLE, EXIT_USAGE, main_call, parse_endpoint
 from spec.errors import ErrorCode, ProtocolError, RemoteError
+from spec.files import atomic_path
 from spec.server import FramedServer, ServerPolicy, parse_networks, serve_until_signal
 
 PROG = "python -m sensorsocket"
@@ -180,14 +179,8 @@ def _write_png(path: Path, image: Any) -> None:
     matplotlib.use("Agg")
     from matplotlib import pyplot as plt
 
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp.png")
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         plt.imsave(tmp, image, cmap="gray", vmin=0, vmax=255, format="png")
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 def _fetch(client: SensorClient, acquire: bool, token: str | None) -> tuple[int, Any]:

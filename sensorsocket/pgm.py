@@ -8,11 +8,12 @@ first (or use ``write_frame``).
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
+
+from spec.files import write_atomically
 
 
 class PgmError(ValueError):
@@ -32,15 +33,7 @@ def write_pgm(path: str | os.PathLike[str], image: NDArray[np.generic]) -> None:
         raise PgmError(f"PGM needs uint8 or uint16 pixels, got {a.dtype}")
     header = f"P5\n{a.shape[1]} {a.shape[0]}\n{maxval}\n".encode("ascii")
     target = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=target.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(header)
-            f.write(data)
-        os.replace(tmp, target)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_atomically(target, header + data)
 
 
 def write_frame(path: str | os.PathLike[str], frame: NDArray[np.uint8]) -> None:

@@ -6,12 +6,11 @@
 
 from __future__ import annotations
 
-import os
 import re
-import tempfile
 from pathlib import Path
 
 from spec.errors import ERROR_MEANINGS, ErrorCode
+from spec.files import write_atomically
 from spec.registry import COMMANDS, CommandSpec, ParamSpec
 from spec.requirements import PROTOCOL_MD
 
@@ -79,8 +78,5 @@ def write(path: Path = PROTOCOL_MD) -> bool:
     new = render(text)
     if new == text:
         return False
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        f.write(new)
-    os.replace(tmp, path)
+    write_atomically(path, new)
     return True

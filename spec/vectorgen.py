@@ -10,9 +10,7 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import struct
-import tempfile
 import zlib
 from pathlib import Path
 from typing import Any
@@ -21,6 +19,7 @@ from spec import wire
 from spec.codec import Packet, encode_packet, error_packet, request
 from spec.datagrams import SensorData, Trigger, encode_data, encode_trigger
 from spec.errors import ErrorCode
+from spec.files import write_atomically
 from spec.jsonform import packet_to_json
 from spec.params import (
     FloatArray,
@@ -226,11 +225,7 @@ def write(force: bool = False) -> list[Path]:
         path = VECTOR_DIR / name
         if path.exists() and not force:
             continue
-        fd, tmp = tempfile.mkstemp(dir=VECTOR_DIR, prefix=name, suffix=".tmp")
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            json.dump(items, f, indent=1, ensure_ascii=False)
-            f.write("\n")
-        os.replace(tmp, path)
+        write_atomically(path, json.dumps(items, indent=1, ensure_ascii=False) + "\n")
         written.append(path)
     return written
 

@@ -22,8 +22,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,6 +33,7 @@ from numpy.typing import NDArray
 from kinematics.robot import get_model
 from kinematics.transforms import location_to_transform
 from spec.client import FramedClient
+from spec.files import atomic_path, prepare_output_path, write_atomically
 from spec.params import FloatArray, IntArray, Location, Matrix, Value
 from spec.registry import SEAM_POINT_COLUMNS, CommandId
 from sync.delay import DelayEstimate, ResidualReport, estimate_delay, residual_after_sync
@@ -406,17 +405,7 @@ def run_sweep(
 
 def write_json(path: str | Path, obj: Any) -> None:
     """Write ``obj`` as JSON atomically (temporary file in the same directory, rename)."""
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=p.name + ".", suffix=".tmp", dir=p.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            json.dump(obj, fh, indent=1, allow_nan=True)
-            fh.write("\n")
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_atomically(prepare_output_path(path), json.dumps(obj, indent=1, allow_nan=True) + "\n")
 
 
 class PlotUnavailableError(ExperimentError):
@@ -442,11 +431,10 @@ def write_plots(
 
     def save(fig: Any, name: str) -> None:
         path = d / name
-        tmp = d / f".{name}.tmp.png"
         fig.tight_layout()
-        fig.savefig(tmp, dpi=110)
+        with atomic_path(path) as tmp:  # a reader never sees half a figure
+            fig.savefig(tmp, dpi=110)
         plt.close(fig)
-        os.replace(tmp, path)  # a reader never sees half a figure
         files.append(path)
 
     if result is not None:

@@ -1,0 +1,50 @@
+"""Atomic file output for every tool of the project: a reader (a user, a CI system) sees the
+old file or the whole new one, never half of it; nothing is left behind on failure."""
+
+from __future__ import annotations
+
+import os
+import secrets
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+
+def prepare_output_path(path: str | os.PathLike[str]) -> Path:
+    """Make sure a file can be written at ``path`` (its directory is created if missing) and
+    return it; ValueError naming the problem otherwise. Command lines call it before a long
+    run, so a bad path fails at once instead of after the work."""
+    target = Path(path)
+    if target.is_dir():
+        raise ValueError(f"{target} is a directory; give a file name")
+    parent = target.parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"cannot create directory {parent}: {exc.strerror}") from None
+    if not os.access(parent, os.W_OK):
+        raise ValueError(f"directory {parent} is not writable")
+    return target
+
+
+@contextmanager
+def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """A temporary path beside ``path`` to write to; renamed over ``path`` on success.
+
+    The temporary name keeps the suffix (libraries choose the format by it) and is created
+    with the process's umask, so the result has the usual permissions (not mkstemp's 0600).
+    """
+    target = Path(path)
+    tmp = target.with_name(f".{target.stem}.{secrets.token_hex(4)}.tmp{target.suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, target)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_atomically(path: str | os.PathLike[str], data: bytes | str) -> None:
+    """Write ``data`` (text as UTF-8) to ``path`` atomically."""
+    raw = data.encode("utf-8") if isinstance(data, str) else data
+    with atomic_path(path) as tmp, open(tmp, "xb") as f:
+        f.write(raw)
