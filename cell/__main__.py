@@ -27,6 +27,7 @@ import numpy as np
 from cell.cell import CellError, CellTiming, EmulatedCell
 from cell.options import add_timing_options, timing_kwargs
 from sensorsocket.pgm import write_pgm
+from spec import cliargs
 from spec.client import FramedClient
 from spec.errors import ProtocolError
 from spec.params import Image, Joints, Location
@@ -49,9 +50,9 @@ def _parser() -> _Parser:
         s = sub.add_parser(name, help=text)
         s.add_argument("--host", default="127.0.0.1")
         default_ports = (4000, 2000, 2001) if name == "serve" else (0, 0, 0)
-        s.add_argument("--robot-port", type=int, default=default_ports[0])
-        s.add_argument("--sensor-port", type=int, default=default_ports[1])
-        s.add_argument("--udp-port", type=int, default=default_ports[2])
+        s.add_argument("--robot-port", type=cliargs.port, default=default_ports[0])
+        s.add_argument("--sensor-port", type=cliargs.port, default=default_ports[1])
+        s.add_argument("--udp-port", type=cliargs.port, default=default_ports[2])
         s.add_argument("--clock", choices=("real", "sim"), default="real")
         s.add_argument("--model", default="RX90B")
         s.add_argument("--joint", choices=("butt", "fillet", "lap"), default="butt")
@@ -61,8 +62,12 @@ def _parser() -> _Parser:
         add_timing_options(s)
         if name == "demo":
             s.add_argument("--out", default="out", help="directory for the frame and plots")
-            s.add_argument("--duration", type=float, default=4.0, help="sine duration (s)")
-            s.add_argument("--rate", type=float, default=100.0, help="trigger rate (Hz)")
+            s.add_argument(
+                "--duration", type=cliargs.positive_float, default=4.0, help="sine duration (s)"
+            )
+            s.add_argument(
+                "--rate", type=cliargs.positive_float, default=100.0, help="trigger rate (Hz)"
+            )
             s.add_argument("--no-conformance", action="store_true")
     return p
 
@@ -221,9 +226,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "serve":
             return cmd_serve(args)
         return cmd_demo(args)
-    except (CellError, ExperimentError, ProtocolError, OSError) as exc:
+    except (CellError, ExperimentError, ProtocolError, OSError, ValueError) as exc:
+        # ValueError covers the kinematics (unknown model) and emulator argument checks.
         print(f"python -m cell: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        return 130
 
 
 if __name__ == "__main__":

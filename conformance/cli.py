@@ -44,6 +44,7 @@ from conformance.runner import (
     exit_code,
     run,
 )
+from spec import cliargs
 from spec.registry import BY_ID, COMMANDS
 
 EPILOG = """exit codes: 0 conformant; 1 a MUST failed; 2 only SHOULD failures (with --strict);
@@ -95,23 +96,33 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("service", choices=["robot", "sensor", "sync"])
-    p.add_argument("endpoint", nargs="?", help="HOST:PORT (default: start our reference server)")
+    p.add_argument(
+        "endpoint",
+        nargs="?",
+        help="HOST:PORT: the TCP port for robot and sensor, the sensor's UDP trigger port for "
+        "sync (default: start our reference server)",
+    )
     p.add_argument("--udp", metavar="HOST:PORT", help="the sensor's trigger endpoint (sync)")
     p.add_argument("--list", action="store_true", help="list the selected cases and exit")
     p.add_argument("--profile", choices=PROFILES, default="core")
     p.add_argument("--select", action="append", default=[], metavar="GLOB")
     p.add_argument("--exclude", action="append", default=[], metavar="GLOB")
     p.add_argument("--tag", action="append", default=[])
-    p.add_argument("--timeout-scale", type=float, default=1.0, metavar="F")
+    p.add_argument(
+        "--timeout-scale", type=cliargs.positive_float, default=1.0, metavar="F",
+        help="multiply every time budget (slow embedded endpoints: 3)",
+    )  # fmt: skip
     p.add_argument("--expect", metavar="FILE", help="known failures: case IDs, one per line")
     p.add_argument("--capabilities", metavar="FILE", help='JSON {"not_offered": [...]}')
     p.add_argument("--allow-motion", action="store_true", help="run cases that move or switch")
     p.add_argument("--token", default="", help="the endpoint's control token")
-    p.add_argument("--fuzz", type=int, default=0, metavar="N")
-    p.add_argument("--seed", type=int, default=1, metavar="S")
-    p.add_argument("--json", metavar="FILE")
-    p.add_argument("--junit", metavar="FILE")
-    p.add_argument("--markdown", metavar="FILE")
+    p.add_argument(
+        "--fuzz", type=int, default=0, metavar="N", help="add N seeded mutations of valid frames"
+    )
+    p.add_argument("--seed", type=int, default=1, metavar="S", help="seed of --fuzz")
+    p.add_argument("--json", metavar="FILE", type=cliargs.output_file, help="JSON report")
+    p.add_argument("--junit", metavar="FILE", type=cliargs.output_file, help="JUnit XML")
+    p.add_argument("--markdown", metavar="FILE", type=cliargs.output_file, help="Markdown report")
     p.add_argument("--strict", action="store_true", help="SHOULD failures give exit code 2")
     p.add_argument("-v", "--verbose", action="store_true", help="print every case")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")

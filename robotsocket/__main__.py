@@ -7,8 +7,9 @@ watch   show live status and joints
 Arguments of ``call`` are parsed from the registry's parameter types: joints and locations as
 comma-separated numbers ("0,-30,90,0,60,0"), booleans as on/off/true/false/1/0; trailing
 tool/frame locations may be left off (identity). Commands needing control take it first
-(with --token-file); motion commands then wait for the end of the move (--no-wait to skip;
-without waiting, the move is stopped when the connection closes, since the controller left).
+(with --token-file) and release it afterwards; motion commands wait for the end of the move
+(--wait S, exit 1 if it did not end in time; --no-wait returns at once and the move goes on,
+since control is released, not lost).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from robotsocket.client import RobotClient
 from robotsocket.emulator import RobotEmulator
 from robotsocket.service import RobotService
 from robotsocket.sync_service import attach_udp_sync
-from spec import callcli
+from spec import callcli, cliargs
 from spec.client import ClientTimeout, ConnectionClosed
 from spec.errors import ProtocolError, RemoteError
 from spec.server import FramedServer, ServerPolicy, parse_networks, serve_until_signal
@@ -150,30 +151,34 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("serve", help="run the RobotSocket server with the emulator")
     s.add_argument("--model", default="RX90B", help="RX90B (default), RX130B, RX160, TX90")
     s.add_argument("--host", default="127.0.0.1", help="listen address (default loopback)")
-    s.add_argument("--port", type=int, default=4000)
+    s.add_argument("--port", type=cliargs.port, default=4000)
     s.add_argument("--clock", choices=("real", "sim"), default="real")
     s.add_argument("--allow", nargs="*", metavar="CIDR", help="client networks allowed")
     s.add_argument("--token-file", type=Path, help="file holding the TakeControl token")
-    s.add_argument("--encoder-latency-ms", type=float, default=0.0)
+    s.add_argument("--encoder-latency-ms", type=cliargs.nonnegative_float, default=0.0)
     s.add_argument(
         "--udp-port", type=int, default=0, help="UDP port of the trigger/data endpoint (0 = any)"
     )
-    s.add_argument("--max-clients", type=int, default=64)
+    s.add_argument("--max-clients", type=cliargs.positive_int, default=64)
     s.set_defaults(fn=cmd_serve)
     c = sub.add_parser("call", help="send one command, print the reply as JSON")
     c.add_argument("endpoint", metavar="HOST:PORT")
     c.add_argument("command", help="command name, case-insensitive (e.g. herej)")
     c.add_argument("args", nargs="*", help="parameters (joints as 0,-30,90,0,60,0)")
     c.add_argument("--token-file", type=Path, help="token for TakeControl")
-    c.add_argument("--timeout", type=float, default=5.0, help="reply timeout (s)")
-    c.add_argument("--wait", type=float, default=60.0, help="max wait for a move to end (s)")
+    c.add_argument("--timeout", type=cliargs.positive_float, default=5.0, help="reply timeout (s)")
+    c.add_argument(
+        "--wait", type=cliargs.positive_float, default=60.0, help="max wait for a move to end (s)"
+    )
     c.add_argument("--no-wait", action="store_true", help="do not wait for a move to end")
     c.set_defaults(fn=cmd_call)
     w = sub.add_parser("watch", help="show live status and joints")
     w.add_argument("endpoint", metavar="HOST:PORT")
-    w.add_argument("--count", type=int, help="stop after N lines")
-    w.add_argument("--interval", type=float, default=0.5, help="seconds between lines")
-    w.add_argument("--timeout", type=float, default=5.0)
+    w.add_argument("--count", type=cliargs.positive_int, help="stop after N lines")
+    w.add_argument(
+        "--interval", type=cliargs.nonnegative_float, default=0.5, help="seconds between lines"
+    )
+    w.add_argument("--timeout", type=cliargs.positive_float, default=5.0)
     w.set_defaults(fn=cmd_watch)
     return p
 

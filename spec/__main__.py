@@ -17,8 +17,8 @@ import sys
 from dataclasses import asdict
 from pathlib import Path
 
-from spec import doc, requirements, vectorgen
-from spec.dissect import describe
+from spec import cliargs, doc, requirements, vectorgen
+from spec.dissect import describe, describe_all
 from spec.errors import PeerError
 
 
@@ -52,7 +52,7 @@ def _hex(text: str) -> bytes:
 def cmd_decode(args: argparse.Namespace) -> int:
     try:
         raw = _read_input(args.input)
-        print(describe(raw))
+        print(describe_all(raw))
     except (ValueError, OSError) as exc:
         print(f"spec decode: {exc}", file=sys.stderr)
         return 2
@@ -122,7 +122,9 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGPIPE, signal.SIG_DFL)  # `| head` ends quietly
     parser = argparse.ArgumentParser(prog="python -m spec", description="protocol tools")
     sub = parser.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("decode", help="dissect a frame or datagram (hex, file or - for stdin)")
+    p = sub.add_parser(
+        "decode", help="dissect frames (a capture of several too) or a datagram: hex, file or -"
+    )
     p.add_argument("input")
     p.set_defaults(fn=cmd_decode)
     p = sub.add_parser("vectors", help="decode every test vector")
@@ -138,8 +140,8 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--write", action="store_true")
     p.set_defaults(fn=cmd_doc)
     p = sub.add_parser("fuzz", help="fuzz the decoders with seeded mutations")
-    p.add_argument("--count", type=int, default=20000)
-    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--count", type=cliargs.positive_int, default=20000, help="inputs to try")
+    p.add_argument("--seed", type=int, default=1, help="seed of the mutations")
     p.set_defaults(fn=cmd_fuzz)
     args = parser.parse_args(argv)
     result: int = args.fn(args)

@@ -3,7 +3,8 @@
 ``python -m robotsocket call HOST:PORT COMMAND [ARGS...]`` parses each argument by the type the
 registry gives the command's parameter (joints and locations as comma-separated numbers,
 booleans as on/off), sends one request and prints the reply as JSON named by the registry's
-reply table. A command that needs control takes it first (with the token) and gives it back.
+reply table. A command that needs control takes it first (with the token) and gives it back
+(released, not lost: a queued move goes on unless ``call`` waits for it, the default).
 Exit codes: 0 ok, 1 error reply (code and message on stderr), 2 usage, 3 unreachable.
 """
 
@@ -159,10 +160,16 @@ def main_call(
     service: str, default_port: int, endpoint: str, command: str, args: list[str],
     timeout: float = 5.0, token: str | None = None, wait: float | None = 60.0,
 ) -> int:  # fmt: skip
-    """Run one ``call``; returns the process exit code (0 ok, 1 error reply, 2 usage,
-    3 unreachable). A queued move is followed by WaitEndMove up to ``wait`` seconds
-    (``None``: return at once), because closing the controlling connection stops the arm
-    [RS-7.10]; the reply then has ``"done"``."""
+    """Run one ``call``; returns the process exit code (0 ok, 1 error reply or a move that did
+    not end within ``wait``, 2 usage, 3 unreachable). A queued move is followed by WaitEndMove
+    up to ``wait`` seconds and the reply gets ``"done"``; with ``wait=None`` the command
+    returns at once and the move goes on (control is released, not lost)."""
+    if wait is not None and not wait > 0:
+        print(f"error: the wait must be > 0 s, got {wait}", file=sys.stderr)
+        return EXIT_USAGE
+    if not timeout > 0:
+        print(f"error: the timeout must be > 0 s, got {timeout}", file=sys.stderr)
+        return EXIT_USAGE
     try:
         host, port = parse_endpoint(endpoint, default_port)
         spec = find_command(command, service)
@@ -180,6 +187,7 @@ def main_call(
             if spec.id in _QUEUED_MOVES and wait is not None:
                 reply["done"] = client.call(CommandId.WAIT_END_MOVE, wait, timeout=wait + 10)[0]
             if take:
+                # Released, not lost: a move that is still running goes on [RS-7.11].
                 client.release_control()
     except RemoteError as exc:
         print(f"error {exc.code.name} ({exc.raw_code}): {exc.message}", file=sys.stderr)
@@ -188,4 +196,7 @@ def main_call(
         print(f"error: cannot reach {host}:{port}: {exc}", file=sys.stderr)
         return EXIT_UNREACHABLE
     print(json.dumps(reply, ensure_ascii=False))
+    if reply.get("done") is False:
+        print(f"error: the move did not end within {wait:g} s (it goes on)", file=sys.stderr)
+        return EXIT_REMOTE_ERROR
     return 0

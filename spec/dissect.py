@@ -5,9 +5,9 @@ from __future__ import annotations
 import math
 
 from spec import wire
-from spec.codec import Header, Packet, decode_packet
+from spec.codec import FrameDecoder, Header, Packet, Rejected, decode_packet
 from spec.datagrams import SensorData, Trigger, decode_datagram
-from spec.errors import ErrorCode
+from spec.errors import ErrorCode, FrameError
 from spec.params import (
     FloatArray,
     Image,
@@ -130,3 +130,29 @@ def describe(raw: bytes) -> str:
     if raw[:2] == wire.DATAGRAM_MAGIC:
         return "\n".join(describe_datagram(raw))
     return "\n".join(describe_packet(decode_packet(raw), raw))
+
+
+def describe_all(raw: bytes) -> str:
+    """Dissect a datagram, or every frame of a TCP capture (frames back to back); raises the
+    codec's PeerError at the first malformed or incomplete frame, after the good ones."""
+    if raw[:2] == wire.DATAGRAM_MAGIC:
+        return describe(raw)
+    decoder = FrameDecoder(max_payload=wire.MAX_PAYLOAD)
+    decoder.feed(raw)
+    parts: list[str] = []
+    offset = 0
+    for event in decoder.events():
+        if isinstance(event, Rejected):
+            raise event.error
+        size = wire.FRAME_OVERHEAD + Header.unpack(raw[offset:]).length
+        frame = raw[offset : offset + size]
+        offset += size
+        parts.append("\n".join(describe_packet(event, frame)))
+    if decoder.buffered:
+        need = wire.HEADER_SIZE
+        if decoder.buffered >= wire.HEADER_SIZE:
+            need = wire.FRAME_OVERHEAD + Header.unpack(raw[offset:]).length
+        raise FrameError(f"truncated frame at byte {offset}: {decoder.buffered} of {need} bytes")
+    if len(parts) == 1:
+        return parts[0]
+    return "\n\n".join(f"== frame {i + 1} of {len(parts)}\n{p}" for i, p in enumerate(parts))

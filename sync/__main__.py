@@ -16,6 +16,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any, NoReturn
 
+from spec import cliargs
 from spec.errors import ProtocolError
 from sync.curvature import sine_min_radius, sine_min_radius_numeric
 from sync.delay import DelayEstimateError
@@ -53,10 +54,18 @@ def _parser() -> _Parser:
         d = sub.add_parser(name, help=f"measure ΔT with {what} (section VI)")
         d.add_argument("--robot", type=_endpoint, help="RobotSocket HOST:PORT")
         d.add_argument("--sensor", type=_endpoint, help="SensorSocket HOST:PORT")
-        d.add_argument("--frequency", type=float, default=1.5, help="sine frequency (Hz)")
-        d.add_argument("--amplitude", type=float, default=2.0, help="sine amplitude (mm)")
-        d.add_argument("--duration", type=float, default=10.0, help="sine duration (s)")
-        d.add_argument("--rate", type=float, default=250.0, help="trigger rate (Hz)")
+        d.add_argument(
+            "--frequency", type=cliargs.positive_float, default=1.5, help="sine frequency (Hz)"
+        )
+        d.add_argument(
+            "--amplitude", type=cliargs.positive_float, default=2.0, help="sine amplitude (mm)"
+        )
+        d.add_argument(
+            "--duration", type=cliargs.positive_float, default=10.0, help="sine duration (s)"
+        )
+        d.add_argument(
+            "--rate", type=cliargs.positive_float, default=250.0, help="trigger rate (Hz)"
+        )
         d.add_argument("--search-max-ms", type=float, default=20.0)
         d.add_argument("--model", help="robot model for the DGM (default: from Hello)")
         d.add_argument("--token", default="", help="control token of the robot")
@@ -68,8 +77,12 @@ def _parser() -> _Parser:
             help="sweep frequencies, comma separated (Hz)",
         )
         d.add_argument("--sweep", action="store_true", default=name == "sweep")
-        d.add_argument("--json", metavar="FILE", help="write the results as JSON")
-        d.add_argument("--plot", metavar="DIR", help="write figures 6-9 as PNG (matplotlib)")
+        d.add_argument(
+            "--json", metavar="FILE", type=cliargs.output_file, help="write the results as JSON"
+        )
+        d.add_argument(
+            "--plot", metavar="DIR", type=cliargs.output_dir, help="write figures 6-9 as PNG"
+        )
         d.add_argument("--emulate", action="store_true", help="in-process cell, simulated clock")
         d.add_argument("--seed", type=int, default=0, help="seed of the emulated cell")
         d.add_argument("-q", "--quiet", action="store_true", help="no progress")

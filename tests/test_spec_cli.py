@@ -54,3 +54,15 @@ def test_doc_check_and_requirements_listing() -> None:
     assert run("doc", "--check").returncode == 0
     r = run("requirements")
     assert r.returncode == 0 and "RS-3.1" in r.stdout and "MUST" in r.stdout
+
+
+def test_decode_a_capture_of_several_frames(tmp_path: Path) -> None:
+    frames = [bytes.fromhex(v["hex"]) for v in load("frames.json") if v["valid"]][:3]
+    capture = tmp_path / "capture.bin"
+    capture.write_bytes(b"".join(frames))
+    r = run("decode", str(capture))
+    assert r.returncode == 0, r.stderr
+    assert "== frame 3 of 3" in r.stdout
+    capture.write_bytes(b"".join(frames) + frames[0][:5])
+    r = run("decode", str(capture))
+    assert r.returncode == 2 and "truncated frame" in r.stderr
