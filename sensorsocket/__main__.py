@@ -137,13 +137,15 @@ def cmd_serve(args: argparse.Namespace) -> int:
     service = SensorService(sensor)
     policy = ServerPolicy(allow=allow, token=token)
     listener: TriggerListener | None = None
+    what = f"TCP {args.host}:{args.port}"
     try:
         server = FramedServer(service, args.host, args.port, policy)
         if udp_port is not None:
+            what = f"UDP {args.host}:{udp_port} (--udp-port)"
             handler = TriggerHandler(sensor, network_delay_s=args.network_delay)
             listener = TriggerListener(handler, args.host, udp_port, clock=clock, hold=not sim)
     except OSError as exc:
-        print(f"{PROG} serve: cannot bind {args.host}: {exc.strerror or exc}", file=sys.stderr)
+        print(f"{PROG} serve: cannot bind {what}: {exc.strerror or exc}", file=sys.stderr)
         return EXIT_USAGE
     host, port = server.address
     udp = f"{listener.address[0]}:{listener.address[1]}" if listener else "off"

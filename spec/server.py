@@ -520,21 +520,26 @@ def serve_until_signal(
     stop = threading.Event()
 
     def _handler(signum: int, frame: FrameType | None) -> None:
-        log.info("received %s, shutting down", signal.Signals(signum).name)
+        if stop.is_set():
+            log.info("received %s again, still shutting down", signal.Signals(signum).name)
+        else:
+            log.info("received %s, shutting down", signal.Signals(signum).name)
         stop.set()
 
     previous = {s: signal.signal(s, _handler) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         while not stop.wait(0.5):
             pass
-    finally:
-        for s, h in previous.items():
-            signal.signal(s, h)
+        # The handlers stay in place during the shutdown: a second Ctrl-C must not turn a
+        # clean stop into a traceback.
         if on_stop is not None:
             on_stop()
         for server in servers:
             server.shutdown()
         log.info("stopped")
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
 
 
 __all__ = [
