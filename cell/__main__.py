@@ -90,7 +90,7 @@ def _cell(args: argparse.Namespace) -> EmulatedCell:
 def cmd_serve(args: argparse.Namespace) -> int:
     cell = _cell(args).start()
     for k, v in cell.describe().items():
-        print(f"{k:>22}: {v}")
+        print(f"{k:>22}: {round(v, 9) if isinstance(v, float) else v}")
     if args.clock == "sim":
         print("simulated clock: time advances while a client waits in WaitEndMove")
     sys.stdout.flush()

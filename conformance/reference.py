@@ -74,6 +74,7 @@ def _sensor() -> Reference:
     from spec.server import FramedServer
 
     sensor = build_sensor(clock=time.monotonic)
+    sensor.acquire()  # a first measurement, so GetData, GetImage and GetProfile can be checked
     server = FramedServer(SensorService(sensor), "127.0.0.1", 0)
     server.start()
     return Reference(server.address[0], server.address[1], server.shutdown)

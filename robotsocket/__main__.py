@@ -201,13 +201,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     except (ClientTimeout, ConnectionClosed) as exc:
         print(f"error: {exc.message}", file=sys.stderr)
-        return 1
+        return callcli.EXIT_UNREACHABLE
     except ProtocolError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     except OSError as exc:
         print(f"error: {exc.strerror or exc}", file=sys.stderr)
-        return 1
+        return callcli.EXIT_UNREACHABLE
     except KeyboardInterrupt:
         return 130
 
