@@ -99,7 +99,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 
 def _fmt(loc: Any) -> str:
-    return "(" + ", ".join(f"{v:.2f}" for v in loc) + ")"
+    # round first, then + 0.0: no "-0.00" for values that round to zero
+    return "(" + ", ".join(f"{round(float(v), 2) + 0.0:.2f}" for v in loc) + ")"
 
 
 def _robot_tour(robot: FramedClient) -> None:
@@ -154,8 +155,16 @@ def _conformance(cell: EmulatedCell) -> None:
     if importlib.util.find_spec("conformance.cli") is None:
         print("conformance: harness not installed, skipped")
         return
-    for service, (host, port) in (("robot", cell.robot_address), ("sensor", cell.sensor_address)):
-        cmd = [sys.executable, "-m", "conformance", service, f"{host}:{port}", "-q"]
+    endpoints: tuple[tuple[str, tuple[str, int], list[str]], ...] = (
+        ("robot", cell.robot_address, ["--allow-motion"]),  # an emulator: nothing can be hurt
+        ("sensor", cell.sensor_address, []),
+        ("sync", cell.udp_address, []),
+    )
+    # The robot cases engage the e-stop and drop a controller on purpose: their warnings are
+    # expected here, not news for the person watching the demo.
+    logging.getLogger("robotsocket").setLevel(logging.ERROR)
+    for service, (host, port), extra in endpoints:
+        cmd = [sys.executable, "-m", "conformance", service, f"{host}:{port}", "-q", *extra]
         try:
             done = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
         except subprocess.TimeoutExpired:
