@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from spec import cliargs
+
 __all__ = ["add_timing_options", "timing_kwargs"]
 
 #: (option, CellTiming field, factor to SI, default on the command line, help)
@@ -26,7 +28,10 @@ def add_timing_options(parser: argparse.ArgumentParser) -> None:
     """Add the timing options (group "cell timing")."""
     group = parser.add_argument_group("cell timing (the true ΔT follows from these)")
     for option, _field, _factor, default, text in _OPTIONS:
-        group.add_argument(option, type=float, default=default, help=f"{text}, default {default:g}")
+        kind = (
+            cliargs.positive_float if option == "--trigger-poll-hz" else cliargs.nonnegative_float
+        )
+        group.add_argument(option, type=kind, default=default, help=f"{text}, default {default:g}")
 
 
 def timing_kwargs(args: argparse.Namespace) -> dict[str, Any]:

@@ -75,3 +75,8 @@ def output_dir(text: str) -> str:
         msg = f"cannot create directory {text}: {exc.strerror}"
         raise argparse.ArgumentTypeError(msg) from None
     return text
+
+
+def positive_floats(text: str) -> list[float]:
+    """Comma-separated numbers, each > 0 (e.g. sweep frequencies)."""
+    return [positive_float(item) for item in text.split(",") if item.strip()]

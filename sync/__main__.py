@@ -72,7 +72,7 @@ def _parser() -> _Parser:
         d.add_argument("--apply", action="store_true", help="SetSyncDelay to the estimate")
         d.add_argument(
             "--frequencies",
-            type=lambda s: [float(x) for x in s.split(",")],
+            type=cliargs.positive_floats,
             default=list(DEFAULT_SWEEP_HZ),
             help="sweep frequencies, comma separated (Hz)",
         )
