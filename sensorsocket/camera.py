@@ -169,10 +169,11 @@ class RenderSettings:
 
     The stripe is a Gaussian across rows (``stripe_sigma_px``) whose peak is
     ``stripe_peak_dn · brightness · exposure / reference_exposure``. Noise: a background
-    level with Gaussian read noise (precomputed tile, random offsets per frame, refreshed
-    every ``noise_refresh_frames``), shot noise of variance ``shot_gain_dn · signal`` and
-    multiplicative speckle of contrast ``speckle_contrast`` on the stripe, drawn fresh per
-    frame; then rounding and clipping to uint8 (saturation at 255).
+    level with Gaussian read noise, shot noise of variance ``shot_gain_dn · signal`` and
+    multiplicative speckle of contrast ``speckle_contrast`` on the stripe; then rounding and
+    clipping to uint8 (saturation at 255). Both noises are pre-drawn (a background tile of
+    twice the chip, a pool of unit normals) and read at random offsets per frame; they are
+    drawn anew every ``noise_refresh_frames`` frames.
     """
 
     stripe_sigma_px: float = 1.4
@@ -233,12 +234,11 @@ def _cut(p: Piece, l0: FloatArray, z0: FloatArray, dl: FloatArray, dz: FloatArra
 
 @dataclass(frozen=True)
 class _Columns:
-    """Constants of a set of N read columns: laser-line end points in S (N, 3) mm, and the
-    camera-frame Y and Z of the sub-column end points with their spans (N, K·P), tiled once
-    per profile piece."""
+    """Constants of a set of N read columns: the chip column of every sub-column (N, K), and
+    the camera-frame Y and Z of the sub-column end points with their spans (N, K·P), tiled
+    once per profile piece."""
 
-    a_s: FloatArray
-    b_s: FloatArray
+    us: FloatArray
     ya: FloatArray
     dy: FloatArray
     za: FloatArray
@@ -263,10 +263,16 @@ class StripeRenderer:
         cam, st = self.camera, self.settings
         k = st.subsamples
         u = np.arange(cam.columns, dtype=np.float64)
-        self._a_s, self._b_s = cam.column_lines(u)  # (C, 3)
         da, db = cam.column_lines(np.array([1.0]))
         a0, b0 = cam.column_lines(np.array([0.0]))
         self._da, self._db = da[0] - a0[0], db[0] - b0[0]  # per column step (affine in u)
+        # homogeneous columns (4, 5): laser-line ends of column 0, their steps per column,
+        # laser source; pose @ this gives all of them in one product
+        self._g = np.zeros((4, 5))
+        for j, v in enumerate((a0[0], b0[0], self._da, self._db)):
+            self._g[:3, j] = v
+        self._g[:3, 4] = (0.0, 0.0, -cam.laser_standoff_mm)
+        self._g[3, [0, 1, 4]] = 1.0
         self._delta = (np.arange(k) + 0.5) / k - 0.5  # sub-column offsets (K,)
         # camera-frame Y and Z of the sub-column end points, for the row of a hit: v is
         # v0 + f·Y/Z with Y, Z linear along the line
@@ -281,8 +287,11 @@ class StripeRenderer:
         self._win = np.arange(2 * self._half + 1)
         self._tile = np.empty((0, 0), dtype=np.uint8)
         self._frames_on_tile = st.noise_refresh_frames
+        self._background_table = _rounded_normal_table(st.background_dn, st.read_noise_dn)
+        # unit normals for the stripe noise: room for a few frames' stripes at random offsets
+        self._normals = np.empty(0, dtype=np.float32)
+        self._normals_size = 1 << 17
         self._pieces = scene.joint.pieces()
-        self._source = np.array([0.0, 0.0, -cam.laser_standoff_mm])
         self._windows: dict[tuple[int, int], _Columns] = {}
 
     def _columns(self, columns: NDArray[np.intp]) -> _Columns:
@@ -290,9 +299,8 @@ class StripeRenderer:
         n_pieces = len(self._pieces)
         ya, za = np.tile(self._ya[columns], n_pieces), np.tile(self._za[columns], n_pieces)
         yb, zb = np.tile(self._yb[columns], n_pieces), np.tile(self._zb[columns], n_pieces)
-        return _Columns(
-            a_s=self._a_s[columns], b_s=self._b_s[columns], ya=ya, dy=yb - ya, za=za, dz=zb - za
-        )
+        us = columns[:, None] + self._delta[None, :]
+        return _Columns(us=us, ya=ya, dy=yb - ya, za=za, dz=zb - za)
 
     def _window(self, first_column: int, n_columns: int) -> _Columns:
         key = (first_column, n_columns)
@@ -305,14 +313,23 @@ class StripeRenderer:
         return w
 
     def _refresh_tile(self) -> None:
-        st, cam = self.settings, self.camera
+        cam = self.camera
         shape = (2 * cam.columns, 2 * cam.rows)
-        noise = self._rng.standard_normal(shape, dtype=np.float32)
-        noise *= np.float32(st.read_noise_dn)
-        noise += np.float32(st.background_dn + 0.5)
-        np.clip(noise, 0, 255, out=noise)
-        self._tile = noise.astype(np.uint8)
+        # uniform 16-bit draws through the inverse CDF of the rounded, clipped Gaussian:
+        # the same grey-level distribution (to 2^-16) as rounding fresh normals, ~5x cheaper
+        u = np.frombuffer(self._rng.bytes(2 * shape[0] * shape[1]), dtype=np.uint16)
+        self._tile = self._background_table[u].reshape(shape)
+        self._normals = self._rng.standard_normal(self._normals_size, dtype=np.float32)
         self._frames_on_tile = 0
+
+    def _unit_normals(self, shape: tuple[int, int]) -> NDArray[np.float32]:
+        """Unit normals of ``shape`` from the pool at a random offset (fresh if too many)."""
+        size = shape[0] * shape[1]
+        pool = self._normals
+        if size > pool.size // 2:
+            return self._rng.standard_normal(shape, dtype=np.float32)
+        o = int(self._rng.integers(0, pool.size - size + 1))
+        return pool[o : o + size].reshape(shape)
 
     def background(self, first_column: int, n_columns: int, out: U8Array) -> None:
         """Write dark-frame background + read noise into ``out[first:first+n]``."""
@@ -342,34 +359,34 @@ class StripeRenderer:
         self, col: _Columns, column_times: FloatArray, sensor2base: PoseProvider
     ) -> tuple[NDArray[np.bool_], FloatArray]:
         poses = np.asarray(sensor2base(column_times), dtype=np.float64)
-        n = col.a_s.shape[0]
+        n, k = col.us.shape
         if poses.shape != (n, 4, 4):
             raise CameraError(f"pose provider returned shape {poses.shape}")
-        s2w = _left_multiply(self.scene.base2workpiece, poses)
-        r, t = s2w[:, :3, :3], s2w[:, :3, 3]
-        a_w = np.einsum("nij,nj->ni", r, col.a_s) + t
-        b_w = np.einsum("nij,nj->ni", r, col.b_s) + t
-        da_w = r @ self._da
-        db_w = r @ self._db
-        # sub-column end points A, B: (2 ends, 3 coordinates, N, K), each (N, K) plane
-        # contiguous; x only matters on a curved seam
-        k = self._delta.shape[0]
-        ends = np.stack([a_w.T, b_w.T])[..., None]
-        steps = np.stack([da_w.T, db_w.T])[..., None]
-        sub = ends + self._delta * steps
+        # the laser-line ends, their per-column steps and the laser source in the workpiece
+        # frame: x[c, i, j] = coordinate c of homogeneous column j of self._g at column i,
+        # from two BLAS products instead of per-column einsums
+        sg = (poses.reshape(-1, 4) @ self._g).reshape(n, 4, 5)
+        wide = np.ascontiguousarray(sg.transpose(1, 0, 2)).reshape(4, 5 * n)
+        x = (self.scene.base2workpiece[:3] @ wide).reshape(3, n, 5)
+        us = col.us
+
+        def end(c: int, j: int) -> FloatArray:
+            # coordinate c of the sub-column end points (N, K): line end j, step j + 2
+            out: FloatArray = x[c, :, j : j + 1] + us * x[c, :, j + 2 : j + 3]
+            return out
+
         path = self.scene.path
-        za, zb = sub[0, 2], sub[1, 2]
+        za, zb = end(2, 0), end(2, 1)
         if path.straight_line:
-            la, lb = sub[0, 1], sub[1, 1]
-        else:
-            la = path.lateral(sub[0, 0], sub[0, 1])
-            lb = path.lateral(sub[1, 0], sub[1, 1])
+            la, lb = end(1, 0), end(1, 1)
+            l_src = x[1, :, 4:5]
+        else:  # x only matters on a curved seam
+            la = path.lateral(end(0, 0), end(1, 0))
+            lb = path.lateral(end(0, 1), end(1, 1))
+            l_src = path.lateral(x[0, :, 4:5], x[1, :, 4:5])
         dl, dz = lb - la, zb - za
-        # laser source per column, for shadows cast by one plate on another; spread over
-        # the K sub-columns once so the shadow tests below run on contiguous (N, K) arrays
-        src = np.einsum("nij,j->ni", r, self._source) + t
-        l_src = np.repeat(path.lateral(src[:, 0:1], src[:, 1:2]), k, axis=1)
-        z_src = np.repeat(src[:, 2:3], k, axis=1)
+        # laser source per column (N, 1), for shadows cast by one plate on another
+        z_src = x[2, :, 4:5]
         lam = np.empty((n, len(self._pieces) * k))
         with np.errstate(divide="ignore", invalid="ignore"):
             for i, p in enumerate(self._pieces):
@@ -460,13 +477,27 @@ class StripeRenderer:
         """Add stripe signal with shot noise and speckle to frame[cols, idx] in place."""
         st = self.settings
         var = signal * signal * st.speckle_contrast**2 + st.shot_gain_dn * signal
-        noise = self._rng.standard_normal(signal.shape) * np.sqrt(var)
+        noise = self._unit_normals(signal.shape) * np.sqrt(var)
         # flat indices into the C-contiguous frame: one gather and one scatter
         flat = frame.reshape(-1)
         at = cols[:, None] * frame.shape[1] + idx
         value = flat[at] + signal + noise + 0.5
         np.clip(value, 0.0, 255.0, out=value)
         flat[at] = value.astype(np.uint8)
+
+
+def _rounded_normal_table(mean: float, sigma: float) -> U8Array:
+    """Grey level (65536,) uint8 for each 16-bit uniform draw: the inverse CDF of
+    uint8(clip(mean + sigma·z + 0.5, 0, 255)) with z standard normal (DN)."""
+    k = np.arange(255, dtype=np.float64)
+    if sigma > 0.0:
+        # P(level <= k) = P(mean + sigma·z < k + 0.5)
+        cdf = np.array([0.5 * math.erfc(-(x + 0.5 - mean) / (sigma * math.sqrt(2.0))) for x in k])
+    else:
+        cdf = (k + 0.5 > mean).astype(np.float64)
+    p = (np.arange(65536, dtype=np.float64) + 0.5) / 65536.0
+    out: U8Array = np.searchsorted(cdf, p, side="right").astype(np.uint8)
+    return out
 
 
 def image_rows(frame: U8Array) -> U8Array:

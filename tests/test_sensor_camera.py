@@ -104,6 +104,38 @@ def test_background_noise_statistics_are_honest() -> None:
     assert abs(corr) < 0.05
 
 
+def test_stripe_noise_statistics_are_honest() -> None:
+    """Shot noise and speckle of the stated variance s²·c² + g·s around the stripe signal s,
+    zero-mean, and different from frame to frame (pre-drawn pool, random offsets)."""
+    s = RenderSettings(
+        background_dn=0.0, read_noise_dn=0.0, shot_gain_dn=0.5, speckle_contrast=0.05,
+        noise_refresh_frames=16,
+    )  # fmt: skip
+    scene, pose = _scene_and_pose(Joint.lap(1.0), seam_y_mm=2.0)
+    r = StripeRenderer(scene, settings=s, rng=np.random.default_rng(4))
+    frames = [r.render(0, np.zeros(512), fixed_pose(pose)) for _ in range(96)]
+    stack = np.stack([f for f, _ in frames]).astype(float)
+    truth = frames[0][1]
+    # noise-free signal: the renderer's own Gaussian without noise, from a zero-noise twin
+    quiet = RenderSettings(background_dn=0.0, read_noise_dn=0.0, shot_gain_dn=0.0,
+                           speckle_contrast=0.0)  # fmt: skip
+    q = StripeRenderer(scene, settings=quiet, rng=np.random.default_rng(5))
+    clean = q.render(0, np.zeros(512), fixed_pose(pose))[0].astype(float)
+    cols = np.flatnonzero(truth.simple & (truth.coverage == 1.0))
+    sel = np.zeros_like(clean, dtype=bool)
+    sel[cols] = (clean[cols] > 30.0) & (clean[cols] < 200.0)
+    signal = clean[sel]
+    mean = stack[:, sel].mean(axis=0)
+    var = stack[:, sel].var(axis=0)
+    predicted = signal**2 * 0.05**2 + 0.5 * signal + 1.0 / 12.0  # + rounding
+    assert sel.sum() > 1000
+    assert abs((mean - signal).mean()) < 0.1  # zero-mean (clean is itself rounded)
+    assert var.mean() / predicted.mean() == pytest.approx(1.0, abs=0.05)
+    # not the same noise in two frames
+    d0, d1 = stack[0][sel] - signal, stack[1][sel] - signal
+    assert abs(np.corrcoef(d0, d1)[0, 1]) < 0.1
+
+
 @pytest.mark.parametrize("read_noise", [0.5, 1.5, 2.5])
 def test_stripe_centre_accuracy(read_noise: float) -> None:
     """Sub-pixel stripe centre ≤ 0.05 px rms, bias ≤ 0.01 px, against the rendered truth."""
