@@ -360,7 +360,13 @@ class SyncMatcher:
         t_trig = np.array([entries[s].t_trigger for s in seqs])
         t_s = t_trig + self.delta_t_s  # eq. 4
         times, q = joints.covering(float(t_s.min()))
-        values, status = interpolate_joints(times, q, t_s)
+        if len(times) >= 2 and times[0] <= t_s.min() and t_s.max() <= times[-1]:
+            # the usual case, every t_i^S inside the buffer: the same interpolation without
+            # the checks and status bookkeeping (per datagram these cost more than the maths)
+            values = _lerp_inside(times, q, t_s)
+            status = np.zeros(len(t_s), dtype=np.int8)  # InterpStatus.OK
+        else:
+            values, status = interpolate_joints(times, q, t_s)
         done = status != InterpStatus.NOT_YET
         ok = np.flatnonzero(status == InterpStatus.OK)
         base: NDArray[np.float64] | None = None
@@ -449,3 +455,17 @@ class SyncMatcher:
             if p.seam2base is not None:
                 base[n] = p.seam2base
         return idx, ts, base
+
+
+def _lerp_inside(
+    t: NDArray[np.float64], q: NDArray[np.float64], query: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """:func:`~sync.interpolate.interpolate_joints` for queries (M,) inside the samples t (N >= 2,),
+    q (N, J): the same arithmetic and values, no checks."""
+    k = np.clip(np.searchsorted(t, query, side="right") - 1, 0, len(t) - 2)
+    t0, t1 = t[k], t[k + 1]
+    w = ((query - t0) / (t1 - t0))[:, None]
+    q0, q1 = q[k], q[k + 1]
+    v = (1.0 - w) * q0 + w * q1
+    out: NDArray[np.float64] = np.clip(v, np.minimum(q0, q1), np.maximum(q0, q1), out=v)
+    return out

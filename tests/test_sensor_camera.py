@@ -270,3 +270,27 @@ def test_hits_of_any_column_set_match_the_full_window() -> None:
     win_hit, win_rows = renderer._hits(renderer._window(0, 512), times, pose)
     assert np.array_equal(win_hit, hit_all)
     assert np.array_equal(win_rows[win_hit], rows_all[hit_all])
+
+
+@pytest.mark.parametrize(
+    "joint", [Joint.butt(0.5), Joint.butt(0.5, 0.4), Joint.butt(0.5, -0.4), Joint.lap(1.0, 1)]
+)
+def test_skipped_shadow_tests_change_nothing(joint: Joint, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The renderer skips shadow tests a flat piece cannot pass (it is not above the lit one);
+    with every test run the hits are the same."""
+    import sensorsocket.camera as camera_module
+
+    scene = Scene(joint, SeamPath.straight())
+    times = np.arange(512) * 6.8e-6
+    for roll in (-12.0, 0.0, 12.0):
+        pose = scripted_pose(
+            scene.sensor_over_seam(0.0, 0.3, -0.4, roll), velocity_mm_s=(50.0, 0.0, 0.0)
+        )
+        fast = StripeRenderer(scene, rng=np.random.default_rng(0)).hits(np.arange(512), times, pose)
+        with monkeypatch.context() as m:
+            m.setattr(camera_module, "_never_shadows", lambda *a: False)
+            full = StripeRenderer(scene, rng=np.random.default_rng(0)).hits(
+                np.arange(512), times, pose
+            )
+        assert np.array_equal(fast[0], full[0])
+        np.testing.assert_array_equal(fast[1][fast[0]], full[1][full[0]])

@@ -346,3 +346,19 @@ def test_straight_seam_seen_from_a_sine_motion(delta_t_s: float, max_um: float |
     else:
         # a sine of amplitude A·ω·ΔT ≈ 97 µm (rms 69 µm) plus the noise
         assert np.max(np.abs(y_um)) > 90.0 and np.sqrt(np.mean(y_um**2)) > 55.0
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_fast_interpolation_inside_the_buffer_equals_interpolate_joints(seed: int) -> None:
+    """The matcher's unchecked interpolation gives interpolate_joints' values bit for bit."""
+    from sync.interpolate import interpolate_joints
+    from sync.matcher import _lerp_inside
+
+    rng = np.random.default_rng(seed)
+    t = np.cumsum(rng.uniform(1e-3, 5e-3, 12))
+    q = rng.normal(0.0, 90.0, (12, 6))
+    query = np.concatenate([rng.uniform(t[0], t[-1], 5), t[[0, 3, -1]]])
+    values, status = interpolate_joints(t, q, query)
+    assert np.all(status == 0)
+    np.testing.assert_array_equal(_lerp_inside(t, q, query), values)
