@@ -98,10 +98,14 @@ class Session:
         return self.server.control_holder is self
 
     def send(self, packet: Packet) -> None:
-        data = encode_packet(packet, max_payload=wire.MAX_PAYLOAD)
+        self.send_encoded(encode_packet(packet, max_payload=wire.MAX_PAYLOAD))
+
+    def send_encoded(self, data: bytes) -> None:
+        # Counted before sending: a client that reads statistics() right after the reply
+        # must find it counted.
+        self.server._count("bytes_out", len(data))
         with self._send_lock:
             self.sock.sendall(data)
-        self.server._count("bytes_out", len(data))
 
     def __repr__(self) -> str:
         return f"<Session {self.id} {self.peer[0]}:{self.peer[1]}>"
@@ -401,14 +405,17 @@ class FramedServer:
                 session, packet.command, packet.request_id, ErrorCode.INTERNAL_ERROR, message
             )
             return
+        reply = Packet(PacketKind.REPLY, packet.command, packet.request_id, params)
         try:
-            session.send(Packet(PacketKind.REPLY, packet.command, packet.request_id, params))
-            self._count("replies")
+            data = encode_packet(reply, max_payload=wire.MAX_PAYLOAD)
         except ProtocolError as exc:  # reply too large to encode: a server-side bug
             self.handler_errors.append(exc)
             self._send_error(
                 session, packet.command, packet.request_id, ErrorCode.INTERNAL_ERROR, str(exc)
             )
+            return
+        self._count("replies")  # before sending, so statistics() never lags a received reply
+        session.send_encoded(data)
 
     def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
         service = self.service.identity.service
