@@ -182,13 +182,17 @@ def main_call(
             take = spec.needs_control and spec.id != CommandId.TAKE_CONTROL
             if take:
                 client.take_control(token or "")
-            values = client.call(spec.id, *params)
-            reply = reply_json(BY_ID[spec.id], values)
-            if spec.id in _QUEUED_MOVES and wait is not None:
-                reply["done"] = client.call(CommandId.WAIT_END_MOVE, wait, timeout=wait + 10)[0]
-            if take:
-                # Released, not lost: a move that is still running goes on [RS-7.11].
-                client.release_control()
+            try:
+                values = client.call(spec.id, *params)
+                reply = reply_json(BY_ID[spec.id], values)
+                if spec.id in _QUEUED_MOVES and wait is not None:
+                    done = client.call(CommandId.WAIT_END_MOVE, wait, timeout=wait + 10)[0]
+                    reply["done"] = done
+            finally:
+                if take and client.connected:
+                    # Released, not lost: a move that is still running goes on [RS-7.11];
+                    # also after an error reply, so the next call finds control free.
+                    client.release_control()
     except RemoteError as exc:
         print(f"error {exc.code.name} ({exc.raw_code}): {exc.message}", file=sys.stderr)
         return EXIT_REMOTE_ERROR

@@ -26,7 +26,7 @@ from conformance.model import Outcome
 from conformance.runner import RunResult, Selection, exit_code, run
 from kinematics.transforms import concat, invert, location_to_transform, transform_to_location
 from spec import wire
-from spec.codec import FrameDecoder, Packet, Rejected, encode_packet
+from spec.codec import FrameDecoder, Packet, Rejected, decode_packet, encode_packet
 from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data, encode_trigger
 from spec.errors import DatagramError, ErrorCode, ProtocolError
 from spec.params import Image, Joints, Location, Matrix, Value
@@ -287,18 +287,19 @@ def send_hook(monkeypatch: pytest.MonkeyPatch) -> Any:
     """Install a byte-level rewrite of every frame one server sends."""
 
     def install(server: FramedServer, mangle: Any) -> None:
-        original = Session.send
+        original = Session.send_encoded
 
-        def send(self: Session, packet: Packet) -> None:
+        def send_encoded(self: Session, data: bytes) -> None:
             if self.server is not server:
-                original(self, packet)
+                original(self, data)
                 return
-            data = mangle(encode_packet(packet, max_payload=wire.MAX_PAYLOAD), packet)
+            data = mangle(data, decode_packet(data))
             if data:
                 with self._send_lock:
                     self.sock.sendall(data)
 
-        monkeypatch.setattr(Session, "send", send)
+        # Every frame a server sends goes through Session.send_encoded.
+        monkeypatch.setattr(Session, "send_encoded", send_encoded)
 
     return install
 
