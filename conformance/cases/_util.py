@@ -6,11 +6,12 @@ import math
 import struct
 import zlib
 
-from conformance.connection import Conn
+from conformance.connection import Closed, Conn
 from conformance.context import Context
 from conformance.model import Fail, NotApplicable, Skip
 from spec import wire
 from spec.codec import Packet
+from spec.errors import ErrorCode
 from spec.params import FloatArray, Location, Matrix, Value, encode_params
 from spec.registry import CommandId as C
 from spec.registry import CommandSpec
@@ -189,3 +190,23 @@ def wrong_type(spec_type: wire.ParamType) -> Value:
 
 def finite(*values: float) -> bool:
     return all(math.isfinite(v) for v in values)
+
+
+def recoverable_check(
+    ctx: Context, frame: bytes, rid: int, command: int, code: int, what: str
+) -> None:
+    """[RS-3.9] an error frame echoing the request ID and the code, the connection kept and
+    still answering."""
+    conn = ctx.connect()
+    conn.send(frame, what)
+    try:
+        answer = conn.recv_packet()
+    except Closed:
+        raise Fail(
+            f"the connection was closed after {what}",
+            f"error {ErrorCode(code).name} echoing request ID {rid}, connection kept",
+            "connection closed",
+            requirement="RS-3.9",
+        ) from None
+    expect_error_echo(answer, rid, code, command)
+    still_answers(conn, what)

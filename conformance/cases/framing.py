@@ -7,8 +7,7 @@ import itertools
 import math
 import time
 
-from conformance.cases._util import expect_error_echo, raw_frame, still_answers
-from conformance.connection import Closed
+from conformance.cases._util import raw_frame, recoverable_check
 from conformance.context import Context
 from conformance.model import EndpointTimeout, Fail, Informational, case
 from spec import wire
@@ -146,27 +145,11 @@ def pipelined(ctx: Context) -> None:
         raise Fail("more answers than requests", 20, 20 + len(extra), requirement="RS-6.2")
 
 
-def _recoverable(ctx: Context, frame: bytes, rid: int, command: int, code: int, what: str) -> None:
-    conn = ctx.connect()
-    conn.send(frame, what)
-    try:
-        answer = conn.recv_packet()
-    except Closed:
-        raise Fail(
-            f"the connection was closed after {what}",
-            f"error {ErrorCode(code).name} echoing request ID {rid}, connection kept",
-            "connection closed",
-            requirement="RS-3.9",
-        ) from None
-    expect_error_echo(answer, rid, code, command)
-    still_answers(conn, what)
-
-
 @case("framing.crc.bad", requirements=["RS-3.6", "RS-3.9"], tags=["framing", "errors"])
 def bad_crc(ctx: Context) -> None:
     """A bad CRC gets BAD_CRC echoing the request ID; the connection goes on."""
     frame = raw_frame(C.PING, 31, (b"crc",), crc_ok=False)
-    _recoverable(ctx, frame, 31, C.PING, ErrorCode.BAD_CRC, "a frame with a bad CRC")
+    recoverable_check(ctx, frame, 31, C.PING, ErrorCode.BAD_CRC, "a frame with a bad CRC")
 
 
 @case(
@@ -177,7 +160,7 @@ def bad_crc(ctx: Context) -> None:
 def version_major(ctx: Context) -> None:
     """A version 2.0 frame gets UNSUPPORTED_VERSION; the connection goes on."""
     frame = raw_frame(C.PING, 32, (b"v2",), major=2)
-    _recoverable(ctx, frame, 32, C.PING, ErrorCode.UNSUPPORTED_VERSION, "a version 2.0 frame")
+    recoverable_check(ctx, frame, 32, C.PING, ErrorCode.UNSUPPORTED_VERSION, "a version 2.0 frame")
 
 
 @case("framing.kind.not_request", requirements=["RS-3.12", "RS-3.9"], tags=["framing", "errors"])
@@ -185,14 +168,16 @@ def kind_not_request(ctx: Context) -> None:
     """Frames of kind reply, error, event, 0 and 9 get BAD_FRAME; the connection goes on."""
     for i, kind in enumerate((PacketKind.REPLY, PacketKind.ERROR, PacketKind.EVENT, 0, 9)):
         frame = raw_frame(C.PING, 40 + i, (), kind=int(kind))
-        _recoverable(ctx, frame, 40 + i, C.PING, ErrorCode.BAD_FRAME, f"a frame of kind {kind}")
+        recoverable_check(
+            ctx, frame, 40 + i, C.PING, ErrorCode.BAD_FRAME, f"a frame of kind {kind}"
+        )
 
 
 @case("framing.flags.nonzero", requirements=["RS-3.7", "RS-3.9"], tags=["framing", "errors"])
 def flags_nonzero(ctx: Context) -> None:
     """Reserved flags other than 0 get BAD_FRAME; the connection goes on."""
     frame = raw_frame(C.PING, 33, (), flags=0x01)
-    _recoverable(ctx, frame, 33, C.PING, ErrorCode.BAD_FRAME, "a frame with flags 0x01")
+    recoverable_check(ctx, frame, 33, C.PING, ErrorCode.BAD_FRAME, "a frame with flags 0x01")
 
 
 def _fatal(ctx: Context, data: bytes, codes: tuple[int, ...], what: str) -> None:
@@ -262,7 +247,7 @@ def length_under_minimum(ctx: Context) -> None:
     """Payload lengths 0 and 1 (below the 2-byte count) get BAD_PARAMETERS, connection kept."""
     for rid, payload in ((36, b""), (37, b"\x00")):
         frame = raw_frame(C.PING, rid, payload=payload)
-        _recoverable(
+        recoverable_check(
             ctx, frame, rid, C.PING, ErrorCode.BAD_PARAMETERS, f"a payload of {len(payload)} B"
         )
 

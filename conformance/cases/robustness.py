@@ -10,8 +10,7 @@ import time
 import zlib
 from collections.abc import Callable
 
-from conformance.cases._util import expect_error_echo, retarget, still_answers
-from conformance.connection import Closed
+from conformance.cases._util import recoverable_check, retarget
 from conformance.context import Context
 from conformance.model import (
     Case,
@@ -125,19 +124,7 @@ def _vector_case(vector: dict[str, object]) -> Callable[[Context], str | None]:
         if fatal:
             fatal_check(ctx, data, (code,), what)
             return None
-        conn = ctx.connect()
-        conn.send(data, what)
-        try:
-            answer = conn.recv_packet()
-        except Closed:
-            raise Fail(
-                f"the connection was closed after {what}",
-                f"error {code.name} echoing request ID {rid}, connection kept",
-                "connection closed",
-                requirement="RS-3.9",
-            ) from None
-        expect_error_echo(answer, rid, code, TARGET)
-        still_answers(conn, what)
+        recoverable_check(ctx, data, rid, TARGET, code, what)
         ctx.probe()
         return None
 
