@@ -12,7 +12,6 @@ import heapq
 import logging
 import math
 import select
-import socket
 import threading
 from collections import Counter, OrderedDict, deque
 from collections.abc import Hashable
@@ -22,6 +21,7 @@ from typing import Any, Protocol
 from sensorsocket.sensor import NAN_LOCATION, Clock, Reading
 from spec.datagrams import INDEX_MODULUS, SensorData, Trigger, decode_datagram, encode_data
 from spec.errors import DatagramError
+from spec.udp import bind_udp
 from spec.wire import SensorStatus
 
 log = logging.getLogger(__name__)
@@ -234,14 +234,7 @@ class TriggerListener:
         self.handler = handler
         self.clock = clock
         self.hold = hold
-        family = socket.AF_INET6 if ":" in host else socket.AF_INET
-        self._sock = socket.socket(family, socket.SOCK_DGRAM)
-        try:
-            self._sock.bind((host, port))
-        except OSError:
-            self._sock.close()
-            raise
-        self._sock.setblocking(False)
+        self._sock = bind_udp(host, port)
         self.address: tuple[str, int] = self._sock.getsockname()[:2]
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None

@@ -35,6 +35,7 @@ from kinematics.transforms import transforms_to_locations
 from spec.datagrams import INDEX_MODULUS, SensorData, Trigger, decode_datagram, encode_trigger
 from spec.errors import DatagramError
 from spec.registry import SEAM_POINT_COLUMNS
+from spec.udp import bind_udp
 from sync.joint_buffer import JointBuffer
 from sync.matcher import STATUS_FOUND, DataOutcome, SeamPoint, SyncMatcher
 from sync.matcher import SensorData as MatcherData
@@ -488,14 +489,7 @@ class UdpSyncEndpoint:
         self.joints_since = joints_since
         self.poll_interval_s = poll_interval_s
         self.target: tuple[str, int] | None = None
-        family = socket.AF_INET6 if ":" in host else socket.AF_INET
-        self._sock = socket.socket(family, socket.SOCK_DGRAM)
-        try:
-            self._sock.bind((host, port))
-        except OSError:
-            self._sock.close()
-            raise
-        self._sock.setblocking(False)
+        self._sock = bind_udp(host, port)
         self.address: tuple[str, int] = self._sock.getsockname()[:2]
         self._stop = threading.Event()
         self._wake_r, self._wake_w = socket.socketpair()
