@@ -8,7 +8,7 @@ import zlib
 
 from conformance.connection import Closed, Conn
 from conformance.context import Context
-from conformance.model import Fail, NotApplicable, Skip
+from conformance.model import EndpointTimeout, Fail, NotApplicable, Skip
 from spec import wire
 from spec.codec import Packet
 from spec.errors import ErrorCode
@@ -210,3 +210,34 @@ def recoverable_check(
         ) from None
     expect_error_echo(answer, rid, code, command)
     still_answers(conn, what)
+
+
+def fatal_check(ctx: Context, data: bytes, codes: tuple[int, ...], what: str) -> None:
+    """[RS-3.8] error frame with request ID 0, then close; then the liveness probe [RS-7.9]."""
+    conn = ctx.connect()
+    conn.send(data, what)
+    try:
+        packets = conn.expect_closed(ctx.timeout * 2)
+    except EndpointTimeout:
+        raise Fail(
+            f"the connection stays open after {what}",
+            "an error frame with request ID 0, then the connection closed",
+            "still open",
+            requirement="RS-3.8",
+        ) from None
+    names = " or ".join(ErrorCode(c).name for c in codes)
+    if not packets or packets[0].error is None or packets[0].request_id != 0:
+        raise Fail(
+            f"no request-ID-0 error frame before the close after {what}",
+            f"error {names}, request ID 0",
+            "closed silently" if not packets else repr(packets[0]),
+            requirement="RS-3.8",
+        )
+    if packets[0].error[0] not in codes:
+        raise Fail(
+            f"wrong error code after {what}",
+            f"error {names}",
+            f"error {packets[0].error[0]}: {packets[0].error[1]}",
+            requirement="RS-3.8",
+        )
+    ctx.probe()

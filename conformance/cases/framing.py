@@ -7,11 +7,11 @@ import itertools
 import math
 import time
 
-from conformance.cases._util import raw_frame, recoverable_check
+from conformance.cases._util import fatal_check, raw_frame, recoverable_check
 from conformance.context import Context
 from conformance.model import EndpointTimeout, Fail, Informational, case
 from spec import wire
-from spec.codec import Packet, encode_packet, request
+from spec.codec import encode_packet, request
 from spec.errors import ErrorCode
 from spec.registry import CommandId as C
 from spec.wire import PacketKind
@@ -180,47 +180,11 @@ def flags_nonzero(ctx: Context) -> None:
     recoverable_check(ctx, frame, 33, C.PING, ErrorCode.BAD_FRAME, "a frame with flags 0x01")
 
 
-def _fatal(ctx: Context, data: bytes, codes: tuple[int, ...], what: str) -> None:
-    conn = ctx.connect()
-    conn.send(data, what)
-    try:
-        packets = conn.expect_closed(ctx.timeout * 2)
-    except EndpointTimeout:
-        raise Fail(
-            f"the connection stays open after {what}",
-            "an error frame with request ID 0, then the connection closed",
-            "no close",
-            requirement="RS-3.8",
-        ) from None
-    if not packets:
-        raise Fail(
-            f"the connection closed without an error frame after {what}",
-            f"error {' or '.join(ErrorCode(c).name for c in codes)} with request ID 0",
-            "closed silently",
-            requirement="RS-3.8",
-        )
-    first = packets[0]
-    if first.error is None or first.error[0] not in codes or first.request_id != 0:
-        raise Fail(
-            f"wrong error frame after {what}",
-            f"error {' or '.join(ErrorCode(c).name for c in codes)} with request ID 0",
-            _describe(first),
-            requirement="RS-3.8",
-        )
-    ctx.probe()
-
-
-def _describe(p: Packet) -> str:
-    if p.error is not None:
-        return f"error {p.error[0]}: {p.error[1]} (request ID {p.request_id})"
-    return f"{p.kind.name} request ID {p.request_id}"
-
-
 @case("framing.magic.bad", requirements=["RS-3.8", "RS-3.1", "RS-7.9"], tags=["framing", "errors"])
 def magic_bad(ctx: Context) -> None:
     """Wrong magic: error BAD_FRAME with request ID 0, then the connection closes."""
     frame = raw_frame(C.PING, 34, (), magic=b"XS")
-    _fatal(ctx, frame, (ErrorCode.BAD_FRAME,), "a frame with magic 'XS'")
+    fatal_check(ctx, frame, (ErrorCode.BAD_FRAME,), "a frame with magic 'XS'")
 
 
 @case(
@@ -235,7 +199,8 @@ def length_over_limit(ctx: Context) -> None:
     )
     limit = min(limit, wire.MAX_PAYLOAD)
     header = wire.HEADER.pack(wire.MAGIC, 1, 0, PacketKind.REQUEST, 0, C.PING, 35, limit + 1)
-    _fatal(ctx, header, (ErrorCode.FRAME_TOO_LARGE,), f"a header announcing {limit + 1} bytes")
+    what = f"a header announcing {limit + 1} bytes"
+    fatal_check(ctx, header, (ErrorCode.FRAME_TOO_LARGE,), what)
 
 
 @case(

@@ -10,7 +10,7 @@ import time
 import zlib
 from collections.abc import Callable
 
-from conformance.cases._util import recoverable_check, retarget
+from conformance.cases._util import fatal_check, recoverable_check, retarget
 from conformance.context import Context
 from conformance.model import (
     Case,
@@ -72,37 +72,6 @@ VECTOR_RULES: dict[str, tuple[str, ...]] = {
 #: The corpus targets a command every service implements and that takes no parameters, so a
 #: server that checks the command before the payload still reaches the payload check.
 TARGET = int(C.GET_TIME)
-
-
-def fatal_check(ctx: Context, data: bytes, codes: tuple[int, ...], what: str) -> None:
-    """[RS-3.8] error frame with request ID 0, then close; then the liveness probe [RS-7.9]."""
-    conn = ctx.connect()
-    conn.send(data, what)
-    try:
-        packets = conn.expect_closed(ctx.timeout * 2)
-    except EndpointTimeout:
-        raise Fail(
-            f"the connection stays open after {what}",
-            "an error frame with request ID 0, then the connection closed",
-            "still open",
-            requirement="RS-3.8",
-        ) from None
-    names = " or ".join(ErrorCode(c).name for c in codes)
-    if not packets or packets[0].error is None or packets[0].request_id != 0:
-        raise Fail(
-            f"no request-ID-0 error frame before the close after {what}",
-            f"error {names}, request ID 0",
-            "closed silently" if not packets else repr(packets[0]),
-            requirement="RS-3.8",
-        )
-    if packets[0].error[0] not in codes:
-        raise Fail(
-            f"wrong error code after {what}",
-            f"error {names}",
-            f"error {packets[0].error[0]}: {packets[0].error[1]}",
-            requirement="RS-3.8",
-        )
-    ctx.probe()
 
 
 def _vector_case(vector: dict[str, object]) -> Callable[[Context], str | None]:
