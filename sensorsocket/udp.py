@@ -12,14 +12,16 @@ import heapq
 import logging
 import math
 import select
+import socket
+import struct
 import threading
-from collections import Counter, OrderedDict, deque
+from collections import OrderedDict, deque
 from collections.abc import Hashable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from sensorsocket.sensor import NAN_LOCATION, Clock, Reading
-from spec.datagrams import INDEX_MODULUS, SensorData, Trigger, decode_datagram, encode_data
+from spec.datagrams import INDEX_MODULUS, decode_datagram, encode_data_fields, trigger_fields
 from spec.errors import DatagramError
 from spec.udp import bind_udp
 from spec.wire import SensorStatus
@@ -52,7 +54,7 @@ class Acquirer(Protocol):
     ) -> Reading: ...
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class TriggerReply:
     """The data datagram for one trigger and when to send it (s, sensor clock)."""
 
@@ -69,13 +71,15 @@ _COUNTERS = (
     "triggers",  # valid triggers (including duplicates)
     "duplicates",  # same index answered before: no reply [SY-2.2]
     "reordered",  # older than the newest served: OVERRUN [SY-2.3]
-    "overruns",  # OVERRUN replies (reordered + busy) [SY-2.8]
-    "replies",
+    "overruns",  # OVERRUN replies of the handler (reordered + busy) [SY-2.8]
+    "replies",  # every reply, by status below (an OVERRUN the sensor reports is one too)
     "found",
     "not_found",
     "laser_off",
     "errors",
 )
+_FOUND = SensorStatus.FOUND
+_OVERRUN = SensorStatus.OVERRUN
 
 
 @dataclass
@@ -109,11 +113,37 @@ class TriggerHandler:
         # Index history per trigger source: a restarted robot (a new socket) or a second
         # robot starts its own index sequence and must not be taken for duplicates.
         self._sources: OrderedDict[Hashable, _History] = OrderedDict()
-        self._counts: Counter[str] = Counter()
+        # The most recent source is the last of _sources already: a run of triggers from one
+        # robot (the usual case) skips the lookup and the LRU update.
+        self._last_source: Hashable = None
+        self._last_history: _History | None = None
+        # Plain integers, not a Counter: this is paid on every trigger.
+        self._datagrams = 0
+        self._malformed = 0
+        self._unexpected = 0
+        self._triggers = 0
+        self._duplicates = 0
+        self._reordered = 0
+        self._overruns = 0
+        self._by_status = [0] * (max(SensorStatus) + 1)  # replies by status value
 
     def statistics(self) -> dict[str, int]:
         with self._lock:
-            return {k: self._counts.get(k, 0) for k in _COUNTERS}
+            by_status = self._by_status
+            return {
+                "datagrams": self._datagrams,
+                "malformed": self._malformed,
+                "unexpected": self._unexpected,
+                "triggers": self._triggers,
+                "duplicates": self._duplicates,
+                "reordered": self._reordered,
+                "overruns": self._overruns,
+                "replies": sum(by_status),
+                "found": by_status[SensorStatus.FOUND],
+                "not_found": by_status[SensorStatus.NOT_FOUND],
+                "laser_off": by_status[SensorStatus.LASER_OFF],
+                "errors": by_status[SensorStatus.ERROR],
+            }
 
     def handle(self, datagram: bytes, t_arrival: float, source: Hashable = None) -> bytes | None:
         """The reply datagram for ``datagram`` arriving at ``t_arrival`` from ``source`` (the
@@ -125,54 +155,63 @@ class TriggerHandler:
         self, datagram: bytes, t_arrival: float, source: Hashable = None
     ) -> TriggerReply | None:
         """Like :meth:`handle`, with the modelled send time of the reply."""
+        # Runs once per trigger behind the listener: no Trigger/SensorData objects, one unpack
+        # of the trigger, one pack of the reply.
         with self._lock:
-            self._counts["datagrams"] += 1
-            try:
-                decoded = decode_datagram(datagram)
-            except DatagramError as exc:
-                # [SY-1.4] a malformed datagram is dropped silently and counted.
-                self._counts["malformed"] += 1
-                log.debug("dropped malformed datagram: %s", exc)
+            self._datagrams += 1
+            fields = trigger_fields(datagram)
+            if fields is None:
+                self._not_a_trigger(datagram)
                 return None
-            if not isinstance(decoded, Trigger):
-                self._counts["unexpected"] += 1
-                return None
-            self._counts["triggers"] += 1
-            index = decoded.index
-            history = self._history(source)
+            self._triggers += 1
+            index, t_trigger = fields
+            history = self._last_history
+            if history is None or source != self._last_source:
+                history = self._history(source)
             if index in history.answered:
                 # [SY-2.2] a duplicate starts no acquisition and gets no second reply.
-                self._counts["duplicates"] += 1
+                self._duplicates += 1
                 return None
             history.remember(index)
             newest = history.newest
             if newest is not None and not serial_newer(index, newest):
                 # [SY-2.3] an older index than one already served: OVERRUN, never silence.
-                self._counts["reordered"] += 1
-                return self._overrun(decoded, t_arrival)
+                self._reordered += 1
+                return self._overrun(index, t_trigger, t_arrival)
             history.newest = index
             if self.sensor.busy(t_arrival):
                 # [SY-2.8] the chip is still busy with earlier triggers: OVERRUN.
-                return self._overrun(decoded, t_arrival)
+                return self._overrun(index, t_trigger, t_arrival)
         # Acquire outside the handler lock; the sensor serialises acquisitions itself.
-        reading = self.sensor.acquire(t_arrival, index=index, t_trigger=decoded.t_trigger)
+        reading = self.sensor.acquire(t_arrival, index=index, t_trigger=t_trigger)
         status = reading.status
-        # [SY-2.7] a status other than FOUND carries a NaN location.
-        seam = reading.seam if status is SensorStatus.FOUND else NAN_LOCATION
-        data = SensorData(
-            index=index,
-            status=status,
-            seam=seam,
-            quality=reading.quality,
-            t_trigger=decoded.t_trigger,  # [SY-2.1] echo t_i^T
+        data = encode_data_fields(
+            index,
+            status,
+            # [SY-2.7] a status other than FOUND carries a NaN location.
+            reading.seam if status is _FOUND else NAN_LOCATION,
+            reading.quality,
+            t_trigger,  # [SY-2.1] echo t_i^T
             # [SY-2.6] the timing model gives t_arrival <= exposure start <= exposure end.
-            t_arrival=reading.t_arrival,
-            t_exposure_start=reading.t_exposure_start,
-            t_exposure_end=reading.t_exposure_end,
+            reading.t_arrival,
+            reading.t_exposure_start,
+            reading.t_exposure_end,
         )
         with self._lock:
-            self._count_reply(status)
-        return TriggerReply(encode_data(data), reading.t_done + self.network_delay_s, index, status)
+            self._by_status[status] += 1
+        return TriggerReply(data, reading.t_done + self.network_delay_s, index, status)
+
+    def _not_a_trigger(self, datagram: bytes) -> None:
+        """Count a datagram the trigger fast path did not take, by what the full decoder
+        makes of it."""
+        try:
+            decode_datagram(datagram)
+        except DatagramError as exc:
+            # [SY-1.4] a malformed datagram is dropped silently and counted.
+            self._malformed += 1
+            log.debug("dropped malformed datagram: %s", exc)
+            return
+        self._unexpected += 1
 
     def _history(self, source: Hashable) -> _History:
         history = self._sources.get(source)
@@ -182,35 +221,33 @@ class TriggerHandler:
                 self._sources.popitem(last=False)
         else:
             self._sources.move_to_end(source)
+        self._last_source, self._last_history = source, history
         return history
 
-    def _overrun(self, trigger: Trigger, t_arrival: float) -> TriggerReply:
-        self._counts["overruns"] += 1
-        self._count_reply(SensorStatus.OVERRUN)
-        data = SensorData(
-            trigger.index,
-            SensorStatus.OVERRUN,
-            NAN_LOCATION,
-            0.0,
-            trigger.t_trigger,
-            t_arrival,
-            t_arrival,
-            t_arrival,
+    def _overrun(self, index: int, t_trigger: float, t_arrival: float) -> TriggerReply:
+        self._overruns += 1
+        self._by_status[_OVERRUN] += 1
+        data = encode_data_fields(
+            index, _OVERRUN, NAN_LOCATION, 0.0, t_trigger, t_arrival, t_arrival, t_arrival
         )
-        return TriggerReply(
-            encode_data(data), t_arrival + self.network_delay_s, trigger.index, data.status
-        )
+        return TriggerReply(data, t_arrival + self.network_delay_s, index, _OVERRUN)
 
-    def _count_reply(self, status: SensorStatus) -> None:
-        self._counts["replies"] += 1
-        key = {
-            SensorStatus.FOUND: "found",
-            SensorStatus.NOT_FOUND: "not_found",
-            SensorStatus.LASER_OFF: "laser_off",
-            SensorStatus.ERROR: "errors",
-        }.get(status)
-        if key is not None:
-            self._counts[key] += 1
+
+_TICK_S = 0.2  # longest wait for a datagram before stop() is seen (s)
+# Reads after select and all sends must not block; the socket itself blocks (see _run).
+_DONTWAIT: int = getattr(socket, "MSG_DONTWAIT", 0)
+
+
+def _block_with_tick(sock: socket.socket, seconds: float) -> None:
+    """Make ``sock`` blocking with a receive timeout of ``seconds`` (BlockingIOError when it
+    expires): SO_RCVTIMEO costs nothing per call, where a Python socket timeout polls before
+    every recvfrom. Platforms that do not take it get the Python timeout."""
+    try:
+        sock.settimeout(None)
+        timeval = struct.pack("ll", int(seconds), int((seconds % 1.0) * 1e6))
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, timeval)
+    except (OSError, struct.error):
+        sock.settimeout(seconds)
 
 
 class TriggerListener:
@@ -269,41 +306,50 @@ class TriggerListener:
         return stats
 
     def _run(self) -> None:
-        while not self._stop.is_set():
-            timeout = 0.2
-            if self._pending:
-                timeout = min(timeout, max(0.0, self._pending[0][0] - self.clock()))
+        sock = self._sock
+        process = self.handler.process
+        clock = self.clock
+        pending = self._pending
+        stop = self._stop
+        # Idle, the thread blocks in recvfrom itself (one system call per trigger, as a bare
+        # echo server); select is used only while replies are held for their send time.
+        _block_with_tick(sock, _TICK_S)
+        while not stop.is_set():
+            flags = 0
+            if pending:
+                self._send_due()
+                if pending:
+                    wait = min(max(0.0, pending[0][0] - clock()), _TICK_S)
+                    try:
+                        readable, _, _ = select.select([sock], [], [], wait)
+                    except (OSError, ValueError):
+                        return  # socket closed under us by stop()
+                    if not readable:
+                        continue
+                    flags = _DONTWAIT
             try:
-                readable, _, _ = select.select([self._sock], [], [], timeout)
-            except (OSError, ValueError):
-                return  # socket closed under us by stop()
-            if readable:
-                self._receive_all()
-            self._send_due()
-
-    def _receive_all(self) -> None:
-        while True:
-            try:
-                datagram, source = self._sock.recvfrom(2048)
-            except (BlockingIOError, InterruptedError):
-                return
+                datagram, source = sock.recvfrom(2048, flags)
+            except (BlockingIOError, InterruptedError, TimeoutError):
+                continue  # a tick without a datagram: check stop and held replies
             except OSError as exc:
+                if sock.fileno() < 0:
+                    return  # closed under us by stop()
                 # e.g. ICMP port unreachable of an earlier reply on some systems
                 log.debug("recvfrom: %s", exc)
-                return
-            t_arrival = self.clock()
+                continue
+            t_arrival = clock()
             try:
-                reply = self.handler.process(datagram, t_arrival, source)
+                reply = process(datagram, t_arrival, source)
             except Exception:  # the listener must survive any sensor failure
                 log.exception("trigger handling failed")
                 continue
             if reply is None:
                 continue
-            if not self.hold or reply.t_send <= self.clock():
+            if not self.hold or reply.t_send <= clock():
                 self._send(reply.data, source)  # due now: skip the queue
                 continue
             self._seq += 1
-            heapq.heappush(self._pending, (reply.t_send, self._seq, reply.data, source))
+            heapq.heappush(pending, (reply.t_send, self._seq, reply.data, source))
 
     def _send_due(self) -> None:
         now = self.clock()
@@ -313,7 +359,7 @@ class TriggerListener:
 
     def _send(self, data: bytes, target: Any) -> None:
         try:
-            self._sock.sendto(data, target)
+            self._sock.sendto(data, _DONTWAIT, target)  # never block behind a full buffer
             self._sent += 1
         except OSError as exc:
             self._send_errors += 1

@@ -8,6 +8,7 @@ datagram raises :class:`DatagramError`; receivers count it and drop it [SY-1.4].
 from __future__ import annotations
 
 import math
+import struct
 import zlib
 from dataclasses import dataclass
 
@@ -16,6 +17,28 @@ from spec.errors import DatagramError, UsageError
 from spec.wire import DatagramKind, SensorStatus
 
 INDEX_MODULUS = 1 << 32
+
+# Whole-datagram layouts for the per-trigger hot path of the sensor (one unpack per trigger,
+# one pack per reply), concatenated from the layouts of wire.py so they cannot drift apart.
+#: Trigger datagram: header, t_i^T, CRC-32 [SY-1.1] [SY-2.1].
+TRIGGER_DATAGRAM = struct.Struct(
+    wire.DATAGRAM_HEADER.format + wire.TRIGGER_BODY.format[1:] + wire.TRAILER.format[1:]
+)
+#: Data datagram without its CRC-32 trailer: header and body [SY-1.1] [SY-3.1].
+DATA_DATAGRAM_BODY = struct.Struct(wire.DATAGRAM_HEADER.format + wire.DATA_BODY.format[1:])
+
+_MAGIC = wire.DATAGRAM_MAGIC
+_MAJOR = wire.VERSION_MAJOR
+_MINOR = wire.VERSION_MINOR
+_KIND_TRIGGER = int(DatagramKind.TRIGGER)
+_KIND_DATA = int(DatagramKind.DATA)
+_TRIGGER_SIZE = wire.TRIGGER_SIZE
+_CRC_END = -wire.TRAILER_SIZE
+_crc32 = zlib.crc32
+_isfinite = math.isfinite
+_unpack_trigger = TRIGGER_DATAGRAM.unpack
+_pack_data = DATA_DATAGRAM_BODY.pack
+_pack_crc = wire.TRAILER.pack
 
 
 @dataclass(frozen=True, slots=True)
@@ -62,19 +85,43 @@ def encode_trigger(trigger: Trigger) -> bytes:
 
 
 def encode_data(data: SensorData) -> bytes:
-    if len(data.seam) != 6:
-        raise UsageError("seam must be a 6-value VAL3 location")
-    body = wire.DATA_BODY.pack(
-        int(data.status),
-        0,
-        *data.seam,
+    return encode_data_fields(
+        data.index,
+        data.status,
+        data.seam,
         data.quality,
         data.t_trigger,
         data.t_arrival,
         data.t_exposure_start,
         data.t_exposure_end,
     )
-    return _seal(_header(DatagramKind.DATA, data.index) + body)
+
+
+def encode_data_fields(
+    index: int,
+    status: SensorStatus,
+    seam: tuple[float, ...],
+    quality: float,
+    t_trigger: float,
+    t_arrival: float,
+    t_exposure_start: float,
+    t_exposure_end: float,
+) -> bytes:
+    """The data datagram of :class:`SensorData` with these fields, without building one
+    (the sensor's per-trigger path): one pack of header and body, then the CRC-32."""
+    try:
+        body = _pack_data(
+            _MAGIC, _MAJOR, _MINOR, _KIND_DATA, 0, index, status, 0, *seam,
+            quality, t_trigger, t_arrival, t_exposure_start, t_exposure_end,
+        )  # fmt: skip
+    except struct.error:
+        # The checks are here, off the hot path: struct rejected one of the fields.
+        if len(seam) != 6:
+            raise UsageError("seam must be a 6-value VAL3 location") from None
+        if not 0 <= index < INDEX_MODULUS:
+            raise UsageError(f"datagram index {index} does not fit in 32 bits") from None
+        raise UsageError(f"unencodable data datagram fields (status {status!r})") from None
+    return body + _pack_crc(_crc32(body))
 
 
 def encode_datagram(datagram: Datagram) -> bytes:
@@ -83,9 +130,34 @@ def encode_datagram(datagram: Datagram) -> bytes:
     return encode_data(datagram)
 
 
+def trigger_fields(raw: bytes) -> tuple[int, float] | None:
+    """``(index, t_i^T)`` of a well-formed trigger datagram; None for anything else, which
+    :func:`decode_datagram` then decodes or rejects with the reason.
+
+    The same checks as :func:`decode_datagram` with one unpack and no allocation beyond the
+    result: the sensor runs this once per trigger.
+    """
+    if len(raw) != _TRIGGER_SIZE:
+        return None
+    magic, major, _minor, kind, flags, index, t_trigger, crc = _unpack_trigger(raw)
+    if (
+        magic != _MAGIC
+        or major != _MAJOR
+        or kind != _KIND_TRIGGER
+        or flags
+        or not _isfinite(t_trigger)
+        or _crc32(raw[:_CRC_END]) != crc
+    ):
+        return None
+    return index, t_trigger
+
+
 def decode_datagram(raw: bytes | bytearray | memoryview) -> Datagram:
     """Decode one datagram; raise :class:`DatagramError` for anything malformed."""
     buf = bytes(raw)
+    trigger = trigger_fields(buf)
+    if trigger is not None:
+        return Trigger(*trigger)
     head = wire.DATAGRAM_HEADER.size
     if len(buf) < head + wire.TRAILER_SIZE:
         raise DatagramError(f"datagram of {len(buf)} bytes is shorter than a header")
