@@ -169,12 +169,52 @@ def location_to_transform(loc: Sequence[float] | Array) -> Array:
 
 
 def transform_to_location(T: Any) -> Array:
-    """Transform (4, 4) -> VAL3 location (6,): mm and degrees, rx, rz in (-180, 180]."""
-    arr = check_transform(T)
-    if arr.ndim != 2:
+    """Transform (4, 4) -> VAL3 location (6,): mm and degrees, rx, rz in (-180, 180].
+
+    One transform in plain float arithmetic (~5x cheaper than the batch form on one
+    matrix; a sensor converts every seam transform it reports): the same checks and the
+    same formulas as :func:`check_transform` and :func:`transforms_to_locations`.
+    """
+    arr = _float_array(T, "transform")
+    if arr.shape != (4, 4):
+        check_transform(arr)  # the batch form's shape error, or its ndim error below
         raise KinematicsError("transform_to_location: expected one (4, 4); use the batch form")
-    out: Array = transforms_to_locations(arr[None])[0]
-    return out
+    rows = arr.tolist()
+    (r00, r01, r02, x), (r10, r11, r12, y), (r20, r21, r22, z), last = rows
+    if not all(math.isfinite(v) for row in rows for v in row):
+        raise KinematicsError("transform: contains NaN or infinity")
+    tol = RIGID_TOL
+    if any(abs(v - w) > tol for v, w in zip(last, (0.0, 0.0, 0.0, 1.0), strict=True)):
+        raise KinematicsError("transform: last row must be (0, 0, 0, 1)")
+    cols = ((r00, r10, r20), (r01, r11, r21), (r02, r12, r22))
+    for i in range(3):
+        for k in range(i, 3):
+            a, b = cols[i], cols[k]
+            g = a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+            if abs(g - (1.0 if i == k else 0.0)) > tol:
+                raise KinematicsError("transform: rotation part is not orthonormal with det +1")
+    det = (
+        r00 * (r11 * r22 - r12 * r21)
+        - r01 * (r10 * r22 - r12 * r20)
+        + r02 * (r10 * r21 - r11 * r20)
+    )
+    if det < 0.0:
+        raise KinematicsError("transform: rotation part is not orthonormal with det +1")
+    # _xyz_from_rot and _wrap_deg on floats; the transcendental functions stay numpy's (its
+    # SIMD loops and libm differ in the last bit, and the batch form uses numpy's)
+    rx, ry = np.arctan2((-r12, r02), (r22, np.hypot(r00, r01))).tolist()
+    s1, c1 = float(np.sin(rx)), float(np.cos(rx))
+    rz = float(np.arctan2(c1 * r10 + s1 * r20, c1 * r11 + s1 * r21))
+    return np.array(
+        [x, y, z, _wrap_deg_float(math.degrees(rx)), math.degrees(ry),
+         _wrap_deg_float(math.degrees(rz))]
+    )  # fmt: skip
+
+
+def _wrap_deg_float(a: float) -> float:
+    """:func:`_wrap_deg` of one angle (deg): the same floating-point steps."""
+    w = -((180.0 - a) % 360.0) + 180.0
+    return 180.0 if w == -180.0 else w
 
 
 def locations_to_transforms(locs: Any) -> Array:

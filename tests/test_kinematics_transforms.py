@@ -85,6 +85,36 @@ def test_batch_locations_equal_single() -> None:
         np.testing.assert_allclose(b, tf.transform_to_location(T), atol=1e-12)
 
 
+def test_single_location_bit_equal_to_batch() -> None:
+    # the scalar form must give the batch form's numbers exactly (same checks, same float
+    # steps), also at the gimbal lock and at multiples of 90 degrees
+    rng = np.random.default_rng(11)
+    locs = np.column_stack([rng.uniform(-1000, 1000, (600, 3)), rng.uniform(-180, 180, (600, 3))])
+    locs[::5, 4] = 90.0
+    locs[1::5, 4] = -90.0
+    locs[2::5, 3:] = np.round(locs[2::5, 3:] / 90.0) * 90.0
+    Ts = tf.locations_to_transforms(locs)
+    batch = tf.transforms_to_locations(Ts)
+    for T, b in zip(Ts, batch, strict=True):
+        assert np.array_equal(tf.transform_to_location(T), b)
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        np.eye(3),
+        np.eye(4)[None],
+        np.diag([1.0, 1.0, 1.1, 1.0]),
+        np.diag([1.0, 1.0, -1.0, 1.0]),
+        np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0.5, 1.0]]),
+        np.full((4, 4), np.nan),
+    ],
+)
+def test_single_location_rejects_what_the_batch_rejects(bad: np.ndarray) -> None:
+    with pytest.raises(KinematicsError):
+        tf.transform_to_location(bad)
+
+
 def test_invert_and_concat() -> None:
     A = tf.location_to_transform([100, 200, 300, 10, 20, 30])
     B = tf.location_to_transform([-5, 7, 11, -40, 50, 60])
