@@ -162,6 +162,22 @@ def test_ik_contains_q_and_every_solution_maps_back(name: str, data: st.DataObje
 
 
 @pytest.mark.parametrize("name", MODELS)
+def test_small_batches_bit_equal_to_large(name: str) -> None:
+    # a few configurations take the Python-float path; they must give the numpy path's
+    # numbers exactly (the emulated cell renders from them and its runs are reproducible)
+    m = get_model(name)
+    rng = np.random.default_rng(5)
+    q = rng.uniform(-200.0, 200.0, (400, 6))
+    big = m.flange2base_batch(q)
+    start = 0
+    for n in (1, 2, 3, 5, 7, 12, 0, 1):
+        small = m.flange2base_batch(q[start : start + n])
+        assert small.shape == (n, 4, 4)
+        assert np.array_equal(small, big[start : start + n])
+        start += n
+
+
+@pytest.mark.parametrize("name", MODELS)
 def test_batch_equals_single(name: str) -> None:
     m = get_model(name)
     rng = np.random.default_rng(3)
