@@ -69,6 +69,9 @@ INDEX_MODULUS = 1 << 32
 """Trigger indices are u32 on the wire."""
 _HALF = 1 << 31
 
+# interpolation outcomes as plain ints: IntEnum member access costs ~1 µs a time
+_OK, _TOO_OLD, _NOT_YET = int(InterpStatus.OK), int(InterpStatus.TOO_OLD), int(InterpStatus.NOT_YET)
+
 STATUS_FOUND = 0
 """Sensor status meaning "seam found" (``spec.wire.SensorStatus.FOUND``)."""
 
@@ -357,29 +360,35 @@ class SyncMatcher:
     def _match(self, joints: JointBuffer) -> None:
         entries = self._log.entries
         seqs = list(self._ready)
-        t_trig = np.array([entries[s].t_trigger for s in seqs])
-        t_s = t_trig + self.delta_t_s  # eq. 4
-        times, q = joints.covering(float(t_s.min()))
-        if len(times) >= 2 and times[0] <= t_s.min() and t_s.max() <= times[-1]:
+        d = self.delta_t_s
+        t_list = [entries[s].t_trigger + d for s in seqs]  # eq. 4
+        t_lo, t_hi = min(t_list), max(t_list)
+        t_s = np.array(t_list)
+        times, q = joints.covering(t_lo)
+        status: list[int]
+        if len(times) >= 2 and times[0] <= t_lo and t_hi <= times[-1]:
             # the usual case, every t_i^S inside the buffer: the same interpolation without
             # the checks and status bookkeeping (per datagram these cost more than the maths)
             values = _lerp_inside(times, q, t_s)
-            status = np.zeros(len(t_s), dtype=np.int8)  # InterpStatus.OK
+            status = [_OK] * len(seqs)
+            ok = list(range(len(seqs)))
         else:
-            values, status = interpolate_joints(times, q, t_s)
-        done = status != InterpStatus.NOT_YET
-        ok = np.flatnonzero(status == InterpStatus.OK)
+            values, status_arr = interpolate_joints(times, q, t_s)
+            status = status_arr.tolist()
+            ok = [i for i, st in enumerate(status) if st == _OK]
         base: NDArray[np.float64] | None = None
-        if ok.size and self.flange2base is not None and self._s2f is not None:
-            g2s = np.stack([self._seam2sensor(entries[seqs[i]]) for i in ok.tolist()])
+        if ok and self.flange2base is not None and self._s2f is not None:
+            g2s = np.stack([self._seam2sensor(entries[seqs[i]]) for i in ok])
             f2b = np.asarray(self.flange2base(values[ok]), dtype=np.float64)
             base = np.matmul(f2b, np.matmul(self._s2f, g2s))
         row = 0
-        for i in np.flatnonzero(done).tolist():
+        for i, st in enumerate(status):
+            if st == _NOT_YET:
+                continue
             seq = seqs[i]
             entry = entries[seq]
             del self._ready[seq]
-            if status[i] == InterpStatus.TOO_OLD:
+            if st == _TOO_OLD:
                 entry.state = _State.EXPIRED
                 self.counters.expired += 1
                 continue
@@ -388,7 +397,7 @@ class SyncMatcher:
             entry.point = SeamPoint(
                 index=data.index % INDEX_MODULUS,
                 t_trigger=entry.t_trigger,
-                t_sensor=float(t_s[i]),
+                t_sensor=t_list[i],
                 joints=values[i],
                 seam2sensor=entry.seam2sensor,
                 seam2base=None if base is None else base[row],
@@ -461,11 +470,25 @@ def _lerp_inside(
     t: NDArray[np.float64], q: NDArray[np.float64], query: NDArray[np.float64]
 ) -> NDArray[np.float64]:
     """:func:`~sync.interpolate.interpolate_joints` for queries (M,) inside the samples t (N >= 2,),
-    q (N, J): the same arithmetic and values, no checks."""
-    k = np.clip(np.searchsorted(t, query, side="right") - 1, 0, len(t) - 2)
+    q (N, J): the same arithmetic and values, no checks (ufunc minimum/maximum instead of
+    np.clip, whose Python wrapper costs more than the maths on a few queries)."""
+    k = np.searchsorted(t, query, side="right")
+    k -= 1
+    np.maximum(k, 0, out=k)
+    np.minimum(k, len(t) - 2, out=k)
+    if len(k) == 1:  # one datagram per cycle, the usual: the same steps on Python floats
+        j = int(k[0])
+        t0f, t1f = float(t[j]), float(t[j + 1])
+        wf = (float(query[0]) - t0f) / (t1f - t0f)
+        row = [
+            min(max((1.0 - wf) * a + wf * b, min(a, b)), max(a, b))
+            for a, b in zip(q[j].tolist(), q[j + 1].tolist(), strict=True)
+        ]
+        return np.array([row])
     t0, t1 = t[k], t[k + 1]
     w = ((query - t0) / (t1 - t0))[:, None]
     q0, q1 = q[k], q[k + 1]
     v = (1.0 - w) * q0 + w * q1
-    out: NDArray[np.float64] = np.clip(v, np.minimum(q0, q1), np.maximum(q0, q1), out=v)
+    np.maximum(v, np.minimum(q0, q1), out=v)
+    out: NDArray[np.float64] = np.minimum(v, np.maximum(q0, q1), out=v)
     return out
