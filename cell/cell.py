@@ -324,11 +324,12 @@ class EmulatedCell:
         t = np.asarray(times, dtype=np.float64)
         if not len(t):
             return np.empty((0, 4, 4))
+        t_min, t_max = float(t.min()), float(t.max())
         with self._truth_lock:
             # Only the samples around the query: the interval of the earliest query time and
             # at least the last three samples (extrapolation), not the whole 8 s buffer.
-            buf_t, buf_q = self._truth.covering(float(t.min()) - 2.0 * self.robot.period)
-        if len(buf_t) >= 2 and buf_t[0] <= t.min() and t.max() <= buf_t[-1]:
+            buf_t, buf_q = self._truth.covering(t_min - 2.0 * self.robot.period)
+        if len(buf_t) >= 2 and buf_t[0] <= t_min and t_max <= buf_t[-1]:
             # The simulated cell's case, motion known: the exact DGM only at the 4 ms
             # setpoints that bracket the queries and at mid-cycle (5-7 configurations, not
             # 512), the poses quadratic between them. Against the DGM of the joint-space
@@ -356,8 +357,12 @@ class EmulatedCell:
         """Sensor poses (M, 4, 4) at ``t`` (M,) inside the samples ``buf_t`` (N >= 2,):
         exact at the bracketing samples and at the middle of each cycle, quadratic between
         (a linear pose would miss the bow of the joint-space path by ~1.2 nm)."""
-        k = np.clip(np.searchsorted(buf_t, t, side="right") - 1, 0, len(buf_t) - 2)
-        lo, hi = int(k.min()), int(k.max()) + 2
+        k = np.searchsorted(buf_t, t, side="right")
+        k -= 1
+        # ufuncs, not np.clip: its Python wrapper costs more than the work on 512 times
+        np.maximum(k, 0, out=k)
+        np.minimum(k, len(buf_t) - 2, out=k)
+        lo, hi = int(np.minimum.reduce(k)), int(np.maximum.reduce(k)) + 2
         q = buf_q[lo:hi]
         m = len(q)
         # nodes: setpoint j at 2j, middle of cycle j at 2j + 1
@@ -370,11 +375,17 @@ class EmulatedCell:
         w = (t - t0[k]) / (t0[k + 1] - t0[k])
         # Lagrange weights of the nodes at w = 0, 1/2, 1 in a (M, nodes) matrix: one small
         # product instead of gathering three (M, 16) pose stacks
-        basis = np.zeros((len(t), 2 * m - 1))
-        rows, j = np.arange(len(t)), 2 * k
-        basis[rows, j] = 2.0 * (w - 0.5) * (w - 1.0)
-        basis[rows, j + 1] = 4.0 * w * (1.0 - w)
-        basis[rows, j + 2] = 2.0 * w * (w - 0.5)
+        n_nodes = 2 * m - 1
+        basis = np.zeros((len(t), n_nodes))
+        # flat positions of node 2k in each row: 1-D scatters, cheaper than (rows, cols) pairs
+        at = np.arange(0, len(t) * n_nodes, n_nodes)
+        at += 2 * k
+        flat = basis.reshape(-1)
+        flat[at] = 2.0 * (w - 0.5) * (w - 1.0)
+        at += 1
+        flat[at] = 4.0 * w * (1.0 - w)
+        at += 1
+        flat[at] = 2.0 * w * (w - 0.5)
         out: FloatArray = (basis @ poses).reshape(-1, 4, 4)
         return out
 
