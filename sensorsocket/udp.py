@@ -65,7 +65,7 @@ class TriggerReply:
     status: SensorStatus
 
 
-_COUNTERS = (
+_COUNTERS = (  # the keys of TriggerHandler.statistics(), in order
     "datagrams",  # every datagram handed in
     "malformed",  # dropped silently [SY-1.4]
     "unexpected",  # well-formed but not a trigger (e.g. a data datagram): dropped
