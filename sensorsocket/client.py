@@ -102,9 +102,15 @@ class SensorClient(FramedClient):
         timeout: float = 5.0,
         auto_reconnect: bool = False,
         client_name: str = "sensorsocket-client/0.1",
+        frame_crc: bool = True,
     ) -> None:
         super().__init__(
-            host, port, timeout=timeout, auto_reconnect=auto_reconnect, client_name=client_name
+            host,
+            port,
+            timeout=timeout,
+            auto_reconnect=auto_reconnect,
+            client_name=client_name,
+            frame_crc=frame_crc,
         )
 
     def __enter__(self) -> SensorClient:

@@ -15,6 +15,7 @@ from spec.codec import FrameDecoder, Packet, encode_packet, request
 from spec.errors import ErrorCode, PeerError, ProtocolError, RemoteError
 from spec.params import IntArray, Value
 from spec.registry import BY_ID, CommandId, check_params
+from spec.sockopt import set_kernel_timeouts
 from spec.wire import PacketKind
 
 
@@ -34,7 +35,9 @@ class FramedClient:
     """A blocking client for one TCP connection; thread-safe (one request at a time).
 
     ``timeout`` bounds connect and every reply; ``auto_reconnect`` reconnects once on a broken
-    connection before a request is sent.
+    connection before a request is sent. ``frame_crc=False`` asks the server to send its frames
+    without CRC (SetFrameCrc, PROTOCOL.md 3.1) on each connection: for bulk transfers on a
+    trusted link; a server without SetFrameCrc keeps its CRCs (see :attr:`frame_crc_active`).
     """
 
     def __init__(
@@ -45,13 +48,16 @@ class FramedClient:
         timeout: float = 5.0,
         auto_reconnect: bool = False,
         client_name: str = "reference-client/0.1",
+        frame_crc: bool = True,
     ) -> None:
         self.host = host
         self.port = port
         self.timeout = timeout
         self.auto_reconnect = auto_reconnect
         self.client_name = client_name
+        self.frame_crc = frame_crc
         self._sock: socket.socket | None = None
+        self._kernel_timeout: float | None = None  # SO_RCVTIMEO in force, None: Python's
         self._decoder = FrameDecoder(max_payload=wire.MAX_PAYLOAD)
         self._next_id = 1
         self._scratch = bytearray(1 << 18)  # reused receive buffer: no allocation per recv
@@ -71,6 +77,24 @@ class FramedClient:
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             self._sock = sock
             self._decoder = FrameDecoder(max_payload=wire.MAX_PAYLOAD)
+            self._kernel_timeout = None
+            if not self.frame_crc:
+                self._turn_frame_crc_off()
+
+    def _turn_frame_crc_off(self) -> None:
+        try:
+            (enabled,) = self.call(CommandId.SET_FRAME_CRC, False)
+        except RemoteError as exc:
+            if exc.code != ErrorCode.UNKNOWN_COMMAND:
+                raise
+            return  # a 1.0 server: its frames keep their CRC [RS-3.15]
+        # The reply came with a CRC; every later frame carries NO_CRC [RS-3.16], [RS-3.17].
+        self._decoder.accept_no_crc = not enabled
+
+    @property
+    def frame_crc_active(self) -> bool:
+        """False when the server sends this connection's frames without CRC."""
+        return not self._decoder.accept_no_crc
 
     def reconnect(self) -> None:
         """Open a new connection (control, if it was held, must be taken again)."""
@@ -121,13 +145,19 @@ class FramedClient:
 
     def _send(self, data: bytes) -> None:
         assert self._sock is not None
-        self._sock.sendall(data)
+        try:
+            self._sock.sendall(data)
+        except BlockingIOError:  # the kernel send timeout expired: the server stopped reading
+            self.close()
+            raise ClientTimeout("the server does not take the request (send timed out)") from None
 
     def _receive(self, timeout: float) -> Packet:
         assert self._sock is not None
         deadline = time.monotonic() + timeout
+        decoder = self._decoder
+        first = True
         while True:
-            event = self._decoder.next_event()
+            event = decoder.next_event()
             if event is not None:
                 if isinstance(event, Packet):
                     if event.kind is PacketKind.EVENT:
@@ -135,14 +165,17 @@ class FramedClient:
                     return event
                 self.close()
                 raise event.error
-            remaining = deadline - time.monotonic()
+            remaining = timeout if first else deadline - time.monotonic()
+            first = False
             if remaining <= 0:
                 self.close()  # a late reply would be mistaken for the next one
                 raise ClientTimeout(f"no reply within {timeout:.3g} s")
-            self._sock.settimeout(remaining)
+            self._arm_timeout(remaining)
+            # The rest of a large frame (an image) goes straight into its own buffer.
+            view = decoder.get_buffer()
             try:
-                n = self._sock.recv_into(self._scratch)
-            except TimeoutError:
+                n = self._sock.recv_into(self._scratch if view is None else view)
+            except (TimeoutError, BlockingIOError):
                 continue
             except OSError as exc:
                 self.close()
@@ -150,12 +183,28 @@ class FramedClient:
             if not n:
                 self.close()
                 raise ConnectionClosed("server closed the connection")
+            if view is not None:
+                decoder.buffer_updated(n)
+                continue
             try:
-                with memoryview(self._scratch) as view, view[:n] as chunk:
-                    self._decoder.feed(chunk)
+                with memoryview(self._scratch) as scratch, scratch[:n] as chunk:
+                    decoder.feed(chunk)
             except PeerError:
                 self.close()
                 raise
+
+    def _arm_timeout(self, remaining: float) -> None:
+        """Bound the next receive (and send) by about ``remaining`` seconds. A kernel timeout
+        (one system call per receive) is set again only when it is clearly longer than what
+        remains (e.g. a call with its own timeout); Python's socket timeout is the fallback."""
+        assert self._sock is not None
+        current = self._kernel_timeout
+        if current is not None and current <= remaining * 1.1 + 0.01:
+            return  # overshoots the deadline by at most 10 % + 10 ms
+        if set_kernel_timeouts(self._sock, remaining):
+            self._kernel_timeout = remaining
+        else:
+            self._sock.settimeout(remaining)
 
     def _check_reply(self, command: int, request_id: int, reply: Packet) -> tuple[Value, ...]:
         if reply.kind is PacketKind.ERROR:

@@ -16,7 +16,7 @@ import zlib
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import NoReturn
+from typing import NamedTuple, NoReturn
 
 from spec import wire
 from spec.errors import (
@@ -67,34 +67,54 @@ def error_packet(command: int, request_id: int, code: ErrorCode | int, message: 
     return Packet(PacketKind.ERROR, command, request_id, (int(code), message))
 
 
-def encode_packet(packet: Packet, max_payload: int = wire.MAX_PAYLOAD) -> bytes:
-    """Encode one frame: header, parameter list, CRC-32 [RS-3.1], [RS-3.6]."""
+def encode_packet_parts(
+    packet: Packet, max_payload: int = wire.MAX_PAYLOAD, *, crc: bool = True
+) -> list[bytes]:
+    """One frame as a list of byte strings (header, parameter list pieces, trailer), so a large
+    payload (an image) is never copied to build the frame: send it with ``sendmsg``.
+
+    ``crc=False`` sends the frame with the NO_CRC flag and a zero trailer, on a connection
+    where the client turned CRCs off (SetFrameCrc, [RS-3.16])."""
     if not 0 <= packet.command <= 0xFFFF:
         raise UsageError(f"command ID {packet.command} does not fit in 16 bits")
     if not 0 <= packet.request_id <= 0xFFFFFFFF:
         raise UsageError(f"request ID {packet.request_id} does not fit in 32 bits")
     parts = encode_params_parts(packet.params)
-    length = sum(len(p) for p in parts)
+    length = sum(map(len, parts))
     if length > max_payload:
         raise UsageError(f"payload of {length} bytes exceeds the maximum of {max_payload}")
     header = wire.HEADER.pack(
         wire.MAGIC,
         wire.VERSION_MAJOR,
         packet.version_minor,
-        int(packet.kind),
-        0,
+        packet.kind,
+        0 if crc else wire.FLAG_NO_CRC,
         packet.command,
         packet.request_id,
         length,
     )
-    crc = zlib.crc32(header)
+    parts.insert(0, header)
+    if not crc:
+        parts.append(_NO_CRC_TRAILER)
+        return parts
+    checksum = 0
     for part in parts:
-        crc = zlib.crc32(part, crc)
-    return b"".join([header, *parts, wire.TRAILER.pack(crc)])
+        checksum = zlib.crc32(part, checksum)
+    parts.append(wire.TRAILER.pack(checksum))
+    return parts
 
 
-@dataclass(frozen=True, slots=True)
-class Header:
+_NO_CRC_TRAILER = wire.TRAILER.pack(0)
+
+
+def encode_packet(
+    packet: Packet, max_payload: int = wire.MAX_PAYLOAD, *, crc: bool = True
+) -> bytes:
+    """Encode one frame: header, parameter list, CRC-32 [RS-3.1], [RS-3.6]."""
+    return b"".join(encode_packet_parts(packet, max_payload, crc=crc))
+
+
+class Header(NamedTuple):
     """The fixed 16-byte frame header, decoded without judging it."""
 
     magic: bytes
@@ -107,8 +127,8 @@ class Header:
     length: int
 
     @classmethod
-    def unpack(cls, data: bytes | bytearray | memoryview) -> Header:
-        return cls(*wire.HEADER.unpack_from(data, 0))
+    def unpack(cls, data: bytes | bytearray | memoryview, offset: int = 0) -> Header:
+        return cls._make(wire.HEADER.unpack_from(data, offset))
 
 
 @dataclass(frozen=True, slots=True)
@@ -126,16 +146,27 @@ class Rejected:
 Event = Packet | Rejected
 
 
+#: Frames at least this long are received in place (get_buffer) instead of chunk by chunk.
+LARGE_FRAME = 64 * 1024
+
+
 @dataclass
 class FrameDecoder:
     """Incremental decoder: feed bytes, iterate events; raises only :class:`PeerError`.
 
     ``max_payload`` is this receiver's limit (at most :data:`wire.MAX_PAYLOAD`) [RS-3.5].
     ``kinds`` are the packet kinds this receiver accepts (a server takes requests only).
+    ``accept_no_crc`` is set by a client that turned CRCs off on its connection: frames with
+    the NO_CRC flag are then accepted without a CRC check [RS-3.17].
+
+    Bytes arrive either through :meth:`feed` or, for the rest of a large frame, straight into
+    the frame's own buffer: :meth:`get_buffer` and :meth:`buffer_updated` (the pattern of
+    ``asyncio.BufferedProtocol``) let a socket ``recv_into`` it without intermediate copies.
     """
 
     max_payload: int = wire.DEFAULT_MAX_PAYLOAD
     kinds: frozenset[PacketKind] = frozenset(PacketKind)
+    accept_no_crc: bool = False
     # Received bytes as a queue of chunks: a large frame arriving in many pieces is joined
     # once when complete (no growing buffer, no quadratic copying); ``_offset`` is where the
     # unread part of the first chunk starts.
@@ -143,24 +174,72 @@ class FrameDecoder:
     _offset: int = field(default=0, repr=False)
     _size: int = field(default=0, repr=False)
     _failed: PeerError | None = field(default=None, repr=False)
+    # A large frame being received in place: its buffer, bytes filled, and its header.
+    _frame: bytearray | None = field(default=None, repr=False)
+    _filled: int = field(default=0, repr=False)
+    _frame_header: Header | None = field(default=None, repr=False)
 
     def feed(self, data: bytes | bytearray | memoryview) -> None:
         if self._failed is not None:
             raise self._failed
-        if data:
-            chunk = data if isinstance(data, bytes) else bytes(data)
-            self._chunks.append(chunk)
-            self._size += len(chunk)
+        if not data:
+            return
+        if self._frame is not None:
+            view = self.get_buffer()
+            assert view is not None
+            take = min(len(data), len(view))
+            view[:take] = data[:take]
+            self.buffer_updated(take)
+            data = data[take:]
+            if not data:
+                return
+        chunk = data if isinstance(data, bytes) else bytes(data)
+        self._chunks.append(chunk)
+        self._size += len(chunk)
+
+    def get_buffer(self) -> memoryview | None:
+        """Where the next bytes of a large frame go (``sock.recv_into``), or None when bytes
+        should come through :meth:`feed` (no large frame has started)."""
+        if self._failed is not None:
+            raise self._failed
+        if self._frame is None:
+            if self._size < wire.HEADER_SIZE:
+                return None
+            first = self._contiguous(wire.HEADER_SIZE)
+            header = Header.unpack(first, self._offset)
+            end = wire.HEADER_SIZE + header.length + wire.TRAILER_SIZE
+            if (
+                end < LARGE_FRAME
+                or self._size >= end
+                or header.magic != wire.MAGIC
+                or header.length > self.max_payload
+            ):
+                return None  # small, complete or bad: next_event handles it
+            # Everything buffered belongs to this unfinished frame: move it into place.
+            frame = bytearray(end)
+            pos = 0
+            for i, chunk in enumerate(self._chunks):
+                piece = memoryview(chunk)[self._offset :] if i == 0 else chunk
+                frame[pos : pos + len(piece)] = piece
+                pos += len(piece)
+            self._chunks.clear()
+            self._offset = self._size = 0
+            self._frame, self._filled, self._frame_header = frame, pos, header
+        return memoryview(self._frame)[self._filled :]
+
+    def buffer_updated(self, n: int) -> None:
+        """``n`` bytes were written at the start of the last :meth:`get_buffer` view."""
+        self._filled += n
 
     @property
     def buffered(self) -> int:
         """Bytes received but not yet part of a complete frame."""
-        return self._size
+        return self._size + self._filled
 
     @property
     def in_frame(self) -> bool:
         """True when a frame has started but not finished (for partial-frame timeouts)."""
-        return self._size > 0
+        return self._size > 0 or self._frame is not None
 
     def events(self) -> Iterator[Event]:
         """Yield every complete frame in the buffer; stop when more data is needed."""
@@ -185,18 +264,18 @@ class FrameDecoder:
         """The next complete event, or ``None`` when more data is needed."""
         if self._failed is not None:
             raise self._failed
+        if self._frame is not None:
+            return self._large_frame_event()
         if self._size < 2:
             return None
-        data = self._contiguous(2)
+        data = self._contiguous(min(self._size, wire.HEADER_SIZE))
         off = self._offset
         if data[off : off + 2] != wire.MAGIC:
             # [RS-3.8] unusable header: the frame boundary is lost, the connection ends.
             self._fail(FrameError(f"bad magic {data[off : off + 2].hex()}, expected 5253"))
         if self._size < wire.HEADER_SIZE:
             return None
-        data = self._contiguous(wire.HEADER_SIZE)
-        off = self._offset
-        header = Header(*wire.HEADER.unpack_from(data, off))
+        header = Header.unpack(data, off)
         if header.length > self.max_payload:
             # [RS-3.5] never buffer an oversized frame: reject before reading it.
             self._fail(
@@ -209,14 +288,25 @@ class FrameDecoder:
             return None
         data = self._contiguous(end)
         off = self._offset
-        frame = data if off == 0 and len(data) == end else data[off : off + end]
+        frame = memoryview(data)[off : off + end]
         self._offset += end
         self._size -= end
         if self._offset == len(data):
             self._chunks.popleft()
             self._offset = 0
+        return self._decode(header, frame)
+
+    def _large_frame_event(self) -> Event | None:
+        assert self._frame is not None and self._frame_header is not None
+        if self._filled < len(self._frame):
+            return None
+        frame, header = self._frame, self._frame_header
+        self._frame, self._filled, self._frame_header = None, 0, None
+        return self._decode(header, memoryview(frame))
+
+    def _decode(self, header: Header, frame: memoryview) -> Event:
         try:
-            return _decode_frame(header, memoryview(frame), self.kinds)
+            return _decode_frame(header, frame, self.kinds, self.accept_no_crc)
         except PeerError as exc:
             return Rejected(header, exc)
 
@@ -224,17 +314,23 @@ class FrameDecoder:
         self._failed = error
         self._chunks.clear()
         self._offset = self._size = 0
+        self._frame = None
         raise error
 
 
 _KINDS = {int(k): k for k in PacketKind}
+_ALL_KINDS = frozenset(PacketKind)
 
 
-def _decode_frame(header: Header, frame: memoryview, kinds: frozenset[PacketKind]) -> Packet:
+def _decode_frame(
+    header: Header, frame: memoryview, kinds: frozenset[PacketKind], accept_no_crc: bool = False
+) -> Packet:
     payload_end = wire.HEADER_SIZE + header.length
-    (crc,) = wire.TRAILER.unpack_from(frame, payload_end)
-    if zlib.crc32(frame[:payload_end]) != crc:
-        raise BadCrcError(f"CRC-32 mismatch (frame says {crc:08x})")
+    no_crc = accept_no_crc and header.flags == wire.FLAG_NO_CRC
+    if not no_crc:
+        (crc,) = wire.TRAILER.unpack_from(frame, payload_end)
+        if zlib.crc32(frame[:payload_end]) != crc:
+            raise BadCrcError(f"CRC-32 mismatch (frame says {crc:08x})")
     if header.version_major != wire.VERSION_MAJOR:
         raise VersionError(
             f"protocol version {header.version_major}.{header.version_minor} not supported;"
@@ -245,7 +341,7 @@ def _decode_frame(header: Header, frame: memoryview, kinds: frozenset[PacketKind
         raise FrameError(f"unknown packet kind {header.kind}")
     if kind not in kinds:
         raise FrameError(f"packet kind {kind.name} not accepted here")
-    if header.flags != 0:
+    if header.flags != 0 and not no_crc:
         raise FrameError(f"reserved flags must be 0, got 0x{header.flags:02x}")
     params = decode_params(frame[wire.HEADER_SIZE : payload_end])
     return Packet(kind, header.command, header.request_id, params, header.version_minor)
@@ -260,7 +356,7 @@ def decode_packet(data: bytes, max_payload: int = wire.MAX_PAYLOAD) -> Packet:
         and Header.unpack(data).length <= max_payload
     ):
         # Fast path for exactly one frame: no buffering copy.
-        return _decode_frame(Header.unpack(data), memoryview(data), frozenset(PacketKind))
+        return _decode_frame(Header.unpack(data), memoryview(data), _ALL_KINDS)
     decoder = FrameDecoder(max_payload=max_payload)
     decoder.feed(data)
     event = decoder.next_event()
@@ -285,6 +381,7 @@ __all__ = [
     "Rejected",
     "decode_packet",
     "encode_packet",
+    "encode_packet_parts",
     "error_packet",
     "reply_to",
     "request",

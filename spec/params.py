@@ -24,10 +24,12 @@ Arrays are packed and unpacked by ``struct`` in one call each: no per-element Py
 
 from __future__ import annotations
 
+import functools
 import math
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from spec import wire
 from spec.errors import ParameterError, UsageError
@@ -249,46 +251,118 @@ def encode_params_parts(params: tuple[Value, ...] | list[Value]) -> list[bytes]:
 
 
 def _encode_value(value: Value) -> tuple[bytes, ...]:
-    tag = type_of(value)
-    head = wire.TAG.pack(tag)
-    if tag is ParamType.BOOL:
-        return (head + (b"\x01" if value else b"\x00"),)
-    if tag is ParamType.INT:
-        assert isinstance(value, int)
-        if not -(1 << 63) <= value < (1 << 63):
-            raise UsageError(f"INT out of the signed 64-bit range: {value}")
-        return (head + wire.I64.pack(value),)
-    if isinstance(value, float):
-        return (head + wire.F64.pack(value),)
-    if isinstance(value, str):
-        raw = value.encode("utf-8")
-        return (head + wire.U32.pack(len(raw)) + raw,)
-    if isinstance(value, bytes):
-        return (head + wire.U32.pack(len(value)), value)
-    if isinstance(value, FloatArray):
-        n = len(value.values)
-        return (head + wire.U32.pack(n) + struct.pack(f">{n}d", *value.values),)
-    if isinstance(value, IntArray):
-        n = len(value.values)
-        try:
-            return (head + wire.U32.pack(n) + struct.pack(f">{n}q", *value.values),)
-        except struct.error as exc:
-            raise UsageError(f"IntArray: {exc}") from None
-    if isinstance(value, Joints):
-        n = len(value.values)
-        return (head + wire.U8.pack(n) + struct.pack(f">{n}d", *value.values),)
-    if isinstance(value, Location):
-        return (head + wire.LOCATION.pack(*value.as_tuple()),)
-    if isinstance(value, Transform):
-        return (head + wire.TRANSFORM.pack(*value.values),)
-    if isinstance(value, Matrix):
-        shape = wire.MATRIX_SHAPE.pack(value.rows, value.cols)
-        return (head + shape + struct.pack(f">{len(value.values)}d", *value.values),)
-    assert isinstance(value, Image)
+    encoder = _ENCODERS.get(type(value))
+    if encoder is not None:
+        return encoder(value)
+    # Subclasses (an IntEnum member, say): type_of names the wire type or raises.
+    kind = type_of(value)
+    if kind is ParamType.BOOL:
+        return _enc_bool(bool(value))
+    if kind is ParamType.INT:
+        return _enc_int(int(value))  # type: ignore[arg-type]
+    raise UsageError(f"cannot encode a {type(value).__name__} as a parameter")
+
+
+# One encoder per Python class (exact type, as type_of): a table instead of an if-chain,
+# because encoding a small reply is on every round trip.
+
+
+def _enc_bool(value: bool) -> tuple[bytes, ...]:
+    return (b"\x03\x01" if value else b"\x03\x00",)
+
+
+def _enc_int(value: int) -> tuple[bytes, ...]:
+    if not -(1 << 63) <= value < (1 << 63):
+        raise UsageError(f"INT out of the signed 64-bit range: {value}")
+    return (_TAG_INT + wire.I64.pack(value),)
+
+
+def _enc_float(value: float) -> tuple[bytes, ...]:
+    return (_TAG_FLOAT + wire.F64.pack(value),)
+
+
+def _enc_str(value: str) -> tuple[bytes, ...]:
+    raw = value.encode("utf-8")
+    return (_TAG_STRING + wire.U32.pack(len(raw)) + raw,)
+
+
+def _enc_bytes(value: bytes) -> tuple[bytes, ...]:
+    return (_TAG_BYTES + wire.U32.pack(len(value)), value)
+
+
+def _enc_float_array(value: FloatArray) -> tuple[bytes, ...]:
+    n = len(value.values)
+    return (_TAG_FLOAT_ARRAY + wire.U32.pack(n) + _f64s(n).pack(*value.values),)
+
+
+def _enc_int_array(value: IntArray) -> tuple[bytes, ...]:
+    n = len(value.values)
+    try:
+        return (_TAG_INT_ARRAY + wire.U32.pack(n) + _i64s(n).pack(*value.values),)
+    except struct.error as exc:
+        raise UsageError(f"IntArray: {exc}") from None
+
+
+def _enc_joints(value: Joints) -> tuple[bytes, ...]:
+    n = len(value.values)
+    return (_TAG_JOINTS + wire.U8.pack(n) + _f64s(n).pack(*value.values),)
+
+
+def _enc_location(value: Location) -> tuple[bytes, ...]:
+    return (_TAG_LOCATION + wire.LOCATION.pack(*value.as_tuple()),)
+
+
+def _enc_transform(value: Transform) -> tuple[bytes, ...]:
+    return (_TAG_TRANSFORM + wire.TRANSFORM.pack(*value.values),)
+
+
+def _enc_matrix(value: Matrix) -> tuple[bytes, ...]:
+    shape = wire.MATRIX_SHAPE.pack(value.rows, value.cols)
+    return (_TAG_MATRIX + shape + _f64s(len(value.values)).pack(*value.values),)
+
+
+def _enc_image(value: Image) -> tuple[bytes, ...]:
     meta = wire.IMAGE_HEADER.pack(
         value.width, value.height, int(value.format), int(value.order), len(value.data)
     )
-    return (head + meta, value.data)
+    return (_TAG_IMAGE + meta, value.data)
+
+
+_TAG_INT, _TAG_FLOAT, _TAG_STRING, _TAG_BYTES, _TAG_FLOAT_ARRAY, _TAG_INT_ARRAY = (
+    wire.TAG.pack(t)
+    for t in (
+        ParamType.INT,
+        ParamType.FLOAT,
+        ParamType.STRING,
+        ParamType.BYTES,
+        ParamType.FLOAT_ARRAY,
+        ParamType.INT_ARRAY,
+    )
+)
+_TAG_JOINTS, _TAG_LOCATION, _TAG_TRANSFORM, _TAG_MATRIX, _TAG_IMAGE = (
+    wire.TAG.pack(t)
+    for t in (
+        ParamType.JOINTS,
+        ParamType.LOCATION,
+        ParamType.TRANSFORM,
+        ParamType.MATRIX,
+        ParamType.IMAGE,
+    )
+)
+_ENCODERS: dict[type, Callable[[Any], tuple[bytes, ...]]] = {
+    bool: _enc_bool,
+    int: _enc_int,
+    float: _enc_float,
+    str: _enc_str,
+    bytes: _enc_bytes,
+    FloatArray: _enc_float_array,
+    IntArray: _enc_int_array,
+    Joints: _enc_joints,
+    Location: _enc_location,
+    Transform: _enc_transform,
+    Matrix: _enc_matrix,
+    Image: _enc_image,
+}
 
 
 # --- decoding ---------------------------------------------------------------------------------
@@ -297,106 +371,141 @@ def _encode_value(value: Value) -> tuple[bytes, ...]:
 def decode_params(payload: bytes | memoryview) -> tuple[Value, ...]:
     """Decode a whole payload into its parameter list [RS-4.1]; raise :class:`ParameterError`."""
     buf = memoryview(payload)
-    if len(buf) < wire.PARAM_COUNT.size:
+    end = len(buf)
+    if end < wire.PARAM_COUNT.size:
         raise ParameterError("payload shorter than the 2-byte parameter count")
     (count,) = wire.PARAM_COUNT.unpack_from(buf, 0)
     pos = wire.PARAM_COUNT.size
     values: list[Value] = []
     for index in range(count):
-        value, pos = _decode_value(buf, pos, index)
+        if pos >= end:
+            raise ParameterError(f"parameter {index} (type tag) truncated")
+        decoder = _DECODERS.get(buf[pos])
+        if decoder is None:
+            raise ParameterError(f"parameter {index}: unknown type tag 0x{buf[pos]:02x}")
+        value, pos = decoder(buf, pos + 1, index)
         values.append(value)
-    if pos != len(buf):
+    if pos != end:
         # [RS-4.3] the parameter list must fill the payload exactly.
-        raise ParameterError(f"{len(buf) - pos} unexpected bytes after {count} parameters")
+        raise ParameterError(f"{end - pos} unexpected bytes after {count} parameters")
     return tuple(values)
 
 
-_TAGS = {int(t): t for t in ParamType}
+# One decoder per type tag: (buffer, position after the tag, parameter index) -> (value, next
+# position). A table instead of an if-chain: decoding a small reply is on every round trip.
+_Decoded = tuple["Value", int]
 
 
-def _need(buf: memoryview, pos: int, size: int, index: int, what: str) -> None:
+def _need(buf: memoryview, pos: int, size: int, index: int, tag: ParamType) -> None:
     if pos + size > len(buf):
-        raise ParameterError(f"parameter {index} ({what}) truncated")
+        raise ParameterError(f"parameter {index} ({tag.name}) truncated")
 
 
-def _finite(values: tuple[float, ...], index: int, what: str) -> None:
-    if not all(math.isfinite(v) for v in values):
-        raise ParameterError(f"parameter {index} ({what}) must be finite")
+def _finite(values: tuple[float, ...], index: int, tag: ParamType) -> None:
+    if not all(map(math.isfinite, values)):
+        raise ParameterError(f"parameter {index} ({tag.name}) must be finite")
 
 
-def _decode_value(buf: memoryview, pos: int, index: int) -> tuple[Value, int]:
-    _need(buf, pos, 1, index, "type tag")
-    raw_tag = buf[pos]
-    pos += 1
-    tag = _TAGS.get(raw_tag)
-    if tag is None:
-        raise ParameterError(f"parameter {index}: unknown type tag 0x{raw_tag:02x}")
-    name = tag.name
-    if tag is ParamType.INT:
-        _need(buf, pos, 8, index, name)
-        return wire.I64.unpack_from(buf, pos)[0], pos + 8
-    if tag is ParamType.FLOAT:
-        _need(buf, pos, 8, index, name)
-        return wire.F64.unpack_from(buf, pos)[0], pos + 8
-    if tag is ParamType.BOOL:
-        _need(buf, pos, 1, index, name)
-        if buf[pos] > 1:
-            raise ParameterError(f"parameter {index}: BOOL must be 0 or 1, got {buf[pos]}")
-        return buf[pos] == 1, pos + 1
-    if tag in (ParamType.STRING, ParamType.BYTES):
-        _need(buf, pos, 4, index, name)
-        (n,) = wire.U32.unpack_from(buf, pos)
-        pos += 4
-        _need(buf, pos, n, index, name)
-        raw = bytes(buf[pos : pos + n])
-        if tag is ParamType.BYTES:
-            return raw, pos + n
-        try:
-            return raw.decode("utf-8"), pos + n
-        except UnicodeDecodeError:
-            raise ParameterError(f"parameter {index}: STRING is not valid UTF-8") from None
-    if tag in (ParamType.FLOAT_ARRAY, ParamType.INT_ARRAY):
-        _need(buf, pos, 4, index, name)
-        (n,) = wire.U32.unpack_from(buf, pos)
-        pos += 4
-        _need(buf, pos, 8 * n, index, name)
-        code = "d" if tag is ParamType.FLOAT_ARRAY else "q"
-        vals = struct.unpack_from(f">{n}{code}", buf, pos)
-        if code == "d":
-            return _trusted(FloatArray, values=vals), pos + 8 * n
-        return _trusted(IntArray, values=vals), pos + 8 * n
-    if tag is ParamType.JOINTS:
-        _need(buf, pos, 1, index, name)
-        n = buf[pos]
-        pos += 1
-        if not 1 <= n <= wire.MAX_JOINTS:
-            raise ParameterError(f"parameter {index}: JOINTS count {n} not in 1..16")
-        _need(buf, pos, 8 * n, index, name)
-        joints = struct.unpack_from(f">{n}d", buf, pos)
-        _finite(joints, index, name)
-        return _trusted(Joints, values=joints), pos + 8 * n
-    if tag is ParamType.LOCATION:
-        _need(buf, pos, wire.LOCATION.size, index, name)
-        loc = wire.LOCATION.unpack_from(buf, pos)
-        _finite(loc, index, name)
-        return Location(*loc), pos + wire.LOCATION.size
-    if tag is ParamType.TRANSFORM:
-        _need(buf, pos, wire.TRANSFORM.size, index, name)
-        t = wire.TRANSFORM.unpack_from(buf, pos)
-        _finite(t, index, name)
-        if t[12:] != (0.0, 0.0, 0.0, 1.0):
-            raise ParameterError(f"parameter {index}: TRANSFORM last row must be 0 0 0 1")
-        return _trusted(Transform, values=t), pos + wire.TRANSFORM.size
-    if tag is ParamType.MATRIX:
-        _need(buf, pos, wire.MATRIX_SHAPE.size, index, name)
-        rows, cols = wire.MATRIX_SHAPE.unpack_from(buf, pos)
-        pos += wire.MATRIX_SHAPE.size
-        n = rows * cols
-        _need(buf, pos, 8 * n, index, name)
-        vals = struct.unpack_from(f">{n}d", buf, pos)
-        return _trusted(Matrix, rows=rows, cols=cols, values=vals), pos + 8 * n
-    # IMAGE
-    _need(buf, pos, wire.IMAGE_HEADER.size, index, name)
+@functools.cache
+def _f64s(n: int) -> struct.Struct:
+    return struct.Struct(f">{n}d")
+
+
+@functools.cache
+def _i64s(n: int) -> struct.Struct:
+    return struct.Struct(f">{n}q")
+
+
+def _dec_int(buf: memoryview, pos: int, index: int) -> _Decoded:
+    _need(buf, pos, 8, index, ParamType.INT)
+    return wire.I64.unpack_from(buf, pos)[0], pos + 8
+
+
+def _dec_float(buf: memoryview, pos: int, index: int) -> _Decoded:
+    _need(buf, pos, 8, index, ParamType.FLOAT)
+    return wire.F64.unpack_from(buf, pos)[0], pos + 8
+
+
+def _dec_bool(buf: memoryview, pos: int, index: int) -> _Decoded:
+    _need(buf, pos, 1, index, ParamType.BOOL)
+    if buf[pos] > 1:
+        raise ParameterError(f"parameter {index}: BOOL must be 0 or 1, got {buf[pos]}")
+    return buf[pos] == 1, pos + 1
+
+
+def _counted(buf: memoryview, pos: int, index: int, tag: ParamType, size: int) -> int:
+    """The u32 count at ``pos``, checked against the bytes left for ``size``-byte items."""
+    _need(buf, pos, 4, index, tag)
+    (n,) = wire.U32.unpack_from(buf, pos)
+    _need(buf, pos + 4, n * size, index, tag)
+    return int(n)
+
+
+def _dec_bytes(buf: memoryview, pos: int, index: int) -> _Decoded:
+    n = _counted(buf, pos, index, ParamType.BYTES, 1)
+    return bytes(buf[pos + 4 : pos + 4 + n]), pos + 4 + n
+
+
+def _dec_string(buf: memoryview, pos: int, index: int) -> _Decoded:
+    n = _counted(buf, pos, index, ParamType.STRING, 1)
+    try:
+        return str(buf[pos + 4 : pos + 4 + n], "utf-8"), pos + 4 + n
+    except UnicodeDecodeError:
+        raise ParameterError(f"parameter {index}: STRING is not valid UTF-8") from None
+
+
+def _dec_float_array(buf: memoryview, pos: int, index: int) -> _Decoded:
+    n = _counted(buf, pos, index, ParamType.FLOAT_ARRAY, 8)
+    vals = _f64s(n).unpack_from(buf, pos + 4)
+    return _trusted(FloatArray, values=vals), pos + 4 + 8 * n
+
+
+def _dec_int_array(buf: memoryview, pos: int, index: int) -> _Decoded:
+    n = _counted(buf, pos, index, ParamType.INT_ARRAY, 8)
+    vals = _i64s(n).unpack_from(buf, pos + 4)
+    return _trusted(IntArray, values=vals), pos + 4 + 8 * n
+
+
+def _dec_joints(buf: memoryview, pos: int, index: int) -> _Decoded:
+    _need(buf, pos, 1, index, ParamType.JOINTS)
+    n = buf[pos]
+    if not 1 <= n <= wire.MAX_JOINTS:
+        raise ParameterError(f"parameter {index}: JOINTS count {n} not in 1..16")
+    _need(buf, pos + 1, 8 * n, index, ParamType.JOINTS)
+    joints = _f64s(n).unpack_from(buf, pos + 1)
+    _finite(joints, index, ParamType.JOINTS)
+    return _trusted(Joints, values=joints), pos + 1 + 8 * n
+
+
+def _dec_location(buf: memoryview, pos: int, index: int) -> _Decoded:
+    _need(buf, pos, wire.LOCATION.size, index, ParamType.LOCATION)
+    loc = wire.LOCATION.unpack_from(buf, pos)
+    _finite(loc, index, ParamType.LOCATION)
+    value = _trusted(Location, x=loc[0], y=loc[1], z=loc[2], rx=loc[3], ry=loc[4], rz=loc[5])
+    return value, pos + wire.LOCATION.size
+
+
+def _dec_transform(buf: memoryview, pos: int, index: int) -> _Decoded:
+    _need(buf, pos, wire.TRANSFORM.size, index, ParamType.TRANSFORM)
+    t = wire.TRANSFORM.unpack_from(buf, pos)
+    _finite(t, index, ParamType.TRANSFORM)
+    if t[12:] != (0.0, 0.0, 0.0, 1.0):
+        raise ParameterError(f"parameter {index}: TRANSFORM last row must be 0 0 0 1")
+    return _trusted(Transform, values=t), pos + wire.TRANSFORM.size
+
+
+def _dec_matrix(buf: memoryview, pos: int, index: int) -> _Decoded:
+    _need(buf, pos, wire.MATRIX_SHAPE.size, index, ParamType.MATRIX)
+    rows, cols = wire.MATRIX_SHAPE.unpack_from(buf, pos)
+    pos += wire.MATRIX_SHAPE.size
+    n = rows * cols
+    _need(buf, pos, 8 * n, index, ParamType.MATRIX)
+    vals = _f64s(n).unpack_from(buf, pos)
+    return _trusted(Matrix, rows=rows, cols=cols, values=vals), pos + 8 * n
+
+
+def _dec_image(buf: memoryview, pos: int, index: int) -> _Decoded:
+    _need(buf, pos, wire.IMAGE_HEADER.size, index, ParamType.IMAGE)
     width, height, fmt, order, n = wire.IMAGE_HEADER.unpack_from(buf, pos)
     pos += wire.IMAGE_HEADER.size
     try:
@@ -406,6 +515,25 @@ def _decode_value(buf: memoryview, pos: int, index: int) -> tuple[Value, int]:
         raise ParameterError(msg) from None
     if n != width * height * wire.BYTES_PER_PIXEL[pixel_format]:
         raise ParameterError(f"parameter {index}: IMAGE length {n} != width*height*bpp")
-    _need(buf, pos, n, index, name)
-    image = Image(width, height, bytes(buf[pos : pos + n]), pixel_format, pixel_order)
+    _need(buf, pos, n, index, ParamType.IMAGE)
+    data = bytes(buf[pos : pos + n])
+    image = _trusted(
+        Image, width=width, height=height, data=data, format=pixel_format, order=pixel_order
+    )
     return image, pos + n
+
+
+_DECODERS: dict[int, Callable[[memoryview, int, int], _Decoded]] = {
+    ParamType.INT: _dec_int,
+    ParamType.FLOAT: _dec_float,
+    ParamType.BOOL: _dec_bool,
+    ParamType.STRING: _dec_string,
+    ParamType.BYTES: _dec_bytes,
+    ParamType.FLOAT_ARRAY: _dec_float_array,
+    ParamType.INT_ARRAY: _dec_int_array,
+    ParamType.JOINTS: _dec_joints,
+    ParamType.LOCATION: _dec_location,
+    ParamType.TRANSFORM: _dec_transform,
+    ParamType.MATRIX: _dec_matrix,
+    ParamType.IMAGE: _dec_image,
+}

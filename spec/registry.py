@@ -27,6 +27,7 @@ class CommandId(IntEnum):
     TAKE_CONTROL = 0x0003
     RELEASE_CONTROL = 0x0004
     GET_TIME = 0x0005
+    SET_FRAME_CRC = 0x0006
 
     ROBOT_STATUS = 0x1001
     HEREJ = 0x1002
@@ -169,6 +170,14 @@ COMMANDS: tuple[CommandSpec, ...] = (
         "common",
         "The server's clock: the time base of every timestamp it sends.",
         reply=(P("time", T.FLOAT, "s", "server clock, monotonic"),),
+    ),
+    CommandSpec(
+        CommandId.SET_FRAME_CRC,
+        "SetFrameCrc",
+        "common",
+        "Turn the CRC of the frames the server sends on this connection off or on (1.1).",
+        params=(P("enabled", T.BOOL, "", "false: later frames carry NO_CRC and a zero trailer"),),
+        reply=(P("enabled", T.BOOL, "", "the setting now in force"),),
     ),
     # --- robot --------------------------------------------------------------------------
     CommandSpec(

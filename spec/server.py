@@ -17,7 +17,6 @@ import logging
 import selectors
 import signal
 import socket
-import struct
 import threading
 import time
 from collections import Counter
@@ -27,10 +26,18 @@ from types import FrameType
 from typing import Any
 
 from spec import wire
-from spec.codec import FrameDecoder, Packet, Rejected, encode_packet, error_packet
+from spec.codec import (
+    LARGE_FRAME,
+    FrameDecoder,
+    Packet,
+    Rejected,
+    encode_packet_parts,
+    error_packet,
+)
 from spec.errors import ErrorCode, PeerError, ProtocolError
 from spec.params import IntArray, Value
 from spec.registry import CommandId, CommandSpec, check_params, commands_for, lookup
+from spec.sockopt import set_kernel_timeouts
 from spec.wire import PacketKind
 
 log = logging.getLogger(__name__)
@@ -92,20 +99,31 @@ class Session:
         self.id = next(server._session_ids)
         self._send_lock = threading.Lock()
         self.closed = False
+        #: False after SetFrameCrc(false): frames to this client carry NO_CRC [RS-3.16].
+        self.crc = True
 
     @property
     def in_control(self) -> bool:
         return self.server.control_holder is self
 
     def send(self, packet: Packet) -> None:
-        self.send_encoded(encode_packet(packet, max_payload=wire.MAX_PAYLOAD))
+        self.send_parts(encode_packet_parts(packet, wire.MAX_PAYLOAD, crc=self.crc))
 
     def send_encoded(self, data: bytes) -> None:
+        self.send_parts([data])
+
+    def send_parts(self, parts: list[bytes]) -> None:
+        """Send one encoded frame given as pieces: small frames joined and sent at once,
+        large ones (images) handed to the kernel piece by piece, never copied here."""
+        size = sum(map(len, parts))
         # Counted before sending: a client that reads statistics() right after the reply
         # must find it counted.
-        self.server._count("bytes_out", len(data))
+        self.server._count("bytes_out", size)
         with self._send_lock:
-            self.sock.sendall(data)
+            if size < LARGE_FRAME or not hasattr(self.sock, "sendmsg"):
+                self.sock.sendall(parts[0] if len(parts) == 1 else b"".join(parts))
+            else:
+                _sendmsg_all(self.sock, parts)
 
     def __repr__(self) -> str:
         return f"<Session {self.id} {self.peer[0]}:{self.peer[1]}>"
@@ -302,7 +320,9 @@ class FramedServer:
         # Blocking reads that wake up every ``tick`` (SO_RCVTIMEO) cost one system call per
         # request instead of the three of a Python socket timeout; deadlines are checked on
         # each wake-up, so they are kept to within a tick.
-        ticking = _set_tick(sock, min(1.0, policy.frame_timeout / 5, policy.idle_timeout / 5))
+        ticking = set_kernel_timeouts(
+            sock, min(1.0, policy.frame_timeout / 5, policy.idle_timeout / 5)
+        )
         last_byte = frame_start = time.monotonic()
         while not self._shutdown.is_set():
             now = time.monotonic()
@@ -391,6 +411,7 @@ class FramedServer:
     def _dispatch(self, session: Session, packet: Packet) -> None:
         with self._lock:
             self._stats["frames_in"] += 1
+        crc = session.crc  # the reply to SetFrameCrc goes out as before it [RS-3.16]
         try:
             params = self._execute(session, packet)
         except ProtocolError as exc:
@@ -407,7 +428,7 @@ class FramedServer:
             return
         reply = Packet(PacketKind.REPLY, packet.command, packet.request_id, params)
         try:
-            data = encode_packet(reply, max_payload=wire.MAX_PAYLOAD)
+            parts = encode_packet_parts(reply, wire.MAX_PAYLOAD, crc=crc)
         except ProtocolError as exc:  # reply too large to encode: a server-side bug
             self.handler_errors.append(exc)
             self._send_error(
@@ -415,7 +436,7 @@ class FramedServer:
             )
             return
         self._count("replies")  # before sending, so statistics() never lags a received reply
-        session.send_encoded(data)
+        session.send_parts(parts)
 
     def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
         service = self.service.identity.service
@@ -488,6 +509,11 @@ class FramedServer:
     def _get_time(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
         return (float(self.service.clock()),)
 
+    def _set_frame_crc(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        session.crc = bool(params[0])
+        log.info("session %d: frame CRC %s", session.id, "on" if session.crc else "off")
+        return (session.crc,)
+
 
 _Handler = Callable[[FramedServer, Session, tuple[Value, ...]], tuple[Value, ...]]
 _COMMON: dict[int, _Handler] = {
@@ -496,20 +522,20 @@ _COMMON: dict[int, _Handler] = {
     CommandId.TAKE_CONTROL: FramedServer._take_control,
     CommandId.RELEASE_CONTROL: FramedServer._release_control,
     CommandId.GET_TIME: FramedServer._get_time,
+    CommandId.SET_FRAME_CRC: FramedServer._set_frame_crc,
 }
 
 
-def _set_tick(sock: socket.socket, seconds: float) -> bool:
-    """Make ``sock`` blocking with receive and send timeouts of ``seconds`` (BlockingIOError
-    when one expires); False where the platform does not take them (Python timeouts then)."""
-    try:
-        timeval = struct.pack("ll", int(seconds), int((seconds % 1.0) * 1e6))
-        sock.settimeout(None)
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, timeval)
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, timeval)
-    except (OSError, struct.error):
-        return False
-    return True
+def _sendmsg_all(sock: socket.socket, parts: list[bytes]) -> None:
+    """``sendall`` for a list of buffers: ``sendmsg`` until every byte is out."""
+    views = [memoryview(p) for p in parts if p]
+    while views:
+        sent = sock.sendmsg(views)
+        while views and sent >= len(views[0]):
+            sent -= len(views[0])
+            views.pop(0)
+        if sent:
+            views[0] = views[0][sent:]
 
 
 def _close_quietly(sock: socket.socket) -> None:

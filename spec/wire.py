@@ -22,6 +22,9 @@ MAGIC = b"RS"
 HEADER = struct.Struct(">2sBBBBHII")
 #: Frame trailer: CRC-32 (IEEE 802.3, as zlib.crc32) over header and payload [RS-3.6].
 TRAILER = struct.Struct(">I")
+#: Flags bit: this frame's trailer is 0, not a CRC (a connection where the client turned CRCs
+#: off with SetFrameCrc) [RS-3.15]. Every other flag bit is reserved and 0 [RS-3.7].
+FLAG_NO_CRC = 0x01
 HEADER_SIZE = HEADER.size  # 16
 TRAILER_SIZE = TRAILER.size  # 4
 FRAME_OVERHEAD = HEADER_SIZE + TRAILER_SIZE

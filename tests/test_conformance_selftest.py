@@ -287,19 +287,20 @@ def send_hook(monkeypatch: pytest.MonkeyPatch) -> Any:
     """Install a byte-level rewrite of every frame one server sends."""
 
     def install(server: FramedServer, mangle: Any) -> None:
-        original = Session.send_encoded
+        original = Session.send_parts
 
-        def send_encoded(self: Session, data: bytes) -> None:
+        def send_parts(self: Session, parts: list[bytes]) -> None:
             if self.server is not server:
-                original(self, data)
+                original(self, parts)
                 return
-            data = mangle(data, decode_packet(data))
+            frame = b"".join(parts)
+            data = mangle(frame, decode_packet(frame))
             if data:
                 with self._send_lock:
                     self.sock.sendall(data)
 
-        # Every frame a server sends goes through Session.send_encoded.
-        monkeypatch.setattr(Session, "send_encoded", send_encoded)
+        # Every frame a server sends goes through Session.send_parts.
+        monkeypatch.setattr(Session, "send_parts", send_parts)
 
     return install
 
@@ -1089,3 +1090,26 @@ def test_silent_udp_endpoint_gives_timeouts_not_fails() -> None:
     result = sync_check(MiniTriggerListener(drop_every=1), ("sync.trigger.*", "sync.duplicate.*"))
     assert {r.outcome for r in result.results} == {Outcome.TIMEOUT}
     assert exit_code(result) == 4
+
+
+def test_set_frame_crc_that_keeps_the_crc_is_caught(monkeypatch: Any) -> None:
+    import spec.server
+
+    def says_off_keeps_crc(self: FramedServer, session: Session, params: tuple[Any, ...]) -> Any:
+        return (bool(params[0]),)  # reports the new setting, never applies it
+
+    monkeypatch.setitem(spec.server._COMMON, C.SET_FRAME_CRC, says_off_keeps_crc)
+    server = FramedServer(MiniRobot(), policy=POLICY)
+    with serving(server) as address:
+        result = check("robot", address, ("framing.no_crc",))
+    _caught(result, "framing.no_crc")
+
+
+def test_server_without_set_frame_crc_is_not_applicable(monkeypatch: Any) -> None:
+    import spec.server
+
+    monkeypatch.delitem(spec.server._COMMON, C.SET_FRAME_CRC)
+    server = FramedServer(MiniRobot(), policy=POLICY)
+    with serving(server) as address:
+        result = check("robot", address, ("framing.no_crc",))
+    assert outcomes(result)["framing.no_crc"] is Outcome.NOT_APPLICABLE

@@ -296,3 +296,82 @@ def test_statistics_account_for_frames_and_errors(server: FramedServer) -> None:
     stats = server.statistics()
     assert stats["frames_in"] == 2 and stats["replies"] == 1 and stats["errors_sent"] == 1
     assert stats["connections"] == 1
+
+
+# --- frames without CRC (SetFrameCrc, PROTOCOL.md 3.1) and large frames received in place ----
+
+
+def test_frame_crc_off_sends_no_crc_frames_on_that_connection_only(server: FramedServer) -> None:
+    big = bytes(range(256)) * 1024  # 256 KiB: the in-place receive path
+    with FramedClient(*server.address, frame_crc=False) as c, FramedClient(*server.address) as d:
+        assert not c.frame_crc_active and d.frame_crc_active
+        assert c.ping(big) == big and c.ping(b"x") == b"x"
+        assert d.ping(big) == big
+        # Raw bytes: a third connection turns CRCs off and reads the flag and the trailer.
+        s = raw_conn(server)
+        s.sendall(encode_packet(request(CommandId.SET_FRAME_CRC, 1, False)))
+        s.sendall(encode_packet(request(CommandId.PING, 2, b"abc")))
+        raw = b""
+        while len(raw) < 2 * wire.FRAME_OVERHEAD + 4 + 10:  # the two replies
+            raw += s.recv(65536)
+        s.close()
+    first_len = wire.FRAME_OVERHEAD + wire.HEADER.unpack_from(raw)[7]
+    first, second = raw[:first_len], raw[first_len:]
+    assert first[5] == 0 and decode_reply(first) == (False,)  # [RS-3.16] its own reply: CRC
+    assert second[5] == wire.FLAG_NO_CRC and second[-4:] == b"\0\0\0\0"
+    decoder = FrameDecoder(accept_no_crc=True)
+    decoder.feed(second)
+    packet = decoder.next_event()
+    assert isinstance(packet, Packet) and packet.params == (b"abc",)
+
+
+def decode_reply(frame: bytes) -> tuple[Value, ...]:
+    decoder = FrameDecoder()
+    decoder.feed(frame)
+    packet = decoder.next_event()
+    assert isinstance(packet, Packet)
+    return packet.params
+
+
+def test_no_crc_frame_is_refused_where_crcs_were_not_turned_off() -> None:
+    frame = encode_packet(Packet(PacketKind.REPLY, CommandId.PING, 7, (b"z",)), crc=False)
+    decoder = FrameDecoder()
+    decoder.feed(frame)
+    event = decoder.next_event()
+    assert not isinstance(event, Packet) and event is not None
+    assert event.code is ErrorCode.BAD_CRC  # [RS-3.17] the trailer is checked as usual
+
+
+def test_frame_crc_off_falls_back_when_the_server_lacks_set_frame_crc(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import spec.server
+
+    monkeypatch.delitem(spec.server._COMMON, CommandId.SET_FRAME_CRC)
+    with FramedServer(EchoRobot()) as srv, FramedClient(*srv.address, frame_crc=False) as c:
+        assert c.frame_crc_active  # [RS-3.15] a 1.0 server keeps its CRCs
+        assert c.ping(b"still fine") == b"still fine"
+
+
+@pytest.mark.parametrize("piece", [1, 7, 4096, 70_000])
+def test_large_frame_received_in_place_in_any_pieces(piece: int) -> None:
+    payload = bytes(range(251)) * 600  # ~150 KB, above LARGE_FRAME
+    frames = encode_packet(request(CommandId.PING, 1, payload)) + encode_packet(
+        request(CommandId.PING, 2, b"next")
+    )
+    decoder = FrameDecoder(max_payload=wire.MAX_PAYLOAD)
+    got: list[Packet] = []
+    pos = 0
+    while pos < len(frames):
+        view = decoder.get_buffer()
+        if view is None:
+            decoder.feed(frames[pos : pos + piece])
+            pos += piece
+        else:
+            n = min(piece, len(view), len(frames) - pos)
+            view[:n] = frames[pos : pos + n]
+            decoder.buffer_updated(n)
+            pos += n
+        got.extend(e for e in decoder.events() if isinstance(e, Packet))
+    assert [p.params for p in got] == [(payload,), (b"next",)]
+    assert decoder.buffered == 0 and not decoder.in_frame

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import struct
+import time
 import zlib
 
 from conformance.connection import Closed, Conn
@@ -47,6 +48,32 @@ def raw_frame(
     if not crc_ok:
         framed = framed[:-1] + bytes([framed[-1] ^ 0xFF])
     return framed
+
+
+def read_raw_frame(conn: Conn, timeout: float, *, header_only: bool = False) -> bytes:
+    """The bytes of the next frame as they arrived (the decoder would hide header fields);
+    only its header with ``header_only``. Raise EndpointTimeout when it does not arrive."""
+    deadline = time.monotonic() + timeout
+    raw = b""
+    need = wire.HEADER_SIZE
+    while len(raw) < need:
+        remaining = deadline - time.monotonic()
+        if remaining <= 0:
+            break
+        conn.sock.settimeout(remaining)
+        try:
+            chunk = conn.sock.recv(65536)
+        except TimeoutError:
+            break
+        if not chunk:
+            break
+        conn.log.add("<-", conn.number, chunk)
+        raw += chunk
+        if not header_only and len(raw) >= wire.HEADER_SIZE:
+            need = wire.HEADER_SIZE + wire.HEADER.unpack_from(raw)[7] + wire.TRAILER_SIZE
+    if len(raw) < need:
+        raise EndpointTimeout(f"only {len(raw)} of {need} bytes of a frame arrived")
+    return raw
 
 
 def retarget(frame: bytes, command: int) -> bytes:

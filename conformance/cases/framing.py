@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import itertools
 import math
-import time
+import zlib
 
-from conformance.cases._util import fatal_check, raw_frame, recoverable_check
+from conformance.cases._util import fatal_check, raw_frame, read_raw_frame, recoverable_check
+from conformance.connection import Conn
 from conformance.context import Context
-from conformance.model import EndpointTimeout, Fail, Informational, case
+from conformance.model import Fail, Informational, case
 from spec import wire
-from spec.codec import encode_packet, request
+from spec.codec import FrameDecoder, Packet, encode_packet, request
 from spec.errors import ErrorCode
 from spec.registry import CommandId as C
 from spec.wire import PacketKind
@@ -30,21 +31,7 @@ def byte_order_header(ctx: Context) -> None:
     conn = ctx.connect()
     rid = 0x01020304
     conn.send(raw_frame(C.PING, rid, (b"\xaa\xbb\xcc",)), "Ping id 0x01020304")
-    deadline = time.monotonic() + ctx.timeout
-    # Read the raw bytes ourselves: the decoder would hide which field is wrong.
-    raw = b""
-    conn.sock.settimeout(ctx.timeout)
-    while len(raw) < wire.HEADER_SIZE and time.monotonic() < deadline:
-        try:
-            chunk = conn.sock.recv(65536)
-        except TimeoutError:
-            break
-        if not chunk:
-            break
-        conn.log.add("<-", conn.number, chunk)
-        raw += chunk
-    if len(raw) < wire.HEADER_SIZE:
-        raise EndpointTimeout(f"only {len(raw)} bytes of a reply header arrived")
+    raw = read_raw_frame(conn, ctx.timeout, header_only=True)
     magic, major, _minor, kind, flags, command, got_rid, length = wire.HEADER.unpack_from(raw)
     expected = (b"RS", 1, PacketKind.REPLY, 0, C.PING, rid, 2 + 1 + 4 + 3)
     actual = (magic, major, kind, flags, command, got_rid, length)
@@ -173,9 +160,14 @@ def kind_not_request(ctx: Context) -> None:
         )
 
 
-@case("framing.flags.nonzero", requirements=["RS-3.7", "RS-3.9"], tags=["framing", "errors"])
+@case(
+    "framing.flags.nonzero",
+    requirements=["RS-3.7", "RS-3.9", "RS-3.17"],
+    tags=["framing", "errors"],
+)
 def flags_nonzero(ctx: Context) -> None:
-    """Reserved flags other than 0 get BAD_FRAME; the connection goes on."""
+    """Flags 0x01 on a request (NO_CRC is for server frames only) get BAD_FRAME; the connection
+    goes on."""
     frame = raw_frame(C.PING, 33, (), flags=0x01)
     recoverable_check(ctx, frame, 33, C.PING, ErrorCode.BAD_FRAME, "a frame with flags 0x01")
 
@@ -285,3 +277,67 @@ def request_encoding(ctx: Context) -> None:
     answer = conn.recv_packet()
     if answer.params[:1] != (b"codec",):
         raise Fail("Ping through the reference codec not echoed", b"codec", answer.params)
+
+
+def _no_crc_ping(ctx: Context, conn: Conn, rid: int, no_crc: bool) -> None:
+    """Ping on ``conn``; its reply must (not) carry the NO_CRC flag and a zero trailer."""
+    conn.send(raw_frame(C.PING, rid, (b"nocrc",)), f"Ping id {rid}")
+    raw = read_raw_frame(conn, ctx.timeout)
+    flags = raw[5]
+    (trailer,) = wire.TRAILER.unpack_from(raw, len(raw) - wire.TRAILER_SIZE)
+    crc_ok = zlib.crc32(raw[: -wire.TRAILER_SIZE]) == trailer
+    if no_crc and (flags != wire.FLAG_NO_CRC or trailer != 0):
+        raise Fail(
+            "after SetFrameCrc(false) a reply still carries a CRC",
+            "flags 0x01 (NO_CRC) and a trailer of 00 00 00 00",
+            f"flags 0x{flags:02x}, trailer {trailer:08x}",
+            requirement="RS-3.16",
+        )
+    if not no_crc and (flags != 0 or not crc_ok):
+        raise Fail(
+            "a reply that should carry its CRC-32 does not",
+            "flags 0x00 and the CRC-32 of header and payload",
+            f"flags 0x{flags:02x}, trailer {trailer:08x}",
+            requirement="RS-3.16",
+        )
+    decoder = FrameDecoder(accept_no_crc=no_crc)
+    decoder.feed(raw)
+    packet = decoder.next_event()
+    if not isinstance(packet, Packet):
+        what = "incomplete" if packet is None else packet.error.message
+        raise Fail("the Ping reply is not a valid frame", "a Ping reply", what)
+    if packet.request_id != rid or packet.params != (b"nocrc",):
+        raise Fail(
+            "the Ping reply does not echo request and bytes",
+            f"id {rid}, data b'nocrc'",
+            f"id {packet.request_id}, params {packet.params!r}",
+            requirement="RS-5.8",
+        )
+
+
+@case(
+    "framing.no_crc",
+    requirements=["RS-3.15", "RS-3.16", "RS-3.6"],
+    tags=["framing"],
+    commands=[C.SET_FRAME_CRC],
+)
+def no_crc(ctx: Context) -> str:
+    """SetFrameCrc(false): later frames on that connection carry NO_CRC and a zero trailer,
+    its own reply and other connections keep their CRC; SetFrameCrc(true) restores it."""
+    ctx.require(C.SET_FRAME_CRC)
+    conn = ctx.connect()
+    other = ctx.connect()
+    # The harness decoder checks CRCs: a reply arriving here had a valid one.
+    (enabled,) = conn.ok(C.SET_FRAME_CRC, False)
+    if enabled is not False:
+        raise Fail("SetFrameCrc(false) did not report CRCs off", "enabled false", enabled)
+    _no_crc_ping(ctx, conn, 501, no_crc=True)
+    _no_crc_ping(ctx, other, 502, no_crc=False)
+    # The reply to SetFrameCrc(true) still goes out without CRC, the next one with it.
+    conn.decoder.accept_no_crc = True
+    (enabled,) = conn.ok(C.SET_FRAME_CRC, True)
+    conn.decoder.accept_no_crc = False
+    if enabled is not True:
+        raise Fail("SetFrameCrc(true) did not report CRCs on", "enabled true", enabled)
+    _no_crc_ping(ctx, conn, 503, no_crc=False)
+    return "NO_CRC frames after SetFrameCrc(false); CRCs back after SetFrameCrc(true)"
