@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 
-from bench.common import Result, percentile, result, time_per_call
+from bench.common import Result, one_cpu, percentile, result, time_per_call
 from kinematics.robot import get_model
 from robotsocket.client import RobotClient
 from robotsocket.emulator import RobotEmulator
@@ -89,39 +89,64 @@ def _echo_throughput(req: bytes, reply_size: int, seconds: float = 1.0) -> float
     return n / (time.perf_counter() - t0)
 
 
+def _herej_rtt(req: bytes, rep_size: int) -> tuple[list[float], list[float]]:
+    """Round trips (s) of Herej through a fresh server, and of a bare TCP echo of the same
+    byte sizes, alternated in rounds so a busy moment of the machine hits both alike."""
+    rtt: list[float] = []
+    base: list[float] = []
+    lst, _ = _echo_server(rep_size)
+    with (
+        FramedServer(RobotService(RobotEmulator()), "127.0.0.1", 0) as srv,
+        RobotClient(*srv.address) as c,
+        socket.create_connection(lst.getsockname()) as s,
+    ):
+        s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+        def echo() -> None:
+            s.sendall(req)
+            got = 0
+            while got < rep_size:
+                got += len(s.recv(65536))
+
+        for _ in range(200):
+            c.herej()
+            echo()
+        for _ in range(4):
+            rtt += _rtt(c.herej, N_RTT // 4)
+            base += _rtt(echo, N_RTT // 4)
+    lst.close()
+    return rtt, base
+
+
 def run() -> list[Result]:
     results: list[Result] = []
     req = encode_packet(request(CommandId.HEREJ, 1))
     rep_size = len(encode_packet(request(CommandId.HEREJ, 1, Joints([0.0] * 6))))
-    with FramedServer(RobotService(RobotEmulator()), "127.0.0.1", 0) as srv:
-        with RobotClient(*srv.address) as c:
-            for _ in range(200):
-                c.herej()
-            rtt = _rtt(c.herej, N_RTT)
-        lst, _ = _echo_server(rep_size)
-        with socket.create_connection(lst.getsockname()) as s:
-            s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-
-            def echo() -> None:
-                s.sendall(req)
-                got = 0
-                while got < rep_size:
-                    got += len(s.recv(65536))
-
-            for _ in range(200):
-                echo()
-            base = _rtt(echo, N_RTT)
-        lst.close()
-        for p in (50, 99):
-            results.append(
-                result(
-                    f"robot herej round trip p{p}",
-                    percentile(rtt, p) * 1e6,
-                    "us",
-                    f"bare TCP echo ({len(req)} B / {rep_size} B) p{p}",
-                    percentile(base, p) * 1e6,
-                )
+    with one_cpu() as pinned:
+        rtt, base = _herej_rtt(req, rep_size)
+    where = "client and server threads on one CPU" if pinned else "unpinned"
+    for p in (50, 99):
+        results.append(
+            result(
+                f"robot herej round trip p{p} ({where})",
+                percentile(rtt, p) * 1e6,
+                "us",
+                f"bare TCP echo ({len(req)} B / {rep_size} B) p{p}",
+                percentile(base, p) * 1e6,
             )
+        )
+    if pinned:  # context: the same, wherever the scheduler puts the threads
+        rtt, base = _herej_rtt(req, rep_size)
+        results.append(
+            result(
+                "robot herej round trip p50 (unpinned, context)",
+                percentile(rtt, 50) * 1e6,
+                "us",
+                f"bare TCP echo ({len(req)} B / {rep_size} B) p50",
+                percentile(base, 50) * 1e6,
+            )
+        )
+    with FramedServer(RobotService(RobotEmulator()), "127.0.0.1", 0) as srv:
         echo_rate = _echo_throughput(req, rep_size)
         for n in (1, 8, 32):
             rate = _throughput(srv.address, n)

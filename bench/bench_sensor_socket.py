@@ -10,7 +10,7 @@ import zlib
 
 import numpy as np
 
-from bench.common import Result, percentile, result, time_per_call
+from bench.common import Result, one_cpu, percentile, result, time_per_call
 from sensorsocket.client import SensorClient
 from sensorsocket.emulator import CameraEmulator
 from sensorsocket.scene import fixed_pose
@@ -22,7 +22,7 @@ from spec.datagrams import SensorData, Trigger, decode_datagram, encode_trigger
 from spec.server import FramedServer
 from spec.wire import SensorStatus
 
-IMAGE_CALLS = 300
+IMAGE_CALLS = 150  # per round; 5 rounds
 RTT_SAMPLES = 1500
 RATE_HZ = 250.0
 RATE_SECONDS = 2.0
@@ -71,20 +71,18 @@ class _StubSensor:
 # --- GetImage throughput --------------------------------------------------------------------
 
 
-def _get_image_throughput() -> float:
-    sensor = _sensor(zero_time=False)
-    sensor.acquire()
-    server = FramedServer(SensorService(sensor), "127.0.0.1", 0).start()
-    try:
-        with SensorClient(*server.address, timeout=10.0) as client:
-            for _ in range(10):
-                client.get_image_raw()
-            t0 = time.perf_counter()
-            for _ in range(IMAGE_CALLS):
-                _, image = client.get_image_raw()
-            dt = time.perf_counter() - t0
-    finally:
-        server.shutdown()
+def _get_image_throughput(address: tuple[str, int], *, frame_crc: bool) -> float:
+    """MB/s of sequential GetImage calls; ``frame_crc=False`` turns the frame CRC off on the
+    connection (SetFrameCrc, PROTOCOL.md 3.1)."""
+    with SensorClient(*address, timeout=10.0, frame_crc=frame_crc) as client:
+        if client.frame_crc_active != frame_crc:
+            raise RuntimeError("the server did not apply SetFrameCrc")
+        for _ in range(10):
+            client.get_image_raw()
+        t0 = time.perf_counter()
+        for _ in range(IMAGE_CALLS):
+            _, image = client.get_image_raw()
+        dt = time.perf_counter() - t0
     return IMAGE_CALLS * len(image.data) / dt / 1e6
 
 
@@ -266,30 +264,59 @@ def _rate(target: tuple[str, int]) -> tuple[int, int, int]:
 def run() -> list[Result]:
     results: list[Result] = []
     size = 512 * 256
-    ours = _get_image_throughput()
-    bare = _bare_tcp_throughput(size + 64)
-    bare_crc = _bare_tcp_throughput(size + 64, crc=True)
+    sensor = _sensor(zero_time=False)
+    sensor.acquire()
+    server = FramedServer(SensorService(sensor), "127.0.0.1", 0).start()
+    # Interleaved rounds, medians: a busy moment of the machine hits every variant alike.
+    rounds: dict[str, list[float]] = {"crc": [], "no_crc": [], "bare": [], "bare_crc": []}
+    try:
+        for _ in range(5):
+            rounds["bare"].append(_bare_tcp_throughput(size + 64))
+            rounds["crc"].append(_get_image_throughput(server.address, frame_crc=True))
+            rounds["no_crc"].append(_get_image_throughput(server.address, frame_crc=False))
+            rounds["bare_crc"].append(_bare_tcp_throughput(size + 64, crc=True))
+    finally:
+        server.shutdown()
+    ours, no_crc, bare, bare_crc = (
+        percentile(rounds[k], 50) for k in ("crc", "no_crc", "bare", "bare_crc")
+    )
     name = "GetImage 512x256 MONO8 throughput, loopback"
     results.append(result(name, ours, "MB/s", "bare TCP", bare))
     results.append(result(name, ours, "MB/s", "bare TCP + CRC-32 at both ends", bare_crc))
+    results.append(result(f"{name}, frame CRC off", no_crc, "MB/s", "bare TCP", bare))
 
     # Alternate the two in rounds so a busy moment of the machine hits both alike.
     echo: list[float] = []
     stub: list[float] = []
-    for _ in range(3):
-        echo += _bare_echo_rtt(RTT_SAMPLES // 3)
-        stub += _listener_rtt(_StubSensor(), RTT_SAMPLES // 3)
-    full = _listener_rtt(_sensor(zero_time=True), RTT_SAMPLES // 3)
+    with one_cpu() as pinned:
+        for _ in range(3):
+            echo += _bare_echo_rtt(RTT_SAMPLES // 3)
+            stub += _listener_rtt(_StubSensor(), RTT_SAMPLES // 3)
+        full = _listener_rtt(_sensor(zero_time=True), RTT_SAMPLES // 3)
+    where = "sender and listener on one CPU" if pinned else "unpinned"
     echo_p50, echo_p99 = percentile(echo, 50) * 1e6, percentile(echo, 99) * 1e6
     for name, samples in (
-        ("trigger->data RTT, listener + handler (zero-cost sensor)", stub),
-        ("trigger->data RTT, full emulator (render + detect), acquisition time 0", full),
+        (f"trigger->data RTT, listener + handler (zero-cost sensor, {where})", stub),
+        (f"trigger->data RTT, full emulator (render + detect), acquisition time 0, {where}", full),
     ):
         results.append(
             result(f"{name}, p50", percentile(samples, 50) * 1e6, "us", "bare UDP echo", echo_p50)
         )
         results.append(
             result(f"{name}, p99", percentile(samples, 99) * 1e6, "us", "bare UDP echo", echo_p99)
+        )
+
+    if pinned:  # context: the same, wherever the scheduler puts the threads
+        echo_free = _bare_echo_rtt(RTT_SAMPLES // 3)
+        stub_free = _listener_rtt(_StubSensor(), RTT_SAMPLES // 3)
+        results.append(
+            result(
+                "trigger->data RTT, listener + handler (zero-cost sensor, unpinned, context), p50",
+                percentile(stub_free, 50) * 1e6,
+                "us",
+                "bare UDP echo",
+                percentile(echo_free, 50) * 1e6,
+            )
         )
 
     process_s, acquire_s = _process_cost()
