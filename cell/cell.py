@@ -25,7 +25,7 @@ from __future__ import annotations
 import logging
 import math
 import threading
-from collections.abc import Hashable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -40,8 +40,7 @@ from sensorsocket.scene import Joint, Scene, SeamPath, rot_x
 from sensorsocket.sensor import Reading, Sensor
 from sensorsocket.service import SensorService
 from sensorsocket.timing import TimingModel
-from sensorsocket.udp import TriggerHandler, TriggerListener, TriggerReply
-from spec.datagrams import SensorData, decode_datagram, encode_data
+from sensorsocket.udp import TriggerHandler, TriggerListener
 from spec.server import FramedServer
 from spec.wire import SensorStatus
 from sync.interpolate import InterpStatus, interpolate_joints
@@ -140,28 +139,45 @@ class CellTiming:
         return 1.0 / self.poll_rate_hz + self.start_jitter_s + self.network_jitter_s
 
 
+class _NoisySensor:
+    """The sensor as the trigger handler sees it, with extra Gaussian noise on the seam y, z
+    of FOUND readings: the noise goes in before the reply is encoded (no decode and
+    re-encode of the datagram). The sensor's own records and latest reading stay noiseless."""
+
+    def __init__(self, sensor: Sensor, noise_mm: float, rng: np.random.Generator) -> None:
+        self.sensor = sensor
+        self.noise_mm = noise_mm
+        self._rng = rng
+
+    def busy(self, t_arrival: float) -> bool:
+        return self.sensor.busy(t_arrival)
+
+    def acquire(
+        self,
+        t_arrival: float | None = None,
+        *,
+        index: int | None = None,
+        t_trigger: float = math.nan,
+    ) -> Reading:
+        r = self.sensor.acquire(t_arrival, index=index, t_trigger=t_trigger)
+        if self.noise_mm <= 0 or r.status is not SensorStatus.FOUND:
+            return r
+        dy, dz = self._rng.normal(0.0, self.noise_mm, 2)
+        s = r.seam
+        return Reading(
+            r.index, r.status, r.seam2sensor, (s[0], s[1] + dy, s[2] + dz, s[3], s[4], s[5]),
+            r.quality, r.t_trigger, r.t_arrival, r.t_exposure_start, r.t_exposure_end,
+            r.t_done, r.frame, r.points, r.truth_seam2sensor, r.detector_status,
+        )  # fmt: skip
+
+
 class _NoisyHandler(TriggerHandler):
     """The sensor's trigger handler with extra Gaussian noise on the reported seam y, z."""
 
     def __init__(self, sensor: Sensor, *, network_delay_s: float, noise_mm: float,
                  rng: np.random.Generator) -> None:  # fmt: skip
-        super().__init__(sensor, network_delay_s=network_delay_s)
+        super().__init__(_NoisySensor(sensor, noise_mm, rng), network_delay_s=network_delay_s)
         self.noise_mm = noise_mm
-        self._rng = rng
-
-    def process(
-        self, datagram: bytes, t_arrival: float, source: Hashable = None
-    ) -> TriggerReply | None:
-        reply = super().process(datagram, t_arrival, source)
-        if reply is None or self.noise_mm <= 0 or reply.status is not SensorStatus.FOUND:
-            return reply
-        d = decode_datagram(reply.data)
-        assert isinstance(d, SensorData)
-        dy, dz = self._rng.normal(0.0, self.noise_mm, 2)
-        seam = (d.seam[0], d.seam[1] + dy, d.seam[2] + dz, d.seam[3], d.seam[4], d.seam[5])
-        noisy = SensorData(d.index, d.status, seam, d.quality, d.t_trigger, d.t_arrival,
-                           d.t_exposure_start, d.t_exposure_end)  # fmt: skip
-        return TriggerReply(encode_data(noisy), reply.t_send, reply.index, reply.status)
 
 
 class _SimTransport:
