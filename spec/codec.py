@@ -184,12 +184,11 @@ class FrameDecoder:
             raise self._failed
         if not data:
             return
-        if self._frame is not None:
-            view = self.get_buffer()
-            assert view is not None
-            take = min(len(data), len(view))
-            view[:take] = data[:take]
-            self.buffer_updated(take)
+        if self._frame is not None and self._filled < len(self._frame):
+            # The rest of a large frame: into its buffer; what follows it, to the queue.
+            take = min(len(data), len(self._frame) - self._filled)
+            self._frame[self._filled : self._filled + take] = data[:take]
+            self._filled += take
             data = data[take:]
             if not data:
                 return
@@ -202,6 +201,8 @@ class FrameDecoder:
         should come through :meth:`feed` (no large frame has started)."""
         if self._failed is not None:
             raise self._failed
+        if self._frame is not None and self._filled >= len(self._frame):
+            return None  # complete: next_event takes it
         if self._frame is None:
             if self._size < wire.HEADER_SIZE:
                 return None
@@ -313,8 +314,8 @@ class FrameDecoder:
     def _fail(self, error: PeerError) -> NoReturn:
         self._failed = error
         self._chunks.clear()
-        self._offset = self._size = 0
-        self._frame = None
+        self._offset = self._size = self._filled = 0
+        self._frame = self._frame_header = None
         raise error
 
 

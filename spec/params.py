@@ -48,7 +48,7 @@ def _trusted(cls: type[_T], **fields: object) -> _T:
 
 def _floats(values: object, what: str) -> tuple[float, ...]:
     try:
-        return tuple(float(v) for v in values)  # type: ignore[attr-defined]
+        return tuple(map(float, values))  # type: ignore[call-overload]
     except (TypeError, ValueError) as exc:
         raise UsageError(f"{what}: expected a sequence of numbers ({exc})") from None
 
@@ -87,7 +87,7 @@ class Joints:
         vals = _floats(values, "Joints")
         if not 1 <= len(vals) <= wire.MAX_JOINTS:
             raise UsageError(f"Joints: 1 to {wire.MAX_JOINTS} values, got {len(vals)}")
-        if not all(math.isfinite(v) for v in vals):
+        if not all(map(math.isfinite, vals)):
             raise UsageError("Joints: values must be finite")
         object.__setattr__(self, "values", vals)
 
@@ -137,7 +137,7 @@ class Transform:
             raise UsageError("Transform: expected 16 numbers or a 4x4 nested sequence") from None
         if len(flat) != 16:
             raise UsageError(f"Transform: 16 values, got {len(flat)}")
-        if not all(math.isfinite(v) for v in flat):
+        if not all(map(math.isfinite, flat)):
             raise UsageError("Transform: values must be finite")
         if flat[12:] != (0.0, 0.0, 0.0, 1.0):
             raise UsageError("Transform: the last row must be 0 0 0 1")

@@ -7,6 +7,8 @@ import time
 from collections.abc import Iterator
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from spec import wire
 from spec.client import ClientTimeout, ConnectionClosed, FramedClient
@@ -374,4 +376,37 @@ def test_large_frame_received_in_place_in_any_pieces(piece: int) -> None:
             pos += n
         got.extend(e for e in decoder.events() if isinstance(e, Packet))
     assert [p.params for p in got] == [(payload,), (b"next",)]
+    assert decoder.buffered == 0 and not decoder.in_frame
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    cuts=st.lists(st.integers(1, 200_000), min_size=1, max_size=12),
+    in_place=st.lists(st.booleans(), min_size=1, max_size=12),
+)
+def test_feed_and_in_place_receive_mix_in_any_order(cuts: list[int], in_place: list[bool]) -> None:
+    """Whatever mix of feed() and get_buffer() delivers the bytes, the same frames come out."""
+    payload = bytes(range(256)) * 400  # 100 KiB: a large frame
+    stream = b"".join(
+        encode_packet(request(CommandId.PING, rid, data))
+        for rid, data in ((1, b"a"), (2, payload), (3, b"b"), (4, payload[:70_000]))
+    )
+    decoder = FrameDecoder(max_payload=wire.MAX_PAYLOAD)
+    got: list[Packet] = []
+    pos, i = 0, 0
+    while pos < len(stream):
+        n = cuts[i % len(cuts)]
+        view = decoder.get_buffer() if in_place[i % len(in_place)] else None
+        i += 1
+        if view is not None:
+            n = min(n, len(view), len(stream) - pos)
+            view[:n] = stream[pos : pos + n]
+            decoder.buffer_updated(n)
+        else:
+            decoder.feed(stream[pos : pos + n])
+            n = min(n, len(stream) - pos)
+        pos += n
+        got.extend(e for e in decoder.events() if isinstance(e, Packet))
+    assert [p.request_id for p in got] == [1, 2, 3, 4]
+    assert got[1].params == (payload,) and got[3].params == (payload[:70_000],)
     assert decoder.buffered == 0 and not decoder.in_frame
