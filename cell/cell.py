@@ -250,6 +250,10 @@ class EmulatedCell:
         self._truth_lock = threading.Lock()
         self._truth = JointBuffer(capacity=2000)
         self._truth.append(0.0, np.asarray(self.ready_joints, dtype=np.float64))
+        # sensor poses at the latest frame's setpoints and mid-cycles, see _node_poses
+        self._nodes: tuple[FloatArray, FloatArray, FloatArray] = (
+            np.empty(0), np.empty((0, 6)), np.empty((0, 16)),
+        )  # fmt: skip
         self.scene = self._make_scene()
         self.camera_timing = TimingModel(
             rng=rng_timing,
@@ -380,14 +384,10 @@ class EmulatedCell:
         np.minimum(k, len(buf_t) - 2, out=k)
         lo, hi = int(np.minimum.reduce(k)), int(np.maximum.reduce(k)) + 2
         q = buf_q[lo:hi]
-        m = len(q)
-        # nodes: setpoint j at 2j, middle of cycle j at 2j + 1
-        nodes = np.empty((2 * m - 1, q.shape[1]))
-        nodes[0::2] = q
-        nodes[1::2] = 0.5 * (q[:-1] + q[1:])
-        poses = self._setpoint_poses(nodes).reshape(-1, 16)
-        k -= lo
         t0 = buf_t[lo:hi]
+        m = len(q)
+        poses = self._node_poses(t0, q)
+        k -= lo
         w = (t - t0[k]) / (t0[k + 1] - t0[k])
         # Lagrange weights of the nodes at w = 0, 1/2, 1 in a (M, nodes) matrix: one small
         # product instead of gathering three (M, 16) pose stacks
@@ -404,6 +404,44 @@ class EmulatedCell:
         flat[at] = 2.0 * w * (w - 0.5)
         out: FloatArray = (basis @ poses).reshape(-1, 4, 4)
         return out
+
+    def _node_poses(self, t0: FloatArray, q: FloatArray) -> FloatArray:
+        """Poses (2m - 1, 16) at the setpoints ``q`` (m, 6) of times ``t0`` (m,) (node 2j)
+        and at the middle of each cycle (node 2j + 1).
+
+        Consecutive frames share most setpoints: the poses of the previous call are kept
+        and only the nodes past them are computed (the DGM is row by row, so the values are
+        the same as computing all of them at once)."""
+        c_t, c_q, c_p = self._nodes
+        m = len(t0)
+        known = 0
+        i = int(np.searchsorted(c_t, t0[0])) if len(c_t) else 0
+        if i < len(c_t) and c_t[i] == t0[0]:
+            known = min(len(c_t) - i, m)
+            # setpoints never change once appended; check anyway (a cleared buffer)
+            if c_t[i + known - 1] != t0[known - 1] or not np.array_equal(
+                c_q[i : i + known], q[:known]
+            ):
+                known = 0
+        if known == m:
+            out: FloatArray = c_p[2 * i : 2 * (i + m) - 1]
+            return out
+        if known:
+            # the new nodes: the middle of the cycle after the last known setpoint, ...
+            k0 = known - 1
+            nodes = np.empty((2 * (m - known), q.shape[1]))
+            nodes[1::2] = q[known:]
+            nodes[0::2] = 0.5 * (q[k0:-1] + q[known:])
+            new = np.concatenate(
+                (c_p[2 * i : 2 * (i + k0) + 1], self._setpoint_poses(nodes).reshape(-1, 16))
+            )
+        else:
+            nodes = np.empty((2 * m - 1, q.shape[1]))
+            nodes[0::2] = q
+            nodes[1::2] = 0.5 * (q[:-1] + q[1:])
+            new = self._setpoint_poses(nodes).reshape(-1, 16)
+        self._nodes = (t0, q, new)  # one tuple: a reader never sees a half update
+        return new
 
     # --- the clock ---------------------------------------------------------------------------
 
