@@ -235,6 +235,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "serve":
             return cmd_serve(args)
         return cmd_demo(args)
+    except BrokenPipeError:
+        raise  # our stdout was closed (`| head`): cliargs.run_cli ends quietly
     except (CellError, ExperimentError, ProtocolError, OSError, ValueError) as exc:
         # ValueError covers the kinematics (unknown model) and emulator argument checks.
         print(f"python -m cell: error: {exc}", file=sys.stderr)
@@ -244,4 +246,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cliargs.run_cli(main))

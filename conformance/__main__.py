@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 
 from conformance.cli import main
+from spec.cliargs import run_cli
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_cli(main))

@@ -147,6 +147,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except UsageError as exc:
         print(f"conformance: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except BrokenPipeError:
+        raise  # our stdout was closed (`| head`): cliargs.run_cli ends quietly
     except OSError as exc:
         print(f"conformance: {exc}", file=sys.stderr)
         return EXIT_USAGE

@@ -3,5 +3,6 @@
 from __future__ import annotations
 
 from kinematics.cli import main
+from spec.cliargs import run_cli
 
-raise SystemExit(main())
+raise SystemExit(run_cli(main))

@@ -205,6 +205,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ProtocolError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
+    except BrokenPipeError:
+        raise  # our stdout was closed (`| head`): cliargs.run_cli ends quietly
     except OSError as exc:
         print(f"error: {exc.strerror or exc}", file=sys.stderr)
         return callcli.EXIT_UNREACHABLE
@@ -213,4 +215,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(cliargs.run_cli(main))

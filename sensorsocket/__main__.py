@@ -1,6 +1,6 @@
 """Command line of the SensorSocket emulator.
 
-python -m sensorsocket serve [--host H] [--port 2000] [--udp-port 2001|0|auto] [--joint J]
+python -m sensorsocket serve [--host H] [--port 2000] [--udp-port 2001|0|auto|off] [--joint J]
                              [--seam S] [--motion M] [--clock real|sim] [--allow CIDR ...]
                              [--token-file F] [--seed N] [--network-delay S]
 python -m sensorsocket call HOST:PORT COMMAND [ARGS...]
@@ -25,6 +25,7 @@ from sensorsocket.sensor import Reading, SensorError, SimClock, build_sensor
 from sensorsocket.service import SensorService
 from sensorsocket.udp import TriggerHandler, TriggerListener
 from spec.callcli import EXIT_REMOTE_ERROR, EXIT_UNREACHABLE, EXIT_USAGE, main_call, parse_endpoint
+from spec.cliargs import run_cli
 from spec.errors import ErrorCode, ProtocolError, RemoteError
 from spec.files import atomic_path
 from spec.server import FramedServer, ServerPolicy, parse_networks, serve_until_signal
@@ -51,7 +52,9 @@ def _parser() -> _Parser:
     s.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
     s.add_argument("--port", type=int, default=DEFAULT_PORT, help="TCP port, 0 = any free")
     s.add_argument(
-        "--udp-port", default=str(DEFAULT_UDP_PORT), help="UDP trigger port; 0 = off, auto = any"
+        "--udp-port",
+        default=str(DEFAULT_UDP_PORT),
+        help="UDP trigger port; 0 or auto = any free port, off = no trigger listener",
     )
     s.add_argument("--joint", choices=("butt", "fillet", "lap"), default="butt")
     s.add_argument("--seam", choices=("straight", "sine"), default="straight")
@@ -88,16 +91,19 @@ def _token(path: str | None) -> str | None:
 
 
 def _udp_port(text: str) -> int | None:
-    """None = off, 0 = any free port."""
+    """None = off, 0 = any free port (as --udp-port of robotsocket and cell)."""
+    if text == "off":
+        return None
     if text == "auto":
         return 0
     try:
         port = int(text)
     except ValueError:
-        raise _UsageError(f"--udp-port: expected a port number, 0 or auto, got {text!r}") from None
+        msg = f"--udp-port: expected a port number, auto or off, got {text!r}"
+        raise _UsageError(msg) from None
     if not 0 <= port < 65536:
         raise _UsageError(f"--udp-port out of range: {port}")
-    return None if port == 0 else port
+    return port
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
@@ -254,4 +260,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_cli(main))

@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
+import sys
+from collections.abc import Callable
 from pathlib import Path
 
 from spec.files import prepare_output_path
@@ -80,3 +83,21 @@ def output_dir(text: str) -> str:
 def positive_floats(text: str) -> list[float]:
     """Comma-separated numbers, each > 0 (e.g. sweep frequencies)."""
     return [positive_float(item) for item in text.split(",") if item.strip()]
+
+
+#: Exit status of a Unix tool stopped by SIGPIPE (128 + 13).
+EXIT_BROKEN_PIPE = 141
+
+
+def run_cli(main: Callable[[], int]) -> int:
+    """Run a command line's ``main``. A reader that closed our standard output (``… | head``)
+    ends it quietly, as it ends a Unix tool, instead of with an error message."""
+    try:
+        code = main()
+        sys.stdout.flush()
+        return code
+    except BrokenPipeError:
+        # Python flushes stdout again at exit: point it at /dev/null so that stays quiet.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE

@@ -204,10 +204,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "curvature":
             return cmd_curvature(args)
         return cmd_delay(args)
+    except BrokenPipeError:
+        raise  # our stdout was closed (`| head`): cliargs.run_cli ends quietly
     except (ExperimentError, DelayEstimateError, ProtocolError, OSError, ValueError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cliargs.run_cli(main))

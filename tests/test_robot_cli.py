@@ -115,3 +115,26 @@ def test_serve_runs_until_sigint() -> None:
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
+
+
+def test_watch_into_a_closed_pipe_ends_quietly(endpoint: str) -> None:
+    """`watch … | head -1`: the reader goes away; no error message, SIGPIPE's exit status."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "robotsocket", "watch", endpoint, "--interval", "0.01"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env=env,
+        cwd=ROOT,
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    first = proc.stdout.readline()
+    proc.stdout.close()  # what `head -1` does after its line
+    try:
+        err = proc.stderr.read()
+        code = proc.wait(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert b"power=" in first
+    assert code == 141 and err == b""

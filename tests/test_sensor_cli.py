@@ -152,7 +152,7 @@ def test_unreachable_server_exit_3() -> None:
 
 def test_sigterm_stops_gracefully() -> None:
     proc = subprocess.Popen(
-        [PY, "-m", "sensorsocket", "serve", "--port", "0", "--udp-port", "0"],
+        [PY, "-m", "sensorsocket", "serve", "--port", "0", "--udp-port", "off"],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
