@@ -336,8 +336,11 @@ class StripeRenderer:
         shape = (2 * cam.columns, 2 * cam.rows)
         # uniform 16-bit draws through the inverse CDF of the rounded, clipped Gaussian:
         # the same grey-level distribution (to 2^-16) as rounding fresh normals, ~5x cheaper
-        u = np.frombuffer(self._rng.bytes(2 * shape[0] * shape[1]), dtype=np.uint16)
-        self._tile = self._background_table[u].reshape(shape)
+        # The uint32 words Generator.bytes draws (the same stream, read as little-endian
+        # 16-bit halves like the bytes would be) without its 4x slower bytes object.
+        words = self._rng.integers(0, 1 << 32, size=shape[0] * shape[1] // 2, dtype=np.uint32)
+        u = words.astype("<u4", copy=False).view("<u2")
+        self._tile = self._background_table.take(u).reshape(shape)
         self._normals = self._rng.standard_normal(self._normals_size, dtype=np.float32)
         self._frames_on_tile = 0
 
