@@ -18,6 +18,7 @@ returns the setpoint at t_k = k * period.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -299,6 +300,8 @@ class Move:
     dec: float  # 1/s^2
     length_mm: float  # flange (joint) or tool (linear) path length, for blending
     blend_mm: float
+    #: Joint acceleration limits (6,) deg/s^2 of the motion descriptor, for blending.
+    joint_acc: Array | None = None
 
     @property
     def start(self) -> Array:
@@ -352,6 +355,7 @@ def plan_joint(
         dec,
         float(np.linalg.norm(p1 - p0)),
         desc.blend,
+        np.maximum(aj, dj),
     )
 
 
@@ -430,7 +434,10 @@ def plan_linear(
             if joint_v < MIN_SPEED_FRACTION * vmax:
                 raise SingularityError("the path passes too close to a singularity")
             vmax = joint_v
-    return Move(move_id, "linear", path, vmax, acc, dec, path.length_mm, desc.blend)
+    _, aj, dj = joint_limits_of(model, desc)
+    return Move(
+        move_id, "linear", path, vmax, acc, dec, path.length_mm, desc.blend, np.maximum(aj, dj)
+    )
 
 
 # --- the generator --------------------------------------------------------------------------
@@ -492,6 +499,7 @@ class TrajectoryGenerator:
         self.held = False  # StopMove in force
         self.k = 0
         self._reset_point: Array | None = None
+        self._blend_plan: tuple[tuple[int, int], float] | None = None
 
     # --- state -------------------------------------------------------------------------------
 
@@ -611,13 +619,58 @@ class TrajectoryGenerator:
                         2.0 * front.move.blend_mm / (law.dec * front.move.length_mm)
                     )
                     overlap = min(overlap, t_blend)
-                if t_prev >= law.t_end - overlap:
+                if t_prev >= law.t_end - overlap and t_prev >= self._blend_start(
+                    front, nxt, t_prev
+                ):
                     self.queue.popleft()
                     active.append(Segment(nxt, nxt.law(t_prev), nxt.start))
             return
         if self.queue:
             nxt = self.queue.popleft()
             active.append(Segment(nxt, nxt.law(t_prev), nxt.start))
+
+    def _blend_start(self, front: Segment, nxt: Move, t_first: float) -> float:
+        """When ``nxt`` may start, superposed on the end of ``front``: ``t_first`` (the blend
+        distance allows it from then), later, or ``front``'s end (no blend).
+
+        Blending adds the two moves' joint motions. Where a joint reverses, the end of one
+        move's braking and the start of the other's acceleration add up; the blend then starts
+        late enough that no joint is asked for more than its acceleration limit (or more than
+        either move alone asks). Decided once per pair by bisection on the start time.
+        """
+        key = (front.move.id, nxt.id)
+        if self._blend_plan is not None and self._blend_plan[0] == key:
+            return self._blend_plan[1]
+        t_end = front.law.t_end
+        start = t_first
+        if not self._blend_within_limits(front, nxt, t_first):
+            bad, good = t_first, t_end  # starting at the end is no blend at all
+            for _ in range(6):
+                mid = 0.5 * (bad + good)
+                if self._blend_within_limits(front, nxt, mid):
+                    good = mid
+                else:
+                    bad = mid
+            start = good
+        self._blend_plan = (key, start)
+        return start
+
+    def _blend_within_limits(self, front: Segment, nxt: Move, t0: float) -> bool:
+        """Second differences of the blended setpoints against the joint limits, on copies of
+        both segments (the real ones and their IK caches are untouched)."""
+        period = self.period
+        ks = range(round(t0 / period) - 1, math.ceil(front.law.t_end / period) + 3)
+        a, b = copy.copy(front), Segment(nxt, nxt.law(t0), nxt.start)
+        qa = np.array([a.q(k, period) for k in ks])
+        qb = np.array([b.q(k, period) for k in ks]) - nxt.start
+        acc_a = np.abs(np.diff(qa, 2, axis=0)).max(axis=0)
+        acc_b = np.abs(np.diff(qb, 2, axis=0)).max(axis=0)
+        acc_sum = np.abs(np.diff(qa + qb, 2, axis=0)).max(axis=0)
+        allowed = np.maximum(acc_a, acc_b)
+        for limit in (front.move.joint_acc, nxt.joint_acc):
+            if limit is not None:
+                allowed = np.maximum(allowed, limit * period * period)
+        return bool(np.all(acc_sum <= allowed * (1.0 + 1e-6) + 1e-12))
 
     def _retire(self, t: float, q: Array) -> None:
         active = self.active

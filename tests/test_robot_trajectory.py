@@ -171,8 +171,9 @@ def test_reset_drops_the_queue_and_holds_where_it_stopped() -> None:
 
 
 def test_blending_does_not_stop_and_keeps_joint_speed_limits() -> None:
-    via = np.array([30.0, 0.0, 90.0, 0.0, 30.0, 0.0])
-    end = np.array([30.0, 30.0, 60.0, 0.0, 30.0, 0.0])
+    # No joint reverses at the via point (joint 2 goes on upwards): a full blend is allowed.
+    via = np.array([30.0, 20.0, 90.0, 0.0, 30.0, 0.0])
+    end = np.array([30.0, 40.0, 60.0, 0.0, 30.0, 0.0])
 
     def go(blend: float) -> np.ndarray:
         desc = MotionDesc(joint_speed=30.0, blend=blend)
@@ -189,6 +190,8 @@ def test_blending_does_not_stop_and_keeps_joint_speed_limits() -> None:
     assert moving.min() > 0.0  # never at rest between the two moves
     vmax, _, _ = joint_limits_of(MODEL, MotionDesc(joint_speed=30.0))
     assert np.all(np.abs(np.diff(blended, axis=0)) / PERIOD <= vmax * (1 + 1e-9))
+    _, amax, dmax = joint_limits_of(MODEL, MotionDesc(joint_speed=30.0))
+    assert np.all(_joint_acc(blended) <= np.maximum(amax, dmax) * (1 + 1e-6))
     # The corner is cut: the blended path never passes through the via point.
     assert np.min(np.linalg.norm(blended - via, axis=1)) > 0.1
 
@@ -196,3 +199,37 @@ def test_blending_does_not_stop_and_keeps_joint_speed_limits() -> None:
 def test_nominal_limits_are_per_model() -> None:
     v, a = nominal_limits("RX90B")
     assert v[5] == 1125.0 and np.all(a > v)
+
+
+def _joint_acc(q: np.ndarray) -> np.ndarray:
+    """Peak |second difference| per joint, deg/s^2."""
+    return np.abs(np.diff(q, 2, axis=0)).max(axis=0) / PERIOD**2
+
+
+def test_blending_a_reversal_never_exceeds_the_acceleration_limit() -> None:
+    out = np.array([40.0, 10.0, 90.0, 0.0, 30.0, 0.0])  # joint 1 out ...
+    desc = MotionDesc(joint_speed=50.0, joint_accel=50.0, joint_decel=50.0, blend=50.0)
+    gen = TrajectoryGenerator(Q0)
+    gen.enqueue(plan_joint(1, MODEL, Q0, out, desc))
+    gen.enqueue(plan_joint(2, MODEL, out, Q0, desc))  # ... and straight back
+    q = run(gen)
+    _, amax, dmax = joint_limits_of(MODEL, desc)
+    # Superposing the braking of the first move and the start of the second would ask joint 1
+    # for twice its limit; the generator runs them one after the other instead.
+    assert _joint_acc(q)[0] <= max(amax[0], dmax[0]) * (1 + 1e-6)
+    assert np.array_equal(q[-1], Q0)
+    assert np.min(np.linalg.norm(q - out, axis=1)) < 1e-9  # it reached the turning point
+
+
+def test_blending_in_one_direction_still_blends_within_the_limits() -> None:
+    mid = np.array([20.0, 10.0, 90.0, 0.0, 30.0, 0.0])
+    end = np.array([40.0, 10.0, 90.0, 0.0, 30.0, 0.0])
+    desc = MotionDesc(joint_speed=50.0, blend=50.0)
+    gen = TrajectoryGenerator(Q0)
+    gen.enqueue(plan_joint(1, MODEL, Q0, mid, desc))
+    gen.enqueue(plan_joint(2, MODEL, mid, end, desc))
+    q = run(gen)
+    _, amax, dmax = joint_limits_of(MODEL, desc)
+    speed = np.abs(np.diff(q[:, 0]))
+    assert speed[3:-3].min() > 0.0  # no stop at the via point
+    assert _joint_acc(q)[0] <= max(amax[0], dmax[0]) * (1 + 1e-6)
