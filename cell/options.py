@@ -35,8 +35,16 @@ def add_timing_options(parser: argparse.ArgumentParser) -> None:
 
 
 def timing_kwargs(args: argparse.Namespace) -> dict[str, Any]:
-    """CellTiming keyword arguments (SI units) from parsed options."""
+    """CellTiming keyword arguments (SI units) from parsed options; ValueError naming the
+    options when they do not go together (checked here so the message speaks of options)."""
     out: dict[str, Any] = {}
     for option, name, factor, _default, _text in _OPTIONS:
         out[name] = getattr(args, option.lstrip("-").replace("-", "_")) * factor
+    if not 0.0 < args.acquisition_ms <= 100.0:
+        raise ValueError(f"--acquisition-ms must be in (0, 100] ms, got {args.acquisition_ms:g}")
+    if args.network_jitter_ms > 2.0 * args.network_delay_ms:
+        raise ValueError(
+            f"--network-jitter-ms ({args.network_jitter_ms:g}) must be at most twice"
+            f" --network-delay-ms ({args.network_delay_ms:g}): a delay never goes below 0"
+        )
     return out

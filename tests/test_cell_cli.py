@@ -1,0 +1,81 @@
+"""python -m cell: serve and demo as a user runs them (real subprocesses), option errors."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from cell.__main__ import main
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = dict(os.environ, PYTHONPATH=str(ROOT))
+
+
+@pytest.mark.parametrize(
+    ("argv", "names"),
+    [
+        (["--acquisition-ms", "0"], "--acquisition-ms"),
+        (["--acquisition-ms", "150"], "--acquisition-ms"),
+        (["--network-jitter-ms", "5", "--network-delay-ms", "1"], "--network-jitter-ms"),
+    ],
+)
+def test_option_errors_name_the_option(
+    argv: list[str], names: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code = main(["serve", "--clock", "sim", "--robot-port", "0", "--sensor-port", "0", *argv])
+    err = capsys.readouterr().err
+    assert code == 2 and names in err and len(err.strip().splitlines()) == 1
+
+
+def test_serve_answers_a_robot_and_a_sensor_call_then_stops_on_sigint() -> None:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cell", "serve", "--clock", "sim", "--robot-port", "0",
+         "--sensor-port", "0"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV, cwd=ROOT,
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        described: dict[str, str] = {}
+        while "true_delta_t_ms" not in described:
+            line = proc.stdout.readline()
+            assert line, "serve ended before describing the cell"
+            key, _, value = line.partition(":")
+            described[key.strip()] = value.strip()
+        robot, sensor = described["robot"], described["sensor"]
+        assert float(described["true_delta_t_ms"]) == pytest.approx(4.9)
+        for module, endpoint, command in (
+            ("robotsocket", robot, "Herej"),
+            ("sensorsocket", sensor, "GetSettings"),
+        ):
+            out = subprocess.run(
+                [sys.executable, "-m", module, "call", endpoint, command],
+                capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=60,
+            )  # fmt: skip
+            assert out.returncode == 0, out.stderr
+            assert isinstance(json.loads(out.stdout), dict)
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=30)
+        assert proc.returncode == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+
+
+def test_demo_runs_end_to_end(tmp_path: Path) -> None:
+    """What `make demo` shows: the robot tour, a sensor frame, ΔT through the sockets."""
+    out = subprocess.run(
+        [sys.executable, "-m", "cell", "demo", "--out", str(tmp_path), "--duration", "3",
+         "--no-conformance"],
+        capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=300,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr[-2000:]
+    text = out.stdout
+    assert "EnablePower; Herej" in text and "ΔT" in text
+    assert any(p.suffix == ".pgm" for p in tmp_path.iterdir())
