@@ -124,24 +124,8 @@ class RobotClient(FramedClient):
     """Blocking client of a RobotSocket server (see :class:`spec.client.FramedClient` for
     ``timeout``, ``auto_reconnect``, ``reconnect()`` and the context manager)."""
 
-    def __init__(
-        self,
-        host: str,
-        port: int,
-        *,
-        timeout: float = 5.0,
-        auto_reconnect: bool = False,
-        client_name: str = "robotsocket-client/0.1",
-        frame_crc: bool = True,
-    ) -> None:
-        super().__init__(
-            host,
-            port,
-            timeout=timeout,
-            auto_reconnect=auto_reconnect,
-            client_name=client_name,
-            frame_crc=frame_crc,
-        )
+    DEFAULT_PORT = 4000
+    CLIENT_NAME = "robotsocket-client/0.1"
 
     def __enter__(self) -> RobotClient:
         return self

@@ -94,24 +94,8 @@ def image_to_array(image: Image) -> NDArray[np.uint8] | NDArray[np.uint16]:
 class SensorClient(FramedClient):
     """Blocking client of a SensorSocket server (default port 2000)."""
 
-    def __init__(
-        self,
-        host: str,
-        port: int = 2000,
-        *,
-        timeout: float = 5.0,
-        auto_reconnect: bool = False,
-        client_name: str = "sensorsocket-client/0.1",
-        frame_crc: bool = True,
-    ) -> None:
-        super().__init__(
-            host,
-            port,
-            timeout=timeout,
-            auto_reconnect=auto_reconnect,
-            client_name=client_name,
-            frame_crc=frame_crc,
-        )
+    DEFAULT_PORT = 2000
+    CLIENT_NAME = "sensorsocket-client/0.1"
 
     def __enter__(self) -> SensorClient:
         return self

@@ -40,21 +40,30 @@ class FramedClient:
     trusted link; a server without SetFrameCrc keeps its CRCs (see :attr:`frame_crc_active`).
     """
 
+    #: Port used when none is given (a service's default, e.g. 4000 for RobotSocket).
+    DEFAULT_PORT: int | None = None
+    #: Client name sent in Hello unless one is given.
+    CLIENT_NAME = "reference-client/0.1"
+
     def __init__(
         self,
         host: str,
-        port: int,
+        port: int | None = None,
         *,
         timeout: float = 5.0,
         auto_reconnect: bool = False,
-        client_name: str = "reference-client/0.1",
+        client_name: str | None = None,
         frame_crc: bool = True,
     ) -> None:
+        if port is None:
+            if self.DEFAULT_PORT is None:
+                raise TypeError(f"{type(self).__name__} needs a port")
+            port = self.DEFAULT_PORT
         self.host = host
         self.port = port
         self.timeout = timeout
         self.auto_reconnect = auto_reconnect
-        self.client_name = client_name
+        self.client_name = self.CLIENT_NAME if client_name is None else client_name
         self.frame_crc = frame_crc
         self._sock: socket.socket | None = None
         self._kernel_timeout: float | None = None  # SO_RCVTIMEO in force, None: Python's

@@ -274,81 +274,61 @@ def _enc_bool(value: bool) -> tuple[bytes, ...]:
 def _enc_int(value: int) -> tuple[bytes, ...]:
     if not -(1 << 63) <= value < (1 << 63):
         raise UsageError(f"INT out of the signed 64-bit range: {value}")
-    return (_TAG_INT + wire.I64.pack(value),)
+    return (_TAG[ParamType.INT] + wire.I64.pack(value),)
 
 
 def _enc_float(value: float) -> tuple[bytes, ...]:
-    return (_TAG_FLOAT + wire.F64.pack(value),)
+    return (_TAG[ParamType.FLOAT] + wire.F64.pack(value),)
 
 
 def _enc_str(value: str) -> tuple[bytes, ...]:
     raw = value.encode("utf-8")
-    return (_TAG_STRING + wire.U32.pack(len(raw)) + raw,)
+    return (_TAG[ParamType.STRING] + wire.U32.pack(len(raw)) + raw,)
 
 
 def _enc_bytes(value: bytes) -> tuple[bytes, ...]:
-    return (_TAG_BYTES + wire.U32.pack(len(value)), value)
+    return (_TAG[ParamType.BYTES] + wire.U32.pack(len(value)), value)
 
 
 def _enc_float_array(value: FloatArray) -> tuple[bytes, ...]:
     n = len(value.values)
-    return (_TAG_FLOAT_ARRAY + wire.U32.pack(n) + _f64s(n).pack(*value.values),)
+    return (_TAG[ParamType.FLOAT_ARRAY] + wire.U32.pack(n) + _f64s(n).pack(*value.values),)
 
 
 def _enc_int_array(value: IntArray) -> tuple[bytes, ...]:
     n = len(value.values)
     try:
-        return (_TAG_INT_ARRAY + wire.U32.pack(n) + _i64s(n).pack(*value.values),)
+        return (_TAG[ParamType.INT_ARRAY] + wire.U32.pack(n) + _i64s(n).pack(*value.values),)
     except struct.error as exc:
         raise UsageError(f"IntArray: {exc}") from None
 
 
 def _enc_joints(value: Joints) -> tuple[bytes, ...]:
     n = len(value.values)
-    return (_TAG_JOINTS + wire.U8.pack(n) + _f64s(n).pack(*value.values),)
+    return (_TAG[ParamType.JOINTS] + wire.U8.pack(n) + _f64s(n).pack(*value.values),)
 
 
 def _enc_location(value: Location) -> tuple[bytes, ...]:
-    return (_TAG_LOCATION + wire.LOCATION.pack(*value.as_tuple()),)
+    return (_TAG[ParamType.LOCATION] + wire.LOCATION.pack(*value.as_tuple()),)
 
 
 def _enc_transform(value: Transform) -> tuple[bytes, ...]:
-    return (_TAG_TRANSFORM + wire.TRANSFORM.pack(*value.values),)
+    return (_TAG[ParamType.TRANSFORM] + wire.TRANSFORM.pack(*value.values),)
 
 
 def _enc_matrix(value: Matrix) -> tuple[bytes, ...]:
     shape = wire.MATRIX_SHAPE.pack(value.rows, value.cols)
-    return (_TAG_MATRIX + shape + _f64s(len(value.values)).pack(*value.values),)
+    return (_TAG[ParamType.MATRIX] + shape + _f64s(len(value.values)).pack(*value.values),)
 
 
 def _enc_image(value: Image) -> tuple[bytes, ...]:
     meta = wire.IMAGE_HEADER.pack(
         value.width, value.height, int(value.format), int(value.order), len(value.data)
     )
-    return (_TAG_IMAGE + meta, value.data)
+    return (_TAG[ParamType.IMAGE] + meta, value.data)
 
 
-_TAG_INT, _TAG_FLOAT, _TAG_STRING, _TAG_BYTES, _TAG_FLOAT_ARRAY, _TAG_INT_ARRAY = (
-    wire.TAG.pack(t)
-    for t in (
-        ParamType.INT,
-        ParamType.FLOAT,
-        ParamType.STRING,
-        ParamType.BYTES,
-        ParamType.FLOAT_ARRAY,
-        ParamType.INT_ARRAY,
-    )
-)
-_TAG_JOINTS, _TAG_LOCATION, _TAG_TRANSFORM, _TAG_MATRIX, _TAG_IMAGE = (
-    wire.TAG.pack(t)
-    for t in (
-        ParamType.JOINTS,
-        ParamType.LOCATION,
-        ParamType.TRANSFORM,
-        ParamType.MATRIX,
-        ParamType.IMAGE,
-    )
-)
+_TAG = {t: wire.TAG.pack(t) for t in ParamType}  # the one-byte tag of each type
 _ENCODERS: dict[type, Callable[[Any], tuple[bytes, ...]]] = {
     bool: _enc_bool,
     int: _enc_int,
