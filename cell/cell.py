@@ -452,7 +452,7 @@ class EmulatedCell:
             return
         assert self.uplink is not None and self.downlink is not None
         core = self.core
-        core.add_joints(np.array([t]), q_m[None, :])
+        core.add_joint(t, q_m)
         target = self._sim_transport.target if self._sim_transport is not None else None
         # Triggers for another port go nowhere, as on a real network.
         reachable = target is not None and target[1] == self.udp_address[1]
@@ -486,12 +486,16 @@ class EmulatedCell:
         dt = self.camera_timing.column_period_s
         t_seam = math.nan
         if reading.status is SensorStatus.FOUND:
-            u, _ = self.sensor.emulator.camera.project(
-                np.array([0.0, reading.seam[1], reading.seam[2]])
-            )
+            # CameraGeometry.project of (0, y, z) on Python floats: the same operations in
+            # the same order as its numpy arithmetic, so the same u to the last bit
+            cam = self.sensor.emulator.camera
+            y, z = float(reading.seam[1]), float(reading.seam[2])
+            th = math.radians(cam.triangulation_angle_deg)
+            zc = cam.working_distance_mm + 0.0 * math.sin(th) + z * math.cos(th)
+            u = cam.principal_point[0] + cam.focal_px * y / zc
             t_seam = (
                 reading.t_exposure_start
-                + (float(u) - acq_first) * dt
+                + (u - acq_first) * dt
                 + self.sensor.settings.exposure_s / 2.0
             )
         self.records.append(_Record(reading.index, reading.t_trigger, t_seam, reading.status))

@@ -49,6 +49,7 @@ class JointBuffer:
         self._joints = np.empty((2 * capacity, n_joints), dtype=np.float64)
         self._start = 0  # slot of the oldest sample, in [0, capacity)
         self._count = 0
+        self._latest = -math.inf  # time of the newest sample as a float (when _count > 0)
 
     @property
     def capacity(self) -> int:
@@ -89,11 +90,12 @@ class JointBuffer:
             raise JointBufferError(f"joints must have shape ({self._n_joints},), got {qa.shape}")
         if not math.isfinite(t):
             raise JointBufferError(f"time must be finite, got {t}")
-        if not np.all(np.isfinite(qa)):
+        if not np.isfinite(qa).all():  # the method: np.all's wrapper costs more than the test
             raise JointBufferError("joints must be finite")
-        latest = self.latest_time
-        if latest is not None and not t > latest:
-            raise JointBufferError(f"time {t!r} is not after the latest sample {latest!r}")
+        if self._count and not t > self._latest:
+            raise JointBufferError(
+                f"time {t!r} is not after the latest sample {self.latest_time!r}"
+            )
         if self._count < self._capacity:
             slot = self._start + self._count
             self._count += 1
@@ -103,6 +105,7 @@ class JointBuffer:
         slot %= self._capacity
         self._times[slot] = t
         self._times[slot + self._capacity] = t
+        self._latest = t
         self._joints[slot] = qa
         self._joints[slot + self._capacity] = qa
 

@@ -317,6 +317,15 @@ class RobotSyncCore:
                 self.joints.extend(t[keep], q[keep])
                 self._joint_t = float(t[keep][-1])
 
+    def add_joint(self, t: float, q: ArrayLike) -> None:
+        """:meth:`add_joints` for one sample: time ``t`` (s), joints ``q`` (6,) deg (one
+        per robot cycle: no batch arrays to build)."""
+        t = float(t)
+        with self.lock:
+            if t > self._joint_t:
+                self.joints.append(t, q)
+                self._joint_t = t
+
     def poll(self, now: float) -> list[SeamPoint]:
         """Declare lost triggers, match data whose t_i^S the joints cover, store released
         points (in index order) as seam-point rows; returns the released points."""

@@ -227,3 +227,19 @@ def test_udp_endpoint_over_loopback() -> None:
         sensor.close()
     s = core.statistics()
     assert s["sent"] == 10 and s["matched"] == 10 and s["malformed"] == 10
+
+
+def test_add_joint_matches_add_joints() -> None:
+    """One sample at a time (the cell's per-cycle path) stores what add_joints stores and
+    skips a sample that is not newer, as add_joints does."""
+    rng = np.random.default_rng(5)
+    ts = [0.0, 0.004, 0.004, 0.008, 0.006, 0.012]
+    qs = rng.normal(size=(len(ts), 6))
+    one, batch = RobotSyncCore(), RobotSyncCore()
+    for t, q in zip(ts, qs, strict=True):
+        one.add_joint(t, q)
+        batch.add_joints(np.array([t]), q[None, :])
+    t1, q1 = one.joints.samples()
+    t2, q2 = batch.joints.samples()
+    assert t1.tolist() == [0.0, 0.004, 0.008, 0.012]
+    assert np.array_equal(t1, t2) and np.array_equal(q1, q2)
