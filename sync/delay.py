@@ -139,7 +139,9 @@ def _mse_curve(
             continue
         # One preallocated buffer: a fresh 400 kB array per shift costs more than the maths.
         e = np.subtract(ys[lo - js : hi - js], yr[lo + m - jr : hi + m - jr], out=work[: hi - lo])
-        mse[n] = float(np.dot(e, e)) / (hi - lo)
+        # Square and sum in numpy, not np.dot: OpenBLAS splits a long dot product over its
+        # threads, and on a busy machine one call could wait 50-400 ms for a core.
+        mse[n] = float(np.add.reduce(np.multiply(e, e, out=e))) / (hi - lo)
         overlap[n] = hi - lo
     return mse, overlap
 
