@@ -13,7 +13,6 @@ import logging
 import math
 import select
 import socket
-import struct
 import threading
 from collections import OrderedDict, deque
 from collections.abc import Hashable
@@ -23,6 +22,7 @@ from typing import Any, Protocol
 from sensorsocket.sensor import NAN_LOCATION, Clock, Reading
 from spec.datagrams import INDEX_MODULUS, decode_datagram, encode_data_fields, trigger_fields
 from spec.errors import DatagramError
+from spec.sockopt import set_kernel_timeouts
 from spec.udp import bind_udp
 from spec.wire import SensorStatus
 
@@ -241,13 +241,8 @@ _DONTWAIT: int = getattr(socket, "MSG_DONTWAIT", 0)
 
 def _block_with_tick(sock: socket.socket, seconds: float) -> None:
     """Make ``sock`` blocking with a receive timeout of ``seconds`` (BlockingIOError when it
-    expires): SO_RCVTIMEO costs nothing per call, where a Python socket timeout polls before
-    every recvfrom. Platforms that do not take it get the Python timeout."""
-    try:
-        sock.settimeout(None)
-        timeval = struct.pack("ll", int(seconds), int((seconds % 1.0) * 1e6))
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, timeval)
-    except (OSError, struct.error):
+    expires; one system call per recvfrom); the Python timeout where the kernel's is missing."""
+    if not set_kernel_timeouts(sock, seconds, send=False):
         sock.settimeout(seconds)
 
 
