@@ -263,6 +263,45 @@ class _Columns:
     dz: FloatArray
 
 
+@dataclass(frozen=True)
+class _Samples:
+    """Constants of N read columns for the straight-seam path: chip positions of the K
+    sub-columns (K, N); camera-frame Y, Z of their column-line start points and the spans
+    to the end points, of all K (K, N) and of the outer two (S, N)."""
+
+    u_all: FloatArray
+    ya_all: FloatArray
+    dy_all: FloatArray
+    za_all: FloatArray
+    dz_all: FloatArray
+    ya_out: FloatArray
+    dy_out: FloatArray
+    za_out: FloatArray
+    dz_out: FloatArray
+
+
+@dataclass(frozen=True)
+class _Stats:
+    """What the exposure needs of N read columns: lit fraction, mean row and spread of the
+    sub-columns' rows (N,), the simple columns (N,), and for the other lit columns
+    (indices (M,)) every sub-column's row (M, X), -1e9 where a sub-column is unlit."""
+
+    coverage: FloatArray
+    mean: FloatArray
+    var: FloatArray
+    simple: NDArray[np.bool_]
+    complex_columns: NDArray[np.intp]
+    complex_rows: FloatArray
+
+
+# Quantities of a column's laser line in W for the straight-seam path, each affine in the
+# chip position u (value c0 + u·c1). Evaluated at every sample: lateral start, lateral span,
+# then per piece the numerator and denominator of the line parameter λ of the hit. Only for
+# shadow tests: height start and span, laser source (lateral, height).
+_LA, _DL, _NUM = 0, 1, 2
+_ZA, _DZ, _LS, _ZS = 0, 1, 4, 5  # rows of the shadow block (2, 3: the spans in u)
+
+
 class StripeRenderer:
     """Renders column-major 512x256 uint8 frames of a scene seen from moving poses."""
 
@@ -312,6 +351,25 @@ class StripeRenderer:
         self._normals_size = 1 << 17
         self._pieces = scene.joint.pieces()
         self._windows: dict[tuple[int, int], _Columns] = {}
+        self._sample_windows: dict[tuple[int, int], _Samples] = {}
+        # outer sub-columns: within one piece a column's stripe row is affine in u, so these
+        # two give the mean and spread of all K; r_j = r_first + frac_j·(r_last - r_first)
+        self._outer = [0, k - 1] if k > 1 else [0]
+        self._ends = slice(None, None, k - 1) if k > 1 else slice(0, 1)
+        span = self._delta[-1] - self._delta[0]
+        self._frac = (self._delta - self._delta[0]) / span if k > 1 else np.zeros(1)
+        self._spread = math.sqrt(float(np.mean(self._delta**2))) / span if k > 1 else 0.0
+        self._lo = np.array([p.lo for p in self._pieces])[:, None, None]
+        self._hi = np.array([p.hi for p in self._pieces])[:, None, None]
+        self._kq, self._kq0, self._ks, self._ks0 = self._line_quantities()
+        # shadow tests a flat piece c cannot pass on flat piece p while the laser source is
+        # above c (see _never_shadows): (p, c, the source height it takes); others always
+        self._shadow_pairs = [
+            (i, c, c.a if p.b == 0.0 and c.b == 0.0 and c.a <= p.a else math.inf)
+            for i, p in enumerate(self._pieces)
+            for c in self._pieces
+            if c is not p
+        ]
 
     def _columns(self, columns: NDArray[np.intp]) -> _Columns:
         """Per-column constants of ``columns`` (N,): the same for every frame of a window."""
@@ -320,6 +378,64 @@ class StripeRenderer:
         yb, zb = np.tile(self._yb[columns], n_pieces), np.tile(self._zb[columns], n_pieces)
         us = columns[:, None] + self._delta[None, :]
         return _Columns(us=us, ya=ya, dy=yb - ya, za=za, dz=zb - za)
+
+    def _line_quantities(self) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """Matrices (R, 12) and offsets (R, 1) that give the line quantities of N columns
+        from their poses: matrix @ poses[:, :3].reshape(N, 12).T + offsets. First pair: the
+        c0 rows then the c1 rows of _LA.., then the source height (2Q + 1 rows); second
+        pair: c0 then c1 of _ZA and _DZ, and c0 of _LS, _ZS (6 rows).
+
+        The quantities are linear in the pose (x[r, j] of :meth:`_hits` is the sum over
+        (a, b) of pose[a, b]·b2w[r, a]·g[b, j]), so the workpiece transform and the pieces
+        fold into one small product per frame."""
+        b2w, g = self.scene.base2workpiece, self._g
+        # (13, 3, 5): the last row is the pose's constant row (0, 0, 0, 1)
+        basis = np.einsum("ra,bj->abrj", b2w[:3], g).reshape(16, 3, 5)[:13].copy()
+        basis[12] = np.einsum("r,j->rj", b2w[:3, 3], g[3])
+        n_p = len(self._pieces)
+        n_q = _NUM + 2 * n_p
+        w = np.zeros((3, 5, 2 * n_q + 1))  # x[r, j] -> row
+        w[1, 0, _LA] = w[1, 2, n_q + _LA] = 1.0
+        w[1, 1, _DL] = w[1, 3, n_q + _DL] = 1.0
+        w[1, 0, _DL] = w[1, 2, n_q + _DL] = -1.0
+        z_a, dz = np.zeros((3, 5, 2)), np.zeros((3, 5, 2))
+        z_a[2, 0, 0] = z_a[2, 2, 1] = 1.0
+        dz[2, 1, 0] = dz[2, 3, 1] = 1.0
+        dz[2, 0, 0] = dz[2, 2, 1] = -1.0
+        for i, p in enumerate(self._pieces):
+            # λ = (a + b·la - za) / (dz - b·dl), numerator and denominator affine in u
+            for part in (0, 1):
+                la, dl = w[..., part * n_q + _LA], w[..., part * n_q + _DL]
+                w[..., part * n_q + _NUM + i] = p.b * la - z_a[..., part]
+                w[..., part * n_q + _NUM + n_p + i] = dz[..., part] - p.b * dl
+        w[2, 4, 2 * n_q] = 1.0
+        ws = np.zeros((3, 5, 6))
+        ws[..., [0, 2]] = z_a
+        ws[..., [1, 3]] = dz
+        ws[1, 4, _LS] = ws[2, 4, _ZS] = 1.0
+        out = []
+        for m in (w, ws):
+            full = basis.reshape(13, 15) @ m.reshape(15, -1)  # (13, R)
+            out += [full[:12].T.copy(), full[12][:, None].copy()]
+        for i, p in enumerate(self._pieces):
+            out[1][_NUM + i] += p.a
+        return out[0], out[1], out[2], out[3]
+
+    def _samples(self, first_column: int, n_columns: int) -> _Samples:
+        key = (first_column, n_columns)
+        s = self._sample_windows.get(key)
+        if s is None:
+            if len(self._sample_windows) >= 8:
+                self._sample_windows.clear()
+            cols = np.arange(first_column, first_column + n_columns)
+            u = cols[:, None] + self._delta[None, :]
+            ya, za = self._ya[cols], self._za[cols]
+            dy, dz = self._yb[cols] - ya, self._zb[cols] - za
+            o = self._outer
+            arrays = (u, ya, dy, za, dz, ya[:, o], dy[:, o], za[:, o], dz[:, o])
+            s = _Samples(*(np.ascontiguousarray(a.T) for a in arrays))
+            self._sample_windows[key] = s
+        return s
 
     def _window(self, first_column: int, n_columns: int) -> _Columns:
         key = (first_column, n_columns)
@@ -431,6 +547,138 @@ class StripeRenderer:
             rows = v0 + self.camera.focal_px * (col.ya + lam * col.dy) / (col.za + lam * col.dz)
         return hit, rows
 
+    def _lit(
+        self,
+        q: FloatArray,
+        u: FloatArray,
+        shadow: tuple[list[tuple[int, Piece]], FloatArray] | None,
+    ) -> tuple[NDArray[np.bool_], FloatArray]:
+        """Straight seam: which pieces each sub-column lights, from the line quantities
+        ``q`` (2Q + 1, N) of the columns and the chip positions ``u`` (K, N) of their
+        sub-columns; ``shadow``: the shadow tests to run (piece index, shadowing piece) and
+        their line quantities (6, N). The tests of :meth:`_hits` (on the segment, inside the
+        piece, not in another piece's shadow). Returns (lit (P, K, N), λ of the hit on the
+        sub-column's line (P, K, N))."""
+        n_p = len(self._pieces)
+        n_q = _NUM + 2 * n_p
+        v = q[n_q : 2 * n_q, None, :] * u
+        v += q[:n_q, None, :]  # (Q, K, N): every quantity at every sub-column
+        lam = v[_NUM : _NUM + n_p] / v[_NUM + n_p :]
+        lh = lam * v[_DL]
+        lh += v[_LA]
+        ok = lam >= 0.0
+        ok &= lam <= 1.0
+        ok &= lh >= self._lo
+        ok &= lh < self._hi
+        if shadow:
+            pairs, qs = shadow
+            w = qs[2:4, None, :] * u
+            w += qs[:2, None, :]  # heights of the line (start, span) at every sub-column
+            l_src, z_src = qs[_LS], qs[_ZS]
+            for i, c in pairs:
+                # does the laser ray source -> hit cross piece c first?
+                dls = lh[i] - l_src
+                dzs = lam[i] * w[_DZ]
+                dzs += w[_ZA]
+                dzs -= z_src
+                mu = _cut(c, l_src, z_src, dls, dzs)
+                lq = l_src + mu * dls
+                ok[i] &= ~((mu > 0.0) & (mu < 1.0 - 1e-9) & _within(lq, c.lo, c.hi))
+        return ok, lam
+
+    def _row(
+        self, lam: FloatArray, ya: FloatArray, dy: FloatArray, za: FloatArray, dz: FloatArray
+    ) -> FloatArray:
+        """Image row of the point at λ along column lines with camera-frame Y, Z (start
+        ``ya``, ``za``; spans ``dy``, ``dz``), any broadcastable shapes."""
+        num = lam * dy
+        num += ya
+        den = lam * dz
+        den += za
+        num /= den
+        num *= self.camera.focal_px
+        num += self.camera.principal_point[1]
+        return num
+
+    def _stats(self, first_column: int, times: FloatArray, sensor2base: PoseProvider) -> _Stats:
+        """Stripe statistics of the read columns from their poses at ``times`` (N,) s."""
+        n = times.shape[0]
+        if not self.scene.path.straight_line:
+            return self._stats_sampled(self._window(first_column, n), times, sensor2base)
+        s = self._samples(first_column, n)
+        poses = np.asarray(sensor2base(times), dtype=np.float64)
+        if poses.shape != (n, 4, 4):
+            raise CameraError(f"pose provider returned shape {poses.shape}")
+        p12 = poses[:, :3].reshape(n, 12).T
+        q = self._kq @ p12
+        q += self._kq0
+        z_min = float(q[-1].min())
+        pairs = [(i, c) for i, c, z in self._shadow_pairs if not z_min > z]
+        shadow = None
+        if pairs:
+            qs = self._ks @ p12
+            qs += self._ks0
+            shadow = (pairs, qs)
+        k = self.settings.subsamples
+        n_p = len(self._pieces)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ok, lam = self._lit(q, s.u_all, shadow)
+            count = np.add.reduce(ok.reshape(n_p * k, n), axis=0)
+            # one piece lit at every sub-column (so no other piece anywhere): the rows lie
+            # on one line of the image (a plane piece seen from one pose), affine in u, and
+            # the outer two sub-columns give the mean and spread of all K
+            uniform = np.add.reduce(np.logical_and.reduce(ok, axis=1), axis=0) == 1
+            uniform &= count == k
+            ends = self._ends
+            lam_u = np.where(ok[:, ends], lam[:, ends], 0.0).sum(axis=0)
+            r = self._row(lam_u, s.ya_out, s.dy_out, s.za_out, s.dz_out)
+            mean = r[0] + r[-1]
+            mean *= 0.5
+            var = r[-1] - r[0]
+            var *= self._spread
+            var *= var
+            coverage = count / k
+            mixed = count > 0
+            mixed &= ~uniform
+            mi = np.flatnonzero(mixed)
+            sub = np.empty((0, 0))
+            if mi.size:
+                # an edge inside the column: every sub-column's row
+                hit = ok[:, :, mi].reshape(n_p * k, mi.size)
+                rows = self._row(
+                    lam[:, :, mi], s.ya_all[:, mi], s.dy_all[:, mi], s.za_all[:, mi],
+                    s.dz_all[:, mi],
+                ).reshape(n_p * k, mi.size)  # fmt: skip
+                rz = np.where(hit, rows, 0.0)
+                c = count[mi]
+                m = np.add.reduce(rz, axis=0) / c
+                mean[mi] = m
+                rz *= rz
+                var[mi] = np.maximum(np.add.reduce(rz, axis=0) / c - m * m, 0.0)
+                sub = np.where(hit, rows, -1e9).T
+        lit = coverage > 0.0
+        simple = lit & (var <= 0.3**2)
+        ci = np.flatnonzero(lit & ~simple)
+        out = np.full((ci.size, max(sub.shape[1], k)), -1e9)
+        if ci.size:
+            steep = uniform[ci]
+            # steep columns on one piece: their K rows on the line through the outer ones
+            cu = ci[steep]
+            out[steep, :k] = r[0, cu, None] + self._frac * (r[-1, cu] - r[0, cu])[:, None]
+            if mi.size:
+                out[~steep, : sub.shape[1]] = sub[np.searchsorted(mi, ci[~steep])]
+        return _Stats(coverage, mean, var, simple, ci, out)
+
+    def _stats_sampled(self, col: _Columns, times: FloatArray, sensor2base: PoseProvider) -> _Stats:
+        """:meth:`_stats` from every sub-column's hits (any seam path)."""
+        hit, rows = self._hits(col, times, sensor2base)
+        k = self.settings.subsamples
+        coverage, mean, var = _sub_column_stats(hit, rows, k)
+        lit = coverage > 0
+        simple = lit & (var <= 0.3**2)
+        ci = np.flatnonzero(lit & ~simple)
+        return _Stats(coverage, mean, var, simple, ci, np.where(hit[ci], rows[ci], -1e9))
+
     def render(
         self,
         first_column: int,
@@ -460,17 +708,9 @@ class StripeRenderer:
             empty = np.full(n, np.nan)
             return frame, RenderTruth(empty, np.zeros(n), np.zeros(n, dtype=bool))
         times = np.asarray(column_times, dtype=np.float64)
-        hit, rows = self._hits(self._window(first_column, n), times, sensor2base)
+        stats = self._stats(first_column, times, sensor2base)
+        coverage, mean, var, simple = stats.coverage, stats.mean, stats.var, stats.simple
         k = st.subsamples
-        count = np.count_nonzero(hit, axis=1)
-        coverage = count / k
-        rz = np.where(hit, rows, 0.0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            mean = rz.sum(axis=1) / count
-            # spread of the sub-columns' rows (rows ~ 1e2 px: E[r²] - mean² loses ~1e-11 px²)
-            var = np.maximum(np.einsum("ij,ij->i", rz, rz) / count - mean * mean, 0.0)
-        lit = count > 0
-        simple = lit & (var <= 0.3**2)
         sigma2 = st.stripe_sigma_px**2
         # simple columns: one Gaussian with the sub-columns' mass and spread
         si = np.flatnonzero(simple)
@@ -486,10 +726,10 @@ class StripeRenderer:
             at = (cols[si] * cam.rows + start.astype(np.intp))[:, None] + self._win
             self._expose(frame, at, signal)
         # complex columns (an edge inside the column): every sub-column over the full column
-        ci = np.flatnonzero(lit & ~simple)
+        ci = stats.complex_columns
         if ci.size:
             all_rows = np.arange(cam.rows, dtype=np.float64)
-            d2 = (all_rows[None, None, :] - np.where(hit[ci], rows[ci], -1e9)[:, :, None]) ** 2
+            d2 = (all_rows[None, None, :] - stats.complex_rows[:, :, None]) ** 2
             signal = (amp / k) * np.exp(-d2 / (2.0 * sigma2)).sum(axis=1)
             at = cols[ci, None] * cam.rows + np.arange(cam.rows)
             self._expose(frame, at, signal.astype(np.float32))
@@ -509,6 +749,20 @@ class StripeRenderer:
         value += flat[at]
         np.clip(value, 0.0, 255.0, out=value)
         flat[at] = value.astype(np.uint8)
+
+
+def _sub_column_stats(
+    hit: NDArray[np.bool_], rows: FloatArray, k: int
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Coverage, mean row and spread (variance, px²) of columns (M,) from the hits and rows
+    (M, X) of their K sub-columns; mean and spread NaN where nothing is lit."""
+    count = np.count_nonzero(hit, axis=1)
+    rz = np.where(hit, rows, 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mean = rz.sum(axis=1) / count
+        # spread of the sub-columns' rows (rows ~ 1e2 px: E[r²] - mean² loses ~1e-11 px²)
+        var = np.maximum(np.einsum("ij,ij->i", rz, rz) / count - mean * mean, 0.0)
+    return count / k, mean, var
 
 
 def _rounded_normal_table(mean: float, sigma: float) -> U8Array:
