@@ -576,7 +576,10 @@ class EmulatedCell:
             "model": self.model,
             "robot": f"{self.robot_address[0]}:{self.robot_address[1]}",
             "sensor": f"{self.sensor_address[0]}:{self.sensor_address[1]}",
-            "udp": f"{self.udp_address[0]}:{self.udp_address[1]}",
+            # The simulated cell carries triggers in-process: its address only names the
+            # sensor endpoint (SetSensorEndpoint), no socket listens there.
+            "udp": f"{self.udp_address[0]}:{self.udp_address[1]}"
+            + (" (simulated in-process, no socket)" if self.clock == "sim" else ""),
             "sensor_tool": list(self.sensor_tool),
             "laser_tool": list(self.laser_tool),
             "ready_sensor_location": [
