@@ -395,6 +395,18 @@ class SeamDetector:
         ):
             return list(self.mass_at(f, stripe, np.array(cols), np.array(rows), half).tolist())
         offsets, ones = self._window(half)
+        starts = [round(r) - half for r in rows]  # round: half to even, as np.rint
+        if min(starts) >= 0 and max(starts) + 2 * half < nrows:
+            # every window inside its column: rows of a strided view over the frame, one
+            # index per column (the values, order and sums of the general path below)
+            flat = f.reshape(-1)
+            w = 2 * half + 1
+            windows = np.ndarray((flat.size - w + 1, w), flat.dtype, flat, 0, (f.itemsize,) * 2)
+            at = [(c - first) * nrows + s for c, s in zip(cols, starts, strict=True)]
+            vals = windows[at].astype(np.float64)
+            vals -= stripe.threshold
+            np.maximum(vals, 0.0, out=vals)
+            return list(vals.dot(ones).tolist())
         idx = np.array([round(r) for r in rows])[:, None] + offsets  # round: half to even
         rows_in = np.maximum(idx, 0)
         np.minimum(rows_in, nrows - 1, out=rows_in)
@@ -764,9 +776,14 @@ def _robust_line(
         rms = math.sqrt(max(szz - sz * mz - b * syz_c, 0.0) / n)
         if it < iterations:
             res = np.abs(np.array([-a, -b, 1.0]).dot(q))
-            sigma = 1.4826 * _median_of_copy(res.copy() if keep is None else res[keep])
-            new_keep = res <= max(3.5 * sigma, 0.01)
-            # the same points as in this fit: every further fit would repeat it exactly
+            fitted = res.copy() if keep is None else res[keep]
+            sigma = 1.4826 * _median_of_copy(fitted)  # sorts ``fitted``
+            limit = max(3.5 * sigma, 0.01)
+            # the same points as in this fit: every further fit would repeat it exactly;
+            # in the first fit, that is the largest residual (NaN sorts last) within limit
+            if keep is None and float(fitted[-1]) <= limit:
+                break
+            new_keep = res <= limit
             if new_keep.all() if keep is None else not (new_keep ^ keep).any():
                 break
             keep = new_keep
