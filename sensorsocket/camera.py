@@ -267,13 +267,10 @@ class _Columns:
 class _Samples:
     """Constants of N read columns for the straight-seam path: chip positions of the K
     sub-columns (K, N); camera-frame Y, Z of their column-line start points and the spans
-    to the end points, of all K (K, N) and of the outer two (S, N)."""
+    to the end points, of all K (4, K, N) and of the outer two (S, N)."""
 
     u_all: FloatArray
-    ya_all: FloatArray
-    dy_all: FloatArray
-    za_all: FloatArray
-    dz_all: FloatArray
+    cam_all: FloatArray  # (4, K, N): Y start, Y span, Z start, Z span
     ya_out: FloatArray
     dy_out: FloatArray
     za_out: FloatArray
@@ -437,8 +434,11 @@ class StripeRenderer:
             ya, za = self._ya[cols], self._za[cols]
             dy, dz = self._yb[cols] - ya, self._zb[cols] - za
             o = self._outer
-            arrays = (u, ya, dy, za, dz, ya[:, o], dy[:, o], za[:, o], dz[:, o])
-            s = _Samples(*(np.ascontiguousarray(a.T) for a in arrays))
+            cam_all = np.ascontiguousarray(np.stack([ya.T, dy.T, za.T, dz.T]))
+            arrays = (ya[:, o], dy[:, o], za[:, o], dz[:, o])
+            s = _Samples(
+                np.ascontiguousarray(u.T), cam_all, *(np.ascontiguousarray(a.T) for a in arrays)
+            )
             self._sample_windows[key] = s
         return s
 
@@ -646,31 +646,31 @@ class StripeRenderer:
             mixed = count > 0
             mixed &= ~uniform
             mi = np.flatnonzero(mixed)
-            sub = np.empty((0, 0))
+            hit: NDArray[np.bool_] = np.empty((0, 0), dtype=bool)
+            rows: FloatArray = np.empty((0, 0))
             if mi.size:
                 # an edge inside the column: every sub-column's row
                 hit = ok[:, :, mi].reshape(n_p * k, mi.size)
-                rows = self._row(
-                    lam[:, :, mi], s.ya_all[:, mi], s.dy_all[:, mi], s.za_all[:, mi],
-                    s.dz_all[:, mi],
-                ).reshape(n_p * k, mi.size)  # fmt: skip
+                c4 = s.cam_all[:, :, mi]
+                rows = self._row(lam[:, :, mi], c4[0], c4[1], c4[2], c4[3])
+                rows = rows.reshape(n_p * k, mi.size)
                 rz = np.where(hit, rows, 0.0)
                 c = count[mi]
                 m = np.add.reduce(rz, axis=0) / c
                 mean[mi] = m
                 rz *= rz
                 var[mi] = np.maximum(np.add.reduce(rz, axis=0) / c - m * m, 0.0)
-                sub = np.where(hit, rows, -1e9).T
         lit = coverage > 0.0
         simple = lit & (var <= 0.3**2)
         ci = np.flatnonzero(lit & ~simple)
-        out = np.full((ci.size, max(sub.shape[1], k)), -1e9)
+        out = np.full((ci.size, n_p * k if mi.size else k), -1e9)
         if ci.size:
             steep = uniform[ci]
             # steep columns on one piece: their K rows on the line through the outer ones
             cu = ci[steep]
             out[steep, :k] = r[0, cu, None] + self._frac * (r[-1, cu] - r[0, cu])[:, None]
             if mi.size:
+                sub = np.where(hit, rows, -1e9).T
                 out[~steep, : sub.shape[1]] = sub[np.searchsorted(mi, ci[~steep])]
         return _Stats(coverage, mean, var, simple, ci, out)
 
