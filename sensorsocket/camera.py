@@ -25,7 +25,9 @@ contiguous run of 256 bytes. ``frame.T`` is the conventional (256 rows, 512 colu
 
 from __future__ import annotations
 
+import functools
 import math
+import statistics
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -173,7 +175,8 @@ class RenderSettings:
     multiplicative speckle of contrast ``speckle_contrast`` on the stripe; then rounding and
     clipping to uint8 (saturation at 255). Both noises are pre-drawn (a background tile of
     twice the chip, a pool of unit normals) and read at random offsets per frame; they are
-    drawn anew every ``noise_refresh_frames`` frames.
+    drawn anew every ``noise_refresh_frames`` frames. The unit normals are the standard
+    normal quantiles of 16-bit uniform draws (|z| <= 4.33, variance 1 - 2e-5).
     """
 
     stripe_sigma_px: float = 1.4
@@ -462,7 +465,10 @@ class StripeRenderer:
         words = self._rng.integers(0, 1 << 32, size=shape[0] * shape[1] // 2, dtype=np.uint32)
         u = words.astype("<u4", copy=False).view("<u2")
         self._tile = self._background_table.take(u).reshape(shape)
-        self._normals = self._rng.standard_normal(self._normals_size, dtype=np.float32)
+        # unit normals the same way, from a quantile table: ~10x cheaper than
+        # standard_normal, which took most of the refresh time
+        words = self._rng.integers(0, 1 << 32, size=self._normals_size // 2, dtype=np.uint32)
+        self._normals = _normal_table().take(words.astype("<u4", copy=False).view("<u2"))
         self._frames_on_tile = 0
 
     def _unit_normals(self, shape: tuple[int, int]) -> NDArray[np.float32]:
@@ -839,6 +845,17 @@ def _rounded_normal_table(mean: float, sigma: float) -> U8Array:
         cdf = (k + 0.5 > mean).astype(np.float64)
     p = (np.arange(65536, dtype=np.float64) + 0.5) / 65536.0
     out: U8Array = np.searchsorted(cdf, p, side="right").astype(np.uint8)
+    return out
+
+
+@functools.cache
+def _normal_table() -> NDArray[np.float32]:
+    """Standard normal quantile (65536,) float32 for each 16-bit uniform draw k:
+    Φ⁻¹((k + 0.5) / 65536), symmetric about zero (read-only, built once per process)."""
+    nd = statistics.NormalDist()
+    lower = np.array([nd.inv_cdf((k + 0.5) / 65536.0) for k in range(32768)])
+    out: NDArray[np.float32] = np.concatenate([lower, -lower[::-1]]).astype(np.float32)
+    out.setflags(write=False)
     return out
 
 

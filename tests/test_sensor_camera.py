@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from statistics import NormalDist
 
 import numpy as np
 import pytest
@@ -102,6 +103,21 @@ def test_background_noise_statistics_are_honest() -> None:
     # different frames do not repeat the same noise pixel for pixel
     corr = np.corrcoef(darks[0].ravel(), darks[1].ravel())[0, 1]
     assert abs(corr) < 0.05
+
+
+def test_stripe_noise_pool_is_standard_normal() -> None:
+    """The pre-drawn unit normals: each 16-bit draw k maps to the standard normal quantile
+    of (k + 0.5)/65536, so the pool has the normal's quantiles, mean 0 and variance 1."""
+    r = StripeRenderer(Scene(Joint.butt()), rng=np.random.default_rng(8))
+    r.render(0, np.zeros(512), fixed_pose(np.eye(4)))
+    pool = np.asarray(r._normals, dtype=np.float64)
+    assert pool.size >= 1 << 16
+    assert abs(pool.mean()) < 0.02
+    assert pool.var() == pytest.approx(1.0, abs=0.02)
+    nd = NormalDist()
+    for z in (-3.0, -1.5, -0.5, 0.0, 0.7, 2.0, 3.0):
+        assert np.mean(pool <= z) == pytest.approx(nd.cdf(z), abs=0.005)
+    assert np.abs(pool).max() < 4.4  # the 16-bit table's extreme quantile is 4.32
 
 
 def test_stripe_noise_statistics_are_honest() -> None:
