@@ -194,6 +194,19 @@ class _SimTransport:
         pass
 
 
+class _TruePoses:
+    """The cell's true sensor poses as the camera asks for them: per time
+    (:meth:`EmulatedCell.sensor2base`) or as node poses and weights
+    (:meth:`EmulatedCell.node_poses`, a :class:`~sensorsocket.scene.NodePoseProvider`)."""
+
+    def __init__(self, cell: EmulatedCell) -> None:
+        self.node_poses = cell.node_poses
+        self._poses = cell.sensor2base
+
+    def __call__(self, times: FloatArray) -> FloatArray:
+        return self._poses(times)
+
+
 @dataclass
 class _Record:
     index: int
@@ -255,6 +268,13 @@ class EmulatedCell:
             np.empty(0), np.empty((0, 6)), np.empty((0, 16)),
         )  # fmt: skip
         self.scene = self._make_scene()
+        # node coordinates 0, 1, 2, ... as a column, for node_poses
+        self._node_at = np.arange(64, dtype=np.float64)[:, None]
+        # per node (setpoint, mid-cycle, ...): the support's half width and the slope of the
+        # weight's second factor, see node_poses
+        self._node_cap = np.empty((2, 64, 1))
+        self._node_cap[0] = np.where(np.arange(64) % 2, 1.0, 2.0)[:, None]
+        self._node_cap[1] = np.where(np.arange(64) % 2, 1.0, -0.5)[:, None]
         self.camera_timing = TimingModel(
             rng=rng_timing,
             poll_rate_hz=t.poll_rate_hz,
@@ -263,7 +283,7 @@ class EmulatedCell:
             full_frame_time_s=t.acquisition_s,
             processing_time_s=t.processing_s,
         )
-        camera = CameraEmulator(self.scene, self.sensor2base, self.camera_timing, rng=rng_render)
+        camera = CameraEmulator(self.scene, _TruePoses(self), self.camera_timing, rng=rng_render)
         self.sensor = Sensor(camera, clock=self.robot.time, after_acquire=self._record)
         self.records: list[_Record] = []
         self.handler = _NoisyHandler(
@@ -365,6 +385,44 @@ class EmulatedCell:
         if np.any(new):
             q[new] = _extrapolate(buf_t[-3:], buf_q[-3:], t[new])
         return self._setpoint_poses(q)
+
+    def node_poses(self, times: FloatArray) -> tuple[FloatArray, FloatArray] | None:
+        """The poses of :meth:`sensor2base` at ``times`` (N,) s as node poses (M, 16) and
+        weights (M, N) (:class:`~sensorsocket.scene.NodePoseProvider`): the setpoints that
+        bracket the times and the mid-cycles between them, with each time's quadratic
+        Lagrange weights. None when a time lies outside the known setpoints."""
+        t = np.asarray(times, dtype=np.float64)
+        if not len(t):
+            return None
+        t_min, t_max = float(np.minimum.reduce(t)), float(np.maximum.reduce(t))
+        with self._truth_lock:
+            buf_t, buf_q = self._truth.covering(t_min - 2.0 * self.robot.period)
+        n = len(buf_t)
+        if not (n >= 2 and buf_t[0] <= t_min and t_max <= buf_t[-1]):
+            return None
+        if t_max - t_min > 16 * self.robot.period:
+            return None  # a long span: more nodes than _node_at holds
+        # the cycles of the earliest and the latest time, as _pose_interp's k
+        k0, k1 = np.searchsorted(buf_t, (t_min, t_max), side="right").tolist()
+        lo, hi = min(max(k0 - 1, 0), n - 2), min(max(k1 - 1, 0), n - 2) + 2
+        t0 = buf_t[lo:hi]
+        nodes = self._node_poses(t0, buf_q[lo:hi])
+        m = len(nodes)
+        # node coordinate of each time: setpoint j at 2j, linear in time over each cycle (so
+        # the mid-cycle at 2j + 1); b: distance to every node (M, N), capped at the support
+        x = np.interp(t, t0, self._node_at[0 : m + 1 : 2, 0])
+        b = np.subtract(x, self._node_at[:m])
+        np.abs(b, out=b)
+        at = self._node_cap[:, :m]
+        np.minimum(b, at[0], out=b)
+        # quadratic Lagrange weights of the nodes 2j, 2j + 1, 2j + 2 of a cycle in the
+        # distance b: (1 - b)(1 - b/2) for a setpoint (b <= 2), (1 - b)(1 + b) for a
+        # mid-cycle (b <= 1)
+        w = np.subtract(1.0, b)
+        b *= at[1]
+        b += 1.0
+        w *= b
+        return nodes, w
 
     def _setpoint_poses(self, q: FloatArray) -> FloatArray:
         """^B_S T (N, 4, 4) mm at joints ``q`` (N, 6) deg."""

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from sensorsocket.scene import FloatArray, Piece, PoseProvider, Scene
+from sensorsocket.scene import FloatArray, Piece, PoseProvider, Scene, node_poses_of
 
 U8Array = NDArray[np.uint8]
 
@@ -611,23 +611,47 @@ class StripeRenderer:
         num += self.camera.principal_point[1]
         return num
 
+    def _pose_rows(
+        self, times: FloatArray, sensor2base: PoseProvider
+    ) -> tuple[FloatArray, FloatArray | None]:
+        """The top three rows of the poses at ``times`` (N,) s as (12, N) and None; or, from a
+        provider with node poses (:class:`~sensorsocket.scene.NodePoseProvider`), those rows
+        of its M nodes (12, M) and the weights (M, N): the line quantities are linear in
+        the pose, so they are taken of the nodes and then weighted (M ~ 5-7, not N = 512)."""
+        n = times.shape[0]
+        hook = node_poses_of(sensor2base)
+        nw = hook(times) if hook is not None else None
+        if nw is not None:
+            nodes, weights = nw
+            m = nodes.shape[0]
+            if nodes.shape != (m, 16) or weights.shape != (m, n):
+                raise CameraError(
+                    f"node pose provider returned shapes {nodes.shape}, {weights.shape}"
+                )
+            return nodes[:, :12].T, weights
+        poses = np.asarray(sensor2base(times), dtype=np.float64)
+        if poses.shape != (n, 4, 4):
+            raise CameraError(f"pose provider returned shape {poses.shape}")
+        return poses[:, :3].reshape(n, 12).T, None
+
     def _stats(self, first_column: int, times: FloatArray, sensor2base: PoseProvider) -> _Stats:
         """Stripe statistics of the read columns from their poses at ``times`` (N,) s."""
         n = times.shape[0]
         if not self.scene.path.straight_line:
             return self._stats_sampled(self._window(first_column, n), times, sensor2base)
         s = self._samples(first_column, n)
-        poses = np.asarray(sensor2base(times), dtype=np.float64)
-        if poses.shape != (n, 4, 4):
-            raise CameraError(f"pose provider returned shape {poses.shape}")
-        p12 = poses[:, :3].reshape(n, 12).T
+        p12, weights = self._pose_rows(times, sensor2base)
         q = self._kq @ p12
+        if weights is not None:
+            q = q @ weights
         q += self._kq0
         z_min = float(q[-1].min())
         pairs = [(i, c) for i, c, z in self._shadow_pairs if not z_min > z]
         shadow = None
         if pairs:
             qs = self._ks @ p12
+            if weights is not None:
+                qs = qs @ weights
             qs += self._ks0
             shadow = (pairs, qs)
         k = self.settings.subsamples

@@ -27,7 +27,10 @@ shadowed: the emulator is a triangulation model, not a ray tracer.
 Seam frame G (truth): origin at the seam point, x_G along the seam tangent, z_G = -z_W (into
 the material, like z_S in the nominal pose), y_G = z_G × x_G.
 
-Sensor poses are provided by a callable ``sensor2base(times (N,) s) -> (N, 4, 4) mm``.
+Sensor poses are provided by a callable ``sensor2base(times (N,) s) -> (N, 4, 4) mm``. A
+provider whose poses interpolate a few node poses may also offer them with the per-time weights
+(:class:`NodePoseProvider`): the camera's straight-seam path is linear in the pose, so it works
+on the nodes and combines with the weights instead of on N poses.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
+from typing import Protocol, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -43,6 +47,28 @@ from numpy.typing import ArrayLike, NDArray
 FloatArray = NDArray[np.float64]
 PoseProvider = Callable[[FloatArray], FloatArray]
 """``sensor2base(times (N,) seconds) -> (N, 4, 4)`` homogeneous transforms in mm."""
+NodePoses = Callable[[FloatArray], "tuple[FloatArray, FloatArray] | None"]
+"""``node_poses(times (N,) s) -> (nodes (M, 16), weights (M, N))`` or None, see
+:class:`NodePoseProvider`."""
+
+
+class NodePoseProvider(Protocol):
+    """A pose provider whose poses are weighted sums of a few node poses.
+
+    ``node_poses(times)`` returns node poses (M, 16) (4x4 row-major, mm) and weights (M, N)
+    with ``pose(times[i]) = sum_j weights[j, i] * nodes[j]`` up to rounding (the poses of
+    ``__call__``), or None when it cannot (then the caller asks ``__call__``)."""
+
+    def __call__(self, times: FloatArray) -> FloatArray: ...
+
+    def node_poses(self, times: FloatArray) -> tuple[FloatArray, FloatArray] | None: ...
+
+
+def node_poses_of(provider: PoseProvider) -> NodePoses | None:
+    """The ``node_poses`` hook of ``provider`` (:class:`NodePoseProvider`), None if it has
+    none."""
+    hook = getattr(provider, "node_poses", None)
+    return cast("NodePoses", hook) if callable(hook) else None
 
 
 class SceneError(ValueError):

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from cell.cell import CellTiming, EmulatedCell
+from sensorsocket.camera import StripeRenderer
 from spec.client import FramedClient
 from spec.errors import ErrorCode, RemoteError
 from spec.params import FloatArray, Location, Matrix
@@ -181,3 +182,44 @@ def test_sensor2base_pose_interpolation_exact() -> None:
     assert np.ptp(exact[:, :3, 3], axis=0).max() > 1.0
     assert np.abs(fast[:, :3, 3] - exact[:, :3, 3]).max() < 1e-6  # mm
     assert np.abs(fast[:, :3, :3] - exact[:, :3, :3]).max() < 1e-8
+
+
+def test_node_poses_hook_matches_column_poses() -> None:
+    """The cell's node poses with weights give its column poses (to rounding), and the camera
+    renders the same frames with them as with the 512 column poses (centre rows to 1e-9 px)."""
+    with EmulatedCell(clock="sim", seed=2, timing=PAPER) as cell:
+        run_delay_experiment(
+            cell.robot_address, cell.sensor_address, ExperimentSettings(duration_s=1.0)
+        )
+        buf_t, _ = cell._truth.covering(-1.0)
+        rng = np.random.default_rng(5)
+        emu = cell.sensor.emulator
+        provider = emu.sensor2base
+        for _ in range(20):
+            t0 = rng.uniform(buf_t[0], buf_t[-1] - 4e-3)
+            t = t0 + np.arange(512) * 3.5e-3 / 512 + rng.uniform(0.0, 1e-4)
+            if rng.random() < 0.3:
+                t = rng.permutation(t)  # any order of times
+            nw = provider.node_poses(t)
+            assert nw is not None
+            nodes, w = nw
+            assert nodes.shape == (w.shape[0], 16) and w.shape == (nodes.shape[0], 512)
+            assert np.abs(w.sum(axis=0) - 1.0).max() < 1e-12
+            poses = cell.sensor2base(t).reshape(-1, 16)
+            assert np.abs(w.T @ nodes - poses).max() < 1e-9  # mm
+            seed = int(rng.integers(1 << 30))
+            frames = []
+            for p in (provider, lambda x: provider(x)):
+                r = StripeRenderer(cell.scene, emu.camera, rng=np.random.default_rng(seed))
+                frames.append(r.render(0, np.sort(t), p))
+            # same pixels, except where the stripe's window start rint(centre row) sits on a
+            # tie: the ready pose sees the plate at row 127.5, and ~1e-12 px decide the side
+            cols = np.unique(np.argwhere(frames[0][0] != frames[1][0])[:, 0])
+            centre = frames[1][1].center_row[cols]
+            assert np.all(np.abs(centre - np.floor(centre) - 0.5) < 1e-9)
+            assert np.allclose(frames[0][1].center_row, frames[1][1].center_row, rtol=0.0,
+                               atol=1e-9, equal_nan=True)  # fmt: skip
+            assert np.isfinite(frames[0][1].center_row).sum() > 100
+        # outside the known setpoints the hook declines
+        assert provider.node_poses(np.array([buf_t[-1] + 1e-3])) is None
+        assert provider.node_poses(np.array([buf_t[0] - 1.0])) is None
