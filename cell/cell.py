@@ -22,6 +22,7 @@ Clocks:
 
 from __future__ import annotations
 
+import bisect
 import logging
 import math
 import threading
@@ -264,8 +265,8 @@ class EmulatedCell:
         self._truth = JointBuffer(capacity=2000)
         self._truth.append(0.0, np.asarray(self.ready_joints, dtype=np.float64))
         # sensor poses at the latest frame's setpoints and mid-cycles, see _node_poses
-        self._nodes: tuple[FloatArray, FloatArray, FloatArray] = (
-            np.empty(0), np.empty((0, 6)), np.empty((0, 16)),
+        self._nodes: tuple[list[float], FloatArray, FloatArray] = (
+            [], np.empty((0, 6)), np.empty((0, 16)),
         )  # fmt: skip
         self.scene = self._make_scene()
         # node coordinates 0, 1, 2, ... as a column, for node_poses
@@ -397,13 +398,14 @@ class EmulatedCell:
         t_min, t_max = float(np.minimum.reduce(t)), float(np.maximum.reduce(t))
         with self._truth_lock:
             buf_t, buf_q = self._truth.covering(t_min - 2.0 * self.robot.period)
-        n = len(buf_t)
-        if not (n >= 2 and buf_t[0] <= t_min and t_max <= buf_t[-1]):
+        bt = buf_t.tolist()  # a few samples: bisect on Python floats
+        n = len(bt)
+        if not (n >= 2 and bt[0] <= t_min and t_max <= bt[-1]):
             return None
         if t_max - t_min > 16 * self.robot.period:
             return None  # a long span: more nodes than _node_at holds
         # the cycles of the earliest and the latest time, as _pose_interp's k
-        k0, k1 = np.searchsorted(buf_t, (t_min, t_max), side="right").tolist()
+        k0, k1 = bisect.bisect_right(bt, t_min), bisect.bisect_right(bt, t_max)
         lo, hi = min(max(k0 - 1, 0), n - 2), min(max(k1 - 1, 0), n - 2) + 2
         t0 = buf_t[lo:hi]
         nodes = self._node_poses(t0, buf_q[lo:hi])
@@ -471,15 +473,14 @@ class EmulatedCell:
         and only the nodes past them are computed (the DGM is row by row, so the values are
         the same as computing all of them at once)."""
         c_t, c_q, c_p = self._nodes
-        m = len(t0)
+        times = t0.tolist()  # a few: bisect and compare on Python floats
+        m = len(times)
         known = 0
-        i = int(np.searchsorted(c_t, t0[0])) if len(c_t) else 0
-        if i < len(c_t) and c_t[i] == t0[0]:
+        i = bisect.bisect_left(c_t, times[0])
+        if i < len(c_t) and c_t[i] == times[0]:
             known = min(len(c_t) - i, m)
             # setpoints never change once appended; check anyway (a cleared buffer)
-            if c_t[i + known - 1] != t0[known - 1] or not np.array_equal(
-                c_q[i : i + known], q[:known]
-            ):
+            if c_t[i : i + known] != times[:known] or not (c_q[i : i + known] == q[:known]).all():
                 known = 0
         if known == m:
             out: FloatArray = c_p[2 * i : 2 * (i + m) - 1]
@@ -498,7 +499,7 @@ class EmulatedCell:
             nodes[0::2] = q
             nodes[1::2] = 0.5 * (q[:-1] + q[1:])
             new = self._setpoint_poses(nodes).reshape(-1, 16)
-        self._nodes = (t0, q, new)  # one tuple: a reader never sees a half update
+        self._nodes = (times, q, new)  # one tuple: a reader never sees a half update
         return new
 
     # --- the clock ---------------------------------------------------------------------------
