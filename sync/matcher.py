@@ -284,12 +284,21 @@ class SyncMatcher:
     def on_data(self, data: SensorData, now: float) -> DataOutcome:
         """Take one sensor datagram received at ``now`` (s, robot clock)."""
         seam2sensor = None
+        finite = True
         if data.status == STATUS_FOUND:
-            seam2sensor = _as_transform(data.seam2sensor)
+            s = data.seam2sensor
+            if isinstance(s, tuple) and len(s) == 6 and all(type(v) is float for v in s):
+                # a decoded datagram's location, checked on Python floats: a finite one
+                # gives a finite transform
+                finite = all(math.isfinite(v) for v in s)
+                seam2sensor = location_to_transform(s) if finite else None
+            else:
+                seam2sensor = _as_transform(s)
+                # ndarray.all: np.all's Python wrapper costs more than the test on 16 values
+                finite = bool(np.isfinite(seam2sensor).all())
         self._expire_lost(now)
         self.counters.data += 1
-        # ndarray.all: np.all's Python wrapper costs more than the test on 16 values
-        if seam2sensor is not None and not np.isfinite(seam2sensor).all():
+        if not finite:
             # A peer fault, not a caller one: count and drop; the index may still be lost.
             self.counters.invalid += 1
             return DataOutcome.INVALID
@@ -379,7 +388,10 @@ class SyncMatcher:
             ok = [i for i, st in enumerate(status) if st == _OK]
         base: NDArray[np.float64] | None = None
         if ok and self.flange2base is not None and self._s2f is not None:
-            g2s = np.stack([self._seam2sensor(entries[seqs[i]]) for i in ok])
+            if len(ok) == 1:  # one datagram per cycle, the usual: no np.stack
+                g2s = self._seam2sensor(entries[seqs[ok[0]]])[None]
+            else:
+                g2s = np.stack([self._seam2sensor(entries[seqs[i]]) for i in ok])
             f2b = np.asarray(self.flange2base(values[ok]), dtype=np.float64)
             base = np.matmul(f2b, np.matmul(self._s2f, g2s))
         row = 0

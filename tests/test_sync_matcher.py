@@ -185,6 +185,33 @@ def test_unknown_stale_invalid_and_caller_errors() -> None:
         SyncMatcher(delta_t_s=DT, flange2base=toy_flange2base)
 
 
+def test_location_tuple_of_floats_as_any_location() -> None:
+    """A decoded datagram's location (a tuple of 6 floats) gives the same point as the same
+    location as an array; a non-finite one is INVALID, as in any other form."""
+    from kinematics.transforms import location_to_transform
+
+    loc = (1.5, -2.25, 201.0, 3.0, -4.5, 179.0)
+    points = []
+    for seam in (loc, np.array(loc), list(loc)):
+        m, buf = make_matcher(), full_buffer()
+        m.on_trigger(7, trig_time(7))
+        assert m.on_data(SensorData(7, STATUS_FOUND, seam), trig_time(7) + 0.01) is (
+            DataOutcome.ACCEPTED
+        )
+        (p,) = m.poll(trig_time(7) + 0.01, buf)
+        points.append(p)
+    for p in points:
+        assert np.array_equal(p.seam2sensor, location_to_transform(np.array(loc)))
+        assert np.array_equal(p.seam2base, points[0].seam2base)
+    for bad in ((0.0, 0.0, float("nan"), 0.0, 0.0, 0.0), (float("inf"), 0.0, 0.0, 0.0, 0.0, 0.0)):
+        m = make_matcher()
+        m.on_trigger(8, trig_time(8))
+        assert m.on_data(SensorData(8, STATUS_FOUND, bad), trig_time(8)) is DataOutcome.INVALID
+        assert m.counters.invalid == 1 and m.pending == 1  # the index may still be lost
+        # a NOT_FOUND datagram's location is ignored, finite or not
+        assert m.on_data(SensorData(8, 1, bad), trig_time(8)) is DataOutcome.ACCEPTED
+
+
 def test_index_wraps_around_u32() -> None:
     m, buf = make_matcher(), full_buffer()
     first = INDEX_MODULUS - 5
