@@ -55,6 +55,38 @@ _DEGENERATE = 1e-12
 #: Up to this many configurations flange2base_batch runs its arithmetic on Python floats.
 _SMALL_BATCH = 12
 
+
+def _flange_rows(s: Any, c: Any, lengths: tuple[float, ...]) -> tuple[Any, ...]:
+    """The 12 upper entries of flange2base, row by row, from the sines and cosines of
+    (θ1, ..., θ6, θ2 + θ3): ``s`` and ``c`` hold 7 floats (one configuration) or 7 arrays (a
+    batch); the same operations in the same order either way, so both forms are bit-equal.
+    ``lengths``: shoulder offset, lateral offset, upper arm, forearm, wrist to flange (mm)."""
+    off, lat, l2, l3, d6 = lengths
+    s1, s2, _, s4, s5, s6, s23 = s
+    c1, c2, _, c4, c5, c6, c23 = c
+    c5c6 = c5 * c6
+    c5s6 = c5 * s6
+    a00 = c4 * c5c6 - s4 * s6
+    a01 = -c4 * c5s6 - s4 * c6
+    a02 = c4 * s5
+    a10 = s4 * c5c6 + c4 * s6
+    a11 = c4 * c6 - s4 * c5s6
+    a12 = s4 * s5
+    a20 = -s5 * c6
+    a21 = s5 * s6
+    b00 = c23 * a00 + s23 * a20
+    b01 = c23 * a01 + s23 * a21
+    b02 = c23 * a02 + s23 * c5
+    b22 = c23 * c5 - s23 * a02
+    px = off + l2 * s2 + l3 * s23 + d6 * b02
+    py = lat + d6 * a12
+    return (
+        c1 * b00 - s1 * a10, c1 * b01 - s1 * a11, c1 * b02 - s1 * a12, c1 * px - s1 * py,
+        s1 * b00 + c1 * a10, s1 * b01 + c1 * a11, s1 * b02 + c1 * a12, s1 * px + c1 * py,
+        c23 * a20 - s23 * a00, c23 * a21 - s23 * a01, b22, l2 * c2 + l3 * c23 + d6 * b22,
+    )  # fmt: skip
+
+
 Shoulder = Literal["righty", "lefty"]
 Elbow = Literal["epositive", "enegative"]
 Wrist = Literal["wpositive", "wnegative"]
@@ -360,83 +392,28 @@ class RobotModel:
         np.multiply(ang, math.pi / 180.0, out=ang)
         s = np.sin(ang)
         c = np.cos(ang)
-        if n <= _SMALL_BATCH:
-            return self._flange2base_small(s, c)
-        s1, s2, s4, s5, s6, s23 = s[0], s[1], s[3], s[4], s[5], s[6]
-        c1, c2, c4, c5, c6, c23 = c[0], c[1], c[3], c[4], c[5], c[6]
-        c5c6 = c5 * c6
-        c5s6 = c5 * s6
-        a00 = c4 * c5c6 - s4 * s6
-        a01 = -c4 * c5s6 - s4 * c6
-        a02 = c4 * s5
-        a10 = s4 * c5c6 + c4 * s6
-        a11 = c4 * c6 - s4 * c5s6
-        a12 = s4 * s5
-        a20 = -s5 * c6
-        a21 = s5 * s6
-        b00 = c23 * a00 + s23 * a20
-        b01 = c23 * a01 + s23 * a21
-        b02 = c23 * a02 + s23 * c5
-        d6 = self.wrist_to_flange_mm
-        px = self.shoulder_offset_mm + self.upper_arm_mm * s2 + self.forearm_mm * s23 + d6 * b02
-        py = self.lateral_offset_mm + d6 * a12
+        lengths = (
+            self.shoulder_offset_mm,
+            self.lateral_offset_mm,
+            self.upper_arm_mm,
+            self.forearm_mm,
+            self.wrist_to_flange_mm,
+        )
         out = np.empty((n, 4, 4))
-        out[:, 0, 0] = c1 * b00 - s1 * a10
-        out[:, 0, 1] = c1 * b01 - s1 * a11
-        out[:, 0, 2] = c1 * b02 - s1 * a12
-        out[:, 0, 3] = c1 * px - s1 * py
-        out[:, 1, 0] = s1 * b00 + c1 * a10
-        out[:, 1, 1] = s1 * b01 + c1 * a11
-        out[:, 1, 2] = s1 * b02 + c1 * a12
-        out[:, 1, 3] = s1 * px + c1 * py
-        out[:, 2, 0] = c23 * a20 - s23 * a00
-        out[:, 2, 1] = c23 * a21 - s23 * a01
-        b22 = c23 * c5 - s23 * a02
-        out[:, 2, 2] = b22
-        out[:, 2, 3] = self.upper_arm_mm * c2 + self.forearm_mm * c23 + d6 * b22
         out[:, 3, :3] = 0.0
         out[:, 3, 3] = 1.0
+        if n <= _SMALL_BATCH:
+            # Python floats: below ~10 configurations the ~40 numpy calls of the array form
+            # cost more than the arithmetic (same operations, same order: bit-equal).
+            rows = [
+                _flange_rows(sc, cc, lengths)
+                for sc, cc in zip(s.T.tolist(), c.T.tolist(), strict=True)
+            ]
+            out[:, :3, :] = np.array(rows, dtype=np.float64).reshape(n, 3, 4)
+        else:
+            for k, value in enumerate(_flange_rows(s, c, lengths)):
+                out[:, k // 4, k % 4] = value
         return out
-
-    def _flange2base_small(self, s: Array, c: Array) -> Array:
-        """:meth:`flange2base_batch` for a few configurations from their sines and cosines
-        (7, N): the same float operations in the same order on Python floats (bit-equal:
-        numpy's element-wise loops round each operation like Python does), without the
-        ~40 numpy calls whose overhead dominates below ~10 configurations."""
-        d6, l2, l3 = self.wrist_to_flange_mm, self.upper_arm_mm, self.forearm_mm
-        off, lat = self.shoulder_offset_mm, self.lateral_offset_mm
-        rows = []
-        for (s1, s2, _, s4, s5, s6, s23), (c1, c2, _, c4, c5, c6, c23) in zip(
-            s.T.tolist(), c.T.tolist(), strict=True
-        ):
-            c5c6 = c5 * c6
-            c5s6 = c5 * s6
-            a00 = c4 * c5c6 - s4 * s6
-            a01 = -c4 * c5s6 - s4 * c6
-            a02 = c4 * s5
-            a10 = s4 * c5c6 + c4 * s6
-            a11 = c4 * c6 - s4 * c5s6
-            a12 = s4 * s5
-            a20 = -s5 * c6
-            a21 = s5 * s6
-            b00 = c23 * a00 + s23 * a20
-            b01 = c23 * a01 + s23 * a21
-            b02 = c23 * a02 + s23 * c5
-            px = off + l2 * s2 + l3 * s23 + d6 * b02
-            py = lat + d6 * a12
-            b22 = c23 * c5 - s23 * a02
-            rows.append(
-                (
-                    (c1 * b00 - s1 * a10, c1 * b01 - s1 * a11, c1 * b02 - s1 * a12,
-                     c1 * px - s1 * py),
-                    (s1 * b00 + c1 * a10, s1 * b01 + c1 * a11, s1 * b02 + c1 * a12,
-                     s1 * px + c1 * py),
-                    (c23 * a20 - s23 * a00, c23 * a21 - s23 * a01, b22,
-                     l2 * c2 + l3 * c23 + d6 * b22),
-                    (0.0, 0.0, 0.0, 1.0),
-                )
-            )  # fmt: skip
-        return np.array(rows, dtype=np.float64).reshape(-1, 4, 4)
 
     # --- configuration and singularities ---------------------------------------------------
 
