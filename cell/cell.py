@@ -23,6 +23,7 @@ Clocks:
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import logging
 import math
 import threading
@@ -165,11 +166,7 @@ class _NoisySensor:
             return r
         dy, dz = self._rng.normal(0.0, self.noise_mm, 2)
         s = r.seam
-        return Reading(
-            r.index, r.status, r.seam2sensor, (s[0], s[1] + dy, s[2] + dz, s[3], s[4], s[5]),
-            r.quality, r.t_trigger, r.t_arrival, r.t_exposure_start, r.t_exposure_end,
-            r.t_done, r.frame, r.points, r.truth_seam2sensor, r.detector_status,
-        )  # fmt: skip
+        return dataclasses.replace(r, seam=(s[0], s[1] + dy, s[2] + dz, s[3], s[4], s[5]))
 
 
 class _NoisyHandler(TriggerHandler):
