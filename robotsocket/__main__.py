@@ -157,7 +157,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--token-file", type=Path, help="file holding the TakeControl token")
     s.add_argument("--encoder-latency-ms", type=cliargs.nonnegative_float, default=0.0)
     s.add_argument(
-        "--udp-port", type=int, default=0, help="UDP port of the trigger/data endpoint (0 = any)"
+        "--udp-port",
+        type=cliargs.port,
+        default=0,
+        help="UDP port of the trigger/data endpoint (0 = any)",
     )
     s.add_argument("--max-clients", type=cliargs.positive_int, default=64)
     s.set_defaults(fn=cmd_serve)

@@ -24,6 +24,7 @@ from sensorsocket.pgm import write_pgm
 from sensorsocket.sensor import Reading, SensorError, SimClock, build_sensor
 from sensorsocket.service import SensorService
 from sensorsocket.udp import TriggerHandler, TriggerListener
+from spec import cliargs
 from spec.callcli import EXIT_REMOTE_ERROR, EXIT_UNREACHABLE, EXIT_USAGE, main_call, parse_endpoint
 from spec.cliargs import run_cli
 from spec.errors import ErrorCode, ProtocolError, RemoteError
@@ -50,10 +51,11 @@ def _parser() -> _Parser:
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
     s = sub.add_parser("serve", help="run the sensor server (TCP) and trigger listener (UDP)")
     s.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
-    s.add_argument("--port", type=int, default=DEFAULT_PORT, help="TCP port, 0 = any free")
+    s.add_argument("--port", type=cliargs.port, default=DEFAULT_PORT, help="TCP port, 0 = any free")
     s.add_argument(
         "--udp-port",
-        default=str(DEFAULT_UDP_PORT),
+        type=_udp_port,
+        default=DEFAULT_UDP_PORT,
         help="UDP trigger port; 0 or auto = any free port, off = no trigger listener",
     )
     s.add_argument("--joint", choices=("butt", "fillet", "lap"), default="butt")
@@ -97,21 +99,15 @@ def _udp_port(text: str) -> int | None:
     if text == "auto":
         return 0
     try:
-        port = int(text)
-    except ValueError:
-        msg = f"--udp-port: expected a port number, auto or off, got {text!r}"
-        raise _UsageError(msg) from None
-    if not 0 <= port < 65536:
-        raise _UsageError(f"--udp-port out of range: {port}")
-    return port
+        return cliargs.port(text)
+    except argparse.ArgumentTypeError as exc:
+        raise argparse.ArgumentTypeError(f"{exc} (or auto, off)") from None
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
-    if not 0 <= args.port < 65536:
-        raise _UsageError(f"--port out of range: {args.port}")
     if not args.network_delay >= 0:
         raise _UsageError("--network-delay must be >= 0 s")
-    udp_port = _udp_port(args.udp_port)
+    udp_port: int | None = args.udp_port
     token = _token(args.token_file)
     try:
         allow = parse_networks(args.allow)
