@@ -48,6 +48,16 @@ class WireLog:
             )
 
 
+def _not_a_frame(exc: PeerError) -> Fail:
+    """The verdict when the endpoint's bytes cannot be framed at all [RS-3.1]."""
+    return Fail(
+        "the endpoint sent bytes that are not a frame",
+        "a frame starting with 52 53 and a usable header",
+        str(exc),
+        requirement="RS-3.1",
+    )
+
+
 class Closed(Exception):
     """The endpoint closed the connection (EOF or reset)."""
 
@@ -125,12 +135,7 @@ class Conn:
         try:
             self.decoder.feed(chunk)
         except PeerError as exc:
-            raise Fail(
-                "the endpoint sent bytes that are not a frame",
-                "a frame starting with 52 53 and a usable header",
-                str(exc),
-                requirement="RS-3.1",
-            ) from None
+            raise _not_a_frame(exc) from None
 
     def recv_packet(self, timeout: float | None = None) -> Packet:
         """The next reply or error frame (event frames are counted and skipped [RS-3.14])."""
@@ -139,12 +144,7 @@ class Conn:
             try:
                 event = self.decoder.next_event()
             except PeerError as exc:
-                raise Fail(
-                    "the endpoint sent bytes that are not a frame",
-                    "a frame starting with 52 53 and a usable header",
-                    str(exc),
-                    requirement="RS-3.1",
-                ) from None
+                raise _not_a_frame(exc) from None
             if isinstance(event, Rejected):
                 raise Fail(
                     f"the endpoint sent a malformed frame ({event.code.name})",
