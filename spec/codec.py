@@ -350,21 +350,20 @@ def _decode_frame(
 
 def decode_packet(data: bytes, max_payload: int = wire.MAX_PAYLOAD) -> Packet:
     """Decode exactly one complete frame; raise :class:`PeerError` on anything else."""
+    header = Header.unpack(data) if len(data) >= wire.HEADER_SIZE else None
     if (
-        len(data) >= wire.FRAME_OVERHEAD
-        and data[:2] == wire.MAGIC
-        and len(data) == wire.FRAME_OVERHEAD + Header.unpack(data).length
-        and Header.unpack(data).length <= max_payload
+        header is not None
+        and header.magic == wire.MAGIC
+        and len(data) == wire.FRAME_OVERHEAD + header.length
+        and header.length <= max_payload
     ):
         # Fast path for exactly one frame: no buffering copy.
-        return _decode_frame(Header.unpack(data), memoryview(data), _ALL_KINDS)
+        return _decode_frame(header, memoryview(data), _ALL_KINDS)
     decoder = FrameDecoder(max_payload=max_payload)
     decoder.feed(data)
     event = decoder.next_event()
     if event is None:
-        need = wire.HEADER_SIZE
-        if len(data) >= wire.HEADER_SIZE:
-            need = wire.HEADER_SIZE + Header.unpack(data).length + wire.TRAILER_SIZE
+        need = wire.HEADER_SIZE if header is None else wire.FRAME_OVERHEAD + header.length
         raise FrameError(f"truncated frame: {len(data)} of {need} bytes", ErrorCode.BAD_FRAME)
     if isinstance(event, Rejected):
         raise event.error

@@ -109,9 +109,6 @@ class Session:
     def send(self, packet: Packet) -> None:
         self.send_parts(encode_packet_parts(packet, wire.MAX_PAYLOAD, crc=self.crc))
 
-    def send_encoded(self, data: bytes) -> None:
-        self.send_parts([data])
-
     def send_parts(self, parts: list[bytes]) -> None:
         """Send one encoded frame given as pieces: small frames joined and sent at once,
         large ones (images) handed to the kernel piece by piece, never copied here."""
