@@ -216,15 +216,6 @@ class RenderTruth:
     simple: NDArray[np.bool_] = field(repr=False)
 
 
-def _left_multiply(a: FloatArray, b: FloatArray) -> FloatArray:
-    """``a @ b`` for one (4, 4) ``a`` and a stack (N, 4, 4) ``b``, as one (4, 4N) product:
-    a single BLAS call instead of N small ones."""
-    n = b.shape[0]
-    wide = np.ascontiguousarray(b.transpose(1, 0, 2)).reshape(4, 4 * n)
-    out: FloatArray = (a @ wide).reshape(4, n, 4).transpose(1, 0, 2)
-    return out
-
-
 def _cut(p: Piece, l0: FloatArray, z0: FloatArray, dl: FloatArray, dz: FloatArray) -> FloatArray:
     """Parameter λ where the segment (l0, z0) + λ·(dl, dz) meets the line h = a + b·l of
     piece ``p``; a flat piece (b = 0) skips the products with zero."""

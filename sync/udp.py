@@ -461,9 +461,6 @@ class DelayLink:
             self._seq += 1
             heapq.heappush(self._queue, (t + d, self._seq, datagram))
 
-    def next_arrival(self) -> float | None:
-        return self._queue[0][0] if self._queue else None
-
     def deliver(self, until: float) -> list[tuple[float, bytes]]:
         """Datagrams arriving at or before ``until`` (s): (arrival time, bytes), in order."""
         out = []
