@@ -28,7 +28,7 @@ from cell.cell import CellError, CellTiming, EmulatedCell
 from cell.options import add_timing_options, timing_kwargs
 from sensorsocket.pgm import write_pgm
 from spec import cliargs
-from spec.client import FramedClient
+from spec.client import FramedClient, wait_end_move
 from spec.errors import ProtocolError
 from spec.params import Image, Joints, Location
 from spec.registry import CommandId
@@ -114,7 +114,7 @@ def _robot_tour(robot: FramedClient) -> None:
     away = list(q.values)
     away[0] += 10.0
     robot.call(CommandId.JOINT_MOVE, Joints(away))
-    robot.call(CommandId.WAIT_END_MOVE, 10.0, timeout=15.0)
+    wait_end_move(robot, 10.0)
     config = robot.call(CommandId.GET_SYNC_CONFIG)
     tool = config[3]
     world = Location(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -122,7 +122,7 @@ def _robot_tour(robot: FramedClient) -> None:
     assert isinstance(here, Location)
     print(f"  JointMove(joint 1 + 10 deg); Here(sensor tool) = {_fmt(here.as_tuple())}")
     robot.call(CommandId.JOINT_MOVE, Joints(list(q.values)))
-    robot.call(CommandId.WAIT_END_MOVE, 10.0, timeout=15.0)
+    wait_end_move(robot, 10.0)
     (here,) = robot.call(CommandId.HERE, tool, world)
     assert isinstance(here, Location)
     print(f"  back over the seam:      Here(sensor tool) = {_fmt(here.as_tuple())}")

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from spec.client import ClientTimeout, ConnectionClosed, FramedClient
+from spec.client import ClientTimeout, ConnectionClosed, FramedClient, wait_end_move
 from spec.errors import ErrorCode, RemoteError
 from spec.params import Joints, Location, Matrix, Value
 from spec.registry import CommandId
@@ -223,11 +223,9 @@ class RobotClient(FramedClient):
         return MotionDesc(*self.call(CommandId.GET_MOTION_DESC))  # type: ignore[arg-type]
 
     def wait_end_move(self, timeout: float = 60.0) -> bool:
-        """True when the arm settled, False when ``timeout`` s passed first (the socket
-        timeout is extended by the wait)."""
-        (done,) = self.call(CommandId.WAIT_END_MOVE, float(timeout), timeout=timeout + self.timeout)
-        assert isinstance(done, bool)
-        return done
+        """True when the arm settled, False when ``timeout`` s passed first. While control is
+        held the wait goes out in pieces shorter than the control lease [RS-7.13]."""
+        return wait_end_move(self, timeout)
 
     def stop_move(self) -> None:
         self.call(CommandId.STOP_MOVE)

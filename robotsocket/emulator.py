@@ -66,6 +66,8 @@ OUTPUTS = ("laser", "gas", "crossjet")
 INPUTS = ("laser_ready", "gas_pressure_ok", "door_closed")
 #: Moves that may wait in the queue.
 MAX_QUEUE = 256
+#: Cycles a held simulated arm advances per lock hold (~4 ms of CPU).
+_SIM_SLICE = 250
 
 CycleHook = Callable[[float, Array, Array], None]
 
@@ -351,22 +353,33 @@ class RobotEmulator(RobotInterface):
     def wait_end_move(self, timeout: float) -> bool:
         if not (math.isfinite(timeout) and 0.0 < timeout <= 3600.0):
             raise OutOfRangeError(f"timeout must be in (0, 3600] s, got {timeout}")
+        if self._simclock is not None:
+            return self._advance_until_settled(timeout)
         with self._lock:
-            if self._simclock is not None:
-                # Simulated clock: waiting *is* advancing the clock.
-                end = self._simclock.cycle + math.ceil(timeout / self.period)
-                while not self._settled() and self._simclock.cycle < end:
-                    if self._gen.held and not self._gen.in_motion:
-                        # Held by StopMove: nothing can change; let the time pass in one go.
-                        self._simclock.advance(end - self._simclock.cycle)
-                        break
-                    self._simclock.advance(1)
-                return self._settled()
             self._waiters += 1
             try:
                 return self._cond.wait_for(self._settled, timeout)
             finally:
                 self._waiters -= 1
+
+    def _advance_until_settled(self, timeout: float) -> bool:
+        """Simulated clock: waiting *is* advancing the clock. The lock is taken per slice
+        of cycles, so other connections (EmergencyStop, a controller that is lost) get in
+        between and a long wait never freezes the server."""
+        assert self._simclock is not None
+        clock = self._simclock
+        with self._lock:
+            end = clock.cycle + math.ceil(timeout / self.period)
+        while True:
+            with self._lock:
+                if self._settled() or clock.cycle >= end:
+                    return self._settled()
+                if self._gen.held and not self._gen.in_motion:
+                    # Held by StopMove: nothing changes until a command does.
+                    n = min(end - clock.cycle, _SIM_SLICE)
+                else:
+                    n = 1
+                clock.advance(n)
 
     def stop_move(self) -> None:
         with self._lock:
@@ -386,10 +399,19 @@ class RobotEmulator(RobotInterface):
             self._last_error = None
 
     def on_control_lost(self) -> None:
+        """[RS-7.10] The laser goes off before anything else, then the arm decelerates along
+        its path and the queue is dropped, then gas and crossjet go off; power stays."""
         with self._lock:
+            if self._outputs["laser"]:
+                self._outputs["laser"] = False
+                log.warning("controller lost: laser off")
             if not self._gen.idle:
                 log.warning("controller lost: decelerating along the path and dropping the queue")
             self._gen.reset()
+            for name in ("crossjet", "gas"):
+                if self._outputs[name]:
+                    self._outputs[name] = False
+                    log.warning("controller lost: %s off", name)
 
     def emergency_stop(self) -> None:
         with self._lock:

@@ -5,7 +5,9 @@ registry gives the command's parameter (joints and locations as comma-separated 
 booleans as on/off), sends one request and prints the reply as JSON named by the registry's
 reply table. A command that needs control takes it first (with the token) and gives it back
 (released, not lost: a queued move goes on unless ``call`` waits for it, the default).
-Exit codes: 0 ok, 1 error reply (code and message on stderr), 2 usage, 3 unreachable.
+Exit codes: 0 ok, 1 error reply (code and message on stderr), 2 usage, 3 unreachable,
+130 interrupted (Ctrl-C or SIGTERM: a move this call queued is stopped with ResetMotion and
+control is released first).
 """
 
 from __future__ import annotations
@@ -13,11 +15,14 @@ from __future__ import annotations
 import json
 import math
 import os
+import signal
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from spec.client import FramedClient
+from spec.client import FramedClient, wait_end_move
 from spec.errors import ProtocolError, RemoteError
 from spec.jsonform import plain
 from spec.params import FloatArray, IntArray, Joints, Location, Transform, Value
@@ -27,6 +32,7 @@ from spec.wire import ParamType
 EXIT_REMOTE_ERROR = 1
 EXIT_USAGE = 2
 EXIT_UNREACHABLE = 3
+EXIT_INTERRUPTED = 130
 
 _QUEUED_MOVES = {
     CommandId.JOINT_MOVE,
@@ -177,22 +183,30 @@ def main_call(
     except (ValueError, ProtocolError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    queued = False
     try:
-        with FramedClient(host, port, timeout=timeout) as client:
+        with _sigterm_interrupts(), FramedClient(host, port, timeout=timeout) as client:
             take = spec.needs_control and spec.id != CommandId.TAKE_CONTROL
             if take:
                 client.take_control(token or "")
             try:
                 values = client.call(spec.id, *params)
                 reply = reply_json(BY_ID[spec.id], values)
-                if spec.id in _QUEUED_MOVES and wait is not None:
-                    done = client.call(CommandId.WAIT_END_MOVE, wait, timeout=wait + 10)[0]
-                    reply["done"] = done
+                queued = spec.id in _QUEUED_MOVES
+                if queued and wait is not None:
+                    reply["done"] = wait_end_move(client, wait)
+            except KeyboardInterrupt:
+                _stop_what_was_started(client, take and queued)
+                raise
             finally:
                 if take and client.connected:
                     # Released, not lost: a move that is still running goes on [RS-7.11];
                     # also after an error reply, so the next call finds control free.
                     client.release_control()
+    except KeyboardInterrupt:
+        stopped = "; the move was stopped" if queued else ""
+        print(f"interrupted{stopped}; control released", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except RemoteError as exc:
         print(f"error {exc.code.name} ({exc.raw_code}): {exc.message}", file=sys.stderr)
         return EXIT_REMOTE_ERROR
@@ -204,3 +218,32 @@ def main_call(
         print(f"error: the move did not end within {wait:g} s (it goes on)", file=sys.stderr)
         return EXIT_REMOTE_ERROR
     return 0
+
+
+def _stop_what_was_started(client: FramedClient, moved: bool) -> None:
+    """After Ctrl-C: a move this call queued decelerates and the queue empties. Best
+    effort: an unreachable server stops the arm itself when control is lost [RS-7.10]."""
+    if not moved or not client.connected:
+        return
+    try:
+        client.call(CommandId.RESET_MOTION)
+    except (OSError, ProtocolError):
+        pass
+
+
+@contextmanager
+def _sigterm_interrupts() -> Iterator[None]:
+    """SIGTERM ends a call the way Ctrl-C does (a KeyboardInterrupt in the main thread)."""
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    try:
+        previous = signal.signal(signal.SIGTERM, interrupt)
+    except ValueError:  # not the main thread: leave signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)

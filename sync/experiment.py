@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 
 from kinematics.robot import get_model
 from kinematics.transforms import location_to_transform
-from spec.client import FramedClient
+from spec.client import FramedClient, wait_end_move
 from spec.files import atomic_path, prepare_output_path, write_atomically
 from spec.params import FloatArray, IntArray, Location, Matrix, Value
 from spec.registry import SEAM_POINT_COLUMNS, CommandId
@@ -246,7 +246,7 @@ def record_sine(
     if not status[0]:
         robot.call(CommandId.ENABLE_POWER)
     if status[2]:
-        robot.call(CommandId.WAIT_END_MOVE, 30.0, timeout=35.0)
+        wait_end_move(robot, 30.0)
     (loc0,) = robot.call(CommandId.HERE, tool, _IDENTITY)
     assert isinstance(loc0, Location)
     times, y = sine_path(s)
@@ -271,10 +271,7 @@ def record_sine(
         done = False
         while True:
             if not done:
-                (d,) = robot.call(
-                    CommandId.WAIT_END_MOVE, float(s.chunk_s), timeout=s.chunk_s + 10.0
-                )
-                done = bool(d)
+                done = wait_end_move(robot, float(s.chunk_s))
             (log,) = robot.call(CommandId.GET_JOINT_LOG, float(log_since))[:1]
             rows = _matrix(log)
             if rows.size:
