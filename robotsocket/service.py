@@ -5,8 +5,9 @@ registry and control ownership when :meth:`RobotService.handle` runs. Handlers l
 keyed by command ID; :meth:`RobotService.register` adds more (the synchronisation commands
 0x3001-0x3009 plug in this way) and :meth:`implemented` lists exactly what is registered.
 Register extra handlers *before* the server is constructed: the shell reads ``implemented()``
-once, in its constructor. EmergencyStop is urgent (executed on arrival, served on reserved
-connections) and WaitEndMove blocking (runs on the session's worker) [RS-7.12].
+once, in its constructor. EmergencyStop, StopMove and ResetMotion are urgent (executed on
+arrival; EmergencyStop also on reserved connections) and WaitEndMove blocking (runs on the
+session's worker) [RS-7.12].
 """
 
 from __future__ import annotations
@@ -74,7 +75,10 @@ class RobotService(HandlerService):
     ``control_lost_hooks`` run after the robot's own controlled stop when the controller is
     gone (the synchronisation service stops its triggers there)."""
 
-    urgent = frozenset({int(CommandId.EMERGENCY_STOP)})
+    # Stopping never waits behind a pending WaitEndMove of the same connection [RS-7.12].
+    urgent = frozenset(
+        int(c) for c in (CommandId.EMERGENCY_STOP, CommandId.STOP_MOVE, CommandId.RESET_MOTION)
+    )
     blocking = frozenset({int(CommandId.WAIT_END_MOVE)})
 
     def __init__(self, robot: RobotInterface, software: str = "0.1.0") -> None:

@@ -12,13 +12,13 @@ Safety of control (PROTOCOL.md 7.1):
 - A session never goes blind. Requests that may block (the service's ``blocking`` commands,
   e.g. WaitEndMove) run on a per-session worker thread, so the reader keeps reading: it sees
   the connection close at once, renews the control lease with every frame, and executes the
-  service's ``urgent`` commands (EmergencyStop) the moment they arrive [RS-7.12].
+  service's ``urgent`` commands (the stopping ones) the moment they arrive [RS-7.12].
 - The controlling connection holds a lease (the watchdog period, set at TakeControl): a
   controller that sends no frame for that long loses control and the service makes its
   controlled stop (:meth:`Service.on_control_lost`) [RS-7.13]. The same on close and on
   server shutdown.
-- A server at its client limit keeps a few reserved connections open for the urgent commands
-  only, so EmergencyStop always gets through [RS-7.14].
+- A server at its client limit keeps a few reserved connections open for EmergencyStop only,
+  so it always gets through [RS-7.14].
 
 The server never dies from what a client sends: every rejection becomes an error packet or a
 clean close, and a failing handler becomes an INTERNAL_ERROR reply [RS-7.9].
@@ -65,7 +65,7 @@ class ServerPolicy:
     """Connection policies (PROTOCOL.md section 7); the defaults are the spec's SHOULDs."""
 
     max_clients: int = 64
-    #: Connections over ``max_clients`` kept open for the urgent commands only [RS-7.14].
+    #: Connections over ``max_clients`` kept open for EmergencyStop only [RS-7.14].
     reserved_slots: int = 4
     #: s a reserved connection stays open for its EmergencyStop [RS-7.14].
     reserved_grace: float = 2.0
@@ -136,10 +136,10 @@ class Session:
         self.id = next(server._session_ids)
         self._send_lock = threading.Lock()
         self.closed = False
-        #: Over the client limit: only the urgent commands are served [RS-7.14].
+        #: Over the client limit: only EmergencyStop is served [RS-7.14].
         self.reserved = reserved
         self.opened = time.monotonic()
-        #: Last sign of life (a frame received or a reply sent): the control lease runs from it.
+        #: When the last frame arrived: the control lease runs from it [RS-7.13].
         self.alive_at = self.opened
         #: Control lease (s) in force while this connection holds control [RS-7.13].
         self.watchdog = server.policy.watchdog
@@ -230,7 +230,7 @@ class Service:
 
     identity: Identity
     #: Commands executed the moment they arrive, even while earlier requests of the same
-    #: connection are pending, and served on reserved connections (EmergencyStop) [RS-7.12].
+    #: connection are pending (the stopping commands) [RS-7.12].
     urgent: frozenset[int] = frozenset()
     #: Commands that may block (WaitEndMove): run on the session's worker [RS-7.12].
     blocking: frozenset[int] = frozenset()
@@ -683,7 +683,6 @@ class FramedServer:
             return
         self._count("replies")  # before sending, so statistics() never lags a received reply
         session.send_parts(parts)
-        session.alive_at = time.monotonic()  # a reply the client will read and follow up
 
     def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
         service = self.service.identity.service
@@ -693,8 +692,8 @@ class FramedServer:
                 f"unknown command 0x{packet.command:04x} for the {service} service",
                 ErrorCode.UNKNOWN_COMMAND,
             )
-        if session.reserved and packet.command not in self.service.urgent:
-            # [RS-7.14] a reserved connection serves the urgent commands only.
+        if session.reserved and packet.command != CommandId.EMERGENCY_STOP:
+            # [RS-7.14] a reserved connection serves EmergencyStop only.
             raise ProtocolError(
                 f"client limit reached: only EmergencyStop is served here, not {spec.name}",
                 ErrorCode.BUSY,
