@@ -69,7 +69,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
         )
     except (ValueError, KinematicsError) as exc:
         raise CliError(str(exc)) from None
-    policy = ServerPolicy(max_clients=args.max_clients, allow=allow, token=token)
+    policy = ServerPolicy(
+        max_clients=args.max_clients, allow=allow, token=token, watchdog=args.watchdog
+    )
     service = RobotService(robot)
     try:
         # The synchronisation commands (0x3001-0x3009) and their UDP endpoint, registered
@@ -163,6 +165,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="UDP port of the trigger/data endpoint (0 = any)",
     )
     s.add_argument("--max-clients", type=cliargs.positive_int, default=64)
+    s.add_argument(
+        "--watchdog",
+        type=cliargs.watchdog,
+        default=ServerPolicy.watchdog,
+        metavar="S",
+        help="control lease when TakeControl names none (s, default %(default)g)",
+    )
     s.set_defaults(fn=cmd_serve)
     c = sub.add_parser("call", help="send one command, print the reply as JSON")
     c.add_argument("endpoint", metavar="HOST:PORT")

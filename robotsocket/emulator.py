@@ -20,6 +20,7 @@ from __future__ import annotations
 import logging
 import math
 import threading
+import time
 from collections import deque
 from collections.abc import Callable, Sequence
 
@@ -380,6 +381,9 @@ class RobotEmulator(RobotInterface):
                 else:
                     n = 1
                 clock.advance(n)
+            # Hand the lock over: a thread blocked on it wakes, but without this the waiter
+            # would take it again before that thread gets the interpreter.
+            time.sleep(0)
 
     def stop_move(self) -> None:
         with self._lock:

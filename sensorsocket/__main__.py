@@ -66,6 +66,13 @@ def _parser() -> _Parser:
     s.add_argument("--clock", choices=("real", "sim"), default="real")
     s.add_argument("--allow", nargs="+", default=[], metavar="CIDR", help="client allow-list")
     s.add_argument("--token-file", help="file holding the TakeControl token")
+    s.add_argument(
+        "--watchdog",
+        type=cliargs.watchdog,
+        default=ServerPolicy.watchdog,
+        metavar="S",
+        help="control lease when TakeControl names none (s, default %(default)g)",
+    )
     s.add_argument("--seed", type=int, default=0, help="random seed of the emulator")
     s.add_argument("--network-delay", type=float, default=0.0, help="modelled UDP reply delay (s)")
     c = sub.add_parser("call", help="send one command and print the reply as JSON")
@@ -137,7 +144,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     except SensorError as exc:
         raise _UsageError(str(exc)) from None
     service = SensorService(sensor)
-    policy = ServerPolicy(allow=allow, token=token)
+    policy = ServerPolicy(allow=allow, token=token, watchdog=args.watchdog)
     listener: TriggerListener | None = None
     what = f"TCP {args.host}:{args.port}"
     try:

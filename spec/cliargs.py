@@ -11,6 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from spec.files import prepare_output_path
+from spec.server import ServerPolicy
 
 
 def port(text: str) -> int:
@@ -45,6 +46,15 @@ def nonnegative_float(text: str) -> float:
     value = _number(text)
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return value
+
+
+def watchdog(text: str) -> float:
+    """A control watchdog period within the server's limits (PROTOCOL.md [RS-7.13])."""
+    value = positive_float(text)
+    low, high = ServerPolicy.watchdog_min, ServerPolicy.watchdog_max
+    if not low <= value <= high:
+        raise argparse.ArgumentTypeError(f"must be within {low:g}..{high:g} s, got {text!r}")
     return value
 
 

@@ -60,7 +60,7 @@ class Cell:
 def cell() -> Iterator[Cell]:
     robot = RobotEmulator(clock="real").start()
     service = RobotService(robot)
-    sync, endpoint = attach_udp_sync(service, robot)
+    _sync, endpoint = attach_udp_sync(service, robot)
     policy = ServerPolicy(max_clients=8, reserved_slots=1, watchdog=WATCHDOG)
     server = FramedServer(service, "127.0.0.1", 0, policy)
     endpoint.start()
@@ -191,7 +191,7 @@ def test_emergency_stop_gets_through_a_full_server(cell: Cell) -> None:
     try:
         assert cell.wait_until(lambda: cell.server.statistics()["clients"] == 8)
         proc = call(cell, "EmergencyStop")
-        out, err = proc.communicate(timeout=10)
+        _out, err = proc.communicate(timeout=10)
         assert proc.returncode == 0, err
         assert cell.robot.status().estop
         proc = call(cell, "GetStatus")  # anything else is refused while full

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import socket
+import threading
 import time
 from collections.abc import Iterator
 
@@ -281,3 +282,29 @@ def test_raw_frames_get_the_request_id_echoed(server: FramedServer) -> None:
             got.extend(dec.events())
     assert [p.request_id for p in got] == [77, 78]  # type: ignore[union-attr]
     assert got[1].error[0] == ErrorCode.NOT_IN_CONTROL  # type: ignore[union-attr]
+
+
+def test_long_simulated_wait_of_a_bystander_does_not_freeze_the_server(
+    robot: RobotEmulator, server: FramedServer, client: RobotClient
+) -> None:
+    """Sim clock, arm held by StopMove: another connection's WaitEndMove(600) advances 150 000
+    cycles; Herej from a third connection is answered meanwhile (the emulator's lock is
+    taken per slice of cycles), and the controller's EmergencyStop gets in."""
+    client.take_control("s3cret")
+    client.enable_power()
+    client.joint_move([20.0, 0.0, 90.0, 0.0, 90.0, 0.0])
+    client.stop_move()
+    done: list[bool] = []
+    with RobotClient(*server.address, timeout=120.0) as bystander:
+        waiter = threading.Thread(target=lambda: done.append(bystander.wait_end_move(600.0)))
+        waiter.start()
+        with RobotClient(*server.address) as reader:
+            answered = 0
+            while waiter.is_alive() and answered < 3:
+                reader.herej()
+                answered += 1
+        alive_while_answering = waiter.is_alive()
+        client.emergency_stop()
+        waiter.join(120.0)
+    assert answered == 3 and alive_while_answering
+    assert done == [True]  # the e-stop ended the held move: settled

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import socket
+import threading
 import time
 from collections.abc import Iterator
 
@@ -25,11 +26,21 @@ class EchoRobot(Service):
 
     identity = Identity("robot", vendor="test", model="echo")
 
+    urgent = frozenset({int(CommandId.EMERGENCY_STOP)})
+    blocking = frozenset({int(CommandId.WAIT_END_MOVE)})
+
     def __init__(self) -> None:
         self.lost_control: list[int] = []
+        self.stopped = threading.Event()
 
     def implemented(self) -> tuple[int, ...]:
-        return (CommandId.HEREJ, CommandId.ENABLE_POWER, CommandId.GET_JOINT_LIMITS)
+        return (
+            CommandId.HEREJ,
+            CommandId.ENABLE_POWER,
+            CommandId.GET_JOINT_LIMITS,
+            CommandId.WAIT_END_MOVE,
+            CommandId.EMERGENCY_STOP,
+        )
 
     def handle(
         self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
@@ -37,6 +48,13 @@ class EchoRobot(Service):
         if spec.id == CommandId.HEREJ:
             return (Joints([1, 2, 3, 4, 5, 6]),)
         if spec.id == CommandId.ENABLE_POWER:
+            return ()
+        if spec.id == CommandId.WAIT_END_MOVE:  # "the move ends" when EmergencyStop comes
+            timeout = params[0]
+            assert isinstance(timeout, float)
+            return (self.stopped.wait(timeout),)
+        if spec.id == CommandId.EMERGENCY_STOP:
+            self.stopped.set()
             return ()
         raise ZeroDivisionError("deliberate handler bug")
 
@@ -410,3 +428,109 @@ def test_feed_and_in_place_receive_mix_in_any_order(cuts: list[int], in_place: l
     assert [p.request_id for p in got] == [1, 2, 3, 4]
     assert got[1].params == (payload,) and got[3].params == (payload[:70_000],)
     assert decoder.buffered == 0 and not decoder.in_frame
+
+
+def test_stopping_request_overtakes_a_pending_wait_others_stay_in_order(
+    server: FramedServer,
+) -> None:
+    """[RS-7.12] WaitEndMove runs on the worker; Herej queues behind it; EmergencyStop,
+    urgent, is executed on arrival and its reply comes first."""
+    with raw_conn(server) as s:
+        s.sendall(
+            encode_packet(request(CommandId.WAIT_END_MOVE, 1, 30.0))
+            + encode_packet(request(CommandId.HEREJ, 2))
+            + encode_packet(request(CommandId.EMERGENCY_STOP, 3))
+        )
+        replies = read_packets(s, 3)
+    assert [p.request_id for p in replies] == [3, 1, 2]
+    assert replies[1].params == (True,)
+
+
+def test_a_close_is_seen_while_a_request_is_pending(server: FramedServer) -> None:
+    service = server.service
+    assert isinstance(service, EchoRobot)
+    with raw_conn(server) as s:
+        s.sendall(encode_packet(request(CommandId.TAKE_CONTROL, 1, "")))
+        read_packets(s, 1)
+        s.sendall(encode_packet(request(CommandId.WAIT_END_MOVE, 2, 30.0)))
+        deadline = time.monotonic() + 5
+        while not server.statistics()["frames_in"] >= 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+    deadline = time.monotonic() + 5
+    while not service.lost_control and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert service.lost_control, "the close was not seen while WaitEndMove was pending"
+    assert not service.stopped.is_set()  # the wait itself is still running
+    service.stopped.set()
+
+
+def test_silent_controller_loses_control_by_the_watchdog(server: FramedServer) -> None:
+    service = server.service
+    assert isinstance(service, EchoRobot)
+    with FramedClient(*server.address) as client:
+        client.keepalive = False
+        assert client.take_control("", 0.1) == 0.1
+        for _ in range(5):  # frames inside the period keep the lease
+            time.sleep(0.04)
+            client.ping()
+        assert not service.lost_control
+        time.sleep(0.4)
+        assert service.lost_control
+        with pytest.raises(RemoteError) as err:
+            client.call(CommandId.ENABLE_POWER)
+        assert err.value.code == ErrorCode.NOT_IN_CONTROL and "watchdog" in err.value.message
+    assert server.statistics()["watchdog_expired"] == 1
+
+
+def test_watchdog_outside_the_limits_is_out_of_range(server: FramedServer) -> None:
+    with FramedClient(*server.address) as client:
+        for bad in (0.0, 0.001, 1e6, float("nan")):
+            with pytest.raises(RemoteError) as err:
+                client.take_control("", bad)
+            assert err.value.code == ErrorCode.OUT_OF_RANGE
+        assert client.take_control("") == ServerPolicy().watchdog  # the default
+
+
+def test_emergency_stop_on_a_reserved_connection_of_a_full_server(server: FramedServer) -> None:
+    """[RS-7.14] over the limit: BUSY (ID 0), then EmergencyStop executed, others BUSY."""
+    service = server.service
+    assert isinstance(service, EchoRobot)
+    clients = [FramedClient(*server.address) for _ in range(4)]
+    try:
+        for c in clients:
+            c.ping()
+        with FramedClient(*server.address) as late:
+            late.call(CommandId.EMERGENCY_STOP)  # skips the BUSY notice of the full server
+            assert service.stopped.is_set()
+            with pytest.raises(RemoteError) as err:
+                late.call(CommandId.HEREJ)
+            assert err.value.code == ErrorCode.BUSY
+    finally:
+        for c in clients:
+            c.close()
+    assert server.statistics()["reserved_connections"] == 1
+
+
+def test_an_interrupted_call_leaves_no_stale_reply(server: FramedServer) -> None:
+    """Ctrl-C while waiting for a reply: the next call gets its own reply, not the old one."""
+    service = server.service
+    assert isinstance(service, EchoRobot)
+    with FramedClient(*server.address) as client:
+        timer = threading.Timer(0.2, service.stopped.set)
+        original = client._receive
+        calls = 0
+
+        def interrupted(timeout: float, command: int = -1) -> Packet:
+            nonlocal calls
+            calls += 1
+            if calls == 1:
+                timer.start()
+                raise KeyboardInterrupt  # as if Ctrl-C hit while waiting for WaitEndMove
+            return original(timeout, command)
+
+        client._receive = interrupted  # type: ignore[method-assign]
+        with pytest.raises(KeyboardInterrupt):
+            client.call(CommandId.WAIT_END_MOVE, 5.0)
+        (joints,) = client.call(CommandId.HEREJ)  # the WaitEndMove reply comes first
+        assert joints == Joints([1, 2, 3, 4, 5, 6])
+        timer.join()
