@@ -74,6 +74,8 @@ class FramedClient:
         self._kernel_timeout: float | None = None  # SO_RCVTIMEO in force, None: Python's
         self._decoder = FrameDecoder(max_payload=wire.MAX_PAYLOAD)
         self._next_id = 1
+        self._id_lock = threading.Lock()
+        self._send_lock = threading.Lock()
         self._scratch = bytearray(1 << 18)  # reused receive buffer: no allocation per recv
         self._lock = threading.RLock()
         self.server_info: dict[str, Value] = {}
@@ -156,8 +158,7 @@ class FramedClient:
                 if not self.auto_reconnect:
                     raise ConnectionClosed("not connected")
                 self.connect()
-            request_id = self._next_id
-            self._next_id = (self._next_id % 0xFFFFFFFF) + 1
+            request_id = self._new_request_id()
             data = encode_packet(request(command, request_id, *params))
             try:
                 self._send(data)
@@ -166,7 +167,6 @@ class FramedClient:
                     raise
                 self.connect()
                 self._send(data)
-            self._last_sent = time.monotonic()
             try:
                 reply = self._receive(timeout if timeout is not None else self.timeout, command)
             except BaseException:
@@ -175,10 +175,19 @@ class FramedClient:
                 raise
         return self._check_reply(command, request_id, reply)
 
+    def _new_request_id(self) -> int:
+        with self._id_lock:
+            request_id = self._next_id
+            self._next_id = (self._next_id % 0xFFFFFFFF) + 1
+            return request_id
+
     def _send(self, data: bytes) -> None:
-        assert self._sock is not None
+        sock = self._sock
+        assert sock is not None
         try:
-            self._sock.sendall(data)
+            with self._send_lock:  # the lease keeper may send beside a pending call
+                sock.sendall(data)
+                self._last_sent = time.monotonic()
         except BlockingIOError:  # the kernel send timeout expired: the server stopped reading
             self.close()
             raise ClientTimeout("the server does not take the request (send timed out)") from None
@@ -321,22 +330,29 @@ class FramedClient:
         self._keeper = None
 
     def _keep_lease(self, lease: float) -> None:
-        """Ping when nothing was sent for lease / 3. A request in flight holds the lock and
-        counts by itself (long waits are split into pieces shorter than the lease)."""
+        """A Ping whenever nothing was sent for lease / 3. Idle, it is an ordinary call; while
+        a call is in flight (a WaitEndMove piece that a busy or simulated server takes long
+        to answer) it is sent beside it and its reply is dropped when it comes."""
         interval = lease / 3
         while not self._keeper_stop.wait(interval / 2):
             if time.monotonic() - self._last_sent < interval:
                 continue
-            if not self._lock.acquire(blocking=False):
-                continue
             try:
-                if self._sock is None or self._keeper_stop.is_set():
-                    return
-                self.call(CommandId.PING, b"", timeout=max(self.timeout, lease))
-            except (OSError, ProtocolError):
+                if self._lock.acquire(blocking=False):
+                    try:
+                        if self._sock is None or self._keeper_stop.is_set():
+                            return
+                        self.call(CommandId.PING, b"", timeout=max(self.timeout, lease))
+                    finally:
+                        self._lock.release()
+                else:
+                    request_id = self._new_request_id()
+                    self._abandoned.add(request_id)
+                    if self._sock is None:
+                        return
+                    self._send(encode_packet(request(CommandId.PING, request_id, b"")))
+            except (OSError, ProtocolError, AssertionError):
                 return  # the connection is gone; the next request will say so
-            finally:
-                self._lock.release()
 
     def get_time(self) -> float:
         (t,) = self.call(CommandId.GET_TIME)

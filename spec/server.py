@@ -543,13 +543,10 @@ class FramedServer:
                 return
             with self._lock:
                 self._stats["bytes_in"] += len(data)
-            was_in_frame = decoder.in_frame
-            completed = False
             last_byte = time.monotonic()
             try:
                 decoder.feed(data)
                 for event in decoder.events():
-                    completed = True
                     # [RS-7.13] every frame from the controller renews its lease.
                     session.alive_at = last_byte
                     self._route(session, event)
@@ -558,8 +555,9 @@ class FramedServer:
                 self._reject_code(exc.code)
                 self._send_error(session, 0, 0, exc.code, exc.message)
                 return
-            # The partial-frame clock starts with the first byte of the unfinished frame.
-            if decoder.in_frame and (completed or not was_in_frame):
+            # [RS-7.5] the partial-frame clock runs between bytes: every byte of an
+            # unfinished frame restarts it, so a large frame on a slow link is not cut off.
+            if decoder.in_frame:
                 frame_start = last_byte
 
     def _route(self, session: Session, event: Packet | Rejected) -> None:
@@ -628,6 +626,11 @@ class FramedServer:
                 late = time.monotonic() - (holder.alive_at + holder.watchdog)
                 if late < 0:
                     self._control.wait(-late)
+                    continue
+                if _unread(holder.sock):
+                    # Bytes from the controller wait in the kernel: it is alive, only this
+                    # busy process has not read them yet. Late, not a lost controller.
+                    holder.alive_at = time.monotonic()
                     continue
             self._count("watchdog_expired")
             self._revoke_control(holder, f"watchdog: no frame for {holder.watchdog:g} s")
@@ -808,6 +811,14 @@ def _sendmsg_all(sock: socket.socket, parts: list[bytes]) -> None:
             views.pop(0)
         if sent:
             views[0] = views[0][sent:]
+
+
+def _unread(sock: socket.socket) -> bool:
+    """True when received bytes wait unread on ``sock`` (not at its end of stream)."""
+    try:
+        return bool(sock.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT))
+    except OSError:
+        return False
 
 
 def _close_quietly(sock: socket.socket) -> None:

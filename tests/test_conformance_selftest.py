@@ -182,7 +182,12 @@ class MiniSensor(Service):
             if c == C.GET_IMAGE:
                 if self.reading is None:
                     raise ProtocolError("no image yet", ErrorCode.NO_DATA)
-                col, row, w, h = (list(params) + [0, 0, self.W, self.H][len(params) :])[:4]
+                # [SS-5.10] left-off width and height: the rest of the sensor.
+                col, row = ([*list(params), 0, 0])[:2]
+                assert isinstance(col, int) and isinstance(row, int)
+                col, row, w, h = (
+                    list(params) + [col, row, self.W - col, self.H - row][len(params) :]
+                )[:4]
                 assert all(isinstance(v, int) for v in (col, row, w, h))
                 if not (
                     col >= 0
@@ -209,7 +214,7 @@ class MiniSensor(Service):
                 return ()
             if c == C.SET_READOUT_WINDOW:
                 first, cols = int(params[0]), int(params[1])  # type: ignore[call-overload]
-                if not (first >= 0 and cols > 0 and first + cols <= self.W):
+                if not (first >= 0 and cols >= 16 and first + cols <= self.W):
                     raise ProtocolError("window out of range", ErrorCode.OUT_OF_RANGE)
                 self.window = (first, cols)
                 return (self.acq_time(),)
@@ -893,7 +898,7 @@ class MiniSyncRobot(MiniRobot):
         self.delta_t = 0.005
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
-        self.sock.settimeout(0.01)
+        self.sock.settimeout(0.001)
         self.next_index = 7
         self.sent: dict[int, float] = {}  # index -> t_T, awaiting data
         self.lost: set[int] = set()
@@ -917,22 +922,22 @@ class MiniSyncRobot(MiniRobot):
         )
         self.to_send = 0
         self.rate = 0.0
+        self.next_t = 0.0
         self.lock = threading.Lock()
         self.stop = threading.Event()
         threading.Thread(target=self._loop, daemon=True).start()
 
     def _loop(self) -> None:
-        next_t = time.monotonic()
         while not self.stop.is_set():
             now = time.monotonic()
             with self.lock:
-                if self.to_send and now >= next_t and self.endpoint[1]:
+                if self.to_send and now >= self.next_t and self.endpoint[1]:
                     i, self.next_index = self.next_index, self.next_index + 1
                     self.sent[i] = now
                     self.to_send -= 1
                     self.stats["sent"] += 1
                     self.sock.sendto(encode_trigger(Trigger(i, now)), self.endpoint)
-                    next_t = now + 1.0 / self.rate
+                    self.next_t += 1.0 / self.rate  # on the schedule, not after the last send
                 for i, t in list(self.sent.items()):
                     if now - t > self.LOSS_TIMEOUT:
                         del self.sent[i]
@@ -987,6 +992,8 @@ class MiniSyncRobot(MiniRobot):
                 self.endpoint = (str(params[0]), int(params[1]))  # type: ignore[call-overload]
                 return ()
             if c == C.SET_SYNC_DELAY:
+                if not abs(float(params[0])) <= 1.0:  # type: ignore[arg-type]
+                    raise ProtocolError("delta_t beyond 1 s", ErrorCode.OUT_OF_RANGE)
                 self.delta_t = float(params[0])  # type: ignore[arg-type]
                 return ()
             if c == C.SET_SENSOR_TOOL:
@@ -1004,9 +1011,9 @@ class MiniSyncRobot(MiniRobot):
                     raise ProtocolError("no sensor endpoint", ErrorCode.BAD_STATE)
                 if c == C.START_TRIGGERS:
                     rate, count = float(params[0]), int(params[1])  # type: ignore[arg-type,call-overload]
-                    if not 0 < rate <= 1000:
+                    if not 0 < rate <= 1000 or count < 0:
                         raise ProtocolError("rate out of range", ErrorCode.OUT_OF_RANGE)
-                    self.rate, self.to_send = rate, count
+                    self.rate, self.to_send, self.next_t = rate, count, time.monotonic()
                     return (self.next_index,)
                 times = params[0].values  # type: ignore[union-attr]
                 if any(b <= a for a, b in itertools.pairwise(times)):

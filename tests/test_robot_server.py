@@ -308,3 +308,18 @@ def test_long_simulated_wait_of_a_bystander_does_not_freeze_the_server(
         waiter.join(120.0)
     assert answered == 3 and alive_while_answering
     assert done == [True]  # the e-stop ended the held move: settled
+
+
+def test_controller_keeps_its_lease_while_a_slow_simulated_wait_runs(
+    robot: RobotEmulator, server: FramedServer, client: RobotClient
+) -> None:
+    """A busy simulated server takes longer than the lease to answer one WaitEndMove piece
+    (each 4 ms cycle costs 10 ms of wall time here): the client's keeper pings beside the
+    pending call, so the controller is not taken for lost."""
+    robot.cycle_hooks.append(lambda t, q_sp, q_m: time.sleep(0.01))
+    assert client.take_control("s3cret", 0.1) == 0.1
+    client.enable_power()
+    client.joint_move([1.0, 0.0, 90.0, 0.0, 90.0, 0.0])
+    assert client.wait_end_move(30.0)
+    assert client.status().in_control
+    assert server.statistics()["watchdog_expired"] == 0

@@ -239,6 +239,17 @@ def test_a_frame_that_stops_half_way_times_out(server: FramedServer) -> None:
         assert c.ping() == b""
 
 
+def test_a_slow_frame_that_keeps_arriving_is_not_cut_off(server: FramedServer) -> None:
+    """[RS-7.5] the frame timeout (0.5 s here) runs between bytes, not over the frame."""
+    frame = encode_packet(request(CommandId.HEREJ, 7))
+    with raw_conn(server) as s:
+        for i in range(0, len(frame), 4):  # 6 pieces, 0.15 s apart: 0.75 s in all
+            s.sendall(frame[i : i + 4])
+            time.sleep(0.15)
+        (reply,) = read_packets(s, 1)
+    assert reply.kind is PacketKind.REPLY and reply.request_id == 7
+
+
 def test_client_over_the_limit_gets_busy(server: FramedServer) -> None:
     clients = [FramedClient(*server.address) for _ in range(4)]
     try:

@@ -7,8 +7,10 @@ from conformance.cases import (  # noqa: F401  (imported for their registrations
     control,
     framing,
     negotiation,
+    precedence,
     robot,
     robustness,
     sensor,
+    shapes,
     sync,
 )
