@@ -26,6 +26,7 @@ from types import FrameType
 from typing import Any
 
 from spec import wire
+from spec.auth import AuthBackoff, tokens_equal
 from spec.codec import (
     LARGE_FRAME,
     FrameDecoder,
@@ -55,6 +56,11 @@ class ServerPolicy:
     idle_timeout: float = 300.0  # s without any byte before the server closes [RS-7.6]
     allow: tuple[Network, ...] = ()  # empty: every client that can reach the address
     token: str | None = None  # TakeControl must present it when set [RS-7.3]
+
+    def __post_init__(self) -> None:
+        if self.token is not None and not self.token.strip():
+            # An empty token would be presented by any client: protection silently off.
+            raise ValueError("the control token is empty (use None for no token)")
 
     def allows(self, host: str) -> bool:
         if not self.allow:
@@ -184,6 +190,7 @@ class FramedServer:
         self._stopped = threading.Event()
         self._thread: threading.Thread | None = None
         self.control_holder: Session | None = None
+        self._auth = AuthBackoff()  # failed TakeControl attempts per address [RS-7.20]
         self.handler_errors: list[BaseException] = []
         self._implemented = frozenset(service.implemented()) | {int(c) for c in _COMMON}
 
@@ -484,8 +491,31 @@ class FramedServer:
 
     def _take_control(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
         token = params[0]
-        if self.policy.token is not None and token != self.policy.token:
-            raise ProtocolError("control token missing or wrong", ErrorCode.AUTH_FAILED)
+        expected = self.policy.token
+        if expected is not None:
+            assert isinstance(token, str)  # check_params made sure of it
+            address, now = session.peer[0], time.monotonic()
+            with self._lock:
+                wait = self._auth.wait(address, now)
+                if wait == 0.0:
+                    right = tokens_equal(token, expected)
+                    if right:
+                        self._auth.succeeded(address)
+                    else:
+                        failures, delay = self._auth.failed(address, now)
+            if wait > 0.0:
+                # [RS-7.20] refused without comparing, and not logged: a guesser would fill
+                # the log; its failures that were compared are.
+                raise ProtocolError(
+                    f"too many wrong tokens from {address}: retry in {wait:.2f} s",
+                    ErrorCode.AUTH_FAILED,
+                )
+            if not right:
+                log.warning(
+                    "session %d: wrong control token from %s (%d in a row, back-off %.2f s)",
+                    session.id, address, failures, delay,
+                )  # fmt: skip
+                raise ProtocolError("control token missing or wrong", ErrorCode.AUTH_FAILED)
         with self._lock:
             holder = self.control_holder
             if holder is not None and holder is not session:
