@@ -23,6 +23,8 @@ from spec.errors import PeerError
 
 
 def _read_input(arg: str) -> bytes:
+    if not arg.strip():
+        return b""  # not the current directory: Path("") is "."
     if arg == "-":
         data = sys.stdin.buffer.read()
         text = data.decode("ascii", "replace").strip()
