@@ -65,6 +65,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
         # The synchronisation commands (0x3001-0x3009) and their UDP endpoint, registered
         # before the server reads the service's command list.
         _, endpoint = attach_udp_sync(service, robot, host=args.host, port=args.udp_port)
+        endpoint.allow = allow  # [SY-1.5] the UDP port honours --allow too
+        endpoint.sensor_only = not args.data_from_any  # [SY-3.7]
         server = FramedServer(service, args.host, args.port, policy)
     except OSError as exc:
         raise CliError(f"cannot listen on {args.host}:{args.port}: {exc.strerror}") from None
@@ -82,6 +84,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
     print(f"listening on {server.address[0]}:{server.address[1]}", flush=True)
 
     def on_stop() -> None:
+        if endpoint.dropped:
+            log.info("udp datagrams dropped: %s", dict(endpoint.dropped))
         endpoint.stop()
         robot.close()
         j = robot.jitter()
@@ -168,6 +172,12 @@ def build_parser() -> argparse.ArgumentParser:
         type=cliargs.port,
         default=0,
         help="UDP port of the trigger/data endpoint (0 = any)",
+    )
+    s.add_argument(
+        "--data-from-any",
+        action="store_true",
+        help="accept data datagrams from any source, not only the sensor endpoint set by "
+        "SetSensorEndpoint (for a sensor that replies from another port)",
     )
     s.add_argument("--max-clients", type=cliargs.int_in(1, 65535), default=64)
     s.set_defaults(fn=cmd_serve)

@@ -7,10 +7,29 @@ time of each TakeControl attempt [RS-7.20].
 from __future__ import annotations
 
 import hmac
+import ipaddress
 import os
 from collections import OrderedDict
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+
+Network = ipaddress.IPv4Network | ipaddress.IPv6Network
+
+
+def address_allowed(allow: Iterable[Network], host: str) -> bool:
+    """Whether ``host`` (a numeric address, as a socket reports it) is in ``allow``; an empty
+    allow-list allows every address [RS-7.7, SY-1.5]."""
+    nets = tuple(allow)
+    if not nets:
+        return True
+    try:
+        address = ipaddress.ip_address(host.split("%")[0])
+    except ValueError:
+        return False
+    if isinstance(address, ipaddress.IPv6Address) and address.ipv4_mapped is not None:
+        address = address.ipv4_mapped  # ::ffff:10.0.0.1 from a dual-stack socket
+    return any(address in net for net in nets)
 
 
 def read_token_file(path: str | os.PathLike[str]) -> str:
@@ -105,4 +124,4 @@ class AuthBackoff:
         return len(self._failures)
 
 
-__all__ = ["AuthBackoff", "read_token_file", "tokens_equal"]
+__all__ = ["AuthBackoff", "Network", "address_allowed", "read_token_file", "tokens_equal"]

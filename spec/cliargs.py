@@ -11,9 +11,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
 
-from spec.auth import read_token_file
+from spec.auth import Network, read_token_file
 from spec.files import prepare_output_path
-from spec.server import Network, parse_networks
+from spec.server import parse_networks
 
 
 def port(text: str) -> int:

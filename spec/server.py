@@ -26,7 +26,7 @@ from types import FrameType
 from typing import Any
 
 from spec import wire
-from spec.auth import AuthBackoff, tokens_equal
+from spec.auth import AuthBackoff, Network, address_allowed, tokens_equal
 from spec.codec import (
     LARGE_FRAME,
     FrameDecoder,
@@ -42,8 +42,6 @@ from spec.sockopt import set_kernel_timeouts
 from spec.wire import PacketKind
 
 log = logging.getLogger(__name__)
-
-Network = ipaddress.IPv4Network | ipaddress.IPv6Network
 
 
 @dataclass(frozen=True)
@@ -63,13 +61,7 @@ class ServerPolicy:
             raise ValueError("the control token is empty (use None for no token)")
 
     def allows(self, host: str) -> bool:
-        if not self.allow:
-            return True
-        try:
-            address = ipaddress.ip_address(host.split("%")[0])
-        except ValueError:
-            return False
-        return any(address in net for net in self.allow)
+        return address_allowed(self.allow, host)
 
 
 def parse_networks(items: Iterable[str]) -> tuple[Network, ...]:
