@@ -59,15 +59,15 @@ def _parser() -> cliargs.Parser:
             s.add_argument("--out", default="out", help="directory for the frame and plots")
             s.add_argument(
                 "--duration",
-                type=cliargs.number_in(0.0, 3600.0, low_open=True),
+                type=cliargs.number_in(0.01, 3600.0),
                 default=4.0,
-                help="sine duration (s, up to 3600)",
+                help="sine duration (s, 0.01..3600)",
             )
             s.add_argument(
                 "--rate",
-                type=cliargs.number_in(0.0, 10000.0, low_open=True),
+                type=cliargs.number_in(0.1, 10000.0),
                 default=100.0,
-                help="trigger rate (Hz, up to 10000)",
+                help="trigger rate (Hz, 0.1..10000)",
             )
             s.add_argument("--no-conformance", action="store_true")
     return p

@@ -27,7 +27,7 @@ _OPTIONS: tuple[tuple[str, str, float, float, str], ...] = (
 #: The times (ms, and the noise in µm) are bounded where the emulator's buffers and waits
 #: still make sense; beyond that a value is a typo, refused before the cell starts.
 _TIME_MS = cliargs.number_in(0.0, 1000.0)
-_POLL_HZ = cliargs.number_in(0.0, 1e6, low_open=True)
+_POLL_HZ = cliargs.number_in(1.0, 1e6)
 
 
 def add_timing_options(parser: argparse.ArgumentParser) -> None:

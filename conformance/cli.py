@@ -109,7 +109,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--exclude", action="append", default=[], metavar="GLOB")
     p.add_argument("--tag", action="append", default=[])
     p.add_argument(
-        "--timeout-scale", type=cliargs.number_in(0.0, 1000.0, low_open=True), default=1.0,
+        "--timeout-scale", type=cliargs.number_in(0.01, 1000.0), default=1.0,
         metavar="F",
         help="multiply every time budget (slow embedded endpoints: 3)",
     )  # fmt: skip

@@ -35,12 +35,13 @@ PROG = "python -m sync"
 
 
 #: Bounds of the experiment's options: beyond them the sine or the sample arrays stop making
-#: sense (or stop fitting in memory), so they are usage errors, not tracebacks later.
-_HZ = cliargs.number_in(0.0, 1000.0, low_open=True)
-_MM = cliargs.number_in(0.0, 1000.0, low_open=True)
-_DURATION = cliargs.number_in(0.0, 3600.0, low_open=True)
-_RATE = cliargs.number_in(0.0, 10000.0, low_open=True)
-_SEARCH_MS = cliargs.number_in(0.0, 1000.0, low_open=True)
+#: sense (or stop fitting in memory, or divide by a denormal), so they are usage errors, not
+#: tracebacks later.
+_HZ = cliargs.number_in(0.001, 1000.0)
+_MM = cliargs.number_in(0.001, 1000.0)
+_DURATION = cliargs.number_in(0.01, 3600.0)
+_RATE = cliargs.number_in(0.1, 10000.0)
+_SEARCH_MS = cliargs.number_in(0.2, 1000.0)
 
 
 def _frequencies(text: str) -> list[float]:
@@ -65,12 +66,16 @@ def _parser() -> cliargs.Parser:
         d = sub.add_parser(name, help=f"measure ΔT with {what} (section VI)")
         d.add_argument("--robot", type=_endpoint, help="RobotSocket HOST:PORT")
         d.add_argument("--sensor", type=_endpoint, help="SensorSocket HOST:PORT")
-        d.add_argument("--frequency", type=_HZ, default=1.5, help="sine frequency (Hz, up to 1000)")
-        d.add_argument("--amplitude", type=_MM, default=2.0, help="sine amplitude (mm, up to 1000)")
         d.add_argument(
-            "--duration", type=_DURATION, default=10.0, help="sine duration (s, up to 3600)"
+            "--frequency", type=_HZ, default=1.5, help="sine frequency (Hz, 0.001..1000)"
         )
-        d.add_argument("--rate", type=_RATE, default=250.0, help="trigger rate (Hz, up to 10000)")
+        d.add_argument(
+            "--amplitude", type=_MM, default=2.0, help="sine amplitude (mm, 0.001..1000)"
+        )
+        d.add_argument(
+            "--duration", type=_DURATION, default=10.0, help="sine duration (s, 0.01..3600)"
+        )
+        d.add_argument("--rate", type=_RATE, default=250.0, help="trigger rate (Hz, 0.1..10000)")
         d.add_argument(
             "--search-max-ms", type=_SEARCH_MS, default=20.0, help="largest ΔT searched (ms)"
         )
@@ -105,10 +110,13 @@ def _parser() -> cliargs.Parser:
 
         add_timing_options(d)
     c = sub.add_parser("curvature", help="minimum radius of a sine seam (eq. 8-9)")
-    c.add_argument("--amplitude", type=cliargs.positive_float, default=2.0, help="mm")
-    c.add_argument("--frequency", type=cliargs.positive_float, default=5.0, help="Hz")
+    c.add_argument("--amplitude", type=_MM, default=2.0, help="mm (0.001..1000)")
+    c.add_argument("--frequency", type=_HZ, default=5.0, help="Hz (0.001..1000)")
     c.add_argument(
-        "--speed", type=cliargs.positive_float, default=250.0, help="welding speed (mm/s)"
+        "--speed",
+        type=cliargs.number_in(0.1, 10000.0),
+        default=250.0,
+        help="welding speed (mm/s, 0.1..10000)",
     )
     return p
 

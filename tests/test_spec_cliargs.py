@@ -213,6 +213,8 @@ def empty_token(tmp_path_factory: pytest.TempPathFactory) -> str:
         (("sensorsocket", "serve", "--allow"), "--allow"),
         (("cell", "serve", "--seed", "-1"), "--seed"),
         (("sync", "delay", "--emulate", "--duration", "1e300"), "--duration"),
+        (("sync", "curvature", "--speed", "1e-300"), "--speed"),
+        (("kinematics", "ik", "--location=1e300,0,0,0,0,0"), "within"),
         (("spec", "decode", ""), "empty input"),
         (("spec", "fuzz", "--seed", "-1"), "--seed"),
         (("spec", "nonsense"), "invalid choice"),
