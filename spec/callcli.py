@@ -16,6 +16,7 @@ import sys
 from typing import Any
 
 from spec.client import FramedClient
+from spec.codec import encode_packet, request
 from spec.errors import ProtocolError, RemoteError
 from spec.jsonform import plain
 from spec.params import FloatArray, IntArray, Joints, Location, Transform, Value
@@ -154,6 +155,12 @@ def parse_args(spec: CommandSpec, args: list[str]) -> tuple[Value, ...]:
     for p in spec.params[len(args) :]:
         if not p.optional:
             values.append(Location(0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+    try:
+        # Encoded once now, so what cannot go on the wire (a string that is not UTF-8, a
+        # frame over the size limit) is a usage error, not "cannot reach" after connecting.
+        encode_packet(request(spec.id, 1, *values))
+    except (ProtocolError, UnicodeError) as exc:
+        raise ValueError(f"{spec.name}: the arguments cannot be encoded: {exc}") from None
     return tuple(values)
 
 

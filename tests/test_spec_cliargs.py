@@ -23,7 +23,7 @@ from conformance.cli import build_parser as conformance_parser
 from robotsocket.__main__ import build_parser as robot_parser
 from sensorsocket.__main__ import _parser as sensor_parser
 from spec import cliargs
-from spec.callcli import parse_arg
+from spec.callcli import find_command, parse_arg, parse_args
 from spec.registry import ParamSpec
 from spec.wire import ParamType
 from sync.__main__ import _parser as sync_parser
@@ -96,6 +96,12 @@ def test_call_refuses_integers_beyond_64_bits(text: str) -> None:
         parse_arg(ParamSpec("count", ParamType.INT), text)
     with pytest.raises(ValueError, match="signed 64-bit"):
         parse_arg(ParamSpec("ids", ParamType.INT_ARRAY), f"1,{text}")
+
+
+def test_call_refuses_what_cannot_be_encoded_before_connecting() -> None:
+    # An undecodable byte on the command line reaches Python as a lone surrogate.
+    with pytest.raises(ValueError, match="TakeControl: the arguments cannot be encoded"):
+        parse_args(find_command("takecontrol", "robot"), ["\udcff"])
 
 
 def test_call_takes_64_bit_integers_and_finite_floats() -> None:
