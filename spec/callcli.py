@@ -14,15 +14,14 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import signal
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
-from pathlib import Path
 from typing import Any
 
 from spec.client import FramedClient, wait_end_move
+from spec.codec import encode_packet, request
 from spec.errors import ProtocolError, RemoteError
 from spec.jsonform import plain
 from spec.params import FloatArray, IntArray, Joints, Location, Transform, Value
@@ -80,17 +79,38 @@ def _numbers(text: str, what: str) -> list[float]:
     return values
 
 
+def _int64(text: str, what: str) -> int:
+    try:
+        value = int(text, 0)
+    except ValueError:
+        raise ValueError(f"{what}: expected an integer, got {text!r}") from None
+    if not _I64_MIN <= value <= _I64_MAX:
+        # A usage error now, not an encoding failure after connecting (INT is i64 on the wire).
+        raise ValueError(f"{what}: integers are signed 64-bit, got {text!r}")
+    return value
+
+
+_I64_MIN, _I64_MAX = -(1 << 63), (1 << 63) - 1
+
+
+def _float(text: str, what: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"{what}: expected a float, got {text!r}") from None
+    if not math.isfinite(value):
+        raise ValueError(f"{what}: numbers must be finite, got {text!r}")
+    return value
+
+
 def parse_arg(spec: ParamSpec, text: str) -> Value:
     """Parse one command-line argument as the parameter ``spec`` says."""
     what = spec.name
     t = spec.type
-    try:
-        if t is ParamType.INT:
-            return int(text, 0)
-        if t is ParamType.FLOAT:
-            return float(text)
-    except ValueError:
-        raise ValueError(f"{what}: expected a {t.name.lower()}, got {text!r}") from None
+    if t is ParamType.INT:
+        return _int64(text, what)
+    if t is ParamType.FLOAT:
+        return _float(text, what)
     if t is ParamType.BOOL:
         lowered = text.lower()
         if lowered in ("1", "true", "on", "yes"):
@@ -105,7 +125,7 @@ def parse_arg(spec: ParamSpec, text: str) -> Value:
     if t is ParamType.FLOAT_ARRAY:
         return FloatArray(_numbers(text, what))
     if t is ParamType.INT_ARRAY:
-        return IntArray(int(v) for v in _numbers(text, what))
+        return IntArray(_int64(x, what) for x in text.replace(" ", "").split(",") if x != "")
     if t is ParamType.JOINTS:
         return Joints(_numbers(text, what))
     if t is ParamType.LOCATION:
@@ -141,17 +161,13 @@ def parse_args(spec: CommandSpec, args: list[str]) -> tuple[Value, ...]:
     for p in spec.params[len(args) :]:
         if not p.optional:
             values.append(Location(0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
-    return tuple(values)
-
-
-def read_token(path: str | os.PathLike[str] | None) -> str:
-    """The control token in a file (stripped), or "" without a file; ValueError if unreadable."""
-    if path is None:
-        return ""
     try:
-        return Path(path).read_text(encoding="utf-8").strip()
-    except OSError as exc:
-        raise ValueError(f"cannot read token file {path}: {exc.strerror}") from None
+        # Encoded once now, so what cannot go on the wire (a string that is not UTF-8, a
+        # frame over the size limit) is a usage error, not "cannot reach" after connecting.
+        encode_packet(request(spec.id, 1, *values))
+    except (ProtocolError, UnicodeError) as exc:
+        raise ValueError(f"{spec.name}: the arguments cannot be encoded: {exc}") from None
+    return tuple(values)
 
 
 def reply_json(spec: CommandSpec, values: tuple[Value, ...]) -> dict[str, Any]:

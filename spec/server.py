@@ -41,6 +41,7 @@ from types import FrameType
 from typing import Any
 
 from spec import wire
+from spec.auth import AuthBackoff, Network, address_allowed, tokens_equal
 from spec.codec import (
     LARGE_FRAME,
     FrameDecoder,
@@ -56,8 +57,6 @@ from spec.sockopt import set_kernel_timeouts
 from spec.wire import PacketKind
 
 log = logging.getLogger(__name__)
-
-Network = ipaddress.IPv4Network | ipaddress.IPv6Network
 
 
 @dataclass(frozen=True)
@@ -85,15 +84,12 @@ class ServerPolicy:
                 f"control watchdog must satisfy 0 < min <= default <= max < inf, got "
                 f"{self.watchdog_min} <= {self.watchdog} <= {self.watchdog_max}"
             )
+        if self.token is not None and not self.token.strip():
+            # An empty token would be presented by any client: protection silently off.
+            raise ValueError("the control token is empty (use None for no token)")
 
     def allows(self, host: str) -> bool:
-        if not self.allow:
-            return True
-        try:
-            address = ipaddress.ip_address(host.split("%")[0])
-        except ValueError:
-            return False
-        return any(address in net for net in self.allow)
+        return address_allowed(self.allow, host)
 
 
 def parse_networks(items: Iterable[str]) -> tuple[Network, ...]:
@@ -336,6 +332,7 @@ class FramedServer:
         self._control = threading.Condition()
         self._watchdog_thread: threading.Thread | None = None
         self.control_holder: Session | None = None
+        self._auth = AuthBackoff()  # failed TakeControl attempts per address [RS-7.20]
         self.handler_errors: list[BaseException] = []
         self._implemented = frozenset(service.implemented()) | {int(c) for c in _COMMON}
 
@@ -747,8 +744,31 @@ class FramedServer:
 
     def _take_control(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
         token = params[0]
-        if self.policy.token is not None and token != self.policy.token:
-            raise ProtocolError("control token missing or wrong", ErrorCode.AUTH_FAILED)
+        expected = self.policy.token
+        if expected is not None:
+            assert isinstance(token, str)  # check_params made sure of it
+            address, now = session.peer[0], time.monotonic()
+            with self._lock:
+                wait = self._auth.wait(address, now)
+                if wait == 0.0:
+                    right = tokens_equal(token, expected)
+                    if right:
+                        self._auth.succeeded(address)
+                    else:
+                        failures, delay = self._auth.failed(address, now)
+            if wait > 0.0:
+                # [RS-7.20] refused without comparing, and not logged: a guesser would fill
+                # the log; its failures that were compared are.
+                raise ProtocolError(
+                    f"too many wrong tokens from {address}: retry in {wait:.2f} s",
+                    ErrorCode.AUTH_FAILED,
+                )
+            if not right:
+                log.warning(
+                    "session %d: wrong control token from %s (%d in a row, back-off %.2f s)",
+                    session.id, address, failures, delay,
+                )  # fmt: skip
+                raise ProtocolError("control token missing or wrong", ErrorCode.AUTH_FAILED)
         policy = self.policy
         watchdog = params[1] if len(params) > 1 else policy.watchdog
         assert isinstance(watchdog, float)

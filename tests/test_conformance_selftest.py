@@ -9,6 +9,7 @@ are tiny raw-socket servers for framing-level breakage.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import socket
 import struct
@@ -26,6 +27,7 @@ from conformance.model import Outcome
 from conformance.runner import RunResult, Selection, exit_code, run
 from kinematics.transforms import concat, invert, location_to_transform, transform_to_location
 from spec import wire
+from spec.auth import AuthBackoff
 from spec.codec import FrameDecoder, Packet, Rejected, decode_packet, encode_packet
 from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data, encode_trigger
 from spec.errors import DatagramError, ErrorCode, ProtocolError
@@ -891,9 +893,10 @@ class MiniSyncRobot(MiniRobot):
     )
     LOSS_TIMEOUT = 0.1
 
-    def __init__(self, *, count_duplicates: bool = True) -> None:
+    def __init__(self, *, count_duplicates: bool = True, any_source: bool = False) -> None:
         super().__init__()
         self.count_duplicates = count_duplicates
+        self.any_source = any_source  # broken on purpose: takes data from anyone [SY-3.7]
         self.endpoint: tuple[str, int] = ("", 0)
         self.delta_t = 0.005
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -944,9 +947,11 @@ class MiniSyncRobot(MiniRobot):
                         self.lost.add(i)
                         self.stats["lost"] += 1
             try:
-                raw, _src = self.sock.recvfrom(2048)
+                raw, src = self.sock.recvfrom(2048)
             except (TimeoutError, OSError):
                 continue
+            if not self.any_source and src[:2] != self.endpoint:
+                continue  # [SY-3.7] only the sensor endpoint may send data
             with self.lock:
                 self._on_data(raw)
 
@@ -1059,6 +1064,37 @@ def test_robot_not_counting_duplicates_is_caught() -> None:
         service.stop.set()
     _caught(result, "robot.sync.matching")
     assert "SY-3.2" in problems(result)["robot.sync.matching"]
+
+
+def test_robot_taking_data_from_anyone_is_caught() -> None:
+    service = MiniSyncRobot(any_source=True)
+    try:
+        with serving(FramedServer(service, policy=POLICY)) as address:
+            result = check("robot", address, ("robot.sync.foreign_data",), scale=0.5)
+    finally:
+        service.stop.set()
+    assert outcomes(result)["robot.sync.foreign_data"] is Outcome.NON_STRICT  # a SHOULD
+
+
+class NoBackoffServer(FramedServer):
+    """Compares every token, however many wrong ones came before [RS-7.20 broken]."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._auth = AuthBackoff(threshold=1 << 30)
+
+
+@pytest.mark.parametrize(
+    ("server_class", "want"), [(FramedServer, Outcome.PASS), (NoBackoffServer, Outcome.FAIL)]
+)
+def test_missing_token_backoff_is_caught(server_class: type[FramedServer], want: Outcome) -> None:
+    policy = dataclasses.replace(POLICY, token="s3cret")
+    with serving(server_class(MiniRobot(), policy=policy)) as address:
+        options = Options(timeout_scale=SCALE, token="s3cret")
+        result = run("robot", *address, options, Selection("core", ("control.token*",)))
+    got = outcomes(result)
+    assert got["control.token"] is Outcome.PASS
+    assert got["control.token_backoff"] is want, problems(result)
 
 
 def test_capability_file_makes_cases_not_applicable(tmp_path: Any) -> None:

@@ -173,3 +173,37 @@ def test_sigterm_stops_gracefully() -> None:
             proc.wait()
     assert proc.returncode == 0
     assert "SIGTERM" in err and "stopped" in err and "Traceback" not in err
+
+
+def test_allow_list_applies_to_tcp_and_udp() -> None:
+    """--allow 10.0.0.0/8: a loopback client is closed unread on TCP, its trigger is dropped
+    unanswered on UDP, and the stop statistics count it [RS-7.7]."""
+    proc = subprocess.Popen(
+        [PY, "-m", "sensorsocket", "serve", "--port", "0", "--udp-port", "auto",
+         "--clock", "sim", "--allow", "10.0.0.0/8"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+    )  # fmt: skip
+    assert proc.stderr is not None
+    try:
+        ready, _, _ = select.select([proc.stderr], [], [], 20.0)
+        assert ready, "the server printed nothing within 20 s"
+        m = re.search(r"tcp ([\d.]+):(\d+) udp ([\d.]+):(\d+)", proc.stderr.readline())
+        assert m
+        with socket.create_connection((m[1], int(m[2])), timeout=5.0) as tcp:
+            assert tcp.recv(100) == b""  # closed before any byte is read or sent
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
+            udp.settimeout(0.5)
+            udp.sendto(encode_trigger(Trigger(1, 1.0)), (m[3], int(m[4])))
+            with pytest.raises(TimeoutError):
+                udp.recvfrom(2048)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=20.0)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, err
+    assert "'refused_address': 1" in err

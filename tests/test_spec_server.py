@@ -167,6 +167,39 @@ def test_token_protects_control() -> None:
         srv.shutdown()
 
 
+def test_token_guessing_is_slowed_per_address() -> None:
+    """[RS-7.20] after 3 wrong tokens even the right one is refused until the back-off ends,
+    with the wait in the message; then it is accepted and the count starts again."""
+    srv = FramedServer(EchoRobot(), policy=ServerPolicy(token="s3cret")).start()
+    try:
+        with FramedClient(*srv.address) as c:
+            for _ in range(3):
+                with pytest.raises(RemoteError, match="token missing or wrong"):
+                    c.take_control("guess")
+            t0 = time.monotonic()
+            with pytest.raises(RemoteError, match=r"retry in 0\.\d\d s") as info:
+                c.take_control("s3cret")
+            assert info.value.code is ErrorCode.AUTH_FAILED
+            while True:  # the back-off (0.1 s after the third failure) ends
+                try:
+                    c.take_control("s3cret")
+                    break
+                except RemoteError:
+                    assert time.monotonic() - t0 < 5.0
+                    time.sleep(0.02)
+            c.release_control()
+            with pytest.raises(RemoteError, match="token missing or wrong"):
+                c.take_control("guess")  # reset by the success: a free failure again
+            c.take_control("s3cret")
+    finally:
+        srv.shutdown()
+
+
+def test_an_empty_token_is_refused_by_the_policy() -> None:
+    with pytest.raises(ValueError, match="token is empty"):
+        ServerPolicy(token=" ")
+
+
 def test_handler_bug_becomes_internal_error_and_server_survives(server: FramedServer) -> None:
     with FramedClient(*server.address) as c:
         with pytest.raises(RemoteError) as info:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from conformance.cases import (  # noqa: F401  (imported for their registrations)
+    access,
     commands,
     control,
     framing,
