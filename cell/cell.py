@@ -542,13 +542,8 @@ class EmulatedCell:
         dt = self.camera_timing.column_period_s
         t_seam = math.nan
         if reading.status is SensorStatus.FOUND:
-            # CameraGeometry.project of (0, y, z) on Python floats: the same operations in
-            # the same order as its numpy arithmetic, so the same u to the last bit
             cam = self.sensor.emulator.camera
-            y, z = float(reading.seam[1]), float(reading.seam[2])
-            th = math.radians(cam.triangulation_angle_deg)
-            zc = cam.working_distance_mm + 0.0 * math.sin(th) + z * math.cos(th)
-            u = cam.principal_point[0] + cam.focal_px * y / zc
+            u = cam.plane_column(float(reading.seam[1]), float(reading.seam[2]))
             t_seam = (
                 reading.t_exposure_start
                 + (u - acq_first) * dt

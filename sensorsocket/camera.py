@@ -1,21 +1,7 @@
-"""Triangulation geometry and laser-stripe renderer of the seam-tracking camera (pure).
+"""Laser-stripe renderer of the seam-tracking camera (pure).
 
-Sensor frame S (mm): origin at the centre of the measuring range, where the camera's optical
-axis crosses the laser plane; x_S in the welding direction (along the seam); z_S along the
-laser, from the sensor towards the workpiece; y_S = z_S × x_S across the seam. The laser
-plane is x_S = 0, so the stripe runs across the seam.
-
-Default geometry (``CameraGeometry()``), chosen like compact laser-welding seam trackers:
-
-- laser: plane x_S = 0, source 60 mm above the origin (at z_S = -60);
-- camera: pinhole trailing the laser, centre at (-D sin θ, 0, -D cos θ) with working distance
-  D = 64 mm and triangulation angle θ = 45° between the optical axis and the laser, so the
-  baseline (laser-to-camera distance across the laser direction) is D sin θ ≈ 45.3 mm;
-- lens f = 16 mm, pixel pitch 10 µm, 512 columns × 256 rows, principal point at the centre;
-- hence ≈ 40 µm per column across the seam (field of view ≈ 20.5 mm wide at z_S = 0) and
-  ≈ 57 µm per row in depth near the origin (z_S from ≈ -6.7 mm at row 0 to ≈ +7.8 mm at
-  row 255; ≈ 14.5 mm deep). Ideal pinhole: no lens distortion, so the calibration the
-  detector uses is exact.
+The camera geometry and its calibration (sensor frame S, pixel <-> S) live in
+:mod:`sensorsocket.geometry`.
 
 Image coordinates: column u grows with y_S, row v grows with z_S (farther away). The chip
 is read **column by column**, column 0 first. Frames are stored in readout order as
@@ -33,136 +19,20 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from sensorsocket.geometry import CameraError, CameraGeometry
 from sensorsocket.scene import FloatArray, Piece, PoseProvider, Scene, node_poses_of
 
+__all__ = [
+    "CameraError",
+    "CameraGeometry",
+    "RenderSettings",
+    "RenderTruth",
+    "StripeRenderer",
+    "frame_from_image",
+    "image_rows",
+]
+
 U8Array = NDArray[np.uint8]
-
-
-class CameraError(ValueError):
-    """Invalid camera geometry, render setting or readout window."""
-
-
-@dataclass(frozen=True)
-class CameraGeometry:
-    """Pinhole camera over a laser plane; lengths in mm, angles in degrees."""
-
-    columns: int = 512
-    rows: int = 256
-    pixel_pitch_mm: float = 0.010
-    focal_length_mm: float = 16.0
-    triangulation_angle_deg: float = 45.0
-    working_distance_mm: float = 64.0
-    laser_standoff_mm: float = 60.0
-
-    def __post_init__(self) -> None:
-        if not (8 <= self.columns <= 8192 and 8 <= self.rows <= 8192):
-            raise CameraError("columns and rows must be 8..8192")
-        if not 5.0 <= self.triangulation_angle_deg <= 85.0:
-            raise CameraError("triangulation angle must be 5..85 degrees")
-        for name in ("pixel_pitch_mm", "focal_length_mm", "working_distance_mm"):
-            value = getattr(self, name)
-            if not (value > 0 and math.isfinite(value)):
-                raise CameraError(f"{name} must be positive")
-        th = math.radians(self.triangulation_angle_deg)
-        object.__setattr__(self, "_sin", math.sin(th))
-        object.__setattr__(self, "_cos", math.cos(th))
-
-    _sin: float = field(init=False, repr=False, compare=False, default=0.0)
-    _cos: float = field(init=False, repr=False, compare=False, default=0.0)
-
-    @property
-    def focal_px(self) -> float:
-        """Focal length in pixels."""
-        return self.focal_length_mm / self.pixel_pitch_mm
-
-    @property
-    def principal_point(self) -> tuple[float, float]:
-        """(u0, v0) in pixels: the chip centre."""
-        return (self.columns - 1) / 2.0, (self.rows - 1) / 2.0
-
-    @property
-    def baseline_mm(self) -> float:
-        """Distance from the laser line to the camera centre across the laser direction (mm)."""
-        return self.working_distance_mm * math.sin(math.radians(self.triangulation_angle_deg))
-
-    @property
-    def center(self) -> FloatArray:
-        """Camera centre in S (3,) mm."""
-        th = math.radians(self.triangulation_angle_deg)
-        d = self.working_distance_mm
-        return np.array([-d * math.sin(th), 0.0, -d * math.cos(th)])
-
-    @property
-    def axes(self) -> FloatArray:
-        """Camera axes in S as rows (3, 3): x_c (along columns), y_c (along rows), z_c."""
-        th = math.radians(self.triangulation_angle_deg)
-        s, c = math.sin(th), math.cos(th)
-        return np.array([[0.0, 1.0, 0.0], [-c, 0.0, s], [s, 0.0, c]])
-
-    def pixel_to_sensor(self, u: FloatArray, v: FloatArray) -> FloatArray:
-        """Points on the laser plane seen at pixel (u, v) (any shape) -> (..., 3) mm in S.
-
-        With k = (u - u0)/f and t = (v - v0)/f (f in pixels), the ray meets x_S = 0 at
-        z = t·D / (sin θ - t·cos θ) and y = k·(D + z·cos θ).
-        """
-        u0, v0 = self.principal_point
-        f = self.focal_px
-        s, c, d = self._sin, self._cos, self.working_distance_mm
-        k = (np.asarray(u, dtype=np.float64) - u0) / f
-        t = (np.asarray(v, dtype=np.float64) - v0) / f
-        z = t * d / (s - t * c)
-        y = k * (d + z * c)
-        return np.stack([np.zeros_like(z), y, z], axis=-1)
-
-    def project(self, points: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Pixel coordinates (u, v) of points (..., 3) in S.
-
-        Camera coordinates of (x, y, z): X = y, Y = z·sin θ - x·cos θ,
-        Z = D + x·sin θ + z·cos θ.
-        """
-        p = np.asarray(points, dtype=np.float64)
-        x, y, z = p[..., 0], p[..., 1], p[..., 2]
-        s, c = self._sin, self._cos
-        zc = self.working_distance_mm + x * s + z * c
-        u0, v0 = self.principal_point
-        f = self.focal_px
-        return u0 + f * y / zc, v0 + f * (z * s - x * c) / zc
-
-    def column_lines(self, u: FloatArray, margin_px: float = 8.0) -> tuple[FloatArray, FloatArray]:
-        """End points (..., 3) in S of the laser-plane line seen by column u.
-
-        A at row -margin and B at row rows-1+margin; the line is affine in u.
-        """
-        u = np.asarray(u, dtype=np.float64)
-        a = self.pixel_to_sensor(u, np.full_like(u, -margin_px))
-        b = self.pixel_to_sensor(u, np.full_like(u, self.rows - 1 + margin_px))
-        return a, b
-
-    def line_row(self, u: FloatArray, a: float, b: float) -> tuple[FloatArray, FloatArray]:
-        """Where column u meets the profile line z = a + b·y: (row v, point (..., 3) in S)."""
-        s, c, d = self._sin, self._cos, self.working_distance_mm
-        u0, v0 = self.principal_point
-        f = self.focal_px
-        k = (np.asarray(u, dtype=np.float64) - u0) / f
-        with np.errstate(divide="ignore", invalid="ignore"):
-            y = k * (d + a * c) / (1.0 - k * b * c)
-        z = a + b * y
-        v = v0 + f * z * s / (d + z * c)
-        return v, np.stack([np.zeros_like(y), y, z], axis=-1)
-
-    def field_of_view(self) -> dict[str, float]:
-        """Width at z_S = 0 and depth range along the laser (mm)."""
-        u0, v0 = self.principal_point
-        left = self.pixel_to_sensor(np.array(-0.5), np.array(v0))
-        right = self.pixel_to_sensor(np.array(self.columns - 0.5), np.array(v0))
-        top = self.pixel_to_sensor(np.array(u0), np.array(-0.5))
-        bottom = self.pixel_to_sensor(np.array(u0), np.array(self.rows - 0.5))
-        return {
-            "width_mm": float(right[1] - left[1]),
-            "z_min_mm": float(top[2]),
-            "z_max_mm": float(bottom[2]),
-            "depth_mm": float(bottom[2] - top[2]),
-        }
 
 
 @dataclass(frozen=True)

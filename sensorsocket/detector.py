@@ -159,15 +159,6 @@ class SeamDetector:
         # (3, w): a window's mass, first and second moment are one matrix product
         self._win_moments = np.stack([np.ones_like(win), win, win * win])
         self._shape_cache: dict[tuple[int, int], _ShapeConstants] = {}
-        # closed-form calibration (see CameraGeometry.pixel_to_sensor), constants as floats
-        cam = self.camera
-        th = math.radians(cam.triangulation_angle_deg)
-        self._sin, self._cos = math.sin(th), math.cos(th)
-        self._u0, self._v0 = cam.principal_point
-        self._f = cam.focal_px
-        self._d = cam.working_distance_mm
-        # k = (u - u0)/f of every chip column: the profile mapping looks it up
-        self._k = (np.arange(cam.columns, dtype=np.float64) - self._u0) / self._f
         self._windows: dict[int, tuple[NDArray[np.intp], FloatArray]] = {}
         self._empty_points = np.zeros((0, 3))
         self._empty_cols = np.zeros(0, dtype=np.intp)
@@ -322,7 +313,7 @@ class SeamDetector:
         if cols.size < cfg.min_valid_columns:
             return self._none(SeamStatus.NO_STRIPE, stripe)
         u = cols + first_column
-        y, z = self._profile(u, stripe.rows.take(cols))
+        y, z = self.camera.plane_point(u.astype(np.float64), stripe.rows.take(cols))
         keep = _not_isolated_outliers(z, cfg.outlier_mm)
         if not keep.all():
             u, y, z = u[keep], y[keep], z[keep]
@@ -337,41 +328,16 @@ class SeamDetector:
             return self._fillet(stripe, u, y, z, pts)
         return self._lap(a, stripe, u, y, z, pts)
 
-    def _profile(self, u: NDArray[np.intp], v: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """(y, z) in S (mm) of stripe rows v at chip columns u (sorted), the arithmetic of
-        :meth:`CameraGeometry.pixel_to_sensor` with k = (u - u0)/f looked up per column."""
-        if u[0] >= 0 and u[-1] < self._k.size:
-            k = self._k.take(u)
-        else:
-            k = (u.astype(np.float64) - self._u0) / self._f
-        t = (v - self._v0) / self._f
-        z = t * self._d
-        t *= self._cos
-        np.subtract(self._sin, t, out=t)
-        z /= t
-        y = z * self._cos
-        y += self._d
-        y *= k
-        return y, z
-
-    def _line_v(self, u: float, a: float, b: float) -> float:
-        """Row where chip column u meets the profile line z = a + b·y (NaN if nowhere)."""
-        z = self._line_point(u, a, b)[1]
-        den = self._d + z * self._cos
-        if den == 0.0 or not math.isfinite(den):
-            return math.nan
-        return self._v0 + self._f * z * self._sin / den
-
     def _line_rows(self, cols: list[int], line: _Line) -> list[float]:
         """Rows where chip columns ``cols`` meet a profile line. The image of a line is a
         straight line, so two exact end points give all (equal to line_row to ~1e-13 px)."""
         if not cols:
             return []
         u1, u2 = min(cols), max(cols)
-        v1 = self._line_v(u1, line.a, line.b)
+        v1 = self.camera.line_row(float(u1), line.a, line.b)
         if u2 == u1:
             return [v1] * len(cols)
-        v2 = self._line_v(u2, line.a, line.b)
+        v2 = self.camera.line_row(float(u2), line.a, line.b)
         slope = (v2 - v1) / (u2 - u1)
         return [v1 + (c - u1) * slope for c in cols]
 
@@ -428,16 +394,6 @@ class SeamDetector:
             self._windows[half] = window
         return window
 
-    def _line_point(self, u: float, a: float, b: float) -> tuple[float, float]:
-        """(y, z) in S (mm) where chip column u meets the profile line z = a + b·y (NaN where
-        the column's ray runs parallel to the line)."""
-        k = (u - self._u0) / self._f
-        den = 1.0 - k * b * self._cos
-        if den == 0.0:
-            return math.nan, math.nan
-        y = k * (self._d + a * self._cos) / den
-        return y, a + b * y
-
     def _none(
         self,
         status: SeamStatus,
@@ -467,8 +423,9 @@ class SeamDetector:
     ) -> Detection:
         """FOUND with the seam at (0, y, z) in S (mm), the plates' slope dz/dy; a seam
         that is not finite (a degenerate fit) is no feature."""
-        zc = self._d + z * self._cos  # camera depth of the seam point, see project()
-        if not (math.isfinite(y) and math.isfinite(z) and math.isfinite(slope) and zc != 0.0):
+        finite = math.isfinite(y) and math.isfinite(z) and math.isfinite(slope)
+        column = self.camera.plane_column(y, z) if finite else math.nan
+        if not math.isfinite(column):
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         norm = math.hypot(1.0, slope)
         cy, sy = 1.0 / norm, slope / norm
@@ -479,7 +436,7 @@ class SeamDetector:
             status=SeamStatus.FOUND,
             seam2sensor=t,
             quality=float(min(max(quality, 0.0), 1.0)),
-            column=self._u0 + self._f * y / zc,
+            column=column,
             points=pts,
             point_columns=u,
             stripe=stripe,
@@ -535,8 +492,8 @@ class SeamDetector:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         # sub-column edges: light in the edge columns relative to the plate's full columns
         edge_l, edge_r = self._coverage(frame, stripe, int(u[i]), int(u[i + 1]), left, right)
-        y_l, z_l = self._line_point(edge_l, left.a, left.b)
-        y_r, z_r = self._line_point(edge_r, right.a, right.b)
+        y_l, z_l = self.camera.line_point(edge_l, left.a, left.b)
+        y_r, z_r = self.camera.line_point(edge_r, right.a, right.b)
         slope = math.tan(0.5 * (math.atan(left.b) + math.atan(right.b)))
         q = self._quality(left.n + right.n, stripe.rows.size, rms, 1.0)
         return self._found(stripe, 0.5 * (y_l + y_r), 0.5 * (z_l + z_r), slope, q, pts, u)
@@ -687,7 +644,7 @@ class SeamDetector:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         cover = sum(min(max(x / ref, 0.0), 1.0) for x in m_up[:n_cols])
         u_edge = (u_a - 1.5 + cover) if upper_left else (u_b + 1.5 - cover)
-        e_y, e_z = self._line_point(u_edge, upper.a, upper.b)
+        e_y, e_z = self.camera.line_point(u_edge, upper.a, upper.b)
         n_lo = math.hypot(1.0, lower.b)
         d_y, d_z = 1.0 / n_lo, lower.b / n_lo
         t = e_y * d_y + (e_z - lower.a) * d_z

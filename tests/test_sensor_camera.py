@@ -35,37 +35,6 @@ from sensorsocket.timing import TimingModel
 CAM = CameraGeometry()
 
 
-def test_documented_field_of_view() -> None:
-    fov = CAM.field_of_view()
-    assert fov["width_mm"] == pytest.approx(20.48, abs=0.01)
-    assert fov["depth_mm"] == pytest.approx(14.6, abs=0.1)
-    assert fov["z_min_mm"] < 0 < fov["z_max_mm"]
-    assert CAM.baseline_mm == pytest.approx(64 * np.sin(np.radians(45)))
-    # the optical axis meets the laser plane at the sensor-frame origin (image centre)
-    np.testing.assert_allclose(CAM.pixel_to_sensor(np.array(255.5), np.array(127.5)), 0, atol=1e-12)
-
-
-def test_triangulation_by_hand() -> None:
-    # a point at depth z on the laser line under the camera: the pinhole at
-    # (-D sinθ, 0, -D cosθ) sees it at angle atan(z sinθ / (D + z cosθ)) off axis
-    z = 3.0
-    d, th = 64.0, np.radians(45.0)
-    u, v = CAM.project(np.array([0.0, 0.0, z]))
-    expected = 127.5 + 1600.0 * (z * np.sin(th)) / (d + z * np.cos(th))
-    assert float(u) == pytest.approx(255.5)
-    assert float(v) == pytest.approx(expected)
-
-
-@settings(max_examples=200, deadline=None)
-@given(st.floats(-0.5, 511.5), st.floats(-0.5, 255.5))
-def test_pixel_to_sensor_round_trip(u: float, v: float) -> None:
-    p = CAM.pixel_to_sensor(np.array(u), np.array(v))
-    assert float(p[0]) == 0.0
-    uu, vv = CAM.project(p)
-    assert float(uu) == pytest.approx(u, abs=1e-9)
-    assert float(vv) == pytest.approx(v, abs=1e-9)
-
-
 def _scene_and_pose(joint: Joint, **kw: float) -> tuple[Scene, np.ndarray]:
     scene = Scene(joint, SeamPath.straight())
     return scene, scene.sensor_over_seam(0.0, **kw)
