@@ -141,6 +141,15 @@ class CameraGeometry:
         u0 = self.principal_point[0]
         return u0 + _over(self.focal_px * y, self.working_distance_mm + z * self._cos)
 
+    def camera_yz(self, points: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """Camera-frame Y (along the rows) and Z (depth) of points (..., 3) in S, for
+        :meth:`row_of`."""
+        d = np.asarray(points, dtype=np.float64) - self.center
+        ax = self.axes
+        y: FloatArray = d @ ax[1]
+        z: FloatArray = d @ ax[2]
+        return y, z
+
     def row_of(self, cam_y: FloatArray, cam_z: FloatArray) -> FloatArray:
         """Image row of points with camera-frame coordinates Y = ``cam_y``, Z = ``cam_z``
         (broadcastable arrays): v0 + (Y / Z)·f, in place in a new array."""
