@@ -341,49 +341,6 @@ class SeamDetector:
         slope = (v2 - v1) / (u2 - u1)
         return [v1 + (c - u1) * slope for c in cols]
 
-    def _light(
-        self,
-        frame: NDArray[np.generic],
-        stripe: StripeProfile,
-        cols: list[int],
-        rows: list[float],
-        half: int,
-    ) -> list[float]:
-        """:meth:`mass_at` for a few columns given as lists, with fewer numpy calls."""
-        f = np.asarray(frame)
-        ncols, nrows = f.shape[0], f.shape[1]
-        first = stripe.first_column
-        if (
-            not f.flags.c_contiguous
-            or min(cols) < first
-            or max(cols) >= first + ncols
-            or not all(abs(r) < 1e9 for r in rows)  # also False for NaN
-        ):
-            return list(self.mass_at(f, stripe, np.array(cols), np.array(rows), half).tolist())
-        offsets, ones = self._window(half)
-        starts = [round(r) - half for r in rows]  # round: half to even, as np.rint
-        if min(starts) >= 0 and max(starts) + 2 * half < nrows:
-            # every window inside its column: rows of a strided view over the frame, one
-            # index per column (the values, order and sums of the general path below)
-            flat = f.reshape(-1)
-            w = 2 * half + 1
-            windows = np.ndarray((flat.size - w + 1, w), flat.dtype, flat, 0, (f.itemsize,) * 2)
-            at = [(c - first) * nrows + s for c, s in zip(cols, starts, strict=True)]
-            vals = windows[at].astype(np.float64)
-            vals -= stripe.threshold
-            np.maximum(vals, 0.0, out=vals)
-            return list(vals.dot(ones).tolist())
-        idx = np.array([round(r) for r in rows])[:, None] + offsets  # round: half to even
-        rows_in = np.maximum(idx, 0)
-        np.minimum(rows_in, nrows - 1, out=rows_in)
-        inside = rows_in == idx
-        rows_in += np.array([(c - first) * nrows for c in cols])[:, None]
-        vals = f.reshape(-1).take(rows_in).astype(np.float64)
-        vals -= stripe.threshold
-        np.maximum(vals, 0.0, out=vals)
-        vals *= inside
-        return list(vals.dot(ones).tolist())
-
     def _window(self, half: int) -> tuple[NDArray[np.intp], FloatArray]:
         """Row offsets -half..half and ones of that length (read-only, cached per half)."""
         window = self._windows.get(half)
@@ -520,7 +477,8 @@ class SeamDetector:
         cols_r = list(range(u_right + 2, u_right + 11)) + edge_r
         n_l = len(cols_l)
         rows = self._line_rows(cols_l, left) + self._line_rows(cols_r, right)
-        m = self._light(frame, stripe, cols_l + cols_r, rows, self.config.half_window)
+        cols = np.array(cols_l + cols_r)
+        m = self.mass_at(frame, stripe, cols, np.array(rows), self.config.half_window).tolist()
         out = []
         for side, masses, edge in ((-1, m[:n_l], edge_l), (1, m[n_l:], edge_r)):
             ref = _list_median(masses[:n_ref])
@@ -638,7 +596,7 @@ class SeamDetector:
         if not math.isfinite(sep):
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         half = int(max(1, min(cfg.half_window, math.floor(sep / 2.0 - 0.5))))
-        m_up = self._light(frame, stripe, all_cols, r_up, half)
+        m_up = self.mass_at(frame, stripe, np.array(all_cols), np.array(r_up), half).tolist()
         ref = _list_median(m_up[n_cols:]) if ref_cols.size else 0.0
         if ref <= 0.0:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)

@@ -3,8 +3,7 @@
 A frame is a dark background with read noise (pre-drawn tile, :meth:`Exposure.background`)
 plus the stripe's light with shot noise and speckle, rounded and clipped to uint8. The
 stripe signal of a *simple* column (one Gaussian, see :mod:`sensorsocket.columns`) goes in
-through :meth:`Exposure.simple_columns` (fused, fast) whose plain per-column reference is
-:meth:`Exposure.simple_columns_plain`; any other signal through :meth:`Exposure.add_signal`.
+through :meth:`Exposure.simple_columns`, any other signal through :meth:`Exposure.add_signal`.
 Frames are column-major ``(columns, rows)`` uint8, see :mod:`sensorsocket.camera`.
 """
 
@@ -79,13 +78,7 @@ class Exposure:
         # a simple column's window: 4.4 σ (4 σ + 10 %) either side of the centre row, where
         # the Gaussian is e^(-9.7) ≈ 6e-5 of the peak (< 0.01 DN at the default peak)
         self.half = math.ceil(4.0 * settings.stripe_sigma_px * 1.1)
-        w = 2 * self.half + 1
-        self._win_f32 = np.arange(w).astype(np.float32)
-        self._win_col_f32 = self._win_f32[:, None].copy()
-        # scratch for the simple columns of a frame: per column (3, columns) and per pixel
-        # (2, columns·window) float32
-        self._col_f32 = np.empty((3, camera.columns), dtype=np.float32)
-        self._px_f32 = np.empty((2, camera.columns * w), dtype=np.float32)
+        self._win_f32 = np.arange(2 * self.half + 1).astype(np.float32)
         self._tile = np.empty((0, 0), dtype=np.uint8)
         self._frames_on_tile = settings.noise_refresh_frames
         self._background_table = _rounded_normal_table(
@@ -142,94 +135,26 @@ class Exposure:
     ) -> None:
         """One Gaussian per simple column ``si`` (M,) (read-window indices) with the
         sub-columns' mass (``coverage``) and spread (``var``, px²) around their ``mean``
-        row, plus noise, into the window of 2·half + 1 rows around the mean row. The
-        arithmetic of :meth:`simple_columns_plain`, written into preallocated buffers:
-        fewer, fused calls."""
-        rows, w = self.camera.rows, self._win_f32.size
-        m_cols = si.size
-        sigma2 = self.settings.stripe_sigma_px**2
-        s_eff2 = var.take(si)
-        s_eff2 += sigma2
-        # peak = amp·coverage·sqrt(σ²/σ_eff²), float64, then float32
-        t = np.divide(sigma2, s_eff2)
-        np.sqrt(t, out=t)
-        c = coverage.take(si)
-        c *= amp
-        peak = self._col_f32[0, :m_cols]
-        np.multiply(c, t, out=peak)
-        # window start: rint(mean) - half, clamped to the frame
-        m = mean.take(si)
-        start = np.rint(m)
-        start -= self.half
-        np.maximum(start, 0.0, out=start)
-        np.minimum(start, float(rows - w), out=start)
-        # float32 from here: the Gaussian's centre to ~1e-6 px, far below the noise
-        dm = self._col_f32[1, :m_cols]
-        np.subtract(start, m, out=dm)
-        e = self._col_f32[2, :m_cols]
-        np.divide(-0.5, s_eff2, out=e)
-        # pixels as (W, M), window row by column: the per-column factors broadcast along
-        # contiguous rows (cheap), not one short row per column
-        size = w * m_cols
-        signal = self._px_f32[0, :size].reshape(w, m_cols)
-        np.add(self._win_col_f32, dm, out=signal)
-        np.multiply(signal, signal, out=signal)
-        signal *= e
-        np.exp(signal, out=signal)
-        signal *= peak
-        value = self._px_f32[1, :size].reshape(w, m_cols)
-        st = self.settings
-        # sd = sqrt(signal·(signal·c² + g)), value = normals·sd + signal + 0.5 + background
-        np.multiply(signal, np.float32(st.speckle_contrast**2), out=value)
-        value += np.float32(st.shot_gain_dn)
-        value *= signal
-        np.sqrt(value, out=value)
-        value *= self.unit_normals((m_cols, w)).T  # the pixel order of (M, W) draws
-        value += signal
-        value += np.float32(0.5)
-        # the windows of a strided view over the frame, by the flat index of their first
-        # pixel: window row j of every column is one gather and one scatter
-        at = start.astype(np.intp)
-        at += si * rows
-        at += first_column * rows
-        flat = frame.reshape(-1)
-        windows = np.ndarray((w, flat.size - w + 1), np.uint8, flat, 0, (1, 1))
-        value += windows[:, at]
-        np.clip(value, 0.0, 255.0, out=value)
-        windows[:, at] = value.astype(np.uint8)
-
-    def simple_columns_plain(
-        self,
-        frame: U8Array,
-        first_column: int,
-        si: NDArray[np.intp],
-        coverage: FloatArray,
-        mean: FloatArray,
-        var: FloatArray,
-        amp: float,
-    ) -> None:
-        """:meth:`simple_columns` column by column in plain expressions (the reference the
-        fast path is tested against): float64 per column, float32 per pixel."""
+        row, plus noise, into the window of 2·half + 1 rows around the mean row: float64
+        per column, float32 per pixel."""
         rows, half = self.camera.rows, self.half
         w = 2 * half + 1
         st = self.settings
         sigma2 = st.stripe_sigma_px**2
-        normals = self.unit_normals((si.size, w))  # one draw per frame, as the fast path
-        for j, col in enumerate(si.tolist()):
-            s_eff2 = var[col] + sigma2
-            peak = np.float32(coverage[col] * amp * math.sqrt(sigma2 / s_eff2))
-            start = min(max(float(np.rint(mean[col])) - half, 0.0), float(rows - w))
-            dm = np.float32(start - mean[col])
-            e = np.float32(-0.5 / s_eff2)
-            x = self._win_f32 + dm
-            signal = np.exp(x * x * e) * peak
-            sd = np.sqrt(
-                signal * (signal * np.float32(st.speckle_contrast**2) + np.float32(st.shot_gain_dn))
-            )
-            at = slice(int(start), int(start) + w)
-            pixels = frame[first_column + col, at]
-            value = normals[j] * sd + signal + np.float32(0.5) + pixels
-            pixels[:] = np.clip(value, 0.0, 255.0).astype(np.uint8)
+        s_eff2 = var[si] + sigma2
+        peak = (coverage[si] * amp * np.sqrt(sigma2 / s_eff2)).astype(np.float32)
+        start = np.clip(np.rint(mean[si]) - half, 0.0, float(rows - w))
+        # float32 from here: the Gaussian's centre to ~1e-6 px, far below the noise
+        dm = (start - mean[si]).astype(np.float32)
+        e = (-0.5 / s_eff2).astype(np.float32)
+        x = self._win_f32[None, :] + dm[:, None]
+        signal = np.exp(x * x * e[:, None]) * peak[:, None]
+        c2, g = np.float32(st.speckle_contrast**2), np.float32(st.shot_gain_dn)
+        sd = np.sqrt(signal * (signal * c2 + g))
+        at = (first_column + si)[:, None] * rows + start.astype(np.intp)[:, None] + np.arange(w)
+        flat = frame.reshape(-1)
+        value = self.unit_normals((si.size, w)) * sd + signal + np.float32(0.5) + flat[at]
+        flat[at] = np.clip(value, 0.0, 255.0).astype(np.uint8)
 
     def add_signal(self, frame: U8Array, at: NDArray[np.intp], signal: NDArray[np.float32]) -> None:
         """Add stripe signal (M, W) DN with shot noise and speckle to the pixels at flat

@@ -293,11 +293,7 @@ class StraightSeamColumns:
             mi = np.flatnonzero(mixed)
             hit: NDArray[np.bool_] = np.empty((0, 0), dtype=bool)
             rows: FloatArray = np.empty((0, 0))
-            if 2 <= mi.size <= 8 and n_p * k <= 64:
-                # a few edge columns (the usual case): their sub-columns' rows on Python
-                # floats, ~20 small numpy calls fewer
-                self._mixed_stats(mi, ok, lam, s.cam_all, count, mean, var)
-            elif mi.size:
+            if mi.size:
                 # an edge inside the column: every sub-column's row
                 hit = ok[:, :, mi].reshape(n_p * k, mi.size)
                 c4 = s.cam_all[:, :, mi]
@@ -319,46 +315,6 @@ class StraightSeamColumns:
             cu = ci[steep]
             out[steep, :k] = r[0, cu, None] + self._frac * (r[-1, cu] - r[0, cu])[:, None]
             if mi.size:
-                if not hit.size:
-                    hit = ok[:, :, mi].reshape(n_p * k, mi.size)
-                    c4 = s.cam_all[:, :, mi]
-                    rows = self._row(lam[:, :, mi], c4[0], c4[1], c4[2], c4[3])
-                    rows = rows.reshape(n_p * k, mi.size)
                 sub = np.where(hit, rows, UNLIT_ROW).T
                 out[~steep, : sub.shape[1]] = sub[np.searchsorted(mi, ci[~steep])]
         return ColumnStats(coverage, mean, var, simple, ci, out)
-
-    def _mixed_stats(
-        self,
-        mi: NDArray[np.intp],
-        ok: NDArray[np.bool_],
-        lam: FloatArray,
-        cam: FloatArray,
-        count: NDArray[np.intp],
-        mean: FloatArray,
-        var: FloatArray,
-    ) -> None:
-        """Mean row and spread of the edge columns ``mi`` (M,) from every lit sub-column
-        (``ok``, ``lam`` (P, K, N), camera-frame constants ``cam`` (4, K, N)), written into
-        ``mean`` and ``var``. The arithmetic of the numpy path of :meth:`_stats`, summed
-        sub-column after sub-column: the same values as numpy's reduction where that runs
-        row after row (the cell's butt frames), else within an ulp (numpy's summation order
-        depends on the array layout: a contiguous run is summed in SIMD lanes)."""
-        f = self.camera.focal_px
-        v0 = self.camera.principal_point[1]
-        for j in mi.tolist():
-            ya, dy, za, dz = cam[:, :, j].tolist()
-            s1 = s2 = 0.0
-            first = True
-            for hits, lams in zip(ok[:, :, j].tolist(), lam[:, :, j].tolist(), strict=True):
-                for h, lm, a, b, c, d in zip(hits, lams, ya, dy, za, dz, strict=True):
-                    r = ((lm * b + a) / (lm * d + c)) * f + v0 if h else 0.0
-                    if first:
-                        s1, s2, first = r, r * r, False
-                    else:
-                        s1 += r
-                        s2 += r * r
-            n = int(count[j])
-            m = s1 / n
-            mean[j] = m
-            var[j] = max(s2 / n - m * m, 0.0)

@@ -1,5 +1,4 @@
-"""Image formation: background and read noise, the stripe's shot noise and speckle, and the
-fast exposure of simple columns against its plain reference."""
+"""Image formation: background and read noise, the stripe's shot noise and speckle."""
 
 from __future__ import annotations
 
@@ -9,8 +8,8 @@ import numpy as np
 import pytest
 
 from sensorsocket.camera import StripeRenderer
-from sensorsocket.exposure import Exposure, RenderSettings
-from sensorsocket.scene import Joint, Scene, SeamPath, fixed_pose, scripted_pose
+from sensorsocket.exposure import RenderSettings
+from sensorsocket.scene import Joint, Scene, SeamPath, fixed_pose
 
 
 def _scene_and_pose(joint: Joint, **kw: float) -> tuple[Scene, np.ndarray]:
@@ -77,42 +76,3 @@ def test_stripe_noise_statistics_are_honest() -> None:
     # not the same noise in two frames
     d0, d1 = stack[0][sel] - signal, stack[1][sel] - signal
     assert abs(np.corrcoef(d0, d1)[0, 1]) < 0.1
-
-
-@pytest.mark.parametrize("joint", [Joint.butt(0.5), Joint.fillet(), Joint.lap(1.0, 1)], ids=str)
-@pytest.mark.parametrize("first", [0, 150])
-def test_fast_simple_columns_equal_the_plain_reference(
-    joint: Joint, first: int, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """Exposure.simple_columns (fused, into scratch buffers) writes the same frames, bit for
-    bit, as simple_columns_plain (column by column, plain expressions): stripes at the
-    frame's edges (clamped windows), saturated peaks, tilted and moving plates."""
-    scene = Scene(joint, SeamPath.straight())
-    rng = np.random.default_rng(7)
-    cases = []
-    for _ in range(6):
-        pose = scene.sensor_over_seam(
-            0.0,
-            float(rng.uniform(-4, 4)),
-            float(rng.uniform(-7.5, 8.5)),
-            float(rng.uniform(-30, 30)),
-        )
-        velocity = tuple(float(v) for v in rng.uniform(-400.0, 400.0, 3))
-        cases.append(scripted_pose(pose, velocity_mm_s=velocity))
-    n = 512 - first
-    times = np.arange(n) * 6.8e-6
-    frames = []
-    for plain in (False, True):
-        r = StripeRenderer(scene, rng=np.random.default_rng(3))
-        with monkeypatch.context() as m:
-            if plain:
-                m.setattr(Exposure, "simple_columns", Exposure.simple_columns_plain)
-            out = [
-                r.render(first, times, pose, exposure_s=e) for pose in cases for e in (None, 3e-5)
-            ]
-        frames.append(out)
-    simple = 0
-    for (f_fast, t_fast), (f_plain, _) in zip(*frames, strict=True):
-        assert np.array_equal(f_fast, f_plain)
-        simple += int(t_fast.simple.sum())
-    assert simple > 2000  # the simple path ran on many columns: the check is not vacuous
