@@ -34,11 +34,32 @@ from enum import StrEnum
 import numpy as np
 from numpy.typing import NDArray
 
-from sensorsocket.camera import CameraGeometry
+from sensorsocket.geometry import CameraGeometry
 from sensorsocket.scene import FloatArray, JointType
 
 _EYE4 = np.eye(4)
 _EYE4.setflags(write=False)
+
+#: Gaussian noise: σ = 1.4826 · median absolute deviation (robust against the stripe's tail).
+_MAD_TO_SIGMA = 1.4826
+#: Background samples lie this many rows beyond either end of a column's stripe window.
+_RING_GAP_ROWS = 3
+#: Noise floor (DN): below half a DN the 8-bit rounding, not the noise, sets the threshold.
+_MIN_NOISE_DN = 0.5
+#: A valid column's peak clears the background by this many noise sigmas (or by
+#: ``min_contrast_dn``): over 512 columns, noise alone then practically never passes.
+_PEAK_SIGMAS = 6.0
+#: Rms of the plate fits (mm) at which the fit factor of the quality is one half: about the
+#: depth noise of one column's centroid.
+_HALF_QUALITY_RMS_MM = 0.03
+#: A second gap at least this fraction as wide as the widest makes a butt seam ambiguous.
+_AMBIGUOUS_GAP_RATIO = 0.6
+#: Full-plate columns whose median light is a full column's reference (butt edges), taken
+#: from the 10th to the 2nd column before the edge columns (the one next to them may be
+#: partly lit too).
+_N_REF_COLUMNS = 9
+#: Robust line fits drop points beyond this many robust sigmas, but never within 10 µm.
+_OUTLIER_SIGMAS, _MIN_OUTLIER_MM = 3.5, 0.01
 
 
 class DetectorError(ValueError):
@@ -176,8 +197,8 @@ class SeamDetector:
                 base=np.arange(0, n * nrows, nrows, dtype=np.intp),
                 ring_of_row=np.stack(
                     [
-                        np.maximum(np.arange(nrows) - (h + 3), 0),
-                        np.minimum(np.arange(nrows) + (h + 3), nrows - 1),
+                        np.maximum(np.arange(nrows) - (h + _RING_GAP_ROWS), 0),
+                        np.minimum(np.arange(nrows) + (h + _RING_GAP_ROWS), nrows - 1),
                     ]
                 ),
                 start_of_row=np.clip(np.arange(nrows) - h, 0, nrows - w),
@@ -209,9 +230,11 @@ class SeamDetector:
         samples = flat.take(ring.reshape(-1)).astype(np.float32)
         background = _median_of_copy(samples)  # sorts samples: their order is not needed
         np.subtract(samples, background, out=samples)
-        noise = max(1.4826 * _median_of_copy(np.abs(samples, out=samples)), 0.5)
+        mad = _median_of_copy(np.abs(samples, out=samples))
+        noise = max(_MAD_TO_SIGMA * mad, _MIN_NOISE_DN)
+        # at least 1 DN above the background: its rounding alone must not count as light
         threshold = background + max(self.config.noise_factor * noise, 1.0)
-        contrast = max(self.config.min_contrast_dn, 6.0 * noise)
+        contrast = max(self.config.min_contrast_dn, _PEAK_SIGMAS * noise)
         thr32 = np.float32(threshold)
         # every run of w pixels of the frame as a row of a strided view: a window is one
         # fancy index (its flat start), no (n, w) index array to build
@@ -401,7 +424,7 @@ class SeamDetector:
 
     def _quality(self, n_used: int, n_columns: int, rms: float, feature: float) -> float:
         coverage = min(1.0, n_used / max(0.5 * n_columns, 1.0))
-        fit = 1.0 / (1.0 + (rms / 0.03) ** 2)
+        fit = 1.0 / (1.0 + (rms / _HALF_QUALITY_RMS_MM) ** 2)
         return coverage * fit * min(max(feature, 0.0), 1.0)
 
     def _butt(
@@ -427,10 +450,10 @@ class SeamDetector:
         ]
         if not found:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
-        # widest candidate (the last of equal widths); a second one at least 0.6 as wide
-        # makes the seam ambiguous
+        # widest candidate (the last of equal widths); a second one nearly as wide makes the
+        # seam ambiguous
         best_w, i = max(found)
-        if any(j != i and w >= 0.6 * best_w for w, j in found):
+        if any(j != i and w >= _AMBIGUOUS_GAP_RATIO * best_w for w, j in found):
             return self._none(SeamStatus.AMBIGUOUS, stripe, pts, u)
         p = _centred(y, z)
         left = _robust_line(p, slice(0, i + 1))
@@ -470,11 +493,11 @@ class SeamDetector:
         covers the columns beyond the gap fully; the columns next to the gap carry light in
         proportion to the part of their width the plate covers. One gather for both sides.
         """
-        n_ref = 9
+        n_ref = _N_REF_COLUMNS
         edge_l = [u_left, u_left + 1] if u_left + 1 < u_right else [u_left]
         edge_r = [u_right, u_right - 1] if u_right - 1 > u_left else [u_right]
-        cols_l = list(range(u_left - 10, u_left - 1)) + edge_l
-        cols_r = list(range(u_right + 2, u_right + 11)) + edge_r
+        cols_l = list(range(u_left - n_ref - 1, u_left - 1)) + edge_l
+        cols_r = list(range(u_right + 2, u_right + n_ref + 2)) + edge_r
         n_l = len(cols_l)
         rows = self._line_rows(cols_l, left) + self._line_rows(cols_r, right)
         cols = np.array(cols_l + cols_r)
@@ -683,7 +706,7 @@ def _robust_line(
         (_, sy, sz), (_, syy, syz), (_, _, szz) = qk.dot(qk.T).tolist()
         my, mz = sy / n, sz / n
         syy_c = syy - sy * my
-        if syy_c <= 1e-12 or syy_c <= 1e-10 * syy:
+        if syy_c <= 1e-12 or syy_c <= 1e-10 * syy:  # all points at one y (to rounding)
             return None
         syz_c = syz - sy * mz
         b = syz_c / syy_c
@@ -692,8 +715,8 @@ def _robust_line(
         if it < iterations:
             res = np.abs(np.array([-a, -b, 1.0]).dot(q))
             fitted = res.copy() if keep is None else res[keep]
-            sigma = 1.4826 * _median_of_copy(fitted)  # sorts ``fitted``
-            limit = max(3.5 * sigma, 0.01)
+            sigma = _MAD_TO_SIGMA * _median_of_copy(fitted)  # sorts ``fitted``
+            limit = max(_OUTLIER_SIGMAS * sigma, _MIN_OUTLIER_MM)
             # the same points as in this fit: every further fit would repeat it exactly;
             # in the first fit, that is the largest residual (NaN sorts last) within limit
             if keep is None and float(fitted[-1]) <= limit:

@@ -273,3 +273,24 @@ def test_frame_memory_layout_does_not_matter(joint: Joint) -> None:
         assert e.status is d.status
         np.testing.assert_allclose(e.seam2sensor, d.seam2sensor, atol=1e-9)
         assert e.column == pytest.approx(d.column, abs=1e-9)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.integers(0, 500),
+    st.integers(1, 20),
+    st.floats(-3.0, 3.0),
+    st.floats(-0.5, 0.5),
+)
+def test_line_rows_equal_the_calibration_per_column(u0: int, n: int, a: float, b: float) -> None:
+    """The rows where a plate's line crosses a run of columns, from the two end columns
+    (the image of a line is a line), equal the calibration's line_row at every column."""
+    from sensorsocket.detector import _Line
+
+    det = SeamDetector()
+    cols = list(range(u0, min(u0 + n, 512)))
+    rows = det._line_rows(cols, _Line(a=a, b=b, rms=0.0, n=10))
+    u = np.array(cols, dtype=np.float64)
+    exact = det.camera.line_row(u, np.full(u.size, a), np.full(u.size, b))
+    np.testing.assert_allclose(rows, exact, rtol=0.0, atol=1e-9)
+    assert det._line_rows([], _Line(a=a, b=b, rms=0.0, n=10)) == []
