@@ -161,7 +161,8 @@ class CameraGeometry:
     def column_lines(self, u: ArrayLike, margin_px: float = 8.0) -> tuple[FloatArray, FloatArray]:
         """End points (..., 3) in S of the laser-plane line seen by column u.
 
-        A at row -margin and B at row rows-1+margin; the line is affine in u.
+        A at row -margin and B at row rows-1+margin; the line is affine in u. The margin
+        lets a stripe centred just off the chip still light the edge rows with its tail.
         """
         u = np.asarray(u, dtype=np.float64)
         a = self.pixel_to_sensor(u, np.full_like(u, -margin_px))
