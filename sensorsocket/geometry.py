@@ -66,21 +66,29 @@ class CameraGeometry:
             if not (value > 0 and math.isfinite(value)):
                 raise CameraError(f"{name} must be positive")
         th = math.radians(self.triangulation_angle_deg)
+        # the constants every formula takes, computed once (a detector calls some of them
+        # a dozen times a frame on plain floats)
         object.__setattr__(self, "_sin", math.sin(th))
         object.__setattr__(self, "_cos", math.cos(th))
+        object.__setattr__(self, "_f", self.focal_length_mm / self.pixel_pitch_mm)
+        object.__setattr__(self, "_u0", (self.columns - 1) / 2.0)
+        object.__setattr__(self, "_v0", (self.rows - 1) / 2.0)
 
     _sin: float = field(init=False, repr=False, compare=False, default=0.0)
     _cos: float = field(init=False, repr=False, compare=False, default=0.0)
+    _f: float = field(init=False, repr=False, compare=False, default=0.0)
+    _u0: float = field(init=False, repr=False, compare=False, default=0.0)
+    _v0: float = field(init=False, repr=False, compare=False, default=0.0)
 
     @property
     def focal_px(self) -> float:
         """Focal length in pixels."""
-        return self.focal_length_mm / self.pixel_pitch_mm
+        return self._f
 
     @property
     def principal_point(self) -> tuple[float, float]:
         """(u0, v0) in pixels: the chip centre."""
-        return (self.columns - 1) / 2.0, (self.rows - 1) / 2.0
+        return self._u0, self._v0
 
     @property
     def baseline_mm(self) -> float:
@@ -106,13 +114,20 @@ class CameraGeometry:
         With k = (u - u0)/f and t = (v - v0)/f (f in pixels), the ray meets x_S = 0 at
         z = t·D / (sin θ - t·cos θ) and y = k·(D + z·cos θ).
         """
-        u0, v0 = self.principal_point
-        f = self.focal_px
         s, c, d = self._sin, self._cos, self.working_distance_mm
-        k = (u - u0) / f
-        t = (v - v0) / f
-        z = _over(t * d, s - t * c)
-        return k * (d + z * c), z
+        # in place where the operand is our own array (a new float for floats): the profile
+        # of every frame goes through here
+        k = u - self._u0
+        k /= self._f
+        t = v - self._v0
+        t /= self._f
+        z = t * d
+        t *= c
+        z = _over(z, s - t)
+        y = z * c
+        y += d
+        y *= k
+        return y, z
 
     def pixel_to_sensor(self, u: ArrayLike, v: ArrayLike) -> FloatArray:
         """Points on the laser plane seen at pixel (u, v) (any shape) -> (..., 3) mm in S."""
@@ -138,8 +153,7 @@ class CameraGeometry:
         arrays): :meth:`project`'s u with x = 0, so the same value to the last bit. The
         detector reports the seam's column with it and the cell its readout time; NaN where
         the point lies at the camera centre's depth."""
-        u0 = self.principal_point[0]
-        return u0 + _over(self.focal_px * y, self.working_distance_mm + z * self._cos)
+        return self._u0 + _over(self._f * y, self.working_distance_mm + z * self._cos)
 
     def camera_yz(self, points: ArrayLike) -> tuple[FloatArray, FloatArray]:
         """Camera-frame Y (along the rows) and Z (depth) of points (..., 3) in S, for
@@ -173,7 +187,7 @@ class CameraGeometry:
         """(y, z) in S (mm) where column u meets the profile line z = a + b·y of the laser
         plane (floats or arrays); NaN where the column's ray runs parallel to the line."""
         c, d = self._cos, self.working_distance_mm
-        k = (u - self.principal_point[0]) / self.focal_px
+        k = (u - self._u0) / self._f
         y = _over(k * (d + a * c), 1.0 - k * b * c)
         return y, a + b * y
 
@@ -182,7 +196,7 @@ class CameraGeometry:
         the row of :meth:`line_point`; NaN where there is none."""
         s, c, d = self._sin, self._cos, self.working_distance_mm
         z = self.line_point(u, a, b)[1]
-        return self.principal_point[1] + _over(self.focal_px * z * s, d + z * c)
+        return self._v0 + _over(self._f * z * s, d + z * c)
 
     def field_of_view(self) -> dict[str, float]:
         """Width at z_S = 0 and depth range along the laser (mm)."""
@@ -205,6 +219,8 @@ def _over(num: _N, den: _N) -> _N:
     without a warning."""
     if isinstance(den, float):
         return num / den if den != 0.0 else math.nan
+    if den.all():  # the usual case: a plain division, no warning possible
+        return num / den
     out: FloatArray = np.full(np.broadcast_shapes(np.shape(num), np.shape(den)), math.nan)
     np.divide(num, den, out=out, where=den != 0.0)
     return out
