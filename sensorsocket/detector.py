@@ -4,15 +4,11 @@ Input: a frame in readout layout ``(columns, rows)`` (see :mod:`sensorsocket.cam
 the renderer or from anywhere else (a saved PGM, a real camera): uint8 as is; 16-bit
 integers scaled by 1/256, floats in [0, 1] by 255, so thresholds stay in 8-bit DN. Steps:
 
-1. Stripe: per column, the brightest row (argmax), then a fixed window of 2h+1 rows around
-   it and its intensity centroid after subtracting a threshold ``background + k·noise``
-   (background and noise estimated per frame, robustly, from pixels just outside the
-   windows). Second pass with the window re-centred on the centroid. A column is valid when
-   its peak clears the background by ``max(min_contrast_dn, 6·noise)`` and the stripe is not
-   wider than ``max_width_px`` (rms).
+1. Stripe (:mod:`sensorsocket.stripe`): per column the sub-pixel intensity centroid of the
+   stripe and whether the column is valid.
 2. Profile: valid centres mapped through the calibration (laser plane + pinhole) to points
    (0, y, z) in the sensor frame S, mm; isolated outliers (reflections) removed against a
-   5-point running median.
+   3-point running median.
 3. Seam feature for the configured joint type: butt -> the widest gap between two coplanar
    plates, edges refined to sub-column precision from the stripe mass (a column half over
    the gap carries half the light); fillet -> the corner where two robust line fits meet;
@@ -36,19 +32,11 @@ from numpy.typing import NDArray
 
 from sensorsocket.geometry import CameraGeometry
 from sensorsocket.scene import FloatArray, JointType
+from sensorsocket.stripe import MAD_TO_SIGMA, StripeFinder, StripeProfile, median_of_copy, to_dn
 
 _EYE4 = np.eye(4)
 _EYE4.setflags(write=False)
 
-#: Gaussian noise: σ = 1.4826 · median absolute deviation (robust against the stripe's tail).
-_MAD_TO_SIGMA = 1.4826
-#: Background samples lie this many rows beyond either end of a column's stripe window.
-_RING_GAP_ROWS = 3
-#: Noise floor (DN): below half a DN the 8-bit rounding, not the noise, sets the threshold.
-_MIN_NOISE_DN = 0.5
-#: A valid column's peak clears the background by this many noise sigmas (or by
-#: ``min_contrast_dn``): over 512 columns, noise alone then practically never passes.
-_PEAK_SIGMAS = 6.0
 #: Rms of the plate fits (mm) at which the fit factor of the quality is one half: about the
 #: depth noise of one column's centroid.
 _HALF_QUALITY_RMS_MM = 0.03
@@ -108,19 +96,6 @@ class DetectorConfig:
 
 
 @dataclass(frozen=True)
-class StripeProfile:
-    """Per-column stripe of a frame (arrays (n,), column ``first_column + i``)."""
-
-    first_column: int
-    rows: FloatArray = field(repr=False)
-    mass: FloatArray = field(repr=False)
-    valid: NDArray[np.bool_] = field(repr=False)
-    background: float
-    noise: float
-    threshold: float
-
-
-@dataclass(frozen=True)
 class Detection:
     """Outcome of one frame. ``seam2sensor`` is the identity when nothing was found."""
 
@@ -135,19 +110,6 @@ class Detection:
     @property
     def found(self) -> bool:
         return self.status is SeamStatus.FOUND
-
-
-@dataclass(frozen=True)
-class _ShapeConstants:
-    """Read-only arrays for frames (n, rows): flat offset of each column (n,), the clamped
-    background rows (2, rows) and window start (rows,) for a peak or centre row, the window
-    fill h (n,), zeros (n, w)."""
-
-    base: NDArray[np.intp]
-    ring_of_row: NDArray[np.intp]
-    start_of_row: NDArray[np.intp]
-    fill: NDArray[np.float32]
-    zeros: NDArray[np.float32]
 
 
 @dataclass(frozen=True)
@@ -175,106 +137,16 @@ class SeamDetector:
     def __init__(self, camera: CameraGeometry | None = None, config: DetectorConfig | None = None):
         self.camera = camera if camera is not None else CameraGeometry()
         self.config = config if config is not None else DetectorConfig()
-        h = self.config.half_window
-        win = np.arange(2 * h + 1, dtype=np.float32)
-        # (3, w): a window's mass, first and second moment are one matrix product
-        self._win_moments = np.stack([np.ones_like(win), win, win * win])
-        self._shape_cache: dict[tuple[int, int], _ShapeConstants] = {}
-        self._windows: dict[int, tuple[NDArray[np.intp], FloatArray]] = {}
+        cfg = self.config
+        self.stripes = StripeFinder(
+            cfg.half_window, cfg.noise_factor, cfg.min_contrast_dn, cfg.max_width_px
+        )
         self._empty_points = np.zeros((0, 3))
         self._empty_cols = np.zeros(0, dtype=np.intp)
 
-    # -- stage 1: stripe -------------------------------------------------------------------
-    def _shape_constants(self, n: int, nrows: int) -> _ShapeConstants:
-        """Read-only index and bound arrays for frames (n, nrows), cached per shape: a
-        detector sees one frame shape over and over. Never written, so thread-safe."""
-        key = (n, nrows)
-        c = self._shape_cache.get(key)
-        if c is None:
-            w = self._win_moments.shape[1]
-            h = self.config.half_window
-            c = _ShapeConstants(
-                base=np.arange(0, n * nrows, nrows, dtype=np.intp),
-                ring_of_row=np.stack(
-                    [
-                        np.maximum(np.arange(nrows) - (h + _RING_GAP_ROWS), 0),
-                        np.minimum(np.arange(nrows) + (h + _RING_GAP_ROWS), nrows - 1),
-                    ]
-                ),
-                start_of_row=np.clip(np.arange(nrows) - h, 0, nrows - w),
-                fill=np.full(n, h, dtype=np.float32),
-                zeros=np.zeros((n, w), dtype=np.float32),
-            )
-            for arr in (c.base, c.ring_of_row, c.start_of_row, c.fill, c.zeros):
-                arr.setflags(write=False)
-            self._shape_cache[key] = c
-        return c
-
     def stripe(self, frame: NDArray[np.generic], first_column: int = 0) -> StripeProfile:
-        """Sub-pixel stripe rows of every column of ``frame`` (n, rows)."""
-        a = np.ascontiguousarray(frame)
-        n, nrows = a.shape
-        h = self.config.half_window
-        w = 2 * h + 1
-        flat = a.reshape(-1)
-        c = self._shape_constants(n, nrows)
-        base = c.base
-        # numpy's argmax has no SIMD loop for 8-bit integers: on int32 it is 2x faster,
-        # conversion included; ties resolve to the first maximum either way
-        search = a.astype(np.int32) if a.dtype.itemsize == 1 else a
-        peak_row = search.argmax(axis=1)
-        peak = flat.take(peak_row + base).astype(np.float32)
-        # the rows just outside the window above and below the peak, clamped: (2, n)
-        ring = c.ring_of_row.take(peak_row, axis=1)
-        ring += base
-        samples = flat.take(ring.reshape(-1)).astype(np.float32)
-        background = _median_of_copy(samples)  # sorts samples: their order is not needed
-        np.subtract(samples, background, out=samples)
-        mad = _median_of_copy(np.abs(samples, out=samples))
-        noise = max(_MAD_TO_SIGMA * mad, _MIN_NOISE_DN)
-        # at least 1 DN above the background: its rounding alone must not count as light
-        threshold = background + max(self.config.noise_factor * noise, 1.0)
-        contrast = max(self.config.min_contrast_dn, _PEAK_SIGMAS * noise)
-        thr32 = np.float32(threshold)
-        # every run of w pixels of the frame as a row of a strided view: a window is one
-        # fancy index (its flat start), no (n, w) index array to build
-        windows = np.ndarray(
-            (flat.size - w + 1, w), flat.dtype, flat, 0, (flat.itemsize, flat.itemsize)
-        )
-        moments = np.empty((3, n), dtype=np.float32)
-        mass = moments[0]
-        positive = np.empty(n, dtype=bool)
-        rows = np.empty(n, dtype=np.float32)
-        # window start of a window centred on row r, clamped to the frame: c.start_of_row[r]
-        start = c.start_of_row.take(peak_row)
-        for second in (False, True):
-            if second:  # re-centre on the first centroid: symmetric window, whole plateau
-                start = c.start_of_row.take(np.rint(rows).astype(np.intp), mode="clip")
-            start_f = start.astype(np.float32)
-            start += base
-            vals = windows[start].astype(np.float32)
-            vals -= thr32
-            np.maximum(vals, c.zeros, out=vals)  # an array operand takes the SIMD loop
-            np.matmul(self._win_moments, vals.T, out=moments)
-            np.greater(mass, 0.0, out=positive)
-            rel = c.fill.copy()  # h where a window has no light: rows = window centre
-            np.divide(moments[1], mass, out=rel, where=positive)
-            np.add(rel, start_f, out=rows)
-        spread = np.full(n, np.inf, dtype=np.float32)
-        np.divide(moments[2], mass, out=spread, where=positive)
-        spread -= rel * rel
-        valid = peak >= background + contrast
-        valid &= positive
-        valid &= spread <= self.config.max_width_px**2
-        return StripeProfile(
-            first_column=first_column,
-            rows=rows.astype(np.float64),
-            mass=mass.astype(np.float64),
-            valid=valid,
-            background=background,
-            noise=noise,
-            threshold=threshold,
-        )
+        """Stage 1, the stripe of every column: :meth:`StripeFinder.stripe`."""
+        return self.stripes.stripe(frame, first_column)
 
     def mass_at(
         self,
@@ -284,37 +156,8 @@ class SeamDetector:
         rows: FloatArray,
         half: int,
     ) -> FloatArray:
-        """Thresholded light in rows ``rows ± half`` of chip ``columns`` (k,) of ``frame``."""
-        f = np.asarray(frame)
-        ncols, nrows = f.shape[0], f.shape[1]
-        local = columns - stripe.first_column
-        ok = np.isfinite(rows)
-        ok &= local >= 0
-        ok &= local < ncols
-        every = bool(ok.all())
-        if not every:
-            if not ok.any():
-                return np.zeros(len(columns))
-            local, rows = local[ok], rows[ok]
-        offsets, ones = self._window(half)
-        idx = np.rint(rows).astype(np.intp)[:, None] + offsets
-        rows_in = np.maximum(idx, 0)  # np.clip costs more than both on small arrays
-        np.minimum(rows_in, nrows - 1, out=rows_in)
-        inside = rows_in == idx
-        if f.flags.c_contiguous:
-            rows_in += (local * nrows)[:, None]
-            vals = f.reshape(-1).take(rows_in).astype(np.float64)
-        else:
-            vals = f[local[:, None], rows_in].astype(np.float64)
-        vals -= stripe.threshold
-        np.maximum(vals, 0.0, out=vals)
-        vals *= inside
-        sums: FloatArray = vals.dot(ones)
-        if every:
-            return sums
-        out = np.zeros(len(columns))
-        out[ok] = sums
-        return out
+        """Thresholded light around given rows: :meth:`StripeFinder.mass_at`."""
+        return self.stripes.mass_at(frame, stripe, columns, rows, half)
 
     # -- stage 2 and 3 ---------------------------------------------------------------------
     def detect(self, frame: NDArray[np.generic], first_column: int = 0) -> Detection:
@@ -330,7 +173,7 @@ class SeamDetector:
         ):
             return self._none(SeamStatus.BAD_IMAGE, None)
         if a.dtype.type is not np.uint8:
-            a = _to_dn(a)
+            a = to_dn(a)
         stripe = self.stripe(a, first_column)
         cols = np.flatnonzero(stripe.valid)
         if cols.size < cfg.min_valid_columns:
@@ -363,16 +206,6 @@ class SeamDetector:
         v2 = self.camera.line_row(float(u2), line.a, line.b)
         slope = (v2 - v1) / (u2 - u1)
         return [v1 + (c - u1) * slope for c in cols]
-
-    def _window(self, half: int) -> tuple[NDArray[np.intp], FloatArray]:
-        """Row offsets -half..half and ones of that length (read-only, cached per half)."""
-        window = self._windows.get(half)
-        if window is None:
-            window = (np.arange(-half, half + 1), np.ones(2 * half + 1))
-            for arr in window:
-                arr.setflags(write=False)
-            self._windows[half] = window
-        return window
 
     def _none(
         self,
@@ -633,33 +466,11 @@ class SeamDetector:
         return self._found(stripe, t * d_y, lower.a + t * d_z, lower.b, q, pts, u)
 
 
-def _to_dn(a: NDArray[np.generic]) -> NDArray[np.float32]:
-    """Grey levels on the 8-bit scale the thresholds are in: 16-bit integers / 256, floats
-    in [0, 1] × 255, other numbers as they are; NaN and infinities become 0."""
-    f = np.nan_to_num(a.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
-    if a.dtype.itemsize >= 2 and np.issubdtype(a.dtype, np.integer) and f.max() > 255:
-        f *= np.float32(1.0 / 256.0)
-    elif np.issubdtype(a.dtype, np.floating) and f.size and f.min() >= 0.0 and f.max() <= 1.0:
-        f *= np.float32(255.0)
-    return f
-
-
 def _list_median(x: list[float]) -> float:
     """Median of a short non-empty list."""
     s = sorted(x)
     k = len(s) // 2
     return s[k] if len(s) % 2 else 0.5 * (s[k] + s[k - 1])
-
-
-def _median_of_copy(x: NDArray[np.floating]) -> float:
-    """Median of a non-empty 1-D array the caller no longer needs (sorted in place). A
-    full sort: numpy's SIMD sort beats np.partition on these short arrays full of ties."""
-    n = x.size
-    k = n // 2
-    x.sort()
-    if n % 2:
-        return float(x[k])
-    return 0.5 * (float(x[k]) + float(x[k - 1]))
 
 
 def _not_isolated_outliers(z: FloatArray, tol: float) -> NDArray[np.bool_]:
@@ -715,7 +526,7 @@ def _robust_line(
         if it < iterations:
             res = np.abs(np.array([-a, -b, 1.0]).dot(q))
             fitted = res.copy() if keep is None else res[keep]
-            sigma = _MAD_TO_SIGMA * _median_of_copy(fitted)  # sorts ``fitted``
+            sigma = MAD_TO_SIGMA * median_of_copy(fitted)  # sorts ``fitted``
             limit = max(_OUTLIER_SIGMAS * sigma, _MIN_OUTLIER_MM)
             # the same points as in this fit: every further fit would repeat it exactly;
             # in the first fit, that is the largest residual (NaN sorts last) within limit
