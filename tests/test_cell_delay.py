@@ -156,7 +156,7 @@ def test_tool_move_trajectory_tracks_and_refuses_bad_paths() -> None:
         )
         rc.call(CommandId.WAIT_END_MOVE, 5.0)
         # setpoints vs the commanded path on the 4 ms grid [RS-5.24]
-        times, q = cell._truth.samples()
+        times, q = cell.motion.truth.samples()
         sel = (times > t_start) & (times <= t_start + 1.0 + 1e-9)
         poses = cell.robot.model.flange2base_batch(q[sel]) @ cell.sensor2flange
         s0 = cell.ready_sensor2base()
@@ -168,16 +168,16 @@ def test_tool_move_trajectory_tracks_and_refuses_bad_paths() -> None:
 def test_sensor2base_pose_interpolation_exact() -> None:
     """The camera's column poses, interpolated between the exact poses at the 4 ms setpoints,
     match the DGM of the joint-space interpolation the robot follows to < 1e-6 mm."""
-    from cell.cell import _lerp
+    from cell.motion import _lerp
 
     with EmulatedCell(clock="sim", seed=2, timing=PAPER) as cell:
         run_delay_experiment(
             cell.robot_address, cell.sensor_address, ExperimentSettings(duration_s=1.5)
         )
-        buf_t, buf_q = cell._truth.covering(-1.0)
+        buf_t, buf_q = cell.motion.truth.covering(-1.0)
         t = np.linspace(buf_t[1], buf_t[-1], 20001)
-        fast = cell.sensor2base(t)
-        exact = cell._setpoint_poses(_lerp(buf_t, buf_q, t))
+        fast = cell.motion.sensor2base(t)
+        exact = cell.motion.setpoint_poses(_lerp(buf_t, buf_q, t))
     # the arm moved (several mm), so the check is not vacuous
     assert np.ptp(exact[:, :3, 3], axis=0).max() > 1.0
     assert np.abs(fast[:, :3, 3] - exact[:, :3, 3]).max() < 1e-6  # mm
@@ -191,7 +191,7 @@ def test_node_poses_hook_matches_column_poses() -> None:
         run_delay_experiment(
             cell.robot_address, cell.sensor_address, ExperimentSettings(duration_s=1.0)
         )
-        buf_t, _ = cell._truth.covering(-1.0)
+        buf_t, _ = cell.motion.truth.covering(-1.0)
         rng = np.random.default_rng(5)
         emu = cell.sensor.emulator
         provider = emu.sensor2base
@@ -205,7 +205,7 @@ def test_node_poses_hook_matches_column_poses() -> None:
             nodes, w = nw
             assert nodes.shape == (w.shape[0], 16) and w.shape == (nodes.shape[0], 512)
             assert np.abs(w.sum(axis=0) - 1.0).max() < 1e-12
-            poses = cell.sensor2base(t).reshape(-1, 16)
+            poses = cell.motion.sensor2base(t).reshape(-1, 16)
             assert np.abs(w.T @ nodes - poses).max() < 1e-9  # mm
             seed = int(rng.integers(1 << 30))
             frames = []
