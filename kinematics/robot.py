@@ -56,8 +56,8 @@ _DEGENERATE = 1e-12
 _SMALL_BATCH = 12
 
 
-def _flange_rows(s: Any, c: Any, lengths: tuple[float, ...]) -> tuple[Any, ...]:
-    """The 12 upper entries of flange2base, row by row, from the sines and cosines of
+def _flange_rows(s: Any, c: Any, lengths: tuple[float, ...]) -> tuple[tuple[Any, ...], ...]:
+    """The 3 upper rows (4 entries each) of flange2base, from the sines and cosines of
     (θ1, ..., θ6, θ2 + θ3): ``s`` and ``c`` hold 7 floats (one configuration) or 7 arrays (a
     batch); the same operations in the same order either way, so both forms are bit-equal.
     ``lengths``: shoulder offset, lateral offset, upper arm, forearm, wrist to flange (mm)."""
@@ -81,10 +81,10 @@ def _flange_rows(s: Any, c: Any, lengths: tuple[float, ...]) -> tuple[Any, ...]:
     px = off + l2 * s2 + l3 * s23 + d6 * b02
     py = lat + d6 * a12
     return (
-        c1 * b00 - s1 * a10, c1 * b01 - s1 * a11, c1 * b02 - s1 * a12, c1 * px - s1 * py,
-        s1 * b00 + c1 * a10, s1 * b01 + c1 * a11, s1 * b02 + c1 * a12, s1 * px + c1 * py,
-        c23 * a20 - s23 * a00, c23 * a21 - s23 * a01, b22, l2 * c2 + l3 * c23 + d6 * b22,
-    )  # fmt: skip
+        (c1 * b00 - s1 * a10, c1 * b01 - s1 * a11, c1 * b02 - s1 * a12, c1 * px - s1 * py),
+        (s1 * b00 + c1 * a10, s1 * b01 + c1 * a11, s1 * b02 + c1 * a12, s1 * px + c1 * py),
+        (c23 * a20 - s23 * a00, c23 * a21 - s23 * a01, b22, l2 * c2 + l3 * c23 + d6 * b22),
+    )
 
 
 Shoulder = Literal["righty", "lefty"]
@@ -250,6 +250,8 @@ class RobotModel:
     description: str = ""
     _limits: Array = field(init=False, repr=False, compare=False)
     _offsets: Array = field(init=False, repr=False, compare=False)
+    #: The DGM's lengths in the order ``_flange_rows`` takes them.
+    _lengths: tuple[float, ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         lim = np.asarray(self.joint_limits_deg, dtype=np.float64)
@@ -268,6 +270,14 @@ class RobotModel:
         off.flags.writeable = False
         object.__setattr__(self, "_limits", lim)
         object.__setattr__(self, "_offsets", off)
+        lengths = (
+            self.shoulder_offset_mm,
+            self.lateral_offset_mm,
+            self.upper_arm_mm,
+            self.forearm_mm,
+            self.wrist_to_flange_mm,
+        )
+        object.__setattr__(self, "_lengths", lengths)
 
     # --- data -------------------------------------------------------------------------------
 
@@ -355,32 +365,16 @@ class RobotModel:
         r = math.pi / 180.0
         t1, t2, t3 = (q1 + o[0]) * r, (q2 + o[1]) * r, (q3 + o[2]) * r
         t4, t5, t6 = (q4 + o[3]) * r, (q5 + o[4]) * r, (q6 + o[5]) * r
-        s1, c1 = math.sin(t1), math.cos(t1)
-        s2, c2 = math.sin(t2), math.cos(t2)
-        s23, c23 = math.sin(t2 + t3), math.cos(t2 + t3)
-        s4, c4 = math.sin(t4), math.cos(t4)
-        s5, c5 = math.sin(t5), math.cos(t5)
-        s6, c6 = math.sin(t6), math.cos(t6)
-        # Wrist rotation A = Rz(θ4)·Ry(θ5)·Rz(θ6).
-        c5c6, c5s6 = c5 * c6, c5 * s6
-        a00, a01, a02 = c4 * c5c6 - s4 * s6, -c4 * c5s6 - s4 * c6, c4 * s5
-        a10, a11, a12 = s4 * c5c6 + c4 * s6, c4 * c6 - s4 * c5s6, s4 * s5
-        a20, a21, a22 = -s5 * c6, s5 * s6, c5
-        # B = Ry(θ2+θ3)·A.
-        b00, b01, b02 = c23 * a00 + s23 * a20, c23 * a01 + s23 * a21, c23 * a02 + s23 * a22
-        b20, b21, b22 = c23 * a20 - s23 * a00, c23 * a21 - s23 * a01, c23 * a22 - s23 * a02
-        d6 = self.wrist_to_flange_mm
-        px = self.shoulder_offset_mm + self.upper_arm_mm * s2 + self.forearm_mm * s23 + d6 * b02
-        py = self.lateral_offset_mm + d6 * a12
-        pz = self.upper_arm_mm * c2 + self.forearm_mm * c23 + d6 * b22
-        return np.array(
-            [
-                [c1 * b00 - s1 * a10, c1 * b01 - s1 * a11, c1 * b02 - s1 * a12, c1 * px - s1 * py],
-                [s1 * b00 + c1 * a10, s1 * b01 + c1 * a11, s1 * b02 + c1 * a12, s1 * px + c1 * py],
-                [b20, b21, b22, pz],
-                [0.0, 0.0, 0.0, 1.0],
-            ]
+        # θ2 + θ3 summed in radians (the batch sums degrees): the single and the batch form
+        # may differ in the last bit of θ23, as they always have.
+        t23 = t2 + t3
+        sin, cos = math.sin, math.cos
+        row0, row1, row2 = _flange_rows(
+            (sin(t1), sin(t2), 0.0, sin(t4), sin(t5), sin(t6), sin(t23)),
+            (cos(t1), cos(t2), 0.0, cos(t4), cos(t5), cos(t6), cos(t23)),
+            self._lengths,
         )
+        return np.array((row0, row1, row2, (0.0, 0.0, 0.0, 1.0)))
 
     def flange2base_batch(self, q_deg: Any) -> Array:
         """Vectorised DGM: VAL3 joints (N, 6) deg -> flange2base (N, 4, 4)."""
@@ -392,13 +386,7 @@ class RobotModel:
         np.multiply(ang, math.pi / 180.0, out=ang)
         s = np.sin(ang)
         c = np.cos(ang)
-        lengths = (
-            self.shoulder_offset_mm,
-            self.lateral_offset_mm,
-            self.upper_arm_mm,
-            self.forearm_mm,
-            self.wrist_to_flange_mm,
-        )
+        lengths = self._lengths
         out = np.empty((n, 4, 4))
         out[:, 3, :3] = 0.0
         out[:, 3, 3] = 1.0
@@ -411,8 +399,9 @@ class RobotModel:
             ]
             out[:, :3, :] = np.array(rows, dtype=np.float64).reshape(n, 3, 4)
         else:
-            for k, value in enumerate(_flange_rows(s, c, lengths)):
-                out[:, k // 4, k % 4] = value
+            for i, row in enumerate(_flange_rows(s, c, lengths)):
+                for j, value in enumerate(row):
+                    out[:, i, j] = value
         return out
 
     # --- configuration and singularities ---------------------------------------------------
