@@ -12,7 +12,7 @@ integers scaled by 1/256, floats in [0, 1] by 255, so thresholds stay in 8-bit D
    wider than ``max_width_px`` (rms).
 2. Profile: valid centres mapped through the calibration (laser plane + pinhole) to points
    (0, y, z) in the sensor frame S, mm; isolated outliers (reflections) removed against a
-   5-point running median.
+   3-point running median.
 3. Seam feature for the configured joint type: butt -> the widest gap between two coplanar
    plates, edges refined to sub-column precision from the stripe mass (a column half over
    the gap carries half the light); fillet -> the corner where two robust line fits meet;

@@ -58,7 +58,6 @@ def test_hello_lists_what_the_service_implements(client: RobotClient) -> None:
     assert info["service"] == "robot" and info["model"] == "RX90B"
     ids = set(info["commands"].values)  # type: ignore[union-attr]
     robot_ids = {int(c.id) for c in commands_for("robot") if c.service == "robot"}
-    robot_ids -= {int(CommandId.TOOL_MOVE_TRAJECTORY)}  # not implemented yet
     assert robot_ids <= ids
     assert int(CommandId.START_TRIGGERS) not in ids  # sync commands: not registered here
 
