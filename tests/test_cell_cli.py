@@ -68,6 +68,7 @@ def test_serve_answers_a_robot_and_a_sensor_call_then_stops_on_sigint() -> None:
             proc.communicate()
 
 
+@pytest.mark.slow
 def test_demo_runs_end_to_end(tmp_path: Path) -> None:
     """What `make demo` shows: the robot tour, a sensor frame, ΔT through the sockets."""
     out = subprocess.run(

@@ -7,25 +7,27 @@ import os
 import signal
 import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 
 from robotsocket.__main__ import main
 from robotsocket.emulator import RobotEmulator
 from robotsocket.service import RobotService
-from spec.server import FramedServer, ServerPolicy
+from spec.server import ServerPolicy
+
+if TYPE_CHECKING:
+    from tests.conftest import Serve
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture
-def endpoint(tmp_path: Path) -> Iterator[str]:
+def endpoint(tmp_path: Path, serve: Serve) -> str:
     (tmp_path / "token").write_text("tok\n")
-    srv = FramedServer(RobotService(RobotEmulator()), "127.0.0.1", 0, ServerPolicy(token="tok"))
-    with srv:
-        yield f"127.0.0.1:{srv.address[1]}"
+    srv = serve(RobotService(RobotEmulator()), ServerPolicy(token="tok"))
+    return f"127.0.0.1:{srv.address[1]}"
 
 
 def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import socket
 import time
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
@@ -31,6 +32,9 @@ from spec.params import Joints, Location
 from spec.registry import CommandId, commands_for
 from spec.server import FramedServer, ServerPolicy
 
+if TYPE_CHECKING:
+    from tests.conftest import Serve
+
 TARGET = (30.0, -20.0, 100.0, 10.0, 45.0, -30.0)
 
 
@@ -40,11 +44,8 @@ def robot() -> RobotEmulator:
 
 
 @pytest.fixture
-def server(robot: RobotEmulator) -> Iterator[FramedServer]:
-    srv = FramedServer(RobotService(robot), "127.0.0.1", 0, ServerPolicy(token="s3cret"))
-    with srv:
-        yield srv
-    assert not srv.handler_errors
+def server(robot: RobotEmulator, serve: Serve) -> FramedServer:
+    return serve(RobotService(robot), ServerPolicy(token="s3cret"))
 
 
 @pytest.fixture
