@@ -35,7 +35,7 @@ from kinematics.transforms import (
     locations_to_transforms,
     transform_to_location,
 )
-from robotsocket.clock import RealTimeLoop, SimClock
+from robotsocket.clock import RealTimeLoop, SimLoop
 from robotsocket.interface import (
     IDENTITY_LOC,
     Array,
@@ -130,10 +130,10 @@ class RobotEmulator(RobotInterface):
         self._buffer.append(0.0, q0)
         self._idle_since = 0.0
         self.cycle_hooks: list[CycleHook] = []
-        self._simclock: SimClock | None = None
+        self._simclock: SimLoop | None = None
         self._loop: RealTimeLoop | None = None
         if clock == "sim":
-            self._simclock = SimClock(period, self._tick)
+            self._simclock = SimLoop(period, self._tick)
         else:
             self._loop = RealTimeLoop(period, self._tick)
 
