@@ -25,9 +25,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from kinematics.errors import JointLimitError, KinematicsError
-from kinematics.errors import SingularityError as KinSingularityError
-from kinematics.errors import UnreachableError as KinUnreachableError
+from kinematics.errors import KinematicsError
 from kinematics.robot import RobotModel, get_model
 from kinematics.transforms import (
     invert,
@@ -51,8 +49,7 @@ from robotsocket.interface import (
     RobotInfo,
     RobotInterface,
     RobotStatus,
-    SingularityError,
-    UnreachableError,
+    robot_error,
 )
 from robotsocket.timed_path import plan_timed
 from robotsocket.trajectory import PERIOD, Move, TrajectoryGenerator, plan_joint, plan_linear
@@ -290,7 +287,7 @@ class RobotEmulator(RobotInterface):
                 self._last_error = exc
                 raise
             except KinematicsError as exc:
-                err = _robot_error(exc)
+                err = robot_error(exc)
                 self._last_error = err
                 raise err from None
             assert isinstance(move, Move)
@@ -341,6 +338,7 @@ class RobotEmulator(RobotInterface):
         )
 
     def set_motion_desc(self, desc: MotionDesc) -> None:
+        desc.check()
         with self._lock:
             self._desc = desc
 
@@ -446,13 +444,3 @@ class RobotEmulator(RobotInterface):
             times, joints = self._buffer.since(since)
         keep = times > since
         return times[keep], joints[keep]
-
-
-def _robot_error(exc: KinematicsError) -> RobotError:
-    if isinstance(exc, KinUnreachableError):
-        return UnreachableError(str(exc))
-    if isinstance(exc, KinSingularityError):
-        return SingularityError(str(exc))
-    if isinstance(exc, JointLimitError):
-        return OutOfRangeError(str(exc))
-    return InvalidArgumentError(str(exc))

@@ -34,6 +34,7 @@ from robotsocket.interface import (
     OutOfRangeError,
     SingularityError,
     UnreachableError,
+    robot_error,
 )
 
 #: Controller cycle T_r in seconds (paper section V).
@@ -340,7 +341,7 @@ def plan_joint(
     try:
         tgt = model.check_joints(target)
     except KinematicsError as exc:
-        raise OutOfRangeError(str(exc)) from None
+        raise robot_error(exc) from None
     start = np.array(start, dtype=np.float64)
     vj, aj, dj = joint_limits_of(model, desc)
     vmax, acc, dec = _s_limits(tgt - start, vj, aj, dj)
