@@ -24,7 +24,7 @@ from spec.registry import CommandId, CommandSpec
 from spec.server import Identity, Service, Session
 from spec.wire import PixelFormat, PixelOrder, SensorStatus
 
-IDENTITY = Identity(
+SENSOR_IDENTITY = Identity(
     service="sensor", vendor="reference", model="seam-tracker-emulator 512x256", serial="0"
 )
 
@@ -39,7 +39,7 @@ class SensorService(Service):
         self,
         sensor: Sensor,
         *,
-        identity: Identity = IDENTITY,
+        identity: Identity = SENSOR_IDENTITY,
         trigger_endpoint: tuple[str, int] = ("", 0),
     ) -> None:
         self.sensor = sensor
@@ -190,4 +190,4 @@ class SensorService(Service):
         return (self.sensor.acquire().index,)
 
 
-__all__ = ["IDENTITY", "SensorService"]
+__all__ = ["SENSOR_IDENTITY", "SensorService"]
