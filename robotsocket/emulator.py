@@ -51,8 +51,9 @@ from robotsocket.interface import (
     RobotStatus,
     robot_error,
 )
+from robotsocket.paths import Move, plan_joint, plan_linear
 from robotsocket.timed_path import plan_timed
-from robotsocket.trajectory import PERIOD, Move, TrajectoryGenerator, plan_joint, plan_linear
+from robotsocket.trajectory import PERIOD, TrajectoryGenerator
 from sync.joint_buffer import JointBuffer
 
 log = logging.getLogger(__name__)
