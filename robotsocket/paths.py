@@ -17,8 +17,10 @@ from typing import Protocol
 
 import numpy as np
 
+from kinematics.arm import BoolArray
+from kinematics.config import CONFIGS
 from kinematics.errors import KinematicsError
-from kinematics.robot import CONFIGS, BoolArray, RobotModel
+from kinematics.robot import RobotModel
 from robotsocket.interface import (
     Array,
     MotionDesc,
@@ -107,7 +109,7 @@ class CartesianPath:
     T0: Array  # tool2base (4, 4) at s = 0
     T1: Array  # tool2base (4, 4) at s = 1
     flange2tool: Array  # inverse of tool2flange (4, 4)
-    branch: int  # index into kinematics.robot.CONFIGS
+    branch: int  # index into kinematics.config.CONFIGS
     target: Array = field(default_factory=lambda: np.zeros(6))  # set by plan_linear
     length_mm: float = field(init=False)
     angle_deg: float = field(init=False)

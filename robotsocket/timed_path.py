@@ -21,7 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kinematics.robot import CONFIGS, RobotModel
+from kinematics.config import CONFIGS
+from kinematics.robot import RobotModel
 from robotsocket.interface import Array, OutOfRangeError, SingularityError, UnreachableError
 from robotsocket.paths import (
     MAX_GRID_STEP_DEG,
