@@ -72,7 +72,7 @@ def test_serve_answers_a_robot_and_a_sensor_call_then_stops_on_sigint() -> None:
 def test_demo_runs_end_to_end(tmp_path: Path) -> None:
     """What `make demo` shows: the robot tour, a sensor frame, ΔT through the sockets."""
     out = subprocess.run(
-        [sys.executable, "-m", "cell", "demo", "--out", str(tmp_path), "--duration", "3",
+        [sys.executable, "-m", "cell", "demo", "--out", str(tmp_path), "--duration", "1",
          "--no-conformance"],
         capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=300,
     )  # fmt: skip
