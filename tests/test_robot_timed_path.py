@@ -37,7 +37,7 @@ def test_timed_path_interpolates_linearly_in_time_and_clamps() -> None:
     np.testing.assert_allclose(path.q_at(np.array([0.5]), np.zeros(6)), [[5.0] * 6])
 
 
-def test_plan_is_a_linear_law_that_the_generator_tracks_exactly() -> None:
+def test_plan_is_a_linear_law_the_generator_tracks_on_the_4ms_grid() -> None:
     times, poses = sine_path()
     move = plan_timed(7, MODEL, Q0, times, poses, TOOL)
     assert move.id == 7 and move.kind == "timed" and move.blend_mm == 0.0
