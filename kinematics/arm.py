@@ -15,8 +15,8 @@ import numpy as np
 import numpy.typing as npt
 
 from kinematics.errors import KinematicsError
+from kinematics.transforms import Array
 
-Array = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
 #: Joint values this far outside a limit (degrees) still count as inside (round-off).

@@ -20,7 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from kinematics.arm import ArmGeometry, Array, batch6, vector6
+from kinematics.arm import ArmGeometry, batch6, vector6
+from kinematics.transforms import Array
 
 #: Up to this many configurations flange2base_batch runs its arithmetic on Python floats.
 _SMALL_BATCH = 12

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from kinematics.arm import LIMIT_SLACK_DEG, Array, BoolArray, batch6, vector6
+from kinematics.arm import LIMIT_SLACK_DEG, BoolArray, batch6, vector6
 from kinematics.config import (
     CONFIGS,
     SINGULAR_TOL,
@@ -20,7 +20,7 @@ from kinematics.config import (
     ConfigRequest,
 )
 from kinematics.errors import JointLimitError, KinematicsError, SingularityError, UnreachableError
-from kinematics.transforms import check_transform
+from kinematics.transforms import Array, check_transform
 
 #: Below this, the closed form degenerates and the free joint takes the preferred value.
 _DEGENERATE = 1e-12

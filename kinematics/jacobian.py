@@ -7,10 +7,10 @@ from typing import Any, Literal
 
 import numpy as np
 
-from kinematics.arm import Array, vector6
+from kinematics.arm import vector6
 from kinematics.dgm import DgmMixin
 from kinematics.errors import KinematicsError
-from kinematics.transforms import check_transform
+from kinematics.transforms import Array, check_transform
 
 
 class JacobianMixin(DgmMixin):

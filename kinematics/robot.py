@@ -18,10 +18,11 @@ from typing import Any
 
 import numpy as np
 
-from kinematics.arm import LIMIT_SLACK_DEG, Array, BoolArray, vector6
+from kinematics.arm import LIMIT_SLACK_DEG, BoolArray, vector6
 from kinematics.errors import JointLimitError, KinematicsError, UnknownModelError
 from kinematics.ik import IkMixin
 from kinematics.jacobian import JacobianMixin
+from kinematics.transforms import Array
 
 MODELS_DIR = Path(__file__).with_name("models")
 DEFAULT_MODEL = "RX90B"
