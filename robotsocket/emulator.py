@@ -26,9 +26,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from kinematics.errors import JointLimitError, KinematicsError
-from kinematics.errors import SingularityError as KinSingularityError
-from kinematics.errors import UnreachableError as KinUnreachableError
+from kinematics.errors import KinematicsError
 from kinematics.robot import RobotModel, get_model
 from kinematics.transforms import (
     invert,
@@ -36,7 +34,7 @@ from kinematics.transforms import (
     locations_to_transforms,
     transform_to_location,
 )
-from robotsocket.clock import RealTimeLoop, SimClock
+from robotsocket.clock import RealTimeLoop, SimLoop
 from robotsocket.interface import (
     IDENTITY_LOC,
     Array,
@@ -52,11 +50,11 @@ from robotsocket.interface import (
     RobotInfo,
     RobotInterface,
     RobotStatus,
-    SingularityError,
-    UnreachableError,
+    robot_error,
 )
+from robotsocket.paths import Move, plan_joint, plan_linear
 from robotsocket.timed_path import plan_timed
-from robotsocket.trajectory import PERIOD, Move, TrajectoryGenerator, plan_joint, plan_linear
+from robotsocket.trajectory import PERIOD, TrajectoryGenerator
 from sync.joint_buffer import JointBuffer
 
 log = logging.getLogger(__name__)
@@ -133,10 +131,10 @@ class RobotEmulator(RobotInterface):
         self._buffer.append(0.0, q0)
         self._idle_since = 0.0
         self.cycle_hooks: list[CycleHook] = []
-        self._simclock: SimClock | None = None
+        self._simclock: SimLoop | None = None
         self._loop: RealTimeLoop | None = None
         if clock == "sim":
-            self._simclock = SimClock(period, self._tick)
+            self._simclock = SimLoop(period, self._tick)
         else:
             self._loop = RealTimeLoop(period, self._tick)
 
@@ -293,7 +291,7 @@ class RobotEmulator(RobotInterface):
                 self._last_error = exc
                 raise
             except KinematicsError as exc:
-                err = _robot_error(exc)
+                err = robot_error(exc)
                 self._last_error = err
                 raise err from None
             assert isinstance(move, Move)
@@ -344,6 +342,7 @@ class RobotEmulator(RobotInterface):
         )
 
     def set_motion_desc(self, desc: MotionDesc) -> None:
+        desc.check()
         with self._lock:
             self._desc = desc
 
@@ -472,13 +471,3 @@ class RobotEmulator(RobotInterface):
             times, joints = self._buffer.since(since)
         keep = times > since
         return times[keep], joints[keep]
-
-
-def _robot_error(exc: KinematicsError) -> RobotError:
-    if isinstance(exc, KinUnreachableError):
-        return UnreachableError(str(exc))
-    if isinstance(exc, KinSingularityError):
-        return SingularityError(str(exc))
-    if isinstance(exc, JointLimitError):
-        return OutOfRangeError(str(exc))
-    return InvalidArgumentError(str(exc))

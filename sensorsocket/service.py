@@ -26,7 +26,7 @@ from spec.wire import PixelFormat, PixelOrder, SensorStatus
 
 log = logging.getLogger(__name__)
 
-IDENTITY = Identity(
+SENSOR_IDENTITY = Identity(
     service="sensor", vendor="reference", model="seam-tracker-emulator 512x256", serial="0"
 )
 
@@ -39,7 +39,7 @@ class SensorService(HandlerService):
         self,
         sensor: Sensor,
         *,
-        identity: Identity = IDENTITY,
+        identity: Identity = SENSOR_IDENTITY,
         trigger_endpoint: tuple[str, int] = ("", 0),
     ) -> None:
         super().__init__()
@@ -190,4 +190,4 @@ class SensorService(HandlerService):
         return (self.sensor.acquire().index,)
 
 
-__all__ = ["IDENTITY", "SensorService"]
+__all__ = ["SENSOR_IDENTITY", "SensorService"]

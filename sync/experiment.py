@@ -34,7 +34,7 @@ from kinematics.robot import get_model
 from kinematics.transforms import location_to_transform
 from spec.client import FramedClient, wait_end_move
 from spec.files import atomic_path, prepare_output_path, write_atomically
-from spec.params import FloatArray, IntArray, Location, Matrix, Value
+from spec.params import IDENTITY_LOCATION, FloatArray, IntArray, Location, Matrix, Value
 from spec.registry import SEAM_POINT_COLUMNS, CommandId
 from sync.delay import DelayEstimate, ResidualReport, estimate_delay, residual_after_sync
 
@@ -61,7 +61,6 @@ DEFAULT_SWEEP_HZ = (0.1, 0.2, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 7.0, 10.0)
 _SY = SEAM_POINT_COLUMNS.index("sy")
 _TT = SEAM_POINT_COLUMNS.index("t_trigger")
 _IDX = SEAM_POINT_COLUMNS.index("index")
-_IDENTITY = Location(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 class ExperimentError(RuntimeError):
@@ -247,7 +246,7 @@ def record_sine(
         robot.call(CommandId.ENABLE_POWER)
     if status[2]:
         wait_end_move(robot, 30.0)
-    (loc0,) = robot.call(CommandId.HERE, tool, _IDENTITY)
+    (loc0,) = robot.call(CommandId.HERE, tool, IDENTITY_LOCATION)
     assert isinstance(loc0, Location)
     times, y = sine_path(s)
     locs = np.zeros((times.size, 6))

@@ -20,6 +20,7 @@ from sync.udp import DelayLink
 PAPER = CellTiming()  # 4 ms samples, 0.6 ms jitter, 10 µm noise
 
 
+@pytest.mark.slow
 def test_paper_timing_full_chain() -> None:
     with EmulatedCell(clock="sim", seed=1, timing=PAPER) as cell:
         r = run_delay_experiment(
@@ -35,6 +36,7 @@ def test_paper_timing_full_chain() -> None:
     assert r.data.statistics["lost"] == 0 and r.data.statistics["matched"] > 2400
 
 
+@pytest.mark.slow
 def test_encoder_latency_moves_the_estimate_by_the_same_amount() -> None:
     s = ExperimentSettings(duration_s=3.0)
     est = []
@@ -46,6 +48,7 @@ def test_encoder_latency_moves_the_estimate_by_the_same_amount() -> None:
     assert shift == pytest.approx(1.0e-3, abs=0.02e-3)
 
 
+@pytest.mark.slow
 def test_injected_faults_do_not_corrupt_the_seam_trajectory() -> None:
     cell = EmulatedCell(clock="sim", seed=5, timing=PAPER)
     rng = np.random.default_rng(11)
@@ -64,6 +67,8 @@ def test_injected_faults_do_not_corrupt_the_seam_trajectory() -> None:
     assert r.residual.synced.rms_um <= 15.0
 
 
+@pytest.mark.slow
+@pytest.mark.realtime
 def test_real_time_over_sockets() -> None:
     with EmulatedCell(clock="real", seed=2, timing=PAPER) as cell:
         first = cell.core.next_index

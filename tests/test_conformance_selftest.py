@@ -758,6 +758,7 @@ def sync_check(listener: MiniTriggerListener, select: tuple[str, ...] = ()) -> R
         return check("sync", address, select, profile="full", scale=0.5)
 
 
+@pytest.mark.slow
 def test_minimal_trigger_listener_scores_100_percent() -> None:
     result = sync_check(MiniTriggerListener())
     assert problems(result) == {}

@@ -6,6 +6,7 @@ import socket
 import threading
 import time
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
@@ -32,6 +33,9 @@ from spec.params import Joints, Location
 from spec.registry import CommandId, commands_for
 from spec.server import FramedServer, ServerPolicy
 
+if TYPE_CHECKING:
+    from tests.conftest import Serve
+
 TARGET = (30.0, -20.0, 100.0, 10.0, 45.0, -30.0)
 
 
@@ -41,11 +45,8 @@ def robot() -> RobotEmulator:
 
 
 @pytest.fixture
-def server(robot: RobotEmulator) -> Iterator[FramedServer]:
-    srv = FramedServer(RobotService(robot), "127.0.0.1", 0, ServerPolicy(token="s3cret"))
-    with srv:
-        yield srv
-    assert not srv.handler_errors
+def server(robot: RobotEmulator, serve: Serve) -> FramedServer:
+    return serve(RobotService(robot), ServerPolicy(token="s3cret"))
 
 
 @pytest.fixture
@@ -59,7 +60,6 @@ def test_hello_lists_what_the_service_implements(client: RobotClient) -> None:
     assert info["service"] == "robot" and info["model"] == "RX90B"
     ids = set(info["commands"].values)  # type: ignore[union-attr]
     robot_ids = {int(c.id) for c in commands_for("robot") if c.service == "robot"}
-    robot_ids -= {int(CommandId.TOOL_MOVE_TRAJECTORY)}  # not implemented yet
     assert robot_ids <= ids
     assert int(CommandId.START_TRIGGERS) not in ids  # sync commands: not registered here
 

@@ -340,6 +340,7 @@ def receive(sock: socket.socket, count: int, wait: float = 3.0) -> list[SensorDa
     return out
 
 
+@pytest.mark.realtime
 def test_loopback_exchange(listener: TriggerListener) -> None:
     robot = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     robot.bind(("127.0.0.1", 0))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import socket
 import threading
 import time
-from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import pytest
 from hypothesis import given, settings
@@ -19,6 +19,9 @@ from spec.params import Joints, Value
 from spec.registry import CommandId, CommandSpec
 from spec.server import FramedServer, Identity, ServerPolicy, Service, Session, parse_networks
 from spec.wire import PacketKind
+
+if TYPE_CHECKING:
+    from tests.conftest import Serve
 
 
 class EchoRobot(Service):
@@ -63,11 +66,8 @@ class EchoRobot(Service):
 
 
 @pytest.fixture
-def server() -> Iterator[FramedServer]:
-    srv = FramedServer(EchoRobot(), policy=ServerPolicy(max_clients=4, frame_timeout=0.5))
-    srv.start()
-    yield srv
-    srv.shutdown()
+def server(serve: Serve) -> FramedServer:
+    return serve(EchoRobot(), ServerPolicy(max_clients=4, frame_timeout=0.5))
 
 
 def raw_conn(srv: FramedServer) -> socket.socket:

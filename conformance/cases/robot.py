@@ -12,12 +12,11 @@ import itertools
 import math
 import time
 
-from conformance.cases._util import IDENTITY
 from conformance.connection import Conn
 from conformance.context import Context
 from conformance.model import Fail, Informational, NotApplicable, Skip, case
 from spec.errors import ErrorCode
-from spec.params import FloatArray, Joints, Location, Matrix, Value
+from spec.params import IDENTITY_LOCATION, FloatArray, Joints, Location, Matrix, Value
 from spec.registry import CommandId as C
 
 Mat = list[list[float]]
@@ -144,7 +143,7 @@ def here_frames(ctx: Context) -> str:
         raise Skip("the arm is moving; Here would change between the calls")
     tool = Location(10.0, -20.0, 100.0, 30.0, -45.0, 60.0)
     frame = Location(500.0, -200.0, 50.0, 10.0, 20.0, 30.0)
-    flange = conn.ok(C.HERE, IDENTITY, IDENTITY)[0]
+    flange = conn.ok(C.HERE, IDENTITY_LOCATION, IDENTITY_LOCATION)[0]
     got = conn.ok(C.HERE, tool, frame)[0]
     assert isinstance(flange, Location) and isinstance(got, Location)
     want = mul(mul(inv(loc_to_matrix(frame)), loc_to_matrix(flange)), loc_to_matrix(tool))
@@ -409,9 +408,13 @@ def motion_unreachable(ctx: Context) -> None:
         conn = m.conn
         m.power()
         far = Location(20000.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        conn.error(C.TOOL_MOVE_J, ErrorCode.UNREACHABLE, far, IDENTITY, IDENTITY)
+        conn.error(C.TOOL_MOVE_J, ErrorCode.UNREACHABLE, far, IDENTITY_LOCATION, IDENTITY_LOCATION)
         conn.error(
-            C.TOOL_MOVE_L, (ErrorCode.UNREACHABLE, ErrorCode.SINGULARITY), far, IDENTITY, IDENTITY
+            C.TOOL_MOVE_L,
+            (ErrorCode.UNREACHABLE, ErrorCode.SINGULARITY),
+            far,
+            IDENTITY_LOCATION,
+            IDENTITY_LOCATION,
         )
         if _status(conn).get("queue") != 0:
             raise Fail("a refused move was queued", 0, _status(conn).get("queue"))
@@ -523,7 +526,7 @@ def trajectory_refused(ctx: Context) -> None:
     with _Motion(ctx) as m:
         conn = m.conn
         m.power()
-        here = conn.ok(C.HERE, IDENTITY, IDENTITY)[0]
+        here = conn.ok(C.HERE, IDENTITY_LOCATION, IDENTITY_LOCATION)[0]
         assert isinstance(here, Location)
         p = here.as_tuple()
         away = (p[0], p[1], p[2] - 50.0, *p[3:])  # reachable, but not in 4 ms
@@ -550,8 +553,8 @@ def trajectory_refused(ctx: Context) -> None:
                 C.TOOL_MOVE_TRAJECTORY,
                 FloatArray(times),
                 Matrix(len(locs), 6, [v for loc in locs for v in loc]),
-                IDENTITY,
-                IDENTITY,
+                IDENTITY_LOCATION,
+                IDENTITY_LOCATION,
             )
             if answer.error is None or answer.error[0] not in codes:
                 raise Fail(
@@ -581,7 +584,7 @@ def trajectory_tracking(ctx: Context) -> str:
     with _Motion(ctx) as m:
         conn = m.conn
         m.power()
-        here = conn.ok(C.HERE, IDENTITY, IDENTITY)[0]
+        here = conn.ok(C.HERE, IDENTITY_LOCATION, IDENTITY_LOCATION)[0]
         assert isinstance(here, Location)
         p = here.as_tuple()
         times = [0.1 * k for k in range(21)]
@@ -591,12 +594,12 @@ def trajectory_tracking(ctx: Context) -> str:
             C.TOOL_MOVE_TRAJECTORY,
             FloatArray(times),
             Matrix(len(locs), 6, [v for loc in locs for v in loc]),
-            IDENTITY,
-            IDENTITY,
+            IDENTITY_LOCATION,
+            IDENTITY_LOCATION,
         )
         if not _wait_still(conn, 30.0):
             raise Fail("the timed path did not end", True, False)
-        end = conn.ok(C.HERE, IDENTITY, IDENTITY)[0]
+        end = conn.ok(C.HERE, IDENTITY_LOCATION, IDENTITY_LOCATION)[0]
         assert isinstance(end, Location)
         err = math.dist(end.as_tuple()[:3], locs[-1][:3])
         if err > 0.01:
