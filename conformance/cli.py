@@ -219,6 +219,8 @@ def _main(argv: Sequence[str] | None) -> int:
         if reference is not None:
             reference.stop()
     write_reports(args, result)
-    if not args.quiet or result.results:
+    if not result.reachable or result.refused:
+        print(f"conformance: {result.refused or result.negotiation_error}", file=sys.stderr)
+    elif not args.quiet or result.results:
         sys.stdout.write(terminal(result, args.strict, args.verbose))
     return exit_code(result, args.strict)

@@ -97,6 +97,7 @@ def to_json(run: RunResult, strict: bool = False) -> dict[str, Any]:
         "endpoint": _endpoint(run),
         "reachable": run.reachable,
         "negotiation_error": run.negotiation_error,
+        "refused": run.refused,
         "profile": run.profile,
         "options": {
             "allow_motion": run.options.allow_motion,
@@ -199,6 +200,8 @@ def to_markdown(run: RunResult, strict: bool = False) -> str:
         )
     if not run.reachable:
         lines.append(f"- **endpoint unreachable**: {run.negotiation_error}")
+    if run.refused:
+        lines.append(f"- **not run**: {run.refused}")
     lines.append(f"- exit code {exit_code(run, strict)}, {run.duration:.2f} s")
     lines += ["", "| outcome | count |", "|---|---:|"]
     lines += [f"| {k} | {v} |" for k, v in counts(run.results).items() if v]
@@ -248,6 +251,8 @@ def terminal(run: RunResult, strict: bool = False, verbose: bool = False) -> str
         )
     if not run.reachable:
         out.append(f"ENDPOINT UNREACHABLE: {run.negotiation_error}")
+    elif run.refused:
+        out.append(f"NOT RUN: {run.refused}")
     elif run.negotiation_error:
         out.append(f"negotiation: {run.negotiation_error}")
     sections: dict[str, list[CaseResult]] = {}

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import fnmatch
 import logging
+import secrets
 import socket
 import threading
 import time
@@ -27,6 +28,8 @@ from conformance.model import (
     all_cases,
 )
 from spec import wire
+from spec.datagrams import Trigger, encode_trigger
+from spec.errors import ErrorCode
 from spec.registry import CommandId
 
 log = logging.getLogger(__name__)
@@ -79,6 +82,9 @@ class RunResult:
     started: float = 0.0  # wall clock (s since the epoch)
     duration: float = 0.0  # s
     harness_errors: int = 0  # cases that ended in ERROR because of a harness fault
+    #: Why nothing was run although the endpoint answers: the user's mistake, not the
+    #: endpoint's (a control token missing, a TCP port given for the UDP profile).
+    refused: str = ""
 
 
 def negotiate(
@@ -104,6 +110,59 @@ def negotiate(
         conn.close()
         ctx.close_all()
     return True, Hello(dict(zip(HELLO_FIELDS, params, strict=False))), ""
+
+
+def preflight(service: str, host: str, port: int, options: Options) -> str:
+    """Mistakes of the user that would make most cases skip or fail for the wrong reason:
+    a control token the endpoint wants and was not given, a TCP port given to the UDP sync
+    profile. Returns the one-line reason, or "" when the run can go ahead."""
+    timeout = options.reply_timeout * options.timeout_scale
+    if service == "sync":
+        return _tcp_port_for_udp(host, port, timeout)
+    from conformance.connection import Conn
+
+    try:
+        conn = Conn(socket.create_connection((host, port), timeout=timeout), WireLog(), 1, timeout)
+    except OSError:
+        return ""
+    try:
+        answer = conn.call(CommandId.TAKE_CONTROL, options.token)
+        if answer.error is not None and answer.error[0] == ErrorCode.AUTH_FAILED:
+            given = "the token given was refused" if options.token else "none was given"
+            return (
+                f"the {service} requires a control token ({given}): pass --token or"
+                " --token-file; nothing was run"
+            )
+        if answer.error is None:
+            conn.call(CommandId.RELEASE_CONTROL)
+    except (Fail, EndpointTimeout, EndpointGone, Closed):
+        return ""  # the cases will say what is wrong
+    finally:
+        conn.close()
+    return ""
+
+
+def _tcp_port_for_udp(host: str, port: int, timeout: float) -> str:
+    """The sync profile talks UDP to the sensor's trigger port; a TCP listener there that
+    does not answer a trigger is the sensor's command port given by mistake."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_DGRAM) as udp:
+        udp.settimeout(min(timeout, 1.0))
+        try:
+            udp.sendto(encode_trigger(Trigger(secrets.randbelow(1 << 31), 0.0)), (host, port))
+            udp.recvfrom(2048)
+            return ""  # a datagram came back: a UDP endpoint
+        except OSError:
+            pass
+    try:
+        with socket.create_connection((host, port), timeout=timeout):
+            return (
+                f"{host}:{port} is a TCP port and no trigger was answered there: the sync"
+                " profile needs the sensor's UDP trigger port (GetTriggerEndpoint tells it,"
+                " e.g. `python -m sensorsocket call HOST:2000 GetTriggerEndpoint`)"
+            )
+    except OSError:
+        return ""
 
 
 def _judge(case: Case, exc: Fail) -> Outcome:
@@ -211,6 +270,13 @@ def run(
         service, f"{host}:{port}", options, selection.profile, hello, reachable, why
     )
     run_result.started = started
+    if not reachable:
+        run_result.duration = time.monotonic() - t0
+        return run_result  # one line says why; no case could have run
+    run_result.refused = preflight(service, host, port, options)
+    if run_result.refused:
+        run_result.duration = time.monotonic() - t0
+        return run_result
     shared = Shared(next_index=1000 + (options.seed % 1000) * 1_000_000)
     dead = "" if reachable else why
     dead_outcome = Outcome.ERROR
@@ -262,10 +328,12 @@ EXIT_NOTHING_SELECTED = 5
 def exit_code(run_result: RunResult, strict: bool = False) -> int:
     """The process exit code for a run (see the table in :mod:`conformance.cli`)."""
     results = run_result.results
-    if not results:
-        return EXIT_NOTHING_SELECTED
     if not run_result.reachable:
         return EXIT_UNREACHABLE
+    if run_result.refused:
+        return EXIT_USAGE
+    if not results:
+        return EXIT_NOTHING_SELECTED
     fresh = [r for r in results if not r.known_failure]
     if any(r.outcome is Outcome.FAIL for r in fresh):
         return EXIT_MUST_FAILED

@@ -66,14 +66,17 @@ def cmd_serve(args: argparse.Namespace) -> int:
     try:
         # The synchronisation commands (0x3001-0x3009) and their UDP endpoint, registered
         # before the server reads the service's command list.
-        _, endpoint = attach_udp_sync(service, robot, host=args.host, port=args.udp_port)
-        endpoint.allow = allow  # [SY-1.5] the UDP port honours --allow too
-        endpoint.sensor_only = not args.data_from_any  # [SY-3.7]
+        endpoint = None
+        if args.udp_port is not None:
+            _, endpoint = attach_udp_sync(service, robot, host=args.host, port=args.udp_port)
+            endpoint.allow = allow  # [SY-1.5] the UDP port honours --allow too
+            endpoint.sensor_only = not args.data_from_any  # [SY-3.7]
         server = FramedServer(service, args.host, args.port, policy)
     except OSError as exc:
         raise CliError(f"cannot listen on {args.host}:{args.port}: {exc.strerror}") from None
     robot.start()
-    endpoint.start()
+    if endpoint is not None:
+        endpoint.start()
     log.info(
         "robot %s emulator, %s clock, encoder latency %.1f ms, control token %s, allow %s",
         robot.model.name,
@@ -86,9 +89,10 @@ def cmd_serve(args: argparse.Namespace) -> int:
     print(f"listening on {server.address[0]}:{server.address[1]}", flush=True)
 
     def on_stop() -> None:
-        if endpoint.dropped:
-            log.info("udp datagrams dropped: %s", dict(endpoint.dropped))
-        endpoint.stop()
+        if endpoint is not None:
+            if endpoint.dropped:
+                log.info("udp datagrams dropped: %s", dict(endpoint.dropped))
+            endpoint.stop()
         robot.close()
         j = robot.jitter()
         if j["count"]:
@@ -171,9 +175,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument(
         "--udp-port",
-        type=cliargs.port,
+        type=cliargs.udp_port,
         default=0,
-        help="UDP port of the trigger/data endpoint (0 = any)",
+        help="UDP port of the trigger/data endpoint (0/auto = any, off = no sync commands)",
     )
     s.add_argument(
         "--data-from-any",

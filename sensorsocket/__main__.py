@@ -59,7 +59,7 @@ def _parser() -> cliargs.Parser:
     s.add_argument("--port", type=cliargs.port, default=DEFAULT_PORT, help="TCP port, 0 = any free")
     s.add_argument(
         "--udp-port",
-        type=_udp_port,
+        type=cliargs.udp_port,
         default=DEFAULT_UDP_PORT,
         help="UDP trigger port; 0 or auto = any free port, off = no trigger listener",
     )
@@ -105,18 +105,6 @@ def _parser() -> cliargs.Parser:
     n.add_argument("--timeout", type=cliargs.timeout, default=5.0, help="reply timeout (s)")
     _token_file(n)
     return p
-
-
-def _udp_port(text: str) -> int | None:
-    """None = off, 0 = any free port (as --udp-port of robotsocket and cell)."""
-    if text == "off":
-        return None
-    if text == "auto":
-        return 0
-    try:
-        return cliargs.port(text)
-    except argparse.ArgumentTypeError as exc:
-        raise argparse.ArgumentTypeError(f"{exc} (or auto, off)") from None
 
 
 def cmd_serve(args: argparse.Namespace) -> int:

@@ -83,6 +83,18 @@ def nonnegative_float(text: str) -> float:
     return value
 
 
+def udp_port(text: str) -> int | None:
+    """A UDP port option: a number, ``0``/``auto`` any free port, ``off`` none (None)."""
+    if text == "off":
+        return None
+    if text == "auto":
+        return 0
+    try:
+        return port(text)
+    except argparse.ArgumentTypeError as exc:
+        raise argparse.ArgumentTypeError(f"{exc} (or auto, off)") from None
+
+
 def watchdog(text: str) -> float:
     """A control watchdog period within the server's limits (PROTOCOL.md [RS-7.13])."""
     value = positive_float(text)
