@@ -10,7 +10,9 @@ STAMP := $(VENV)/.installed
 $(STAMP): pyproject.toml Makefile
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test,plot]'
+	# compat: a path entry for the checkout (python -m … from any directory, no setuptools
+	# warning about same-named folders on every install)
+	$(PY) -m pip install --quiet -e '.[test,plot]' --config-settings editable_mode=compat
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -224,3 +224,10 @@ def _main(argv: Sequence[str] | None) -> int:
     elif not args.quiet or result.results:
         sys.stdout.write(terminal(result, args.strict, args.verbose))
     return exit_code(result, args.strict)
+
+
+def console() -> int:
+    """The installed command ``rsf-conformance`` (a console-script entry point)."""
+    from spec.cliargs import run_cli
+
+    return run_cli(main)

@@ -139,3 +139,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
     return 0
+
+
+def console() -> int:
+    """The installed command ``rsf-kinematics`` (a console-script entry point)."""
+    return main()

@@ -152,5 +152,10 @@ def main(argv: list[str] | None = None) -> int:
     return result
 
 
+def console() -> int:
+    """The installed command (a console-script entry point of pyproject.toml)."""
+    return cliargs.run_cli(main)
+
+
 if __name__ == "__main__":
-    raise SystemExit(cliargs.run_cli(main))
+    raise SystemExit(console())
