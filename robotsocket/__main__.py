@@ -208,6 +208,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--timeout", type=cliargs.timeout, default=5.0, help="reply timeout (s)")
     c.add_argument("--wait", type=cliargs.timeout, default=60.0, help="max wait for a move (s)")
     c.add_argument("--no-wait", action="store_true", help="do not wait for a move to end")
+    c.add_argument(
+        "--list", action=callcli.ListCommands, service="robot", help="list the commands and exit"
+    )
     c.set_defaults(fn=cmd_call)
     w = sub.add_parser("watch", help="show live status and joints")
     w.add_argument("endpoint", metavar="HOST:PORT")

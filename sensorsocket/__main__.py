@@ -25,7 +25,14 @@ from sensorsocket.sensor import Reading, SensorError, SimClock, build_sensor
 from sensorsocket.service import SensorService
 from sensorsocket.udp import TriggerHandler, TriggerListener
 from spec import cliargs
-from spec.callcli import EXIT_REMOTE_ERROR, EXIT_UNREACHABLE, EXIT_USAGE, main_call, parse_endpoint
+from spec.callcli import (
+    EXIT_REMOTE_ERROR,
+    EXIT_UNREACHABLE,
+    EXIT_USAGE,
+    ListCommands,
+    main_call,
+    parse_endpoint,
+)
 from spec.cliargs import run_cli
 from spec.errors import ErrorCode, ProtocolError, RemoteError
 from spec.files import atomic_path
@@ -97,6 +104,9 @@ def _parser() -> cliargs.Parser:
     c.add_argument("name", metavar="COMMAND")
     c.add_argument("args", nargs="*")
     c.add_argument("--timeout", type=cliargs.timeout, default=5.0, help="reply timeout (s)")
+    c.add_argument(
+        "--list", action=ListCommands, service="sensor", help="list the commands and exit"
+    )
     _token_file(c)
     n = sub.add_parser("snapshot", help="save the latest frame as PGM (or PNG)")
     n.add_argument("endpoint", metavar="HOST:PORT")

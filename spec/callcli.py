@@ -12,6 +12,7 @@ control is released first).
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import signal
@@ -178,6 +179,62 @@ def reply_json(spec: CommandSpec, values: tuple[Value, ...]) -> dict[str, Any]:
     return out
 
 
+#: Significant digits printed for reals: 1e-9 of a degree or millimetre at these magnitudes,
+#: far below any sensor or encoder, without float noise like 3.7520000000000002.
+DIGITS = 12
+
+
+def _rounded(value: Any) -> Any:
+    if isinstance(value, float):
+        return float(f"{value:.{DIGITS}g}")
+    if isinstance(value, list):
+        return [_rounded(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _rounded(v) for k, v in value.items()}
+    return value
+
+
+def format_reply(reply: dict[str, Any]) -> str:
+    """The reply as JSON, reals to DIGITS significant digits; a matrix (a joint log, seam
+    points) gets one row per line so it can be read, grepped and cut."""
+    parts = []
+    for name, value in _rounded(reply).items():
+        text = json.dumps(value, ensure_ascii=False)
+        if isinstance(value, list) and value and all(isinstance(r, list) for r in value):
+            rows = ",\n  ".join(json.dumps(r) for r in value)
+            text = f"[\n  {rows}\n]"
+        parts.append(f"{json.dumps(name)}: {text}")
+    return "{" + ", ".join(parts) + "}"
+
+
+def list_commands(service: str) -> str:
+    """One line per command of ``service``: name, ID, parameters, and whether it needs
+    control (``call`` takes and releases it itself) or moves the arm."""
+    lines = []
+    for c in COMMANDS:
+        if service not in c.services:
+            continue
+        params = " ".join(
+            f"[{p.name}]" if _defaultable(p) else f"<{p.name}:{p.type.name.lower()}>"
+            for p in c.params
+        )
+        flags = ("control " if c.needs_control else "") + ("moves" if c.moves else "")
+        lines.append(f"{c.name:<20} 0x{int(c.id):04x}  {params:<52} {flags}".rstrip())
+    return "\n".join(lines)
+
+
+class ListCommands(argparse.Action):
+    """``call --list``: print the service's commands and exit (no endpoint needed)."""
+
+    def __init__(self, option_strings: list[str], dest: str, service: str = "", **kw: Any):
+        super().__init__(option_strings, dest, nargs=0, **kw)
+        self.service = service
+
+    def __call__(self, parser: argparse.ArgumentParser, *args: Any, **kw: Any) -> None:
+        print(list_commands(self.service))
+        parser.exit(0)
+
+
 def main_call(
     service: str, default_port: int, endpoint: str, command: str, args: list[str],
     timeout: float = 5.0, token: str | None = None, wait: float | None = 60.0,
@@ -229,7 +286,7 @@ def main_call(
     except (OSError, ProtocolError) as exc:
         print(f"error: cannot reach {host}:{port}: {exc}", file=sys.stderr)
         return EXIT_UNREACHABLE
-    print(json.dumps(reply, ensure_ascii=False))
+    print(format_reply(reply))
     if reply.get("done") is False:
         print(f"error: the move did not end within {wait:g} s (it goes on)", file=sys.stderr)
         return EXIT_REMOTE_ERROR

@@ -138,3 +138,19 @@ def test_watch_into_a_closed_pipe_ends_quietly(endpoint: str) -> None:
             proc.kill()
     assert b"power=" in first
     assert code == 141 and err == b""
+
+
+def test_call_list_and_a_joint_log_one_row_per_line(
+    endpoint: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as done:
+        main(["call", "--list"])
+    out = capsys.readouterr().out
+    assert done.value.code == 0
+    joint_move = next(line for line in out.splitlines() if line.startswith("JointMove"))
+    assert "<joints:joints>" in joint_move and joint_move.endswith("control moves")
+    code, out, _ = run(capsys, "call", endpoint, "getjointlog", "-1")
+    assert code == 0
+    log = json.loads(out)["log"]
+    assert len(out.splitlines()) == len(log) + 2  # "{log: [", one line per sample, "]..."
+    assert all(len(row) == 7 for row in log)
