@@ -156,6 +156,8 @@ def valid_args(ctx: Context, conn: Conn, spec: CommandSpec) -> tuple[Value, ...]
         return (b"\x00\x01conformance\xff",)
     if c == C.TAKE_CONTROL:
         return (ctx.options.token,)
+    if c == C.SET_FRAME_CRC:
+        return (True,)  # on: what every connection starts with
     if c == C.HERE:
         return (IDENTITY_LOCATION, IDENTITY_LOCATION)
     if c == C.JOINT_MOVE:
