@@ -46,22 +46,6 @@ def test_corner_is_where_the_legs_meet() -> None:
         _closest_between_lines(a0, a1, b0, b1)
 
 
-def seam_error_mm(session: EmulatedSession, result: TeachResult) -> float:
-    """Largest distance (mm) from a taught point to the scene's true seam curve."""
-    scene = session.cell.scene
-    worst = 0.0
-    for q in result.points:
-        p = (scene.base2workpiece @ q.seam2base)[:3, 3]
-        x = np.linspace(p[0] - 2.0, p[0] + 2.0, 400_001)  # 10 nm stations
-        d = np.sqrt(
-            (x - p[0]) ** 2
-            + (scene.path.y(x) - p[1]) ** 2
-            + (scene.joint.seam_height_mm - p[2]) ** 2
-        )
-        worst = max(worst, float(d.min()))
-    return worst
-
-
 @pytest.fixture(params=["straight", "sine", "corner"])
 def taught(request: pytest.FixtureRequest) -> Iterator[tuple[EmulatedSession, TeachResult]]:
     with EmulatedSession(request.param, seed=3) as s:
@@ -73,7 +57,7 @@ def taught(request: pytest.FixtureRequest) -> Iterator[tuple[EmulatedSession, Te
 
 def test_taught_seam_matches_the_true_seam(taught: tuple[EmulatedSession, TeachResult]) -> None:
     session, result = taught
-    assert seam_error_mm(session, result) < 0.05
+    assert session.seam_error_mm([q.seam2base for q in result.points]) < 0.05
     assert result.stop_reason == "length reached"
     assert 75.0 <= result.length_mm <= 80.0
     corners = [q for q in result.points if q.corner]

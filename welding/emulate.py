@@ -12,6 +12,7 @@ from __future__ import annotations
 from types import TracebackType
 
 import numpy as np
+import numpy.typing as npt
 
 from cell.cell import EmulatedCell
 from kinematics.transforms import transform_to_location
@@ -59,12 +60,24 @@ class EmulatedSession:
         """(robot time s, output, value) of every output change of the emulated robot."""
         return list(self.cell.robot.io_log)
 
+    def seam_error_mm(self, seam2base: list[npt.NDArray[np.float64]]) -> float:
+        """Largest distance (mm) from the points of ``seam2base`` (each (4, 4), base frame)
+        to the scene's true seam curve (stations searched ±2 mm around each, 10 nm apart)."""
+        scene = self.cell.scene
+        worst = 0.0
+        for T in seam2base:
+            p = (scene.base2workpiece @ T)[:3, 3]
+            x = np.linspace(p[0] - 2.0, p[0] + 2.0, 400_001)
+            dy, dz = scene.path.y(x) - p[1], scene.joint.seam_height_mm - p[2]
+            worst = max(worst, float(np.sqrt((x - p[0]) ** 2 + dy**2 + dz**2).min()))
+        return worst
+
     def close(self) -> None:
-        try:
-            self.robot.release_control()
-        except (OSError, ProtocolError):  # gone already: the server stopped the arm itself
-            pass
         for client in (self.robot, self.sensor):
+            try:
+                client.release_control()
+            except (OSError, ProtocolError):  # not held, or gone: nothing left to give back
+                pass
             client.close()
         self.cell.close()
 
