@@ -56,7 +56,7 @@ def _parser() -> _Parser:
         s.add_argument("--clock", choices=("real", "sim"), default="real")
         s.add_argument("--model", default="RX90B")
         s.add_argument("--joint", choices=("butt", "fillet", "lap"), default="butt")
-        s.add_argument("--seam", choices=("straight", "sine"), default="straight")
+        s.add_argument("--seam", choices=("straight", "sine", "corner"), default="straight")
         s.add_argument("--seed", type=int, default=0)
         s.add_argument("-v", "--verbose", action="store_true")
         add_timing_options(s)
