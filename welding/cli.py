@@ -313,8 +313,11 @@ def _cell(args: argparse.Namespace, *, control: bool, sensor: bool = False) -> I
                     raise CliError("arm power is off: switch it on, or pass --enable-power")
                 robot.enable_power()
         yield Cell(robot, sensor_client, tables, time.sleep)
+        # Given back, not lost: a lost controller would be a controlled stop [RS-7.10].
         if control:
             robot.release_control()
+        if sensor_client is not None:
+            sensor_client.release_control()
     finally:
         for c in (robot, sensor_client):
             if c is not None:
