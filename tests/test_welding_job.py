@@ -7,6 +7,7 @@ import re
 from pathlib import Path as FilePath
 
 import pytest
+import xmlschema  # the xsd extra, installed by make
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -264,3 +265,42 @@ def test_numbers_are_written_exactly() -> None:
     loc = J.Location(0.1, 1e-300, -0.0, 1 / 3, 123456.789, math.pi, "t", "f")
     job = J.Job("n", (J.Via("v", loc),))
     assert J.loads(J.dumps(job)).item("v") == J.Via("v", loc)
+
+
+# --- the published schema agrees with the reader ----------------------------------------------
+
+XSD = xmlschema.XMLSchema(str(ROOT / "welding" / "job.xsd"))
+
+
+@settings(max_examples=60, deadline=None)
+@given(jobs())
+def test_written_jobs_are_valid_by_the_schema(job: J.Job) -> None:
+    XSD.validate(J.dumps(job))
+
+
+def test_example_is_valid_by_the_schema() -> None:
+    XSD.validate(EXAMPLE)
+
+
+@pytest.mark.parametrize(
+    ("old", "new"),
+    [
+        ('version="1"', 'version="2"'),
+        ('velocity="20"', 'velocity="fast"'),
+        ('velocity="20"', 'velocity="0"'),
+        ('duration="2"', 'duration="-1"'),
+        ('laser="on"', 'laser="yes"'),
+        ('x="50" y="0"', 'x="50" q="0"'),
+        (' x="50" y="0"', ' y="0"'),
+        ('<pause name="cool"', '<pause name="spot"'),
+        ('name="cool"', 'name="-cool"'),
+        ("<pause", "<weld/>\n  <pause"),
+        ("<mid", "<end"),
+        ("</arc>", "</arc>text"),
+        ('x="10" y="30"', 'x="1e7" y="30"'),
+    ],
+)
+def test_schema_refuses_what_the_reader_refuses(old: str, new: str) -> None:
+    bad = edit(old, new)
+    assert problems(bad)
+    assert not XSD.is_valid(bad)
