@@ -276,3 +276,23 @@ def test_lost_connection_leaves_a_controlled_stop_laser_first(session: EmulatedS
     ):
         time.sleep(0.01)
     check_stopped_safely(session, info.value)
+
+
+def test_a_second_ctrl_c_cannot_cut_the_safe_stop_short(session: EmulatedSession) -> None:
+    import os
+    import signal
+
+    robot = session.robot
+    real_set = robot.set_output
+
+    def set_output(name: str, value: bool) -> None:
+        if name == "laser" and not value and robot.read_io("laser"):
+            os.kill(os.getpid(), signal.SIGINT)  # the operator presses Ctrl-C again
+        real_set(name, value)
+
+    robot.set_output = set_output  # type: ignore[method-assign]
+    interrupt_mid_seam(session, KeyboardInterrupt())
+    with pytest.raises(JobAborted) as info:
+        JobRunner(session.robot, session.tables, dwell=session.dwell).run(JOB)
+    check_stopped_safely(session, info.value)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler

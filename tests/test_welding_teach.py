@@ -102,3 +102,16 @@ def test_manual_teaching_records_the_current_location() -> None:
         loc = record_here(s.robot, s.tables, "laser", "workpiece")
         assert (loc.tool, loc.frame) == ("laser", "workpiece")
         assert loc.x == pytest.approx(-40.0, abs=1e-6) and loc.z == pytest.approx(0.0, abs=1e-6)
+
+
+def test_teaching_stops_where_the_seam_leaves_the_field_of_view() -> None:
+    with EmulatedSession("corner", seed=1) as s:
+        s.sensor.take_control()
+        teacher = SeamTeacher(s.robot, s.sensor, s.tables.tool("sensor").location, corners=False)
+        result = teacher.teach()
+        assert result.stop_reason == "seam left the field of view"
+        # the last point is on the first leg, the halved steps took it within 1 mm of the
+        # corner (near the apex the laser line also crosses the second leg)
+        last = (s.cell.scene.base2workpiece @ result.points[-1].seam2base)[:3, 3]
+        assert last[0] < 30.0 and np.linalg.norm(last[:2] - [30.0, 30.0]) < 1.0
+        assert s.seam_error_mm([q.seam2base for q in result.points]) < 0.05

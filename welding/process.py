@@ -21,8 +21,11 @@ simulated clock's advance on the emulated cell.
 from __future__ import annotations
 
 import math
+import signal
+import threading
 import time
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -337,7 +340,12 @@ class JobRunner:
 
     def safe_stop(self) -> None:
         """Laser off first, then stop and drop the motion, then crossjet and gas off. Each
-        step is tried on its own; a lost connection leaves it to the server [RS-7.10]."""
+        step is tried on its own; a lost connection leaves it to the server [RS-7.10]. A
+        second Ctrl-C meanwhile is ignored: it must not cut the stop short."""
+        with _no_interrupts():
+            self._safe_stop()
+
+    def _safe_stop(self) -> None:
         robot = self.robot
         actions: list[tuple[str, Callable[[], None]]] = [
             ("laser off", lambda: robot.set_output("laser", False)),
@@ -355,6 +363,18 @@ class JobRunner:
                 )
                 if isinstance(exc, OSError | ConnectionClosed):
                     return  # the server's controlled stop takes over
+
+
+@contextmanager
+def _no_interrupts() -> Iterator[None]:
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signals only reach the main thread
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _reason(exc: BaseException) -> str:
