@@ -104,7 +104,9 @@ def _add_tools_option(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _add_cell_options(p: argparse.ArgumentParser, *, sensor: bool = False) -> None:
+def _add_cell_options(
+    p: argparse.ArgumentParser, *, sensor: bool = False, sensor_help: str = ""
+) -> None:
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument(
         "--robot",
@@ -122,7 +124,7 @@ def _add_cell_options(p: argparse.ArgumentParser, *, sensor: bool = False) -> No
             "--sensor",
             type=_endpoint(2000),
             metavar="HOST:PORT",
-            help="SensorSocket server (default port 2000), with --robot",
+            help="SensorSocket server (default port 2000), with --robot" + sensor_help,
         )
     p.add_argument(
         "--seam",
@@ -166,7 +168,8 @@ def _parser() -> argparse.ArgumentParser:
         p = jsub.add_parser(action, help=text, description=text)
         p.add_argument("job", metavar="JOB.xml")
         if action == "run":
-            _add_cell_options(p, sensor=True)
+            # seam tracking (issue 13) will use the sensor during the run
+            _add_cell_options(p, sensor=True, sensor_help="; not used by a run without tracking")
             p.add_argument("--dry-run", action="store_true", help="motion only, every output off")
             p.add_argument(
                 "--log",
