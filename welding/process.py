@@ -37,7 +37,7 @@ from kinematics.transforms import (
     rotvec_from_matrix,
     transform_to_location,
 )
-from robotsocket.client import RobotClient
+from robotsocket.client import MotionDesc, RobotClient
 from spec.client import ConnectionClosed
 from spec.errors import ProtocolError, RemoteError
 from welding.job import Item, Job, Line, Location, Path, Pause, Stitch, Via
@@ -307,6 +307,7 @@ class JobRunner:
         self.log = []
         self._note("start", job=job.name, dry_run=self.dry_run, items=total)
         desc = self.robot.motion_desc()
+        sent = desc  # sent again only when it changes: one round trip less per chord
         item = ""
         try:
             for step in steps:
@@ -322,10 +323,10 @@ class JobRunner:
                 elif isinstance(step, Dwell):
                     self.dwell(step.seconds)
                 elif isinstance(step, MoveJ):
-                    self.robot.set_motion_desc(replace(desc, joint_speed=step.speed))
+                    sent = self._desc(sent, replace(desc, joint_speed=step.speed))
                     self.robot.tool_move_j(step.loc, step.tool, step.frame)
                 elif isinstance(step, MoveL):
-                    self.robot.set_motion_desc(replace(desc, tool_speed=step.velocity))
+                    sent = self._desc(sent, replace(desc, tool_speed=step.velocity))
                     self.robot.tool_move_l(step.loc, step.tool, step.frame)
                 elif not self.robot.wait_end_move(self.move_timeout):
                     raise TimeoutError(f"the move did not end within {self.move_timeout:g} s")
@@ -337,6 +338,11 @@ class JobRunner:
             raise JobAborted(reason, str(exc) or type(exc).__name__, self.log) from exc
         self._note("end", job=job.name)
         return self.log
+
+    def _desc(self, sent: MotionDesc, wanted: MotionDesc) -> MotionDesc:
+        if wanted != sent:
+            self.robot.set_motion_desc(wanted)
+        return wanted
 
     def safe_stop(self) -> None:
         """Laser off first, then stop and drop the motion, then crossjet and gas off. Each
