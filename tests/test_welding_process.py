@@ -187,6 +187,15 @@ def test_laser_is_on_only_on_welding_paths(session: EmulatedSession) -> None:
     seam_on = laser_positions(session, *lasers[0])
     assert np.linalg.norm(seam_on[0] - [-40, 0, 0]) < 1e-3
     assert np.linalg.norm(seam_on[-1] - [0, 10, 0]) < 1e-3
+    # the arc's chords are blended: away from its ends the speed stays near the velocity
+    centre = np.array([-10.0, 10.0])
+    on_arc = (seam_on[:, 0] > -10.0) & (seam_on[:, 1] < 10.0)
+    angle = np.arctan2(seam_on[on_arc, 1] - 10.0, seam_on[on_arc, 0] + 10.0)
+    middle = seam_on[on_arc][(angle > -1.3) & (angle < -0.3)]
+    assert len(middle) > 50 and np.allclose(np.linalg.norm(middle[:, :2] - centre, axis=1), R,
+                                            atol=0.005)  # fmt: skip
+    speed = np.linalg.norm(np.diff(middle, axis=0), axis=1) / session.cell.robot.period
+    assert speed.min() > 0.8 * SEAM.velocity and speed.max() < 1.01 * SEAM.velocity
     # gas from pre-flow before the laser to post-flow after it; crossjet with the laser
     gases, jets = on_intervals(io, "gas"), on_intervals(io, "crossjet")
     for (l0, l1), (g0, g1), (c0, c1), item in zip(lasers, gases, jets, (SEAM, SPOT), strict=True):

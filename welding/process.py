@@ -89,6 +89,7 @@ class MoveL:
     tool: Loc
     frame: Loc
     velocity: float  # mm/s
+    blend: float = 0.0  # mm into the next move (between an arc's chords only)
 
 
 @dataclass(frozen=True)
@@ -208,8 +209,14 @@ def _item_steps(index: int, item: Item, tables: Tables, dry_run: bool) -> Iterat
                         "of the point before it"
                     )
                 _, tool, frame = _resolve(seg.to, tables)
-                for p in arc_points(prev.values, seg.mid.values, seg.to.values):
-                    yield MoveL(p, tool, frame, item.velocity)
+                points = arc_points(prev.values, seg.mid.values, seg.to.values)
+                # Blending the chords into each other keeps the speed near the velocity (the
+                # arm would stop at every chord) and stays within the chords' sag; the arc's
+                # end is reached exactly.
+                chord = math.dist(prev.values[:3], points[0][:3])
+                for k, p in enumerate(points):
+                    blend = chord / 2 if k + 1 < len(points) else 0.0
+                    yield MoveL(p, tool, frame, item.velocity, blend)
             prev = seg.to
         yield Wait()
     yield from out("laser", False, laser)
@@ -323,10 +330,11 @@ class JobRunner:
                 elif isinstance(step, Dwell):
                     self.dwell(step.seconds)
                 elif isinstance(step, MoveJ):
-                    sent = self._desc(sent, replace(desc, joint_speed=step.speed))
+                    sent = self._desc(sent, replace(desc, joint_speed=step.speed, blend=0.0))
                     self.robot.tool_move_j(step.loc, step.tool, step.frame)
                 elif isinstance(step, MoveL):
-                    sent = self._desc(sent, replace(desc, tool_speed=step.velocity))
+                    wanted = replace(desc, tool_speed=step.velocity, blend=step.blend)
+                    sent = self._desc(sent, wanted)
                     self.robot.tool_move_l(step.loc, step.tool, step.frame)
                 elif not self.robot.wait_end_move(self.move_timeout):
                     raise TimeoutError(f"the move did not end within {self.move_timeout:g} s")
