@@ -50,6 +50,10 @@ __all__ = [
 
 Array = npt.NDArray[np.float64]
 IDENTITY: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+#: Three taught points become an arc when the middle one is this far (mm) off the line
+#: through the others: well above the teaching's few-µm noise, so straight stretches of a
+#: taught seam stay lines instead of arcs of kilometre radius.
+ARC_MIN_SAG_MM = 0.01
 
 
 class TeachError(RuntimeError):
@@ -325,7 +329,7 @@ def seam_path(
             a, m, b = (pts[k].position for k in (i - 1, i, i + 1))
             chord = max(float(np.linalg.norm(b - a)), 1e-12)
             sag = float(np.linalg.norm(np.cross(m - a, b - a))) / chord
-            if sag > 1e-3:
+            if sag > ARC_MIN_SAG_MM:
                 segments.append(Arc(locs[i], locs[i + 1]))
                 i += 2
                 continue
