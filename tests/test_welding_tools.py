@@ -81,6 +81,13 @@ def test_bad_files_are_refused_with_a_reason(tmp_path: Path, text: str, pattern:
         ToolDB(path).read()
 
 
+def test_oversized_file_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "tools.json"
+    path.write_bytes(b" " * (4 * 1024 * 1024 + 1))
+    with pytest.raises(ToolDBError, match="larger than"):
+        ToolDB(path).read()
+
+
 def test_import_and_export(tmp_path: Path) -> None:
     a, b = ToolDB(tmp_path / "a.json"), ToolDB(tmp_path / "b.json")
     a.add(LASER)

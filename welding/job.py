@@ -31,7 +31,7 @@ from xml.sax.saxutils import escape as escape_text
 from xml.sax.saxutils import quoteattr
 
 from spec.files import write_atomically
-from welding.xmlsafe import Element, XmlRefused, parse
+from welding.xmlsafe import MAX_BYTES, Element, XmlRefused, parse
 
 __all__ = [
     "FORMAT_VERSION",
@@ -490,11 +490,8 @@ def load(
     """Read and parse a job file (see :func:`loads`); OSError when it cannot be read."""
     p = FilePath(path)
     with open(p, "rb") as f:
-        data = f.read(MAX_FILE + 1)
+        data = f.read(MAX_BYTES + 1)  # one byte over is enough for the reader to refuse it
     return loads(data, source=str(p), has_tool=has_tool, has_frame=has_frame)
-
-
-MAX_FILE = 8 * 1024 * 1024
 
 
 # --- writing -------------------------------------------------------------------------------

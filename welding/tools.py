@@ -51,6 +51,8 @@ BUILTIN_TOOL = "flange"
 BUILTIN_FRAME = "world"
 TOOL_KINDS = ("laser", "sensor", "tool")
 IDENTITY = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+#: Largest database file read (bytes): thousands of entries are far below.
+MAX_BYTES = 4 * 1024 * 1024
 Loc = tuple[float, float, float, float, float, float]
 
 
@@ -211,11 +213,14 @@ class ToolDB:
     def read(self) -> Tables:
         """The current content (an empty database when the file does not exist yet)."""
         try:
-            text = self.path.read_bytes()
+            with open(self.path, "rb") as f:
+                text = f.read(MAX_BYTES + 1)
         except FileNotFoundError:
             return Tables({}, {})
         except OSError as exc:
             raise ToolDBError(f"cannot read {self.path}: {exc.strerror}") from None
+        if len(text) > MAX_BYTES:
+            raise ToolDBError(f"{self.path}: larger than {MAX_BYTES} bytes")
         return Tables.loads(text, str(self.path))
 
     @contextmanager
