@@ -151,3 +151,21 @@ def test_job_runs_against_a_robot_server(capsys: pytest.CaptureFixture[str]) -> 
         assert main(["status", "--robot", robot, "--json"]) == 0
         status = json.loads(capsys.readouterr().out)
         assert status["position"]["location"][:3] == pytest.approx([520, 0, 300], abs=1e-3)
+
+
+def test_ctrl_c_during_a_run_exits_130_with_the_log(monkeypatch: pytest.MonkeyPatch) -> None:
+    from welding.emulate import EmulatedSession
+
+    assert main(["teach", "--emulate", "--length", "20", "--job", "j.xml", "--frame",
+                 "workpiece"]) == 0  # fmt: skip
+
+    def interrupted(self: EmulatedSession, seconds: float) -> None:
+        raise KeyboardInterrupt  # Ctrl-C during the gas pre-flow
+
+    monkeypatch.setattr(EmulatedSession, "dwell", interrupted)
+    argv = ["job", "run", "j.xml", "--emulate", "--log", "log.json", "--no-progress"]
+    assert main(argv) == 130
+    log = json.loads(Path("log.json").read_text())
+    assert (log["result"], log["reason"]) == ("aborted", "interrupted")
+    stops = [e["step"] for e in log["entries"] if e["event"] == "safe stop"]
+    assert stops == ["laser off", "motion reset", "crossjet off", "gas off"]
