@@ -706,7 +706,7 @@ def cmd_teach(args: argparse.Namespace) -> int:
         "taught_error_max_mm": error,
         "seconds_per_point": result.seconds_per_point,
         "robot_seconds": result.robot_seconds,
-        "wall_seconds_per_point": result.wall_seconds / max(1, result.measurements),
+        "wall_seconds_per_point": result.wall_seconds / max(1, len(result.points)),
         "clock": "simulated" if args.emulate else "real",
     }
     if args.json:

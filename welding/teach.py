@@ -94,8 +94,9 @@ class TeachResult:
 
     @property
     def seconds_per_point(self) -> float:
-        """Robot-clock seconds per measured point (moves, settling, acquisition)."""
-        return self.robot_seconds / max(1, self.measurements)
+        """Robot-clock seconds per taught point (moves, settling, acquisition, and the
+        measurements of a corner search)."""
+        return self.robot_seconds / max(1, len(self.points))
 
     @property
     def length_mm(self) -> float:
