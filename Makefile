@@ -12,7 +12,7 @@ $(STAMP): pyproject.toml Makefile
 	$(PY) -m pip install --quiet --upgrade pip
 	# compat: a path entry for the checkout (python -m … from any directory, no setuptools
 	# warning about same-named folders on every install)
-	$(PY) -m pip install --quiet -e '.[test,plot]' --config-settings editable_mode=compat
+	$(PY) -m pip install --quiet -e '.[test,plot,xsd]' --config-settings editable_mode=compat
 	touch $(STAMP)
 
 demo: $(STAMP)

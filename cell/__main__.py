@@ -51,7 +51,7 @@ def _parser() -> cliargs.Parser:
         s.add_argument("--clock", choices=("real", "sim"), default="real")
         s.add_argument("--model", default="RX90B")
         s.add_argument("--joint", choices=("butt", "fillet", "lap"), default="butt")
-        s.add_argument("--seam", choices=("straight", "sine"), default="straight")
+        s.add_argument("--seam", choices=("straight", "sine", "corner"), default="straight")
         s.add_argument("--seed", type=cliargs.seed, default=0)
         s.add_argument("-v", "--verbose", action="store_true")
         add_timing_options(s)

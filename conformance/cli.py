@@ -179,6 +179,9 @@ def _main(argv: Sequence[str] | None) -> int:
         include=("robustness.fuzz",) if args.fuzz else (),  # --fuzz adds the fuzz case
     )
     cases = selection.pick(all_cases(), args.service)
+    if not cases and not args.list:
+        print("conformance: no case matches the profile, selections and tags", file=sys.stderr)
+        return EXIT_NOTHING_SELECTED
     if args.list:
         for c in cases:
             flags = " motion" if c.motion else ""

@@ -65,6 +65,8 @@ OUTPUTS = ("laser", "gas", "crossjet")
 INPUTS = ("laser_ready", "gas_pressure_ok", "door_closed")
 #: Moves that may wait in the queue.
 MAX_QUEUE = 256
+#: Output changes kept in :attr:`RobotEmulator.io_log`.
+IO_LOG_LENGTH = 10_000
 #: Cycles a held simulated arm advances per lock hold (~4 ms of CPU).
 _SIM_SLICE = 250
 
@@ -131,6 +133,8 @@ class RobotEmulator(RobotInterface):
         self._buffer.append(0.0, q0)
         self._idle_since = 0.0
         self.cycle_hooks: list[CycleHook] = []
+        #: (robot time s, output, value) of every SetOutput and every safety switch-off.
+        self.io_log: deque[tuple[float, str, bool]] = deque(maxlen=IO_LOG_LENGTH)
         self._simclock: SimLoop | None = None
         self._loop: RealTimeLoop | None = None
         if clock == "sim":
@@ -407,6 +411,7 @@ class RobotEmulator(RobotInterface):
         with self._lock:
             if self._outputs["laser"]:
                 self._outputs["laser"] = False
+                self.io_log.append((self.time(), "laser", False))
                 log.warning("controller lost: laser off")
             if not self._gen.idle:
                 log.warning("controller lost: decelerating along the path and dropping the queue")
@@ -414,6 +419,7 @@ class RobotEmulator(RobotInterface):
             for name in ("crossjet", "gas"):
                 if self._outputs[name]:
                     self._outputs[name] = False
+                    self.io_log.append((self.time(), name, False))
                     log.warning("controller lost: %s off", name)
 
     def emergency_stop(self) -> None:
@@ -423,6 +429,8 @@ class RobotEmulator(RobotInterface):
             self._powered = False
             # Safety: the process outputs (laser, gas, crossjet) go off with the arm.
             for name in self._outputs:
+                if self._outputs[name]:
+                    self.io_log.append((self.time(), name, False))
                 self._outputs[name] = False
             self._last_error = EmergencyStopError("emergency stop engaged")
             log.warning("EMERGENCY STOP: motion halted, power and outputs off")
@@ -446,6 +454,7 @@ class RobotEmulator(RobotInterface):
             if self._estop and value:
                 raise EmergencyStopError("emergency stop engaged: outputs stay off")
             self._outputs[name] = bool(value)
+            self.io_log.append((self.time(), name, bool(value)))
             log.info("output %s %s", name, "on" if value else "off")
 
     def set_input(self, name: str, value: bool) -> None:

@@ -210,6 +210,34 @@ class SeamPath:
         return 1.0 / (abs(self.amplitude_mm) * k * k)
 
 
+@dataclass(frozen=True)
+class CornerPath(SeamPath):
+    """A seam with one 90° corner: y_W = x_W up to the corner at x_W = ``corner_x_mm``, then
+    y_W = 2·corner - x_W (two straight legs at ±45° to x_W, so the seam stays a function of
+    x_W). ``lateral`` is then the exact distance to the leg on the same side of the corner."""
+
+    corner_x_mm: float = 30.0
+
+    @property
+    def straight_line(self) -> bool:
+        return False
+
+    def y(self, x: FloatArray) -> FloatArray:
+        out: FloatArray = self.corner_x_mm - np.abs(x - self.corner_x_mm)
+        return out
+
+    def slope(self, x: FloatArray) -> FloatArray:
+        out: FloatArray = np.where(x < self.corner_x_mm, 1.0, -1.0) + 0.0 * x
+        return out
+
+    def lateral(self, x: FloatArray, y: FloatArray) -> FloatArray:
+        out: FloatArray = (y - self.y(x)) / math.sqrt(2.0)
+        return out
+
+    def min_radius_mm(self) -> float:
+        return 0.0
+
+
 def _check_transform(t: ArrayLike, name: str) -> FloatArray:
     a = np.asarray(t, dtype=np.float64)
     if a.shape != (4, 4) or not np.all(np.isfinite(a)):

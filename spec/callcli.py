@@ -258,7 +258,7 @@ def main_call(
         return EXIT_USAGE
     queued = False
     try:
-        with _sigterm_interrupts(), FramedClient(host, port, timeout=timeout) as client:
+        with sigterm_interrupts(), FramedClient(host, port, timeout=timeout) as client:
             take = spec.needs_control and spec.id != CommandId.TAKE_CONTROL
             if take:
                 client.take_control(token or "")
@@ -305,7 +305,7 @@ def _stop_what_was_started(client: FramedClient, moved: bool) -> None:
 
 
 @contextmanager
-def _sigterm_interrupts() -> Iterator[None]:
+def sigterm_interrupts() -> Iterator[None]:
     """SIGTERM ends a call the way Ctrl-C does (a KeyboardInterrupt in the main thread)."""
 
     def interrupt(signum: int, frame: object) -> None:

@@ -195,3 +195,20 @@ def test_real_time_clock_ticks_and_reports_jitter() -> None:
     assert j["count"] >= 25 and 0.0 <= j["p50"] <= j["p99"] <= j["max"]
     t, _ = robot.joint_log(-1.0)
     np.testing.assert_allclose(np.diff(t), 0.004, rtol=1e-9)
+
+
+def test_io_log_records_every_output_change_on_the_robot_clock() -> None:
+    r = powered()
+    r.step(10)
+    r.set_output("gas", True)
+    r.set_output("laser", True)
+    r.step(5)
+    r.on_control_lost()
+    r.set_output("crossjet", True)
+    r.emergency_stop()
+    t1, t2 = 10 * r.period, 15 * r.period
+    assert list(r.io_log) == [
+        (t1, "gas", True), (t1, "laser", True),
+        (t2, "laser", False), (t2, "gas", False),  # control lost: laser first
+        (t2, "crossjet", True), (t2, "crossjet", False),  # emergency stop
+    ]  # fmt: skip

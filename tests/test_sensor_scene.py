@@ -115,3 +115,20 @@ def test_invert_transforms_round_trip(
 ) -> None:
     m = _pose(rx, ry, rz, t)
     np.testing.assert_allclose(invert_transforms(m) @ m, np.eye(4), atol=1e-9)
+
+
+def test_corner_path_has_two_straight_legs_at_90_degrees() -> None:
+    from sensorsocket.scene import CornerPath
+
+    path = CornerPath(corner_x_mm=30.0)
+    x = np.array([0.0, 20.0, 30.0, 40.0])
+    np.testing.assert_allclose(path.y(x), [0.0, 20.0, 30.0, 20.0])
+    legs = np.array([[1.0, s] for s in path.slope(np.array([10.0, 50.0]))])
+    assert legs[0] @ legs[1] == 0.0  # perpendicular
+    # lateral: the distance to the leg on the same side of the corner
+    assert path.lateral(np.array([10.0]), np.array([12.0]))[0] == pytest.approx(math.sqrt(2))
+    assert path.lateral(np.array([50.0]), np.array([12.0]))[0] == pytest.approx(math.sqrt(2))
+    scene = Scene(Joint.butt(), path, _pose(0.1, -0.2, 0.7, (400.0, -50.0, 30.0)))
+    for station in (12.5, 45.0):
+        truth = scene.seam2sensor(scene.sensor_over_seam(station, seam_y_mm=1.0)[None])[0]
+        np.testing.assert_allclose(truth[:3, 3], [0.0, 1.0, 0.0], atol=1e-9)

@@ -1,0 +1,171 @@
+"""python -m welding: the new user's path (teach, save, check, run dry and welding) on the
+emulated cell, the database commands, and the exit codes of bad input."""
+
+from __future__ import annotations
+
+import json
+import socket
+from pathlib import Path
+
+import pytest
+
+from welding import job as J
+from welding.cli import main
+
+
+@pytest.fixture(autouse=True)
+def in_tmp(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("WELDING_TOOLS", raising=False)
+    return tmp_path
+
+
+def test_teach_save_check_and_run(capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["teach", "--emulate", "--seam", "corner", "--length", "60", "--json", "t.json",
+            "--job", "seam.xml", "--frame", "workpiece"]  # fmt: skip
+    assert main(argv) == 0
+    taught = json.loads(Path("t.json").read_text())
+    assert taught["taught_error_max_mm"] < 0.05
+    assert taught["seconds_per_point"] > 0 and taught["count"] == len(taught["points"]) > 10
+    assert sum(p["corner"] for p in taught["points"]) == 1
+    assert main(["job", "check", "seam.xml"]) == 0
+    assert "seam.xml: ok" in capsys.readouterr().out
+    assert main(["job", "show", "seam.xml", "--json"]) == 0
+    shown = json.loads(capsys.readouterr().out)
+    assert shown["order"] == ["seam"]
+    for extra in (["--dry-run"], []):
+        argv = ["job", "run", "seam.xml", "--emulate", "--log", "log.json", "--no-progress"]
+        assert main(argv + extra) == 0
+        log = json.loads(Path("log.json").read_text())
+        assert log["result"] == "done" and log["clock"] == "robot"
+        lasers = [e["value"] for e in log["entries"] if e.get("output") == "laser"]
+        assert lasers == ([False] if extra else [False, True, False])
+
+
+def test_check_names_every_problem_with_its_position(capsys: pytest.CaptureFixture[str]) -> None:
+    Path("bad.xml").write_text(
+        '<job name="b" version="1">\n'
+        '  <pause name="p" duration="x"/>\n'
+        '  <via name="v" tool="torch" frame="world" x="0" y="0" z="0" rx="0" ry="0" rz="0"/>\n'
+        "</job>\n"
+    )
+    assert main(["job", "check", "bad.xml"]) == 1
+    err = capsys.readouterr().err.splitlines()
+    assert err == [
+        "bad.xml:2:3: <pause> duration='x': not a number",
+        "bad.xml:3:3: <via> tool='torch': no such tool in the database",
+    ]
+    assert main(["job", "check", "bad.xml", "--no-tools"]) == 1
+    assert len(capsys.readouterr().err.splitlines()) == 1
+
+
+def test_hostile_file_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    Path("x.xml").write_text(
+        '<?xml version="1.0"?>\n<!DOCTYPE job [<!ENTITY e SYSTEM "file:///etc/passwd">]>\n'
+        '<job name="x" version="1"><description>&e;</description></job>\n'
+    )
+    assert main(["job", "check", "x.xml"]) == 1
+    assert "DOCTYPE is not allowed" in capsys.readouterr().err
+
+
+def test_tools_commands(capsys: pytest.CaptureFixture[str]) -> None:
+    loc = "0,0,150,0,0,0"
+    assert main(["tools", "add", "torch", "--kind", "laser", "--location", loc]) == 0
+    assert main(["tools", "add", "table", "--kind", "frame", "--location", "500,0,0,0,0,90"]) == 0
+    assert main(["tools", "add", "torch", "--kind", "laser", "--location", loc]) == 1
+    assert main(["tools", "edit", "table", "--note", "fixture A"]) == 0
+    capsys.readouterr()
+    assert main(["tools", "show", "table", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)[0]["note"] == "fixture A"
+    assert main(["tools", "export", "out.json"]) == 0
+    assert main(["tools", "remove", "torch"]) == 0
+    assert main(["tools", "show", "torch"]) == 1
+    assert main(["tools", "--tools", "other.json", "import", "out.json"]) == 0
+    capsys.readouterr()
+    assert main(["tools", "--tools", "other.json", "list", "--json"]) == 0
+    names = [e["name"] for e in json.loads(capsys.readouterr().out)]
+    assert names == ["flange", "torch", "world", "table"]
+    with pytest.raises(SystemExit) as info:
+        main(["tools", "add", "x", "--kind", "frame", "--location", "1,2"])
+    assert info.value.code == 2
+
+
+def test_status_jog_move_and_record(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["status", "--emulate", "--tool", "laser", "--frame", "workpiece", "--json"]) == 0
+    status = json.loads(capsys.readouterr().out)
+    assert status["estop"] is False and status["powered"] is True
+    assert status["position"]["location"][:3] == pytest.approx([-40, 0, 0], abs=1e-6)
+    assert set(status["outputs"]) == {"laser", "gas", "crossjet"}
+    argv = ["jog", "--emulate", "--axis", "z", "--step", "10", "--tool", "laser", "--frame",
+            "workpiece"]  # fmt: skip
+    assert main(argv) == 0
+    assert "-40.000, -0.000, 10.000" in capsys.readouterr().out
+    assert main(["jog", "--emulate", "--joint", "1", "--step", "5"]) == 0
+    assert capsys.readouterr().out.startswith("joints (deg): 5.000, 30.000")
+    argv = ["record", "home", "--emulate", "--job", "j.xml", "--tool", "laser", "--frame",
+            "workpiece"]  # fmt: skip
+    assert main(argv) == 0
+    assert J.load("j.xml").item("home") == J.Via(
+        "home", J.Location(-40.0, -0.0, 0.0, 180.0, 0.0, 0.0, "laser", "workpiece")
+    )
+    assert main(argv) == 1  # the name is taken
+    assert main(["move", "home", "--emulate", "--job", "j.xml"]) == 0
+    assert main(["move", "nowhere", "--emulate", "--job", "j.xml"]) == 1
+
+
+def test_unreachable_robot_and_bad_endpoint(capsys: pytest.CaptureFixture[str]) -> None:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]  # bound, not listening: connection refused
+        assert main(["status", "--robot", f"127.0.0.1:{port}", "--timeout", "2"]) == 3
+    assert "unreachable" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as info:
+        main(["status", "--robot", "host:99999"])
+    assert info.value.code == 2
+
+
+def test_job_runs_against_a_robot_server(capsys: pytest.CaptureFixture[str]) -> None:
+    from cell.cell import EmulatedCell
+
+    job = J.Job(
+        "j",
+        (
+            J.Via("a", J.Location(500.0, 0.0, 300.0, 180.0, 0.0, 180.0, "flange", "world")),
+            J.Path(
+                "p",
+                J.Location(500.0, 0.0, 300.0, 180.0, 0.0, 180.0, "flange", "world"),
+                (J.Line(J.Location(520.0, 0.0, 300.0, 180.0, 0.0, 180.0, "flange", "world")),),
+                velocity=50.0,
+            ),
+        ),
+    )
+    J.save(job, "j.xml")
+    with EmulatedCell(clock="sim") as cell:
+        robot = "{}:{}".format(*cell.robot_address)
+        argv = ["job", "run", "j.xml", "--robot", robot, "--no-progress"]
+        assert main(argv) == 1
+        assert "arm power is off" in capsys.readouterr().err
+        assert main([*argv, "--enable-power"]) == 0
+        assert "run done" in capsys.readouterr().out
+        assert [v for _, n, v in cell.robot.io_log if n == "laser"] == [False, True, False]
+        assert main(["status", "--robot", robot, "--json"]) == 0
+        status = json.loads(capsys.readouterr().out)
+        assert status["position"]["location"][:3] == pytest.approx([520, 0, 300], abs=1e-3)
+
+
+def test_ctrl_c_during_a_run_exits_130_with_the_log(monkeypatch: pytest.MonkeyPatch) -> None:
+    from welding.emulate import EmulatedSession
+
+    assert main(["teach", "--emulate", "--length", "20", "--job", "j.xml", "--frame",
+                 "workpiece"]) == 0  # fmt: skip
+
+    def interrupted(self: EmulatedSession, seconds: float) -> None:
+        raise KeyboardInterrupt  # Ctrl-C during the gas pre-flow
+
+    monkeypatch.setattr(EmulatedSession, "dwell", interrupted)
+    argv = ["job", "run", "j.xml", "--emulate", "--log", "log.json", "--no-progress"]
+    assert main(argv) == 130
+    log = json.loads(Path("log.json").read_text())
+    assert (log["result"], log["reason"]) == ("aborted", "interrupted")
+    stops = [e["step"] for e in log["entries"] if e["event"] == "safe stop"]
+    assert stops == ["laser off", "motion reset", "crossjet off", "gas off"]

@@ -1,0 +1,11 @@
+"""``python -m welding``: see :mod:`welding.cli`."""
+
+from __future__ import annotations
+
+import sys
+
+from spec import cliargs
+from welding.cli import main
+
+if __name__ == "__main__":
+    sys.exit(cliargs.run_cli(main))
