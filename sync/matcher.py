@@ -177,7 +177,7 @@ class _State(Enum):
 _RESOLVED = (_State.POINT, _State.NOT_FOUND, _State.LOST, _State.EXPIRED)
 
 
-@dataclass
+@dataclass(slots=True)
 class _Entry:
     t_trigger: float
     state: _State = _State.AWAITING
@@ -238,7 +238,9 @@ class SyncMatcher:
             it gives each point its ``seam2base`` (eqs. 2-3).
         sensor2flange: ^N_S T (4, 4), mm.
         history: resolved indices remembered for duplicate/late detection.
-        keep_trajectory: also keep every released point for :meth:`trajectory`.
+        keep_trajectory: also keep every released point for :meth:`trajectory`. Off by
+            default: a long-running matcher would otherwise grow by one point per trigger
+            (about 1 GB an hour at 250 Hz); turn it on only for a bounded recording.
     """
 
     delta_t_s: float
@@ -246,7 +248,7 @@ class SyncMatcher:
     flange2base: FlangeToBase | None = None
     sensor2flange: ArrayLike | None = None
     history: int = 4096
-    keep_trajectory: bool = True
+    keep_trajectory: bool = False
     counters: MatcherCounters = field(default_factory=MatcherCounters)
 
     def __post_init__(self) -> None:
@@ -438,7 +440,8 @@ class SyncMatcher:
                 break
             if entry.point is not None:
                 out.append(entry.point)
-                entry.point = None  # released; keep the state for duplicate detection
+            # Released: only the state stays, for duplicate and late detection.
+            entry.point = entry.data = entry.seam2sensor = None
             seq += 1
         self._release_seq = seq
         # Forget resolved entries beyond the history; never an unresolved one.
@@ -457,6 +460,11 @@ class SyncMatcher:
     def pending(self) -> int:
         """Triggers not yet resolved (awaiting data or waiting for joints)."""
         return len(self._awaiting) + len(self._ready)
+
+    def retained(self) -> dict[str, int]:
+        """Items held by the long-lived structures: logged triggers (at most ``history``
+        resolved ones plus the unresolved) and kept trajectory points."""
+        return {"trigger_log": len(self._log.entries), "trajectory": len(self._trajectory)}
 
     def trajectory(self) -> list[SeamPoint]:
         """Every released point so far, in index order (needs ``keep_trajectory``)."""

@@ -377,6 +377,18 @@ class RobotSyncCore:
                 return np.zeros((0, len(SEAM_POINT_COLUMNS)))
             return np.array(sel)
 
+    def retained(self) -> dict[str, int]:
+        """Items held by each long-lived structure; every one is bounded (by the matcher's
+        history plus unresolved triggers, ``max_points``, the row batch and the joint
+        capacity), so a robot server can trigger for ever."""
+        with self.lock:
+            return {
+                **self.matcher.retained(),
+                "rows": len(self._rows),
+                "pending_points": len(self._pending),
+                "joints": len(self.joints),
+            }
+
     def statistics(self) -> dict[str, int]:
         """The GetSyncStatistics counters (stale data is counted as late)."""
         with self.lock:

@@ -61,13 +61,16 @@ def data(i: int, status: int = STATUS_FOUND) -> SensorData:
     return SensorData(i % INDEX_MODULUS, status, _trans(0.01 * i, 1.0, 200.0), quality=0.9)
 
 
-def make_matcher(timeout_s: float = TIMEOUT, history: int = 4096) -> SyncMatcher:
+def make_matcher(
+    timeout_s: float = TIMEOUT, history: int = 4096, *, keep_trajectory: bool = False
+) -> SyncMatcher:
     return SyncMatcher(
         delta_t_s=DT,
         timeout_s=timeout_s,
         flange2base=toy_flange2base,
         sensor2flange=S2F,
         history=history,
+        keep_trajectory=keep_trajectory,
     )
 
 
@@ -83,7 +86,7 @@ def check_points(points: list[SeamPoint], indices: list[int]) -> None:
 
 
 def test_in_order_happy_path() -> None:
-    m, buf = make_matcher(), full_buffer()
+    m, buf = make_matcher(keep_trajectory=True), full_buffer()
     for i in range(50):
         m.on_trigger(i, trig_time(i))
         assert m.on_data(data(i), trig_time(i) + 0.012) is DataOutcome.ACCEPTED
@@ -94,6 +97,20 @@ def test_in_order_happy_path() -> None:
     assert (c.triggers, c.data, c.accepted, c.points, c.reordered) == (50, 50, 50, 50, 0)
     idx, _, base = m.trajectory_arrays()
     assert idx.tolist() == list(range(50)) and base.shape == (50, 4, 4)
+
+
+def test_memory_is_bounded_by_history_without_a_kept_trajectory() -> None:
+    """A long-running matcher (the default) holds at most ``history`` resolved triggers and
+    no released points, however many indices pass through it."""
+    m, buf = make_matcher(history=64), full_buffer(t_end=5.0)
+    for i in range(1000):
+        m.on_trigger(i, trig_time(i))
+        m.on_data(data(i), trig_time(i) + 0.012)
+        if i % 10 == 9:
+            assert len(m.poll(trig_time(i) + 0.012, buf)) > 0
+            assert m.retained()["trigger_log"] <= 64 + m.pending
+    assert m.counters.points > 900
+    assert m.retained()["trajectory"] == 0 and m.trajectory() == []
 
 
 def test_waits_when_data_is_newer_than_the_joints() -> None:

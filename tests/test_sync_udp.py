@@ -149,6 +149,32 @@ def test_rows_keep_the_sensor_tool_in_force_at_their_release() -> None:
     np.testing.assert_allclose(rows[:, SEAM_POINT_COLUMNS.index("by")], 0.25, atol=1e-9)
 
 
+def test_memory_stays_bounded_over_many_triggers() -> None:
+    """Every structure the core keeps is capped: 10,001 triggers with ``max_points`` 1000
+    leave at most 1000 rows, no trajectory in the matcher and a trigger log within its
+    history (the matcher used to keep every released point for ever)."""
+    core = RobotSyncCore(max_points=1000, joint_capacity=100)
+    core.start_rate(250.0, 10_001, 0.0013)
+    t = 0.0
+    core.add_joint(t, np.zeros(6))
+    while core.next_due() is not None or core.statistics()["pending"]:
+        t += PERIOD
+        core.add_joint(t, np.zeros(6))
+        for index, t_send in core.due_triggers(t):
+            core.sent(index, t_send)
+            core.on_datagram(_data(index, t_send, 0.0), t_send + 0.005)
+        core.poll(t)
+        if round(t / PERIOD) % 2000 == 0:
+            kept = core.retained()
+            assert kept["trajectory"] == 0 and kept["rows"] <= 1000
+            assert kept["trigger_log"] <= 8192 + core.statistics()["pending"]
+            assert kept["joints"] <= 100
+    assert core.statistics()["matched"] == 10_001
+    assert core.points_since(-1).shape[0] == 1000
+    kept = core.retained()
+    assert kept["rows"] == 1000 and kept["pending_points"] == 0 and kept["trigger_log"] == 8192
+
+
 def test_malformed_datagrams_are_counted_and_dropped() -> None:
     core = RobotSyncCore()
     assert core.on_datagram(b"garbage", 0.0) is None
