@@ -49,12 +49,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinematics.transforms import location_to_transform
+from spec.datagrams import INDEX_MODULUS, serial_diff
 from sync.interpolate import InterpStatus, interpolate_joints
 from sync.joint_buffer import JointBuffer
 from sync.seam_chain import FlangeToBase
 
 __all__ = [
-    "INDEX_MODULUS",
     "STATUS_FOUND",
     "DataOutcome",
     "MatcherCounters",
@@ -64,10 +64,6 @@ __all__ = [
     "SyncMatcher",
     "TriggerLog",
 ]
-
-INDEX_MODULUS = 1 << 32
-"""Trigger indices are u32 on the wire."""
-_HALF = 1 << 31
 
 # interpolation outcomes as plain ints: IntEnum member access costs ~1 µs a time
 _OK, _TOO_OLD, _NOT_YET = int(InterpStatus.OK), int(InterpStatus.TOO_OLD), int(InterpStatus.NOT_YET)
@@ -199,13 +195,7 @@ class TriggerLog:
         """Sequence number of u32 ``index`` nearest to the last trigger (None before any)."""
         if self.last_seq is None:
             return None
-        return self.last_seq + self._serial_diff(index, self.last_seq)
-
-    @staticmethod
-    def _serial_diff(index: int, seq: int) -> int:
-        """Signed distance from ``seq`` to u32 ``index``, in [-2^31, 2^31)."""
-        diff = (index - seq) % INDEX_MODULUS
-        return diff - INDEX_MODULUS if diff >= _HALF else diff
+        return self.last_seq + serial_diff(index, self.last_seq)
 
     def add(self, index: int, t_trigger: float) -> int:
         """Record trigger ``index`` sent at ``t_trigger`` (s); returns its sequence number."""
@@ -218,7 +208,7 @@ class TriggerLog:
         if self.last_seq is None:
             seq = self.first_seq = index
         else:
-            seq = self.last_seq + self._serial_diff(index, self.last_seq)
+            seq = self.last_seq + serial_diff(index, self.last_seq)
             if seq <= self.last_seq:
                 raise MatcherError(f"trigger index {index} is not after the previous one")
         self.entries[seq] = _Entry(t_trigger)

@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from spec.datagrams import INDEX_MODULUS
 from sync.joint_buffer import JointBuffer
 from sync.matcher import (
-    INDEX_MODULUS,
     STATUS_FOUND,
     DataOutcome,
     MatcherError,
