@@ -50,7 +50,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from kinematics.transforms import location_to_transform
 from spec.datagrams import INDEX_MODULUS, serial_diff
-from sync.interpolate import InterpStatus, interpolate_joints
+from sync.interpolate import InterpStatus, interpolate_joints, lerp_inside
 from sync.joint_buffer import JointBuffer
 from sync.seam_chain import FlangeToBase
 
@@ -371,7 +371,7 @@ class SyncMatcher:
         if len(times) >= 2 and times[0] <= t_lo and t_hi <= times[-1]:
             # the usual case, every t_i^S inside the buffer: the same interpolation without
             # the checks and status bookkeeping (per datagram these cost more than the maths)
-            values = _lerp_inside(times, q, t_s)
+            values = lerp_inside(times, q, t_s)
             status = [_OK] * len(seqs)
             ok = list(range(len(seqs)))
         else:
@@ -475,31 +475,3 @@ class SyncMatcher:
             if p.seam2base is not None:
                 base[n] = p.seam2base
         return idx, ts, base
-
-
-def _lerp_inside(
-    t: NDArray[np.float64], q: NDArray[np.float64], query: NDArray[np.float64]
-) -> NDArray[np.float64]:
-    """:func:`~sync.interpolate.interpolate_joints` for queries (M,) inside the samples t (N >= 2,),
-    q (N, J): the same arithmetic and values, no checks (ufunc minimum/maximum instead of
-    np.clip, whose Python wrapper costs more than the maths on a few queries)."""
-    k = np.searchsorted(t, query, side="right")
-    k -= 1
-    np.maximum(k, 0, out=k)
-    np.minimum(k, len(t) - 2, out=k)
-    if len(k) == 1:  # one datagram per cycle, the usual: the same steps on Python floats
-        j = int(k[0])
-        t0f, t1f = float(t[j]), float(t[j + 1])
-        wf = (float(query[0]) - t0f) / (t1f - t0f)
-        row = [
-            min(max((1.0 - wf) * a + wf * b, min(a, b)), max(a, b))
-            for a, b in zip(q[j].tolist(), q[j + 1].tolist(), strict=True)
-        ]
-        return np.array([row])
-    t0, t1 = t[k], t[k + 1]
-    w = ((query - t0) / (t1 - t0))[:, None]
-    q0, q1 = q[k], q[k + 1]
-    v = (1.0 - w) * q0 + w * q1
-    np.maximum(v, np.minimum(q0, q1), out=v)
-    out: NDArray[np.float64] = np.minimum(v, np.maximum(q0, q1), out=v)
-    return out

@@ -15,6 +15,7 @@ from spec.errors import ErrorCode, RemoteError
 from spec.params import FloatArray, Location, Matrix
 from spec.registry import SEAM_POINT_COLUMNS, CommandId
 from sync.experiment import ExperimentSettings, run_delay_experiment
+from sync.interpolate import lerp_inside
 from sync.udp import DelayLink
 
 PAPER = CellTiming()  # 4 ms samples, 0.6 ms jitter, 10 µm noise
@@ -168,8 +169,6 @@ def test_tool_move_trajectory_tracks_and_refuses_bad_paths() -> None:
 def test_sensor2base_pose_interpolation_exact() -> None:
     """The camera's column poses, interpolated between the exact poses at the 4 ms setpoints,
     match the DGM of the joint-space interpolation the robot follows to < 1e-6 mm."""
-    from cell.cell import _lerp
-
     with EmulatedCell(clock="sim", seed=2, timing=PAPER) as cell:
         run_delay_experiment(
             cell.robot_address, cell.sensor_address, ExperimentSettings(duration_s=1.5)
@@ -177,7 +176,7 @@ def test_sensor2base_pose_interpolation_exact() -> None:
         buf_t, buf_q = cell._truth.covering(-1.0)
         t = np.linspace(buf_t[1], buf_t[-1], 20001)
         fast = cell.sensor2base(t)
-        exact = cell._setpoint_poses(_lerp(buf_t, buf_q, t))
+        exact = cell._setpoint_poses(lerp_inside(buf_t, buf_q, t))
     # the arm moved (several mm), so the check is not vacuous
     assert np.ptp(exact[:, :3, 3], axis=0).max() > 1.0
     assert np.abs(fast[:, :3, 3] - exact[:, :3, 3]).max() < 1e-6  # mm

@@ -390,38 +390,3 @@ def test_straight_seam_seen_from_a_sine_motion(delta_t_s: float, max_um: float |
     else:
         # a sine of amplitude A·ω·ΔT ≈ 97 µm (rms 69 µm) plus the noise
         assert np.max(np.abs(y_um)) > 90.0 and np.sqrt(np.mean(y_um**2)) > 55.0
-
-
-@settings(max_examples=100, deadline=None)
-@given(st.integers(0, 2**32 - 1))
-def test_fast_interpolation_inside_the_buffer_equals_interpolate_joints(seed: int) -> None:
-    """The matcher's unchecked interpolation gives interpolate_joints' values bit for bit."""
-    from sync.interpolate import interpolate_joints
-    from sync.matcher import _lerp_inside
-
-    rng = np.random.default_rng(seed)
-    t = np.cumsum(rng.uniform(1e-3, 5e-3, 12))
-    q = rng.normal(0.0, 90.0, (12, 6))
-    query = np.concatenate([rng.uniform(t[0], t[-1], 5), t[[0, 3, -1]]])
-    values, status = interpolate_joints(t, q, query)
-    assert np.all(status == 0)
-    np.testing.assert_array_equal(_lerp_inside(t, q, query), values)
-
-
-def test_inside_interpolation_equals_interpolate_joints() -> None:
-    # the matcher's unchecked interpolation (one query on Python floats, several in numpy)
-    # must give interpolate_joints' values exactly
-    from sync.interpolate import interpolate_joints
-    from sync.matcher import _lerp_inside
-
-    rng = np.random.default_rng(4)
-    for n in range(2, 7):
-        t = np.sort(rng.uniform(0.0, 1.0, n))
-        q = rng.uniform(-180.0, 180.0, (n, 6))
-        q[1] = q[0]  # a pause: the clip to the samples' range must hold
-        queries = np.concatenate([t, rng.uniform(t[0], t[-1], 20)])
-        want, status = interpolate_joints(t, q, queries)
-        assert not status.any()
-        assert np.array_equal(_lerp_inside(t, q, queries), want)
-        for i, x in enumerate(queries):
-            assert np.array_equal(_lerp_inside(t, q, np.array([x])), want[i : i + 1])
