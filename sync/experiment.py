@@ -307,8 +307,8 @@ def record_sine(
     jl = np.vstack(logs)
     pt = np.vstack(points)
     s0 = location_to_transform(np.array(loc0.as_tuple()))
-    s2f = location_to_transform(np.array(tool.as_tuple()))
-    poses = model.flange2base_batch(jl[:, 1:7]) @ s2f
+    sensor2flange = location_to_transform(np.array(tool.as_tuple()))
+    poses = model.flange2base_batch(jl[:, 1:7]) @ sensor2flange
     # y of the sensor origin in the start frame S0: (R0^T (p - p0))_y
     y_r = (poses[:, :3, 3] - s0[:3, 3]) @ s0[:3, 1]
     t_t = pt[:, _TT]

@@ -52,7 +52,7 @@ from kinematics.transforms import location_to_transform
 from spec.datagrams import INDEX_MODULUS, serial_diff
 from sync.interpolate import InterpStatus, interpolate_joints, lerp_inside
 from sync.joint_buffer import JointBuffer
-from sync.seam_chain import FlangeToBase
+from sync.seam_chain import FlangeToBase, seam2base
 
 __all__ = [
     "STATUS_FOUND",
@@ -250,12 +250,12 @@ class SyncMatcher:
             raise MatcherError("history must be >= 1")
         if (self.flange2base is None) != (self.sensor2flange is None):
             raise MatcherError("give both flange2base and sensor2flange, or neither")
-        self._s2f: NDArray[np.float64] | None = None
+        self._sensor2flange: NDArray[np.float64] | None = None
         if self.sensor2flange is not None:
-            s2f = np.asarray(self.sensor2flange, dtype=np.float64)
-            if s2f.shape != (4, 4):
-                raise MatcherError(f"sensor2flange must be 4x4, got {s2f.shape}")
-            self._s2f = s2f
+            sensor2flange = np.asarray(self.sensor2flange, dtype=np.float64)
+            if sensor2flange.shape != (4, 4):
+                raise MatcherError(f"sensor2flange must be 4x4, got {sensor2flange.shape}")
+            self._sensor2flange = sensor2flange
         self._log = TriggerLog()
         self._release_seq: int | None = None  # lowest sequence number not yet released
         self._awaiting: dict[int, None] = {}  # ordered set, by trigger time = by seq
@@ -378,14 +378,13 @@ class SyncMatcher:
             values, status_arr = interpolate_joints(times, q, t_s)
             status = status_arr.tolist()
             ok = [i for i, st in enumerate(status) if st == _OK]
-        base: NDArray[np.float64] | None = None
-        if ok and self.flange2base is not None and self._s2f is not None:
+        in_base: NDArray[np.float64] | None = None  # seam2base of the OK queries (eqs. 2-3)
+        if ok and self.flange2base is not None and self._sensor2flange is not None:
             if len(ok) == 1:  # one datagram per cycle, the usual: no np.stack
-                g2s = self._seam2sensor(entries[seqs[ok[0]]])[None]
+                seam2sensor = self._seam2sensor(entries[seqs[ok[0]]])[None]
             else:
-                g2s = np.stack([self._seam2sensor(entries[seqs[i]]) for i in ok])
-            f2b = np.asarray(self.flange2base(values[ok]), dtype=np.float64)
-            base = np.matmul(f2b, np.matmul(self._s2f, g2s))
+                seam2sensor = np.stack([self._seam2sensor(entries[seqs[i]]) for i in ok])
+            in_base = seam2base(values[ok], self.flange2base, self._sensor2flange, seam2sensor)
         row = 0
         for i, st in enumerate(status):
             if st == _NOT_YET:
@@ -405,7 +404,7 @@ class SyncMatcher:
                 t_sensor=t_list[i],
                 joints=values[i],
                 seam2sensor=entry.seam2sensor,
-                seam2base=None if base is None else base[row],
+                seam2base=None if in_base is None else in_base[row],
                 quality=float(data.quality),
                 sensor_times=tuple(data.sensor_times),
             )

@@ -39,7 +39,7 @@ from spec.udp import bind_udp
 from sync.joint_buffer import JointBuffer
 from sync.matcher import STATUS_FOUND, DataOutcome, SeamPoint, SyncMatcher
 from sync.matcher import SensorData as MatcherData
-from sync.seam_chain import FlangeToBase
+from sync.seam_chain import FlangeToBase, seam2base
 
 __all__ = [
     "MAX_RATE_HZ",
@@ -346,18 +346,18 @@ class RobotSyncCore:
         if not points:
             return
         self._pending = []
-        g2s = np.stack([p.seam2sensor for p in points])
+        seam2sensor = np.stack([p.seam2sensor for p in points])
         rows = np.full((len(points), len(SEAM_POINT_COLUMNS)), np.nan)
         rows[:, 0] = [p.index for p in points]
         rows[:, 1] = [p.t_trigger for p in points]
         rows[:, 2] = [p.t_sensor for p in points]
         rows[:, 3] = STATUS_FOUND
         rows[:, 4] = [p.quality for p in points]
-        rows[:, 5:11] = transforms_to_locations(g2s)
+        rows[:, 5:11] = transforms_to_locations(seam2sensor)
         if self._flange2base is not None:
-            q = np.stack([p.joints for p in points])
-            base = np.matmul(self._flange2base(q), np.matmul(self._sensor2flange, g2s))
-            rows[:, 11:17] = transforms_to_locations(base)
+            joints = np.stack([p.joints for p in points])
+            in_base = seam2base(joints, self._flange2base, self._sensor2flange, seam2sensor)
+            rows[:, 11:17] = transforms_to_locations(in_base)
         self._rows.extend(rows)
         self._row_index.extend(p.index for p in points)
         excess = len(self._rows) - self.max_points
