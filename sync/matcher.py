@@ -49,18 +49,17 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinematics.transforms import location_to_transform
-from spec.datagrams import INDEX_MODULUS, serial_diff
+from spec.datagrams import INDEX_MODULUS, SensorData, serial_diff
+from spec.wire import SensorStatus
 from sync.interpolate import InterpStatus, interpolate_joints, lerp_inside
 from sync.joint_buffer import JointBuffer
 from sync.seam_chain import FlangeToBase, seam2base
 
 __all__ = [
-    "STATUS_FOUND",
     "DataOutcome",
     "MatcherCounters",
     "MatcherError",
     "SeamPoint",
-    "SensorData",
     "SyncMatcher",
     "TriggerLog",
 ]
@@ -68,44 +67,21 @@ __all__ = [
 # interpolation outcomes as plain ints: IntEnum member access costs ~1 µs a time
 _OK, _TOO_OLD, _NOT_YET = int(InterpStatus.OK), int(InterpStatus.TOO_OLD), int(InterpStatus.NOT_YET)
 
-STATUS_FOUND = 0
-"""Sensor status meaning "seam found" (``spec.wire.SensorStatus.FOUND``)."""
-
 
 class MatcherError(ValueError):
     """A caller mistake: bad trigger order, bad shapes or times. Peer mistakes never raise."""
 
 
-def _as_transform(seam2sensor: ArrayLike) -> NDArray[np.float64]:
-    a = np.asarray(seam2sensor, dtype=np.float64)
-    if a.shape == (6,):
-        # A non-finite pose stays NaN: the caller counts it as invalid, a peer's data never raises.
-        a = location_to_transform(a) if np.isfinite(a).all() else np.full((4, 4), np.nan)
-    elif a.shape != (4, 4):
-        raise MatcherError(f"seam2sensor must be a 6-float location or 4x4, got shape {a.shape}")
-    return a
-
-
-@dataclass(frozen=True)
-class SensorData:
-    """One sensor data datagram, decoded.
-
-    Attributes:
-        index: trigger index i (u32).
-        status: sensor status; ``STATUS_FOUND`` (0) means a seam was found.
-        seam2sensor: ^S_G T as a 4x4 transform (mm) or a VAL3 location (x, y, z, rx, ry, rz)
-            in mm and degrees; ignored when the status is not FOUND.
-        quality: detector quality figure, carried through.
-        sensor_times: the sensor's own clock readings (trigger arrival, exposure start,
-            exposure end), seconds, carried through (not used for matching: only the robot's
-            t_i^T is on the robot clock).
-    """
-
-    index: int
-    status: int
-    seam2sensor: ArrayLike
-    quality: float = math.nan
-    sensor_times: tuple[float, ...] = ()
+def _location_transform(seam: Sequence[float]) -> NDArray[np.float64] | None:
+    """^S_G T (4, 4) of a data datagram's VAL3 location (mm, deg); None when not finite (a
+    peer fault, counted as invalid: a peer's data never raises)."""
+    if len(seam) != 6:
+        raise MatcherError(f"a seam location has 6 values, got {len(seam)}")
+    # A decoded datagram's location is 6 Python floats: checked without numpy.
+    if all(type(v) is float for v in seam):
+        return location_to_transform(seam) if all(math.isfinite(v) for v in seam) else None
+    loc = np.asarray(seam, dtype=np.float64)
+    return location_to_transform(loc) if np.isfinite(loc).all() else None
 
 
 @dataclass(frozen=True)
@@ -114,6 +90,8 @@ class SeamPoint:
 
     ``joints`` (6,) degrees at ``t_sensor`` = t_i^T + ΔT (s); ``seam2sensor`` and
     ``seam2base`` (4, 4) mm; ``seam2base`` is ``None`` when the matcher has no kinematics.
+    ``sensor_times``: the datagram's (trigger arrival, exposure start, exposure end), s on
+    the sensor's clock (not used for matching: only t_i^T is on the robot clock).
     """
 
     index: int
@@ -274,20 +252,13 @@ class SyncMatcher:
         self.counters.triggers += 1
 
     def on_data(self, data: SensorData, now: float) -> DataOutcome:
-        """Take one sensor datagram received at ``now`` (s, robot clock)."""
+        """Take one sensor data datagram received at ``now`` (s, robot clock). Only a FOUND
+        one's ``seam`` is read; the sensor's timestamps are carried through to the point."""
         seam2sensor = None
         finite = True
-        if data.status == STATUS_FOUND:
-            s = data.seam2sensor
-            if isinstance(s, tuple) and len(s) == 6 and all(type(v) is float for v in s):
-                # a decoded datagram's location, checked on Python floats: a finite one
-                # gives a finite transform
-                finite = all(math.isfinite(v) for v in s)
-                seam2sensor = location_to_transform(s) if finite else None
-            else:
-                seam2sensor = _as_transform(s)
-                # ndarray.all: np.all's Python wrapper costs more than the test on 16 values
-                finite = bool(np.isfinite(seam2sensor).all())
+        if data.status == SensorStatus.FOUND:
+            seam2sensor = _location_transform(data.seam)
+            finite = seam2sensor is not None
         self._expire_lost(now)
         self.counters.data += 1
         if not finite:
@@ -406,7 +377,7 @@ class SyncMatcher:
                 seam2sensor=entry.seam2sensor,
                 seam2base=None if in_base is None else in_base[row],
                 quality=float(data.quality),
-                sensor_times=tuple(data.sensor_times),
+                sensor_times=(data.t_arrival, data.t_exposure_start, data.t_exposure_end),
             )
             row += 1
             entry.state = _State.POINT

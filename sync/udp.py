@@ -36,9 +36,9 @@ from spec.datagrams import INDEX_MODULUS, SensorData, Trigger, decode_datagram, 
 from spec.errors import DatagramError
 from spec.registry import SEAM_POINT_COLUMNS
 from spec.udp import bind_udp
+from spec.wire import SensorStatus
 from sync.joint_buffer import JointBuffer
-from sync.matcher import STATUS_FOUND, DataOutcome, SeamPoint, SyncMatcher
-from sync.matcher import SensorData as MatcherData
+from sync.matcher import DataOutcome, SeamPoint, SyncMatcher
 from sync.seam_chain import FlangeToBase, seam2base
 
 __all__ = [
@@ -291,20 +291,7 @@ class RobotSyncCore:
                 self._stats.unexpected += 1
                 return None
             self._stats.received += 1
-            return self.matcher.on_data(
-                MatcherData(
-                    index=decoded.index,
-                    status=int(decoded.status),
-                    seam2sensor=decoded.seam if decoded.status == STATUS_FOUND else np.zeros(6),
-                    quality=decoded.quality,
-                    sensor_times=(
-                        decoded.t_arrival,
-                        decoded.t_exposure_start,
-                        decoded.t_exposure_end,
-                    ),
-                ),
-                now,
-            )
+            return self.matcher.on_data(decoded, now)
 
     def add_joints(self, times: ArrayLike, joints: ArrayLike) -> None:
         """Append measured joint samples (N,) s, (N, 6) deg; samples not newer than the last
@@ -351,7 +338,7 @@ class RobotSyncCore:
         rows[:, 0] = [p.index for p in points]
         rows[:, 1] = [p.t_trigger for p in points]
         rows[:, 2] = [p.t_sensor for p in points]
-        rows[:, 3] = STATUS_FOUND
+        rows[:, 3] = SensorStatus.FOUND
         rows[:, 4] = [p.quality for p in points]
         rows[:, 5:11] = transforms_to_locations(seam2sensor)
         if self._flange2base is not None:
