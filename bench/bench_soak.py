@@ -11,7 +11,7 @@ as GetSeamPoints would.
 
 Every ``SAMPLE_S`` of simulated time it measures, with :mod:`tracemalloc` running, the traced
 total and the deep size of each long-lived structure (matcher, seam-point rows, joint
-buffer, scheduler, network queues). Each figure is a slope over the steady part of the run
+buffer, scheduler, network model). Each figure is a slope over the steady part of the run
 (after the ``max_points`` rows have filled), in MB per hour, against the baseline of the
 same core with the matcher keeping its trajectory (the defect it had: every point kept).
 """
@@ -32,7 +32,8 @@ from bench.common import Result, result
 from kinematics.robot import get_model
 from spec.datagrams import encode_data_fields, trigger_fields
 from spec.wire import SensorStatus
-from sync.udp import DelayLink, RobotSyncCore
+from sync.network import DelayLink
+from sync.udp import RobotSyncCore
 
 PERIOD_S = 0.004
 """Robot cycle and trigger period (250 Hz)."""
@@ -130,7 +131,7 @@ class _Soak:
             "seam-point rows": deep_size((core._rows, core._row_index, core._pending)),
             "joint buffer": deep_size(core.joints),
             "scheduler": deep_size(core.scheduler),
-            "network queues": deep_size((self.uplink._queue, self.downlink._queue)),
+            "network model": deep_size((self.uplink, self.downlink)),
         }
 
 

@@ -16,7 +16,7 @@ from spec.params import FloatArray, Location, Matrix
 from spec.registry import SEAM_POINT_COLUMNS, CommandId
 from sync.experiment import ExperimentSettings, run_delay_experiment
 from sync.interpolate import lerp_inside
-from sync.udp import DelayLink
+from sync.network import DelayLink
 
 PAPER = CellTiming()  # 4 ms samples, 0.6 ms jitter, 10 µm noise
 

@@ -14,7 +14,8 @@ from hypothesis import strategies as st
 from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data
 from spec.registry import SEAM_POINT_COLUMNS
 from spec.wire import SensorStatus
-from sync.udp import DelayLink, RobotSyncCore, SyncStateError, TriggerScheduler, UdpSyncEndpoint
+from sync.network import DelayLink
+from sync.udp import RobotSyncCore, SyncStateError, TriggerScheduler, UdpSyncEndpoint
 
 PERIOD = 0.004
 
