@@ -35,7 +35,7 @@ from kinematics.transforms import location_to_transform
 from spec.client import FramedClient
 from spec.files import atomic_path, prepare_output_path, write_atomically
 from spec.params import FloatArray, IntArray, Location, Matrix, Value
-from spec.registry import SEAM_POINT_COLUMNS, CommandId
+from spec.registry import BY_ID, SEAM_POINT_COLUMNS, CommandId
 from sync.delay import DelayEstimate, ResidualReport, estimate_delay, residual_after_sync
 
 __all__ = [
@@ -198,8 +198,18 @@ def _matrix(v: Value) -> F64:
     return np.array(v.values, dtype=np.float64).reshape(v.rows, v.cols)
 
 
+def _reply(
+    client: FramedClient, command: CommandId, *params: Value, timeout: float | None = None
+) -> dict[str, Value]:
+    """``command``'s reply by the field names of the registry, not by position (the client
+    has checked the reply's types against the same registry entry)."""
+    values = client.call(command, *params, timeout=timeout)
+    return dict(zip((p.name for p in BY_ID[command].reply), values, strict=False))
+
+
 def _endpoint(sensor: FramedClient) -> tuple[str, int]:
-    host, port = sensor.call(CommandId.GET_TRIGGER_ENDPOINT)
+    reply = _reply(sensor, CommandId.GET_TRIGGER_ENDPOINT)
+    host, port = reply["host"], reply["port"]
     assert isinstance(host, str) and isinstance(port, int)
     if port == 0:
         raise ExperimentError("the sensor reports no UDP trigger endpoint")
@@ -237,17 +247,17 @@ def record_sine(
         sensor.hello()
         host, port = _endpoint(sensor)
         robot.call(CommandId.SET_SENSOR_ENDPOINT, host, port)
-    config = robot.call(CommandId.GET_SYNC_CONFIG)
-    if not config[1]:
+    config = _reply(robot, CommandId.GET_SYNC_CONFIG)
+    if not config["port"]:
         raise ExperimentError("the robot has no sensor endpoint: give --sensor")
-    tool = config[3]
+    tool = config["sensor2flange"]
     assert isinstance(tool, Location)
-    status = robot.call(CommandId.ROBOT_STATUS)
-    if not status[0]:
+    status = _reply(robot, CommandId.ROBOT_STATUS)
+    if not status["powered"]:
         robot.call(CommandId.ENABLE_POWER)
-    if status[2]:
+    if status["moving"]:
         robot.call(CommandId.WAIT_END_MOVE, 30.0, timeout=35.0)
-    (loc0,) = robot.call(CommandId.HERE, tool, _IDENTITY)
+    loc0 = _reply(robot, CommandId.HERE, tool, _IDENTITY)["location"]
     assert isinstance(loc0, Location)
     times, y = sine_path(s)
     locs = np.zeros((times.size, 6))
@@ -255,7 +265,7 @@ def record_sine(
     t_start = _f(robot.get_time())
     log_since = t_start - 0.1
     count = math.ceil((s.total_s + 0.1) * s.trigger_rate_hz)
-    (first,) = robot.call(CommandId.START_TRIGGERS, float(s.trigger_rate_hz), count)
+    first = _reply(robot, CommandId.START_TRIGGERS, float(s.trigger_rate_hz), count)["first_index"]
     assert isinstance(first, int)
     try:
         robot.call(
@@ -271,18 +281,16 @@ def record_sine(
         done = False
         while True:
             if not done:
-                (d,) = robot.call(
-                    CommandId.WAIT_END_MOVE, float(s.chunk_s), timeout=s.chunk_s + 10.0
+                waited = _reply(
+                    robot, CommandId.WAIT_END_MOVE, float(s.chunk_s), timeout=s.chunk_s + 10.0
                 )
-                done = bool(d)
-            (log,) = robot.call(CommandId.GET_JOINT_LOG, float(log_since))[:1]
-            rows = _matrix(log)
+                done = bool(waited["done"])
+            rows = _matrix(_reply(robot, CommandId.GET_JOINT_LOG, float(log_since))["log"])
             if rows.size:
                 logs.append(rows)
                 log_since = float(rows[-1, 0])
             while True:
-                (pts,) = robot.call(CommandId.GET_SEAM_POINTS, since_index)
-                prow = _matrix(pts)
+                prow = _matrix(_reply(robot, CommandId.GET_SEAM_POINTS, since_index)["points"])
                 if not prow.size:
                     break
                 points.append(prow)
@@ -295,10 +303,8 @@ def record_sine(
                 break
     finally:
         robot.call(CommandId.STOP_TRIGGERS)
-    stats_values = robot.call(CommandId.GET_SYNC_STATISTICS)
-    names = ("sent", "received", "matched", "lost", "late", "duplicate", "reordered",
-             "unknown", "expired", "malformed", "pending")  # fmt: skip
-    stats = {k: int(v) for k, v in zip(names, stats_values, strict=False) if isinstance(v, int)}
+    stats_reply = _reply(robot, CommandId.GET_SYNC_STATISTICS)
+    stats = {k: v for k, v in stats_reply.items() if isinstance(v, int)}
     if not logs or not points:
         raise ExperimentError(
             f"no data: {sum(len(x) for x in logs)} joint samples, "
