@@ -433,7 +433,7 @@ class SyncMatcher:
     def trajectory_arrays(
         self,
     ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
-        """Released points as arrays: indices (N,), t_sensor (N,) s, seam2base (N, 4, 4) mm.
+        """Released points as arrays: indices (M,), t_sensor (M,) s, seam2base (M, 4, 4) mm.
 
         Without kinematics the transforms are NaN.
         """

@@ -350,7 +350,7 @@ class RobotSyncCore:
             del self._row_index[:excess]
 
     def points_since(self, since: int, limit: int = 20_000) -> NDArray[np.float64]:
-        """Seam-point rows (N, 17) (columns ``SEAM_POINT_COLUMNS``) with index > ``since``,
+        """Seam-point rows (M, 17) (columns ``SEAM_POINT_COLUMNS``) with index > ``since``,
         in index order, at most ``limit`` of them."""
         with self.lock:
             self._flush()
