@@ -128,7 +128,7 @@ class _Soak:
         # the core's private stores, named here as the structures this soak is about
         return {
             "matcher": deep_size(core.matcher),
-            "seam-point rows": deep_size((core._rows, core._row_index, core._pending)),
+            "seam-point rows": deep_size((core._rows, core._pending)),
             "joint buffer": deep_size(core.joints),
             "scheduler": deep_size(core.scheduler),
             "network model": deep_size((self.uplink, self.downlink)),

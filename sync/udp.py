@@ -42,6 +42,7 @@ from sync.seam_chain import FlangeToBase, seam2base
 __all__ = [
     "MAX_RATE_HZ",
     "RobotSyncCore",
+    "SeamRows",
     "SyncStateError",
     "TriggerScheduler",
     "UdpSyncEndpoint",
@@ -149,6 +150,73 @@ class _Stats:
     unexpected: int = 0
 
 
+class SeamRows:
+    """Seam-point rows (M, 17) (columns ``SEAM_POINT_COLUMNS``) in release order, which is
+    index order, the newest ``capacity`` of them kept.
+
+    Stored as the blocks of rows each flush makes (small ones merged up to ``_ROW_BATCH``),
+    so a row costs its 17 floats, not an array object, and a read scans back over the
+    blocks it returns instead of converting every row's index on each GetSeamPoints (which
+    held the core's lock for milliseconds with 200,000 rows).
+    """
+
+    def __init__(self, capacity: int) -> None:
+        if capacity < 0:
+            raise SyncStateError(f"max_points must be >= 0, got {capacity}")
+        self.capacity = capacity
+        self._blocks: list[NDArray[np.float64]] = []
+        self._count = 0
+
+    def __len__(self) -> int:
+        return self._count
+
+    def append(self, rows: NDArray[np.float64]) -> None:
+        """Add rows (M, 17) newer than every row held; drop the oldest beyond capacity."""
+        if not len(rows):
+            return
+        blocks = self._blocks
+        if blocks and len(blocks[-1]) + len(rows) <= _ROW_BATCH:
+            blocks[-1] = np.concatenate((blocks[-1], rows))
+        else:
+            blocks.append(rows)
+        self._count += len(rows)
+        excess = self._count - self.capacity
+        while excess > 0:
+            first = blocks[0]
+            if len(first) <= excess:
+                del blocks[0]
+                dropped = len(first)
+            else:
+                blocks[0] = first[excess:].copy()  # a copy frees the dropped rows
+                dropped = excess
+            self._count -= dropped
+            excess -= dropped
+
+    def since(self, since: int, limit: int) -> NDArray[np.float64]:
+        """A copy of the rows with index > ``since``, oldest first, at most ``limit``."""
+        blocks = self._blocks
+        start = len(blocks)
+        while start > 0 and blocks[start - 1][0, 0] > since:
+            start -= 1
+        parts: list[NDArray[np.float64]] = []
+        if start > 0:  # the block before holds rows up to ``since`` and maybe a few after
+            block = blocks[start - 1]
+            k = int(np.searchsorted(block[:, 0], since, side="right"))
+            parts.append(block[k:])
+        parts.extend(blocks[start:])
+        out: list[NDArray[np.float64]] = []
+        need = max(limit, 0)
+        for part in parts:
+            if need <= 0:
+                break
+            if len(part):
+                out.append(part[:need])
+                need -= len(out[-1])
+        if not out:
+            return np.zeros((0, len(SEAM_POINT_COLUMNS)))
+        return np.concatenate(out)
+
+
 class RobotSyncCore:
     """The robot's synchronisation state, without I/O.
 
@@ -183,10 +251,8 @@ class RobotSyncCore:
         self._sensor2flange = (
             np.eye(4) if sensor2flange is None else np.asarray(sensor2flange, dtype=np.float64)
         )
-        self.max_points = max_points
         self._next_index = first_index % INDEX_MODULUS
-        self._rows: list[NDArray[np.float64]] = []
-        self._row_index: list[int] = []
+        self._rows = SeamRows(max_points)
         # Released points not yet turned into rows: converted in one batch when rows are read
         # (or the batch is full), not one datagram at a time.
         self._pending: list[SeamPoint] = []
@@ -342,24 +408,14 @@ class RobotSyncCore:
             joints = np.stack([p.joints for p in points])
             in_base = seam2base(joints, self._flange2base, self._sensor2flange, seam2sensor)
             rows[:, 11:17] = transforms_to_locations(in_base)
-        self._rows.extend(rows)
-        self._row_index.extend(p.index for p in points)
-        excess = len(self._rows) - self.max_points
-        if excess > 0:
-            del self._rows[:excess]
-            del self._row_index[:excess]
+        self._rows.append(rows)
 
     def points_since(self, since: int, limit: int = 20_000) -> NDArray[np.float64]:
         """Seam-point rows (M, 17) (columns ``SEAM_POINT_COLUMNS``) with index > ``since``,
         in index order, at most ``limit`` of them."""
         with self.lock:
             self._flush()
-            idx = np.asarray(self._row_index, dtype=np.int64)
-            k = int(np.searchsorted(idx, since, side="right")) if idx.size else 0
-            sel = self._rows[k : k + limit]
-            if not sel:
-                return np.zeros((0, len(SEAM_POINT_COLUMNS)))
-            return np.array(sel)
+            return self._rows.since(since, limit)
 
     def retained(self) -> dict[str, int]:
         """Items held by each long-lived structure; every one is bounded (by the matcher's

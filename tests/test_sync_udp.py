@@ -15,7 +15,7 @@ from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data
 from spec.registry import SEAM_POINT_COLUMNS
 from spec.wire import SensorStatus
 from sync.network import DelayLink
-from sync.udp import RobotSyncCore, SyncStateError, TriggerScheduler, UdpSyncEndpoint
+from sync.udp import RobotSyncCore, SeamRows, SyncStateError, TriggerScheduler, UdpSyncEndpoint
 
 PERIOD = 0.004
 
@@ -174,6 +174,36 @@ def test_memory_stays_bounded_over_many_triggers() -> None:
     assert core.points_since(-1).shape[0] == 1000
     kept = core.retained()
     assert kept["rows"] == 1000 and kept["pending_points"] == 0 and kept["trigger_log"] == 8192
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.integers(0, 1500), min_size=1, max_size=12),
+    st.integers(0, 3000),
+    st.lists(st.tuples(st.integers(-2, 8000), st.integers(0, 2500)), min_size=1, max_size=5),
+)
+def test_seam_rows_keep_the_newest_and_read_like_a_list(
+    batches: list[int], capacity: int, reads: list[tuple[int, int]]
+) -> None:
+    """Blocks of rows in, reads by index: the same rows as a plain list of every row with the
+    oldest dropped beyond capacity (the store it replaces)."""
+    store = SeamRows(capacity)
+    plain: list[list[float]] = []
+    index = 0
+    for size in batches:
+        rows = np.zeros((size, len(SEAM_POINT_COLUMNS)))
+        rows[:, 0] = np.arange(index, index + size) * 2  # gaps, as lost triggers leave
+        rows[:, 1] = np.arange(size) * 0.5
+        index += size
+        store.append(rows)
+        plain.extend(rows.tolist())
+        del plain[: max(len(plain) - capacity, 0)]
+        assert len(store) == len(plain)
+        for since, limit in reads:
+            want = [r for r in plain if r[0] > since][:limit]
+            got = store.since(since, limit)
+            assert got.shape == (len(want), len(SEAM_POINT_COLUMNS))
+            assert got.tolist() == want
 
 
 def test_malformed_datagrams_are_counted_and_dropped() -> None:
