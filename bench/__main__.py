@@ -5,7 +5,6 @@ Usage: ``python -m bench [-o bench-results/results.json] [--only AREA ...]``
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import json
 import logging
@@ -15,6 +14,7 @@ from pathlib import Path
 
 import bench
 from bench.common import Result
+from spec import cliargs
 from spec.files import write_atomically
 
 
@@ -28,7 +28,7 @@ def _modules(only: list[str]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m bench", description=__doc__)
+    parser = cliargs.Parser(prog="python -m bench", description=__doc__)
     parser.add_argument("-o", "--output", type=Path, default=Path("bench-results/results.json"))
     parser.add_argument("--only", nargs="*", default=[], help="areas to run, e.g. spec kinematics")
     args = parser.parse_args(argv)

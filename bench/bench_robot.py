@@ -14,8 +14,9 @@ from kinematics.robot import get_model
 from robotsocket.client import RobotClient
 from robotsocket.emulator import RobotEmulator
 from robotsocket.interface import MotionDesc
+from robotsocket.paths import plan_joint, plan_linear
 from robotsocket.service import RobotService
-from robotsocket.trajectory import PERIOD, TrajectoryGenerator, plan_joint, plan_linear
+from robotsocket.trajectory import PERIOD, TrajectoryGenerator
 from spec.codec import encode_packet, request
 from spec.params import Joints
 from spec.registry import CommandId

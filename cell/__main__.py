@@ -20,7 +20,7 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
 
 import numpy as np
 
@@ -28,7 +28,7 @@ from cell.cell import CellError, CellTiming, EmulatedCell
 from cell.options import add_timing_options, timing_kwargs
 from sensorsocket.pgm import write_pgm
 from spec import cliargs
-from spec.client import FramedClient
+from spec.client import FramedClient, wait_end_move
 from spec.errors import ProtocolError
 from spec.params import Image, Joints, Location
 from spec.registry import CommandId
@@ -38,14 +38,9 @@ from sync.experiment import ExperimentError, ExperimentSettings, run_delay_exper
 log = logging.getLogger("cell")
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> NoReturn:  # one line, exit 2
-        self.exit(2, f"{self.prog}: error: {message}\n")
-
-
-def _parser() -> _Parser:
-    p = _Parser(prog="python -m cell", description="The emulated robot + sensor work cell.")
-    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+def _parser() -> cliargs.Parser:
+    p = cliargs.Parser(prog="python -m cell", description="The emulated robot + sensor work cell.")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=cliargs.Parser)
     for name, text in (("serve", "serve the cell until Ctrl-C"), ("demo", "the make demo tour")):
         s = sub.add_parser(name, help=text)
         s.add_argument("--host", default="127.0.0.1")
@@ -57,16 +52,22 @@ def _parser() -> _Parser:
         s.add_argument("--model", default="RX90B")
         s.add_argument("--joint", choices=("butt", "fillet", "lap"), default="butt")
         s.add_argument("--seam", choices=("straight", "sine"), default="straight")
-        s.add_argument("--seed", type=int, default=0)
+        s.add_argument("--seed", type=cliargs.seed, default=0)
         s.add_argument("-v", "--verbose", action="store_true")
         add_timing_options(s)
         if name == "demo":
             s.add_argument("--out", default="out", help="directory for the frame and plots")
             s.add_argument(
-                "--duration", type=cliargs.positive_float, default=4.0, help="sine duration (s)"
+                "--duration",
+                type=cliargs.number_in(0.01, 3600.0),
+                default=4.0,
+                help="sine duration (s, 0.01..3600)",
             )
             s.add_argument(
-                "--rate", type=cliargs.positive_float, default=100.0, help="trigger rate (Hz)"
+                "--rate",
+                type=cliargs.number_in(0.1, 10000.0),
+                default=100.0,
+                help="trigger rate (Hz, 0.1..10000)",
             )
             s.add_argument("--no-conformance", action="store_true")
     return p
@@ -114,7 +115,7 @@ def _robot_tour(robot: FramedClient) -> None:
     away = list(q.values)
     away[0] += 10.0
     robot.call(CommandId.JOINT_MOVE, Joints(away))
-    robot.call(CommandId.WAIT_END_MOVE, 10.0, timeout=15.0)
+    wait_end_move(robot, 10.0)
     config = robot.call(CommandId.GET_SYNC_CONFIG)
     tool = config[3]
     world = Location(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -122,7 +123,7 @@ def _robot_tour(robot: FramedClient) -> None:
     assert isinstance(here, Location)
     print(f"  JointMove(joint 1 + 10 deg); Here(sensor tool) = {_fmt(here.as_tuple())}")
     robot.call(CommandId.JOINT_MOVE, Joints(list(q.values)))
-    robot.call(CommandId.WAIT_END_MOVE, 10.0, timeout=15.0)
+    wait_end_move(robot, 10.0)
     (here,) = robot.call(CommandId.HERE, tool, world)
     assert isinstance(here, Location)
     print(f"  back over the seam:      Here(sensor tool) = {_fmt(here.as_tuple())}")

@@ -24,13 +24,17 @@ _OPTIONS: tuple[tuple[str, str, float, float, str], ...] = (
 )
 
 
+#: The times (ms, and the noise in µm) are bounded where the emulator's buffers and waits
+#: still make sense; beyond that a value is a typo, refused before the cell starts.
+_TIME_MS = cliargs.number_in(0.0, 1000.0)
+_POLL_HZ = cliargs.number_in(1.0, 1e6)
+
+
 def add_timing_options(parser: argparse.ArgumentParser) -> None:
     """Add the timing options (group "cell timing")."""
     group = parser.add_argument_group("cell timing (the true ΔT follows from these)")
     for option, _field, _factor, default, text in _OPTIONS:
-        kind = (
-            cliargs.positive_float if option == "--trigger-poll-hz" else cliargs.nonnegative_float
-        )
+        kind = _POLL_HZ if option == "--trigger-poll-hz" else _TIME_MS
         group.add_argument(option, type=kind, default=default, help=f"{text}, default {default:g}")
 
 

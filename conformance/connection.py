@@ -76,6 +76,8 @@ class Conn:
         )
         self.events_seen = 0
         self.closed = False
+        #: Control lease (s) the endpoint granted this connection, None when it has none.
+        self.lease: float | None = None
         self._next_id = 1
         #: Set by the context: True when the endpoint still answers on a new connection.
         self.alive: Callable[[], bool] | None = None

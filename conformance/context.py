@@ -17,6 +17,7 @@ from conformance.model import (
     NotApplicable,
     Skip,
 )
+from spec.errors import ErrorCode
 from spec.params import IntArray, Value
 from spec.registry import BY_ID, CommandId, commands_for
 from spec.wire import PacketKind
@@ -34,6 +35,10 @@ HELLO_FIELDS = (
     "idle_timeout",
     "frame_timeout",
 )
+
+
+#: Lease the harness asks for at TakeControl (s): its cases pause for seconds at a time.
+HARNESS_LEASE = 10.0
 
 
 @dataclass
@@ -176,11 +181,21 @@ class Context:
             self._conns.append(conn)
         return conn
 
-    def take_control(self, conn: Conn) -> None:
-        answer = conn.call(CommandId.TAKE_CONTROL, self.options.token)
+    def take_control(self, conn: Conn, watchdog: float | None = HARNESS_LEASE) -> None:
+        """TakeControl, asking for a lease long enough for the harness's pauses [RS-7.13];
+        an endpoint without the watchdog parameter (1.0) or with a shorter maximum is asked
+        again without it. ``conn.lease`` is what it granted."""
+        token = self.options.token
+        asked: tuple[Value, ...] = (token,) if watchdog is None else (token, float(watchdog))
+        answer = conn.call(CommandId.TAKE_CONTROL, *asked)
+        refused = (answer.error or (0, ""))[0] if answer.kind is PacketKind.ERROR else 0
+        if watchdog is not None and refused in (ErrorCode.BAD_PARAMETERS, ErrorCode.OUT_OF_RANGE):
+            answer = conn.call(CommandId.TAKE_CONTROL, token)
         if answer.kind is PacketKind.ERROR:
             code, message = answer.error or (0, "")
             raise Skip(f"cannot take control of the endpoint (error {code}: {message})")
+        granted = answer.params[0] if answer.params else None
+        conn.lease = granted if isinstance(granted, float) else None
 
     def alive(self) -> bool:
         """True when a new connection's Ping is echoed (quietly; not part of the wire log)."""

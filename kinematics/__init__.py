@@ -5,6 +5,7 @@ See ``kinematics/CONVENTIONS.md`` for units, frames, joint zero and directions.
 
 from __future__ import annotations
 
+from kinematics.config import CONFIGS, Config, ConfigRequest
 from kinematics.errors import (
     JointLimitError,
     KinematicsError,
@@ -12,18 +13,8 @@ from kinematics.errors import (
     UnknownModelError,
     UnreachableError,
 )
-from kinematics.robot import (
-    CONFIGS,
-    DEFAULT_MODEL,
-    Config,
-    ConfigRequest,
-    IkBatch,
-    IkSolution,
-    RobotModel,
-    get_model,
-    list_models,
-    load_model,
-)
+from kinematics.ik import IkBatch, IkSolution
+from kinematics.robot import DEFAULT_MODEL, RobotModel, get_model, list_models, load_model
 from kinematics.transforms import (
     check_transform,
     concat,

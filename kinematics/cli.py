@@ -25,6 +25,9 @@ from kinematics.transforms import (
     transform_to_location,
 )
 
+#: Largest coordinate (mm) or angle (deg) on the command line.
+_LARGEST = 1e6
+
 _VALUE_OPTIONS = ("--joints", "--tool", "--frame", "--location", "--near", "--config", "--model")
 
 
@@ -47,6 +50,9 @@ def _six(text: str, what: str) -> list[float]:
         raise KinematicsError(f"{what}: not a number in {text!r}") from None
     if not all(math.isfinite(v) for v in vals):
         raise KinematicsError(f"{what}: contains NaN or infinity")
+    if any(abs(v) > _LARGEST for v in vals):
+        # A kilometre or a thousand turns: a typo, not a pose (and squares would overflow).
+        raise KinematicsError(f"{what}: values must be within ±{_LARGEST:g}")
     return vals
 
 

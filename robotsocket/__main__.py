@@ -20,7 +20,6 @@ import logging
 import sys
 import time
 from collections.abc import Sequence
-from pathlib import Path
 
 from kinematics.errors import KinematicsError
 from robotsocket.client import RobotClient
@@ -30,7 +29,7 @@ from robotsocket.sync_service import attach_udp_sync
 from spec import callcli, cliargs
 from spec.client import ClientTimeout, ConnectionClosed
 from spec.errors import ProtocolError, RemoteError
-from spec.server import FramedServer, ServerPolicy, parse_networks, serve_until_signal
+from spec.server import FramedServer, ServerPolicy, serve_until_signal
 
 log = logging.getLogger("robotsocket")
 
@@ -48,33 +47,28 @@ def parse_endpoint(text: str) -> tuple[str, int]:
         raise CliError(str(exc)) from None
 
 
-def read_token(path: Path | None) -> str:
-    try:
-        return callcli.read_token(path)
-    except ValueError as exc:
-        raise CliError(str(exc)) from None
-
-
 # --- serve ------------------------------------------------------------------------------------
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
-    token = read_token(args.token_file) if args.token_file else None
-    if args.token_file and not token:
-        raise CliError(f"token file {args.token_file} is empty")
+    token: str | None = args.token  # read (and refused if empty) by cliargs.token_file
+    allow = tuple(args.allow or ())
     try:
-        allow = parse_networks(args.allow or [])
         robot = RobotEmulator(
             args.model, clock=args.clock, encoder_latency=args.encoder_latency_ms / 1000.0
         )
     except (ValueError, KinematicsError) as exc:
         raise CliError(str(exc)) from None
-    policy = ServerPolicy(max_clients=args.max_clients, allow=allow, token=token)
+    policy = ServerPolicy(
+        max_clients=args.max_clients, allow=allow, token=token, watchdog=args.watchdog
+    )
     service = RobotService(robot)
     try:
         # The synchronisation commands (0x3001-0x3009) and their UDP endpoint, registered
         # before the server reads the service's command list.
         _, endpoint = attach_udp_sync(service, robot, host=args.host, port=args.udp_port)
+        endpoint.allow = allow  # [SY-1.5] the UDP port honours --allow too
+        endpoint.sensor_only = not args.data_from_any  # [SY-3.7]
         server = FramedServer(service, args.host, args.port, policy)
     except OSError as exc:
         raise CliError(f"cannot listen on {args.host}:{args.port}: {exc.strerror}") from None
@@ -92,6 +86,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
     print(f"listening on {server.address[0]}:{server.address[1]}", flush=True)
 
     def on_stop() -> None:
+        if endpoint.dropped:
+            log.info("udp datagrams dropped: %s", dict(endpoint.dropped))
         endpoint.stop()
         robot.close()
         j = robot.jitter()
@@ -115,7 +111,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
 def cmd_call(args: argparse.Namespace) -> int:
     return callcli.main_call(
         "robot", DEFAULT_PORT, args.endpoint, args.command, args.args, args.timeout,
-        read_token(args.token_file), None if args.no_wait else args.wait,
+        args.token, None if args.no_wait else args.wait,
     )  # fmt: skip
 
 
@@ -145,43 +141,80 @@ def cmd_watch(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m robotsocket", description=__doc__.split("\n")[0])
+    p = cliargs.Parser(prog="python -m robotsocket", description=__doc__.split("\n")[0])
     p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
-    sub = p.add_subparsers(dest="cmd", required=True)
+    sub = p.add_subparsers(dest="cmd", required=True, parser_class=cliargs.Parser)
     s = sub.add_parser("serve", help="run the RobotSocket server with the emulator")
     s.add_argument("--model", default="RX90B", help="RX90B (default), RX130B, RX160, TX90")
     s.add_argument("--host", default="127.0.0.1", help="listen address (default loopback)")
     s.add_argument("--port", type=cliargs.port, default=4000)
     s.add_argument("--clock", choices=("real", "sim"), default="real")
-    s.add_argument("--allow", nargs="*", metavar="CIDR", help="client networks allowed")
-    s.add_argument("--token-file", type=Path, help="file holding the TakeControl token")
-    s.add_argument("--encoder-latency-ms", type=cliargs.nonnegative_float, default=0.0)
+    s.add_argument(
+        "--allow",
+        nargs="+",
+        type=cliargs.network,
+        metavar="CIDR",
+        help="networks allowed to connect (TCP) and to send datagrams (UDP); default any",
+    )
+    s.add_argument(
+        "--token-file",
+        dest="token",
+        type=cliargs.token_file,
+        metavar="FILE",
+        help="file holding the TakeControl token (one line)",
+    )
+    s.add_argument(
+        "--encoder-latency-ms",
+        type=cliargs.number_in(0.0, 1000.0),
+        default=0.0,
+        help="measured joints lag the setpoints by this (ms, 0..1000)",
+    )
     s.add_argument(
         "--udp-port",
         type=cliargs.port,
         default=0,
         help="UDP port of the trigger/data endpoint (0 = any)",
     )
-    s.add_argument("--max-clients", type=cliargs.positive_int, default=64)
+    s.add_argument(
+        "--data-from-any",
+        action="store_true",
+        help="accept data datagrams from any source, not only the sensor endpoint set by "
+        "SetSensorEndpoint (for a sensor that replies from another port)",
+    )
+    s.add_argument("--max-clients", type=cliargs.int_in(1, 65535), default=64)
+    s.add_argument(
+        "--watchdog",
+        type=cliargs.watchdog,
+        default=ServerPolicy.watchdog,
+        metavar="S",
+        help="control lease when TakeControl names none (s, default %(default)g)",
+    )
     s.set_defaults(fn=cmd_serve)
     c = sub.add_parser("call", help="send one command, print the reply as JSON")
     c.add_argument("endpoint", metavar="HOST:PORT")
     c.add_argument("command", help="command name, case-insensitive (e.g. herej)")
     c.add_argument("args", nargs="*", help="parameters (joints as 0,-30,90,0,60,0)")
-    c.add_argument("--token-file", type=Path, help="token for TakeControl")
-    c.add_argument("--timeout", type=cliargs.positive_float, default=5.0, help="reply timeout (s)")
     c.add_argument(
-        "--wait", type=cliargs.positive_float, default=60.0, help="max wait for a move to end (s)"
+        "--token-file",
+        dest="token",
+        type=cliargs.token_file,
+        metavar="FILE",
+        help="file holding the TakeControl token (one line)",
     )
+    c.add_argument("--timeout", type=cliargs.timeout, default=5.0, help="reply timeout (s)")
+    c.add_argument("--wait", type=cliargs.timeout, default=60.0, help="max wait for a move (s)")
     c.add_argument("--no-wait", action="store_true", help="do not wait for a move to end")
     c.set_defaults(fn=cmd_call)
     w = sub.add_parser("watch", help="show live status and joints")
     w.add_argument("endpoint", metavar="HOST:PORT")
     w.add_argument("--count", type=cliargs.positive_int, help="stop after N lines")
     w.add_argument(
-        "--interval", type=cliargs.nonnegative_float, default=0.5, help="seconds between lines"
+        "--interval",
+        type=cliargs.number_in(0.0, cliargs.MAX_TIMEOUT),
+        default=0.5,
+        help="seconds between lines",
     )
-    w.add_argument("--timeout", type=cliargs.positive_float, default=5.0)
+    w.add_argument("--timeout", type=cliargs.timeout, default=5.0)
     w.set_defaults(fn=cmd_watch)
     return p
 

@@ -10,7 +10,9 @@ Example::
         print(robot.herej())
 
 Every error packet raises a :class:`RobotRemoteError` subclass chosen by its error code
-(``NotPoweredError``, ``NotInControlError``, ...) carrying ``code`` and ``message``.
+(``NotPoweredError``, ``NotInControlError``, ...) carrying ``code`` and ``message``. Where the
+robot API has the same failure, the class is also that :mod:`robotsocket.interface` error
+(``except interface.NotPoweredError`` catches it from an emulator and from a server alike).
 """
 
 from __future__ import annotations
@@ -19,23 +21,20 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
-from spec.client import ClientTimeout, ConnectionClosed, FramedClient
+from robotsocket import interface
+from robotsocket.interface import IDENTITY_LOC, Array, Loc, MotionDesc
+from spec.client import ClientTimeout, ConnectionClosed, FramedClient, wait_end_move
 from spec.errors import ErrorCode, RemoteError
 from spec.params import Joints, Location, Matrix, Value
 from spec.registry import CommandId
-
-Array = npt.NDArray[np.float64]
-Loc = tuple[float, float, float, float, float, float]
-IDENTITY: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 class RobotRemoteError(RemoteError):
     """An error packet from the robot server; ``code`` (ErrorCode) and ``message``."""
 
 
-class NotPoweredError(RobotRemoteError):
+class NotPoweredError(RobotRemoteError, interface.NotPoweredError):
     pass
 
 
@@ -43,23 +42,27 @@ class NotInControlError(RobotRemoteError):
     pass
 
 
-class EmergencyStopError(RobotRemoteError):
+class EmergencyStopError(RobotRemoteError, interface.EmergencyStopError):
     pass
 
 
-class OutOfRangeError(RobotRemoteError):
+class OutOfRangeError(RobotRemoteError, interface.OutOfRangeError):
     pass
 
 
-class UnreachableError(RobotRemoteError):
+class UnreachableError(RobotRemoteError, interface.UnreachableError):
     pass
 
 
-class SingularityError(RobotRemoteError):
+class SingularityError(RobotRemoteError, interface.SingularityError):
     pass
 
 
-class BusyError(RobotRemoteError):
+class BusyError(RobotRemoteError, interface.BusyError):
+    pass
+
+
+class BadStateError(RobotRemoteError, interface.BadStateError):
     pass
 
 
@@ -67,7 +70,7 @@ class AuthError(RobotRemoteError):
     pass
 
 
-class BadParametersError(RobotRemoteError):
+class BadParametersError(RobotRemoteError, interface.InvalidArgumentError):
     pass
 
 
@@ -83,6 +86,7 @@ _ERRORS: dict[int, type[RobotRemoteError]] = {
     ErrorCode.UNREACHABLE: UnreachableError,
     ErrorCode.SINGULARITY: SingularityError,
     ErrorCode.BUSY: BusyError,
+    ErrorCode.BAD_STATE: BadStateError,
     ErrorCode.AUTH_FAILED: AuthError,
     ErrorCode.BAD_PARAMETERS: BadParametersError,
     ErrorCode.UNKNOWN_COMMAND: UnknownCommandError,
@@ -102,18 +106,6 @@ class Status:
     last_error: int
     last_message: str
     time: float
-
-
-@dataclass(frozen=True, slots=True)
-class MotionDesc:
-    """Motion descriptor: joint speed/accel/decel in %, tool speed mm/s and deg/s, blend mm."""
-
-    joint_speed: float = 10.0
-    joint_accel: float = 100.0
-    joint_decel: float = 100.0
-    tool_speed: float = 250.0
-    tool_rot_speed: float = 90.0
-    blend: float = 0.0
 
 
 def _location(values: Sequence[float] | Location) -> Location:
@@ -153,8 +145,8 @@ class RobotClient(FramedClient):
 
     def here(
         self,
-        tool: Sequence[float] | Location = IDENTITY,
-        frame: Sequence[float] | Location = IDENTITY,
+        tool: Sequence[float] | Location = IDENTITY_LOC,
+        frame: Sequence[float] | Location = IDENTITY_LOC,
     ) -> Loc:
         """Location of ``tool`` (relative to the flange) in ``frame`` (relative to the base)."""
         (loc,) = self.call(CommandId.HERE, _location(tool), _location(frame))
@@ -191,8 +183,8 @@ class RobotClient(FramedClient):
     def tool_move_j(
         self,
         loc: Sequence[float] | Location,
-        tool: Sequence[float] | Location = IDENTITY,
-        frame: Sequence[float] | Location = IDENTITY,
+        tool: Sequence[float] | Location = IDENTITY_LOC,
+        frame: Sequence[float] | Location = IDENTITY_LOC,
     ) -> int:
         (mid,) = self.call(CommandId.TOOL_MOVE_J, _location(loc), _location(tool), _location(frame))
         assert isinstance(mid, int)
@@ -201,8 +193,8 @@ class RobotClient(FramedClient):
     def tool_move_l(
         self,
         loc: Sequence[float] | Location,
-        tool: Sequence[float] | Location = IDENTITY,
-        frame: Sequence[float] | Location = IDENTITY,
+        tool: Sequence[float] | Location = IDENTITY_LOC,
+        frame: Sequence[float] | Location = IDENTITY_LOC,
     ) -> int:
         (mid,) = self.call(CommandId.TOOL_MOVE_L, _location(loc), _location(tool), _location(frame))
         assert isinstance(mid, int)
@@ -223,11 +215,9 @@ class RobotClient(FramedClient):
         return MotionDesc(*self.call(CommandId.GET_MOTION_DESC))  # type: ignore[arg-type]
 
     def wait_end_move(self, timeout: float = 60.0) -> bool:
-        """True when the arm settled, False when ``timeout`` s passed first (the socket
-        timeout is extended by the wait)."""
-        (done,) = self.call(CommandId.WAIT_END_MOVE, float(timeout), timeout=timeout + self.timeout)
-        assert isinstance(done, bool)
-        return done
+        """True when the arm settled, False when ``timeout`` s passed first. While control is
+        held the wait goes out in pieces shorter than the control lease [RS-7.13]."""
+        return wait_end_move(self, timeout)
 
     def stop_move(self) -> None:
         self.call(CommandId.STOP_MOVE)
@@ -263,6 +253,7 @@ class RobotClient(FramedClient):
 __all__ = [
     "AuthError",
     "BadParametersError",
+    "BadStateError",
     "BusyError",
     "ClientTimeout",
     "ConnectionClosed",

@@ -1,7 +1,8 @@
-"""The two robot clocks: simulated (advanced explicitly) and real time (a 4 ms thread).
+"""The two robot cycle loops: simulated (advanced explicitly) and real time (a 4 ms thread).
 
 Both drive the same tick function with the cycle index k; the sample time is t_k = k * T_r.
-:class:`SimClock` never advances by itself: the owner calls :meth:`SimClock.advance`.
+:class:`SimLoop` never advances by itself: the owner calls :meth:`SimLoop.advance` (it counts
+cycles; the sensor's :class:`sensorsocket.sensor.SimClock` is a settable clock in seconds).
 :class:`RealTimeLoop` ticks on absolute deadlines start + k * T_r from ``time.monotonic_ns``
 and waits on an :class:`threading.Event` with a timeout (so ``stop`` wakes it at once), not
 on short sleeps; late ticks are run back to back so k stays on the time axis. It records the
@@ -21,8 +22,8 @@ log = logging.getLogger(__name__)
 Tick = Callable[[int], None]
 
 
-class SimClock:
-    """Deterministic clock: ``advance(n)`` runs n ticks, as fast as the CPU allows."""
+class SimLoop:
+    """Deterministic cycle loop: ``advance(n)`` runs n ticks, as fast as the CPU allows."""
 
     simulated = True
 

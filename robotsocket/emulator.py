@@ -20,14 +20,13 @@ from __future__ import annotations
 import logging
 import math
 import threading
+import time
 from collections import deque
 from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from kinematics.errors import JointLimitError, KinematicsError
-from kinematics.errors import SingularityError as KinSingularityError
-from kinematics.errors import UnreachableError as KinUnreachableError
+from kinematics.errors import KinematicsError
 from kinematics.robot import RobotModel, get_model
 from kinematics.transforms import (
     invert,
@@ -35,7 +34,7 @@ from kinematics.transforms import (
     locations_to_transforms,
     transform_to_location,
 )
-from robotsocket.clock import RealTimeLoop, SimClock
+from robotsocket.clock import RealTimeLoop, SimLoop
 from robotsocket.interface import (
     IDENTITY_LOC,
     Array,
@@ -51,11 +50,11 @@ from robotsocket.interface import (
     RobotInfo,
     RobotInterface,
     RobotStatus,
-    SingularityError,
-    UnreachableError,
+    robot_error,
 )
+from robotsocket.paths import Move, plan_joint, plan_linear
 from robotsocket.timed_path import plan_timed
-from robotsocket.trajectory import PERIOD, Move, TrajectoryGenerator, plan_joint, plan_linear
+from robotsocket.trajectory import PERIOD, TrajectoryGenerator
 from sync.joint_buffer import JointBuffer
 
 log = logging.getLogger(__name__)
@@ -66,6 +65,8 @@ OUTPUTS = ("laser", "gas", "crossjet")
 INPUTS = ("laser_ready", "gas_pressure_ok", "door_closed")
 #: Moves that may wait in the queue.
 MAX_QUEUE = 256
+#: Cycles a held simulated arm advances per lock hold (~4 ms of CPU).
+_SIM_SLICE = 250
 
 CycleHook = Callable[[float, Array, Array], None]
 
@@ -130,10 +131,10 @@ class RobotEmulator(RobotInterface):
         self._buffer.append(0.0, q0)
         self._idle_since = 0.0
         self.cycle_hooks: list[CycleHook] = []
-        self._simclock: SimClock | None = None
+        self._simclock: SimLoop | None = None
         self._loop: RealTimeLoop | None = None
         if clock == "sim":
-            self._simclock = SimClock(period, self._tick)
+            self._simclock = SimLoop(period, self._tick)
         else:
             self._loop = RealTimeLoop(period, self._tick)
 
@@ -290,7 +291,7 @@ class RobotEmulator(RobotInterface):
                 self._last_error = exc
                 raise
             except KinematicsError as exc:
-                err = _robot_error(exc)
+                err = robot_error(exc)
                 self._last_error = err
                 raise err from None
             assert isinstance(move, Move)
@@ -341,6 +342,7 @@ class RobotEmulator(RobotInterface):
         )
 
     def set_motion_desc(self, desc: MotionDesc) -> None:
+        desc.check()
         with self._lock:
             self._desc = desc
 
@@ -351,22 +353,36 @@ class RobotEmulator(RobotInterface):
     def wait_end_move(self, timeout: float) -> bool:
         if not (math.isfinite(timeout) and 0.0 < timeout <= 3600.0):
             raise OutOfRangeError(f"timeout must be in (0, 3600] s, got {timeout}")
+        if self._simclock is not None:
+            return self._advance_until_settled(timeout)
         with self._lock:
-            if self._simclock is not None:
-                # Simulated clock: waiting *is* advancing the clock.
-                end = self._simclock.cycle + math.ceil(timeout / self.period)
-                while not self._settled() and self._simclock.cycle < end:
-                    if self._gen.held and not self._gen.in_motion:
-                        # Held by StopMove: nothing can change; let the time pass in one go.
-                        self._simclock.advance(end - self._simclock.cycle)
-                        break
-                    self._simclock.advance(1)
-                return self._settled()
             self._waiters += 1
             try:
                 return self._cond.wait_for(self._settled, timeout)
             finally:
                 self._waiters -= 1
+
+    def _advance_until_settled(self, timeout: float) -> bool:
+        """Simulated clock: waiting *is* advancing the clock. The lock is taken per slice
+        of cycles, so other connections (EmergencyStop, a controller that is lost) get in
+        between and a long wait never freezes the server."""
+        assert self._simclock is not None
+        clock = self._simclock
+        with self._lock:
+            end = clock.cycle + math.ceil(timeout / self.period)
+        while True:
+            with self._lock:
+                if self._settled() or clock.cycle >= end:
+                    return self._settled()
+                if self._gen.held and not self._gen.in_motion:
+                    # Held by StopMove: nothing changes until a command does.
+                    n = min(end - clock.cycle, _SIM_SLICE)
+                else:
+                    n = 1
+                clock.advance(n)
+            # Hand the lock over: a thread blocked on it wakes, but without this the waiter
+            # would take it again before that thread gets the interpreter.
+            time.sleep(0)
 
     def stop_move(self) -> None:
         with self._lock:
@@ -386,10 +402,19 @@ class RobotEmulator(RobotInterface):
             self._last_error = None
 
     def on_control_lost(self) -> None:
+        """[RS-7.10] The laser goes off before anything else, then the arm decelerates along
+        its path and the queue is dropped, then gas and crossjet go off; power stays."""
         with self._lock:
+            if self._outputs["laser"]:
+                self._outputs["laser"] = False
+                log.warning("controller lost: laser off")
             if not self._gen.idle:
                 log.warning("controller lost: decelerating along the path and dropping the queue")
             self._gen.reset()
+            for name in ("crossjet", "gas"):
+                if self._outputs[name]:
+                    self._outputs[name] = False
+                    log.warning("controller lost: %s off", name)
 
     def emergency_stop(self) -> None:
         with self._lock:
@@ -446,13 +471,3 @@ class RobotEmulator(RobotInterface):
             times, joints = self._buffer.since(since)
         keep = times > since
         return times[keep], joints[keep]
-
-
-def _robot_error(exc: KinematicsError) -> RobotError:
-    if isinstance(exc, KinUnreachableError):
-        return UnreachableError(str(exc))
-    if isinstance(exc, KinSingularityError):
-        return SingularityError(str(exc))
-    if isinstance(exc, JointLimitError):
-        return OutOfRangeError(str(exc))
-    return InvalidArgumentError(str(exc))

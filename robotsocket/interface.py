@@ -4,7 +4,11 @@
 section III): an adapter for a real controller subclasses :class:`RobotInterface`; the
 emulator (:mod:`robotsocket.emulator`) is one implementation. Methods take and return plain
 Python and numpy values in VAL3 units (mm, degrees, seconds); no wire types appear here.
-Failures raise a :class:`RobotError` subclass; the service maps each to its wire error code.
+
+Failures raise a :class:`RobotError` subclass, the one family of robot errors: the service
+maps each to its wire error code, :class:`~robotsocket.client.RobotClient` raises the same
+classes (as remote errors) for the error packets it receives, and :func:`robot_error` says
+which one a :class:`~kinematics.errors.KinematicsError` becomes.
 """
 
 from __future__ import annotations
@@ -15,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+
+from kinematics import errors as kin
 
 Array = npt.NDArray[np.float64]
 #: A VAL3 location: x, y, z (mm), rx, ry, rz (degrees), R = Rx(rx)·Ry(ry)·Rz(rz).
@@ -58,6 +64,24 @@ class BadStateError(RobotError):
     """Not allowed in the current state."""
 
 
+#: Kinematics errors and the robot error each is reported as (checked in this order).
+_FROM_KINEMATICS: tuple[tuple[type[kin.KinematicsError], type[RobotError]], ...] = (
+    (kin.UnreachableError, UnreachableError),
+    (kin.SingularityError, SingularityError),
+    (kin.JointLimitError, OutOfRangeError),
+)
+
+
+def robot_error(exc: kin.KinematicsError) -> RobotError:
+    """The robot error for a kinematics error, same message: out of reach, singular, outside
+    a joint limit; any other bad input (shape, NaN, non-rigid transform) is an invalid
+    argument."""
+    for kin_type, robot_type in _FROM_KINEMATICS:
+        if isinstance(exc, kin_type):
+            return robot_type(str(exc))
+    return InvalidArgumentError(str(exc))
+
+
 @dataclass(frozen=True, slots=True)
 class MotionDesc:
     """Motion descriptor (VAL3 mdesc) for the moves queued after it.
@@ -66,6 +90,10 @@ class MotionDesc:
     and deceleration (0 < v <= 100). tool_speed: mm/s, tool_rot_speed: deg/s (Cartesian
     limits, also applied to ToolMoveL only). blend: mm; 0 stops at each target, > 0 blends
     into the next queued move once the remaining path is shorter than ``blend``.
+
+    The same value travels through the client, the service and the robot. Building one
+    checks nothing, so a client can send any descriptor; the robot that is given one checks
+    it (:meth:`check`).
     """
 
     joint_speed: float = 10.0
@@ -75,7 +103,8 @@ class MotionDesc:
     tool_rot_speed: float = 90.0
     blend: float = 0.0
 
-    def __post_init__(self) -> None:
+    def check(self) -> MotionDesc:
+        """``self`` when every field is inside its range, else OutOfRangeError."""
         for name in ("joint_speed", "joint_accel", "joint_decel"):
             v = float(getattr(self, name))
             if not (math.isfinite(v) and 0.0 < v <= 100.0):
@@ -86,6 +115,7 @@ class MotionDesc:
                 raise OutOfRangeError(f"{name} must be > 0, got {v}")
         if not (math.isfinite(self.blend) and self.blend >= 0.0):
             raise OutOfRangeError(f"blend must be >= 0 mm, got {self.blend}")
+        return self
 
 
 @dataclass(frozen=True, slots=True)
@@ -159,7 +189,9 @@ class RobotInterface(ABC):
         """Queue a straight-line move of ``tool`` to ``loc`` in ``frame``."""
 
     @abstractmethod
-    def set_motion_desc(self, desc: MotionDesc) -> None: ...
+    def set_motion_desc(self, desc: MotionDesc) -> None:
+        """Use ``desc`` for the moves queued after this; OutOfRangeError (``desc.check()``)
+        when a field is outside its range."""
 
     @abstractmethod
     def motion_desc(self) -> MotionDesc: ...

@@ -5,7 +5,9 @@ registry and control ownership when :meth:`RobotService.handle` runs. Handlers l
 keyed by command ID; :meth:`RobotService.register` adds more (the synchronisation commands
 0x3001-0x3009 plug in this way) and :meth:`implemented` lists exactly what is registered.
 Register extra handlers *before* the server is constructed: the shell reads ``implemented()``
-once, in its constructor.
+once, in its constructor. EmergencyStop, StopMove and ResetMotion are urgent (executed on
+arrival; EmergencyStop also on reserved connections) and WaitEndMove blocking (runs on the
+session's worker) [RS-7.12].
 """
 
 from __future__ import annotations
@@ -31,12 +33,10 @@ from robotsocket.interface import (
 )
 from spec.errors import ErrorCode, ProtocolError
 from spec.params import FloatArray, Joints, Location, Matrix, Value
-from spec.registry import CommandId, CommandSpec
-from spec.server import Identity, Service, Session
+from spec.registry import CommandId
+from spec.server import Handler, HandlerService, Identity, Session
 
 log = logging.getLogger(__name__)
-
-Handler = Callable[[Session, tuple[Value, ...]], tuple[Value, ...]]
 
 #: Interface error class -> wire error code (most specific first).
 ERROR_CODES: tuple[tuple[type[RobotError], ErrorCode], ...] = (
@@ -69,14 +69,24 @@ def _float(value: Value) -> float:
     return value
 
 
-class RobotService(Service):
-    """Serves a :class:`RobotInterface` (the emulator or an adapter for a real controller)."""
+class RobotService(HandlerService):
+    """Serves a :class:`RobotInterface` (the emulator or an adapter for a real controller).
+
+    ``control_lost_hooks`` run after the robot's own controlled stop when the controller is
+    gone (the synchronisation service stops its triggers there)."""
+
+    # Stopping never waits behind a pending WaitEndMove of the same connection [RS-7.12].
+    urgent = frozenset(
+        int(c) for c in (CommandId.EMERGENCY_STOP, CommandId.STOP_MOVE, CommandId.RESET_MOTION)
+    )
+    blocking = frozenset({int(CommandId.WAIT_END_MOVE)})
 
     def __init__(self, robot: RobotInterface, software: str = "0.1.0") -> None:
+        super().__init__()
         self.robot = robot
         info = robot.info()
         self.identity = Identity("robot", info.vendor, info.model, info.serial, software)
-        self._handlers: dict[int, Handler] = {}
+        self.control_lost_hooks: list[Callable[[], None]] = []
         C = CommandId
         for cid, handler in (
             (C.ROBOT_STATUS, self._status),
@@ -104,34 +114,24 @@ class RobotService(Service):
         ):
             self.register(cid, handler)
 
-    # --- extension ---------------------------------------------------------------------------
-
-    def register(self, command: int, handler: Handler) -> None:
-        """Serve ``command`` with ``handler(session, params) -> reply params``; a handler may
-        raise :class:`ProtocolError` or :class:`RobotError`. Replaces an existing handler."""
-        self._handlers[int(command)] = handler
-
-    def implemented(self) -> tuple[int, ...]:
-        return tuple(sorted(self._handlers))
-
     # --- Service -----------------------------------------------------------------------------
 
-    def handle(
-        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
-    ) -> tuple[Value, ...]:
-        handler = self._handlers.get(int(spec.id))
-        if handler is None:
-            raise ProtocolError(f"{spec.name} not implemented", ErrorCode.UNKNOWN_COMMAND)
-        try:
-            return handler(session, params)
-        except RobotError as exc:
-            raise ProtocolError(str(exc), error_code(exc)) from None
+    def error_code(self, exc: Exception) -> ErrorCode | None:
+        return error_code(exc) if isinstance(exc, RobotError) else None
 
     def clock(self) -> float:
         return self.robot.time()
 
     def on_control_lost(self, session: Session) -> None:
-        self.robot.on_control_lost()
+        # [RS-7.10] the robot first (laser off, controlled stop, outputs safe), then the rest.
+        try:
+            self.robot.on_control_lost()
+        finally:
+            for hook in self.control_lost_hooks:
+                try:
+                    hook()
+                except Exception:
+                    log.exception("control-lost hook failed")
 
     # --- handlers ----------------------------------------------------------------------------
 

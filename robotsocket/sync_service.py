@@ -20,10 +20,10 @@ from kinematics.errors import KinematicsError
 from kinematics.robot import get_model
 from kinematics.transforms import location_to_transform, transform_to_location
 from robotsocket.interface import BadStateError, Loc, OutOfRangeError, RobotInterface
-from robotsocket.service import Handler, RobotService
+from robotsocket.service import RobotService
 from spec.params import FloatArray, Location, Matrix, Value
 from spec.registry import BY_ID, SEAM_POINT_COLUMNS, CommandId
-from spec.server import Session
+from spec.server import Handler, Session
 from sync.seam_chain import FlangeToBase
 from sync.udp import RobotSyncCore, SyncStateError, UdpSyncEndpoint
 
@@ -92,6 +92,13 @@ class SyncService:
         )
         for cid, handler in handlers:
             service.register(cid, handler)
+        # [RS-7.10] the triggers a lost controller started stop with the arm.
+        service.control_lost_hooks.append(self.stop_on_control_lost)
+
+    def stop_on_control_lost(self) -> None:
+        if self.core.scheduler.active:
+            log.warning("controller lost: triggers stopped")
+        self.core.stop()
 
     # --- plain API (also used by the emulated cell) ------------------------------------------
 

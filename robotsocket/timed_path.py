@@ -21,17 +21,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kinematics.robot import CONFIGS, RobotModel
+from kinematics.config import CONFIGS
+from kinematics.robot import RobotModel
 from robotsocket.interface import Array, OutOfRangeError, SingularityError, UnreachableError
-from robotsocket.trajectory import (
+from robotsocket.paths import (
     MAX_GRID_STEP_DEG,
-    PERIOD,
     SINGULAR_MARGIN,
     Move,
-    _singular_measures,
-    _wrap180,
     nominal_limits,
+    singular_measures,
+    wrap180,
 )
+from robotsocket.trajectory import PERIOD
 
 __all__ = ["START_TOLERANCE_DEG", "TimedPath", "plan_timed"]
 
@@ -117,7 +118,7 @@ def plan_timed(
     if not np.all(batch.valid[:, branch]):
         k = int(np.argmin(batch.valid[:, branch]))
         raise OutOfRangeError(f"location {k} (t = {t[k]:.3f} s) needs joints outside the limits")
-    steps = _wrap180(np.diff(np.vstack([start, q]), axis=0))
+    steps = wrap180(np.diff(np.vstack([start, q]), axis=0))
     q = start + np.cumsum(steps, axis=0)
     if float(np.max(np.abs(q[0] - start))) > START_TOLERANCE_DEG:
         raise OutOfRangeError("the path must start at the tool's current location")
@@ -126,7 +127,7 @@ def plan_timed(
         raise OutOfRangeError("the path needs joints outside the limits")
     if q.shape[0] > 1 and float(np.max(np.abs(np.diff(q, axis=0)))) > MAX_GRID_STEP_DEG:
         raise SingularityError("the path flips the wrist between two locations")
-    s5, s3, rr = _singular_measures(model, q)
+    s5, s3, rr = singular_measures(model, q)
     if min(float(s5.min()), float(s3.min()), float(rr.min())) < SINGULAR_MARGIN:
         raise SingularityError("the path crosses a singularity")
     path = TimedPath(t, q)

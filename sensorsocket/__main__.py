@@ -29,7 +29,7 @@ from spec.callcli import EXIT_REMOTE_ERROR, EXIT_UNREACHABLE, EXIT_USAGE, main_c
 from spec.cliargs import run_cli
 from spec.errors import ErrorCode, ProtocolError, RemoteError
 from spec.files import atomic_path
-from spec.server import FramedServer, ServerPolicy, parse_networks, serve_until_signal
+from spec.server import FramedServer, ServerPolicy, serve_until_signal
 
 PROG = "python -m sensorsocket"
 DEFAULT_PORT = 2000
@@ -41,14 +41,19 @@ class _UsageError(Exception):
     pass
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> Any:  # one line and exit 2, no usage dump
-        raise _UsageError(message)
+def _token_file(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--token-file",
+        dest="token",
+        type=cliargs.token_file,
+        metavar="FILE",
+        help="file holding the TakeControl token (one line)",
+    )
 
 
-def _parser() -> _Parser:
-    p = _Parser(prog=PROG, description="SensorSocket seam-tracking sensor emulator")
-    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+def _parser() -> cliargs.Parser:
+    p = cliargs.Parser(prog=PROG, description="SensorSocket seam-tracking sensor emulator")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=cliargs.Parser)
     s = sub.add_parser("serve", help="run the sensor server (TCP) and trigger listener (UDP)")
     s.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
     s.add_argument("--port", type=cliargs.port, default=DEFAULT_PORT, help="TCP port, 0 = any free")
@@ -64,32 +69,42 @@ def _parser() -> _Parser:
         "--motion", default="fixed", help="fixed | sine:AMP_MM:FREQ_HZ | scan:SPEED_MM_S"
     )
     s.add_argument("--clock", choices=("real", "sim"), default="real")
-    s.add_argument("--allow", nargs="+", default=[], metavar="CIDR", help="client allow-list")
-    s.add_argument("--token-file", help="file holding the TakeControl token")
-    s.add_argument("--seed", type=int, default=0, help="random seed of the emulator")
-    s.add_argument("--network-delay", type=float, default=0.0, help="modelled UDP reply delay (s)")
+    s.add_argument(
+        "--allow",
+        nargs="+",
+        type=cliargs.network,
+        default=[],
+        metavar="CIDR",
+        help="networks allowed to connect (TCP) and to send triggers (UDP); default any",
+    )
+    _token_file(s)
+    s.add_argument(
+        "--watchdog",
+        type=cliargs.watchdog,
+        default=ServerPolicy.watchdog,
+        metavar="S",
+        help="control lease when TakeControl names none (s, default %(default)g)",
+    )
+    s.add_argument("--seed", type=cliargs.seed, default=0, help="random seed of the emulator")
+    s.add_argument(
+        "--network-delay",
+        type=cliargs.number_in(0.0, 1.0),
+        default=0.0,
+        help="modelled UDP reply delay (s, 0..1)",
+    )
     c = sub.add_parser("call", help="send one command and print the reply as JSON")
     c.add_argument("endpoint", metavar="HOST:PORT")
     c.add_argument("name", metavar="COMMAND")
     c.add_argument("args", nargs="*")
-    c.add_argument("--timeout", type=float, default=5.0)
-    c.add_argument("--token-file", help="file holding the TakeControl token")
+    c.add_argument("--timeout", type=cliargs.timeout, default=5.0, help="reply timeout (s)")
+    _token_file(c)
     n = sub.add_parser("snapshot", help="save the latest frame as PGM (or PNG)")
     n.add_argument("endpoint", metavar="HOST:PORT")
     n.add_argument("-o", "--output", required=True, help="frame.pgm or frame.png")
     n.add_argument("--acquire", action="store_true", help="take control and acquire first")
-    n.add_argument("--timeout", type=float, default=5.0)
-    n.add_argument("--token-file", help="file holding the TakeControl token")
+    n.add_argument("--timeout", type=cliargs.timeout, default=5.0, help="reply timeout (s)")
+    _token_file(n)
     return p
-
-
-def _token(path: str | None) -> str | None:
-    if path is None:
-        return None
-    try:
-        return Path(path).read_text(encoding="utf-8").strip()
-    except OSError as exc:
-        raise _UsageError(f"cannot read token file {path}: {exc.strerror}") from None
 
 
 def _udp_port(text: str) -> int | None:
@@ -105,14 +120,9 @@ def _udp_port(text: str) -> int | None:
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
-    if not args.network_delay >= 0:
-        raise _UsageError("--network-delay must be >= 0 s")
     udp_port: int | None = args.udp_port
-    token = _token(args.token_file)
-    try:
-        allow = parse_networks(args.allow)
-    except ValueError as exc:
-        raise _UsageError(str(exc)) from None
+    token: str | None = args.token  # read (and refused if empty) by cliargs.token_file
+    allow = tuple(args.allow)
     sim = args.clock == "sim"
     if sim:
         sim_clock = SimClock()
@@ -137,7 +147,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     except SensorError as exc:
         raise _UsageError(str(exc)) from None
     service = SensorService(sensor)
-    policy = ServerPolicy(allow=allow, token=token)
+    policy = ServerPolicy(allow=allow, token=token, watchdog=args.watchdog)
     listener: TriggerListener | None = None
     what = f"TCP {args.host}:{args.port}"
     try:
@@ -145,7 +155,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
         if udp_port is not None:
             what = f"UDP {args.host}:{udp_port} (--udp-port)"
             handler = TriggerHandler(sensor, network_delay_s=args.network_delay)
-            listener = TriggerListener(handler, args.host, udp_port, clock=clock, hold=not sim)
+            listener = TriggerListener(
+                handler, args.host, udp_port, clock=clock, hold=not sim, allow=allow
+            )
     except OSError as exc:
         print(f"{PROG} serve: cannot bind {what}: {exc.strerror or exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -209,7 +221,7 @@ def cmd_snapshot(args: argparse.Namespace) -> int:
         raise _UsageError(f"output must end in .pgm or .png, got {args.output!r}")
     if not out.parent.is_dir():
         raise _UsageError(f"output directory {str(out.parent)!r} does not exist")
-    token = _token(args.token_file)
+    token: str | None = args.token
     try:
         host, port = parse_endpoint(args.endpoint, DEFAULT_PORT)
     except ValueError as exc:
@@ -246,9 +258,8 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_serve(args)
         if args.command == "snapshot":
             return cmd_snapshot(args)
-        token = _token(args.token_file)
         return main_call(
-            "sensor", DEFAULT_PORT, args.endpoint, args.name, args.args, args.timeout, token
+            "sensor", DEFAULT_PORT, args.endpoint, args.name, args.args, args.timeout, args.token
         )
     except _UsageError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)

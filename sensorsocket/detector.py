@@ -4,15 +4,11 @@ Input: a frame in readout layout ``(columns, rows)`` (see :mod:`sensorsocket.cam
 the renderer or from anywhere else (a saved PGM, a real camera): uint8 as is; 16-bit
 integers scaled by 1/256, floats in [0, 1] by 255, so thresholds stay in 8-bit DN. Steps:
 
-1. Stripe: per column, the brightest row (argmax), then a fixed window of 2h+1 rows around
-   it and its intensity centroid after subtracting a threshold ``background + k·noise``
-   (background and noise estimated per frame, robustly, from pixels just outside the
-   windows). Second pass with the window re-centred on the centroid. A column is valid when
-   its peak clears the background by ``max(min_contrast_dn, 6·noise)`` and the stripe is not
-   wider than ``max_width_px`` (rms).
+1. Stripe (:mod:`sensorsocket.stripe`): per column the sub-pixel intensity centroid of the
+   stripe and whether the column is valid.
 2. Profile: valid centres mapped through the calibration (laser plane + pinhole) to points
    (0, y, z) in the sensor frame S, mm; isolated outliers (reflections) removed against a
-   5-point running median.
+   3-point running median.
 3. Seam feature for the configured joint type: butt -> the widest gap between two coplanar
    plates, edges refined to sub-column precision from the stripe mass (a column half over
    the gap carries half the light); fillet -> the corner where two robust line fits meet;
@@ -34,11 +30,24 @@ from enum import StrEnum
 import numpy as np
 from numpy.typing import NDArray
 
-from sensorsocket.camera import CameraGeometry
+from sensorsocket.geometry import CameraGeometry
 from sensorsocket.scene import FloatArray, JointType
+from sensorsocket.stripe import MAD_TO_SIGMA, StripeFinder, StripeProfile, median_of_copy, to_dn
 
 _EYE4 = np.eye(4)
 _EYE4.setflags(write=False)
+
+#: Rms of the plate fits (mm) at which the fit factor of the quality is one half: about the
+#: depth noise of one column's centroid.
+_HALF_QUALITY_RMS_MM = 0.03
+#: A second gap at least this fraction as wide as the widest makes a butt seam ambiguous.
+_AMBIGUOUS_GAP_RATIO = 0.6
+#: Full-plate columns whose median light is a full column's reference (butt edges), taken
+#: from the 10th to the 2nd column before the edge columns (the one next to them may be
+#: partly lit too).
+_N_REF_COLUMNS = 9
+#: Robust line fits drop points beyond this many robust sigmas, but never within 10 µm.
+_OUTLIER_SIGMAS, _MIN_OUTLIER_MM = 3.5, 0.01
 
 
 class DetectorError(ValueError):
@@ -87,19 +96,6 @@ class DetectorConfig:
 
 
 @dataclass(frozen=True)
-class StripeProfile:
-    """Per-column stripe of a frame (arrays (n,), column ``first_column + i``)."""
-
-    first_column: int
-    rows: FloatArray = field(repr=False)
-    mass: FloatArray = field(repr=False)
-    valid: NDArray[np.bool_] = field(repr=False)
-    background: float
-    noise: float
-    threshold: float
-
-
-@dataclass(frozen=True)
 class Detection:
     """Outcome of one frame. ``seam2sensor`` is the identity when nothing was found."""
 
@@ -114,19 +110,6 @@ class Detection:
     @property
     def found(self) -> bool:
         return self.status is SeamStatus.FOUND
-
-
-@dataclass(frozen=True)
-class _ShapeConstants:
-    """Read-only arrays for frames (n, rows): flat offset of each column (n,), the clamped
-    background rows (2, rows) and window start (rows,) for a peak or centre row, the window
-    fill h (n,), zeros (n, w)."""
-
-    base: NDArray[np.intp]
-    ring_of_row: NDArray[np.intp]
-    start_of_row: NDArray[np.intp]
-    fill: NDArray[np.float32]
-    zeros: NDArray[np.float32]
 
 
 @dataclass(frozen=True)
@@ -154,113 +137,16 @@ class SeamDetector:
     def __init__(self, camera: CameraGeometry | None = None, config: DetectorConfig | None = None):
         self.camera = camera if camera is not None else CameraGeometry()
         self.config = config if config is not None else DetectorConfig()
-        h = self.config.half_window
-        win = np.arange(2 * h + 1, dtype=np.float32)
-        # (3, w): a window's mass, first and second moment are one matrix product
-        self._win_moments = np.stack([np.ones_like(win), win, win * win])
-        self._shape_cache: dict[tuple[int, int], _ShapeConstants] = {}
-        # closed-form calibration (see CameraGeometry.pixel_to_sensor), constants as floats
-        cam = self.camera
-        th = math.radians(cam.triangulation_angle_deg)
-        self._sin, self._cos = math.sin(th), math.cos(th)
-        self._u0, self._v0 = cam.principal_point
-        self._f = cam.focal_px
-        self._d = cam.working_distance_mm
-        # k = (u - u0)/f of every chip column: the profile mapping looks it up
-        self._k = (np.arange(cam.columns, dtype=np.float64) - self._u0) / self._f
-        self._windows: dict[int, tuple[NDArray[np.intp], FloatArray]] = {}
+        cfg = self.config
+        self.stripes = StripeFinder(
+            cfg.half_window, cfg.noise_factor, cfg.min_contrast_dn, cfg.max_width_px
+        )
         self._empty_points = np.zeros((0, 3))
         self._empty_cols = np.zeros(0, dtype=np.intp)
 
-    # -- stage 1: stripe -------------------------------------------------------------------
-    def _shape_constants(self, n: int, nrows: int) -> _ShapeConstants:
-        """Read-only index and bound arrays for frames (n, nrows), cached per shape: a
-        detector sees one frame shape over and over. Never written, so thread-safe."""
-        key = (n, nrows)
-        c = self._shape_cache.get(key)
-        if c is None:
-            w = self._win_moments.shape[1]
-            h = self.config.half_window
-            c = _ShapeConstants(
-                base=np.arange(0, n * nrows, nrows, dtype=np.intp),
-                ring_of_row=np.stack(
-                    [
-                        np.maximum(np.arange(nrows) - (h + 3), 0),
-                        np.minimum(np.arange(nrows) + (h + 3), nrows - 1),
-                    ]
-                ),
-                start_of_row=np.clip(np.arange(nrows) - h, 0, nrows - w),
-                fill=np.full(n, h, dtype=np.float32),
-                zeros=np.zeros((n, w), dtype=np.float32),
-            )
-            for arr in (c.base, c.ring_of_row, c.start_of_row, c.fill, c.zeros):
-                arr.setflags(write=False)
-            self._shape_cache[key] = c
-        return c
-
     def stripe(self, frame: NDArray[np.generic], first_column: int = 0) -> StripeProfile:
-        """Sub-pixel stripe rows of every column of ``frame`` (n, rows)."""
-        a = np.ascontiguousarray(frame)
-        n, nrows = a.shape
-        h = self.config.half_window
-        w = 2 * h + 1
-        flat = a.reshape(-1)
-        c = self._shape_constants(n, nrows)
-        base = c.base
-        # numpy's argmax has no SIMD loop for 8-bit integers: on int32 it is 2x faster,
-        # conversion included; ties resolve to the first maximum either way
-        search = a.astype(np.int32) if a.dtype.itemsize == 1 else a
-        peak_row = search.argmax(axis=1)
-        peak = flat.take(peak_row + base).astype(np.float32)
-        # the rows just outside the window above and below the peak, clamped: (2, n)
-        ring = c.ring_of_row.take(peak_row, axis=1)
-        ring += base
-        samples = flat.take(ring.reshape(-1)).astype(np.float32)
-        background = _median_of_copy(samples)  # sorts samples: their order is not needed
-        np.subtract(samples, background, out=samples)
-        noise = max(1.4826 * _median_of_copy(np.abs(samples, out=samples)), 0.5)
-        threshold = background + max(self.config.noise_factor * noise, 1.0)
-        contrast = max(self.config.min_contrast_dn, 6.0 * noise)
-        thr32 = np.float32(threshold)
-        # every run of w pixels of the frame as a row of a strided view: a window is one
-        # fancy index (its flat start), no (n, w) index array to build
-        windows = np.ndarray(
-            (flat.size - w + 1, w), flat.dtype, flat, 0, (flat.itemsize, flat.itemsize)
-        )
-        moments = np.empty((3, n), dtype=np.float32)
-        mass = moments[0]
-        positive = np.empty(n, dtype=bool)
-        rows = np.empty(n, dtype=np.float32)
-        # window start of a window centred on row r, clamped to the frame: c.start_of_row[r]
-        start = c.start_of_row.take(peak_row)
-        for second in (False, True):
-            if second:  # re-centre on the first centroid: symmetric window, whole plateau
-                start = c.start_of_row.take(np.rint(rows).astype(np.intp), mode="clip")
-            start_f = start.astype(np.float32)
-            start += base
-            vals = windows[start].astype(np.float32)
-            vals -= thr32
-            np.maximum(vals, c.zeros, out=vals)  # an array operand takes the SIMD loop
-            np.matmul(self._win_moments, vals.T, out=moments)
-            np.greater(mass, 0.0, out=positive)
-            rel = c.fill.copy()  # h where a window has no light: rows = window centre
-            np.divide(moments[1], mass, out=rel, where=positive)
-            np.add(rel, start_f, out=rows)
-        spread = np.full(n, np.inf, dtype=np.float32)
-        np.divide(moments[2], mass, out=spread, where=positive)
-        spread -= rel * rel
-        valid = peak >= background + contrast
-        valid &= positive
-        valid &= spread <= self.config.max_width_px**2
-        return StripeProfile(
-            first_column=first_column,
-            rows=rows.astype(np.float64),
-            mass=mass.astype(np.float64),
-            valid=valid,
-            background=background,
-            noise=noise,
-            threshold=threshold,
-        )
+        """Stage 1, the stripe of every column: :meth:`StripeFinder.stripe`."""
+        return self.stripes.stripe(frame, first_column)
 
     def mass_at(
         self,
@@ -270,37 +156,8 @@ class SeamDetector:
         rows: FloatArray,
         half: int,
     ) -> FloatArray:
-        """Thresholded light in rows ``rows ± half`` of chip ``columns`` (k,) of ``frame``."""
-        f = np.asarray(frame)
-        ncols, nrows = f.shape[0], f.shape[1]
-        local = columns - stripe.first_column
-        ok = np.isfinite(rows)
-        ok &= local >= 0
-        ok &= local < ncols
-        every = bool(ok.all())
-        if not every:
-            if not ok.any():
-                return np.zeros(len(columns))
-            local, rows = local[ok], rows[ok]
-        offsets, ones = self._window(half)
-        idx = np.rint(rows).astype(np.intp)[:, None] + offsets
-        rows_in = np.maximum(idx, 0)  # np.clip costs more than both on small arrays
-        np.minimum(rows_in, nrows - 1, out=rows_in)
-        inside = rows_in == idx
-        if f.flags.c_contiguous:
-            rows_in += (local * nrows)[:, None]
-            vals = f.reshape(-1).take(rows_in).astype(np.float64)
-        else:
-            vals = f[local[:, None], rows_in].astype(np.float64)
-        vals -= stripe.threshold
-        np.maximum(vals, 0.0, out=vals)
-        vals *= inside
-        sums: FloatArray = vals.dot(ones)
-        if every:
-            return sums
-        out = np.zeros(len(columns))
-        out[ok] = sums
-        return out
+        """Thresholded light around given rows: :meth:`StripeFinder.mass_at`."""
+        return self.stripes.mass_at(frame, stripe, columns, rows, half)
 
     # -- stage 2 and 3 ---------------------------------------------------------------------
     def detect(self, frame: NDArray[np.generic], first_column: int = 0) -> Detection:
@@ -316,13 +173,13 @@ class SeamDetector:
         ):
             return self._none(SeamStatus.BAD_IMAGE, None)
         if a.dtype.type is not np.uint8:
-            a = _to_dn(a)
+            a = to_dn(a)
         stripe = self.stripe(a, first_column)
         cols = np.flatnonzero(stripe.valid)
         if cols.size < cfg.min_valid_columns:
             return self._none(SeamStatus.NO_STRIPE, stripe)
         u = cols + first_column
-        y, z = self._profile(u, stripe.rows.take(cols))
+        y, z = self.camera.plane_point(u.astype(np.float64), stripe.rows.take(cols))
         keep = _not_isolated_outliers(z, cfg.outlier_mm)
         if not keep.all():
             u, y, z = u[keep], y[keep], z[keep]
@@ -337,106 +194,18 @@ class SeamDetector:
             return self._fillet(stripe, u, y, z, pts)
         return self._lap(a, stripe, u, y, z, pts)
 
-    def _profile(self, u: NDArray[np.intp], v: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """(y, z) in S (mm) of stripe rows v at chip columns u (sorted), the arithmetic of
-        :meth:`CameraGeometry.pixel_to_sensor` with k = (u - u0)/f looked up per column."""
-        if u[0] >= 0 and u[-1] < self._k.size:
-            k = self._k.take(u)
-        else:
-            k = (u.astype(np.float64) - self._u0) / self._f
-        t = (v - self._v0) / self._f
-        z = t * self._d
-        t *= self._cos
-        np.subtract(self._sin, t, out=t)
-        z /= t
-        y = z * self._cos
-        y += self._d
-        y *= k
-        return y, z
-
-    def _line_v(self, u: float, a: float, b: float) -> float:
-        """Row where chip column u meets the profile line z = a + b·y (NaN if nowhere)."""
-        z = self._line_point(u, a, b)[1]
-        den = self._d + z * self._cos
-        if den == 0.0 or not math.isfinite(den):
-            return math.nan
-        return self._v0 + self._f * z * self._sin / den
-
     def _line_rows(self, cols: list[int], line: _Line) -> list[float]:
         """Rows where chip columns ``cols`` meet a profile line. The image of a line is a
         straight line, so two exact end points give all (equal to line_row to ~1e-13 px)."""
         if not cols:
             return []
         u1, u2 = min(cols), max(cols)
-        v1 = self._line_v(u1, line.a, line.b)
+        v1 = self.camera.line_row(float(u1), line.a, line.b)
         if u2 == u1:
             return [v1] * len(cols)
-        v2 = self._line_v(u2, line.a, line.b)
+        v2 = self.camera.line_row(float(u2), line.a, line.b)
         slope = (v2 - v1) / (u2 - u1)
         return [v1 + (c - u1) * slope for c in cols]
-
-    def _light(
-        self,
-        frame: NDArray[np.generic],
-        stripe: StripeProfile,
-        cols: list[int],
-        rows: list[float],
-        half: int,
-    ) -> list[float]:
-        """:meth:`mass_at` for a few columns given as lists, with fewer numpy calls."""
-        f = np.asarray(frame)
-        ncols, nrows = f.shape[0], f.shape[1]
-        first = stripe.first_column
-        if (
-            not f.flags.c_contiguous
-            or min(cols) < first
-            or max(cols) >= first + ncols
-            or not all(abs(r) < 1e9 for r in rows)  # also False for NaN
-        ):
-            return list(self.mass_at(f, stripe, np.array(cols), np.array(rows), half).tolist())
-        offsets, ones = self._window(half)
-        starts = [round(r) - half for r in rows]  # round: half to even, as np.rint
-        if min(starts) >= 0 and max(starts) + 2 * half < nrows:
-            # every window inside its column: rows of a strided view over the frame, one
-            # index per column (the values, order and sums of the general path below)
-            flat = f.reshape(-1)
-            w = 2 * half + 1
-            windows = np.ndarray((flat.size - w + 1, w), flat.dtype, flat, 0, (f.itemsize,) * 2)
-            at = [(c - first) * nrows + s for c, s in zip(cols, starts, strict=True)]
-            vals = windows[at].astype(np.float64)
-            vals -= stripe.threshold
-            np.maximum(vals, 0.0, out=vals)
-            return list(vals.dot(ones).tolist())
-        idx = np.array([round(r) for r in rows])[:, None] + offsets  # round: half to even
-        rows_in = np.maximum(idx, 0)
-        np.minimum(rows_in, nrows - 1, out=rows_in)
-        inside = rows_in == idx
-        rows_in += np.array([(c - first) * nrows for c in cols])[:, None]
-        vals = f.reshape(-1).take(rows_in).astype(np.float64)
-        vals -= stripe.threshold
-        np.maximum(vals, 0.0, out=vals)
-        vals *= inside
-        return list(vals.dot(ones).tolist())
-
-    def _window(self, half: int) -> tuple[NDArray[np.intp], FloatArray]:
-        """Row offsets -half..half and ones of that length (read-only, cached per half)."""
-        window = self._windows.get(half)
-        if window is None:
-            window = (np.arange(-half, half + 1), np.ones(2 * half + 1))
-            for arr in window:
-                arr.setflags(write=False)
-            self._windows[half] = window
-        return window
-
-    def _line_point(self, u: float, a: float, b: float) -> tuple[float, float]:
-        """(y, z) in S (mm) where chip column u meets the profile line z = a + b·y (NaN where
-        the column's ray runs parallel to the line)."""
-        k = (u - self._u0) / self._f
-        den = 1.0 - k * b * self._cos
-        if den == 0.0:
-            return math.nan, math.nan
-        y = k * (self._d + a * self._cos) / den
-        return y, a + b * y
 
     def _none(
         self,
@@ -467,8 +236,9 @@ class SeamDetector:
     ) -> Detection:
         """FOUND with the seam at (0, y, z) in S (mm), the plates' slope dz/dy; a seam
         that is not finite (a degenerate fit) is no feature."""
-        zc = self._d + z * self._cos  # camera depth of the seam point, see project()
-        if not (math.isfinite(y) and math.isfinite(z) and math.isfinite(slope) and zc != 0.0):
+        finite = math.isfinite(y) and math.isfinite(z) and math.isfinite(slope)
+        column = self.camera.plane_column(y, z) if finite else math.nan
+        if not math.isfinite(column):
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         norm = math.hypot(1.0, slope)
         cy, sy = 1.0 / norm, slope / norm
@@ -479,7 +249,7 @@ class SeamDetector:
             status=SeamStatus.FOUND,
             seam2sensor=t,
             quality=float(min(max(quality, 0.0), 1.0)),
-            column=self._u0 + self._f * y / zc,
+            column=column,
             points=pts,
             point_columns=u,
             stripe=stripe,
@@ -487,7 +257,7 @@ class SeamDetector:
 
     def _quality(self, n_used: int, n_columns: int, rms: float, feature: float) -> float:
         coverage = min(1.0, n_used / max(0.5 * n_columns, 1.0))
-        fit = 1.0 / (1.0 + (rms / 0.03) ** 2)
+        fit = 1.0 / (1.0 + (rms / _HALF_QUALITY_RMS_MM) ** 2)
         return coverage * fit * min(max(feature, 0.0), 1.0)
 
     def _butt(
@@ -513,10 +283,10 @@ class SeamDetector:
         ]
         if not found:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
-        # widest candidate (the last of equal widths); a second one at least 0.6 as wide
-        # makes the seam ambiguous
+        # widest candidate (the last of equal widths); a second one nearly as wide makes the
+        # seam ambiguous
         best_w, i = max(found)
-        if any(j != i and w >= 0.6 * best_w for w, j in found):
+        if any(j != i and w >= _AMBIGUOUS_GAP_RATIO * best_w for w, j in found):
             return self._none(SeamStatus.AMBIGUOUS, stripe, pts, u)
         p = _centred(y, z)
         left = _robust_line(p, slice(0, i + 1))
@@ -535,8 +305,8 @@ class SeamDetector:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         # sub-column edges: light in the edge columns relative to the plate's full columns
         edge_l, edge_r = self._coverage(frame, stripe, int(u[i]), int(u[i + 1]), left, right)
-        y_l, z_l = self._line_point(edge_l, left.a, left.b)
-        y_r, z_r = self._line_point(edge_r, right.a, right.b)
+        y_l, z_l = self.camera.line_point(edge_l, left.a, left.b)
+        y_r, z_r = self.camera.line_point(edge_r, right.a, right.b)
         slope = math.tan(0.5 * (math.atan(left.b) + math.atan(right.b)))
         q = self._quality(left.n + right.n, stripe.rows.size, rms, 1.0)
         return self._found(stripe, 0.5 * (y_l + y_r), 0.5 * (z_l + z_r), slope, q, pts, u)
@@ -556,14 +326,15 @@ class SeamDetector:
         covers the columns beyond the gap fully; the columns next to the gap carry light in
         proportion to the part of their width the plate covers. One gather for both sides.
         """
-        n_ref = 9
+        n_ref = _N_REF_COLUMNS
         edge_l = [u_left, u_left + 1] if u_left + 1 < u_right else [u_left]
         edge_r = [u_right, u_right - 1] if u_right - 1 > u_left else [u_right]
-        cols_l = list(range(u_left - 10, u_left - 1)) + edge_l
-        cols_r = list(range(u_right + 2, u_right + 11)) + edge_r
+        cols_l = list(range(u_left - n_ref - 1, u_left - 1)) + edge_l
+        cols_r = list(range(u_right + 2, u_right + n_ref + 2)) + edge_r
         n_l = len(cols_l)
         rows = self._line_rows(cols_l, left) + self._line_rows(cols_r, right)
-        m = self._light(frame, stripe, cols_l + cols_r, rows, self.config.half_window)
+        cols = np.array(cols_l + cols_r)
+        m = self.mass_at(frame, stripe, cols, np.array(rows), self.config.half_window).tolist()
         out = []
         for side, masses, edge in ((-1, m[:n_l], edge_l), (1, m[n_l:], edge_r)):
             ref = _list_median(masses[:n_ref])
@@ -681,13 +452,13 @@ class SeamDetector:
         if not math.isfinite(sep):
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         half = int(max(1, min(cfg.half_window, math.floor(sep / 2.0 - 0.5))))
-        m_up = self._light(frame, stripe, all_cols, r_up, half)
+        m_up = self.mass_at(frame, stripe, np.array(all_cols), np.array(r_up), half).tolist()
         ref = _list_median(m_up[n_cols:]) if ref_cols.size else 0.0
         if ref <= 0.0:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         cover = sum(min(max(x / ref, 0.0), 1.0) for x in m_up[:n_cols])
         u_edge = (u_a - 1.5 + cover) if upper_left else (u_b + 1.5 - cover)
-        e_y, e_z = self._line_point(u_edge, upper.a, upper.b)
+        e_y, e_z = self.camera.line_point(u_edge, upper.a, upper.b)
         n_lo = math.hypot(1.0, lower.b)
         d_y, d_z = 1.0 / n_lo, lower.b / n_lo
         t = e_y * d_y + (e_z - lower.a) * d_z
@@ -695,33 +466,11 @@ class SeamDetector:
         return self._found(stripe, t * d_y, lower.a + t * d_z, lower.b, q, pts, u)
 
 
-def _to_dn(a: NDArray[np.generic]) -> NDArray[np.float32]:
-    """Grey levels on the 8-bit scale the thresholds are in: 16-bit integers / 256, floats
-    in [0, 1] × 255, other numbers as they are; NaN and infinities become 0."""
-    f = np.nan_to_num(a.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
-    if a.dtype.itemsize >= 2 and np.issubdtype(a.dtype, np.integer) and f.max() > 255:
-        f *= np.float32(1.0 / 256.0)
-    elif np.issubdtype(a.dtype, np.floating) and f.size and f.min() >= 0.0 and f.max() <= 1.0:
-        f *= np.float32(255.0)
-    return f
-
-
 def _list_median(x: list[float]) -> float:
     """Median of a short non-empty list."""
     s = sorted(x)
     k = len(s) // 2
     return s[k] if len(s) % 2 else 0.5 * (s[k] + s[k - 1])
-
-
-def _median_of_copy(x: NDArray[np.floating]) -> float:
-    """Median of a non-empty 1-D array the caller no longer needs (sorted in place). A
-    full sort: numpy's SIMD sort beats np.partition on these short arrays full of ties."""
-    n = x.size
-    k = n // 2
-    x.sort()
-    if n % 2:
-        return float(x[k])
-    return 0.5 * (float(x[k]) + float(x[k - 1]))
 
 
 def _not_isolated_outliers(z: FloatArray, tol: float) -> NDArray[np.bool_]:
@@ -768,7 +517,7 @@ def _robust_line(
         (_, sy, sz), (_, syy, syz), (_, _, szz) = qk.dot(qk.T).tolist()
         my, mz = sy / n, sz / n
         syy_c = syy - sy * my
-        if syy_c <= 1e-12 or syy_c <= 1e-10 * syy:
+        if syy_c <= 1e-12 or syy_c <= 1e-10 * syy:  # all points at one y (to rounding)
             return None
         syz_c = syz - sy * mz
         b = syz_c / syy_c
@@ -777,8 +526,8 @@ def _robust_line(
         if it < iterations:
             res = np.abs(np.array([-a, -b, 1.0]).dot(q))
             fitted = res.copy() if keep is None else res[keep]
-            sigma = 1.4826 * _median_of_copy(fitted)  # sorts ``fitted``
-            limit = max(3.5 * sigma, 0.01)
+            sigma = MAD_TO_SIGMA * median_of_copy(fitted)  # sorts ``fitted``
+            limit = max(_OUTLIER_SIGMAS * sigma, _MIN_OUTLIER_MM)
             # the same points as in this fit: every further fit would repeat it exactly;
             # in the first fit, that is the largest residual (NaN sorts last) within limit
             if keep is None and float(fitted[-1]) <= limit:

@@ -12,26 +12,26 @@ on the wire; the status says the location is void) [SS-5.8].
 
 from __future__ import annotations
 
+import logging
 import math
-from collections.abc import Callable
 
 import numpy as np
 
 from sensorsocket.sensor import Reading, Sensor, SensorError
 from spec.errors import ErrorCode, ProtocolError
 from spec.params import Image, Location, Matrix, Value
-from spec.registry import CommandId, CommandSpec
-from spec.server import Identity, Service, Session
+from spec.registry import CommandId
+from spec.server import HandlerService, Identity, Session
 from spec.wire import PixelFormat, PixelOrder, SensorStatus
 
-IDENTITY = Identity(
+log = logging.getLogger(__name__)
+
+SENSOR_IDENTITY = Identity(
     service="sensor", vendor="reference", model="seam-tracker-emulator 512x256", serial="0"
 )
 
-Handler = Callable[[Session, tuple[Value, ...]], tuple[Value, ...]]
 
-
-class SensorService(Service):
+class SensorService(HandlerService):
     """Sensor commands over a :class:`Sensor`; ``trigger_endpoint`` is reported by
     GetTriggerEndpoint ((host, 0) when UDP triggering is off)."""
 
@@ -39,16 +39,17 @@ class SensorService(Service):
         self,
         sensor: Sensor,
         *,
-        identity: Identity = IDENTITY,
+        identity: Identity = SENSOR_IDENTITY,
         trigger_endpoint: tuple[str, int] = ("", 0),
     ) -> None:
+        super().__init__()
         self.sensor = sensor
         self.identity = identity
         self.trigger_endpoint = trigger_endpoint
         # The row-major full frame of the latest reading: transposing 128 KiB costs ~70 µs,
         # so it is done once per frame, not once per GetImage.
         self._full_image: tuple[Reading, Image] | None = None
-        self._handlers: dict[int, Handler] = {
+        for command, handler in {
             CommandId.SENSOR_STATUS: self._status,
             CommandId.GET_DATA: self._get_data,
             CommandId.GET_IMAGE: self._get_image,
@@ -59,21 +60,20 @@ class SensorService(Service):
             CommandId.GET_SETTINGS: self._get_settings,
             CommandId.ACQUIRE: self._acquire,
             CommandId.GET_TRIGGER_ENDPOINT: self._trigger_endpoint,
-        }
+        }.items():
+            self.register(command, handler)
 
     def clock(self) -> float:
         return self.sensor.clock()
 
-    def handle(
-        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
-    ) -> tuple[Value, ...]:
-        handler = self._handlers.get(spec.id)
-        if handler is None:
-            raise ProtocolError(f"{spec.name} not implemented", ErrorCode.NOT_SUPPORTED)
-        try:
-            return handler(session, params)
-        except SensorError as exc:
-            raise ProtocolError(str(exc), ErrorCode.OUT_OF_RANGE) from None
+    def error_code(self, exc: Exception) -> ErrorCode | None:
+        return ErrorCode.OUT_OF_RANGE if isinstance(exc, SensorError) else None
+
+    def on_control_lost(self, session: Session) -> None:
+        # [RS-7.10] the laser a lost controller switched on goes off.
+        if self.sensor.settings.laser:
+            log.warning("controller lost: sensor laser off")
+            self.sensor.set_laser(False)
 
     # --- read-only --------------------------------------------------------------------------
 
@@ -190,4 +190,4 @@ class SensorService(Service):
         return (self.sensor.acquire().index,)
 
 
-__all__ = ["IDENTITY", "SensorService"]
+__all__ = ["SENSOR_IDENTITY", "SensorService"]

@@ -15,11 +15,12 @@ import select
 import socket
 import threading
 from collections import OrderedDict, deque
-from collections.abc import Hashable
+from collections.abc import Hashable, Iterable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from sensorsocket.sensor import NAN_LOCATION, Clock, Reading
+from spec.auth import Network, address_allowed
 from spec.datagrams import decode_datagram, encode_data_fields, serial_newer, trigger_fields
 from spec.errors import DatagramError
 from spec.sockopt import set_kernel_timeouts
@@ -256,8 +257,12 @@ class TriggerListener:
         *,
         clock: Clock,
         hold: bool = True,
+        allow: Iterable[Network] = (),
     ) -> None:
         self.handler = handler
+        #: Networks triggers may come from; empty: any [SY-1.5].
+        self.allow: tuple[Network, ...] = tuple(allow)
+        self._refused = 0
         self.clock = clock
         self.hold = hold
         self._sock = bind_udp(host, port)
@@ -292,6 +297,7 @@ class TriggerListener:
         stats = self.handler.statistics()
         stats["sent"] = self._sent
         stats["send_errors"] = self._send_errors
+        stats["refused_address"] = self._refused
         return stats
 
     def _run(self) -> None:
@@ -301,6 +307,7 @@ class TriggerListener:
         pending = self._pending
         stop = self._stop
         hold = self.hold
+        allow = self.allow
         # Idle, the thread blocks in recvfrom itself (one system call per trigger, as a bare
         # echo server); select is used only while replies are held for their send time.
         _block_with_tick(sock, _TICK_S)
@@ -328,6 +335,9 @@ class TriggerListener:
                 log.debug("recvfrom: %s", exc)
                 continue
             t_arrival = clock()
+            if allow and not address_allowed(allow, source[0]):
+                self._refused += 1  # [SY-1.5] dropped unread and unanswered
+                continue
             try:
                 reply = process(datagram, t_arrival, source)
             except Exception:  # the listener must survive any sensor failure

@@ -23,6 +23,8 @@ from spec.errors import PeerError
 
 
 def _read_input(arg: str) -> bytes:
+    if not arg.strip():
+        return b""  # not the current directory: Path("") is "."
     if arg == "-":
         data = sys.stdin.buffer.read()
         text = data.decode("ascii", "replace").strip()
@@ -52,6 +54,8 @@ def _hex(text: str) -> bytes:
 def cmd_decode(args: argparse.Namespace) -> int:
     try:
         raw = _read_input(args.input)
+        if not raw:
+            raise ValueError("empty input: give a frame or datagram as hex, a file or -")
         print(describe_all(raw))
     except (ValueError, OSError) as exc:
         print(f"spec decode: {exc}", file=sys.stderr)
@@ -120,8 +124,8 @@ def cmd_fuzz(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGPIPE, signal.SIG_DFL)  # `| head` ends quietly
-    parser = argparse.ArgumentParser(prog="python -m spec", description="protocol tools")
-    sub = parser.add_subparsers(dest="command", required=True)
+    parser = cliargs.Parser(prog="python -m spec", description="protocol tools")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=cliargs.Parser)
     p = sub.add_parser(
         "decode", help="dissect frames (a capture of several too) or a datagram: hex, file or -"
     )
@@ -140,8 +144,8 @@ def main(argv: list[str] | None = None) -> int:
     g.add_argument("--write", action="store_true")
     p.set_defaults(fn=cmd_doc)
     p = sub.add_parser("fuzz", help="fuzz the decoders with seeded mutations")
-    p.add_argument("--count", type=cliargs.positive_int, default=20000, help="inputs to try")
-    p.add_argument("--seed", type=int, default=1, help="seed of the mutations")
+    p.add_argument("--count", type=cliargs.int_in(1, 10**9), default=20000, help="inputs to try")
+    p.add_argument("--seed", type=cliargs.seed, default=1, help="seed of the mutations")
     p.set_defaults(fn=cmd_fuzz)
     args = parser.parse_args(argv)
     result: int = args.fn(args)

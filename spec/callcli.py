@@ -5,19 +5,23 @@ registry gives the command's parameter (joints and locations as comma-separated 
 booleans as on/off), sends one request and prints the reply as JSON named by the registry's
 reply table. A command that needs control takes it first (with the token) and gives it back
 (released, not lost: a queued move goes on unless ``call`` waits for it, the default).
-Exit codes: 0 ok, 1 error reply (code and message on stderr), 2 usage, 3 unreachable.
+Exit codes: 0 ok, 1 error reply (code and message on stderr), 2 usage, 3 unreachable,
+130 interrupted (Ctrl-C or SIGTERM: a move this call queued is stopped with ResetMotion and
+control is released first).
 """
 
 from __future__ import annotations
 
 import json
 import math
-import os
+import signal
 import sys
-from pathlib import Path
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
-from spec.client import FramedClient
+from spec.client import FramedClient, wait_end_move
+from spec.codec import encode_packet, request
 from spec.errors import ProtocolError, RemoteError
 from spec.jsonform import plain
 from spec.params import FloatArray, IntArray, Joints, Location, Transform, Value
@@ -27,6 +31,7 @@ from spec.wire import ParamType
 EXIT_REMOTE_ERROR = 1
 EXIT_USAGE = 2
 EXIT_UNREACHABLE = 3
+EXIT_INTERRUPTED = 130
 
 _QUEUED_MOVES = {
     CommandId.JOINT_MOVE,
@@ -74,17 +79,38 @@ def _numbers(text: str, what: str) -> list[float]:
     return values
 
 
+def _int64(text: str, what: str) -> int:
+    try:
+        value = int(text, 0)
+    except ValueError:
+        raise ValueError(f"{what}: expected an integer, got {text!r}") from None
+    if not _I64_MIN <= value <= _I64_MAX:
+        # A usage error now, not an encoding failure after connecting (INT is i64 on the wire).
+        raise ValueError(f"{what}: integers are signed 64-bit, got {text!r}")
+    return value
+
+
+_I64_MIN, _I64_MAX = -(1 << 63), (1 << 63) - 1
+
+
+def _float(text: str, what: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"{what}: expected a float, got {text!r}") from None
+    if not math.isfinite(value):
+        raise ValueError(f"{what}: numbers must be finite, got {text!r}")
+    return value
+
+
 def parse_arg(spec: ParamSpec, text: str) -> Value:
     """Parse one command-line argument as the parameter ``spec`` says."""
     what = spec.name
     t = spec.type
-    try:
-        if t is ParamType.INT:
-            return int(text, 0)
-        if t is ParamType.FLOAT:
-            return float(text)
-    except ValueError:
-        raise ValueError(f"{what}: expected a {t.name.lower()}, got {text!r}") from None
+    if t is ParamType.INT:
+        return _int64(text, what)
+    if t is ParamType.FLOAT:
+        return _float(text, what)
     if t is ParamType.BOOL:
         lowered = text.lower()
         if lowered in ("1", "true", "on", "yes"):
@@ -99,7 +125,7 @@ def parse_arg(spec: ParamSpec, text: str) -> Value:
     if t is ParamType.FLOAT_ARRAY:
         return FloatArray(_numbers(text, what))
     if t is ParamType.INT_ARRAY:
-        return IntArray(int(v) for v in _numbers(text, what))
+        return IntArray(_int64(x, what) for x in text.replace(" ", "").split(",") if x != "")
     if t is ParamType.JOINTS:
         return Joints(_numbers(text, what))
     if t is ParamType.LOCATION:
@@ -135,17 +161,13 @@ def parse_args(spec: CommandSpec, args: list[str]) -> tuple[Value, ...]:
     for p in spec.params[len(args) :]:
         if not p.optional:
             values.append(Location(0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
-    return tuple(values)
-
-
-def read_token(path: str | os.PathLike[str] | None) -> str:
-    """The control token in a file (stripped), or "" without a file; ValueError if unreadable."""
-    if path is None:
-        return ""
     try:
-        return Path(path).read_text(encoding="utf-8").strip()
-    except OSError as exc:
-        raise ValueError(f"cannot read token file {path}: {exc.strerror}") from None
+        # Encoded once now, so what cannot go on the wire (a string that is not UTF-8, a
+        # frame over the size limit) is a usage error, not "cannot reach" after connecting.
+        encode_packet(request(spec.id, 1, *values))
+    except (ProtocolError, UnicodeError) as exc:
+        raise ValueError(f"{spec.name}: the arguments cannot be encoded: {exc}") from None
+    return tuple(values)
 
 
 def reply_json(spec: CommandSpec, values: tuple[Value, ...]) -> dict[str, Any]:
@@ -177,22 +199,30 @@ def main_call(
     except (ValueError, ProtocolError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    queued = False
     try:
-        with FramedClient(host, port, timeout=timeout) as client:
+        with _sigterm_interrupts(), FramedClient(host, port, timeout=timeout) as client:
             take = spec.needs_control and spec.id != CommandId.TAKE_CONTROL
             if take:
                 client.take_control(token or "")
             try:
                 values = client.call(spec.id, *params)
                 reply = reply_json(BY_ID[spec.id], values)
-                if spec.id in _QUEUED_MOVES and wait is not None:
-                    done = client.call(CommandId.WAIT_END_MOVE, wait, timeout=wait + 10)[0]
-                    reply["done"] = done
+                queued = spec.id in _QUEUED_MOVES
+                if queued and wait is not None:
+                    reply["done"] = wait_end_move(client, wait)
+            except KeyboardInterrupt:
+                _stop_what_was_started(client, take and queued)
+                raise
             finally:
                 if take and client.connected:
                     # Released, not lost: a move that is still running goes on [RS-7.11];
                     # also after an error reply, so the next call finds control free.
                     client.release_control()
+    except KeyboardInterrupt:
+        stopped = "; the move was stopped" if queued else ""
+        print(f"interrupted{stopped}; control released", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except RemoteError as exc:
         print(f"error {exc.code.name} ({exc.raw_code}): {exc.message}", file=sys.stderr)
         return EXIT_REMOTE_ERROR
@@ -204,3 +234,32 @@ def main_call(
         print(f"error: the move did not end within {wait:g} s (it goes on)", file=sys.stderr)
         return EXIT_REMOTE_ERROR
     return 0
+
+
+def _stop_what_was_started(client: FramedClient, moved: bool) -> None:
+    """After Ctrl-C: a move this call queued decelerates and the queue empties. Best
+    effort: an unreachable server stops the arm itself when control is lost [RS-7.10]."""
+    if not moved or not client.connected:
+        return
+    try:
+        client.call(CommandId.RESET_MOTION)
+    except (OSError, ProtocolError):
+        pass
+
+
+@contextmanager
+def _sigterm_interrupts() -> Iterator[None]:
+    """SIGTERM ends a call the way Ctrl-C does (a KeyboardInterrupt in the main thread)."""
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    try:
+        previous = signal.signal(signal.SIGTERM, interrupt)
+    except ValueError:  # not the main thread: leave signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)

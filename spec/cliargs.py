@@ -9,8 +9,11 @@ import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import NoReturn
 
+from spec.auth import Network, read_token_file
 from spec.files import prepare_output_path
+from spec.server import ServerPolicy, parse_networks
 
 
 def port(text: str) -> int:
@@ -24,6 +27,17 @@ def port(text: str) -> int:
     return value
 
 
+#: Largest value a plain number option takes: far above any quantity these tools handle in
+#: its unit, far below where arithmetic on it overflows or a buffer sized by it explodes.
+MAX_NUMBER = 1e9
+#: Timeouts and waits: below a millisecond a socket timeout rounds to 0, which the kernel
+#: reads as "wait forever"; above 1e6 s (11.6 days) nothing is worth waiting for.
+MIN_TIMEOUT = 1e-3
+MAX_TIMEOUT = 1e6
+#: Seeds: numpy takes any non-negative integer; 64 bits is what a report can print back.
+MAX_SEED = (1 << 64) - 1
+
+
 def _number(text: str) -> float:
     try:
         value = float(text)
@@ -34,28 +48,117 @@ def _number(text: str) -> float:
     return value
 
 
+def number_in(low: float, high: float, *, low_open: bool = False) -> Callable[[str], float]:
+    """A number in [low, high] (or (low, high] with ``low_open``), e.g. a modelled latency
+    whose buffers would not fit in memory beyond ``high``."""
+
+    def parse(text: str) -> float:
+        value = _number(text)
+        if value < low or (low_open and value == low) or value > high:
+            left = "(" if low_open else "["
+            raise argparse.ArgumentTypeError(f"must be in {left}{low:g}, {high:g}], got {text}")
+        return value
+
+    parse.__name__ = "number"
+    return parse
+
+
 def positive_float(text: str) -> float:
+    """A number > 0 and <= MAX_NUMBER."""
     value = _number(text)
     if value <= 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    if value > MAX_NUMBER:
+        raise argparse.ArgumentTypeError(f"must be <= {MAX_NUMBER:g}, got {text}")
     return value
 
 
 def nonnegative_float(text: str) -> float:
+    """A number >= 0 and <= MAX_NUMBER."""
     value = _number(text)
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    if value > MAX_NUMBER:
+        raise argparse.ArgumentTypeError(f"must be <= {MAX_NUMBER:g}, got {text}")
     return value
+
+
+def watchdog(text: str) -> float:
+    """A control watchdog period within the server's limits (PROTOCOL.md [RS-7.13])."""
+    value = positive_float(text)
+    low, high = ServerPolicy.watchdog_min, ServerPolicy.watchdog_max
+    if not low <= value <= high:
+        raise argparse.ArgumentTypeError(f"must be within {low:g}..{high:g} s, got {text!r}")
+    return value
+
+
+def timeout(text: str) -> float:
+    """Seconds to wait, MIN_TIMEOUT to MAX_TIMEOUT."""
+    value = _number(text)
+    if not MIN_TIMEOUT <= value <= MAX_TIMEOUT:
+        msg = f"must be between {MIN_TIMEOUT:g} and {MAX_TIMEOUT:g} s, got {text}"
+        raise argparse.ArgumentTypeError(msg)
+    return value
+
+
+def _integer(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+
+
+def int_in(low: int, high: int) -> Callable[[str], int]:
+    """An integer in [low, high]."""
+
+    def parse(text: str) -> int:
+        value = _integer(text)
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"must be in [{low}, {high}], got {value}")
+        return value
+
+    parse.__name__ = "integer"
+    return parse
 
 
 def positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    value = _integer(text)
     if value <= 0:
         raise argparse.ArgumentTypeError(f"must be > 0, got {value}")
     return value
+
+
+def seed(text: str) -> int:
+    """A random seed, 0 to 2**64 - 1."""
+    value = _integer(text)
+    if not 0 <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"a seed is 0..2**64-1, got {value}")
+    return value
+
+
+def token_file(text: str) -> str:
+    """A file holding the control token: the token (stripped), read now, so a missing, empty
+    or unreadable file stops the tool before it starts [RS-7.3]."""
+    try:
+        return read_token_file(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def network(text: str) -> Network:
+    """One network of an allow-list (``10.0.0.0/24``, ``127.0.0.1``, ``::1``)."""
+    try:
+        return parse_networks([text])[0]
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+class Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line on stderr and exit status 2 (no usage
+    dump); give it to ``add_subparsers(parser_class=Parser)`` too."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
 
 
 def output_file(text: str) -> str:
@@ -78,11 +181,6 @@ def output_dir(text: str) -> str:
         msg = f"cannot create directory {text}: {exc.strerror}"
         raise argparse.ArgumentTypeError(msg) from None
     return text
-
-
-def positive_floats(text: str) -> list[float]:
-    """Comma-separated numbers, each > 0 (e.g. sweep frequencies)."""
-    return [positive_float(item) for item in text.split(",") if item.strip()]
 
 
 #: Exit status of a Unix tool stopped by SIGPIPE (128 + 13).

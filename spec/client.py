@@ -1,6 +1,11 @@
 """Client base for both services: connect, send requests, turn error packets into exceptions.
 
 ``RobotClient`` and ``SensorClient`` add one method per command on top of :class:`FramedClient`.
+
+Two safety duties live here (PROTOCOL.md 7.1): while the client holds control it keeps the
+control lease alive on its own (a Ping whenever nothing else was sent for a third of the
+watchdog period) [RS-7.13]; and a request abandoned half-way (Ctrl-C) leaves its request ID
+behind, so its late reply is dropped instead of being taken for the next one's.
 """
 
 from __future__ import annotations
@@ -69,9 +74,18 @@ class FramedClient:
         self._kernel_timeout: float | None = None  # SO_RCVTIMEO in force, None: Python's
         self._decoder = FrameDecoder(max_payload=wire.MAX_PAYLOAD)
         self._next_id = 1
+        self._id_lock = threading.Lock()
+        self._send_lock = threading.Lock()
         self._scratch = bytearray(1 << 18)  # reused receive buffer: no allocation per recv
         self._lock = threading.RLock()
         self.server_info: dict[str, Value] = {}
+        #: Request IDs whose reply was not waited for (interrupted): dropped when they come.
+        self._abandoned: set[int] = set()
+        #: Control lease in force (s) while this client holds control, else None.
+        self.lease: float | None = None
+        self._last_sent = 0.0
+        self._keeper: threading.Thread | None = None
+        self._keeper_stop = threading.Event()
         self.connect()
 
     # --- connection --------------------------------------------------------------------------
@@ -87,6 +101,7 @@ class FramedClient:
             self._sock = sock
             self._decoder = FrameDecoder(max_payload=wire.MAX_PAYLOAD)
             self._kernel_timeout = None
+            self._abandoned.clear()
             if not self.frame_crc:
                 self._turn_frame_crc_off()
 
@@ -110,7 +125,9 @@ class FramedClient:
         self.connect()
 
     def close(self) -> None:
+        self._stop_keeper()
         with self._lock:
+            self.lease = None
             if self._sock is not None:
                 try:
                     self._sock.close()
@@ -133,14 +150,15 @@ class FramedClient:
 
     def call(self, command: int, *params: Value, timeout: float | None = None) -> tuple[Value, ...]:
         """Send one request and return the reply's parameters; raise :class:`RemoteError` for an
-        error packet, :class:`ClientTimeout`, :class:`ConnectionClosed` or :class:`PeerError`."""
+        error packet, :class:`ClientTimeout`, :class:`ConnectionClosed` or :class:`PeerError`.
+        An interrupted call (KeyboardInterrupt) leaves the connection usable: its reply is
+        dropped when it arrives."""
         with self._lock:
             if self._sock is None:
                 if not self.auto_reconnect:
                     raise ConnectionClosed("not connected")
                 self.connect()
-            request_id = self._next_id
-            self._next_id = (self._next_id % 0xFFFFFFFF) + 1
+            request_id = self._new_request_id()
             data = encode_packet(request(command, request_id, *params))
             try:
                 self._send(data)
@@ -149,18 +167,32 @@ class FramedClient:
                     raise
                 self.connect()
                 self._send(data)
-            reply = self._receive(timeout if timeout is not None else self.timeout)
+            try:
+                reply = self._receive(timeout if timeout is not None else self.timeout, command)
+            except BaseException:
+                if self._sock is not None:
+                    self._abandoned.add(request_id)
+                raise
         return self._check_reply(command, request_id, reply)
 
+    def _new_request_id(self) -> int:
+        with self._id_lock:
+            request_id = self._next_id
+            self._next_id = (self._next_id % 0xFFFFFFFF) + 1
+            return request_id
+
     def _send(self, data: bytes) -> None:
-        assert self._sock is not None
+        sock = self._sock
+        assert sock is not None
         try:
-            self._sock.sendall(data)
+            with self._send_lock:  # the lease keeper may send beside a pending call
+                sock.sendall(data)
+                self._last_sent = time.monotonic()
         except BlockingIOError:  # the kernel send timeout expired: the server stopped reading
             self.close()
             raise ClientTimeout("the server does not take the request (send timed out)") from None
 
-    def _receive(self, timeout: float) -> Packet:
+    def _receive(self, timeout: float, command: int = -1) -> Packet:
         assert self._sock is not None
         deadline = time.monotonic() + timeout
         decoder = self._decoder
@@ -171,6 +203,11 @@ class FramedClient:
                 if isinstance(event, Packet):
                     if event.kind is PacketKind.EVENT:
                         continue  # [RS-3.14] an event is never the reply to a request
+                    if event.request_id in self._abandoned:
+                        self._abandoned.discard(event.request_id)
+                        continue  # the late reply of an interrupted request
+                    if command == CommandId.EMERGENCY_STOP and _is_limit_notice(event):
+                        continue  # [RS-7.14] a reserved connection still takes EmergencyStop
                     return event
                 self.close()
                 raise event.error
@@ -254,11 +291,68 @@ class FramedClient:
         assert isinstance(echo, bytes)
         return echo
 
-    def take_control(self, token: str = "") -> None:
-        self.call(CommandId.TAKE_CONTROL, token)
+    def take_control(self, token: str = "", watchdog: float | None = None) -> float | None:
+        """Take control; ``watchdog`` (s) asks for a lease period, else the server's default.
+        Returns the period in force (None from a server without the watchdog) and, when
+        ``keepalive`` is on, keeps the lease alive from a background thread [RS-7.13]."""
+        params: tuple[Value, ...] = (token,) if watchdog is None else (token, float(watchdog))
+        reply = self.call(CommandId.TAKE_CONTROL, *params)
+        lease = reply[0] if reply and isinstance(reply[0], float) else None
+        self.lease = lease
+        if lease is not None and self.keepalive:
+            self._start_keeper(lease)
+        return lease
 
     def release_control(self) -> None:
+        self._stop_keeper()
+        self.lease = None
         self.call(CommandId.RELEASE_CONTROL)
+
+    # --- the control lease -------------------------------------------------------------------
+
+    #: Keep the control lease alive from a background thread while control is held.
+    keepalive = True
+
+    def _start_keeper(self, lease: float) -> None:
+        if self._keeper is not None and self._keeper.is_alive():
+            return
+        self._keeper_stop.clear()
+        self._keeper = threading.Thread(
+            target=self._keep_lease, args=(lease,), name="control-lease", daemon=True
+        )
+        self._keeper.start()
+
+    def _stop_keeper(self) -> None:
+        self._keeper_stop.set()
+        keeper = self._keeper
+        if keeper is not None and keeper is not threading.current_thread():
+            keeper.join(2.0)
+        self._keeper = None
+
+    def _keep_lease(self, lease: float) -> None:
+        """A Ping whenever nothing was sent for lease / 3. Idle, it is an ordinary call; while
+        a call is in flight (a WaitEndMove piece that a busy or simulated server takes long
+        to answer) it is sent beside it and its reply is dropped when it comes."""
+        interval = lease / 3
+        while not self._keeper_stop.wait(interval / 2):
+            if time.monotonic() - self._last_sent < interval:
+                continue
+            try:
+                if self._lock.acquire(blocking=False):
+                    try:
+                        if self._sock is None or self._keeper_stop.is_set():
+                            return
+                        self.call(CommandId.PING, b"", timeout=max(self.timeout, lease))
+                    finally:
+                        self._lock.release()
+                else:
+                    request_id = self._new_request_id()
+                    self._abandoned.add(request_id)
+                    if self._sock is None:
+                        return
+                    self._send(encode_packet(request(CommandId.PING, request_id, b"")))
+            except (OSError, ProtocolError, AssertionError):
+                return  # the connection is gone; the next request will say so
 
     def get_time(self) -> float:
         (t,) = self.call(CommandId.GET_TIME)
@@ -266,4 +360,28 @@ class FramedClient:
         return t
 
 
-__all__ = ["ClientTimeout", "ConnectionClosed", "FramedClient", "RemoteError"]
+def wait_end_move(client: FramedClient, timeout: float) -> bool:
+    """WaitEndMove for up to ``timeout`` s, sent in pieces shorter than half the control
+    lease, so a controller waiting for a long move keeps its lease [RS-7.13]; True when the
+    arm settled. The pieces add up to ``timeout`` on the robot's clock (simulated or real)."""
+    remaining = float(timeout)
+    while True:
+        lease = client.lease
+        piece = remaining if lease is None else min(remaining, lease / 2)
+        (done,) = client.call(CommandId.WAIT_END_MOVE, piece, timeout=piece + client.timeout)
+        remaining -= piece
+        if done is True or remaining <= 1e-9:
+            return done is True
+
+
+def _is_limit_notice(packet: Packet) -> bool:
+    """The unsolicited BUSY (request ID 0) of a server at its client limit [RS-7.2]."""
+    return (
+        packet.kind is PacketKind.ERROR
+        and packet.request_id == 0
+        and packet.error is not None
+        and packet.error[0] == ErrorCode.BUSY
+    )
+
+
+__all__ = ["ClientTimeout", "ConnectionClosed", "FramedClient", "RemoteError", "wait_end_move"]

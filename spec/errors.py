@@ -40,7 +40,7 @@ class ErrorCode(IntEnum):
 
 #: One-line meaning of every code, used by PROTOCOL.md's table, the decoder CLI and clients.
 ERROR_MEANINGS: dict[ErrorCode, str] = {
-    ErrorCode.BAD_FRAME: "malformed frame: bad magic, kind, flags or a length below the header",
+    ErrorCode.BAD_FRAME: "malformed frame: bad magic, kind or flags",
     ErrorCode.BAD_CRC: "CRC-32 of the frame does not match its contents",
     ErrorCode.UNSUPPORTED_VERSION: "protocol major version not supported by the receiver",
     ErrorCode.FRAME_TOO_LARGE: "payload length above the receiver's maximum",

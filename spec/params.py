@@ -121,16 +121,18 @@ class Location:
         return (self.x, self.y, self.z, self.rx, self.ry, self.rz)
 
 
-IDENTITY = (1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0)
+#: A frame on itself: the zero location, and the identity transform (16 values, row-major).
+IDENTITY_LOCATION = Location(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+IDENTITY_MATRIX = (1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0)
 
 
 @dataclass(frozen=True, slots=True)
 class Transform:
     """A 4x4 homogeneous transform, 16 values row-major, translation in mm."""
 
-    values: tuple[float, ...] = IDENTITY
+    values: tuple[float, ...] = IDENTITY_MATRIX
 
-    def __init__(self, values: object = IDENTITY) -> None:
+    def __init__(self, values: object = IDENTITY_MATRIX) -> None:
         try:
             flat = _floats(_flatten(values), "Transform")
         except TypeError:

@@ -155,8 +155,27 @@ COMMANDS: tuple[CommandSpec, ...] = (
         CommandId.TAKE_CONTROL,
         "TakeControl",
         "common",
-        "Take control of the service for this connection (one holder at a time).",
-        params=(P("token", T.STRING, "", 'shared secret if the server requires one, else ""'),),
+        "Take control of the service for this connection (one holder at a time), as a lease "
+        "kept by sending frames within the watchdog period (1.1).",
+        params=(
+            P("token", T.STRING, "", 'shared secret if the server requires one, else ""'),
+            P(
+                "watchdog",
+                T.FLOAT,
+                "s",
+                "lease period asked for; server default if left off",
+                optional=True,
+            ),
+        ),
+        reply=(
+            P(
+                "watchdog",
+                T.FLOAT,
+                "s",
+                "lease period in force (absent from 1.0 servers)",
+                optional=True,
+            ),
+        ),
     ),
     CommandSpec(
         CommandId.RELEASE_CONTROL,

@@ -1,10 +1,24 @@
 """The framed TCP server shell both services share (PROTOCOL.md section 7).
 
-A thread per connection reads bytes, feeds the sans-I/O :class:`FrameDecoder` and answers each
-request in order. The shell owns every policy that is not a command's business: the allow-list,
-the client limit, frame size and timeouts, error packets for malformed frames, the common
-commands (Hello, Ping, TakeControl, ReleaseControl, GetTime), control ownership, parameter
-checks against the registry, and statistics. A service implements :class:`Service`.
+A reader thread per connection reads bytes, feeds the sans-I/O :class:`FrameDecoder` and
+answers each request in order. The shell owns every policy that is not a command's business:
+the allow-list, the client limit, frame size and timeouts, error packets for malformed frames,
+the common commands (Hello, Ping, TakeControl, ReleaseControl, GetTime), control ownership and
+its watchdog, parameter checks against the registry, and statistics. A service implements
+:class:`Service` (or :class:`HandlerService`, a table of handlers).
+
+Safety of control (PROTOCOL.md 7.1):
+
+- A session never goes blind. Requests that may block (the service's ``blocking`` commands,
+  e.g. WaitEndMove) run on a per-session worker thread, so the reader keeps reading: it sees
+  the connection close at once, renews the control lease with every frame, and executes the
+  service's ``urgent`` commands (the stopping ones) the moment they arrive [RS-7.12].
+- The controlling connection holds a lease (the watchdog period, set at TakeControl): a
+  controller that sends no frame for that long loses control and the service makes its
+  controlled stop (:meth:`Service.on_control_lost`) [RS-7.13]. The same on close and on
+  server shutdown.
+- A server at its client limit keeps a few reserved connections open for EmergencyStop only,
+  so it always gets through [RS-7.14].
 
 The server never dies from what a client sends: every rejection becomes an error packet or a
 clean close, and a failing handler becomes an INTERNAL_ERROR reply [RS-7.9].
@@ -14,18 +28,20 @@ from __future__ import annotations
 
 import ipaddress
 import logging
+import math
 import selectors
 import signal
 import socket
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from types import FrameType
 from typing import Any
 
 from spec import wire
+from spec.auth import AuthBackoff, Network, address_allowed, tokens_equal
 from spec.codec import (
     LARGE_FRAME,
     FrameDecoder,
@@ -42,28 +58,38 @@ from spec.wire import PacketKind
 
 log = logging.getLogger(__name__)
 
-Network = ipaddress.IPv4Network | ipaddress.IPv6Network
-
 
 @dataclass(frozen=True)
 class ServerPolicy:
     """Connection policies (PROTOCOL.md section 7); the defaults are the spec's SHOULDs."""
 
     max_clients: int = 64
+    #: Connections over ``max_clients`` kept open for EmergencyStop only [RS-7.14].
+    reserved_slots: int = 4
+    #: s a reserved connection stays open for its EmergencyStop [RS-7.14].
+    reserved_grace: float = 2.0
     max_payload: int = wire.DEFAULT_MAX_PAYLOAD
     frame_timeout: float = 5.0  # s to finish a frame once its first byte arrived [RS-7.5]
     idle_timeout: float = 300.0  # s without any byte before the server closes [RS-7.6]
     allow: tuple[Network, ...] = ()  # empty: every client that can reach the address
     token: str | None = None  # TakeControl must present it when set [RS-7.3]
+    #: Control lease (s) when TakeControl names none, and the range a client may ask [RS-7.13].
+    watchdog: float = 1.0
+    watchdog_min: float = 0.05
+    watchdog_max: float = 10.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.watchdog_min <= self.watchdog <= self.watchdog_max < math.inf:
+            raise ValueError(
+                f"control watchdog must satisfy 0 < min <= default <= max < inf, got "
+                f"{self.watchdog_min} <= {self.watchdog} <= {self.watchdog_max}"
+            )
+        if self.token is not None and not self.token.strip():
+            # An empty token would be presented by any client: protection silently off.
+            raise ValueError("the control token is empty (use None for no token)")
 
     def allows(self, host: str) -> bool:
-        if not self.allow:
-            return True
-        try:
-            address = ipaddress.ip_address(host.split("%")[0])
-        except ValueError:
-            return False
-        return any(address in net for net in self.allow)
+        return address_allowed(self.allow, host)
 
 
 def parse_networks(items: Iterable[str]) -> tuple[Network, ...]:
@@ -92,19 +118,41 @@ class Identity:
 class Session:
     """One client connection, as the service sees it."""
 
-    def __init__(self, server: FramedServer, sock: socket.socket, peer: tuple[Any, ...]) -> None:
+    def __init__(
+        self,
+        server: FramedServer,
+        sock: socket.socket,
+        peer: tuple[Any, ...],
+        *,
+        reserved: bool = False,
+    ) -> None:
         self.server = server
         self.sock = sock
         self.peer = peer
         self.id = next(server._session_ids)
         self._send_lock = threading.Lock()
         self.closed = False
+        #: Over the client limit: only EmergencyStop is served [RS-7.14].
+        self.reserved = reserved
+        self.opened = time.monotonic()
+        #: When the last frame arrived: the control lease runs from it [RS-7.13].
+        self.alive_at = self.opened
+        #: Control lease (s) in force while this connection holds control [RS-7.13].
+        self.watchdog = server.policy.watchdog
+        #: Why control was taken away from this connection, for its next control command.
+        self.control_lost: str | None = None
         #: False after SetFrameCrc(false): frames to this client carry NO_CRC [RS-3.16].
         self.crc = True
+        self._worker: _Worker | None = None
 
     @property
     def in_control(self) -> bool:
         return self.server.control_holder is self
+
+    @property
+    def busy(self) -> bool:
+        """A request of this connection is queued or executing on its worker."""
+        return self._worker is not None and self._worker.pending > 0
 
     def send(self, packet: Packet) -> None:
         self.send_parts(encode_packet_parts(packet, wire.MAX_PAYLOAD, crc=self.crc))
@@ -126,17 +174,69 @@ class Session:
         return f"<Session {self.id} {self.peer[0]}:{self.peer[1]}>"
 
 
+class _Worker:
+    """Executes a session's requests that may block, in arrival order, so that the session's
+    reader keeps watching the connection meanwhile. Started on the first blocking request;
+    while it has work, every later request of the session queues behind it (replies stay in
+    request order), except the urgent ones."""
+
+    def __init__(self, server: FramedServer, session: Session) -> None:
+        self._server = server
+        self._session = session
+        self._items: deque[Packet | Rejected] = deque()
+        self._cond = threading.Condition()
+        #: Requests submitted and not yet answered; read without the lock by the reader,
+        #: decremented only after the reply went out, so "0" means every reply is sent.
+        self.pending = 0
+        self._thread = threading.Thread(
+            target=self._run, name=f"session-{session.id}-worker", daemon=True
+        )
+        self._thread.start()
+
+    def submit(self, item: Packet | Rejected) -> None:
+        with self._cond:
+            self.pending += 1
+            self._items.append(item)
+            self._cond.notify()
+
+    def wake(self) -> None:
+        with self._cond:
+            self._cond.notify()
+
+    def _run(self) -> None:
+        session = self._session
+        while True:
+            with self._cond:
+                while not self._items and not session.closed:
+                    self._cond.wait()
+                if session.closed:
+                    return  # what is still queued was sent by a connection that is gone
+                item = self._items.popleft()
+            try:
+                self._server._answer(session, item)
+            except OSError:
+                pass  # the connection broke; the reader ends the session
+            finally:
+                with self._cond:
+                    self.pending -= 1
+
+
 class Service:
     """What a RobotSocket or SensorSocket implementation provides to the shell."""
 
     identity: Identity
+    #: Commands executed the moment they arrive, even while earlier requests of the same
+    #: connection are pending (the stopping commands) [RS-7.12].
+    urgent: frozenset[int] = frozenset()
+    #: Commands that may block (WaitEndMove): run on the session's worker [RS-7.12].
+    blocking: frozenset[int] = frozenset()
 
     def handle(
         self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
     ) -> tuple[Value, ...]:
         """Execute a request whose parameters already match ``spec``; return the reply
         parameters or raise :class:`ProtocolError`."""
-        raise ProtocolError(f"{spec.name} not implemented", ErrorCode.NOT_SUPPORTED)
+        raise ProtocolError(f"{spec.name} not implemented", ErrorCode.UNKNOWN_COMMAND)
 
     def implemented(self) -> tuple[int, ...]:
         """Command IDs this service answers (default: all of its service in the registry)."""
@@ -147,10 +247,52 @@ class Service:
         return time.monotonic()
 
     def on_control_lost(self, session: Session) -> None:
-        """The controlling connection dropped: stop what it started in a controlled way."""
+        """The controller is gone (closed, silent past its watchdog, or the server stops):
+        stop what it started in a controlled way, process outputs first [RS-7.10]."""
 
     def on_disconnect(self, session: Session) -> None:
         """A connection closed (after control was released)."""
+
+
+Handler = Callable[[Session, tuple[Value, ...]], tuple[Value, ...]]
+
+
+class HandlerService(Service):
+    """A service whose commands are a table of handlers, as both reference services are.
+
+    :meth:`register` adds or replaces a handler (before the server is constructed: the shell
+    reads :meth:`implemented` once); :meth:`error_code` maps the service's own exceptions to
+    wire codes in one place."""
+
+    def __init__(self) -> None:
+        self._handlers: dict[int, Handler] = {}
+
+    def register(self, command: int, handler: Handler) -> None:
+        """Serve ``command`` with ``handler(session, params) -> reply params``."""
+        self._handlers[int(command)] = handler
+
+    def implemented(self) -> tuple[int, ...]:
+        return tuple(sorted(self._handlers))
+
+    def error_code(self, exc: Exception) -> ErrorCode | None:
+        """The wire code of a service exception; None lets it become INTERNAL_ERROR."""
+        return None
+
+    def handle(
+        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
+        handler = self._handlers.get(int(spec.id))
+        if handler is None:  # the shell answers unknown IDs before: only a direct call
+            raise ProtocolError(f"{spec.name} not implemented", ErrorCode.UNKNOWN_COMMAND)
+        try:
+            return handler(session, params)
+        except ProtocolError:
+            raise
+        except Exception as exc:
+            code = self.error_code(exc)
+            if code is None:
+                raise
+            raise ProtocolError(str(exc), code) from None
 
 
 class FramedServer:
@@ -175,7 +317,10 @@ class FramedServer:
             raise
         self._listener.listen(128)
         self.address: tuple[str, int] = self._listener.getsockname()[:2]
+        # shutdown() writes a byte here to wake the accept loop at once (no polling).
+        self._wake_r, self._wake_w = socket.socketpair()
         self._sessions: set[Session] = set()
+        self._reserved: deque[Session] = deque()
         self._lock = threading.Lock()
         self._stats: Counter[str] = Counter()
         self._rejected: Counter[str] = Counter()
@@ -183,7 +328,11 @@ class FramedServer:
         self._shutdown = threading.Event()
         self._stopped = threading.Event()
         self._thread: threading.Thread | None = None
+        #: Control changes and the watchdog wait on this condition [RS-7.13].
+        self._control = threading.Condition()
+        self._watchdog_thread: threading.Thread | None = None
         self.control_holder: Session | None = None
+        self._auth = AuthBackoff()  # failed TakeControl attempts per address [RS-7.20]
         self.handler_errors: list[BaseException] = []
         self._implemented = frozenset(service.implemented()) | {int(c) for c in _COMMON}
 
@@ -197,30 +346,49 @@ class FramedServer:
         self._thread.start()
         return self
 
-    def serve_forever(self, poll_interval: float = 0.2) -> None:
+    def serve_forever(self) -> None:
+        """Accept connections until :meth:`shutdown`; blocks without polling."""
         log.info("%s server listening on %s:%d", self.service.identity.service, *self.address[:2])
         self._listener.setblocking(False)
+        self._watchdog_thread = threading.Thread(
+            target=self._watch_control, name="control-watchdog", daemon=True
+        )
+        self._watchdog_thread.start()
         try:
             with selectors.DefaultSelector() as sel:
                 sel.register(self._listener, selectors.EVENT_READ)
+                sel.register(self._wake_r, selectors.EVENT_READ)
                 while not self._shutdown.is_set():
-                    if sel.select(poll_interval):
-                        self._accept()
+                    for key, _ in sel.select():
+                        if key.fileobj is self._listener:
+                            self._accept()
         finally:
             self._stopped.set()
 
     def shutdown(self, timeout: float = 5.0) -> None:
-        """Stop accepting, close every connection, wait for the threads."""
+        """Stop accepting; the controller's work stops in a controlled way first [RS-7.10];
+        then every connection closes and the threads are joined."""
         self._shutdown.set()
+        try:
+            self._wake_w.send(b"x")
+        except OSError:
+            pass
+        self._revoke_control(None, "server shutting down")
+        with self._control:
+            self._control.notify_all()
         if self._thread is not None:
             self._stopped.wait(timeout)
         with self._lock:
-            sessions = list(self._sessions)
+            sessions = list(self._sessions) + list(self._reserved)
         for s in sessions:
             _close_quietly(s.sock)
         self._listener.close()
         if self._thread is not None:
             self._thread.join(timeout)
+        if self._watchdog_thread is not None:
+            self._watchdog_thread.join(timeout)
+        self._wake_r.close()
+        self._wake_w.close()
 
     def __enter__(self) -> FramedServer:
         return self.start()
@@ -247,7 +415,9 @@ class FramedServer:
                     "rejected",
                     "refused_busy",
                     "refused_address",
+                    "reserved_connections",
                     "timeouts",
+                    "watchdog_expired",
                     "handler_errors",
                     "bytes_in",
                     "bytes_out",
@@ -276,23 +446,40 @@ class FramedServer:
             log.warning("refused %s: not in the allow-list", peer[0])
             _close_quietly(sock)
             return
+        evicted: Session | None = None
         with self._lock:
             full = len(self._sessions) >= self.policy.max_clients
-            session = Session(self, sock, peer)
+            reserved = full and self.policy.reserved_slots > 0
+            session = Session(self, sock, peer, reserved=reserved)
             if not full:
                 self._sessions.add(session)
                 self._stats["connections"] += 1
+            elif reserved:
+                if len(self._reserved) >= self.policy.reserved_slots:
+                    evicted = self._reserved.popleft()  # the oldest reserved one makes room
+                self._reserved.append(session)
+                self._stats["reserved_connections"] += 1
+        if evicted is not None:
+            _close_quietly(evicted.sock)
         if full:
-            # [RS-7.2] the client over the limit gets BUSY, then the connection closes.
+            # [RS-7.2] the client over the limit gets BUSY (request ID 0); [RS-7.14] on a
+            # reserved connection it may still send EmergencyStop for a short while.
             self._count("refused_busy")
+            text = "client limit reached"
+            if reserved:
+                grace = self.policy.reserved_grace
+                text += f": this connection serves only EmergencyStop for {grace:g} s"
             try:
                 sock.settimeout(1.0)
-                session.send(error_packet(0, 0, ErrorCode.BUSY, "client limit reached"))
+                session.send(error_packet(0, 0, ErrorCode.BUSY, text))
             except OSError:
                 pass
-            _close_quietly(sock)
-            return
-        log.info("client %s:%s connected (session %d)", peer[0], peer[1], session.id)
+            if not reserved:
+                _close_quietly(sock)
+                return
+            log.warning("client limit reached: %s:%s on a reserved connection", *peer[:2])
+        else:
+            log.info("client %s:%s connected (session %d)", peer[0], peer[1], session.id)
         threading.Thread(
             target=self._serve_session, args=(session,), name=f"session-{session.id}", daemon=True
         ).start()
@@ -308,6 +495,19 @@ class FramedServer:
         finally:
             self._end_session(session)
 
+    def _deadline(
+        self, session: Session, in_frame: bool, frame_start: float, last_byte: float
+    ) -> tuple[float, str]:
+        """(time, reason) of the next deadline of a connection [RS-7.5], [RS-7.6], [RS-7.14]."""
+        policy = self.policy
+        if session.reserved:
+            return session.opened + policy.reserved_grace, ""
+        if in_frame:
+            return frame_start + policy.frame_timeout, "frame stopped half-way"
+        if session.busy:
+            return math.inf, ""  # waiting for our own reply is not idleness
+        return last_byte + policy.idle_timeout, "idle"
+
     def _session_loop(self, session: Session) -> None:
         policy = self.policy
         decoder = FrameDecoder(
@@ -317,19 +517,18 @@ class FramedServer:
         # Blocking reads that wake up every ``tick`` (SO_RCVTIMEO) cost one system call per
         # request instead of the three of a Python socket timeout; deadlines are checked on
         # each wake-up, so they are kept to within a tick.
-        ticking = set_kernel_timeouts(
-            sock, min(1.0, policy.frame_timeout / 5, policy.idle_timeout / 5)
-        )
+        tick = min(1.0, policy.frame_timeout / 5, policy.idle_timeout / 5)
+        if session.reserved:
+            tick = min(tick, policy.reserved_grace / 4)
+        ticking = set_kernel_timeouts(sock, tick)
         last_byte = frame_start = time.monotonic()
-        while not self._shutdown.is_set():
+        while not self._shutdown.is_set() and not session.closed:
             now = time.monotonic()
-            if decoder.in_frame:
-                deadline, why = frame_start + policy.frame_timeout, "frame stopped half-way"
-            else:
-                deadline, why = last_byte + policy.idle_timeout, "idle"
+            deadline, why = self._deadline(session, decoder.in_frame, frame_start, last_byte)
             if now >= deadline:
-                self._count("timeouts")
-                self._send_error(session, 0, 0, ErrorCode.TIMEOUT, f"timeout: {why}")
+                if why:
+                    self._count("timeouts")
+                    self._send_error(session, 0, 0, ErrorCode.TIMEOUT, f"timeout: {why}")
                 return
             if not ticking:
                 sock.settimeout(min(deadline - now, 1.0))
@@ -341,38 +540,52 @@ class FramedServer:
                 return
             with self._lock:
                 self._stats["bytes_in"] += len(data)
-            was_in_frame = decoder.in_frame
-            completed = False
             last_byte = time.monotonic()
             try:
                 decoder.feed(data)
                 for event in decoder.events():
-                    completed = True
-                    if isinstance(event, Rejected):
-                        self._reject(session, event)
-                    else:
-                        self._dispatch(session, event)
+                    # [RS-7.13] every frame from the controller renews its lease.
+                    session.alive_at = last_byte
+                    self._route(session, event)
             except PeerError as exc:
                 # [RS-3.8] header unusable: say why with request ID 0, then close.
                 self._reject_code(exc.code)
                 self._send_error(session, 0, 0, exc.code, exc.message)
                 return
-            # The partial-frame clock starts with the first byte of the unfinished frame.
-            if decoder.in_frame and (completed or not was_in_frame):
+            # [RS-7.5] the partial-frame clock runs between bytes: every byte of an
+            # unfinished frame restarts it, so a large frame on a slow link is not cut off.
+            if decoder.in_frame:
                 frame_start = last_byte
+
+    def _route(self, session: Session, event: Packet | Rejected) -> None:
+        """Answer now on the reader, or queue on the session's worker [RS-7.12]."""
+        if isinstance(event, Packet) and event.command in self.service.urgent:
+            self._answer(session, event)  # may overtake the pending replies
+        elif session.busy or (isinstance(event, Packet) and event.command in self.service.blocking):
+            if session._worker is None:
+                session._worker = _Worker(self, session)
+            session._worker.submit(event)
+        else:
+            self._answer(session, event)
+
+    def _answer(self, session: Session, event: Packet | Rejected) -> None:
+        if isinstance(event, Rejected):
+            self._reject(session, event)
+        else:
+            self._dispatch(session, event)
 
     def _end_session(self, session: Session) -> None:
         session.closed = True
-        lost_control = False
         with self._lock:
             self._sessions.discard(session)
-            if self.control_holder is session:
-                self.control_holder = None
-                lost_control = True
+            if session in self._reserved:
+                self._reserved.remove(session)
+        if session._worker is not None:
+            session._worker.wake()
         _close_quietly(session.sock)
-        if lost_control:
-            log.info("session %d closed while holding control: controlled stop", session.id)
-            self._guard(self.service.on_control_lost, session)
+        # [RS-7.10] a controller that closes (or is killed) stops the arm whatever it was
+        # doing, also while a request of it is still executing on its worker.
+        self._revoke_control(session, "connection closed")
         self._guard(self.service.on_disconnect, session)
         log.info("session %d closed", session.id)
 
@@ -382,6 +595,42 @@ class FramedServer:
         except Exception as exc:
             self.handler_errors.append(exc)
             log.exception("service hook failed")
+
+    # --- control and its watchdog ------------------------------------------------------------
+
+    def _revoke_control(self, session: Session | None, why: str) -> None:
+        """Take control from ``session`` (None: from whoever holds it) and let the service
+        make its controlled stop."""
+        with self._control:
+            holder = self.control_holder
+            if holder is None or (session is not None and holder is not session):
+                return
+            self.control_holder = None
+            holder.control_lost = why
+            self._control.notify_all()
+        log.warning("session %d lost control (%s): controlled stop", holder.id, why)
+        self._guard(self.service.on_control_lost, holder)
+
+    def _watch_control(self) -> None:
+        """[RS-7.13] A controller that shows no life for its watchdog period loses control.
+        Sleeps until the holder's deadline; a frame in between moves the deadline on."""
+        while not self._shutdown.is_set():
+            with self._control:
+                holder = self.control_holder
+                if holder is None:
+                    self._control.wait()
+                    continue
+                late = time.monotonic() - (holder.alive_at + holder.watchdog)
+                if late < 0:
+                    self._control.wait(-late)
+                    continue
+                if _unread(holder.sock):
+                    # Bytes from the controller wait in the kernel: it is alive, only this
+                    # busy process has not read them yet. Late, not a lost controller.
+                    holder.alive_at = time.monotonic()
+                    continue
+            self._count("watchdog_expired")
+            self._revoke_control(holder, f"watchdog: no frame for {holder.watchdog:g} s")
 
     # --- requests ----------------------------------------------------------------------------
 
@@ -443,10 +692,21 @@ class FramedServer:
                 f"unknown command 0x{packet.command:04x} for the {service} service",
                 ErrorCode.UNKNOWN_COMMAND,
             )
+        if session.reserved and packet.command != CommandId.EMERGENCY_STOP:
+            # [RS-7.14] a reserved connection serves EmergencyStop only.
+            raise ProtocolError(
+                f"client limit reached: only EmergencyStop is served here, not {spec.name}",
+                ErrorCode.BUSY,
+            )
         check_params(spec.params, packet.params, f"{spec.name}")
         if spec.needs_control and not session.in_control:
             # [RS-7.4] commands that move or switch anything need control.
-            holder = "another client holds control" if self.control_holder else "take control"
+            if session.control_lost is not None:
+                holder = f"control was lost: {session.control_lost}"
+            elif self.control_holder is not None:
+                holder = "another client holds control"
+            else:
+                holder = "take control"
             raise ProtocolError(f"{spec.name} needs control ({holder})", ErrorCode.NOT_IN_CONTROL)
         common = _COMMON.get(spec.id)
         if common is not None:
@@ -484,22 +744,60 @@ class FramedServer:
 
     def _take_control(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
         token = params[0]
-        if self.policy.token is not None and token != self.policy.token:
-            raise ProtocolError("control token missing or wrong", ErrorCode.AUTH_FAILED)
-        with self._lock:
+        expected = self.policy.token
+        if expected is not None:
+            assert isinstance(token, str)  # check_params made sure of it
+            address, now = session.peer[0], time.monotonic()
+            with self._lock:
+                wait = self._auth.wait(address, now)
+                if wait == 0.0:
+                    right = tokens_equal(token, expected)
+                    if right:
+                        self._auth.succeeded(address)
+                    else:
+                        failures, delay = self._auth.failed(address, now)
+            if wait > 0.0:
+                # [RS-7.20] refused without comparing, and not logged: a guesser would fill
+                # the log; its failures that were compared are.
+                raise ProtocolError(
+                    f"too many wrong tokens from {address}: retry in {wait:.2f} s",
+                    ErrorCode.AUTH_FAILED,
+                )
+            if not right:
+                log.warning(
+                    "session %d: wrong control token from %s (%d in a row, back-off %.2f s)",
+                    session.id, address, failures, delay,
+                )  # fmt: skip
+                raise ProtocolError("control token missing or wrong", ErrorCode.AUTH_FAILED)
+        policy = self.policy
+        watchdog = params[1] if len(params) > 1 else policy.watchdog
+        assert isinstance(watchdog, float)
+        if not policy.watchdog_min <= watchdog <= policy.watchdog_max:
+            # [RS-7.13] the lease a client asks for must be within the server's limits.
+            raise ProtocolError(
+                f"watchdog must be within [{policy.watchdog_min:g}, {policy.watchdog_max:g}] s,"
+                f" got {watchdog!r}",
+                ErrorCode.OUT_OF_RANGE,
+            )
+        with self._control:
             holder = self.control_holder
             if holder is not None and holder is not session:
                 raise ProtocolError(
                     f"control is held by {holder.peer[0]}:{holder.peer[1]}", ErrorCode.BUSY
                 )
+            session.watchdog = watchdog
+            session.alive_at = time.monotonic()
+            session.control_lost = None
             self.control_holder = session
-        log.info("session %d took control", session.id)
-        return ()
+            self._control.notify_all()
+        log.info("session %d took control (watchdog %g s)", session.id, watchdog)
+        return (watchdog,)
 
     def _release_control(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        with self._lock:
+        with self._control:
             if self.control_holder is session:
                 self.control_holder = None
+                self._control.notify_all()
                 log.info("session %d released control", session.id)
         return ()
 
@@ -533,6 +831,14 @@ def _sendmsg_all(sock: socket.socket, parts: list[bytes]) -> None:
             views.pop(0)
         if sent:
             views[0] = views[0][sent:]
+
+
+def _unread(sock: socket.socket) -> bool:
+    """True when received bytes wait unread on ``sock`` (not at its end of stream)."""
+    try:
+        return bool(sock.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT))
+    except OSError:
+        return False
 
 
 def _close_quietly(sock: socket.socket) -> None:
@@ -574,6 +880,8 @@ def serve_until_signal(
 
 __all__ = [
     "FramedServer",
+    "Handler",
+    "HandlerService",
     "Identity",
     "ServerPolicy",
     "Service",

@@ -8,6 +8,7 @@ the server's session loop and the client's reply wait.
 
 from __future__ import annotations
 
+import math
 import socket
 import struct
 
@@ -16,12 +17,14 @@ def set_kernel_timeouts(sock: socket.socket, seconds: float, *, send: bool = Tru
     """Make ``sock`` blocking with a receive (and send) timeout of ``seconds`` (> 0); False
     where the platform does not take them (use Python timeouts there)."""
     try:
-        timeval = struct.pack("ll", int(seconds), int((seconds % 1.0) * 1e6))
+        # Rounded up to 1 µs: a zero timeval means "no timeout", a wait forever.
+        micros = max(1, math.ceil(seconds * 1e6))
+        timeval = struct.pack("ll", micros // 1_000_000, micros % 1_000_000)
         sock.settimeout(None)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, timeval)
         if send:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, timeval)
-    except (OSError, struct.error):
+    except (OSError, OverflowError, ValueError, struct.error):
         return False
     return True
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
-from typing import Any, NoReturn
+from typing import Any
 
 from spec import cliargs
 from spec.errors import ProtocolError
@@ -34,9 +34,21 @@ from sync.experiment import (
 PROG = "python -m sync"
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message}\n")
+#: Bounds of the experiment's options: beyond them the sine or the sample arrays stop making
+#: sense (or stop fitting in memory, or divide by a denormal), so they are usage errors, not
+#: tracebacks later.
+_HZ = cliargs.number_in(0.001, 1000.0)
+_MM = cliargs.number_in(0.001, 1000.0)
+_DURATION = cliargs.number_in(0.01, 3600.0)
+_RATE = cliargs.number_in(0.1, 10000.0)
+_SEARCH_MS = cliargs.number_in(0.2, 1000.0)
+
+
+def _frequencies(text: str) -> list[float]:
+    values = [_HZ(item) for item in text.split(",") if item.strip()]
+    if not values:
+        raise argparse.ArgumentTypeError(f"expected comma-separated frequencies, got {text!r}")
+    return values
 
 
 def _endpoint(text: str) -> tuple[str, int]:
@@ -46,33 +58,41 @@ def _endpoint(text: str) -> tuple[str, int]:
     return host, int(port)
 
 
-def _parser() -> _Parser:
-    p = _Parser(prog=PROG, description="Robot-sensor synchronisation tools.")
-    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+def _parser() -> cliargs.Parser:
+    p = cliargs.Parser(prog=PROG, description="Robot-sensor synchronisation tools.")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=cliargs.Parser)
     for name in ("delay", "sweep"):
         what = "the frequency sweep of Fig. 8" if name == "sweep" else "the sine experiment"
         d = sub.add_parser(name, help=f"measure ΔT with {what} (section VI)")
         d.add_argument("--robot", type=_endpoint, help="RobotSocket HOST:PORT")
         d.add_argument("--sensor", type=_endpoint, help="SensorSocket HOST:PORT")
         d.add_argument(
-            "--frequency", type=cliargs.positive_float, default=1.5, help="sine frequency (Hz)"
+            "--frequency", type=_HZ, default=1.5, help="sine frequency (Hz, 0.001..1000)"
         )
         d.add_argument(
-            "--amplitude", type=cliargs.positive_float, default=2.0, help="sine amplitude (mm)"
+            "--amplitude", type=_MM, default=2.0, help="sine amplitude (mm, 0.001..1000)"
         )
         d.add_argument(
-            "--duration", type=cliargs.positive_float, default=10.0, help="sine duration (s)"
+            "--duration", type=_DURATION, default=10.0, help="sine duration (s, 0.01..3600)"
         )
+        d.add_argument("--rate", type=_RATE, default=250.0, help="trigger rate (Hz, 0.1..10000)")
         d.add_argument(
-            "--rate", type=cliargs.positive_float, default=250.0, help="trigger rate (Hz)"
+            "--search-max-ms", type=_SEARCH_MS, default=20.0, help="largest ΔT searched (ms)"
         )
-        d.add_argument("--search-max-ms", type=float, default=20.0)
         d.add_argument("--model", help="robot model for the DGM (default: from Hello)")
-        d.add_argument("--token", default="", help="control token of the robot")
+        token = d.add_mutually_exclusive_group()
+        token.add_argument("--token", default="", help="control token of the robot")
+        token.add_argument(
+            "--token-file",
+            dest="token",
+            type=cliargs.token_file,
+            metavar="FILE",
+            help="file holding the robot's control token (one line; not shown by ps)",
+        )
         d.add_argument("--apply", action="store_true", help="SetSyncDelay to the estimate")
         d.add_argument(
             "--frequencies",
-            type=cliargs.positive_floats,
+            type=_frequencies,
             default=list(DEFAULT_SWEEP_HZ),
             help="sweep frequencies, comma separated (Hz)",
         )
@@ -84,15 +104,20 @@ def _parser() -> _Parser:
             "--plot", metavar="DIR", type=cliargs.output_dir, help="write figures 6-9 as PNG"
         )
         d.add_argument("--emulate", action="store_true", help="in-process cell, simulated clock")
-        d.add_argument("--seed", type=int, default=0, help="seed of the emulated cell")
+        d.add_argument("--seed", type=cliargs.seed, default=0, help="seed of the emulated cell")
         d.add_argument("-q", "--quiet", action="store_true", help="no progress")
         from cell.options import add_timing_options
 
         add_timing_options(d)
     c = sub.add_parser("curvature", help="minimum radius of a sine seam (eq. 8-9)")
-    c.add_argument("--amplitude", type=float, default=2.0, help="mm")
-    c.add_argument("--frequency", type=float, default=5.0, help="Hz")
-    c.add_argument("--speed", type=float, default=250.0, help="welding speed (mm/s)")
+    c.add_argument("--amplitude", type=_MM, default=2.0, help="mm (0.001..1000)")
+    c.add_argument("--frequency", type=_HZ, default=5.0, help="Hz (0.001..1000)")
+    c.add_argument(
+        "--speed",
+        type=cliargs.number_in(0.1, 10000.0),
+        default=250.0,
+        help="welding speed (mm/s, 0.1..10000)",
+    )
     return p
 
 

@@ -32,9 +32,9 @@ from numpy.typing import NDArray
 
 from kinematics.robot import get_model
 from kinematics.transforms import location_to_transform
-from spec.client import FramedClient
+from spec.client import FramedClient, wait_end_move
 from spec.files import atomic_path, prepare_output_path, write_atomically
-from spec.params import FloatArray, IntArray, Location, Matrix, Value
+from spec.params import IDENTITY_LOCATION, FloatArray, IntArray, Location, Matrix, Value
 from spec.registry import BY_ID, SEAM_POINT_COLUMNS, CommandId
 from sync.delay import DelayEstimate, ResidualReport, estimate_delay, residual_after_sync
 
@@ -61,7 +61,6 @@ DEFAULT_SWEEP_HZ = (0.1, 0.2, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 7.0, 10.0)
 _SY = SEAM_POINT_COLUMNS.index("sy")
 _TT = SEAM_POINT_COLUMNS.index("t_trigger")
 _IDX = SEAM_POINT_COLUMNS.index("index")
-_IDENTITY = Location(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 class ExperimentError(RuntimeError):
@@ -256,8 +255,8 @@ def record_sine(
     if not status["powered"]:
         robot.call(CommandId.ENABLE_POWER)
     if status["moving"]:
-        robot.call(CommandId.WAIT_END_MOVE, 30.0, timeout=35.0)
-    loc0 = _reply(robot, CommandId.HERE, tool, _IDENTITY)["location"]
+        wait_end_move(robot, 30.0)
+    loc0 = _reply(robot, CommandId.HERE, tool, IDENTITY_LOCATION)["location"]
     assert isinstance(loc0, Location)
     times, y = sine_path(s)
     locs = np.zeros((times.size, 6))
@@ -281,10 +280,7 @@ def record_sine(
         done = False
         while True:
             if not done:
-                waited = _reply(
-                    robot, CommandId.WAIT_END_MOVE, float(s.chunk_s), timeout=s.chunk_s + 10.0
-                )
-                done = bool(waited["done"])
+                done = wait_end_move(robot, float(s.chunk_s))
             rows = _matrix(_reply(robot, CommandId.GET_JOINT_LOG, float(log_since))["log"])
             if rows.size:
                 logs.append(rows)

@@ -23,13 +23,16 @@ import math
 import select
 import socket
 import threading
-from collections.abc import Callable, Sequence
+from collections import Counter
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinematics.transforms import transforms_to_locations
+from spec.auth import Network, address_allowed
 from spec.datagrams import INDEX_MODULUS, SensorData, Trigger, decode_datagram, encode_trigger
 from spec.errors import DatagramError
 from spec.registry import SEAM_POINT_COLUMNS
@@ -469,6 +472,8 @@ class UdpSyncEndpoint:
         host: str = "0.0.0.0",
         port: int = 0,
         poll_interval_s: float = 0.005,
+        allow: Iterable[Network] = (),
+        sensor_only: bool = True,
     ) -> None:
         self.core = core
         self.clock = clock
@@ -481,10 +486,19 @@ class UdpSyncEndpoint:
         self._wake_r, self._wake_w = socket.socketpair()
         self._thread: threading.Thread | None = None
         self.send_errors = 0
+        #: Networks datagrams may come from; empty: any [SY-1.5].
+        self.allow: tuple[Network, ...] = tuple(allow)
+        #: Accept datagrams only from the sensor endpoint the triggers go to [SY-3.7].
+        self.sensor_only = sensor_only
+        self._sources: frozenset[tuple[str, int]] = frozenset()
+        #: Datagrams dropped unread: "refused_address" (outside ``allow``), "foreign" (not
+        #: from the sensor endpoint).
+        self.dropped: Counter[str] = Counter()
 
     def set_target(self, host: str, port: int) -> None:
         """Where triggers go (the sensor's trigger listener); port 0: nowhere."""
         self.target = (host, port) if port else None
+        self._sources = _addresses(host, port, self._sock.family) if port else frozenset()
         self.wake()
 
     def wake(self) -> None:
@@ -553,10 +567,31 @@ class UdpSyncEndpoint:
     def _receive_all(self) -> None:
         while True:
             try:
-                raw, _ = self._sock.recvfrom(2048)
+                raw, source = self._sock.recvfrom(2048)
             except (BlockingIOError, InterruptedError):
                 return
             except OSError as exc:
                 log.debug("recvfrom: %s", exc)
                 return
-            self.core.on_datagram(raw, self.clock())
+            if self._accepts(source):
+                self.core.on_datagram(raw, self.clock())
+
+    def _accepts(self, source: Any) -> bool:
+        host, port = source[0], source[1]
+        if not address_allowed(self.allow, host):
+            self.dropped["refused_address"] += 1
+            return False
+        if self.sensor_only and self._sources and (host, port) not in self._sources:
+            # [SY-3.7] data from anyone but the sensor could forge seam points.
+            self.dropped["foreign"] += 1
+            return False
+        return True
+
+
+def _addresses(host: str, port: int, family: int) -> frozenset[tuple[str, int]]:
+    """The (address, port) pairs ``host:port`` stands for, as recvfrom reports a source."""
+    try:
+        infos = socket.getaddrinfo(host, port, family, socket.SOCK_DGRAM)
+    except (OSError, UnicodeError):
+        return frozenset({(host, port)})
+    return frozenset((str(info[4][0]), int(info[4][1])) for info in infos)

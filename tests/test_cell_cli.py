@@ -12,6 +12,8 @@ from pathlib import Path
 import pytest
 
 from cell.__main__ import main
+from robotsocket.__main__ import main as robot_main
+from sensorsocket.__main__ import main as sensor_main
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = dict(os.environ, PYTHONPATH=str(ROOT))
@@ -33,7 +35,9 @@ def test_option_errors_name_the_option(
     assert code == 2 and names in err and len(err.strip().splitlines()) == 1
 
 
-def test_serve_answers_a_robot_and_a_sensor_call_then_stops_on_sigint() -> None:
+def test_serve_answers_a_robot_and_a_sensor_call_then_stops_on_sigint(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
     proc = subprocess.Popen(
         [sys.executable, "-m", "cell", "serve", "--clock", "sim", "--robot-port", "0",
          "--sensor-port", "0"],
@@ -49,16 +53,15 @@ def test_serve_answers_a_robot_and_a_sensor_call_then_stops_on_sigint() -> None:
             described[key.strip()] = value.strip()
         robot, sensor = described["robot"], described["sensor"]
         assert float(described["true_delta_t_ms"]) == pytest.approx(4.9)
-        for module, endpoint, command in (
-            ("robotsocket", robot, "Herej"),
-            ("sensorsocket", sensor, "GetSettings"),
+        # The clients in-process (the same main() each module runs): no interpreter start-ups.
+        for client_main, endpoint, command in (
+            (robot_main, robot, "Herej"),
+            (sensor_main, sensor, "GetSettings"),
         ):
-            out = subprocess.run(
-                [sys.executable, "-m", module, "call", endpoint, command],
-                capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=60,
-            )  # fmt: skip
-            assert out.returncode == 0, out.stderr
-            assert isinstance(json.loads(out.stdout), dict)
+            code = client_main(["call", endpoint, command])
+            out, err = capsys.readouterr()
+            assert code == 0, err
+            assert isinstance(json.loads(out), dict)
         proc.send_signal(signal.SIGINT)
         proc.communicate(timeout=30)
         assert proc.returncode == 0
@@ -68,10 +71,11 @@ def test_serve_answers_a_robot_and_a_sensor_call_then_stops_on_sigint() -> None:
             proc.communicate()
 
 
+@pytest.mark.slow
 def test_demo_runs_end_to_end(tmp_path: Path) -> None:
     """What `make demo` shows: the robot tour, a sensor frame, ΔT through the sockets."""
     out = subprocess.run(
-        [sys.executable, "-m", "cell", "demo", "--out", str(tmp_path), "--duration", "3",
+        [sys.executable, "-m", "cell", "demo", "--out", str(tmp_path), "--duration", "1",
          "--no-conformance"],
         capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=300,
     )  # fmt: skip

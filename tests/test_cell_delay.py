@@ -21,6 +21,7 @@ from sync.network import DelayLink
 PAPER = CellTiming()  # 4 ms samples, 0.6 ms jitter, 10 µm noise
 
 
+@pytest.mark.slow
 def test_paper_timing_full_chain() -> None:
     with EmulatedCell(clock="sim", seed=1, timing=PAPER) as cell:
         r = run_delay_experiment(
@@ -36,6 +37,7 @@ def test_paper_timing_full_chain() -> None:
     assert r.data.statistics["lost"] == 0 and r.data.statistics["matched"] > 2400
 
 
+@pytest.mark.slow
 def test_encoder_latency_moves_the_estimate_by_the_same_amount() -> None:
     s = ExperimentSettings(duration_s=3.0)
     est = []
@@ -47,6 +49,7 @@ def test_encoder_latency_moves_the_estimate_by_the_same_amount() -> None:
     assert shift == pytest.approx(1.0e-3, abs=0.02e-3)
 
 
+@pytest.mark.slow
 def test_injected_faults_do_not_corrupt_the_seam_trajectory() -> None:
     cell = EmulatedCell(clock="sim", seed=5, timing=PAPER)
     rng = np.random.default_rng(11)
@@ -65,6 +68,8 @@ def test_injected_faults_do_not_corrupt_the_seam_trajectory() -> None:
     assert r.residual.synced.rms_um <= 15.0
 
 
+@pytest.mark.slow
+@pytest.mark.realtime
 def test_real_time_over_sockets() -> None:
     with EmulatedCell(clock="real", seed=2, timing=PAPER) as cell:
         first = cell.core.next_index
@@ -157,7 +162,7 @@ def test_tool_move_trajectory_tracks_and_refuses_bad_paths() -> None:
         )
         rc.call(CommandId.WAIT_END_MOVE, 5.0)
         # setpoints vs the commanded path on the 4 ms grid [RS-5.24]
-        times, q = cell._truth.samples()
+        times, q = cell.motion.truth.samples()
         sel = (times > t_start) & (times <= t_start + 1.0 + 1e-9)
         poses = cell.robot.model.flange2base_batch(q[sel]) @ cell.sensor2flange
         s0 = cell.ready_sensor2base()
@@ -173,10 +178,10 @@ def test_sensor2base_pose_interpolation_exact() -> None:
         run_delay_experiment(
             cell.robot_address, cell.sensor_address, ExperimentSettings(duration_s=1.5)
         )
-        buf_t, buf_q = cell._truth.covering(-1.0)
+        buf_t, buf_q = cell.motion.truth.covering(-1.0)
         t = np.linspace(buf_t[1], buf_t[-1], 20001)
-        fast = cell.sensor2base(t)
-        exact = cell._setpoint_poses(lerp_inside(buf_t, buf_q, t))
+        fast = cell.motion.sensor2base(t)
+        exact = cell.motion.setpoint_poses(lerp_inside(buf_t, buf_q, t))
     # the arm moved (several mm), so the check is not vacuous
     assert np.ptp(exact[:, :3, 3], axis=0).max() > 1.0
     assert np.abs(fast[:, :3, 3] - exact[:, :3, 3]).max() < 1e-6  # mm
@@ -190,7 +195,7 @@ def test_node_poses_hook_matches_column_poses() -> None:
         run_delay_experiment(
             cell.robot_address, cell.sensor_address, ExperimentSettings(duration_s=1.0)
         )
-        buf_t, _ = cell._truth.covering(-1.0)
+        buf_t, _ = cell.motion.truth.covering(-1.0)
         rng = np.random.default_rng(5)
         emu = cell.sensor.emulator
         provider = emu.sensor2base
@@ -204,7 +209,7 @@ def test_node_poses_hook_matches_column_poses() -> None:
             nodes, w = nw
             assert nodes.shape == (w.shape[0], 16) and w.shape == (nodes.shape[0], 512)
             assert np.abs(w.sum(axis=0) - 1.0).max() < 1e-12
-            poses = cell.sensor2base(t).reshape(-1, 16)
+            poses = cell.motion.sensor2base(t).reshape(-1, 16)
             assert np.abs(w.T @ nodes - poses).max() < 1e-9  # mm
             seed = int(rng.integers(1 << 30))
             frames = []

@@ -19,7 +19,15 @@ KNOWN_DEFECTS: dict[str, set[str]] = {
 }
 
 
-@pytest.mark.parametrize("service", ["robot", "sensor", "sync"])
+# robot and sync run real-time emulators against the harness's reply and trigger deadlines.
+@pytest.mark.parametrize(
+    "service",
+    [
+        pytest.param("robot", marks=[pytest.mark.slow, pytest.mark.realtime]),
+        "sensor",
+        pytest.param("sync", marks=[pytest.mark.slow, pytest.mark.realtime]),
+    ],
+)
 def test_reference_scores_100_percent(service: str) -> None:
     try:
         ref = start(service)

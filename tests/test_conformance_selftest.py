@@ -9,6 +9,7 @@ are tiny raw-socket servers for framing-level breakage.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import socket
 import struct
@@ -26,6 +27,7 @@ from conformance.model import Outcome
 from conformance.runner import RunResult, Selection, exit_code, run
 from kinematics.transforms import concat, invert, location_to_transform, transform_to_location
 from spec import wire
+from spec.auth import AuthBackoff
 from spec.codec import FrameDecoder, Packet, Rejected, decode_packet, encode_packet
 from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data, encode_trigger
 from spec.errors import DatagramError, ErrorCode, ProtocolError
@@ -182,7 +184,12 @@ class MiniSensor(Service):
             if c == C.GET_IMAGE:
                 if self.reading is None:
                     raise ProtocolError("no image yet", ErrorCode.NO_DATA)
-                col, row, w, h = (list(params) + [0, 0, self.W, self.H][len(params) :])[:4]
+                # [SS-5.10] left-off width and height: the rest of the sensor.
+                col, row = ([*list(params), 0, 0])[:2]
+                assert isinstance(col, int) and isinstance(row, int)
+                col, row, w, h = (
+                    list(params) + [col, row, self.W - col, self.H - row][len(params) :]
+                )[:4]
                 assert all(isinstance(v, int) for v in (col, row, w, h))
                 if not (
                     col >= 0
@@ -209,7 +216,7 @@ class MiniSensor(Service):
                 return ()
             if c == C.SET_READOUT_WINDOW:
                 first, cols = int(params[0]), int(params[1])  # type: ignore[call-overload]
-                if not (first >= 0 and cols > 0 and first + cols <= self.W):
+                if not (first >= 0 and cols >= 16 and first + cols <= self.W):
                     raise ProtocolError("window out of range", ErrorCode.OUT_OF_RANGE)
                 self.window = (first, cols)
                 return (self.acq_time(),)
@@ -751,6 +758,7 @@ def sync_check(listener: MiniTriggerListener, select: tuple[str, ...] = ()) -> R
         return check("sync", address, select, profile="full", scale=0.5)
 
 
+@pytest.mark.slow
 def test_minimal_trigger_listener_scores_100_percent() -> None:
     result = sync_check(MiniTriggerListener())
     assert problems(result) == {}
@@ -886,14 +894,15 @@ class MiniSyncRobot(MiniRobot):
     )
     LOSS_TIMEOUT = 0.1
 
-    def __init__(self, *, count_duplicates: bool = True) -> None:
+    def __init__(self, *, count_duplicates: bool = True, any_source: bool = False) -> None:
         super().__init__()
         self.count_duplicates = count_duplicates
+        self.any_source = any_source  # broken on purpose: takes data from anyone [SY-3.7]
         self.endpoint: tuple[str, int] = ("", 0)
         self.delta_t = 0.005
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
-        self.sock.settimeout(0.01)
+        self.sock.settimeout(0.001)
         self.next_index = 7
         self.sent: dict[int, float] = {}  # index -> t_T, awaiting data
         self.lost: set[int] = set()
@@ -917,31 +926,33 @@ class MiniSyncRobot(MiniRobot):
         )
         self.to_send = 0
         self.rate = 0.0
+        self.next_t = 0.0
         self.lock = threading.Lock()
         self.stop = threading.Event()
         threading.Thread(target=self._loop, daemon=True).start()
 
     def _loop(self) -> None:
-        next_t = time.monotonic()
         while not self.stop.is_set():
             now = time.monotonic()
             with self.lock:
-                if self.to_send and now >= next_t and self.endpoint[1]:
+                if self.to_send and now >= self.next_t and self.endpoint[1]:
                     i, self.next_index = self.next_index, self.next_index + 1
                     self.sent[i] = now
                     self.to_send -= 1
                     self.stats["sent"] += 1
                     self.sock.sendto(encode_trigger(Trigger(i, now)), self.endpoint)
-                    next_t = now + 1.0 / self.rate
+                    self.next_t += 1.0 / self.rate  # on the schedule, not after the last send
                 for i, t in list(self.sent.items()):
                     if now - t > self.LOSS_TIMEOUT:
                         del self.sent[i]
                         self.lost.add(i)
                         self.stats["lost"] += 1
             try:
-                raw, _src = self.sock.recvfrom(2048)
+                raw, src = self.sock.recvfrom(2048)
             except (TimeoutError, OSError):
                 continue
+            if not self.any_source and src[:2] != self.endpoint:
+                continue  # [SY-3.7] only the sensor endpoint may send data
             with self.lock:
                 self._on_data(raw)
 
@@ -987,6 +998,8 @@ class MiniSyncRobot(MiniRobot):
                 self.endpoint = (str(params[0]), int(params[1]))  # type: ignore[call-overload]
                 return ()
             if c == C.SET_SYNC_DELAY:
+                if not abs(float(params[0])) <= 1.0:  # type: ignore[arg-type]
+                    raise ProtocolError("delta_t beyond 1 s", ErrorCode.OUT_OF_RANGE)
                 self.delta_t = float(params[0])  # type: ignore[arg-type]
                 return ()
             if c == C.SET_SENSOR_TOOL:
@@ -1004,9 +1017,9 @@ class MiniSyncRobot(MiniRobot):
                     raise ProtocolError("no sensor endpoint", ErrorCode.BAD_STATE)
                 if c == C.START_TRIGGERS:
                     rate, count = float(params[0]), int(params[1])  # type: ignore[arg-type,call-overload]
-                    if not 0 < rate <= 1000:
+                    if not 0 < rate <= 1000 or count < 0:
                         raise ProtocolError("rate out of range", ErrorCode.OUT_OF_RANGE)
-                    self.rate, self.to_send = rate, count
+                    self.rate, self.to_send, self.next_t = rate, count, time.monotonic()
                     return (self.next_index,)
                 times = params[0].values  # type: ignore[union-attr]
                 if any(b <= a for a, b in itertools.pairwise(times)):
@@ -1052,6 +1065,37 @@ def test_robot_not_counting_duplicates_is_caught() -> None:
         service.stop.set()
     _caught(result, "robot.sync.matching")
     assert "SY-3.2" in problems(result)["robot.sync.matching"]
+
+
+def test_robot_taking_data_from_anyone_is_caught() -> None:
+    service = MiniSyncRobot(any_source=True)
+    try:
+        with serving(FramedServer(service, policy=POLICY)) as address:
+            result = check("robot", address, ("robot.sync.foreign_data",), scale=0.5)
+    finally:
+        service.stop.set()
+    assert outcomes(result)["robot.sync.foreign_data"] is Outcome.NON_STRICT  # a SHOULD
+
+
+class NoBackoffServer(FramedServer):
+    """Compares every token, however many wrong ones came before [RS-7.20 broken]."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._auth = AuthBackoff(threshold=1 << 30)
+
+
+@pytest.mark.parametrize(
+    ("server_class", "want"), [(FramedServer, Outcome.PASS), (NoBackoffServer, Outcome.FAIL)]
+)
+def test_missing_token_backoff_is_caught(server_class: type[FramedServer], want: Outcome) -> None:
+    policy = dataclasses.replace(POLICY, token="s3cret")
+    with serving(server_class(MiniRobot(), policy=policy)) as address:
+        options = Options(timeout_scale=SCALE, token="s3cret")
+        result = run("robot", *address, options, Selection("core", ("control.token*",)))
+    got = outcomes(result)
+    assert got["control.token"] is Outcome.PASS
+    assert got["control.token_backoff"] is want, problems(result)
 
 
 def test_capability_file_makes_cases_not_applicable(tmp_path: Any) -> None:

@@ -7,25 +7,27 @@ import os
 import signal
 import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 
 from robotsocket.__main__ import main
 from robotsocket.emulator import RobotEmulator
 from robotsocket.service import RobotService
-from spec.server import FramedServer, ServerPolicy
+from spec.server import ServerPolicy
+
+if TYPE_CHECKING:
+    from tests.conftest import Serve
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture
-def endpoint(tmp_path: Path) -> Iterator[str]:
+def endpoint(tmp_path: Path, serve: Serve) -> str:
     (tmp_path / "token").write_text("tok\n")
-    srv = FramedServer(RobotService(RobotEmulator()), "127.0.0.1", 0, ServerPolicy(token="tok"))
-    with srv:
-        yield f"127.0.0.1:{srv.address[1]}"
+    srv = serve(RobotService(RobotEmulator()), ServerPolicy(token="tok"))
+    return f"127.0.0.1:{srv.address[1]}"
 
 
 def run(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
@@ -87,7 +89,7 @@ def test_watch_stops_after_count(endpoint: str, capsys: pytest.CaptureFixture[st
     assert code == 0 and len(lines) == 3 and all("power=off" in ln for ln in lines)
 
 
-def test_serve_runs_until_sigint() -> None:
+def test_serve_runs_until_sigint(capsys: pytest.CaptureFixture[str]) -> None:
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     proc = subprocess.Popen(
         [sys.executable, "-m", "robotsocket", "serve", "--port", "0", "--clock", "sim"],
@@ -102,11 +104,9 @@ def test_serve_runs_until_sigint() -> None:
         line = proc.stdout.readline()
         assert line.startswith("listening on 127.0.0.1:")
         port = line.rsplit(":", 1)[1].strip()
-        out = subprocess.run(
-            [sys.executable, "-m", "robotsocket", "call", f"127.0.0.1:{port}", "gettime"],
-            capture_output=True, text=True, env=env, cwd=ROOT, timeout=30,
-        )  # fmt: skip
-        assert out.returncode == 0 and json.loads(out.stdout) == {"time": 0.0}
+        # The client side in-process (the same main()): one interpreter start-up less.
+        code, out, _ = run(capsys, "call", f"127.0.0.1:{port}", "gettime")
+        assert code == 0 and json.loads(out) == {"time": 0.0}
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=15)
         assert proc.returncode == 0

@@ -7,7 +7,7 @@ import struct
 import threading
 import zlib
 from collections import Counter
-from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
@@ -22,18 +22,18 @@ from spec.params import Joints, decode_params
 from spec.registry import CommandId
 from spec.server import FramedServer, ServerPolicy
 
+if TYPE_CHECKING:
+    from tests.conftest import Serve
+
 N_FRAMES = 10_000
 N_CLIENTS = 64
 N_HEREJ = 1000  # per client, as the issue asks (about 15 s here)
 
 
 @pytest.fixture
-def server() -> Iterator[FramedServer]:
+def server(serve: Serve) -> FramedServer:
     policy = ServerPolicy(max_clients=N_CLIENTS + 8, frame_timeout=0.5, max_payload=4096)
-    srv = FramedServer(RobotService(RobotEmulator()), "127.0.0.1", 0, policy)
-    with srv:
-        yield srv
-    assert not srv.handler_errors
+    return serve(RobotService(RobotEmulator()), policy)
 
 
 def _frame(command: int, rid: int, payload: bytes, *, major: int = 1, kind: int = 1,
@@ -108,6 +108,7 @@ class Conn:
         self.sock.close()
 
 
+@pytest.mark.slow
 def test_random_and_mutated_frames(server: FramedServer) -> None:
     rng = np.random.default_rng(20240521)
     before = server.statistics()
@@ -174,6 +175,7 @@ def test_truncated_frame_and_one_byte_client_time_out(server: FramedServer) -> N
         assert c.ping(b"still here") == b"still here"
 
 
+@pytest.mark.slow
 def test_many_clients_get_their_own_replies(server: FramedServer) -> None:
     errors: list[str] = []
     barrier = threading.Barrier(N_CLIENTS)

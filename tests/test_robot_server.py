@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import socket
+import threading
 import time
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
@@ -31,6 +33,9 @@ from spec.params import Joints, Location
 from spec.registry import CommandId, commands_for
 from spec.server import FramedServer, ServerPolicy
 
+if TYPE_CHECKING:
+    from tests.conftest import Serve
+
 TARGET = (30.0, -20.0, 100.0, 10.0, 45.0, -30.0)
 
 
@@ -40,11 +45,8 @@ def robot() -> RobotEmulator:
 
 
 @pytest.fixture
-def server(robot: RobotEmulator) -> Iterator[FramedServer]:
-    srv = FramedServer(RobotService(robot), "127.0.0.1", 0, ServerPolicy(token="s3cret"))
-    with srv:
-        yield srv
-    assert not srv.handler_errors
+def server(robot: RobotEmulator, serve: Serve) -> FramedServer:
+    return serve(RobotService(robot), ServerPolicy(token="s3cret"))
 
 
 @pytest.fixture
@@ -58,7 +60,6 @@ def test_hello_lists_what_the_service_implements(client: RobotClient) -> None:
     assert info["service"] == "robot" and info["model"] == "RX90B"
     ids = set(info["commands"].values)  # type: ignore[union-attr]
     robot_ids = {int(c.id) for c in commands_for("robot") if c.service == "robot"}
-    robot_ids -= {int(CommandId.TOOL_MOVE_TRAJECTORY)}  # not implemented yet
     assert robot_ids <= ids
     assert int(CommandId.START_TRIGGERS) not in ids  # sync commands: not registered here
 
@@ -281,3 +282,44 @@ def test_raw_frames_get_the_request_id_echoed(server: FramedServer) -> None:
             got.extend(dec.events())
     assert [p.request_id for p in got] == [77, 78]  # type: ignore[union-attr]
     assert got[1].error[0] == ErrorCode.NOT_IN_CONTROL  # type: ignore[union-attr]
+
+
+def test_long_simulated_wait_of_a_bystander_does_not_freeze_the_server(
+    robot: RobotEmulator, server: FramedServer, client: RobotClient
+) -> None:
+    """Sim clock, arm held by StopMove: another connection's WaitEndMove(600) advances 150 000
+    cycles; Herej from a third connection is answered meanwhile (the emulator's lock is
+    taken per slice of cycles), and the controller's EmergencyStop gets in."""
+    client.take_control("s3cret")
+    client.enable_power()
+    client.joint_move([20.0, 0.0, 90.0, 0.0, 90.0, 0.0])
+    client.stop_move()
+    done: list[bool] = []
+    with RobotClient(*server.address, timeout=120.0) as bystander:
+        waiter = threading.Thread(target=lambda: done.append(bystander.wait_end_move(600.0)))
+        waiter.start()
+        with RobotClient(*server.address) as reader:
+            answered = 0
+            while waiter.is_alive() and answered < 3:
+                reader.herej()
+                answered += 1
+        alive_while_answering = waiter.is_alive()
+        client.emergency_stop()
+        waiter.join(120.0)
+    assert answered == 3 and alive_while_answering
+    assert done == [True]  # the e-stop ended the held move: settled
+
+
+def test_controller_keeps_its_lease_while_a_slow_simulated_wait_runs(
+    robot: RobotEmulator, server: FramedServer, client: RobotClient
+) -> None:
+    """A busy simulated server takes longer than the lease to answer one WaitEndMove piece
+    (each 4 ms cycle costs 10 ms of wall time here): the client's keeper pings beside the
+    pending call, so the controller is not taken for lost."""
+    robot.cycle_hooks.append(lambda t, q_sp, q_m: time.sleep(0.01))
+    assert client.take_control("s3cret", 0.1) == 0.1
+    client.enable_power()
+    client.joint_move([1.0, 0.0, 90.0, 0.0, 90.0, 0.0])
+    assert client.wait_end_move(30.0)
+    assert client.status().in_control
+    assert server.statistics()["watchdog_expired"] == 0

@@ -199,66 +199,6 @@ def test_random_images_never_raise(seed: int, kind: JointType, n_columns: int) -
         assert not d.found
 
 
-def _naive_stripe(frame: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray]:
-    """Two-pass windowed centroid per column in plain Python loops (the documented method),
-    given the threshold the detector estimated; returns (rows, mass)."""
-    det = SeamDetector(CAM, DetectorConfig(half_window=h))
-    thr = det.stripe(frame).threshold  # background/noise estimate: checked separately
-    n, nrows = frame.shape
-    w = 2 * h + 1
-    rows, mass = np.zeros(n), np.zeros(n)
-    for col in range(n):
-        values = frame[col].astype(np.float64)
-        start = min(max(int(np.argmax(values)) - h, 0), nrows - w)
-        for _ in range(2):
-            win = np.maximum(values[start : start + w] - thr, 0.0)
-            m = win.sum()
-            rel = (win @ np.arange(w)) / m if m > 0 else float(h)
-            rows[col], mass[col] = start + rel, m
-            start = min(max(int(np.rint(start + rel)) - h, 0), nrows - w)
-    return rows, mass
-
-
-@pytest.mark.parametrize("h", [3, 6])
-def test_stripe_matches_a_per_column_loop(h: int) -> None:
-    frame = _frame(Joint.lap(1.0), seed=21, seam_y_mm=1.3)[:200]
-    stripe = SeamDetector(CAM, DetectorConfig(half_window=h)).stripe(frame)
-    rows, mass = _naive_stripe(frame, h)
-    # background = median of the pixels at h+3 rows above and below each peak
-    peak = frame.argmax(axis=1)
-    ring = np.concatenate(
-        [
-            frame[np.arange(200), np.maximum(peak - h - 3, 0)],
-            frame[np.arange(200), np.minimum(peak + h + 3, 255)],
-        ]
-    )
-    assert stripe.background == pytest.approx(float(np.median(ring)))
-    lit = mass > 0
-    assert lit.mean() > 0.9
-    np.testing.assert_allclose(stripe.rows[lit], rows[lit], atol=1e-3)
-    np.testing.assert_allclose(stripe.mass, mass, rtol=1e-4, atol=1e-3)
-
-
-def test_mass_at_matches_pixel_sums() -> None:
-    frame = _frame(Joint.butt(0.4), seed=22).copy()
-    frame[100, :8] = 250  # light at the image edges, where windows are cut off
-    frame[250, 250:] = 240
-    det = _detector(JointType.BUTT)
-    stripe = det.stripe(frame[100:300], first_column=100)
-    cols = np.array([50, 100, 150, 250, 299, 300, 400])  # some outside columns 100..299
-    rows = np.array([120.4, 3.0, np.nan, 254.6, 128.5, 128.0, 10.0])
-    got = det.mass_at(frame[100:300], stripe, cols, rows, 4)
-    assert got[1] > 1000 and got[3] > 700
-    for k, (c, r) in enumerate(zip(cols, rows, strict=True)):
-        want = 0.0
-        if 100 <= c < 300 and np.isfinite(r):
-            centre = int(np.rint(r))
-            for v in range(centre - 4, centre + 5):
-                if 0 <= v < 256:
-                    want += max(float(frame[c, v]) - stripe.threshold, 0.0)
-        assert got[k] == pytest.approx(want, abs=1e-9), (c, r)
-
-
 @pytest.mark.parametrize("joint", JOINTS, ids=lambda j: f"{j.kind.value}-{j.upper_side}")
 def test_frame_memory_layout_does_not_matter(joint: Joint) -> None:
     """A Fortran-ordered or strided frame gives the same detection as a C-ordered one."""
@@ -273,3 +213,24 @@ def test_frame_memory_layout_does_not_matter(joint: Joint) -> None:
         assert e.status is d.status
         np.testing.assert_allclose(e.seam2sensor, d.seam2sensor, atol=1e-9)
         assert e.column == pytest.approx(d.column, abs=1e-9)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.integers(0, 500),
+    st.integers(1, 20),
+    st.floats(-3.0, 3.0),
+    st.floats(-0.5, 0.5),
+)
+def test_line_rows_equal_the_calibration_per_column(u0: int, n: int, a: float, b: float) -> None:
+    """The rows where a plate's line crosses a run of columns, from the two end columns
+    (the image of a line is a line), equal the calibration's line_row at every column."""
+    from sensorsocket.detector import _Line
+
+    det = SeamDetector()
+    cols = list(range(u0, min(u0 + n, 512)))
+    rows = det._line_rows(cols, _Line(a=a, b=b, rms=0.0, n=10))
+    u = np.array(cols, dtype=np.float64)
+    exact = det.camera.line_row(u, np.full(u.size, a), np.full(u.size, b))
+    np.testing.assert_allclose(rows, exact, rtol=0.0, atol=1e-9)
+    assert det._line_rows([], _Line(a=a, b=b, rms=0.0, n=10)) == []

@@ -29,6 +29,7 @@ from spec.datagrams import (
     trigger_fields,
 )
 from spec.errors import DatagramError
+from spec.server import parse_networks
 from spec.wire import SensorStatus
 
 SEAM_Y, SEAM_Z = -0.8, 0.3
@@ -339,6 +340,7 @@ def receive(sock: socket.socket, count: int, wait: float = 3.0) -> list[SensorDa
     return out
 
 
+@pytest.mark.realtime
 def test_loopback_exchange(listener: TriggerListener) -> None:
     robot = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     robot.bind(("127.0.0.1", 0))
@@ -370,3 +372,29 @@ def test_loopback_exchange(listener: TriggerListener) -> None:
     assert stats["datagrams"] == len(plan)
     assert (stats["malformed"], stats["duplicates"], stats["reordered"]) == (2, 2, 1)
     assert stats["replies"] == stats["sent"] == 6 and stats["send_errors"] == 0
+
+
+@pytest.mark.parametrize(("network", "answered"), [("10.0.0.0/8", False), ("127.0.0.0/8", True)])
+def test_listener_honours_the_allow_list(network: str, answered: bool) -> None:
+    """[SY-1.5] a trigger from outside the allow-list gets no data and is counted."""
+    sensor = make_sensor()
+    sensor.clock = time.monotonic
+    lst = TriggerListener(
+        TriggerHandler(sensor),
+        "127.0.0.1",
+        0,
+        clock=time.monotonic,
+        allow=parse_networks([network]),
+    ).start()
+    robot = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    robot.bind(("127.0.0.1", 0))
+    try:
+        robot.sendto(trig(1, t=100.0), lst.address)
+        replies = receive(robot, 1, wait=0.5 if not answered else 3.0)
+    finally:
+        robot.close()
+        lst.stop()
+    stats = lst.statistics()
+    assert len(replies) == int(answered)
+    assert stats["refused_address"] == int(not answered)
+    assert stats["triggers"] == int(answered)  # a refused trigger never reaches the sensor

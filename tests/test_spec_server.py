@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import socket
+import threading
 import time
-from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import pytest
 from hypothesis import given, settings
@@ -19,17 +20,30 @@ from spec.registry import CommandId, CommandSpec
 from spec.server import FramedServer, Identity, ServerPolicy, Service, Session, parse_networks
 from spec.wire import PacketKind
 
+if TYPE_CHECKING:
+    from tests.conftest import Serve
+
 
 class EchoRobot(Service):
     """Answers Herej with fixed joints, fails on purpose on GetJointLimits."""
 
     identity = Identity("robot", vendor="test", model="echo")
 
+    urgent = frozenset({int(CommandId.EMERGENCY_STOP)})
+    blocking = frozenset({int(CommandId.WAIT_END_MOVE)})
+
     def __init__(self) -> None:
         self.lost_control: list[int] = []
+        self.stopped = threading.Event()
 
     def implemented(self) -> tuple[int, ...]:
-        return (CommandId.HEREJ, CommandId.ENABLE_POWER, CommandId.GET_JOINT_LIMITS)
+        return (
+            CommandId.HEREJ,
+            CommandId.ENABLE_POWER,
+            CommandId.GET_JOINT_LIMITS,
+            CommandId.WAIT_END_MOVE,
+            CommandId.EMERGENCY_STOP,
+        )
 
     def handle(
         self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
@@ -38,6 +52,13 @@ class EchoRobot(Service):
             return (Joints([1, 2, 3, 4, 5, 6]),)
         if spec.id == CommandId.ENABLE_POWER:
             return ()
+        if spec.id == CommandId.WAIT_END_MOVE:  # "the move ends" when EmergencyStop comes
+            timeout = params[0]
+            assert isinstance(timeout, float)
+            return (self.stopped.wait(timeout),)
+        if spec.id == CommandId.EMERGENCY_STOP:
+            self.stopped.set()
+            return ()
         raise ZeroDivisionError("deliberate handler bug")
 
     def on_control_lost(self, session: Session) -> None:
@@ -45,11 +66,8 @@ class EchoRobot(Service):
 
 
 @pytest.fixture
-def server() -> Iterator[FramedServer]:
-    srv = FramedServer(EchoRobot(), policy=ServerPolicy(max_clients=4, frame_timeout=0.5))
-    srv.start()
-    yield srv
-    srv.shutdown()
+def server(serve: Serve) -> FramedServer:
+    return serve(EchoRobot(), ServerPolicy(max_clients=4, frame_timeout=0.5))
 
 
 def raw_conn(srv: FramedServer) -> socket.socket:
@@ -149,6 +167,39 @@ def test_token_protects_control() -> None:
         srv.shutdown()
 
 
+def test_token_guessing_is_slowed_per_address() -> None:
+    """[RS-7.20] after 3 wrong tokens even the right one is refused until the back-off ends,
+    with the wait in the message; then it is accepted and the count starts again."""
+    srv = FramedServer(EchoRobot(), policy=ServerPolicy(token="s3cret")).start()
+    try:
+        with FramedClient(*srv.address) as c:
+            for _ in range(3):
+                with pytest.raises(RemoteError, match="token missing or wrong"):
+                    c.take_control("guess")
+            t0 = time.monotonic()
+            with pytest.raises(RemoteError, match=r"retry in 0\.\d\d s") as info:
+                c.take_control("s3cret")
+            assert info.value.code is ErrorCode.AUTH_FAILED
+            while True:  # the back-off (0.1 s after the third failure) ends
+                try:
+                    c.take_control("s3cret")
+                    break
+                except RemoteError:
+                    assert time.monotonic() - t0 < 5.0
+                    time.sleep(0.02)
+            c.release_control()
+            with pytest.raises(RemoteError, match="token missing or wrong"):
+                c.take_control("guess")  # reset by the success: a free failure again
+            c.take_control("s3cret")
+    finally:
+        srv.shutdown()
+
+
+def test_an_empty_token_is_refused_by_the_policy() -> None:
+    with pytest.raises(ValueError, match="token is empty"):
+        ServerPolicy(token=" ")
+
+
 def test_handler_bug_becomes_internal_error_and_server_survives(server: FramedServer) -> None:
     with FramedClient(*server.address) as c:
         with pytest.raises(RemoteError) as info:
@@ -219,6 +270,17 @@ def test_a_frame_that_stops_half_way_times_out(server: FramedServer) -> None:
     assert waited >= 0.4  # the 0.5 s frame timeout, not an immediate close
     with FramedClient(*server.address) as c:  # [RS-7.9] still serving
         assert c.ping() == b""
+
+
+def test_a_slow_frame_that_keeps_arriving_is_not_cut_off(server: FramedServer) -> None:
+    """[RS-7.5] the frame timeout (0.5 s here) runs between bytes, not over the frame."""
+    frame = encode_packet(request(CommandId.HEREJ, 7))
+    with raw_conn(server) as s:
+        for i in range(0, len(frame), 4):  # 6 pieces, 0.15 s apart: 0.75 s in all
+            s.sendall(frame[i : i + 4])
+            time.sleep(0.15)
+        (reply,) = read_packets(s, 1)
+    assert reply.kind is PacketKind.REPLY and reply.request_id == 7
 
 
 def test_client_over_the_limit_gets_busy(server: FramedServer) -> None:
@@ -410,3 +472,109 @@ def test_feed_and_in_place_receive_mix_in_any_order(cuts: list[int], in_place: l
     assert [p.request_id for p in got] == [1, 2, 3, 4]
     assert got[1].params == (payload,) and got[3].params == (payload[:70_000],)
     assert decoder.buffered == 0 and not decoder.in_frame
+
+
+def test_stopping_request_overtakes_a_pending_wait_others_stay_in_order(
+    server: FramedServer,
+) -> None:
+    """[RS-7.12] WaitEndMove runs on the worker; Herej queues behind it; EmergencyStop,
+    urgent, is executed on arrival and its reply comes first."""
+    with raw_conn(server) as s:
+        s.sendall(
+            encode_packet(request(CommandId.WAIT_END_MOVE, 1, 30.0))
+            + encode_packet(request(CommandId.HEREJ, 2))
+            + encode_packet(request(CommandId.EMERGENCY_STOP, 3))
+        )
+        replies = read_packets(s, 3)
+    assert [p.request_id for p in replies] == [3, 1, 2]
+    assert replies[1].params == (True,)
+
+
+def test_a_close_is_seen_while_a_request_is_pending(server: FramedServer) -> None:
+    service = server.service
+    assert isinstance(service, EchoRobot)
+    with raw_conn(server) as s:
+        s.sendall(encode_packet(request(CommandId.TAKE_CONTROL, 1, "")))
+        read_packets(s, 1)
+        s.sendall(encode_packet(request(CommandId.WAIT_END_MOVE, 2, 30.0)))
+        deadline = time.monotonic() + 5
+        while not server.statistics()["frames_in"] >= 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+    deadline = time.monotonic() + 5
+    while not service.lost_control and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert service.lost_control, "the close was not seen while WaitEndMove was pending"
+    assert not service.stopped.is_set()  # the wait itself is still running
+    service.stopped.set()
+
+
+def test_silent_controller_loses_control_by_the_watchdog(server: FramedServer) -> None:
+    service = server.service
+    assert isinstance(service, EchoRobot)
+    with FramedClient(*server.address) as client:
+        client.keepalive = False
+        assert client.take_control("", 0.1) == 0.1
+        for _ in range(5):  # frames inside the period keep the lease
+            time.sleep(0.04)
+            client.ping()
+        assert not service.lost_control
+        time.sleep(0.4)
+        assert service.lost_control
+        with pytest.raises(RemoteError) as err:
+            client.call(CommandId.ENABLE_POWER)
+        assert err.value.code == ErrorCode.NOT_IN_CONTROL and "watchdog" in err.value.message
+    assert server.statistics()["watchdog_expired"] == 1
+
+
+def test_watchdog_outside_the_limits_is_out_of_range(server: FramedServer) -> None:
+    with FramedClient(*server.address) as client:
+        for bad in (0.0, 0.001, 1e6, float("nan")):
+            with pytest.raises(RemoteError) as err:
+                client.take_control("", bad)
+            assert err.value.code == ErrorCode.OUT_OF_RANGE
+        assert client.take_control("") == ServerPolicy().watchdog  # the default
+
+
+def test_emergency_stop_on_a_reserved_connection_of_a_full_server(server: FramedServer) -> None:
+    """[RS-7.14] over the limit: BUSY (ID 0), then EmergencyStop executed, others BUSY."""
+    service = server.service
+    assert isinstance(service, EchoRobot)
+    clients = [FramedClient(*server.address) for _ in range(4)]
+    try:
+        for c in clients:
+            c.ping()
+        with FramedClient(*server.address) as late:
+            late.call(CommandId.EMERGENCY_STOP)  # skips the BUSY notice of the full server
+            assert service.stopped.is_set()
+            with pytest.raises(RemoteError) as err:
+                late.call(CommandId.HEREJ)
+            assert err.value.code == ErrorCode.BUSY
+    finally:
+        for c in clients:
+            c.close()
+    assert server.statistics()["reserved_connections"] == 1
+
+
+def test_an_interrupted_call_leaves_no_stale_reply(server: FramedServer) -> None:
+    """Ctrl-C while waiting for a reply: the next call gets its own reply, not the old one."""
+    service = server.service
+    assert isinstance(service, EchoRobot)
+    with FramedClient(*server.address) as client:
+        timer = threading.Timer(0.2, service.stopped.set)
+        original = client._receive
+        calls = 0
+
+        def interrupted(timeout: float, command: int = -1) -> Packet:
+            nonlocal calls
+            calls += 1
+            if calls == 1:
+                timer.start()
+                raise KeyboardInterrupt  # as if Ctrl-C hit while waiting for WaitEndMove
+            return original(timeout, command)
+
+        client._receive = interrupted  # type: ignore[method-assign]
+        with pytest.raises(KeyboardInterrupt):
+            client.call(CommandId.WAIT_END_MOVE, 5.0)
+        (joints,) = client.call(CommandId.HEREJ)  # the WaitEndMove reply comes first
+        assert joints == Joints([1, 2, 3, 4, 5, 6])
+        timer.join()

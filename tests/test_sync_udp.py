@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import socket
 import time
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -13,6 +14,7 @@ from hypothesis import strategies as st
 
 from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data
 from spec.registry import SEAM_POINT_COLUMNS
+from spec.server import parse_networks
 from spec.wire import SensorStatus
 from sync.network import DelayLink
 from sync.udp import RobotSyncCore, SeamRows, SyncStateError, TriggerScheduler, UdpSyncEndpoint
@@ -300,3 +302,70 @@ def test_add_joint_matches_add_joints() -> None:
     t2, q2 = batch.joints.samples()
     assert t1.tolist() == [0.0, 0.004, 0.008, 0.012]
     assert np.array_equal(t1, t2) and np.array_equal(q1, q2)
+
+
+def _endpoint_with_sensor(**kwargs: object) -> tuple[UdpSyncEndpoint, socket.socket]:
+    core = RobotSyncCore(delta_t_s=0.0)
+    ep = UdpSyncEndpoint(
+        core,
+        clock=time.monotonic,
+        joints_since=lambda t: (np.zeros(0), np.zeros((0, 6))),
+        host="127.0.0.1",
+        **kwargs,  # type: ignore[arg-type]
+    )
+    sensor = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sensor.bind(("127.0.0.1", 0))
+    ep.set_target(*sensor.getsockname()[:2])
+    return ep.start(), sensor
+
+
+def _wait_for(predicate: Callable[[], bool]) -> None:
+    deadline = time.monotonic() + 3.0
+    while not predicate() and time.monotonic() < deadline:
+        time.sleep(0.01)
+
+
+def test_udp_endpoint_accepts_data_only_from_the_sensor_endpoint() -> None:
+    """[SY-3.7] a datagram from another port than the sensor's is dropped unread and counted
+    as foreign; the sensor's own gets to the matcher."""
+    ep, sensor = _endpoint_with_sensor()
+    other = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    other.bind(("127.0.0.1", 0))
+    try:
+        other.sendto(_data(7, 0.0, 0.5), ep.address)
+        _wait_for(lambda: ep.dropped["foreign"] == 1)
+        sensor.sendto(_data(7, 0.0, 0.5), ep.address)
+        _wait_for(lambda: ep.core.statistics()["received"] == 1)
+    finally:
+        ep.stop()
+        sensor.close()
+        other.close()
+    assert ep.dropped == {"foreign": 1}
+    assert ep.core.statistics()["received"] == 1  # only the sensor's (an unknown index)
+
+
+def test_udp_endpoint_takes_any_source_when_told() -> None:
+    ep, sensor = _endpoint_with_sensor(sensor_only=False)
+    other = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    other.bind(("127.0.0.1", 0))
+    try:
+        other.sendto(_data(7, 0.0, 0.5), ep.address)
+        _wait_for(lambda: ep.core.statistics()["received"] == 1)
+    finally:
+        ep.stop()
+        sensor.close()
+        other.close()
+    assert ep.core.statistics()["received"] == 1 and not ep.dropped
+
+
+def test_udp_endpoint_honours_the_allow_list() -> None:
+    """[SY-1.5] a source outside --allow is dropped and counted, even the sensor's port."""
+    ep, sensor = _endpoint_with_sensor(allow=parse_networks(["10.0.0.0/8"]))
+    try:
+        sensor.sendto(_data(7, 0.0, 0.5), ep.address)
+        _wait_for(lambda: ep.dropped["refused_address"] == 1)
+    finally:
+        ep.stop()
+        sensor.close()
+    assert ep.dropped == {"refused_address": 1}
+    assert ep.core.statistics()["received"] == 0

@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 from conformance.cases import (  # noqa: F401  (imported for their registrations)
+    access,
     commands,
     control,
     framing,
     negotiation,
+    precedence,
     robot,
     robustness,
     sensor,
+    shapes,
     sync,
 )

@@ -13,12 +13,10 @@ from conformance.model import EndpointTimeout, Fail, NotApplicable, Skip
 from spec import wire
 from spec.codec import Packet
 from spec.errors import ErrorCode
-from spec.params import FloatArray, Location, Matrix, Value, encode_params
+from spec.params import IDENTITY_LOCATION, FloatArray, Location, Matrix, Value, encode_params
 from spec.registry import CommandId as C
 from spec.registry import CommandSpec
 from spec.wire import PacketKind
-
-IDENTITY = Location(0, 0, 0, 0, 0, 0)
 
 
 def seal(header_and_payload: bytes) -> bytes:
@@ -159,16 +157,21 @@ def valid_args(ctx: Context, conn: Conn, spec: CommandSpec) -> tuple[Value, ...]
     if c == C.TAKE_CONTROL:
         return (ctx.options.token,)
     if c == C.HERE:
-        return (IDENTITY, IDENTITY)
+        return (IDENTITY_LOCATION, IDENTITY_LOCATION)
     if c == C.JOINT_MOVE:
         return conn.ok(C.HEREJ)[:1]
     if c in (C.TOOL_MOVE_J, C.TOOL_MOVE_L):
-        here = conn.ok(C.HERE, IDENTITY, IDENTITY)[0]
-        return (here, IDENTITY, IDENTITY)
+        here = conn.ok(C.HERE, IDENTITY_LOCATION, IDENTITY_LOCATION)[0]
+        return (here, IDENTITY_LOCATION, IDENTITY_LOCATION)
     if c == C.TOOL_MOVE_TRAJECTORY:
-        here = conn.ok(C.HERE, IDENTITY, IDENTITY)[0]
+        here = conn.ok(C.HERE, IDENTITY_LOCATION, IDENTITY_LOCATION)[0]
         assert isinstance(here, Location)
-        return (FloatArray([0.0, 0.5]), Matrix(2, 6, here.as_tuple() * 2), IDENTITY, IDENTITY)
+        return (
+            FloatArray([0.0, 0.5]),
+            Matrix(2, 6, here.as_tuple() * 2),
+            IDENTITY_LOCATION,
+            IDENTITY_LOCATION,
+        )
     if c == C.SET_MOTION_DESC:
         return conn.ok(C.GET_MOTION_DESC)[:6]
     if c == C.WAIT_END_MOVE:

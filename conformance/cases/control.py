@@ -12,6 +12,9 @@ from conformance.model import EndpointTimeout, Fail, NotApplicable, Skip, case
 from spec.errors import ErrorCode
 from spec.registry import CommandId as C
 
+#: A refused (reserved) connection is closed within this many seconds [RS-7.2].
+RESERVED_CLOSE_S = 5.0
+
 
 def _read_only(ctx: Context) -> int:
     return int(C.ROBOT_STATUS if ctx.service == "robot" else C.SENSOR_STATUS)
@@ -158,9 +161,23 @@ def max_clients(ctx: Context) -> str:
             if answer.error[0] != ErrorCode.BUSY or answer.request_id != 0:
                 raise Fail("wrong refusal over the limit", "BUSY with request ID 0", answer.error)
             try:
-                conn.expect_closed(ctx.timeout)
+                # A reserved connection [RS-7.14] answers BUSY until it closes (<= 5 s).
+                later = conn.expect_closed(RESERVED_CLOSE_S + ctx.timeout)
             except EndpointTimeout:
-                raise Fail("the refused connection stays open", "closed", "open") from None
+                raise Fail(
+                    "the refused connection stays open",
+                    f"closed within {RESERVED_CLOSE_S:g} s",
+                    "open",
+                    requirement="RS-7.2",
+                ) from None
+            for packet in later:
+                if packet.error is None or packet.error[0] != ErrorCode.BUSY:
+                    raise Fail(
+                        "a refused connection served a request",
+                        "BUSY for every request but EmergencyStop",
+                        packet.error or packet.params,
+                        requirement="RS-7.14",
+                    )
             if i < limit - 1:
                 # Sessions of earlier cases may still be closing; accept a small slack.
                 ctx.details["busy_at"] = i + 1
@@ -224,3 +241,57 @@ def load_round_trip(ctx: Context) -> str:
         max_ms=round(rtts[-1] * 1000, 4),
     )
     return f"Ping round trip p50 {q[49] * 1000:.3f} ms, p99 {q[98] * 1000:.3f} ms"
+
+
+@case(
+    "control.watchdog",
+    requirements=["RS-7.13"],
+    tags=["control", "safety"],
+    budget=30.0,  # ~1.5 s; the budget is scaled down in the harness's self-tests
+)
+def watchdog(ctx: Context) -> str:
+    """A controller that keeps sending frames keeps control; one that goes silent for longer
+    than its watchdog period loses it (NOT_IN_CONTROL, and GetStatus shows nobody in control)."""
+    probe = _control_probe(ctx)
+    period = 0.3
+    conn = ctx.connect()
+    ctx.take_control(conn, watchdog=period)
+    if conn.lease is None:
+        raise NotApplicable("the endpoint grants no control lease (a 1.0 TakeControl)")
+    if abs(conn.lease - period) > 1e-9:
+        raise Fail("the watchdog period asked for was not granted", period, conn.lease)
+    for _ in range(8):  # 1.2 s of Pings, each well inside the period
+        time.sleep(period / 4)
+        conn.ok(C.PING, b"lease")
+    answer = conn.call(probe)
+    if answer.error is not None:
+        raise Fail(
+            "a controller that kept sending frames lost control",
+            "control kept",
+            answer.error,
+            requirement="RS-7.13",
+        )
+    time.sleep(period * 2 + 0.2)
+    answer = conn.call(probe)
+    if answer.error is None or answer.error[0] != ErrorCode.NOT_IN_CONTROL:
+        raise Fail(
+            f"a controller silent for {period * 2 + 0.2:g} s kept control",
+            "NOT_IN_CONTROL",
+            answer.error or "executed",
+            requirement="RS-7.13",
+        )
+    other = ctx.connect()
+    status = other.ok(_read_only(ctx))
+    controlled = status[5] if ctx.service == "robot" else status[4]
+    if controlled is not False:
+        raise Fail("control still held after the watchdog", "controlled false", controlled)
+    bad = conn.call(C.TAKE_CONTROL, ctx.options.token, 1.0e6)
+    if bad.error is None or bad.error[0] != ErrorCode.OUT_OF_RANGE:
+        raise Fail(
+            "a watchdog period of 1e6 s was not refused",
+            "OUT_OF_RANGE",
+            bad.error or "granted",
+            requirement="RS-7.13",
+        )
+    conn.call(C.RELEASE_CONTROL)
+    return f"lease {period:g} s kept by Pings, lost after silence"

@@ -12,16 +12,16 @@ import itertools
 import math
 import time
 
-from conformance.cases._util import IDENTITY
 from conformance.connection import Conn
 from conformance.context import Context
-from conformance.model import Fail, Informational, Skip, case
+from conformance.model import Fail, Informational, NotApplicable, Skip, case
 from spec.errors import ErrorCode
-from spec.params import FloatArray, Joints, Location, Matrix, Value
+from spec.params import IDENTITY_LOCATION, FloatArray, Joints, Location, Matrix, Value
 from spec.registry import CommandId as C
 
 Mat = list[list[float]]
 
+RESERVED_WAIT_S = 6.0  # a refused connection closes within 5 s [RS-7.2]
 STEP_DEG = 2.0  # the documented motion: joint 1 by +2 degrees and back
 SLOW = 5.0  # % of nominal joint speed, acceleration and deceleration
 
@@ -143,7 +143,7 @@ def here_frames(ctx: Context) -> str:
         raise Skip("the arm is moving; Here would change between the calls")
     tool = Location(10.0, -20.0, 100.0, 30.0, -45.0, 60.0)
     frame = Location(500.0, -200.0, 50.0, 10.0, 20.0, 30.0)
-    flange = conn.ok(C.HERE, IDENTITY, IDENTITY)[0]
+    flange = conn.ok(C.HERE, IDENTITY_LOCATION, IDENTITY_LOCATION)[0]
     got = conn.ok(C.HERE, tool, frame)[0]
     assert isinstance(flange, Location) and isinstance(got, Location)
     want = mul(mul(inv(loc_to_matrix(frame)), loc_to_matrix(flange)), loc_to_matrix(tool))
@@ -304,8 +304,14 @@ class _Motion:
 
 
 def _wait_still(conn: Conn, timeout: float) -> bool:
-    done = conn.ok(C.WAIT_END_MOVE, timeout, timeout=timeout + 5.0)[0]
-    return bool(done)
+    """WaitEndMove in pieces shorter than the control lease, which each renew it [RS-7.13]."""
+    remaining = timeout
+    while True:
+        piece = remaining if conn.lease is None else min(remaining, conn.lease / 2)
+        done = bool(conn.ok(C.WAIT_END_MOVE, piece, timeout=piece + 5.0)[0])
+        remaining -= piece
+        if done or remaining <= 1e-9:
+            return done
 
 
 MOTION = [C.JOINT_MOVE, C.ENABLE_POWER, C.DISABLE_POWER, C.WAIT_END_MOVE, C.SET_MOTION_DESC]
@@ -402,9 +408,13 @@ def motion_unreachable(ctx: Context) -> None:
         conn = m.conn
         m.power()
         far = Location(20000.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        conn.error(C.TOOL_MOVE_J, ErrorCode.UNREACHABLE, far, IDENTITY, IDENTITY)
+        conn.error(C.TOOL_MOVE_J, ErrorCode.UNREACHABLE, far, IDENTITY_LOCATION, IDENTITY_LOCATION)
         conn.error(
-            C.TOOL_MOVE_L, (ErrorCode.UNREACHABLE, ErrorCode.SINGULARITY), far, IDENTITY, IDENTITY
+            C.TOOL_MOVE_L,
+            (ErrorCode.UNREACHABLE, ErrorCode.SINGULARITY),
+            far,
+            IDENTITY_LOCATION,
+            IDENTITY_LOCATION,
         )
         if _status(conn).get("queue") != 0:
             raise Fail("a refused move was queued", 0, _status(conn).get("queue"))
@@ -516,7 +526,7 @@ def trajectory_refused(ctx: Context) -> None:
     with _Motion(ctx) as m:
         conn = m.conn
         m.power()
-        here = conn.ok(C.HERE, IDENTITY, IDENTITY)[0]
+        here = conn.ok(C.HERE, IDENTITY_LOCATION, IDENTITY_LOCATION)[0]
         assert isinstance(here, Location)
         p = here.as_tuple()
         away = (p[0], p[1], p[2] - 50.0, *p[3:])  # reachable, but not in 4 ms
@@ -543,8 +553,8 @@ def trajectory_refused(ctx: Context) -> None:
                 C.TOOL_MOVE_TRAJECTORY,
                 FloatArray(times),
                 Matrix(len(locs), 6, [v for loc in locs for v in loc]),
-                IDENTITY,
-                IDENTITY,
+                IDENTITY_LOCATION,
+                IDENTITY_LOCATION,
             )
             if answer.error is None or answer.error[0] not in codes:
                 raise Fail(
@@ -574,7 +584,7 @@ def trajectory_tracking(ctx: Context) -> str:
     with _Motion(ctx) as m:
         conn = m.conn
         m.power()
-        here = conn.ok(C.HERE, IDENTITY, IDENTITY)[0]
+        here = conn.ok(C.HERE, IDENTITY_LOCATION, IDENTITY_LOCATION)[0]
         assert isinstance(here, Location)
         p = here.as_tuple()
         times = [0.1 * k for k in range(21)]
@@ -584,12 +594,12 @@ def trajectory_tracking(ctx: Context) -> str:
             C.TOOL_MOVE_TRAJECTORY,
             FloatArray(times),
             Matrix(len(locs), 6, [v for loc in locs for v in loc]),
-            IDENTITY,
-            IDENTITY,
+            IDENTITY_LOCATION,
+            IDENTITY_LOCATION,
         )
         if not _wait_still(conn, 30.0):
             raise Fail("the timed path did not end", True, False)
-        end = conn.ok(C.HERE, IDENTITY, IDENTITY)[0]
+        end = conn.ok(C.HERE, IDENTITY_LOCATION, IDENTITY_LOCATION)[0]
         assert isinstance(end, Location)
         err = math.dist(end.as_tuple()[:3], locs[-1][:3])
         if err > 0.01:
@@ -597,3 +607,123 @@ def trajectory_tracking(ctx: Context) -> str:
                 "the path's end is missed", "<= 0.01 mm", f"{err:.4f} mm", requirement="RS-5.24"
             )
         return f"end error {err * 1000:.2f} µm"
+
+
+@case(
+    "robot.motion.close_while_waiting",
+    requirements=["RS-7.12", "RS-7.10"],
+    tags=["robot", "motion", "control", "safety"],
+    service="robot",
+    motion=True,
+    budget=60.0,
+    commands=[*MOTION, C.ROBOT_STATUS],
+)
+def close_while_waiting(ctx: Context) -> str:
+    """A controller that closes while its WaitEndMove is pending stops the arm: the queue
+    empties and the second move never runs."""
+    watcher = ctx.connect()
+    with _Motion(ctx) as m:
+        conn = m.conn
+        m.power()
+        start = _joints(conn)
+        target = list(start)
+        target[0] += STEP_DEG
+        conn.ok(C.JOINT_MOVE, Joints(target))
+        conn.ok(C.JOINT_MOVE, Joints(start))
+        conn.request(C.WAIT_END_MOVE, 60.0)
+        time.sleep(0.05)
+        conn.close()
+    closed = time.monotonic()
+    status = _status(watcher)
+    while time.monotonic() < closed + 10.0:
+        status = _status(watcher)
+        if not status.get("moving") and status.get("queue") == 0:
+            break
+        time.sleep(0.01)
+    else:
+        raise Fail(
+            "the arm did not stop after the controller closed during WaitEndMove",
+            "stopped, queue 0",
+            status,
+            requirement="RS-7.12",
+        )
+    stopped_after = time.monotonic() - closed
+    ctx.measure("close_while_waiting", stop_s=stopped_after)
+    back = abs(_joints(watcher)[0] - start[0]) < 0.05
+    # Bring joint 1 back to where it started.
+    ctx.take_control(watcher)
+    watcher.ok(C.JOINT_MOVE, Joints(start))
+    _wait_still(watcher, 30.0)
+    watcher.call(C.RELEASE_CONTROL)
+    if back:
+        raise Fail(
+            "the queue ran to its end although the controller closed during WaitEndMove",
+            "stopped on the way (second move dropped)",
+            "back at the start",
+            requirement="RS-7.12",
+        )
+    return f"stopped {stopped_after * 1e3:.0f} ms after the close"
+
+
+@case(
+    "robot.emergency_stop_when_full",
+    requirements=["RS-7.14"],
+    tags=["robot", "safety", "limits"],
+    service="robot",
+    motion=True,
+    profiles=("full",),
+    budget=30.0,
+    order=66,
+    commands=[C.EMERGENCY_STOP, C.RESET_EMERGENCY_STOP, C.ROBOT_STATUS],
+)
+def emergency_stop_when_full(ctx: Context) -> str:
+    """With every connection slot taken, a new connection still gets EmergencyStop executed
+    (after its BUSY frame); it is then reset."""
+    limit = int(ctx.hello.number("max_clients", 0)) if ctx.hello else 0
+    if not 0 < limit <= 256:
+        raise Skip(f"max_clients {limit} is not in 1..256; not tried")
+    conns = []
+    try:
+        refused = None
+        for i in range(limit + 2):
+            conn = ctx.connect(hello=False)
+            conns.append(conn)
+            conn.request(C.ROBOT_STATUS, request_id=i + 1)
+            answer = conn.recv_packet()
+            if answer.error is not None and answer.request_id == 0:
+                refused = conn
+                break
+        if refused is None:
+            raise NotApplicable(f"no connection was refused up to {limit + 2}")
+        t0 = time.perf_counter()
+        rid = refused.request(C.EMERGENCY_STOP)
+        while True:
+            answer = refused.recv_packet()
+            if answer.request_id == rid:
+                break
+        latency = time.perf_counter() - t0
+        if answer.error is not None:
+            raise Fail(
+                "EmergencyStop was refused on a full server",
+                "executed",
+                answer.error,
+                requirement="RS-7.14",
+            )
+        ctx.measure("emergency_stop_when_full", latency_s=latency)
+    finally:
+        for conn in conns:
+            conn.close()
+    deadline = time.monotonic() + RESERVED_WAIT_S
+    while True:  # the closed connections may still hold their slots for a moment
+        watcher = ctx.connect()
+        if watcher.call(C.ROBOT_STATUS).error is None or time.monotonic() > deadline:
+            break
+        watcher.close()
+        time.sleep(0.1)
+    status = _status(watcher)
+    ctx.take_control(watcher)
+    watcher.ok(C.RESET_EMERGENCY_STOP)
+    watcher.call(C.RELEASE_CONTROL)
+    if not status.get("estop"):
+        raise Fail("EmergencyStop replied but is not engaged", "estop", status)
+    return f"EmergencyStop on a full server in {latency * 1e3:.1f} ms"

@@ -1,0 +1,260 @@
+"""Analytic IK of the Stäubli arms: axes 4, 5, 6 meet in the wrist centre, so the IK is
+closed-form with up to 8 solutions (the configurations of :data:`kinematics.config.CONFIGS`),
+for one pose or vectorised over N poses."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from kinematics.arm import LIMIT_SLACK_DEG, BoolArray, batch6, vector6
+from kinematics.config import (
+    CONFIGS,
+    SINGULAR_TOL,
+    SINGULARITY_NAMES,
+    Config,
+    ConfigMixin,
+    ConfigRequest,
+)
+from kinematics.errors import JointLimitError, KinematicsError, SingularityError, UnreachableError
+from kinematics.transforms import Array, check_transform
+
+#: Below this, the closed form degenerates and the free joint takes the preferred value.
+_DEGENERATE = 1e-12
+
+
+@dataclass(frozen=True, eq=False)
+class IkSolution:
+    """One IK solution: VAL3 joints (6,) in degrees, its configuration, any singularities."""
+
+    joints_deg: Array
+    config: Config
+    singularities: tuple[str, ...] = ()
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "joints": [float(v) for v in self.joints_deg],
+            "config": self.config.as_dict(),
+            "singularities": list(self.singularities),
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class IkBatch:
+    """Batch IK result for N poses; the solution axis follows ``CONFIGS`` (8 entries).
+
+    joints_deg: (N, 8, 6) degrees, NaN where ``valid`` is False. valid: (N, 8) reachable and
+    inside the joint limits. reachable: (N, 8) geometrically reachable (limits ignored).
+    singular: (N, 8, 3) flags for (wrist, elbow, shoulder).
+    """
+
+    joints_deg: Array
+    valid: BoolArray
+    reachable: BoolArray
+    singular: BoolArray
+
+
+def _wrap_pi(a: Array) -> Array:
+    return np.asarray((a + np.pi) % (2.0 * np.pi) - np.pi)
+
+
+class IkMixin(ConfigMixin):
+    """All IK solutions of one pose, or all 8 branches of N poses."""
+
+    def ik_batch(self, flange2base_T: Any, near: Any = None) -> IkBatch:
+        """All 8 IK branches for N poses (N, 4, 4) -> ``IkBatch`` (axis 1 follows ``CONFIGS``).
+
+        Each joint is reported in the turn (±360°) inside its limits that is closest to
+        ``near`` (N, 6) or (6,) degrees, or to zero without it. Vectorised, no loop over N.
+        """
+        T = check_transform(flange2base_T, name="flange2base")
+        if T.ndim != 3:
+            raise KinematicsError(f"flange2base: expected shape (N, 4, 4), got {T.shape}")
+        return self._ik_batch(T, near)
+
+    def _ik_batch(self, T: Array, near: Any) -> IkBatch:
+        ref = None
+        if near is not None:
+            nr = np.asarray(near, dtype=np.float64)
+            if nr.shape == (6,):
+                nr = np.broadcast_to(nr, (T.shape[0], 6))
+            ref = batch6(nr, "near")
+            if ref.shape[0] != T.shape[0]:
+                raise KinematicsError("near: must be (6,) or one row per pose")
+        theta, reach, sing = self._ik_core(T, ref)
+        q = np.degrees(theta) - self._offsets
+        q = self._pick_turn(q, ref)
+        inside = np.all(np.isfinite(q), axis=-1)
+        valid = reach & inside
+        q[~valid] = np.nan
+        return IkBatch(joints_deg=q, valid=valid, reachable=reach, singular=sing)
+
+    def _pick_turn(self, q: Array, ref: Array | None) -> Array:
+        """Per joint, the value q + 360k (k in -1, 0, 1) inside the limits closest to ref."""
+        base = q - 360.0 * np.round(q / 360.0)
+        base = np.where(base <= -180.0, base + 360.0, base)  # (-180, 180]
+        cand = base[..., None] + np.array([0.0, -360.0, 360.0])  # (N, 8, 6, 3); ties keep base
+        lo = self._limits[:, 0, None] - LIMIT_SLACK_DEG
+        hi = self._limits[:, 1, None] + LIMIT_SLACK_DEG
+        target = np.zeros(6) if ref is None else ref[:, None, :]
+        dist = np.abs(cand - np.asarray(target)[..., None])
+        dist = np.where((cand >= lo) & (cand <= hi), dist, np.inf)
+        k = np.argmin(dist, axis=-1)
+        best = np.take_along_axis(cand, k[..., None], axis=-1)[..., 0]
+        ok = np.take_along_axis(dist, k[..., None], axis=-1)[..., 0] < np.inf
+        return np.where(ok, best, np.nan)
+
+    def _ik_core(self, T: Array, ref: Array | None) -> tuple[Array, BoolArray, BoolArray]:
+        """Model angles θ (N, 8, 6) rad, reachable (N, 8), singular flags (N, 8, 3)."""
+        n = T.shape[0]
+        a1, d = self.shoulder_offset_mm, self.lateral_offset_mm
+        a2, d4, d6 = self.upper_arm_mm, self.forearm_mm, self.wrist_to_flange_mm
+        R = T[:, :3, :3]
+        w = T[:, :3, 3] - d6 * R[:, :, 2]
+        wx, wy, wz = w[:, 0], w[:, 1], w[:, 2]
+        rho2 = wx * wx + wy * wy
+        disc = rho2 - d * d
+        len_tol = 1e-9 * (self.reach_mm + abs(a1) + abs(d))
+        reach_sh = disc >= -2.0 * len_tol * max(abs(d), 1.0)
+        root = np.sqrt(np.maximum(disc, 0.0))
+        r = np.stack([root, -root], axis=1)  # (N, 2): righty, lefty
+        phi = np.arctan2(wy, wx)[:, None]
+        t1 = phi - np.arctan2(d, r)
+        if ref is not None:
+            # Wrist centre on axis 1 (no lateral offset): θ1 is free, keep the current one.
+            free1 = (rho2 < len_tol**2)[:, None]
+            t1 = np.where(free1, np.radians(ref[:, 0] + self._offsets[0])[:, None], t1)
+        xp = r - a1
+        zp = np.broadcast_to(wz[:, None], xp.shape)
+        c3 = (xp * xp + zp * zp - a2 * a2 - d4 * d4) / (2.0 * a2 * d4)
+        reach_el = np.abs(c3) <= 1.0 + 1e-12
+        c3 = np.clip(c3, -1.0, 1.0)
+        s3abs = np.sqrt(1.0 - c3 * c3)
+        s3 = np.stack([s3abs, -s3abs], axis=2)  # (N, 2, 2): epositive, enegative
+        c3b = np.broadcast_to(c3[:, :, None], s3.shape)
+        t3 = np.arctan2(s3, c3b)
+        t2 = np.arctan2(xp, zp)[:, :, None] - np.arctan2(d4 * s3, a2 + d4 * c3b)
+        t23 = t2 + t3
+        # Wrist: M = (Rz(θ1)·Ry(θ23))ᵀ·R = Rz(θ4)·Ry(θ5)·Rz(θ6).
+        s1, c1 = np.sin(t1)[:, :, None, None], np.cos(t1)[:, :, None, None]
+        R4 = R[:, None, None, :, :]
+        A0 = c1 * R4[..., 0, :] + s1 * R4[..., 1, :]
+        A1 = -s1 * R4[..., 0, :] + c1 * R4[..., 1, :]
+        A2 = np.broadcast_to(R4[..., 2, :], A0.shape)
+        s23, c23 = np.sin(t23)[..., None], np.cos(t23)[..., None]
+        M0 = c23 * A0 - s23 * A2
+        M2 = s23 * A0 + c23 * A2
+        m00, m02, m10, m12 = M0[..., 0], M0[..., 2], A1[..., 0], A1[..., 2]
+        m20, m21, m22 = M2[..., 0], M2[..., 1], M2[..., 2]
+        s5abs = np.hypot(m02, m12)  # (N, 2, 2)
+        t5 = np.stack([np.arctan2(s5abs, m22), -np.arctan2(s5abs, m22)], axis=3)
+        t4 = np.stack([np.arctan2(m12, m02), np.arctan2(-m12, -m02)], axis=3)
+        t6 = np.stack([np.arctan2(m21, -m20), np.arctan2(-m21, m20)], axis=3)
+        degenerate = np.broadcast_to((s5abs < _DEGENERATE)[..., None], t4.shape)
+        if np.any(degenerate):
+            # Axes 4 and 6 aligned: only θ4 ± θ6 is defined; keep θ4 (current or 0).
+            pref4 = (
+                np.zeros((n, 1, 1, 1))
+                if ref is None
+                else np.radians(ref[:, 3] + self._offsets[3])[:, None, None, None]
+            )
+            pref4 = np.broadcast_to(pref4, t4.shape)
+            up = np.broadcast_to((m22 > 0.0)[..., None], t4.shape)
+            total = np.where(
+                up,
+                np.arctan2(m10, m00)[..., None],  # θ4 + θ6
+                -np.arctan2(-m10, -m00)[..., None],  # θ6 - θ4 (θ5 = ±π)
+            )
+            t6 = np.where(degenerate, np.where(up, total - pref4, total + pref4), t6)
+            t4 = np.where(degenerate, pref4, t4)
+        shape = (n, 2, 2, 2)
+        theta = np.empty((*shape, 6))
+        theta[..., 0] = np.broadcast_to(t1[:, :, None, None], shape)
+        theta[..., 1] = np.broadcast_to(_wrap_pi(t2)[..., None], shape)
+        theta[..., 2] = np.broadcast_to(t3[..., None], shape)
+        theta[..., 3] = t4
+        theta[..., 4] = t5
+        theta[..., 5] = t6
+        reach = np.broadcast_to((reach_sh[:, None] & reach_el)[:, :, None, None], shape)
+        sing = np.empty((*shape, 3), dtype=bool)
+        sing[..., 0] = np.broadcast_to((s5abs < SINGULAR_TOL)[..., None], shape)
+        sing[..., 1] = np.broadcast_to((s3abs < SINGULAR_TOL)[:, :, None, None], shape)
+        sing[..., 2] = np.broadcast_to(
+            (np.abs(r) < SINGULAR_TOL * self.reach_mm)[:, :, None, None], shape
+        )
+        return theta.reshape(n, 8, 6), reach.reshape(n, 8).copy(), sing.reshape(n, 8, 3)
+
+    def ik(
+        self,
+        flange2base_T: Any,
+        config: str | Config | ConfigRequest | None = None,
+        near: Any = None,
+        *,
+        raise_on_singularity: bool = False,
+    ) -> list[IkSolution]:
+        """All IK solutions (up to 8) of one flange2base (4, 4) inside the joint limits.
+
+        ``config`` keeps only matching solutions (e.g. 'righty,epositive'; 'ssame' etc. refer
+        to ``near``). ``near`` (6,) degrees: joints report the turn closest to it and the
+        solutions come sorted by distance to it (else in ``CONFIGS`` order). Solutions at a
+        singularity list it in ``singularities`` (or raise SingularityError when asked).
+        Raises UnreachableError, or JointLimitError when only limit-violating ones exist.
+        """
+        T = check_transform(flange2base_T, name="flange2base")
+        if T.ndim != 2:
+            raise KinematicsError("ik: expected one (4, 4) flange2base; use ik_batch for N")
+        ref = None if near is None else np.array(vector6(near, "near"))
+        request = ConfigRequest.parse(config)
+        same_as = None if ref is None else self.config_of(ref)
+        batch = self._ik_batch(T[None], ref)
+        if not np.any(batch.reachable[0]):
+            raise UnreachableError(self._why_unreachable(T))
+        sols: list[IkSolution] = []
+        any_config = False
+        for k, cfg in enumerate(CONFIGS):
+            if not batch.reachable[0, k] or not request.matches(cfg, same_as):
+                continue
+            any_config = True
+            if not batch.valid[0, k]:
+                continue
+            q = batch.joints_deg[0, k].copy()
+            q.flags.writeable = False
+            if any(float(np.max(np.abs(q - s.joints_deg))) <= 1e-9 for s in sols):
+                continue  # the same joints twice, at a singularity
+            names = tuple(
+                nm for nm, f in zip(SINGULARITY_NAMES, batch.singular[0, k], strict=True) if f
+            )
+            if names and raise_on_singularity:
+                raise SingularityError(
+                    f"{self.name}: pose is at a {names[0]} singularity", kind=names[0]
+                )
+            sols.append(IkSolution(q, cfg, names))
+        if not sols:
+            what = "" if request == ConfigRequest() else " with the requested configuration"
+            if not any_config:
+                raise UnreachableError(f"{self.name}: no solution{what}")
+            raise JointLimitError(f"{self.name}: every solution{what} violates a joint limit")
+        if ref is not None:
+            sols.sort(key=lambda s: float(np.linalg.norm(s.joints_deg - ref)))
+        return sols
+
+    def _why_unreachable(self, T: Array) -> str:
+        w = T[:3, 3] - self.wrist_to_flange_mm * T[:3, 2]
+        rho = math.hypot(w[0], w[1])
+        d = abs(self.lateral_offset_mm)
+        if rho < d:
+            return (
+                f"{self.name}: unreachable, wrist centre {rho:.3f} mm from axis 1 "
+                f"(< lateral offset {d:g} mm)"
+            )
+        a2, d4 = self.upper_arm_mm, self.forearm_mm
+        r = math.sqrt(max(rho * rho - d * d, 0.0))
+        dist = min(math.hypot(r - self.shoulder_offset_mm, w[2]),
+                   math.hypot(-r - self.shoulder_offset_mm, w[2]))  # fmt: skip
+        return (
+            f"{self.name}: unreachable, wrist centre {dist:.3f} mm from axis 2, "
+            f"reach is [{abs(a2 - d4):g}, {a2 + d4:g}] mm"
+        )

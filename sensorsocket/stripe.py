@@ -1,0 +1,237 @@
+"""Stage 1 of the seam detector: the laser stripe of every column (pure numpy, vectorised).
+
+Per column, the brightest row (argmax), then a fixed window of 2h+1 rows around it and its
+intensity centroid after subtracting a threshold ``background + k·noise`` (background and
+noise estimated per frame, robustly, from pixels just outside the windows). Second pass with
+the window re-centred on the centroid. A column is valid when its peak clears the background
+by ``max(min_contrast_dn, 6·noise)`` and the stripe is not wider than ``max_width_px`` (rms).
+Frames are in readout layout ``(columns, rows)``, see :mod:`sensorsocket.camera`; the seam
+stages are in :mod:`sensorsocket.detector`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from sensorsocket.scene import FloatArray
+
+#: Gaussian noise: σ = 1.4826 · median absolute deviation (robust against the stripe's tail).
+MAD_TO_SIGMA = 1.4826
+#: Background samples lie this many rows beyond either end of a column's stripe window.
+_RING_GAP_ROWS = 3
+#: Noise floor (DN): below half a DN the 8-bit rounding, not the noise, sets the threshold.
+_MIN_NOISE_DN = 0.5
+#: A valid column's peak clears the background by this many noise sigmas (or by
+#: ``min_contrast_dn``): over 512 columns, noise alone then practically never passes.
+_PEAK_SIGMAS = 6.0
+
+
+@dataclass(frozen=True)
+class StripeProfile:
+    """Per-column stripe of a frame (arrays (n,), column ``first_column + i``)."""
+
+    first_column: int
+    rows: FloatArray = field(repr=False)
+    mass: FloatArray = field(repr=False)
+    valid: NDArray[np.bool_] = field(repr=False)
+    background: float
+    noise: float
+    threshold: float
+
+
+@dataclass(frozen=True)
+class _ShapeConstants:
+    """Read-only arrays for frames (n, rows): flat offset of each column (n,), the clamped
+    background rows (2, rows) and window start (rows,) for a peak or centre row, the window
+    fill h (n,), zeros (n, w)."""
+
+    base: NDArray[np.intp]
+    ring_of_row: NDArray[np.intp]
+    start_of_row: NDArray[np.intp]
+    fill: NDArray[np.float32]
+    zeros: NDArray[np.float32]
+
+
+class StripeFinder:
+    """The stripe of every column of frames, with the detector's thresholds: window half
+    width h (rows), threshold factor k on the noise, minimum peak contrast (DN) and maximum
+    stripe width (rms, px)."""
+
+    def __init__(
+        self, half_window: int, noise_factor: float, min_contrast_dn: float, max_width_px: float
+    ) -> None:
+        self.half_window = half_window
+        self.noise_factor = noise_factor
+        self.min_contrast_dn = min_contrast_dn
+        self.max_width_px = max_width_px
+        win = np.arange(2 * half_window + 1, dtype=np.float32)
+        # (3, w): a window's mass, first and second moment are one matrix product
+        self._win_moments = np.stack([np.ones_like(win), win, win * win])
+        self._shape_cache: dict[tuple[int, int], _ShapeConstants] = {}
+        self._windows: dict[int, tuple[NDArray[np.intp], FloatArray]] = {}
+
+    def _shape_constants(self, n: int, nrows: int) -> _ShapeConstants:
+        """Read-only index and bound arrays for frames (n, nrows), cached per shape: a
+        detector sees one frame shape over and over. Never written, so thread-safe."""
+        key = (n, nrows)
+        c = self._shape_cache.get(key)
+        if c is None:
+            w = self._win_moments.shape[1]
+            h = self.half_window
+            c = _ShapeConstants(
+                base=np.arange(0, n * nrows, nrows, dtype=np.intp),
+                ring_of_row=np.stack(
+                    [
+                        np.maximum(np.arange(nrows) - (h + _RING_GAP_ROWS), 0),
+                        np.minimum(np.arange(nrows) + (h + _RING_GAP_ROWS), nrows - 1),
+                    ]
+                ),
+                start_of_row=np.clip(np.arange(nrows) - h, 0, nrows - w),
+                fill=np.full(n, h, dtype=np.float32),
+                zeros=np.zeros((n, w), dtype=np.float32),
+            )
+            for arr in (c.base, c.ring_of_row, c.start_of_row, c.fill, c.zeros):
+                arr.setflags(write=False)
+            self._shape_cache[key] = c
+        return c
+
+    def stripe(self, frame: NDArray[np.generic], first_column: int = 0) -> StripeProfile:
+        """Sub-pixel stripe rows of every column of ``frame`` (n, rows)."""
+        a = np.ascontiguousarray(frame)
+        n, nrows = a.shape
+        h = self.half_window
+        w = 2 * h + 1
+        flat = a.reshape(-1)
+        c = self._shape_constants(n, nrows)
+        base = c.base
+        # numpy's argmax has no SIMD loop for 8-bit integers: on int32 it is 2x faster,
+        # conversion included; ties resolve to the first maximum either way
+        search = a.astype(np.int32) if a.dtype.itemsize == 1 else a
+        peak_row = search.argmax(axis=1)
+        peak = flat.take(peak_row + base).astype(np.float32)
+        # the rows just outside the window above and below the peak, clamped: (2, n)
+        ring = c.ring_of_row.take(peak_row, axis=1)
+        ring += base
+        samples = flat.take(ring.reshape(-1)).astype(np.float32)
+        background = median_of_copy(samples)  # sorts samples: their order is not needed
+        np.subtract(samples, background, out=samples)
+        mad = median_of_copy(np.abs(samples, out=samples))
+        noise = max(MAD_TO_SIGMA * mad, _MIN_NOISE_DN)
+        # at least 1 DN above the background: its rounding alone must not count as light
+        threshold = background + max(self.noise_factor * noise, 1.0)
+        contrast = max(self.min_contrast_dn, _PEAK_SIGMAS * noise)
+        thr32 = np.float32(threshold)
+        # every run of w pixels of the frame as a row of a strided view: a window is one
+        # fancy index (its flat start), no (n, w) index array to build
+        windows = np.ndarray(
+            (flat.size - w + 1, w), flat.dtype, flat, 0, (flat.itemsize, flat.itemsize)
+        )
+        moments = np.empty((3, n), dtype=np.float32)
+        mass = moments[0]
+        positive = np.empty(n, dtype=bool)
+        rows = np.empty(n, dtype=np.float32)
+        # window start of a window centred on row r, clamped to the frame: c.start_of_row[r]
+        start = c.start_of_row.take(peak_row)
+        for second in (False, True):
+            if second:  # re-centre on the first centroid: symmetric window, whole plateau
+                start = c.start_of_row.take(np.rint(rows).astype(np.intp), mode="clip")
+            start_f = start.astype(np.float32)
+            start += base
+            vals = windows[start].astype(np.float32)
+            vals -= thr32
+            np.maximum(vals, c.zeros, out=vals)  # an array operand takes the SIMD loop
+            np.matmul(self._win_moments, vals.T, out=moments)
+            np.greater(mass, 0.0, out=positive)
+            rel = c.fill.copy()  # h where a window has no light: rows = window centre
+            np.divide(moments[1], mass, out=rel, where=positive)
+            np.add(rel, start_f, out=rows)
+        spread = np.full(n, np.inf, dtype=np.float32)
+        np.divide(moments[2], mass, out=spread, where=positive)
+        spread -= rel * rel
+        valid = peak >= background + contrast
+        valid &= positive
+        valid &= spread <= self.max_width_px**2
+        return StripeProfile(
+            first_column=first_column,
+            rows=rows.astype(np.float64),
+            mass=mass.astype(np.float64),
+            valid=valid,
+            background=background,
+            noise=noise,
+            threshold=threshold,
+        )
+
+    def mass_at(
+        self,
+        frame: NDArray[np.generic],
+        stripe: StripeProfile,
+        columns: NDArray[np.intp],
+        rows: FloatArray,
+        half: int,
+    ) -> FloatArray:
+        """Thresholded light in rows ``rows ± half`` of chip ``columns`` (k,) of ``frame``."""
+        f = np.asarray(frame)
+        ncols, nrows = f.shape[0], f.shape[1]
+        local = columns - stripe.first_column
+        ok = np.isfinite(rows)
+        ok &= local >= 0
+        ok &= local < ncols
+        every = bool(ok.all())
+        if not every:
+            if not ok.any():
+                return np.zeros(len(columns))
+            local, rows = local[ok], rows[ok]
+        offsets, ones = self._window(half)
+        idx = np.rint(rows).astype(np.intp)[:, None] + offsets
+        rows_in = np.maximum(idx, 0)  # np.clip costs more than both on small arrays
+        np.minimum(rows_in, nrows - 1, out=rows_in)
+        inside = rows_in == idx
+        if f.flags.c_contiguous:
+            rows_in += (local * nrows)[:, None]
+            vals = f.reshape(-1).take(rows_in).astype(np.float64)
+        else:
+            vals = f[local[:, None], rows_in].astype(np.float64)
+        vals -= stripe.threshold
+        np.maximum(vals, 0.0, out=vals)
+        vals *= inside
+        sums: FloatArray = vals.dot(ones)
+        if every:
+            return sums
+        out = np.zeros(len(columns))
+        out[ok] = sums
+        return out
+
+    def _window(self, half: int) -> tuple[NDArray[np.intp], FloatArray]:
+        """Row offsets -half..half and ones of that length (read-only, cached per half)."""
+        window = self._windows.get(half)
+        if window is None:
+            window = (np.arange(-half, half + 1), np.ones(2 * half + 1))
+            for arr in window:
+                arr.setflags(write=False)
+            self._windows[half] = window
+        return window
+
+
+def to_dn(a: NDArray[np.generic]) -> NDArray[np.float32]:
+    """Grey levels on the 8-bit scale the thresholds are in: 16-bit integers / 256, floats
+    in [0, 1] × 255, other numbers as they are; NaN and infinities become 0."""
+    f = np.nan_to_num(a.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+    if a.dtype.itemsize >= 2 and np.issubdtype(a.dtype, np.integer) and f.max() > 255:
+        f *= np.float32(1.0 / 256.0)
+    elif np.issubdtype(a.dtype, np.floating) and f.size and f.min() >= 0.0 and f.max() <= 1.0:
+        f *= np.float32(255.0)
+    return f
+
+
+def median_of_copy(x: NDArray[np.floating]) -> float:
+    """Median of a non-empty 1-D array the caller no longer needs (sorted in place). A
+    full sort: numpy's SIMD sort beats np.partition on these short arrays full of ties."""
+    n = x.size
+    k = n // 2
+    x.sort()
+    if n % 2:
+        return float(x[k])
+    return 0.5 * (float(x[k]) + float(x[k - 1]))

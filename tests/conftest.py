@@ -1,0 +1,33 @@
+"""Fixtures shared by the test modules.
+
+``serve`` starts loopback servers on port 0 the way every server test needs them: in a
+background thread, always shut down after the test, and with no handler exception left
+unseen (a test that provokes one on purpose clears ``handler_errors`` after checking it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+
+import pytest
+
+from spec.server import FramedServer, ServerPolicy, Service
+
+Serve = Callable[[Service, ServerPolicy | None], FramedServer]
+
+
+@pytest.fixture
+def serve() -> Iterator[Serve]:
+    """``serve(service, policy)`` -> a started FramedServer on 127.0.0.1, port 0."""
+    servers: list[FramedServer] = []
+
+    def start(service: Service, policy: ServerPolicy | None = None) -> FramedServer:
+        srv = FramedServer(service, "127.0.0.1", 0, policy)
+        servers.append(srv)
+        return srv.start()
+
+    yield start
+    for srv in servers:
+        srv.shutdown()
+    for srv in servers:
+        assert not srv.handler_errors, srv.handler_errors

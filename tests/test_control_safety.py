@@ -1,0 +1,242 @@
+"""Safety of control with real processes: a killed, frozen or interrupted controller stops
+the arm (laser off first), and EmergencyStop gets through a full server [RS-7.10..RS-7.14].
+
+The robot server runs in this process (real clock) so the tests can read the emulator's
+state; the controllers are real ``python -m robotsocket call`` processes or small client
+scripts, faulted with kill -9, SIGSTOP, SIGINT and SIGTERM. Assertions are on outcomes (the
+arm stopped short of its target, queue empty, outputs off), never on how fast.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import textwrap
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from robotsocket.client import RobotClient
+from robotsocket.emulator import RobotEmulator
+from robotsocket.service import RobotService
+from robotsocket.sync_service import attach_udp_sync
+from spec.server import FramedServer, ServerPolicy
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+FAR = "150,0,90,0,90,0"  # joint 1 by 150 degrees: several seconds at the default speed
+WATCHDOG = 0.3
+
+
+class Cell:
+    def __init__(self, robot: RobotEmulator, server: FramedServer) -> None:
+        self.robot = robot
+        self.server = server
+        self.endpoint = f"127.0.0.1:{server.address[1]}"
+
+    def wait_until(self, what: Callable[[], bool], timeout: float = 10.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if what():
+                return True
+            time.sleep(0.005)
+        return False
+
+    def moving(self) -> bool:
+        return self.robot.status().moving
+
+    def stopped_short(self) -> bool:
+        """Stopped with an empty queue, joint 1 far from the 150 degree target."""
+        st = self.robot.status()
+        return not st.moving and st.queue == 0 and abs(self.robot.herej()[0] - 150.0) > 5.0
+
+
+@pytest.fixture
+def cell() -> Iterator[Cell]:
+    robot = RobotEmulator(clock="real").start()
+    service = RobotService(robot)
+    _sync, endpoint = attach_udp_sync(service, robot)
+    policy = ServerPolicy(max_clients=8, reserved_slots=1, watchdog=WATCHDOG)
+    server = FramedServer(service, "127.0.0.1", 0, policy)
+    endpoint.start()
+    with server:
+        robot.enable_power()
+        yield Cell(robot, server)
+    endpoint.stop()
+    robot.close()
+    assert server.handler_errors == []
+
+
+def call(cell: Cell, *args: str) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "robotsocket", "call", cell.endpoint, *args],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV, cwd=ROOT,
+    )  # fmt: skip
+
+
+def moving_under_control(cell: Cell) -> None:
+    assert cell.wait_until(lambda: cell.moving() and cell.server.control_holder is not None)
+    cell.robot.set_output("laser", True)  # what a welding job would have switched on
+    cell.robot.set_output("gas", True)
+
+
+def assert_safe_stop(cell: Cell) -> None:
+    assert cell.wait_until(cell.stopped_short), cell.robot.status()
+    assert cell.robot.read_io("laser") == (False, True)
+    assert cell.robot.read_io("gas") == (False, True)
+    assert cell.robot.status().powered  # power stays as it was [RS-7.10]
+    assert cell.server.control_holder is None
+
+
+def test_kill_9_while_waiting_in_wait_end_move_stops_the_arm(cell: Cell) -> None:
+    proc = call(cell, "JointMove", FAR)
+    moving_under_control(cell)
+    time.sleep(0.3)  # well inside WaitEndMove
+    proc.kill()
+    proc.wait(5)
+    assert_safe_stop(cell)
+
+
+def test_frozen_controller_loses_control_by_the_watchdog(cell: Cell) -> None:
+    proc = call(cell, "JointMove", FAR)
+    moving_under_control(cell)
+    proc.send_signal(signal.SIGSTOP)
+    try:
+        assert_safe_stop(cell)
+        assert cell.server.statistics()["watchdog_expired"] == 1
+        assert proc.poll() is None  # still frozen: the close did not do it
+    finally:
+        proc.send_signal(signal.SIGCONT)
+        proc.kill()
+        proc.wait(5)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_interrupted_call_stops_releases_and_exits_130(cell: Cell, sig: signal.Signals) -> None:
+    proc = call(cell, "JointMove", FAR)
+    moving_under_control(cell)
+    time.sleep(0.3)
+    proc.send_signal(sig)
+    out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines() == ["interrupted; the move was stopped; control released"]
+    assert out == ""
+    assert cell.wait_until(cell.stopped_short)
+    # Released, not lost: nothing went through the controlled-stop path.
+    assert cell.server.statistics()["watchdog_expired"] == 0
+
+
+def test_client_keeps_its_lease_while_idle_and_while_waiting(cell: Cell) -> None:
+    with RobotClient(*cell.server.address, timeout=5.0) as robot:
+        assert robot.take_control() == WATCHDOG
+        time.sleep(WATCHDOG * 4)  # idle: the keeper pings
+        robot.joint_move([10.0, 0.0, 90.0, 0.0, 90.0, 0.0])
+        assert robot.wait_end_move(30.0)  # many pieces, each shorter than the lease
+        assert robot.status().in_control
+    assert cell.server.statistics()["watchdog_expired"] == 0
+
+
+SCRIPT = textwrap.dedent(
+    """
+    import sys, time
+    from robotsocket.client import RobotClient
+    from spec.registry import CommandId
+    host, port, udp = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+    robot = RobotClient(host, port)
+    robot.take_control()
+    robot.call(CommandId.SET_SENSOR_ENDPOINT, "127.0.0.1", udp)
+    robot.call(CommandId.START_TRIGGERS, 250.0, 0)
+    print("triggering", flush=True)
+    time.sleep(60)
+    """
+)
+
+
+def test_killed_controller_stops_its_triggers(cell: Cell) -> None:
+    sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sink.bind(("127.0.0.1", 0))
+    sink.settimeout(2.0)
+    host, port = cell.server.address
+    proc = subprocess.Popen(
+        [sys.executable, "-c", SCRIPT, host, str(port), str(sink.getsockname()[1])],
+        stdout=subprocess.PIPE, text=True, env=ENV, cwd=ROOT,
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == "triggering"
+        sink.recv(64)  # triggers arrive
+        proc.kill()
+        proc.wait(5)
+        with RobotClient(host, port) as watcher:
+            assert cell.wait_until(lambda: not watcher.status().controlled)
+        sink.settimeout(0.3)
+        for _ in range(100):  # drain what was in flight
+            try:
+                sink.recv(64)
+            except TimeoutError:
+                break
+        with pytest.raises(TimeoutError):
+            sink.recv(64)
+    finally:
+        proc.kill()
+        sink.close()
+
+
+def test_emergency_stop_gets_through_a_full_server(cell: Cell) -> None:
+    fillers = [socket.create_connection(cell.server.address, timeout=5) for _ in range(8)]
+    try:
+        assert cell.wait_until(lambda: cell.server.statistics()["clients"] == 8)
+        proc = call(cell, "EmergencyStop")
+        _out, err = proc.communicate(timeout=10)
+        assert proc.returncode == 0, err
+        assert cell.robot.status().estop
+        proc = call(cell, "GetStatus")  # anything else is refused while full
+        _, err = proc.communicate(timeout=10)
+        assert proc.returncode == 1 and "BUSY" in err
+    finally:
+        for s in fillers:
+            s.close()
+
+
+def test_server_shutdown_stops_the_controllers_motion(cell: Cell) -> None:
+    with RobotClient(*cell.server.address) as robot:
+        robot.take_control()
+        robot.joint_move([150.0, 0.0, 90.0, 0.0, 90.0, 0.0])
+        moving_under_control(cell)
+        cell.server.shutdown()
+        assert_safe_stop(cell)
+
+
+RAW_WAIT = textwrap.dedent(
+    """
+    import sys
+    from spec.client import FramedClient
+    from spec.params import Joints
+    from spec.registry import CommandId as C
+    client = FramedClient(sys.argv[1], int(sys.argv[2]), timeout=120)
+    client.keepalive = False
+    client.take_control("", 10.0)  # a long lease: only the close can stop the arm
+    client.call(C.JOINT_MOVE, Joints([150.0, 0.0, 90.0, 0.0, 90.0, 0.0]))
+    client.call(C.WAIT_END_MOVE, 60.0, timeout=120)  # one long request, pending when killed
+    """
+)
+
+
+def test_close_is_seen_while_a_long_wait_end_move_is_pending(cell: Cell) -> None:
+    """[RS-7.12] the reader keeps reading during WaitEndMove(60): the close stops the arm
+    long before the 10 s lease would."""
+    host, port = cell.server.address
+    proc = subprocess.Popen([sys.executable, "-c", RAW_WAIT, host, str(port)], env=ENV, cwd=ROOT)
+    try:
+        moving_under_control(cell)
+        time.sleep(0.3)
+        proc.kill()
+        proc.wait(5)
+        assert_safe_stop(cell)
+        assert cell.server.statistics()["watchdog_expired"] == 0
+    finally:
+        proc.kill()

@@ -1,0 +1,164 @@
+"""The analytic IK: round trips, batch against single, configurations, turns, errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from kinematics import (
+    CONFIGS,
+    JointLimitError,
+    KinematicsError,
+    UnreachableError,
+    get_model,
+    list_models,
+    location_to_transform,
+)
+
+MODELS = list_models()
+SETTINGS = settings(max_examples=200, deadline=None, derandomize=True)
+
+
+def _joints(name: str) -> st.SearchStrategy[list[float]]:
+    lim = get_model(name).limits
+    return st.tuples(*[st.floats(float(lo), float(hi)) for lo, hi in lim]).map(list)
+
+
+def _away_from_singularities(name: str, q: list[float]) -> bool:
+    m = get_model(name)
+    r, s3, s5 = m._geometry(q)
+    return abs(s3) > 0.02 and abs(s5) > 0.02 and abs(r) > 20.0
+
+
+def _rad_close(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.max(np.abs(np.radians(a - b))))
+
+
+@pytest.mark.parametrize("name", MODELS)
+@SETTINGS
+@given(data=st.data())
+def test_ik_contains_q_and_every_solution_maps_back(name: str, data: st.DataObject) -> None:
+    m = get_model(name)
+    q = data.draw(_joints(name).filter(lambda v: _away_from_singularities(name, v)))
+    T = m.flange2base(q)
+    sols = m.ik(T, near=q)
+    assert 1 <= len(sols) <= 8
+    assert _rad_close(sols[0].joints_deg, np.array(q)) < 1e-9  # nearest first
+    assert sols[0].config == m.config_of(q)
+    for s in sols:
+        assert m.within_limits(s.joints_deg)
+        assert m.config_of(s.joints_deg) == s.config
+        Ts = m.flange2base(s.joints_deg)
+        assert np.max(np.abs(Ts[:3, 3] - T[:3, 3])) < 1e-9  # mm
+        assert np.max(np.abs(Ts[:3, :3] - T[:3, :3])) < 1e-12
+    # q itself is away from singularities (other branches may meet one by coincidence).
+    assert sols[0].singularities == ()
+    # Without near: q is still among the solutions, J4/J6 possibly one turn away.
+    plain = m.ik(T)
+    diffs = [((s.joints_deg - q + 180.0) % 360.0) - 180.0 for s in plain]
+    assert min(float(np.max(np.abs(np.radians(d)))) for d in diffs) < 1e-9
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_batch_equals_single(name: str) -> None:
+    m = get_model(name)
+    rng = np.random.default_rng(3)
+    q = rng.uniform(m.limits[:, 0], m.limits[:, 1], (300, 6))
+    Tb = m.flange2base_batch(q)
+    assert Tb.shape == (300, 4, 4)
+    for i in range(0, 300, 7):
+        np.testing.assert_allclose(Tb[i], m.flange2base(q[i]), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(m.flange2base(q), Tb)  # (N, 6) dispatches to the batch
+    batch = m.ik_batch(Tb, near=q)
+    assert batch.joints_deg.shape == (300, 8, 6)
+    for i in range(0, 300, 11):
+        try:
+            sols = m.ik(Tb[i], near=q[i])
+        except (UnreachableError, JointLimitError):
+            assert not batch.valid[i].any()
+            continue
+        got = {s.config: s.joints_deg for s in sols}
+        for k, cfg in enumerate(CONFIGS):
+            if cfg in got:
+                np.testing.assert_allclose(batch.joints_deg[i, k], got[cfg], atol=1e-12)
+            elif batch.valid[i, k]:
+                # Dropped by ik() only as a duplicate at a singularity.
+                assert any(np.allclose(batch.joints_deg[i, k], v, atol=1e-9) for v in got.values())
+
+
+def test_config_selection() -> None:
+    m = get_model("RX90B")
+    q = [20.0, 30.0, 60.0, 10.0, 40.0, -30.0]
+    T = m.flange2base(q)
+    every = m.ik(T)
+    assert len(every) == len({s.config for s in every})
+    assert m.config_of(q).as_dict() == {
+        "shoulder": "righty", "elbow": "epositive", "wrist": "wpositive"
+    }  # fmt: skip
+    only = m.ik(T, config="righty,epositive,wpositive")
+    assert len(only) == 1
+    np.testing.assert_allclose(only[0].joints_deg, q, atol=1e-9)
+    neg = m.ik(T, config="enegative")
+    assert neg and all(s.config.elbow == "enegative" and s.joints_deg[2] < 0 for s in neg)
+    wneg = m.ik(T, config="wnegative")
+    assert all(s.joints_deg[4] < 0 for s in wneg)
+    lefty = m.ik(T, config="lefty")
+    for s in lefty:  # lefty: wrist centre behind axis 1, J1 turned about 180° away
+        assert abs(((s.joints_deg[0] - q[0]) % 360.0) - 180.0) < 1e-6
+    same = m.ik(T, config="ssame,esame,wsame", near=q)
+    assert len(same) == 1 and same[0].config == m.config_of(q)
+    with pytest.raises(KinematicsError):
+        m.ik(T, config="elbowup")
+    with pytest.raises(KinematicsError):
+        m.ik(T, config="ssame")  # needs near
+
+
+def test_near_picks_the_turn_of_j4_j6() -> None:
+    m = get_model("RX90B")
+    q = [0.0, 30.0, 60.0, 200.0, 40.0, -250.0]
+    T = m.flange2base(q)
+    np.testing.assert_allclose(m.ik(T, near=q)[0].joints_deg, q, atol=1e-9)
+    default = m.ik(T, config="righty,epositive,wpositive")[0].joints_deg
+    np.testing.assert_allclose(default, [0, 30, 60, -160, 40, 110], atol=1e-9)
+
+
+def test_unreachable_and_limit_errors() -> None:
+    m = get_model("RX90B")
+    far = location_to_transform([2000, 0, 0, 0, 0, 0])
+    with pytest.raises(UnreachableError, match="unreachable"):
+        m.ik(far)
+    # Reachable geometrically, but only with J2 far beyond its ±137.5° limit:
+    # the wrist centre straight below axis 2.
+    below = location_to_transform([0, 0, -885, 0, 180, 0])
+    with pytest.raises(JointLimitError):
+        m.ik(below)
+    batch = m.ik_batch(np.stack([far, below]))
+    assert not batch.valid.any() and not batch.reachable[0].any() and batch.reachable[1].any()
+    assert np.isnan(batch.joints_deg).all()
+    with pytest.raises(JointLimitError):
+        m.check_joints([0, 0, 0, 0, 130, 0])
+    assert m.within_limits([0, 0, 0, 0, 120, 0])
+
+
+def test_tx90_lateral_offset_unreachable_inside_cylinder() -> None:
+    m = get_model("TX90")
+    # Wrist centre on axis 1: closer than the 50 mm lateral offset.
+    T = location_to_transform([0, 0, 700 + 100, 0, 0, 0])
+    with pytest.raises(UnreachableError, match="lateral"):
+        m.ik(T)
+
+
+def test_bad_ik_input() -> None:
+    m = get_model()
+    with pytest.raises(KinematicsError):
+        m.ik(np.eye(3))
+    T = np.eye(4)
+    T[0, 3] = np.nan
+    with pytest.raises(KinematicsError):
+        m.ik(T)
+    with pytest.raises(KinematicsError):
+        m.ik_batch(np.eye(4))
+    with pytest.raises(KinematicsError):
+        m.flange2base_batch(np.zeros((3, 5)))
