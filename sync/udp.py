@@ -7,7 +7,8 @@ Three layers, the lower ones pure (time is an input):
 - :class:`RobotSyncCore` is the robot's bookkeeping: it numbers and encodes triggers, records
   t_i^T, decodes data datagrams (counting malformed ones [SY-1.4]), feeds the
   :class:`~sync.matcher.SyncMatcher` (eq. 4-5, with its lost/late/duplicate/reordered/
-  expired rules) and turns released points into rows of GetSeamPoints (eq. 2-3).
+  expired rules) and turns released points into rows of GetSeamPoints (eq. 2-3), kept in a
+  bounded :class:`SeamRows`.
 - :class:`UdpSyncEndpoint` is the thin thread: one UDP socket, triggers sent at their due
   time on a clock callable, data datagrams received and fed to the core.
 
