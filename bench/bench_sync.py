@@ -8,10 +8,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bench.common import Result, result, time_per_call
+from spec.datagrams import SensorData
+from spec.wire import SensorStatus
 from sync.delay import estimate_delay, simulate_sine_experiment
 from sync.interpolate import interpolate_joints
 from sync.joint_buffer import JointBuffer
-from sync.matcher import STATUS_FOUND, SensorData, SyncMatcher
+from sync.matcher import SyncMatcher
 from sync.seam_chain import seam2base
 
 Batch = Callable[[NDArray[np.float64]], NDArray[np.float64]]
@@ -83,7 +85,8 @@ def _matcher_stream(results: list[Result]) -> None:
     buf = JointBuffer()
     t = np.arange(2500) * 0.004
     buf.extend(t, np.zeros((2500, 6)))
-    loc = np.eye(4)
+    found = SensorStatus.FOUND
+    seam = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     times, joints = buf.samples()
 
     def stream() -> None:
@@ -91,7 +94,7 @@ def _matcher_stream(results: list[Result]) -> None:
         for i in range(n):
             ti = 0.0013 + 0.004 * i
             m.on_trigger(i, ti)
-            m.on_data(SensorData(i, STATUS_FOUND, loc), ti + 0.01)
+            m.on_data(SensorData(i, found, seam, 0.9, ti, ti, ti, ti), ti + 0.01)
             m.poll(ti + 0.01, buf)
 
     def single_interp() -> None:

@@ -12,7 +12,7 @@ Clocks:
 
 - ``"sim"``: the robot clock advances only when the robot is made to wait (WaitEndMove
   through the protocol, or :meth:`EmulatedCell.advance`); every 4 ms cycle the cell sends
-  the due triggers through a modelled network (:class:`~sync.udp.DelayLink`), lets the
+  the due triggers through a modelled network (:class:`~sync.network.DelayLink`), lets the
   sensor acquire once the arm's motion over the exposure is known, delivers the data
   datagrams and runs the matcher. Deterministic for a seed; as fast as the CPU allows.
 - ``"real"``: the robot's real-time 4 ms thread, a real UDP trigger listener on the sensor
@@ -52,7 +52,8 @@ from sensorsocket.service import SensorService
 from sensorsocket.timing import TimingModel
 from sensorsocket.udp import TriggerListener
 from spec.server import FramedServer
-from sync.udp import DelayLink, RobotSyncCore, UdpSyncEndpoint
+from sync.network import DelayLink
+from sync.udp import RobotSyncCore, UdpSyncEndpoint
 
 __all__ = [
     "DEFAULT_LASER_TOOL",

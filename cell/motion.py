@@ -215,19 +215,6 @@ class TrueMotion:
         return new
 
 
-def _lerp(t: FloatArray, q: FloatArray, query: FloatArray) -> FloatArray:
-    """Joints (M, J) at ``query`` times (M,) inside the samples t (N >= 2,), q (N, J):
-    :func:`~sync.interpolate.interpolate_joints` without its checks and status (same
-    arithmetic, same values)."""
-    k = np.clip(np.searchsorted(t, query, side="right") - 1, 0, len(t) - 2)
-    t0, t1 = t[k], t[k + 1]
-    w = ((query - t0) / (t1 - t0))[:, None]
-    q0, q1 = q[k], q[k + 1]
-    v = (1.0 - w) * q0 + w * q1
-    out: FloatArray = np.clip(v, np.minimum(q0, q1), np.maximum(q0, q1), out=v)
-    return out
-
-
 def _extrapolate(t: FloatArray, q: FloatArray, query: FloatArray) -> FloatArray:
     """Joints at ``query`` times from the last samples (<= 3): quadratic in time."""
     n = len(t)

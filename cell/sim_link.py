@@ -1,5 +1,5 @@
 """The simulated cell's UDP trigger/data link of section V, run on the robot's 4 ms cycle
-(pure: no sockets; the modelled network is :class:`~sync.udp.DelayLink`)."""
+(pure: no sockets; the modelled network is :class:`~sync.network.DelayLink`)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,8 @@ from numpy.typing import NDArray
 from cell.timing import CellTiming
 from sensorsocket.sensor import Sensor
 from sensorsocket.udp import TriggerHandler
-from sync.udp import DelayLink, RobotSyncCore
+from sync.network import DelayLink
+from sync.udp import RobotSyncCore
 
 __all__ = ["SimTransport", "SimulatedLink"]
 

@@ -21,7 +21,7 @@ from typing import Any, Protocol
 
 from sensorsocket.sensor import NAN_LOCATION, Clock, Reading
 from spec.auth import Network, address_allowed
-from spec.datagrams import INDEX_MODULUS, decode_datagram, encode_data_fields, trigger_fields
+from spec.datagrams import decode_datagram, encode_data_fields, serial_newer, trigger_fields
 from spec.errors import DatagramError
 from spec.sockopt import set_kernel_timeouts
 from spec.udp import bind_udp
@@ -32,13 +32,6 @@ log = logging.getLogger(__name__)
 #: Indices remembered for duplicate detection [SY-2.2].
 HISTORY = 1024
 MAX_SOURCES = 64  # trigger senders remembered at once (least recently heard forgotten first)
-_HALF = INDEX_MODULUS // 2
-
-
-def serial_newer(a: int, b: int) -> bool:
-    """True when index ``a`` is after ``b`` in serial-number arithmetic (RFC 1982) [SY-1.3]."""
-    d = (a - b) % INDEX_MODULUS
-    return 0 < d < _HALF
 
 
 class Acquirer(Protocol):

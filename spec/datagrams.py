@@ -16,7 +16,23 @@ from spec import wire
 from spec.errors import DatagramError, UsageError
 from spec.wire import DatagramKind, SensorStatus
 
+#: Trigger indices are u32 and wrap from 2^32 - 1 to 0 [SY-1.3].
 INDEX_MODULUS = 1 << 32
+_HALF_MODULUS = INDEX_MODULUS // 2
+
+
+def serial_diff(a: int, b: int) -> int:
+    """Signed distance from index ``b`` to index ``a`` in serial-number arithmetic
+    (RFC 1982) [SY-1.3]: ``(a - b) mod 2^32`` read in [-2^31, 2^31), so the index after
+    2^32 - 1 is 0 and ``serial_diff(0, 2**32 - 1) == 1``."""
+    d = (a - b) % INDEX_MODULUS
+    return d - INDEX_MODULUS if d >= _HALF_MODULUS else d
+
+
+def serial_newer(a: int, b: int) -> bool:
+    """True when index ``a`` is after ``b`` in serial-number arithmetic (RFC 1982) [SY-1.3]."""
+    return serial_diff(a, b) > 0
+
 
 # Whole-datagram layouts for the per-trigger hot path of the sensor (one unpack per trigger,
 # one pack per reply), concatenated from the layouts of wire.py so they cannot drift apart.

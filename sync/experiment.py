@@ -35,7 +35,7 @@ from kinematics.transforms import location_to_transform
 from spec.client import FramedClient, wait_end_move
 from spec.files import atomic_path, prepare_output_path, write_atomically
 from spec.params import IDENTITY_LOCATION, FloatArray, IntArray, Location, Matrix, Value
-from spec.registry import SEAM_POINT_COLUMNS, CommandId
+from spec.registry import BY_ID, SEAM_POINT_COLUMNS, CommandId
 from sync.delay import DelayEstimate, ResidualReport, estimate_delay, residual_after_sync
 
 __all__ = [
@@ -197,8 +197,18 @@ def _matrix(v: Value) -> F64:
     return np.array(v.values, dtype=np.float64).reshape(v.rows, v.cols)
 
 
+def _reply(
+    client: FramedClient, command: CommandId, *params: Value, timeout: float | None = None
+) -> dict[str, Value]:
+    """``command``'s reply by the field names of the registry, not by position (the client
+    has checked the reply's types against the same registry entry)."""
+    values = client.call(command, *params, timeout=timeout)
+    return dict(zip((p.name for p in BY_ID[command].reply), values, strict=False))
+
+
 def _endpoint(sensor: FramedClient) -> tuple[str, int]:
-    host, port = sensor.call(CommandId.GET_TRIGGER_ENDPOINT)
+    reply = _reply(sensor, CommandId.GET_TRIGGER_ENDPOINT)
+    host, port = reply["host"], reply["port"]
     assert isinstance(host, str) and isinstance(port, int)
     if port == 0:
         raise ExperimentError("the sensor reports no UDP trigger endpoint")
@@ -236,17 +246,17 @@ def record_sine(
         sensor.hello()
         host, port = _endpoint(sensor)
         robot.call(CommandId.SET_SENSOR_ENDPOINT, host, port)
-    config = robot.call(CommandId.GET_SYNC_CONFIG)
-    if not config[1]:
+    config = _reply(robot, CommandId.GET_SYNC_CONFIG)
+    if not config["port"]:
         raise ExperimentError("the robot has no sensor endpoint: give --sensor")
-    tool = config[3]
+    tool = config["sensor2flange"]
     assert isinstance(tool, Location)
-    status = robot.call(CommandId.ROBOT_STATUS)
-    if not status[0]:
+    status = _reply(robot, CommandId.ROBOT_STATUS)
+    if not status["powered"]:
         robot.call(CommandId.ENABLE_POWER)
-    if status[2]:
+    if status["moving"]:
         wait_end_move(robot, 30.0)
-    (loc0,) = robot.call(CommandId.HERE, tool, IDENTITY_LOCATION)
+    loc0 = _reply(robot, CommandId.HERE, tool, IDENTITY_LOCATION)["location"]
     assert isinstance(loc0, Location)
     times, y = sine_path(s)
     locs = np.zeros((times.size, 6))
@@ -254,7 +264,7 @@ def record_sine(
     t_start = _f(robot.get_time())
     log_since = t_start - 0.1
     count = math.ceil((s.total_s + 0.1) * s.trigger_rate_hz)
-    (first,) = robot.call(CommandId.START_TRIGGERS, float(s.trigger_rate_hz), count)
+    first = _reply(robot, CommandId.START_TRIGGERS, float(s.trigger_rate_hz), count)["first_index"]
     assert isinstance(first, int)
     try:
         robot.call(
@@ -271,14 +281,12 @@ def record_sine(
         while True:
             if not done:
                 done = wait_end_move(robot, float(s.chunk_s))
-            (log,) = robot.call(CommandId.GET_JOINT_LOG, float(log_since))[:1]
-            rows = _matrix(log)
+            rows = _matrix(_reply(robot, CommandId.GET_JOINT_LOG, float(log_since))["log"])
             if rows.size:
                 logs.append(rows)
                 log_since = float(rows[-1, 0])
             while True:
-                (pts,) = robot.call(CommandId.GET_SEAM_POINTS, since_index)
-                prow = _matrix(pts)
+                prow = _matrix(_reply(robot, CommandId.GET_SEAM_POINTS, since_index)["points"])
                 if not prow.size:
                     break
                 points.append(prow)
@@ -291,10 +299,8 @@ def record_sine(
                 break
     finally:
         robot.call(CommandId.STOP_TRIGGERS)
-    stats_values = robot.call(CommandId.GET_SYNC_STATISTICS)
-    names = ("sent", "received", "matched", "lost", "late", "duplicate", "reordered",
-             "unknown", "expired", "malformed", "pending")  # fmt: skip
-    stats = {k: int(v) for k, v in zip(names, stats_values, strict=False) if isinstance(v, int)}
+    stats_reply = _reply(robot, CommandId.GET_SYNC_STATISTICS)
+    stats = {k: v for k, v in stats_reply.items() if isinstance(v, int)}
     if not logs or not points:
         raise ExperimentError(
             f"no data: {sum(len(x) for x in logs)} joint samples, "
@@ -303,8 +309,8 @@ def record_sine(
     jl = np.vstack(logs)
     pt = np.vstack(points)
     s0 = location_to_transform(np.array(loc0.as_tuple()))
-    s2f = location_to_transform(np.array(tool.as_tuple()))
-    poses = model.flange2base_batch(jl[:, 1:7]) @ s2f
+    sensor2flange = location_to_transform(np.array(tool.as_tuple()))
+    poses = model.flange2base_batch(jl[:, 1:7]) @ sensor2flange
     # y of the sensor origin in the start frame S0: (R0^T (p - p0))_y
     y_r = (poses[:, :3, 3] - s0[:3, 3]) @ s0[:3, 1]
     t_t = pt[:, _TT]

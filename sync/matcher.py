@@ -49,67 +49,39 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from kinematics.transforms import location_to_transform
-from sync.interpolate import InterpStatus, interpolate_joints
+from spec.datagrams import INDEX_MODULUS, SensorData, serial_diff
+from spec.wire import SensorStatus
+from sync.interpolate import InterpStatus, interpolate_joints, lerp_inside
 from sync.joint_buffer import JointBuffer
-from sync.seam_chain import FlangeToBase
+from sync.seam_chain import FlangeToBase, seam2base
 
 __all__ = [
-    "INDEX_MODULUS",
-    "STATUS_FOUND",
     "DataOutcome",
     "MatcherCounters",
     "MatcherError",
     "SeamPoint",
-    "SensorData",
     "SyncMatcher",
     "TriggerLog",
 ]
 
-INDEX_MODULUS = 1 << 32
-"""Trigger indices are u32 on the wire."""
-_HALF = 1 << 31
-
 # interpolation outcomes as plain ints: IntEnum member access costs ~1 µs a time
 _OK, _TOO_OLD, _NOT_YET = int(InterpStatus.OK), int(InterpStatus.TOO_OLD), int(InterpStatus.NOT_YET)
-
-STATUS_FOUND = 0
-"""Sensor status meaning "seam found" (``spec.wire.SensorStatus.FOUND``)."""
 
 
 class MatcherError(ValueError):
     """A caller mistake: bad trigger order, bad shapes or times. Peer mistakes never raise."""
 
 
-def _as_transform(seam2sensor: ArrayLike) -> NDArray[np.float64]:
-    a = np.asarray(seam2sensor, dtype=np.float64)
-    if a.shape == (6,):
-        # A non-finite pose stays NaN: the caller counts it as invalid, a peer's data never raises.
-        a = location_to_transform(a) if np.isfinite(a).all() else np.full((4, 4), np.nan)
-    elif a.shape != (4, 4):
-        raise MatcherError(f"seam2sensor must be a 6-float location or 4x4, got shape {a.shape}")
-    return a
-
-
-@dataclass(frozen=True)
-class SensorData:
-    """One sensor data datagram, decoded.
-
-    Attributes:
-        index: trigger index i (u32).
-        status: sensor status; ``STATUS_FOUND`` (0) means a seam was found.
-        seam2sensor: ^S_G T as a 4x4 transform (mm) or a VAL3 location (x, y, z, rx, ry, rz)
-            in mm and degrees; ignored when the status is not FOUND.
-        quality: detector quality figure, carried through.
-        sensor_times: the sensor's own clock readings (trigger arrival, exposure start,
-            exposure end), seconds, carried through (not used for matching: only the robot's
-            t_i^T is on the robot clock).
-    """
-
-    index: int
-    status: int
-    seam2sensor: ArrayLike
-    quality: float = math.nan
-    sensor_times: tuple[float, ...] = ()
+def _location_transform(seam: Sequence[float]) -> NDArray[np.float64] | None:
+    """^S_G T (4, 4) of a data datagram's VAL3 location (mm, deg); None when not finite (a
+    peer fault, counted as invalid: a peer's data never raises)."""
+    if len(seam) != 6:
+        raise MatcherError(f"a seam location has 6 values, got {len(seam)}")
+    # A decoded datagram's location is 6 Python floats: checked without numpy.
+    if all(type(v) is float for v in seam):
+        return location_to_transform(seam) if all(math.isfinite(v) for v in seam) else None
+    loc = np.asarray(seam, dtype=np.float64)
+    return location_to_transform(loc) if np.isfinite(loc).all() else None
 
 
 @dataclass(frozen=True)
@@ -118,6 +90,8 @@ class SeamPoint:
 
     ``joints`` (6,) degrees at ``t_sensor`` = t_i^T + ΔT (s); ``seam2sensor`` and
     ``seam2base`` (4, 4) mm; ``seam2base`` is ``None`` when the matcher has no kinematics.
+    ``sensor_times``: the datagram's (trigger arrival, exposure start, exposure end), s on
+    the sensor's clock (not used for matching: only t_i^T is on the robot clock).
     """
 
     index: int
@@ -177,7 +151,7 @@ class _State(Enum):
 _RESOLVED = (_State.POINT, _State.NOT_FOUND, _State.LOST, _State.EXPIRED)
 
 
-@dataclass
+@dataclass(slots=True)
 class _Entry:
     t_trigger: float
     state: _State = _State.AWAITING
@@ -199,13 +173,7 @@ class TriggerLog:
         """Sequence number of u32 ``index`` nearest to the last trigger (None before any)."""
         if self.last_seq is None:
             return None
-        return self.last_seq + self._serial_diff(index, self.last_seq)
-
-    @staticmethod
-    def _serial_diff(index: int, seq: int) -> int:
-        """Signed distance from ``seq`` to u32 ``index``, in [-2^31, 2^31)."""
-        diff = (index - seq) % INDEX_MODULUS
-        return diff - INDEX_MODULUS if diff >= _HALF else diff
+        return self.last_seq + serial_diff(index, self.last_seq)
 
     def add(self, index: int, t_trigger: float) -> int:
         """Record trigger ``index`` sent at ``t_trigger`` (s); returns its sequence number."""
@@ -218,7 +186,7 @@ class TriggerLog:
         if self.last_seq is None:
             seq = self.first_seq = index
         else:
-            seq = self.last_seq + self._serial_diff(index, self.last_seq)
+            seq = self.last_seq + serial_diff(index, self.last_seq)
             if seq <= self.last_seq:
                 raise MatcherError(f"trigger index {index} is not after the previous one")
         self.entries[seq] = _Entry(t_trigger)
@@ -238,7 +206,9 @@ class SyncMatcher:
             it gives each point its ``seam2base`` (eqs. 2-3).
         sensor2flange: ^N_S T (4, 4), mm.
         history: resolved indices remembered for duplicate/late detection.
-        keep_trajectory: also keep every released point for :meth:`trajectory`.
+        keep_trajectory: also keep every released point for :meth:`trajectory`. Off by
+            default: a long-running matcher would otherwise grow by one point per trigger
+            (about 1 GB an hour at 250 Hz); turn it on only for a bounded recording.
     """
 
     delta_t_s: float
@@ -246,7 +216,7 @@ class SyncMatcher:
     flange2base: FlangeToBase | None = None
     sensor2flange: ArrayLike | None = None
     history: int = 4096
-    keep_trajectory: bool = True
+    keep_trajectory: bool = False
     counters: MatcherCounters = field(default_factory=MatcherCounters)
 
     def __post_init__(self) -> None:
@@ -258,12 +228,12 @@ class SyncMatcher:
             raise MatcherError("history must be >= 1")
         if (self.flange2base is None) != (self.sensor2flange is None):
             raise MatcherError("give both flange2base and sensor2flange, or neither")
-        self._s2f: NDArray[np.float64] | None = None
+        self._sensor2flange: NDArray[np.float64] | None = None
         if self.sensor2flange is not None:
-            s2f = np.asarray(self.sensor2flange, dtype=np.float64)
-            if s2f.shape != (4, 4):
-                raise MatcherError(f"sensor2flange must be 4x4, got {s2f.shape}")
-            self._s2f = s2f
+            sensor2flange = np.asarray(self.sensor2flange, dtype=np.float64)
+            if sensor2flange.shape != (4, 4):
+                raise MatcherError(f"sensor2flange must be 4x4, got {sensor2flange.shape}")
+            self._sensor2flange = sensor2flange
         self._log = TriggerLog()
         self._release_seq: int | None = None  # lowest sequence number not yet released
         self._awaiting: dict[int, None] = {}  # ordered set, by trigger time = by seq
@@ -282,20 +252,13 @@ class SyncMatcher:
         self.counters.triggers += 1
 
     def on_data(self, data: SensorData, now: float) -> DataOutcome:
-        """Take one sensor datagram received at ``now`` (s, robot clock)."""
+        """Take one sensor data datagram received at ``now`` (s, robot clock). Only a FOUND
+        one's ``seam`` is read; the sensor's timestamps are carried through to the point."""
         seam2sensor = None
         finite = True
-        if data.status == STATUS_FOUND:
-            s = data.seam2sensor
-            if isinstance(s, tuple) and len(s) == 6 and all(type(v) is float for v in s):
-                # a decoded datagram's location, checked on Python floats: a finite one
-                # gives a finite transform
-                finite = all(math.isfinite(v) for v in s)
-                seam2sensor = location_to_transform(s) if finite else None
-            else:
-                seam2sensor = _as_transform(s)
-                # ndarray.all: np.all's Python wrapper costs more than the test on 16 values
-                finite = bool(np.isfinite(seam2sensor).all())
+        if data.status == SensorStatus.FOUND:
+            seam2sensor = _location_transform(data.seam)
+            finite = seam2sensor is not None
         self._expire_lost(now)
         self.counters.data += 1
         if not finite:
@@ -379,21 +342,20 @@ class SyncMatcher:
         if len(times) >= 2 and times[0] <= t_lo and t_hi <= times[-1]:
             # the usual case, every t_i^S inside the buffer: the same interpolation without
             # the checks and status bookkeeping (per datagram these cost more than the maths)
-            values = _lerp_inside(times, q, t_s)
+            values = lerp_inside(times, q, t_s)
             status = [_OK] * len(seqs)
             ok = list(range(len(seqs)))
         else:
             values, status_arr = interpolate_joints(times, q, t_s)
             status = status_arr.tolist()
             ok = [i for i, st in enumerate(status) if st == _OK]
-        base: NDArray[np.float64] | None = None
-        if ok and self.flange2base is not None and self._s2f is not None:
+        in_base: NDArray[np.float64] | None = None  # seam2base of the OK queries (eqs. 2-3)
+        if ok and self.flange2base is not None and self._sensor2flange is not None:
             if len(ok) == 1:  # one datagram per cycle, the usual: no np.stack
-                g2s = self._seam2sensor(entries[seqs[ok[0]]])[None]
+                seam2sensor = self._seam2sensor(entries[seqs[ok[0]]])[None]
             else:
-                g2s = np.stack([self._seam2sensor(entries[seqs[i]]) for i in ok])
-            f2b = np.asarray(self.flange2base(values[ok]), dtype=np.float64)
-            base = np.matmul(f2b, np.matmul(self._s2f, g2s))
+                seam2sensor = np.stack([self._seam2sensor(entries[seqs[i]]) for i in ok])
+            in_base = seam2base(values[ok], self.flange2base, self._sensor2flange, seam2sensor)
         row = 0
         for i, st in enumerate(status):
             if st == _NOT_YET:
@@ -413,9 +375,9 @@ class SyncMatcher:
                 t_sensor=t_list[i],
                 joints=values[i],
                 seam2sensor=entry.seam2sensor,
-                seam2base=None if base is None else base[row],
+                seam2base=None if in_base is None else in_base[row],
                 quality=float(data.quality),
-                sensor_times=tuple(data.sensor_times),
+                sensor_times=(data.t_arrival, data.t_exposure_start, data.t_exposure_end),
             )
             row += 1
             entry.state = _State.POINT
@@ -438,7 +400,8 @@ class SyncMatcher:
                 break
             if entry.point is not None:
                 out.append(entry.point)
-                entry.point = None  # released; keep the state for duplicate detection
+            # Released: only the state stays, for duplicate and late detection.
+            entry.point = entry.data = entry.seam2sensor = None
             seq += 1
         self._release_seq = seq
         # Forget resolved entries beyond the history; never an unresolved one.
@@ -458,6 +421,11 @@ class SyncMatcher:
         """Triggers not yet resolved (awaiting data or waiting for joints)."""
         return len(self._awaiting) + len(self._ready)
 
+    def retained(self) -> dict[str, int]:
+        """Items held by the long-lived structures: logged triggers (at most ``history``
+        resolved ones plus the unresolved) and kept trajectory points."""
+        return {"trigger_log": len(self._log.entries), "trajectory": len(self._trajectory)}
+
     def trajectory(self) -> list[SeamPoint]:
         """Every released point so far, in index order (needs ``keep_trajectory``)."""
         return list(self._trajectory)
@@ -465,7 +433,7 @@ class SyncMatcher:
     def trajectory_arrays(
         self,
     ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
-        """Released points as arrays: indices (N,), t_sensor (N,) s, seam2base (N, 4, 4) mm.
+        """Released points as arrays: indices (M,), t_sensor (M,) s, seam2base (M, 4, 4) mm.
 
         Without kinematics the transforms are NaN.
         """
@@ -477,31 +445,3 @@ class SyncMatcher:
             if p.seam2base is not None:
                 base[n] = p.seam2base
         return idx, ts, base
-
-
-def _lerp_inside(
-    t: NDArray[np.float64], q: NDArray[np.float64], query: NDArray[np.float64]
-) -> NDArray[np.float64]:
-    """:func:`~sync.interpolate.interpolate_joints` for queries (M,) inside the samples t (N >= 2,),
-    q (N, J): the same arithmetic and values, no checks (ufunc minimum/maximum instead of
-    np.clip, whose Python wrapper costs more than the maths on a few queries)."""
-    k = np.searchsorted(t, query, side="right")
-    k -= 1
-    np.maximum(k, 0, out=k)
-    np.minimum(k, len(t) - 2, out=k)
-    if len(k) == 1:  # one datagram per cycle, the usual: the same steps on Python floats
-        j = int(k[0])
-        t0f, t1f = float(t[j]), float(t[j + 1])
-        wf = (float(query[0]) - t0f) / (t1f - t0f)
-        row = [
-            min(max((1.0 - wf) * a + wf * b, min(a, b)), max(a, b))
-            for a, b in zip(q[j].tolist(), q[j + 1].tolist(), strict=True)
-        ]
-        return np.array([row])
-    t0, t1 = t[k], t[k + 1]
-    w = ((query - t0) / (t1 - t0))[:, None]
-    q0, q1 = q[k], q[k + 1]
-    v = (1.0 - w) * q0 + w * q1
-    np.maximum(v, np.minimum(q0, q1), out=v)
-    out: NDArray[np.float64] = np.minimum(v, np.maximum(q0, q1), out=v)
-    return out

@@ -4,7 +4,8 @@
     (^B_G T = DGM(q) · ^N_S T · ^S_G T)
 
 Transforms are 4x4 homogeneous matrices, translations in mm. The kinematics are passed in as a
-batch callable so this module does not depend on a particular robot model.
+batch callable so this module does not depend on a particular robot model. This is the only
+place that composes the chain: the matcher and the robot's sync core call :func:`seam2base`.
 """
 
 from __future__ import annotations
@@ -37,21 +38,24 @@ def seam2base(
     Returns:
         ^B_G T, shape (M, 4, 4).
     """
+    # the arrays keep the names of the frames they map, with a _m (matrix) suffix
     q = np.asarray(joints, dtype=np.float64)
-    s2f = np.asarray(sensor2flange, dtype=np.float64)
-    g2s = np.asarray(seam2sensor, dtype=np.float64)
+    sensor2flange_m = np.asarray(sensor2flange, dtype=np.float64)
+    seam2sensor_m = np.asarray(seam2sensor, dtype=np.float64)
     if q.ndim != 2:
         raise ValueError(f"joints must have shape (M, J), got {q.shape}")
     m = q.shape[0]
-    if s2f.shape != (4, 4):
-        raise ValueError(f"sensor2flange must have shape (4, 4), got {s2f.shape}")
-    if g2s.shape not in ((4, 4), (m, 4, 4)):
-        raise ValueError(f"seam2sensor must have shape (4, 4) or ({m}, 4, 4), got {g2s.shape}")
-    f2b = np.asarray(flange2base(q), dtype=np.float64)
-    if f2b.shape != (m, 4, 4):
-        raise ValueError(f"flange2base returned shape {f2b.shape}, expected ({m}, 4, 4)")
+    if sensor2flange_m.shape != (4, 4):
+        raise ValueError(f"sensor2flange must have shape (4, 4), got {sensor2flange_m.shape}")
+    if seam2sensor_m.shape not in ((4, 4), (m, 4, 4)):
+        raise ValueError(
+            f"seam2sensor must have shape (4, 4) or ({m}, 4, 4), got {seam2sensor_m.shape}"
+        )
+    flange2base_m = np.asarray(flange2base(q), dtype=np.float64)
+    if flange2base_m.shape != (m, 4, 4):
+        raise ValueError(f"flange2base returned shape {flange2base_m.shape}, expected ({m}, 4, 4)")
     # (sensor2flange · seam2sensor) first: one batch product fewer when seam2sensor is shared.
-    out: NDArray[np.float64] = np.matmul(f2b, np.matmul(s2f, g2s))
+    out: NDArray[np.float64] = np.matmul(flange2base_m, np.matmul(sensor2flange_m, seam2sensor_m))
     return out
 
 

@@ -7,18 +7,17 @@ Three layers, the lower ones pure (time is an input):
 - :class:`RobotSyncCore` is the robot's bookkeeping: it numbers and encodes triggers, records
   t_i^T, decodes data datagrams (counting malformed ones [SY-1.4]), feeds the
   :class:`~sync.matcher.SyncMatcher` (eq. 4-5, with its lost/late/duplicate/reordered/
-  expired rules) and turns released points into rows of GetSeamPoints (eq. 2-3).
+  expired rules) and turns released points into rows of GetSeamPoints (eq. 2-3), kept in a
+  bounded :class:`SeamRows`.
 - :class:`UdpSyncEndpoint` is the thin thread: one UDP socket, triggers sent at their due
   time on a clock callable, data datagrams received and fed to the core.
 
-:class:`DelayLink` is a modelled network for simulated time: datagrams go in with a send time
-and come out at their arrival time, with optional loss, duplication and extra delay (which
-reorders), so the emulated cell and the tests drive the same core without sockets.
+The modelled network that drives the same core in simulated time is
+:class:`sync.network.DelayLink`.
 """
 
 from __future__ import annotations
 
-import heapq
 import itertools
 import logging
 import math
@@ -39,15 +38,15 @@ from spec.datagrams import INDEX_MODULUS, SensorData, Trigger, decode_datagram, 
 from spec.errors import DatagramError
 from spec.registry import SEAM_POINT_COLUMNS
 from spec.udp import bind_udp
+from spec.wire import SensorStatus
 from sync.joint_buffer import JointBuffer
-from sync.matcher import STATUS_FOUND, DataOutcome, SeamPoint, SyncMatcher
-from sync.matcher import SensorData as MatcherData
-from sync.seam_chain import FlangeToBase
+from sync.matcher import DataOutcome, SeamPoint, SyncMatcher
+from sync.seam_chain import FlangeToBase, seam2base
 
 __all__ = [
     "MAX_RATE_HZ",
-    "DelayLink",
     "RobotSyncCore",
+    "SeamRows",
     "SyncStateError",
     "TriggerScheduler",
     "UdpSyncEndpoint",
@@ -155,6 +154,73 @@ class _Stats:
     unexpected: int = 0
 
 
+class SeamRows:
+    """Seam-point rows (M, 17) (columns ``SEAM_POINT_COLUMNS``) in release order, which is
+    index order, the newest ``capacity`` of them kept.
+
+    Stored as the blocks of rows each flush makes (small ones merged up to ``_ROW_BATCH``),
+    so a row costs its 17 floats, not an array object, and a read scans back over the
+    blocks it returns instead of converting every row's index on each GetSeamPoints (which
+    held the core's lock for milliseconds with 200,000 rows).
+    """
+
+    def __init__(self, capacity: int) -> None:
+        if capacity < 0:
+            raise SyncStateError(f"max_points must be >= 0, got {capacity}")
+        self.capacity = capacity
+        self._blocks: list[NDArray[np.float64]] = []
+        self._count = 0
+
+    def __len__(self) -> int:
+        return self._count
+
+    def append(self, rows: NDArray[np.float64]) -> None:
+        """Add rows (M, 17) newer than every row held; drop the oldest beyond capacity."""
+        if not len(rows):
+            return
+        blocks = self._blocks
+        if blocks and len(blocks[-1]) + len(rows) <= _ROW_BATCH:
+            blocks[-1] = np.concatenate((blocks[-1], rows))
+        else:
+            blocks.append(rows)
+        self._count += len(rows)
+        excess = self._count - self.capacity
+        while excess > 0:
+            first = blocks[0]
+            if len(first) <= excess:
+                del blocks[0]
+                dropped = len(first)
+            else:
+                blocks[0] = first[excess:].copy()  # a copy frees the dropped rows
+                dropped = excess
+            self._count -= dropped
+            excess -= dropped
+
+    def since(self, since: int, limit: int) -> NDArray[np.float64]:
+        """A copy of the rows with index > ``since``, oldest first, at most ``limit``."""
+        blocks = self._blocks
+        start = len(blocks)
+        while start > 0 and blocks[start - 1][0, 0] > since:
+            start -= 1
+        parts: list[NDArray[np.float64]] = []
+        if start > 0:  # the block before holds rows up to ``since`` and maybe a few after
+            block = blocks[start - 1]
+            k = int(np.searchsorted(block[:, 0], since, side="right"))
+            parts.append(block[k:])
+        parts.extend(blocks[start:])
+        out: list[NDArray[np.float64]] = []
+        need = max(limit, 0)
+        for part in parts:
+            if need <= 0:
+                break
+            if len(part):
+                out.append(part[:need])
+                need -= len(out[-1])
+        if not out:
+            return np.zeros((0, len(SEAM_POINT_COLUMNS)))
+        return np.concatenate(out)
+
+
 class RobotSyncCore:
     """The robot's synchronisation state, without I/O.
 
@@ -189,10 +255,8 @@ class RobotSyncCore:
         self._sensor2flange = (
             np.eye(4) if sensor2flange is None else np.asarray(sensor2flange, dtype=np.float64)
         )
-        self.max_points = max_points
         self._next_index = first_index % INDEX_MODULUS
-        self._rows: list[NDArray[np.float64]] = []
-        self._row_index: list[int] = []
+        self._rows = SeamRows(max_points)
         # Released points not yet turned into rows: converted in one batch when rows are read
         # (or the batch is full), not one datagram at a time.
         self._pending: list[SeamPoint] = []
@@ -294,20 +358,7 @@ class RobotSyncCore:
                 self._stats.unexpected += 1
                 return None
             self._stats.received += 1
-            return self.matcher.on_data(
-                MatcherData(
-                    index=decoded.index,
-                    status=int(decoded.status),
-                    seam2sensor=decoded.seam if decoded.status == STATUS_FOUND else np.zeros(6),
-                    quality=decoded.quality,
-                    sensor_times=(
-                        decoded.t_arrival,
-                        decoded.t_exposure_start,
-                        decoded.t_exposure_end,
-                    ),
-                ),
-                now,
-            )
+            return self.matcher.on_data(decoded, now)
 
     def add_joints(self, times: ArrayLike, joints: ArrayLike) -> None:
         """Append measured joint samples (N,) s, (N, 6) deg; samples not newer than the last
@@ -349,36 +400,38 @@ class RobotSyncCore:
         if not points:
             return
         self._pending = []
-        g2s = np.stack([p.seam2sensor for p in points])
+        seam2sensor = np.stack([p.seam2sensor for p in points])
         rows = np.full((len(points), len(SEAM_POINT_COLUMNS)), np.nan)
         rows[:, 0] = [p.index for p in points]
         rows[:, 1] = [p.t_trigger for p in points]
         rows[:, 2] = [p.t_sensor for p in points]
-        rows[:, 3] = STATUS_FOUND
+        rows[:, 3] = SensorStatus.FOUND
         rows[:, 4] = [p.quality for p in points]
-        rows[:, 5:11] = transforms_to_locations(g2s)
+        rows[:, 5:11] = transforms_to_locations(seam2sensor)
         if self._flange2base is not None:
-            q = np.stack([p.joints for p in points])
-            base = np.matmul(self._flange2base(q), np.matmul(self._sensor2flange, g2s))
-            rows[:, 11:17] = transforms_to_locations(base)
-        self._rows.extend(rows)
-        self._row_index.extend(p.index for p in points)
-        excess = len(self._rows) - self.max_points
-        if excess > 0:
-            del self._rows[:excess]
-            del self._row_index[:excess]
+            joints = np.stack([p.joints for p in points])
+            in_base = seam2base(joints, self._flange2base, self._sensor2flange, seam2sensor)
+            rows[:, 11:17] = transforms_to_locations(in_base)
+        self._rows.append(rows)
 
     def points_since(self, since: int, limit: int = 20_000) -> NDArray[np.float64]:
-        """Seam-point rows (N, 17) (columns ``SEAM_POINT_COLUMNS``) with index > ``since``,
+        """Seam-point rows (M, 17) (columns ``SEAM_POINT_COLUMNS``) with index > ``since``,
         in index order, at most ``limit`` of them."""
         with self.lock:
             self._flush()
-            idx = np.asarray(self._row_index, dtype=np.int64)
-            k = int(np.searchsorted(idx, since, side="right")) if idx.size else 0
-            sel = self._rows[k : k + limit]
-            if not sel:
-                return np.zeros((0, len(SEAM_POINT_COLUMNS)))
-            return np.array(sel)
+            return self._rows.since(since, limit)
+
+    def retained(self) -> dict[str, int]:
+        """Items held by each long-lived structure; every one is bounded (by the matcher's
+        history plus unresolved triggers, ``max_points``, the row batch and the joint
+        capacity), so a robot server can trigger for ever."""
+        with self.lock:
+            return {
+                **self.matcher.retained(),
+                "rows": len(self._rows),
+                "pending_points": len(self._pending),
+                "joints": len(self.joints),
+            }
 
     def statistics(self) -> dict[str, int]:
         """The GetSyncStatistics counters (stale data is counted as late)."""
@@ -400,78 +453,6 @@ class RobotSyncCore:
                 "invalid": c.invalid,
                 "unexpected": self._stats.unexpected,
             }
-
-
-class DelayLink:
-    """A modelled one-way network for simulated time.
-
-    ``send(t, datagram)`` queues a datagram sent at ``t`` (s); it arrives at ``t + delay()``
-    unless lost. Faults (each with its own probability, drawn from ``rng``): loss,
-    duplication (a second copy with its own delay) and an extra delay of ``reorder_delay_s``
-    (which makes it overtake nothing but be overtaken: reordering).
-    """
-
-    def __init__(
-        self,
-        *,
-        delay_s: float = 0.0,
-        jitter_s: float = 0.0,
-        rng: np.random.Generator | None = None,
-        loss: float = 0.0,
-        duplicate: float = 0.0,
-        reorder: float = 0.0,
-        reorder_delay_s: float = 0.01,
-    ) -> None:
-        if delay_s < 0 or jitter_s < 0 or jitter_s / 2 > delay_s + 1e-15:
-            raise ValueError("need delay_s >= jitter_s / 2 >= 0")
-        for name, p in (("loss", loss), ("duplicate", duplicate), ("reorder", reorder)):
-            if not 0.0 <= p <= 1.0:
-                raise ValueError(f"{name} must be a probability, got {p}")
-        if (jitter_s or loss or duplicate or reorder) and rng is None:
-            raise ValueError("jitter and faults need an rng")
-        self.delay_s = delay_s
-        self.jitter_s = jitter_s
-        self.rng = rng
-        self.loss = loss
-        self.duplicate = duplicate
-        self.reorder = reorder
-        self.reorder_delay_s = reorder_delay_s
-        self._queue: list[tuple[float, int, bytes]] = []
-        self._seq = 0
-        self.counts = {"sent": 0, "lost": 0, "duplicated": 0, "delayed": 0, "delivered": 0}
-
-    def _delay(self) -> float:
-        d = self.delay_s
-        if self.jitter_s and self.rng is not None:
-            d += float(self.rng.uniform(-self.jitter_s / 2, self.jitter_s / 2))
-        return d
-
-    def _chance(self, p: float) -> bool:
-        return p > 0.0 and self.rng is not None and float(self.rng.random()) < p
-
-    def send(self, t: float, datagram: bytes) -> None:
-        self.counts["sent"] += 1
-        if self._chance(self.loss):
-            self.counts["lost"] += 1
-            return
-        copies = 2 if self._chance(self.duplicate) else 1
-        self.counts["duplicated"] += copies - 1
-        for _ in range(copies):
-            d = self._delay()
-            if self._chance(self.reorder):
-                self.counts["delayed"] += 1
-                d += self.reorder_delay_s
-            self._seq += 1
-            heapq.heappush(self._queue, (t + d, self._seq, datagram))
-
-    def deliver(self, until: float) -> list[tuple[float, bytes]]:
-        """Datagrams arriving at or before ``until`` (s): (arrival time, bytes), in order."""
-        out = []
-        while self._queue and self._queue[0][0] <= until:
-            t, _, data = heapq.heappop(self._queue)
-            out.append((t, data))
-        self.counts["delivered"] += len(out)
-        return out
 
 
 class UdpSyncEndpoint:

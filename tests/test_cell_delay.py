@@ -15,7 +15,8 @@ from spec.errors import ErrorCode, RemoteError
 from spec.params import FloatArray, Location, Matrix
 from spec.registry import SEAM_POINT_COLUMNS, CommandId
 from sync.experiment import ExperimentSettings, run_delay_experiment
-from sync.udp import DelayLink
+from sync.interpolate import lerp_inside
+from sync.network import DelayLink
 
 PAPER = CellTiming()  # 4 ms samples, 0.6 ms jitter, 10 µm noise
 
@@ -173,8 +174,6 @@ def test_tool_move_trajectory_tracks_and_refuses_bad_paths() -> None:
 def test_sensor2base_pose_interpolation_exact() -> None:
     """The camera's column poses, interpolated between the exact poses at the 4 ms setpoints,
     match the DGM of the joint-space interpolation the robot follows to < 1e-6 mm."""
-    from cell.motion import _lerp
-
     with EmulatedCell(clock="sim", seed=2, timing=PAPER) as cell:
         run_delay_experiment(
             cell.robot_address, cell.sensor_address, ExperimentSettings(duration_s=1.5)
@@ -182,7 +181,7 @@ def test_sensor2base_pose_interpolation_exact() -> None:
         buf_t, buf_q = cell.motion.truth.covering(-1.0)
         t = np.linspace(buf_t[1], buf_t[-1], 20001)
         fast = cell.motion.sensor2base(t)
-        exact = cell.motion.setpoint_poses(_lerp(buf_t, buf_q, t))
+        exact = cell.motion.setpoint_poses(lerp_inside(buf_t, buf_q, t))
     # the arm moved (several mm), so the check is not vacuous
     assert np.ptp(exact[:, :3, 3], axis=0).max() > 1.0
     assert np.abs(fast[:, :3, 3] - exact[:, :3, 3]).max() < 1e-6  # mm

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sync.interpolate import InterpStatus, interpolate_joints
+from sync.interpolate import InterpStatus, interpolate_joints, lerp_inside
 
 T = np.array([0.0, 0.004, 0.008])
 Q = np.array(
@@ -100,3 +100,22 @@ def test_between_two_samples_stays_in_their_range(
     # and it is eq. 5, up to rounding
     expected = ((tq - t[k]) * q[k + 1] + (t[k + 1] - tq) * q[k]) / (t[k + 1] - t[k])
     np.testing.assert_allclose(v, expected, atol=1e-6 * (1 + np.abs(q).max()))
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_unchecked_interpolation_equals_interpolate_joints(seed: int) -> None:
+    """lerp_inside (what the matcher calls) gives interpolate_joints' values bit for bit, and
+    its one-query path on Python floats gives the numpy path's values bit for bit."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(2, 13))
+    t = np.cumsum(rng.uniform(1e-3, 5e-3, n))
+    q = rng.normal(0.0, 90.0, (n, 6))
+    if n > 2:
+        q[1] = q[0]  # a pause: the clip to the samples' range must hold
+    queries = np.concatenate([rng.uniform(t[0], t[-1], 5), t[[0, n // 2, -1]]])
+    want, status = interpolate_joints(t, q, queries)
+    assert np.all(status == InterpStatus.OK)
+    assert np.array_equal(lerp_inside(t, q, queries), want)
+    for i, x in enumerate(queries):
+        assert np.array_equal(lerp_inside(t, q, np.array([x])), want[i : i + 1])

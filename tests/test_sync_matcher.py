@@ -2,21 +2,18 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import cast
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from spec.datagrams import INDEX_MODULUS, SensorData
+from spec.wire import SensorStatus
 from sync.joint_buffer import JointBuffer
-from sync.matcher import (
-    INDEX_MODULUS,
-    STATUS_FOUND,
-    DataOutcome,
-    MatcherError,
-    SeamPoint,
-    SensorData,
-    SyncMatcher,
-)
+from sync.matcher import DataOutcome, MatcherError, SeamPoint, SyncMatcher
 
 DT = 0.0049  # ΔT, s
 TIMEOUT = 0.05  # s
@@ -56,18 +53,32 @@ def trig_time(i: int) -> float:
     return 0.0013 + 0.004 * i  # trigger phase unrelated to the robot's 4 ms samples
 
 
-def data(i: int, status: int = STATUS_FOUND) -> SensorData:
+FOUND, NOT_FOUND = SensorStatus.FOUND, SensorStatus.NOT_FOUND
+
+
+def sensor_data(
+    index: int, seam: Sequence[float], status: SensorStatus = FOUND, quality: float = 0.9
+) -> SensorData:
+    """A data datagram's fields: ``seam`` a VAL3 location (mm, deg), sensor times 0."""
+    loc = cast(tuple[float, float, float, float, float, float], tuple(seam))
+    return SensorData(index, status, loc, quality, 0.0, 0.0, 0.0, 0.0)
+
+
+def data(i: int, status: SensorStatus = FOUND) -> SensorData:
     # seam offset depends on the index so a mix-up between indices shows
-    return SensorData(i % INDEX_MODULUS, status, _trans(0.01 * i, 1.0, 200.0), quality=0.9)
+    return sensor_data(i % INDEX_MODULUS, (0.01 * i, 1.0, 200.0, 0.0, 0.0, 0.0), status)
 
 
-def make_matcher(timeout_s: float = TIMEOUT, history: int = 4096) -> SyncMatcher:
+def make_matcher(
+    timeout_s: float = TIMEOUT, history: int = 4096, *, keep_trajectory: bool = False
+) -> SyncMatcher:
     return SyncMatcher(
         delta_t_s=DT,
         timeout_s=timeout_s,
         flange2base=toy_flange2base,
         sensor2flange=S2F,
         history=history,
+        keep_trajectory=keep_trajectory,
     )
 
 
@@ -83,7 +94,7 @@ def check_points(points: list[SeamPoint], indices: list[int]) -> None:
 
 
 def test_in_order_happy_path() -> None:
-    m, buf = make_matcher(), full_buffer()
+    m, buf = make_matcher(keep_trajectory=True), full_buffer()
     for i in range(50):
         m.on_trigger(i, trig_time(i))
         assert m.on_data(data(i), trig_time(i) + 0.012) is DataOutcome.ACCEPTED
@@ -94,6 +105,20 @@ def test_in_order_happy_path() -> None:
     assert (c.triggers, c.data, c.accepted, c.points, c.reordered) == (50, 50, 50, 50, 0)
     idx, _, base = m.trajectory_arrays()
     assert idx.tolist() == list(range(50)) and base.shape == (50, 4, 4)
+
+
+def test_memory_is_bounded_by_history_without_a_kept_trajectory() -> None:
+    """A long-running matcher (the default) holds at most ``history`` resolved triggers and
+    no released points, however many indices pass through it."""
+    m, buf = make_matcher(history=64), full_buffer(t_end=5.0)
+    for i in range(1000):
+        m.on_trigger(i, trig_time(i))
+        m.on_data(data(i), trig_time(i) + 0.012)
+        if i % 10 == 9:
+            assert len(m.poll(trig_time(i) + 0.012, buf)) > 0
+            assert m.retained()["trigger_log"] <= 64 + m.pending
+    assert m.counters.points > 900
+    assert m.retained()["trajectory"] == 0 and m.trajectory() == []
 
 
 def test_waits_when_data_is_newer_than_the_joints() -> None:
@@ -129,7 +154,7 @@ def test_not_found_is_a_counted_gap() -> None:
     for i in range(5):
         m.on_trigger(i, trig_time(i))
     for i in range(5):
-        m.on_data(data(i, status=1 if i == 2 else STATUS_FOUND), 0.03)
+        m.on_data(data(i, status=NOT_FOUND if i == 2 else FOUND), 0.03)
     out = m.poll(0.03, buf)
     check_points(out, [0, 1, 3, 4])
     assert m.counters.not_found == 1 and m.counters.points == 4
@@ -170,7 +195,7 @@ def test_unknown_stale_invalid_and_caller_errors() -> None:
     assert m.on_data(data(101), 1.0) is DataOutcome.STALE  # forgotten (history 8)
     assert m.on_data(data(118), 1.0) is DataOutcome.DUPLICATE
     m.on_trigger(120, 0.6)
-    bad = SensorData(120, STATUS_FOUND, [0, 0, float("nan"), 0, 0, 0])
+    bad = sensor_data(120, [0.0, 0.0, float("nan"), 0.0, 0.0, 0.0])
     assert m.on_data(bad, 0.6) is DataOutcome.INVALID
     c = m.counters
     assert (c.unknown, c.stale, c.duplicate, c.invalid) == (3, 1, 1, 1)
@@ -180,24 +205,22 @@ def test_unknown_stale_invalid_and_caller_errors() -> None:
     with pytest.raises(MatcherError):
         m.on_trigger(121, 0.1)  # time goes backwards
     with pytest.raises(MatcherError):
-        m.on_data(SensorData(121, STATUS_FOUND, np.zeros(5)), 0.7)
+        m.on_data(sensor_data(121, [0.0] * 5), 0.7)
     with pytest.raises(MatcherError):
         SyncMatcher(delta_t_s=DT, flange2base=toy_flange2base)
 
 
 def test_location_tuple_of_floats_as_any_location() -> None:
     """A decoded datagram's location (a tuple of 6 floats) gives the same point as the same
-    location as an array; a non-finite one is INVALID, as in any other form."""
+    location in numpy floats; a non-finite one is INVALID, as in any other form."""
     from kinematics.transforms import location_to_transform
 
     loc = (1.5, -2.25, 201.0, 3.0, -4.5, 179.0)
     points = []
-    for seam in (loc, np.array(loc), list(loc)):
+    for seam in (loc, tuple(np.array(loc))):
         m, buf = make_matcher(), full_buffer()
         m.on_trigger(7, trig_time(7))
-        assert m.on_data(SensorData(7, STATUS_FOUND, seam), trig_time(7) + 0.01) is (
-            DataOutcome.ACCEPTED
-        )
+        assert m.on_data(sensor_data(7, seam), trig_time(7) + 0.01) is (DataOutcome.ACCEPTED)
         (p,) = m.poll(trig_time(7) + 0.01, buf)
         points.append(p)
     for p in points:
@@ -206,10 +229,10 @@ def test_location_tuple_of_floats_as_any_location() -> None:
     for bad in ((0.0, 0.0, float("nan"), 0.0, 0.0, 0.0), (float("inf"), 0.0, 0.0, 0.0, 0.0, 0.0)):
         m = make_matcher()
         m.on_trigger(8, trig_time(8))
-        assert m.on_data(SensorData(8, STATUS_FOUND, bad), trig_time(8)) is DataOutcome.INVALID
+        assert m.on_data(sensor_data(8, bad), trig_time(8)) is DataOutcome.INVALID
         assert m.counters.invalid == 1 and m.pending == 1  # the index may still be lost
         # a NOT_FOUND datagram's location is ignored, finite or not
-        assert m.on_data(SensorData(8, 1, bad), trig_time(8)) is DataOutcome.ACCEPTED
+        assert m.on_data(sensor_data(8, bad, NOT_FOUND), trig_time(8)) is DataOutcome.ACCEPTED
 
 
 def test_index_wraps_around_u32() -> None:
@@ -219,7 +242,7 @@ def test_index_wraps_around_u32() -> None:
     for n, i in enumerate(indices):
         m.on_trigger(i, 0.0013 + 0.004 * n)
     for i in reversed(indices):
-        assert m.on_data(SensorData(i, STATUS_FOUND, np.eye(4)), 0.05) is DataOutcome.ACCEPTED
+        assert m.on_data(sensor_data(i, [0.0] * 6), 0.05) is DataOutcome.ACCEPTED
     out = m.poll(0.05, buf)
     assert [p.index for p in out] == indices
     assert m.counters.reordered == 9
@@ -230,15 +253,10 @@ def test_val3_location_is_rx_ry_rz() -> None:
     buf = full_buffer(0.1)
     m.on_trigger(0, 0.0)
     # R = Rx(90)·Ry(0)·Rz(90) maps x to z (Rz(90)·Rx(90) would map x to y).
-    m.on_data(SensorData(0, STATUS_FOUND, [1.0, 2.0, 3.0, 90.0, 0.0, 90.0]), 0.01)
+    m.on_data(sensor_data(0, [1.0, 2.0, 3.0, 90.0, 0.0, 90.0]), 0.01)
     (p,) = m.poll(0.01, buf)
     np.testing.assert_allclose(p.seam2sensor[:3, 0], [0.0, 0.0, 1.0], atol=1e-12)
     np.testing.assert_allclose(p.seam2sensor[:3, 3], [1.0, 2.0, 3.0])
-
-
-def test_status_found_matches_the_wire_spec() -> None:
-    wire = pytest.importorskip("spec.wire")
-    assert wire.SensorStatus.FOUND == STATUS_FOUND
 
 
 def _run_scenario(seed: int, n: int = 300) -> tuple[SyncMatcher, dict[str, object]]:
@@ -269,7 +287,7 @@ def _run_scenario(seed: int, n: int = 300) -> tuple[SyncMatcher, dict[str, objec
         if kind == "trigger":
             m.on_trigger(i, t)
         else:
-            status = 1 if fate[i % n] == "notfound" and i < n else STATUS_FOUND
+            status = NOT_FOUND if fate[i % n] == "notfound" and i < n else FOUND
             if m.on_data(data(i, status), t) is DataOutcome.ACCEPTED:
                 accepted_order.append(i)
         released += m.poll(t, buf)
@@ -335,7 +353,7 @@ def test_location_convention_matches_the_kinematics_package() -> None:
     locs = np.column_stack([rng.normal(0, 50, (5, 3)), rng.uniform(-180, 180, (5, 3))])
     for i, loc in enumerate(locs):
         m.on_trigger(i, 0.004 * i)
-        m.on_data(SensorData(i, STATUS_FOUND, loc), 0.03)
+        m.on_data(sensor_data(i, loc.tolist()), 0.03)
     for p, loc in zip(m.poll(0.03, buf), locs, strict=True):
         np.testing.assert_allclose(p.seam2sensor, transforms.location_to_transform(loc), atol=1e-12)
 
@@ -363,8 +381,8 @@ def test_straight_seam_seen_from_a_sine_motion(delta_t_s: float, max_um: float |
         t_t = 0.0021 + 0.004 * i
         t_x = t_t + 4.9e-3 + rng.uniform(0, 0.5e-3) + rng.normal(0, 0.1e-3)
         m.on_trigger(i, t_t)
-        seen = _trans(0.0, -float(flange_y(t_x)) + rng.normal(0, 0.01), -500.0)
-        m.on_data(SensorData(i, STATUS_FOUND, seen), t_t + 0.02)
+        seen = (0.0, -float(flange_y(t_x)) + rng.normal(0, 0.01), -500.0, 0.0, 0.0, 0.0)
+        m.on_data(sensor_data(i, seen), t_t + 0.02)
         out += m.poll(t_t + 0.02, buf)
     y_um = np.array([p.seam2base[1, 3] for p in out if p.seam2base is not None]) * 1000
     assert len(y_um) >= 2390
@@ -373,38 +391,3 @@ def test_straight_seam_seen_from_a_sine_motion(delta_t_s: float, max_um: float |
     else:
         # a sine of amplitude A·ω·ΔT ≈ 97 µm (rms 69 µm) plus the noise
         assert np.max(np.abs(y_um)) > 90.0 and np.sqrt(np.mean(y_um**2)) > 55.0
-
-
-@settings(max_examples=100, deadline=None)
-@given(st.integers(0, 2**32 - 1))
-def test_fast_interpolation_inside_the_buffer_equals_interpolate_joints(seed: int) -> None:
-    """The matcher's unchecked interpolation gives interpolate_joints' values bit for bit."""
-    from sync.interpolate import interpolate_joints
-    from sync.matcher import _lerp_inside
-
-    rng = np.random.default_rng(seed)
-    t = np.cumsum(rng.uniform(1e-3, 5e-3, 12))
-    q = rng.normal(0.0, 90.0, (12, 6))
-    query = np.concatenate([rng.uniform(t[0], t[-1], 5), t[[0, 3, -1]]])
-    values, status = interpolate_joints(t, q, query)
-    assert np.all(status == 0)
-    np.testing.assert_array_equal(_lerp_inside(t, q, query), values)
-
-
-def test_inside_interpolation_equals_interpolate_joints() -> None:
-    # the matcher's unchecked interpolation (one query on Python floats, several in numpy)
-    # must give interpolate_joints' values exactly
-    from sync.interpolate import interpolate_joints
-    from sync.matcher import _lerp_inside
-
-    rng = np.random.default_rng(4)
-    for n in range(2, 7):
-        t = np.sort(rng.uniform(0.0, 1.0, n))
-        q = rng.uniform(-180.0, 180.0, (n, 6))
-        q[1] = q[0]  # a pause: the clip to the samples' range must hold
-        queries = np.concatenate([t, rng.uniform(t[0], t[-1], 20)])
-        want, status = interpolate_joints(t, q, queries)
-        assert not status.any()
-        assert np.array_equal(_lerp_inside(t, q, queries), want)
-        for i, x in enumerate(queries):
-            assert np.array_equal(_lerp_inside(t, q, np.array([x])), want[i : i + 1])

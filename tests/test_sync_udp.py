@@ -16,7 +16,8 @@ from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data
 from spec.registry import SEAM_POINT_COLUMNS
 from spec.server import parse_networks
 from spec.wire import SensorStatus
-from sync.udp import DelayLink, RobotSyncCore, SyncStateError, TriggerScheduler, UdpSyncEndpoint
+from sync.network import DelayLink
+from sync.udp import RobotSyncCore, SeamRows, SyncStateError, TriggerScheduler, UdpSyncEndpoint
 
 PERIOD = 0.004
 
@@ -149,6 +150,62 @@ def test_rows_keep_the_sensor_tool_in_force_at_their_release() -> None:
     np.testing.assert_allclose(rows[~after, bz], 1000.0, atol=1e-9)
     np.testing.assert_allclose(rows[after, bz], 1200.0, atol=1e-9)
     np.testing.assert_allclose(rows[:, SEAM_POINT_COLUMNS.index("by")], 0.25, atol=1e-9)
+
+
+def test_memory_stays_bounded_over_many_triggers() -> None:
+    """Every structure the core keeps is capped: 10,001 triggers with ``max_points`` 1000
+    leave at most 1000 rows, no trajectory in the matcher and a trigger log within its
+    history (the matcher used to keep every released point for ever)."""
+    core = RobotSyncCore(max_points=1000, joint_capacity=100)
+    core.start_rate(250.0, 10_001, 0.0013)
+    t = 0.0
+    core.add_joint(t, np.zeros(6))
+    while core.next_due() is not None or core.statistics()["pending"]:
+        t += PERIOD
+        core.add_joint(t, np.zeros(6))
+        for index, t_send in core.due_triggers(t):
+            core.sent(index, t_send)
+            core.on_datagram(_data(index, t_send, 0.0), t_send + 0.005)
+        core.poll(t)
+        if round(t / PERIOD) % 2000 == 0:
+            kept = core.retained()
+            assert kept["trajectory"] == 0 and kept["rows"] <= 1000
+            assert kept["trigger_log"] <= 8192 + core.statistics()["pending"]
+            assert kept["joints"] <= 100
+    assert core.statistics()["matched"] == 10_001
+    assert core.points_since(-1).shape[0] == 1000
+    kept = core.retained()
+    assert kept["rows"] == 1000 and kept["pending_points"] == 0 and kept["trigger_log"] == 8192
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.integers(0, 1500), min_size=1, max_size=12),
+    st.integers(0, 3000),
+    st.lists(st.tuples(st.integers(-2, 8000), st.integers(0, 2500)), min_size=1, max_size=5),
+)
+def test_seam_rows_keep_the_newest_and_read_like_a_list(
+    batches: list[int], capacity: int, reads: list[tuple[int, int]]
+) -> None:
+    """Blocks of rows in, reads by index: the same rows as a plain list of every row with the
+    oldest dropped beyond capacity (the store it replaces)."""
+    store = SeamRows(capacity)
+    plain: list[list[float]] = []
+    index = 0
+    for size in batches:
+        rows = np.zeros((size, len(SEAM_POINT_COLUMNS)))
+        rows[:, 0] = np.arange(index, index + size) * 2  # gaps, as lost triggers leave
+        rows[:, 1] = np.arange(size) * 0.5
+        index += size
+        store.append(rows)
+        plain.extend(rows.tolist())
+        del plain[: max(len(plain) - capacity, 0)]
+        assert len(store) == len(plain)
+        for since, limit in reads:
+            want = [r for r in plain if r[0] > since][:limit]
+            got = store.since(since, limit)
+            assert got.shape == (len(want), len(SEAM_POINT_COLUMNS))
+            assert got.tolist() == want
 
 
 def test_malformed_datagrams_are_counted_and_dropped() -> None:

@@ -14,12 +14,20 @@ import math
 import socket
 import statistics
 import time
+from dataclasses import dataclass
 
 from conformance.connection import UdpConn
 from conformance.context import Context
 from conformance.model import EndpointTimeout, Fail, Informational, NotApplicable, case
 from spec import wire
-from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data, encode_trigger
+from spec.datagrams import (
+    INDEX_MODULUS,
+    SensorData,
+    Trigger,
+    decode_datagram,
+    encode_data,
+    encode_trigger,
+)
 from spec.errors import DatagramError, ErrorCode
 from spec.params import FloatArray, Matrix
 from spec.registry import BY_ID
@@ -424,6 +432,128 @@ def sync_ranges(ctx: Context) -> None:
         sink.close()
 
 
+@dataclass(frozen=True)
+class _Answer:
+    """How the harness, playing the sensor, answers one robot trigger in robot.sync.matching."""
+
+    copies: int = 1
+    """Data datagrams sent at once: 0 = never answered (lost), 2 = duplicated [SY-3.2]."""
+    late_s: float = 0.0
+    """Sent this long after the trigger instead (past the 100 ms loss timeout: late [SY-3.3])."""
+    hold: bool = False
+    """Kept back and sent after the next trigger's data (reordered [SY-3.4])."""
+    then_held_and_faults: bool = False
+    """After its data: the held data, data for an index never sent [SY-3.1] and a malformed
+    datagram [SY-1.4]."""
+    point: bool = True
+    """The robot must make a seam point of it."""
+
+
+#: Trigger k of robot.sync.matching is answered as MATCHING_PLAN[k].
+MATCHING_PLAN = (
+    _Answer(),
+    _Answer(copies=2),
+    _Answer(copies=0, point=False),
+    _Answer(copies=0, late_s=0.25, point=False),
+    _Answer(copies=0, hold=True),
+    _Answer(then_held_and_faults=True),
+    _Answer(),
+    _Answer(),
+    _Answer(),
+    _Answer(),
+)
+#: Counters the plan must move: (statistics field, requirement, least increase). A late
+#: answer is first declared lost, so "lost" counts the lost and the late trigger.
+MATCHING_COUNTERS = (
+    ("duplicate", "SY-3.2", 1),
+    ("unknown", "SY-3.1", 1),
+    ("reordered", "SY-3.4", 1),
+    ("late", "SY-3.3", 1),
+    ("lost", "SY-3.6", 2),
+    ("malformed", "SY-1.4", 1),
+)
+_Due = tuple[float, bytes, tuple[str, int], str]  # monotonic send time, datagram, target, note
+
+
+def _send_due(u: UdpConn, due: list[_Due]) -> list[_Due]:
+    """Send the due datagrams; return the ones not due yet."""
+    now = time.monotonic()
+    for _when, data, addr, note in [d for d in due if d[0] <= now]:
+        u.target = addr
+        u.send(data, note)
+    return [d for d in due if d[0] > now]
+
+
+def _robot_trigger(raw: bytes) -> Trigger:
+    """A datagram from the robot, which must be a well-formed trigger [SY-1.1] [SY-1.2]."""
+    try:
+        trig = decode_datagram(raw)
+    except DatagramError as exc:
+        raise Fail(
+            "the robot sent a malformed trigger",
+            "a 22-byte trigger",
+            str(exc),
+            requirement="SY-1.1",
+        ) from None
+    if not isinstance(trig, Trigger) or len(raw) != wire.TRIGGER_SIZE:
+        raise Fail(
+            "the robot sent something else than a trigger",
+            "trigger",
+            raw.hex(),
+            requirement="SY-1.2",
+        )
+    return trig
+
+
+def _play_sensor(ctx: Context, u: UdpConn, first: int) -> list[int]:
+    """Receive the robot's triggers and answer trigger ``first + k`` as ``MATCHING_PLAN[k]``
+    says; return the indices received, in order."""
+    indices: list[int] = []
+    due: list[_Due] = []
+    held: bytes | None = None
+    n = len(MATCHING_PLAN)
+    deadline = time.monotonic() + n / 50 + ctx.scaled(1.0) + 0.5
+    while time.monotonic() < deadline and len(indices) < n:
+        got = u.recv(0.02)
+        due = _send_due(u, due)
+        if got is None:
+            continue
+        raw, source, t = got
+        trig = _robot_trigger(raw)
+        indices.append(trig.index)
+        k = (trig.index - first) % INDEX_MODULUS  # by index: a wrong index gets no answer
+        if k >= n:
+            continue
+        plan = MATCHING_PLAN[k]
+        found = (0.0, 1.25, 80.0, 0.0, 0.0, 0.0)
+        data = encode_data(
+            SensorData(
+                trig.index, SensorStatus.FOUND, found, 0.9, trig.t_trigger, t, t + 1e-4, t + 3.6e-3
+            )
+        )
+        u.target = source
+        for copy in range(plan.copies):
+            u.send(data, f"data {trig.index}" + (" duplicated" if copy else ""))
+        if plan.late_s:
+            note = f"data {trig.index} late ({plan.late_s * 1e3:.0f} ms)"
+            due.append((t + plan.late_s, data, source, note))
+        if plan.hold:
+            held = data
+        if plan.then_held_and_faults:
+            if held is not None:
+                u.send(held, "held data sent after its successor (reordered)")
+            unknown = SensorData(
+                (first + 5000) % INDEX_MODULUS, SensorStatus.FOUND, (0.0,) * 6, 0.5, 0.0, t, t, t
+            )
+            u.send(encode_data(unknown), "data for an index never sent")
+            u.send(b"SY" + b"\x00" * 20, "malformed datagram")
+    end = time.monotonic() + 0.4
+    while time.monotonic() < end or due:
+        due = _send_due(u, due)
+        time.sleep(0.01)
+    return indices
+
+
 @case(
     "robot.sync.matching",
     requirements=[
@@ -445,92 +575,22 @@ def sync_ranges(ctx: Context) -> None:
     budget=20.0,
 )
 def sync_matching(ctx: Context) -> str:
-    """Ten robot triggers answered with faults: a duplicate, a lost one, a late one, two
-    reordered, an unknown index and a malformed datagram. Checks the robot's counters and
-    that the seam points come back ordered by index with t_S = t_T + ΔT."""
+    """Ten robot triggers answered with the faults of :data:`MATCHING_PLAN`: a duplicate, a
+    lost one, a late one, two reordered, an unknown index and a malformed datagram. Checks
+    the robot's counters and that the seam points come back ordered by index with
+    t_S = t_T + ΔT."""
     conn = ctx.connect()
     ctx.take_control(conn)
     cfg = dict(zip(CONFIG_FIELDS, conn.ok(C.GET_SYNC_CONFIG), strict=False))
     sink = _sink(ctx, conn.sock.getsockname()[0])
     u = UdpConn(sink, ("", 0), ctx.log, 99)
+    n = len(MATCHING_PLAN)
     try:
         conn.ok(C.SET_SENSOR_ENDPOINT, sink.getsockname()[0], sink.getsockname()[1])
         before = dict(zip(STAT_FIELDS, conn.ok(C.GET_SYNC_STATISTICS), strict=False))
-        first = conn.ok(C.START_TRIGGERS, 50.0, 10)[0]
+        first = conn.ok(C.START_TRIGGERS, 50.0, n)[0]
         assert isinstance(first, int)
-        triggers: list[tuple[Trigger, tuple[str, int]]] = []
-        due: list[tuple[float, bytes, tuple[str, int], str]] = []
-        held: bytes | None = None
-        deadline = time.monotonic() + 10 / 50 + ctx.scaled(1.0) + 0.5
-        while time.monotonic() < deadline and len(triggers) < 10:
-            got = u.recv(0.02)
-            now = time.monotonic()
-            for _when, data, addr, note in [d for d in due if d[0] <= now]:
-                u.target = addr
-                u.send(data, note)
-            due = [d for d in due if d[0] > now]
-            if got is None:
-                continue
-            raw, source, t = got
-            try:
-                trig = decode_datagram(raw)
-            except DatagramError as exc:
-                raise Fail(
-                    "the robot sent a malformed trigger",
-                    "a 22-byte trigger",
-                    str(exc),
-                    requirement="SY-1.1",
-                ) from None
-            if not isinstance(trig, Trigger) or len(raw) != wire.TRIGGER_SIZE:
-                raise Fail(
-                    "the robot sent something else than a trigger",
-                    "trigger",
-                    raw.hex(),
-                    requirement="SY-1.2",
-                )
-            k = (trig.index - first) % (1 << 32)
-            triggers.append((trig, source))
-            data = encode_data(
-                SensorData(
-                    trig.index,
-                    SensorStatus.FOUND,
-                    (0.0, 1.25, 80.0, 0.0, 0.0, 0.0),
-                    0.9,
-                    trig.t_trigger,
-                    t,
-                    t + 1e-4,
-                    t + 3.6e-3,
-                )
-            )
-            u.target = source
-            if k in (0, 6, 7, 8, 9):
-                u.send(data, f"data {trig.index}")
-            elif k == 1:
-                u.send(data, f"data {trig.index}")
-                u.send(data, f"data {trig.index} duplicated")
-            elif k == 2:
-                pass  # lost: never answered
-            elif k == 3:
-                due.append((t + 0.25, data, source, f"data {trig.index} late (250 ms)"))
-            elif k == 4:
-                held = data
-            elif k == 5:
-                u.send(data, f"data {trig.index} before its predecessor")
-                if held is not None:
-                    u.send(held, "held data sent after its successor (reordered)")
-                unknown = SensorData(
-                    (first + 5000) % (1 << 32), SensorStatus.FOUND, (0.0,) * 6, 0.5, 0.0, t, t, t
-                )
-                u.send(encode_data(unknown), "data for an index never sent")
-                u.send(b"SY" + b"\x00" * 20, "malformed datagram")
-        end = time.monotonic() + 0.4
-        while time.monotonic() < end or due:
-            now = time.monotonic()
-            for _w, data, addr, note in [d for d in due if d[0] <= now]:
-                u.target = addr
-                u.send(data, note)
-            due = [d for d in due if d[0] > now]
-            time.sleep(0.01)
+        indices = _play_sensor(ctx, u, first)
         time.sleep(0.2)
         after = dict(zip(STAT_FIELDS, conn.ok(C.GET_SYNC_STATISTICS), strict=False))
         points = conn.ok(C.GET_SEAM_POINTS, first - 1)[0]
@@ -541,31 +601,23 @@ def sync_matching(ctx: Context) -> str:
             conn.call(C.SET_SENSOR_ENDPOINT, cfg["host"], cfg["port"])
         conn.call(C.RELEASE_CONTROL)
         sink.close()
-    indices = [t.index for t, _ in triggers]
-    if len(indices) < 10:
+    if len(indices) < n:
         raise Fail(
-            "the robot did not send the 10 triggers asked for",
-            10,
+            f"the robot did not send the {n} triggers asked for",
+            n,
             len(indices),
             requirement="SY-1.3",
         )
-    if indices != [(first + k) % (1 << 32) for k in range(10)]:
+    if indices != [(first + k) % INDEX_MODULUS for k in range(n)]:
         raise Fail(
             "trigger indices do not increase by one",
-            f"{first}..{first + 9}",
+            f"{first}..{first + n - 1}",
             indices,
             requirement="SY-1.3",
         )
     diff = {k: _int(after[k]) - _int(before[k]) for k in STAT_FIELDS}
     ctx.details["statistics_delta"] = diff
-    for name, rule, least in (
-        ("duplicate", "SY-3.2", 1),
-        ("unknown", "SY-3.1", 1),
-        ("reordered", "SY-3.4", 1),
-        ("late", "SY-3.3", 1),
-        ("lost", "SY-3.6", 2),
-        ("malformed", "SY-1.4", 1),
-    ):
+    for name, rule, least in MATCHING_COUNTERS:
         if diff[name] < least:
             raise Fail(
                 f"the robot's '{name}' counter did not count the fault",
@@ -580,7 +632,7 @@ def sync_matching(ctx: Context) -> str:
         raise Fail(
             "seam points are not ordered by index", sorted(got_idx), got_idx, requirement="SY-5.1"
         )
-    want = {indices[k] for k in (0, 1, 4, 5, 6, 7, 8, 9)}
+    want = {i for i, plan in zip(indices, MATCHING_PLAN, strict=True) if plan.point}
     if not want <= set(got_idx):
         raise Fail(
             "answered triggers missing from the seam points",
@@ -588,7 +640,8 @@ def sync_matching(ctx: Context) -> str:
             got_idx,
             requirement="SY-3.6",
         )
-    if indices[2] in got_idx or indices[3] in got_idx:
+    unwanted = {i for i, plan in zip(indices, MATCHING_PLAN, strict=True) if not plan.point}
+    if unwanted & set(got_idx):
         raise Fail(
             "a lost or late trigger produced a seam point",
             "no point",
