@@ -72,6 +72,10 @@ DEFAULT_LASER_TOOL: Loc = (0.0, 0.0, 200.0, 0.0, 0.0, 0.0)
 READY_JOINTS = (0.0, 30.0, 100.0, 0.0, 50.0, 0.0)
 
 
+#: Longest wait of the real-time camera for the robot's setpoints to cover an exposure (s).
+TRUTH_WAIT_S = 0.5
+
+
 class CellError(ValueError):
     """A cell parameter is out of range."""
 
@@ -198,10 +202,18 @@ class _TruePoses:
     (:meth:`EmulatedCell.node_poses`, a :class:`~sensorsocket.scene.NodePoseProvider`)."""
 
     def __init__(self, cell: EmulatedCell) -> None:
-        self.node_poses = cell.node_poses
+        self._cell = cell
         self._poses = cell.sensor2base
+        self._real = cell.clock != "sim"
+
+    def node_poses(self, times: FloatArray) -> tuple[FloatArray, FloatArray] | None:
+        if self._real:
+            self._cell.wait_for_truth(times)
+        return self._cell.node_poses(times)
 
     def __call__(self, times: FloatArray) -> FloatArray:
+        if self._real:
+            self._cell.wait_for_truth(times)
         return self._poses(times)
 
 
@@ -259,6 +271,7 @@ class EmulatedCell:
         self.sensor2flange = location_to_transform(np.array(self.sensor_tool, dtype=np.float64))
         self.laser2flange = location_to_transform(np.array(self.laser_tool, dtype=np.float64))
         self._truth_lock = threading.Lock()
+        self._truth_cond = threading.Condition(self._truth_lock)
         self._truth = JointBuffer(capacity=2000)
         self._truth.append(0.0, np.asarray(self.ready_joints, dtype=np.float64))
         # sensor poses at the latest frame's setpoints and mid-cycles, see _node_poses
@@ -502,10 +515,11 @@ class EmulatedCell:
     # --- the clock ---------------------------------------------------------------------------
 
     def _on_cycle(self, t: float, q_sp: FloatArray, q_m: FloatArray) -> None:
-        with self._truth_lock:
+        with self._truth_cond:
             self._truth.append(t, q_sp)
-        if self.clock != "sim":
-            return
+            if self.clock != "sim":
+                self._truth_cond.notify_all()
+                return
         assert self.uplink is not None and self.downlink is not None
         core = self.core
         core.add_joint(t, q_m)
@@ -532,6 +546,22 @@ class EmulatedCell:
         for t_arrival, datagram in self.downlink.deliver(t):
             core.on_datagram(datagram, t_arrival)
         core.poll(t)
+
+    def wait_for_truth(self, times: FloatArray) -> None:
+        """Real clock: wait (at most ``TRUTH_WAIT_S``) until the robot's setpoints reach the
+        latest of ``times`` (s), so the camera renders the arm's motion, not a guess of it:
+        a robot tick that runs late (a busy machine) makes the frame late, never wrong.
+        Past the wait the poses are extrapolated (a stopped clock)."""
+        if not len(times):
+            return
+        t_max = float(np.max(times))
+
+        def covered() -> bool:
+            latest = self._truth.latest_time
+            return latest is not None and latest >= t_max
+
+        with self._truth_cond:
+            self._truth_cond.wait_for(covered, TRUTH_WAIT_S)
 
     def advance(self, seconds: float) -> None:
         """Simulated clock: run the cell for ``seconds``."""

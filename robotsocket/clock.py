@@ -5,16 +5,25 @@ Both drive the same tick function with the cycle index k; the sample time is t_k
 :class:`RealTimeLoop` ticks on absolute deadlines start + k * T_r from ``time.monotonic_ns``
 and waits on an :class:`threading.Event` with a timeout (so ``stop`` wakes it at once), not
 on short sleeps; late ticks are run back to back so k stays on the time axis. It records the
-lateness of every tick (tick jitter).
+lateness of every tick (tick jitter) and runs with real-time scheduling where permitted
+(:mod:`spec.realtime`, docs/REALTIME.md).
 """
 
 from __future__ import annotations
 
 import logging
+import sys
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
+
+from spec.realtime import (
+    DEFAULT_RT_PRIORITY,
+    REALTIME_SWITCH_INTERVAL_S,
+    promote_current_thread,
+    shorten_switch_interval,
+)
 
 log = logging.getLogger(__name__)
 
@@ -49,31 +58,56 @@ class RealTimeLoop:
     """A thread calling ``tick(k)`` at start + k * period on the monotonic clock.
 
     ``now()`` is seconds since start, continuous. ``jitter()`` summarises how late the ticks
-    started (s). A tick that overruns makes the next ones late; they run at once to catch up.
+    started (s). A tick that overruns makes the next ones late; they run at once to catch up,
+    so every k is ticked exactly once and in order, however late (time is a stamp: the tick
+    computes the sample for t_k = k * period whenever it runs).
+
+    Isolation (docs/REALTIME.md): the thread asks for ``SCHED_FIFO`` at ``rt_priority``
+    (0: stay a normal thread), falling back to a better nice value or nothing, and
+    :meth:`start` lowers the process's GIL switch interval to ``switch_interval_s`` (None:
+    leave it). ``scheduling`` says what the thread got. ``clock_ns`` and ``sleep_ns``
+    (return True to stop) replace the monotonic clock and the wait in tests.
     """
 
     simulated = False
 
-    def __init__(self, period: float, tick: Tick, history: int = 10000) -> None:
+    def __init__(
+        self,
+        period: float,
+        tick: Tick,
+        history: int = 10000,
+        *,
+        rt_priority: int = DEFAULT_RT_PRIORITY,
+        switch_interval_s: float | None = REALTIME_SWITCH_INTERVAL_S,
+        clock_ns: Callable[[], int] = time.monotonic_ns,
+        sleep_ns: Callable[[int], bool] | None = None,
+    ) -> None:
         if not period > 0:
             raise ValueError(f"period must be > 0 s, got {period}")
         self.period = period
         self.tick = tick
         self.cycle = 0
+        self.rt_priority = rt_priority
+        self.switch_interval_s = switch_interval_s
+        self.scheduling = "not started"
+        self._clock_ns = clock_ns
         self._period_ns = round(period * 1e9)
-        self._start_ns = time.monotonic_ns()
+        self._start_ns = clock_ns()
         self._stop = threading.Event()
+        self._sleep_ns = sleep_ns or (lambda ns: self._stop.wait(ns / 1e9))
         self._thread: threading.Thread | None = None
         self._lateness: deque[float] = deque(maxlen=history)
         self.overruns = 0
         self.errors = 0
 
     def now(self) -> float:
-        return (time.monotonic_ns() - self._start_ns) / 1e9
+        return (self._clock_ns() - self._start_ns) / 1e9
 
     def start(self) -> RealTimeLoop:
-        self._start_ns = time.monotonic_ns()
-        self._thread = threading.Thread(target=self._run, name="robot-clock", daemon=True)
+        if self.switch_interval_s is not None:
+            shorten_switch_interval(self.switch_interval_s)
+        self._start_ns = self._clock_ns()
+        self._thread = threading.Thread(target=self.run, name="robot-clock", daemon=True)
         self._thread.start()
         return self
 
@@ -86,17 +120,27 @@ class RealTimeLoop:
     def running(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 
-    def _run(self) -> None:
-        log.info("real-time clock started: period %.1f ms", self.period * 1e3)
+    def run(self) -> None:
+        """The loop (the thread's target; tests call it directly with a fake clock)."""
+        self.scheduling = promote_current_thread(self.rt_priority)
+        log.info(
+            "real-time clock started: period %.1f ms, scheduling %s, GIL switch interval %.2f ms",
+            self.period * 1e3,
+            self.scheduling,
+            sys.getswitchinterval() * 1e3,
+        )
+        clock_ns = self._clock_ns
+        period_ns = self._period_ns
+        lateness = self._lateness
         while not self._stop.is_set():
             k = self.cycle + 1
-            deadline = self._start_ns + k * self._period_ns
-            wait = deadline - time.monotonic_ns()
-            if wait > 0 and self._stop.wait(wait / 1e9):
+            deadline = self._start_ns + k * period_ns
+            wait = deadline - clock_ns()
+            if wait > 0 and self._sleep_ns(wait):
                 break
-            late = time.monotonic_ns() - deadline
-            self._lateness.append(max(late, 0) / 1e9)
-            if late > self._period_ns:
+            late = clock_ns() - deadline
+            lateness.append(max(late, 0) / 1e9)
+            if late > period_ns:
                 self.overruns += 1
             self.cycle = k
             try:

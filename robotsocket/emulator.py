@@ -238,8 +238,10 @@ class RobotEmulator(RobotInterface):
             )
 
     def herej(self) -> Array:
-        with self._lock:
-            return np.array(self._measured)
+        # No lock: the tick replaces _measured with a new array (never writes into it), so
+        # one reference read is a consistent sample; a reader holding the lock while it
+        # waits for the GIL would stall the 4 ms tick (priority inversion).
+        return np.array(self._measured)
 
     def setpoint(self) -> Array:
         """Latest commanded joints (6,) degrees."""
@@ -248,8 +250,7 @@ class RobotEmulator(RobotInterface):
 
     def here(self, tool: Loc = IDENTITY_LOC, frame: Loc = IDENTITY_LOC) -> Loc:
         tool_T, frame_T = _loc(tool, "tool"), _loc(frame, "frame")
-        with self._lock:
-            q = np.array(self._measured)
+        q = np.array(self._measured)  # no lock, as in herej
         T = invert(frame_T) @ self.model.flange2base(q) @ tool_T
         x, y, z, rx, ry, rz = (float(v) for v in transform_to_location(T))
         return (x, y, z, rx, ry, rz)

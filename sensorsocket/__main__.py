@@ -145,7 +145,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
         if udp_port is not None:
             what = f"UDP {args.host}:{udp_port} (--udp-port)"
             handler = TriggerHandler(sensor, network_delay_s=args.network_delay)
-            listener = TriggerListener(handler, args.host, udp_port, clock=clock, hold=not sim)
+            listener = TriggerListener(
+                handler, args.host, udp_port, clock=clock, hold=not sim, kernel_timestamps=not sim
+            )
     except OSError as exc:
         print(f"{PROG} serve: cannot bind {what}: {exc.strerror or exc}", file=sys.stderr)
         return EXIT_USAGE

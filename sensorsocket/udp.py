@@ -22,8 +22,9 @@ from typing import Any, Protocol
 from sensorsocket.sensor import NAN_LOCATION, Clock, Reading
 from spec.datagrams import INDEX_MODULUS, decode_datagram, encode_data_fields, trigger_fields
 from spec.errors import DatagramError
+from spec.realtime import DEFAULT_RT_PRIORITY, promote_current_thread
 from spec.sockopt import set_kernel_timeouts
-from spec.udp import bind_udp
+from spec.udp import arrival_time, bind_udp, enable_kernel_timestamps, recv_stamped
 from spec.wire import SensorStatus
 
 log = logging.getLogger(__name__)
@@ -253,6 +254,13 @@ class TriggerListener:
     ``hold=True`` (real time) sends a reply no earlier than its modelled time ``t_send`` on
     ``clock``; while holding, the thread keeps reading triggers, so arrival stamps stay
     accurate. ``hold=False`` sends as soon as the frame is processed.
+
+    A trigger's arrival time is the kernel's receive timestamp (``SO_TIMESTAMPNS``) carried
+    onto ``clock`` (:func:`spec.udp.arrival_time`) when ``kernel_timestamps`` is True and
+    the platform has it (:attr:`kernel_timestamps` says whether it is in use), so a thread
+    that reads the trigger late still stamps when it arrived; otherwise the clock is read
+    just after the receive. A simulated clock must pass ``kernel_timestamps=False``. The
+    thread asks for real-time scheduling at ``rt_priority`` (0: normal; :mod:`spec.realtime`).
     """
 
     def __init__(
@@ -263,11 +271,16 @@ class TriggerListener:
         *,
         clock: Clock,
         hold: bool = True,
+        kernel_timestamps: bool = True,
+        rt_priority: int = DEFAULT_RT_PRIORITY,
     ) -> None:
         self.handler = handler
         self.clock = clock
         self.hold = hold
+        self.rt_priority = rt_priority
+        self.scheduling = "not started"
         self._sock = bind_udp(host, port)
+        self.kernel_timestamps = kernel_timestamps and enable_kernel_timestamps(self._sock)
         self.address: tuple[str, int] = self._sock.getsockname()[:2]
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -302,7 +315,10 @@ class TriggerListener:
         return stats
 
     def _run(self) -> None:
+        self.scheduling = promote_current_thread(self.rt_priority)
+        log.debug("trigger listener: scheduling %s", self.scheduling)
         sock = self._sock
+        stamped = self.kernel_timestamps
         process = self.handler.process
         clock = self.clock
         pending = self._pending
@@ -325,7 +341,10 @@ class TriggerListener:
                         continue
                     flags = _DONTWAIT
             try:
-                datagram, source = sock.recvfrom(2048, flags)
+                if stamped:
+                    datagram, source, stamp = recv_stamped(sock, 2048, flags)
+                else:
+                    datagram, source = sock.recvfrom(2048, flags)
             except (BlockingIOError, InterruptedError, TimeoutError):
                 continue  # a tick without a datagram: check stop and held replies
             except OSError as exc:
@@ -334,7 +353,7 @@ class TriggerListener:
                 # e.g. ICMP port unreachable of an earlier reply on some systems
                 log.debug("recvfrom: %s", exc)
                 continue
-            t_arrival = clock()
+            t_arrival = arrival_time(clock, stamp) if stamped else clock()
             try:
                 reply = process(datagram, t_arrival, source)
             except Exception:  # the listener must survive any sensor failure

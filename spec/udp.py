@@ -1,8 +1,43 @@
-"""The UDP socket both synchronisation endpoints use (robot side and sensor side)."""
+"""The UDP socket both synchronisation endpoints use (robot side and sensor side), and the
+kernel's receive timestamps.
+
+A datagram's arrival time is when the kernel received it, not when a Python thread got
+around to reading it (on a busy machine that can be tens of milliseconds later). Linux
+stamps every datagram with ``SO_TIMESTAMPNS`` (CLOCK_REALTIME, nanoseconds) when asked to;
+:func:`recv_stamped` returns that stamp and :func:`arrival_time` turns it into the caller's
+clock by subtracting the datagram's age from the clock's current reading, so it works for any
+clock that runs at real-time rate (the robot clock, ``time.monotonic``). Where the platform
+has no such option (:func:`enable_kernel_timestamps` returns False) the stamp is ``None``
+and the arrival time is the clock read just after the receive (the fallback documented in
+PROTOCOL.md section 9 and docs/REALTIME.md).
+"""
 
 from __future__ import annotations
 
 import socket
+import struct
+import sys
+import time
+from collections.abc import Callable
+from typing import Any
+
+__all__ = [
+    "MAX_STAMP_AGE_S",
+    "arrival_time",
+    "bind_udp",
+    "enable_kernel_timestamps",
+    "recv_stamped",
+]
+
+# Linux's SO_TIMESTAMPNS (= SCM_TIMESTAMPNS); the socket module does not name it.
+_SO_TIMESTAMPNS = 35 if sys.platform.startswith("linux") else None
+_TIMESPEC = struct.Struct("@ll")
+_ANCILLARY = socket.CMSG_SPACE(_TIMESPEC.size) if hasattr(socket, "CMSG_SPACE") else 0
+
+_PAIR_S = 50e-6
+MAX_STAMP_AGE_S = 10.0
+"""A kernel stamp older than this (or in the future) is not trusted: the wall clock was
+stepped between the stamp and the read; the arrival time falls back to the clock."""
 
 
 def bind_udp(host: str, port: int) -> socket.socket:
@@ -16,3 +51,50 @@ def bind_udp(host: str, port: int) -> socket.socket:
         raise
     sock.setblocking(False)
     return sock
+
+
+def enable_kernel_timestamps(sock: socket.socket) -> bool:
+    """Ask the kernel to stamp every datagram ``sock`` receives; False where it cannot."""
+    if _SO_TIMESTAMPNS is None or not _ANCILLARY:
+        return False
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+    except OSError:
+        return False
+    return True
+
+
+def recv_stamped(
+    sock: socket.socket, bufsize: int, flags: int = 0
+) -> tuple[bytes, Any, int | None]:
+    """One datagram: ``(data, source address, kernel receive time in CLOCK_REALTIME ns or
+    None)``. Raises what ``recvfrom`` raises (BlockingIOError, TimeoutError, OSError)."""
+    if not _ANCILLARY:
+        data, source = sock.recvfrom(bufsize, flags)
+        return data, source, None
+    data, ancillary, _, source = sock.recvmsg(bufsize, _ANCILLARY, flags)
+    for level, kind, payload in ancillary:
+        if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS:
+            sec, nsec = _TIMESPEC.unpack_from(payload)
+            return data, source, sec * 1_000_000_000 + nsec
+    return data, source, None
+
+
+def arrival_time(clock: Callable[[], float], stamp_ns: int | None) -> float:
+    """The arrival time on ``clock`` (s) of a datagram the kernel stamped at ``stamp_ns``
+    (CLOCK_REALTIME): ``clock()`` minus the datagram's age; ``clock()`` without a stamp."""
+    if stamp_ns is None:
+        return clock()
+    # The two clocks are read as one pair: a thread preempted between the reads would add
+    # the preemption to the arrival time, so a pair that straddles more than 50 us is read
+    # again (three tries; on an idle machine the first pair is a few hundred ns apart).
+    for _ in range(3):
+        before = clock()
+        wall_ns = time.time_ns()
+        now = clock()
+        if now - before <= _PAIR_S:
+            break
+    age = (wall_ns - stamp_ns) / 1e9
+    if not 0.0 <= age <= MAX_STAMP_AGE_S:
+        return now
+    return before - age

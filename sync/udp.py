@@ -34,8 +34,9 @@ from numpy.typing import ArrayLike, NDArray
 from kinematics.transforms import transforms_to_locations
 from spec.datagrams import INDEX_MODULUS, SensorData, Trigger, decode_datagram, encode_trigger
 from spec.errors import DatagramError
+from spec.realtime import DEFAULT_RT_PRIORITY, promote_current_thread
 from spec.registry import SEAM_POINT_COLUMNS
-from spec.udp import bind_udp
+from spec.udp import arrival_time, bind_udp, enable_kernel_timestamps, recv_stamped
 from sync.joint_buffer import JointBuffer
 from sync.matcher import STATUS_FOUND, DataOutcome, SeamPoint, SyncMatcher
 from sync.matcher import SensorData as MatcherData
@@ -475,9 +476,15 @@ class UdpSyncEndpoint:
     """The robot's UDP endpoint: a thread that sends due triggers to the sensor, receives
     data datagrams and keeps the core's joint buffer and matcher going.
 
-    ``clock`` gives robot-clock seconds; t_i^T is read from it just before each ``sendto``.
-    ``joints_since(t)`` supplies new measured joints (e.g. the robot's joint log).
-    ``poll_interval_s`` bounds how long data waits for matching when nothing arrives.
+    ``clock`` gives robot-clock seconds; t_i^T is read from it just before each ``sendto``
+    (the time the trigger actually went out, however late the thread ran). A data datagram's
+    arrival time, which the loss rule [SY-3.3] judges, is the kernel's receive timestamp
+    where the platform has one (:func:`spec.udp.recv_stamped`), so data the thread reads late
+    is not declared lost. ``joints_since(t)`` supplies new measured joints (e.g. the robot's
+    joint log). ``poll_interval_s`` bounds how long data waits for matching; with no trigger
+    planned and nothing pending the thread blocks until a datagram or :meth:`wake` (no idle
+    wake-ups). The thread asks for real-time scheduling at ``rt_priority`` (0: normal;
+    :mod:`spec.realtime`).
     """
 
     def __init__(
@@ -489,13 +496,17 @@ class UdpSyncEndpoint:
         host: str = "0.0.0.0",
         port: int = 0,
         poll_interval_s: float = 0.005,
+        rt_priority: int = DEFAULT_RT_PRIORITY,
     ) -> None:
         self.core = core
         self.clock = clock
         self.joints_since = joints_since
         self.poll_interval_s = poll_interval_s
+        self.rt_priority = rt_priority
+        self.scheduling = "not started"
         self.target: tuple[str, int] | None = None
         self._sock = bind_udp(host, port)
+        self.kernel_timestamps = enable_kernel_timestamps(self._sock)
         self.address: tuple[str, int] = self._sock.getsockname()[:2]
         self._stop = threading.Event()
         self._wake_r, self._wake_w = socket.socketpair()
@@ -528,16 +539,23 @@ class UdpSyncEndpoint:
         self._wake_r.close()
         self._wake_w.close()
 
+    def _timeout(self) -> float | None:
+        """How long the thread may wait: until the next trigger (at most a poll interval), a
+        poll interval while data is pending, forever (None) when nothing is planned or
+        pending."""
+        due = self.core.next_due()
+        if due is not None:
+            # Bounded by the poll interval too: a simulated clock may jump past ``due``.
+            return min(self.poll_interval_s, max(0.0, due - self.clock()))
+        return self.poll_interval_s if self.core.matcher.pending else None
+
     def _run(self) -> None:
+        self.scheduling = promote_current_thread(self.rt_priority)
+        log.debug("robot sync endpoint: scheduling %s", self.scheduling)
         last_joint_t = -math.inf
         while not self._stop.is_set():
-            now = self.clock()
-            due = self.core.next_due()
-            timeout = self.poll_interval_s
-            if due is not None:
-                timeout = min(timeout, max(0.0, due - now))
             try:
-                readable, _, _ = select.select([self._sock, self._wake_r], [], [], timeout)
+                readable, _, _ = select.select([self._sock, self._wake_r], [], [], self._timeout())
             except (OSError, ValueError):
                 return
             if self._wake_r in readable:
@@ -573,10 +591,10 @@ class UdpSyncEndpoint:
     def _receive_all(self) -> None:
         while True:
             try:
-                raw, _ = self._sock.recvfrom(2048)
+                raw, _, stamp = recv_stamped(self._sock, 2048)
             except (BlockingIOError, InterruptedError):
                 return
             except OSError as exc:
                 log.debug("recvfrom: %s", exc)
                 return
-            self.core.on_datagram(raw, self.clock())
+            self.core.on_datagram(raw, arrival_time(self.clock, stamp))

@@ -1,0 +1,264 @@
+"""Real time under load (issue 12): the 4 ms tick, the live ΔT and the idle cost.
+
+Load: ``HOGS`` CPU-bound processes and a process with ``CLIENTS`` threads polling Herej as
+fast as they can, on the same machine (two cores here). Figures, each with a baseline from
+the same run:
+
+- robot tick lateness p50 / p99 / max under load with the real-time isolation of
+  docs/REALTIME.md (SCHED_FIFO thread, 0.5 ms GIL switch interval), against the same load
+  without it (a normal thread, the 5 ms default interval), and idle with isolation;
+- live ΔT of the real-clock cell at 250 Hz under load, |estimate - truth| with encoder
+  latencies 0 and 10 ms, against the same error on an idle machine (truth: the cell's own
+  records of each acquisition, :meth:`cell.cell.EmulatedCell.measured_delta_t`); and the
+  data datagrams lost under load;
+- idle CPU (% of one core over ``IDLE_S``) of each server process, against the 0.5 % budget.
+
+Run alone: ``python -m bench --only realtime``; ``python -m bench.bench_realtime herej
+HOST PORT N`` is the Herej load process it starts.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import replace
+
+from bench.common import Result, result
+from spec.realtime import REALTIME_SWITCH_INTERVAL_S
+
+HOGS = 2
+CLIENTS = 64
+TICK_S = 6.0
+IDLE_S = 5.0
+IDLE_BUDGET_PCT = 0.5
+
+
+def _herej_load(host: str, port: int, n: int) -> None:
+    """The load process: ``n`` threads polling Herej until stdin closes."""
+    from robotsocket.client import RobotClient
+
+    stop = threading.Event()
+    calls = [0] * n
+
+    def poll(i: int) -> None:
+        with RobotClient(host, port, timeout=10.0) as c:
+            while not stop.is_set():
+                c.herej()
+                calls[i] += 1
+
+    threads = [threading.Thread(target=poll, args=(i,), daemon=True) for i in range(n)]
+    for t in threads:
+        t.start()
+    print("ready", flush=True)
+    sys.stdin.read()
+    stop.set()
+    print(sum(calls), flush=True)
+
+
+@contextlib.contextmanager
+def _load(
+    address: tuple[str, int], clients: int = CLIENTS, hogs: int = HOGS
+) -> Iterator[list[int]]:
+    """CPU hogs and a Herej client process for the duration of the block; the yielded list
+    receives the number of Herej calls served once the block ends."""
+    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(hogs)]
+    load = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "bench.bench_realtime",
+            "herej",
+            address[0],
+            str(address[1]),
+            str(clients),
+        ],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    calls: list[int] = []
+    try:
+        assert load.stdout is not None
+        load.stdout.readline()  # "ready": every client connected
+        yield calls
+    finally:
+        try:
+            out, _ = load.communicate("", timeout=10.0)  # closes stdin: the clients stop
+            calls.extend(int(x) for x in out.split())
+        except (subprocess.TimeoutExpired, ValueError):
+            load.kill()
+        for p in procs:
+            p.kill()
+            p.wait()
+
+
+def _tick_lateness(
+    isolated: bool, loaded: bool, switch_interval_s: float = REALTIME_SWITCH_INTERVAL_S
+) -> tuple[dict[str, float], float]:
+    """Lateness (s) of the robot server's ticks over TICK_S, as ``robotsocket serve`` runs
+    it, and the Herej calls per second the server answered meanwhile."""
+    from robotsocket.emulator import RobotEmulator
+    from robotsocket.service import RobotService
+    from robotsocket.sync_service import attach_udp_sync
+    from spec.server import FramedServer
+
+    before = sys.getswitchinterval()
+    robot = RobotEmulator(clock="real")
+    loop = robot._loop
+    assert loop is not None
+    loop.switch_interval_s = switch_interval_s
+    if not isolated:
+        loop.rt_priority = 0
+        loop.switch_interval_s = None
+        sys.setswitchinterval(0.005)  # CPython's default
+    service = RobotService(robot)
+    _, endpoint = attach_udp_sync(service, robot)
+    server = FramedServer(service, "127.0.0.1", 0)
+    server.start()
+    robot.start()
+    endpoint.start()
+    calls: list[int] = []
+    try:
+        with contextlib.ExitStack() as stack:
+            if loaded:
+                calls = stack.enter_context(_load(server.address))
+            n0 = robot.cycle
+            time.sleep(TICK_S)
+            assert robot.cycle > n0
+    finally:
+        endpoint.stop()
+        robot.close()
+        server.shutdown()
+        sys.setswitchinterval(before)
+    return robot.jitter(), sum(calls) / TICK_S
+
+
+def _live_delta_t(latency_s: float, loaded: bool) -> tuple[float, dict[str, int]]:
+    """|ΔT estimate - truth| (s) of a 3 s live experiment at 250 Hz, and its statistics."""
+    from cell.cell import CellTiming, EmulatedCell
+    from sync.experiment import ExperimentSettings, run_delay_experiment
+
+    timing = replace(CellTiming(), encoder_latency_s=latency_s)
+    with EmulatedCell(clock="real", seed=2, timing=timing) as cell:
+        first = cell.core.next_index
+        with contextlib.ExitStack() as stack:
+            if loaded:
+                stack.enter_context(_load(cell.robot_address))
+            r = run_delay_experiment(
+                cell.robot_address,
+                cell.sensor_address,
+                ExperimentSettings(duration_s=3.0, trigger_rate_hz=250.0),
+            )
+        truth = cell.measured_delta_t(first)
+    return abs(r.estimate.delta_t_s - truth), r.data.statistics
+
+
+_SERVERS = {
+    "robotsocket serve --clock sim": ["robotsocket", "serve", "--clock", "sim", "--port", "0"],
+    "robotsocket serve --clock real": ["robotsocket", "serve", "--clock", "real", "--port", "0"],
+    "sensorsocket serve --clock sim": ["sensorsocket", "serve", "--clock", "sim", "--port", "0"],
+    "cell serve --clock sim": [
+        "cell",
+        "serve",
+        "--clock",
+        "sim",
+        "--robot-port",
+        "0",
+        "--sensor-port",
+        "0",
+        "--udp-port",
+        "0",
+    ],
+}
+
+
+def _cpu_s(pid: int) -> float:
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _idle_cpu() -> dict[str, float]:
+    """% of one core each server uses over IDLE_S after it is listening (all at once)."""
+    procs = {
+        name: subprocess.Popen(
+            [sys.executable, "-u", "-m", *argv],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            text=True,
+        )
+        for name, argv in _SERVERS.items()
+    }
+    try:
+        for p in procs.values():
+            assert p.stdout is not None
+            p.stdout.readline()  # the first line once it listens
+        time.sleep(1.0)  # start-up work (imports, first ticks) is not idle cost
+        c0 = {n: _cpu_s(p.pid) for n, p in procs.items()}
+        t0 = time.monotonic()
+        time.sleep(IDLE_S)
+        dt = time.monotonic() - t0
+        return {n: (_cpu_s(p.pid) - c0[n]) / dt * 100.0 for n, p in procs.items()}
+    finally:
+        for p in procs.values():
+            p.terminate()
+            try:
+                p.wait(5.0)
+            except subprocess.TimeoutExpired:
+                p.kill()
+
+
+def run() -> list[Result]:
+    out: list[Result] = []
+    load = f"{HOGS} hogs + {CLIENTS} Herej clients"
+    idle, _ = _tick_lateness(isolated=True, loaded=False)
+    bare, _ = _tick_lateness(isolated=False, loaded=True)
+    iso, _ = _tick_lateness(isolated=True, loaded=True)
+    for key in ("p50", "p99", "max"):
+        out.append(
+            result(
+                f"robot tick lateness {key}, {load}, isolated",
+                iso[key] * 1e3,
+                "ms",
+                f"same load, not isolated {key} (idle isolated {idle[key] * 1e3:.3f} ms)",
+                bare[key] * 1e3,
+            )
+        )
+    for latency in (0.0, 10e-3):
+        err_idle, _ = _live_delta_t(latency, loaded=False)
+        err, stats = _live_delta_t(latency, loaded=True)
+        out.append(
+            result(
+                f"live ΔT |error| 250 Hz, encoder {latency * 1e3:g} ms, {load}",
+                err * 1e3,
+                "ms",
+                "same, idle machine",
+                err_idle * 1e3,
+            )
+        )
+        out.append(
+            result(
+                f"live ΔT data lost (encoder {latency * 1e3:g} ms, {load})",
+                stats.get("lost", 0) + stats.get("late", 0),
+                "datagrams",
+                "triggers sent",
+                stats.get("sent", 0),
+            )
+        )
+    if sys.platform.startswith("linux"):
+        for name, pct in _idle_cpu().items():
+            out.append(result(f"idle CPU {name}", pct, "% core", "budget", IDLE_BUDGET_PCT))
+    return out
+
+
+if __name__ == "__main__":
+    if len(sys.argv) == 5 and sys.argv[1] == "herej":
+        _herej_load(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]))
+    else:
+        print("usage: python -m bench.bench_realtime herej HOST PORT N", file=sys.stderr)
+        sys.exit(2)
