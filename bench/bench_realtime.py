@@ -148,7 +148,8 @@ def _live_delta_t(latency_s: float, loaded: bool) -> tuple[float, dict[str, int]
         first = cell.core.next_index
         with contextlib.ExitStack() as stack:
             if loaded:
-                stack.enter_context(_load(cell.robot_address))
+                # the server's 64 connections: the experiment's and 63 Herej clients
+                stack.enter_context(_load(cell.robot_address, clients=CLIENTS - 1))
             r = run_delay_experiment(
                 cell.robot_address,
                 cell.sensor_address,

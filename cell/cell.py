@@ -27,6 +27,7 @@ import dataclasses
 import logging
 import math
 import threading
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -271,7 +272,6 @@ class EmulatedCell:
         self.sensor2flange = location_to_transform(np.array(self.sensor_tool, dtype=np.float64))
         self.laser2flange = location_to_transform(np.array(self.laser_tool, dtype=np.float64))
         self._truth_lock = threading.Lock()
-        self._truth_cond = threading.Condition(self._truth_lock)
         self._truth = JointBuffer(capacity=2000)
         self._truth.append(0.0, np.asarray(self.ready_joints, dtype=np.float64))
         # sensor poses at the latest frame's setpoints and mid-cycles, see _node_poses
@@ -515,11 +515,10 @@ class EmulatedCell:
     # --- the clock ---------------------------------------------------------------------------
 
     def _on_cycle(self, t: float, q_sp: FloatArray, q_m: FloatArray) -> None:
-        with self._truth_cond:
+        with self._truth_lock:
             self._truth.append(t, q_sp)
-            if self.clock != "sim":
-                self._truth_cond.notify_all()
-                return
+        if self.clock != "sim":
+            return
         assert self.uplink is not None and self.downlink is not None
         core = self.core
         core.add_joint(t, q_m)
@@ -548,20 +547,19 @@ class EmulatedCell:
         core.poll(t)
 
     def wait_for_truth(self, times: FloatArray) -> None:
-        """Real clock: wait (at most ``TRUTH_WAIT_S``) until the robot's setpoints reach the
-        latest of ``times`` (s), so the camera renders the arm's motion, not a guess of it:
-        a robot tick that runs late (a busy machine) makes the frame late, never wrong.
-        Past the wait the poses are extrapolated (a stopped clock)."""
+        """Real clock: make the robot's setpoints reach the latest of ``times`` (s) so the
+        camera renders the arm's motion, not a guess of it. An exposure that ends in the
+        future is waited for (at most ``TRUTH_WAIT_S``); the setpoints up to now are then
+        computed in this thread (:meth:`RobotEmulator.catch_up`), so a robot tick thread
+        that runs late (a busy machine) delays nothing and falsifies nothing."""
         if not len(times):
             return
-        t_max = float(np.max(times))
-
-        def covered() -> bool:
-            latest = self._truth.latest_time
-            return latest is not None and latest >= t_max
-
-        with self._truth_cond:
-            self._truth_cond.wait_for(covered, TRUTH_WAIT_S)
+        period = self.robot.period
+        t_cover = math.ceil(float(np.max(times)) / period - 1e-9) * period
+        wait = t_cover - self.robot.time()
+        if wait > 0:
+            time.sleep(min(wait, TRUTH_WAIT_S))
+        self.robot.catch_up()
 
     def advance(self, seconds: float) -> None:
         """Simulated clock: run the cell for ``seconds``."""

@@ -9,7 +9,9 @@ optional Gaussian noise, and are what Herej, Here and the joint log report.
 Clocks: ``clock="sim"`` (default) never advances by itself: call :meth:`RobotEmulator.step`
 or :meth:`RobotEmulator.advance_to`; :meth:`wait_end_move` *advances the simulated clock*
 until the motion is done or the timeout (simulated seconds) expires. ``clock="real"`` runs a
-:class:`~robotsocket.clock.RealTimeLoop` thread (call :meth:`start` and :meth:`close`).
+:class:`~robotsocket.clock.RealTimeLoop` thread (call :meth:`start` and :meth:`close`); every
+reader first runs the cycles that are due but not yet ticked (:meth:`RobotEmulator.catch_up`),
+so a late clock thread never makes a sample stale or wrong.
 
 Observers: callables in :attr:`RobotEmulator.cycle_hooks` are called every cycle with
 (t_k, q_setpoint (6,), q_measured (6,)) while the emulator's lock is held; keep them short.
@@ -179,8 +181,30 @@ class RobotEmulator(RobotInterface):
     def cycle(self) -> int:
         return self._simclock.cycle if self._simclock is not None else self._gen.k
 
+    def catch_up(self) -> None:
+        """Real clock: run every cycle due by now in the calling thread, if the clock
+        thread has not yet (a busy machine may not give it the CPU or the GIL in time).
+
+        The sample of cycle k is a function of the motion and t_k = k * T_r, so it is the
+        same whichever thread computes it and however late; readers (Herej, Here, status,
+        the joint log, a new move, the cell's camera) call this first and never see a
+        stale sample because the tick thread ran late (docs/REALTIME.md)."""
+        loop = self._loop
+        if loop is None:
+            return
+        # cycle k is due at start + k * T_r (RealTimeLoop's deadline); unlocked first look:
+        # the usual case, nothing due, costs no lock
+        k_now = math.floor(loop.now() / self.period + 1e-9)
+        if k_now <= self._gen.k:
+            return
+        with self._lock:
+            for k in range(self._gen.k + 1, k_now + 1):
+                self._tick(k)
+
     def _tick(self, k: int) -> None:
         with self._lock:
+            if k <= self._gen.k:
+                return  # already run by a reader's catch_up
             t = k * self.period
             q_sp = self._gen.step(k)
             self._setpoint = q_sp
@@ -227,6 +251,7 @@ class RobotEmulator(RobotInterface):
         return self._gen.idle and t >= self._idle_since + self.encoder_latency - 1e-12
 
     def status(self) -> RobotStatus:
+        self.catch_up()
         with self._lock:
             return RobotStatus(
                 powered=self._powered,
@@ -238,6 +263,7 @@ class RobotEmulator(RobotInterface):
             )
 
     def herej(self) -> Array:
+        self.catch_up()
         # No lock: the tick replaces _measured with a new array (never writes into it), so
         # one reference read is a consistent sample; a reader holding the lock while it
         # waits for the GIL would stall the 4 ms tick (priority inversion).
@@ -245,11 +271,13 @@ class RobotEmulator(RobotInterface):
 
     def setpoint(self) -> Array:
         """Latest commanded joints (6,) degrees."""
+        self.catch_up()
         with self._lock:
             return np.array(self._setpoint)
 
     def here(self, tool: Loc = IDENTITY_LOC, frame: Loc = IDENTITY_LOC) -> Loc:
         tool_T, frame_T = _loc(tool, "tool"), _loc(frame, "frame")
+        self.catch_up()
         q = np.array(self._measured)  # no lock, as in herej
         T = invert(frame_T) @ self.model.flange2base(q) @ tool_T
         x, y, z, rx, ry, rz = (float(v) for v in transform_to_location(T))
@@ -282,6 +310,7 @@ class RobotEmulator(RobotInterface):
             raise BusyError(f"motion queue full ({MAX_QUEUE} moves)")
 
     def _queue(self, plan: Callable[[int, Array], object]) -> int:
+        self.catch_up()  # the move starts after now, not after a late tick's cycle
         with self._lock:
             try:
                 self._check_can_move()
@@ -443,6 +472,7 @@ class RobotEmulator(RobotInterface):
         return list(self._outputs), list(self._inputs)
 
     def joint_log(self, since: float) -> tuple[Array, Array]:
+        self.catch_up()
         with self._lock:
             times, joints = self._buffer.since(since)
         keep = times > since

@@ -56,6 +56,10 @@ log = logging.getLogger(__name__)
 MAX_RATE_HZ = 1000.0
 """Highest trigger rate StartTriggers accepts [SY-5.3]."""
 
+STAMP_TOLERANCE_S = 0.2e-3
+"""A trigger whose send took longer than this after its stamp counts as an uncertain stamp
+(:attr:`UdpSyncEndpoint.uncertain_stamps`)."""
+
 _ROW_BATCH = 1024
 """Released points converted to seam-point rows in one batch at the latest."""
 
@@ -512,6 +516,7 @@ class UdpSyncEndpoint:
         self._wake_r, self._wake_w = socket.socketpair()
         self._thread: threading.Thread | None = None
         self.send_errors = 0
+        self.uncertain_stamps = 0
 
     def set_target(self, host: str, port: int) -> None:
         """Where triggers go (the sensor's trigger listener); port 0: nowhere."""
@@ -578,15 +583,19 @@ class UdpSyncEndpoint:
     def _send_due(self) -> None:
         for index, _scheduled in self.core.due_triggers(self.clock()):
             target = self.target
+            # Stamp, encode and send with nothing between that can block (the core's lock is
+            # taken after the send): t_i^T is the time the trigger went out.
             t_send = self.clock()
-            data = self.core.sent(index, t_send)
-            if target is None:
-                continue
-            try:
-                self._sock.sendto(data, target)
-            except OSError as exc:
-                self.send_errors += 1
-                log.debug("trigger sendto %s: %s", target, exc)
+            if target is not None:
+                try:
+                    self._sock.sendto(encode_trigger(Trigger(index, t_send)), target)
+                except OSError as exc:
+                    self.send_errors += 1
+                    log.debug("trigger sendto %s: %s", target, exc)
+                if self.clock() - t_send > STAMP_TOLERANCE_S:
+                    # The thread lost the CPU or the GIL between the stamp and the send.
+                    self.uncertain_stamps += 1
+            self.core.sent(index, t_send)
 
     def _receive_all(self) -> None:
         while True:
