@@ -370,3 +370,48 @@ def test_loopback_exchange(listener: TriggerListener) -> None:
     assert stats["datagrams"] == len(plan)
     assert (stats["malformed"], stats["duplicates"], stats["reordered"]) == (2, 2, 1)
     assert stats["replies"] == stats["sent"] == 6 and stats["send_errors"] == 0
+
+
+class SlowSensor(StubSensor):
+    """The stub sensor whose first acquisition keeps the listener busy for 50 ms."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.arrivals: list[float] = []
+
+    def acquire(
+        self, t_arrival: float | None = None, *, index: int | None = None, t_trigger: float = 0.0
+    ) -> Reading:
+        assert t_arrival is not None
+        self.arrivals.append(t_arrival)
+        if len(self.arrivals) == 1:
+            time.sleep(0.05)  # the listener is busy (or starved) while trigger 2 arrives
+        return super().acquire(t_arrival, index=index, t_trigger=t_trigger)
+
+
+@pytest.mark.parametrize("kernel", [True, False])
+def test_arrival_is_the_kernel_stamp_not_the_read(kernel: bool) -> None:
+    sensor = SlowSensor()
+    lst = TriggerListener(
+        TriggerHandler(sensor), "127.0.0.1", 0, clock=time.monotonic, hold=False,
+        kernel_timestamps=kernel, rt_priority=0,
+    )  # fmt: skip
+    robot = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    robot.bind(("127.0.0.1", 0))
+    try:
+        with lst:
+            robot.sendto(trig(1), lst.address)
+            before = time.monotonic()
+            robot.sendto(trig(2), lst.address)
+            after = time.monotonic()
+            assert len(receive(robot, 2)) == 2
+    finally:
+        robot.close()
+    if kernel and not lst.kernel_timestamps:
+        pytest.skip("no kernel receive timestamps on this platform")
+    if kernel:
+        # stamped when it came (loopback: inside the sendto), not 50 ms later when read
+        assert before - 1e-4 <= sensor.arrivals[1] <= after + 1e-4
+    else:
+        # the fallback stamps the read: after the busy acquisition
+        assert sensor.arrivals[1] >= sensor.arrivals[0] + 0.05

@@ -1,0 +1,73 @@
+"""Kernel receive timestamps (spec/udp.py): the path where the platform has them, and the
+fallback where it does not."""
+
+from __future__ import annotations
+
+import socket
+import sys
+import time
+from collections.abc import Iterator
+
+import pytest
+
+from spec import udp
+from spec.udp import MAX_STAMP_AGE_S, arrival_time, bind_udp, enable_kernel_timestamps, recv_stamped
+
+
+@pytest.fixture
+def pair() -> Iterator[tuple[socket.socket, socket.socket]]:
+    rx = bind_udp("127.0.0.1", 0)
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    yield rx, tx
+    rx.close()
+    tx.close()
+
+
+def _wait_readable(sock: socket.socket) -> None:
+    sock.settimeout(3.0)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="SO_TIMESTAMPNS is Linux's")
+def test_a_datagram_read_late_keeps_its_arrival_time(
+    pair: tuple[socket.socket, socket.socket],
+) -> None:
+    rx, tx = pair
+    assert enable_kernel_timestamps(rx)
+    before = time.monotonic()
+    tx.sendto(b"trigger", rx.getsockname())
+    time.sleep(0.05)  # the reader is late: it gets the CPU 50 ms after the datagram came
+    _wait_readable(rx)
+    data, source, stamp = recv_stamped(rx, 2048)
+    read_at = time.monotonic()
+    assert data == b"trigger" and source[1] == tx.getsockname()[1]
+    assert stamp is not None
+    t = arrival_time(time.monotonic, stamp)
+    # the kernel's time, carried onto the monotonic clock: before the late read
+    assert before - 1e-3 <= t <= read_at - 0.045
+
+
+def test_without_kernel_stamps_the_arrival_is_the_read(
+    pair: tuple[socket.socket, socket.socket],
+) -> None:
+    rx, tx = pair  # timestamps not enabled: no ancillary data
+    tx.sendto(b"x", rx.getsockname())
+    _wait_readable(rx)
+    data, _, stamp = recv_stamped(rx, 2048)
+    assert data == b"x" and stamp is None
+    assert arrival_time(lambda: 42.0, None) == 42.0
+
+
+def test_platform_without_the_option(
+    pair: tuple[socket.socket, socket.socket], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(udp, "_SO_TIMESTAMPNS", None)
+    assert not enable_kernel_timestamps(pair[0])
+
+
+def test_arrival_time_on_any_clock_and_untrusted_stamps() -> None:
+    now_ns = time.time_ns()
+    t = arrival_time(lambda: 100.0, now_ns - 5_000_000)  # a datagram 5 ms old
+    assert 99.994 < t <= 99.995 + 1e-3
+    # a wall clock stepped between stamp and read: the stamp is not used
+    assert arrival_time(lambda: 100.0, now_ns + 60 * 10**9) == 100.0
+    assert arrival_time(lambda: 100.0, now_ns - int((MAX_STAMP_AGE_S + 1) * 1e9)) == 100.0
