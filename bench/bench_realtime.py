@@ -162,7 +162,16 @@ def _live_delta_t(latency_s: float, loaded: bool) -> tuple[float, dict[str, int]
 _SERVERS = {
     "robotsocket serve --clock sim": ["robotsocket", "serve", "--clock", "sim", "--port", "0"],
     "robotsocket serve --clock real": ["robotsocket", "serve", "--clock", "real", "--port", "0"],
-    "sensorsocket serve --clock sim": ["sensorsocket", "serve", "--clock", "sim", "--port", "0"],
+    "sensorsocket serve --clock sim": [
+        "sensorsocket",
+        "serve",
+        "--clock",
+        "sim",
+        "--port",
+        "0",
+        "--udp-port",
+        "0",
+    ],
     "cell serve --clock sim": [
         "cell",
         "serve",
@@ -190,7 +199,7 @@ def _idle_cpu() -> dict[str, float]:
         name: subprocess.Popen(
             [sys.executable, "-u", "-m", *argv],
             stdout=subprocess.PIPE,
-            stderr=subprocess.DEVNULL,
+            stderr=subprocess.STDOUT,  # some say "listening" in their log
             text=True,
         )
         for name, argv in _SERVERS.items()

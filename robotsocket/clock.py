@@ -67,6 +67,11 @@ class RealTimeLoop:
     :meth:`start` lowers the process's GIL switch interval to ``switch_interval_s`` (None:
     leave it). ``scheduling`` says what the thread got. ``clock_ns`` and ``sleep_ns``
     (return True to stop) replace the monotonic clock and the wait in tests.
+
+    Idle cost: while ``idle()`` is true (a robot at rest whose readers compute due cycles
+    themselves, :meth:`RobotEmulator.catch_up`) the thread sleeps up to ``idle_wait_s`` or
+    until :meth:`wake`, then runs the cycles it slept through back to back (they are stamps
+    of their grid times; their lateness is not recorded) and goes on.
     """
 
     simulated = False
@@ -81,6 +86,8 @@ class RealTimeLoop:
         switch_interval_s: float | None = REALTIME_SWITCH_INTERVAL_S,
         clock_ns: Callable[[], int] = time.monotonic_ns,
         sleep_ns: Callable[[int], bool] | None = None,
+        idle: Callable[[], bool] | None = None,
+        idle_wait_s: float = 0.1,
     ) -> None:
         if not period > 0:
             raise ValueError(f"period must be > 0 s, got {period}")
@@ -94,7 +101,10 @@ class RealTimeLoop:
         self._period_ns = round(period * 1e9)
         self._start_ns = clock_ns()
         self._stop = threading.Event()
-        self._sleep_ns = sleep_ns or (lambda ns: self._stop.wait(ns / 1e9))
+        self._wake = threading.Event()  # set by stop() and wake()
+        self._sleep_ns = sleep_ns or self._wait_ns
+        self._idle = idle
+        self._idle_wait_ns = round(idle_wait_s * 1e9)
         self._thread: threading.Thread | None = None
         self._lateness: deque[float] = deque(maxlen=history)
         self.overruns = 0
@@ -113,8 +123,19 @@ class RealTimeLoop:
 
     def stop(self, timeout: float = 2.0) -> None:
         self._stop.set()
+        self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout)
+
+    def wake(self) -> None:
+        """End an idle wait now (something will move)."""
+        self._wake.set()
+
+    def _wait_ns(self, ns: int) -> bool:
+        """Wait ``ns`` or until woken; True when the loop must stop."""
+        if self._wake.wait(ns / 1e9):
+            self._wake.clear()
+        return self._stop.is_set()
 
     @property
     def running(self) -> bool:
@@ -132,24 +153,44 @@ class RealTimeLoop:
         clock_ns = self._clock_ns
         period_ns = self._period_ns
         lateness = self._lateness
+        idle = self._idle
         while not self._stop.is_set():
+            if idle is not None and idle():
+                if self._sleep_ns(self._idle_wait_ns):
+                    break
+                # the cycles slept through, at once and unrecorded (a reader may have run
+                # them already: the tick skips those)
+                due = (clock_ns() - self._start_ns) // period_ns
+                while self.cycle < due:
+                    self.cycle += 1
+                    self._run_tick(self.cycle)
+                continue
             k = self.cycle + 1
             deadline = self._start_ns + k * period_ns
             wait = deadline - clock_ns()
-            if wait > 0 and self._sleep_ns(wait):
+            stopped = False
+            while wait > 0:  # a wake() may end the wait early: wait for the deadline again
+                if self._sleep_ns(wait):
+                    stopped = True
+                    break
+                wait = deadline - clock_ns()
+            if stopped:
                 break
             late = clock_ns() - deadline
             lateness.append(max(late, 0) / 1e9)
             if late > period_ns:
                 self.overruns += 1
             self.cycle = k
-            try:
-                self.tick(k)
-            except Exception:
-                # A failing tick must not stop the robot clock silently; log and go on.
-                self.errors += 1
-                log.exception("robot clock tick %d failed", k)
+            self._run_tick(k)
         log.info("real-time clock stopped after %d cycles", self.cycle)
+
+    def _run_tick(self, k: int) -> None:
+        try:
+            self.tick(k)
+        except Exception:
+            # A failing tick must not stop the robot clock silently; log and go on.
+            self.errors += 1
+            log.exception("robot clock tick %d failed", k)
 
     def jitter(self) -> dict[str, float]:
         """Tick lateness in seconds over the recent history: p50, p99, max, mean; count."""

@@ -137,7 +137,7 @@ class RobotEmulator(RobotInterface):
         if clock == "sim":
             self._simclock = SimClock(period, self._tick)
         else:
-            self._loop = RealTimeLoop(period, self._tick)
+            self._loop = RealTimeLoop(period, self._tick, idle=self._at_rest)
 
     # --- clock -------------------------------------------------------------------------------
 
@@ -222,6 +222,11 @@ class RobotEmulator(RobotInterface):
                 hook(t, q_sp, q_m)
             if self._waiters:
                 self._cond.notify_all()
+
+    def _at_rest(self) -> bool:
+        """Nothing moves and nobody waits for a cycle: the clock thread may sleep (readers
+        compute the due cycles, :meth:`catch_up`); a new move or waiter wakes it."""
+        return self._waiters == 0 and not self._gen.in_motion and self._settled()
 
     def _delayed(self, t: float) -> Array:
         hist = self._setpoints
@@ -326,6 +331,8 @@ class RobotEmulator(RobotInterface):
             assert isinstance(move, Move)
             self._next_move_id += 1
             self._gen.enqueue(move)
+            if self._loop is not None:
+                self._loop.wake()
             self._idle_since = math.inf
             log.debug("queued %s move %d", move.kind, move_id)
             return move_id
@@ -393,6 +400,8 @@ class RobotEmulator(RobotInterface):
                     self._simclock.advance(1)
                 return self._settled()
             self._waiters += 1
+            if self._loop is not None:
+                self._loop.wake()  # an idle clock thread: tick for the waiter
             try:
                 return self._cond.wait_for(self._settled, timeout)
             finally:

@@ -89,3 +89,25 @@ def test_sim_clock_never_advances_by_itself() -> None:
     assert clock.now() == 0.0 and ticks == []
     clock.advance(3)
     assert ticks == [1, 2, 3] and clock.now() == pytest.approx(0.012)
+
+
+def test_at_rest_the_thread_sleeps_and_then_runs_what_it_slept_through() -> None:
+    fake = FakeTime()
+    ran: list[int] = []
+    waits: list[int] = []
+    rest = [True]
+
+    def sleep(ns: int) -> bool:
+        waits.append(ns)
+        fake.ns += ns
+        if len(waits) == 3:
+            rest[0] = False  # something moves: back to the 4 ms grid
+        return len(ran) >= 80
+
+    loop = RealTimeLoop(0.004, ran.append, rt_priority=0, switch_interval_s=None,
+                        clock_ns=fake.clock, sleep_ns=sleep, idle=lambda: rest[0],
+                        idle_wait_s=0.1)  # fmt: skip
+    loop.run()
+    assert waits[:3] == [100_000_000] * 3  # three idle waits of 100 ms, not 75 ticks
+    assert ran == list(range(1, 81))  # every cycle once, in order
+    assert loop.jitter()["count"] == 80 - 75  # only the ticks run on their deadline are timed
