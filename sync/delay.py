@@ -53,6 +53,10 @@ __all__ = [
 DEFAULT_GRID_STEP_S = 0.2e-3
 """Common time grid of section VI: 5 kHz."""
 
+GAP_FACTOR = 2.5
+"""Sensor samples further apart than this many median intervals bound a gap (lost data):
+the grid points inside it are left out of the MSE instead of interpolated across."""
+
 
 class DelayEstimateError(ValueError):
     """The inputs cannot give a delay estimate (shapes, no overlap, too few samples)."""
@@ -125,14 +129,32 @@ def upsample(
     return j0, np.interp(grid, t, y)
 
 
+def _gap_mask(
+    times: NDArray[np.float64], j0: int, n: int, grid_step_s: float
+) -> NDArray[np.float64] | None:
+    """1.0 on the grid points t_{j0} .. t_{j0+n-1} that lie between two samples at most
+    ``GAP_FACTOR`` median intervals apart, 0.0 inside longer gaps (lost data: a straight line
+    across a missing stretch of the sine is not a measurement); None when there is no gap."""
+    dt = np.diff(times)
+    gap = dt > GAP_FACTOR * float(np.median(dt))
+    if not np.any(gap):
+        return None
+    grid = np.arange(j0, j0 + n, dtype=np.float64) * grid_step_s
+    k = np.clip(np.searchsorted(times, grid, side="right") - 1, 0, dt.size - 1)
+    out: NDArray[np.float64] = np.where(gap[k], 0.0, 1.0)
+    return out
+
+
 def _mse_curve(
     jr: int,
     yr: NDArray[np.float64],
     js: int,
     ys: NDArray[np.float64],
     shifts: NDArray[np.int64],
+    mask: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-    """mean_j (ys[j] - yr[j + m])^2 over the overlap, per shift m (grid steps)."""
+    """mean_j (ys[j] - yr[j + m])^2 over the overlap, per shift m (grid steps); with a
+    ``mask`` (1.0 / 0.0 per sensor grid point) only over the points it keeps."""
     mse = np.full(shifts.shape[0], np.inf)
     overlap = np.zeros(shifts.shape[0], dtype=np.int64)
     r_end = jr + yr.shape[0]
@@ -145,10 +167,16 @@ def _mse_curve(
             continue
         # One preallocated buffer: a fresh 400 kB array per shift costs more than the maths.
         e = np.subtract(ys[lo - js : hi - js], yr[lo + m - jr : hi + m - jr], out=work[: hi - lo])
+        count = hi - lo
+        if mask is not None:
+            e *= mask[lo - js : hi - js]
+            count = int(np.add.reduce(mask[lo - js : hi - js]))
+            if count < 2:
+                continue
         # Square and sum in numpy, not np.dot: OpenBLAS splits a long dot product over its
         # threads, and on a busy machine one call could wait 50-400 ms for a core.
-        mse[n] = float(np.add.reduce(np.multiply(e, e, out=e))) / (hi - lo)
-        overlap[n] = hi - lo
+        mse[n] = float(np.add.reduce(np.multiply(e, e, out=e))) / count
+        overlap[n] = count
     return mse, overlap
 
 
@@ -199,7 +227,7 @@ def estimate_delay(
     js, ys = upsample(ts, ys_in, grid_step_s)
     shifts = np.arange(m_lo, m_hi + 1, dtype=np.int64)
     shifts_s = shifts.astype(np.float64) * grid_step_s
-    mse, overlap = _mse_curve(jr, yr, js, ys, shifts)
+    mse, overlap = _mse_curve(jr, yr, js, ys, shifts, _gap_mask(ts, js, ys.size, grid_step_s))
     if not np.all(np.isfinite(mse)):
         raise DelayEstimateError("robot and sensor signals do not overlap for every searched delay")
     i = int(np.argmin(mse))
