@@ -33,6 +33,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from bench.common import Result, result
 from spec.realtime import REALTIME_SWITCH_INTERVAL_S
 
@@ -107,7 +109,7 @@ def _tick_lateness(
 ) -> tuple[dict[str, float], float]:
     """Lateness (s) of the robot server's ticks over TICK_S, as ``robotsocket serve`` runs
     it, and the Herej calls per second the server answered meanwhile."""
-    from robotsocket.emulator import RobotEmulator
+    from robotsocket.emulator import HOME, RobotEmulator
     from robotsocket.service import RobotService
     from robotsocket.sync_service import attach_udp_sync
     from spec.server import FramedServer
@@ -129,12 +131,17 @@ def _tick_lateness(
     endpoint.start()
     calls: list[int] = []
     try:
+        # the arm moves back and forth the whole time: at rest the clock thread sleeps
+        robot.enable_power()
+        a, b = np.array([-15.0, 0.0, 90.0, 0.0, 90.0, 0.0]), np.array(HOME)
+        for i in range(40):
+            robot.joint_move(a if i % 2 == 0 else b)
         with contextlib.ExitStack() as stack:
             if loaded:
                 calls = stack.enter_context(_load(server.address))
-            n0 = robot.cycle
+            n0 = robot.jitter()["count"]
             time.sleep(TICK_S)
-            assert robot.cycle > n0
+            assert robot.status().moving and robot.jitter()["count"] > n0
     finally:
         endpoint.stop()
         robot.close()
