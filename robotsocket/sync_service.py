@@ -212,8 +212,9 @@ def attach_udp_sync(
         first_index=secrets.randbelow(1 << 30),
     )
     endpoint = UdpSyncEndpoint(
-        core, clock=robot.time, joints_since=robot.joint_log, host=host, port=port
-    )
+        core, clock=robot.time, joints_since=robot.joint_log, host=host, port=port,
+        kernel_timestamps=not getattr(robot, "simulated", False),  # real-time ages only
+    )  # fmt: skip
     sync = SyncService(robot, core, endpoint)
     sync.install(service)
     return sync, endpoint

@@ -484,11 +484,12 @@ class UdpSyncEndpoint:
     (the time the trigger actually went out, however late the thread ran). A data datagram's
     arrival time, which the loss rule [SY-3.3] judges, is the kernel's receive timestamp
     where the platform has one (:func:`spec.udp.recv_stamped`), so data the thread reads late
-    is not declared lost. ``joints_since(t)`` supplies new measured joints (e.g. the robot's
-    joint log). ``poll_interval_s`` bounds how long data waits for matching; with no trigger
-    planned and nothing pending the thread blocks until a datagram or :meth:`wake` (no idle
-    wake-ups). The thread asks for real-time scheduling at ``rt_priority`` (0: normal;
-    :mod:`spec.realtime`).
+    is not declared lost; a simulated ``clock`` must pass ``kernel_timestamps=False`` (the
+    kernel's age of a datagram is real time). ``joints_since(t)`` supplies new measured
+    joints (e.g. the robot's joint log). ``poll_interval_s`` bounds how long data waits for
+    matching; with no trigger planned and nothing pending the thread blocks until a datagram
+    or :meth:`wake` (no idle wake-ups). The thread asks for real-time scheduling at
+    ``rt_priority`` (0: normal; :mod:`spec.realtime`).
     """
 
     def __init__(
@@ -501,6 +502,7 @@ class UdpSyncEndpoint:
         port: int = 0,
         poll_interval_s: float = 0.005,
         rt_priority: int = DEFAULT_RT_PRIORITY,
+        kernel_timestamps: bool = True,
     ) -> None:
         self.core = core
         self.clock = clock
@@ -510,7 +512,7 @@ class UdpSyncEndpoint:
         self.scheduling = "not started"
         self.target: tuple[str, int] | None = None
         self._sock = bind_udp(host, port)
-        self.kernel_timestamps = enable_kernel_timestamps(self._sock)
+        self.kernel_timestamps = kernel_timestamps and enable_kernel_timestamps(self._sock)
         self.address: tuple[str, int] = self._sock.getsockname()[:2]
         self._stop = threading.Event()
         self._wake_r, self._wake_w = socket.socketpair()
@@ -606,4 +608,5 @@ class UdpSyncEndpoint:
             except OSError as exc:
                 log.debug("recvfrom: %s", exc)
                 return
+            stamp = stamp if self.kernel_timestamps else None
             self.core.on_datagram(raw, arrival_time(self.clock, stamp))
