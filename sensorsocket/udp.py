@@ -154,9 +154,11 @@ class TriggerHandler:
         return None if reply is None else reply.data
 
     def process(
-        self, datagram: bytes, t_arrival: float, source: Hashable = None
+        self, datagram: bytes, t_arrival: float, source: Hashable = None, *, stale: bool = False
     ) -> TriggerReply | None:
-        """Like :meth:`handle`, with the modelled send time of the reply."""
+        """Like :meth:`handle`, with the modelled send time of the reply. ``stale``: the
+        trigger waited too long before it could be handled (a backlog): answered OVERRUN
+        [SY-2.8] without an acquisition, so the ones after it are answered in time."""
         # Runs once per trigger behind the listener: no Trigger/SensorData objects, one unpack
         # of the trigger, one pack of the reply.
         with self._lock:
@@ -181,7 +183,7 @@ class TriggerHandler:
                 self._reordered += 1
                 return self._overrun(index, t_trigger, t_arrival)
             history.newest = index
-            if self.sensor.busy(t_arrival):
+            if stale or self.sensor.busy(t_arrival):
                 # [SY-2.8] the chip is still busy with earlier triggers: OVERRUN.
                 return self._overrun(index, t_trigger, t_arrival)
         # Acquire outside the handler lock; the sensor serialises acquisitions itself.
@@ -236,6 +238,8 @@ class TriggerHandler:
 
 
 _TICK_S = 0.2  # longest wait for a datagram before stop() is seen (s)
+MAX_BACKLOG_S = 0.02
+"""A trigger read later than this after its arrival is answered OVERRUN (SY-2.5's 20 ms)."""
 # Reads after select and all sends must not block; the socket itself blocks (see _run).
 _DONTWAIT: int = getattr(socket, "MSG_DONTWAIT", 0)
 
@@ -255,6 +259,11 @@ class TriggerListener:
     ``clock``; while holding, the thread keeps reading triggers, so arrival stamps stay
     accurate. ``hold=False`` sends as soon as the frame is processed.
 
+    A trigger read more than ``max_backlog_s`` after it arrived (the thread fell behind:
+    a busy machine, or acquisitions slower than the trigger rate) is answered OVERRUN at once
+    instead of acquired [SY-2.8] (counted in ``stale``), so the queue drains and the readings
+    that are taken reach the robot in time [SY-2.5]; ``None`` acquires every trigger.
+
     A trigger's arrival time is the kernel's receive timestamp (``SO_TIMESTAMPNS``) carried
     onto ``clock`` (:func:`spec.udp.arrival_time`) when ``kernel_timestamps`` is True and
     the platform has it (:attr:`kernel_timestamps` says whether it is in use), so a thread
@@ -273,8 +282,11 @@ class TriggerListener:
         hold: bool = True,
         kernel_timestamps: bool = True,
         rt_priority: int = DEFAULT_RT_PRIORITY,
+        max_backlog_s: float | None = MAX_BACKLOG_S,
     ) -> None:
         self.handler = handler
+        self.max_backlog_s = max_backlog_s
+        self._stale = 0
         self.clock = clock
         self.hold = hold
         self.rt_priority = rt_priority
@@ -312,6 +324,7 @@ class TriggerListener:
         stats = self.handler.statistics()
         stats["sent"] = self._sent
         stats["send_errors"] = self._send_errors
+        stats["stale"] = self._stale
         return stats
 
     def _run(self) -> None:
@@ -319,6 +332,8 @@ class TriggerListener:
         log.debug("trigger listener: scheduling %s", self.scheduling)
         sock = self._sock
         stamped = self.kernel_timestamps
+        # without kernel stamps the arrival is the read: a backlog cannot be seen
+        backlog = self.max_backlog_s if stamped else None
         process = self.handler.process
         clock = self.clock
         pending = self._pending
@@ -354,8 +369,10 @@ class TriggerListener:
                 log.debug("recvfrom: %s", exc)
                 continue
             t_arrival = arrival_time(clock, stamp) if stamped else clock()
+            stale = backlog is not None and clock() - t_arrival > backlog
+            self._stale += stale
             try:
-                reply = process(datagram, t_arrival, source)
+                reply = process(datagram, t_arrival, source, stale=stale)
             except Exception:  # the listener must survive any sensor failure
                 log.exception("trigger handling failed")
                 continue

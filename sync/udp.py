@@ -571,8 +571,10 @@ class UdpSyncEndpoint:
                 except OSError:
                     pass
             self._send_due()
-            if self._sock in readable:
-                self._receive_all()
+            # Always drain the socket before the loss rule runs on the clock: a thread that
+            # waited for the CPU or the GIL after select() would otherwise declare lost data
+            # that came in time and waits in the socket (its kernel stamp says when).
+            self._receive_all()
             try:
                 t, q = self.joints_since(last_joint_t)
                 if len(t):

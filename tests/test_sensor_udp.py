@@ -394,7 +394,7 @@ def test_arrival_is_the_kernel_stamp_not_the_read(kernel: bool) -> None:
     sensor = SlowSensor()
     lst = TriggerListener(
         TriggerHandler(sensor), "127.0.0.1", 0, clock=time.monotonic, hold=False,
-        kernel_timestamps=kernel, rt_priority=0,
+        kernel_timestamps=kernel, rt_priority=0, max_backlog_s=None,
     )  # fmt: skip
     robot = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     robot.bind(("127.0.0.1", 0))
@@ -415,3 +415,35 @@ def test_arrival_is_the_kernel_stamp_not_the_read(kernel: bool) -> None:
     else:
         # the fallback stamps the read: after the busy acquisition
         assert sensor.arrivals[1] >= sensor.arrivals[0] + 0.05
+
+
+def test_a_backlog_is_answered_overrun_at_once() -> None:
+    """Triggers that waited more than max_backlog_s behind a slow acquisition are answered
+    OVERRUN [SY-2.8] without acquiring, so the queue drains; none stays unanswered."""
+    sensor = SlowSensor()
+    lst = TriggerListener(
+        TriggerHandler(sensor), "127.0.0.1", 0, clock=time.monotonic, hold=False,
+        rt_priority=0, max_backlog_s=0.02,
+    )  # fmt: skip
+    robot = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    robot.bind(("127.0.0.1", 0))
+    try:
+        with lst:
+            for i in (1, 2, 3):
+                robot.sendto(trig(i), lst.address)
+            replies = {d.index: d.status for d in receive(robot, 3)}
+            time.sleep(0.03)  # the backlog is gone: the next trigger is acquired again
+            robot.sendto(trig(4), lst.address)
+            replies.update({d.index: d.status for d in receive(robot, 1)})
+    finally:
+        robot.close()
+    if not lst.kernel_timestamps:
+        pytest.skip("no kernel receive timestamps: a backlog cannot be seen")
+    assert replies == {
+        1: SensorStatus.FOUND,
+        2: SensorStatus.OVERRUN,
+        3: SensorStatus.OVERRUN,
+        4: SensorStatus.FOUND,
+    }
+    stats = lst.statistics()
+    assert stats["stale"] == 2 and stats["overruns"] == 2 and len(sensor.arrivals) == 2
