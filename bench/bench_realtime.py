@@ -320,6 +320,15 @@ def run() -> list[Result]:
                     stats.get("sent", math.nan),
                 )
             )
+            out.append(
+                result(
+                    f"live ΔT readings used (encoder {latency * 1e3:g} ms, {what})",
+                    stats.get("matched", math.nan),
+                    "readings",
+                    "triggers sent (the rest: OVERRUN, the sensor's backlog)",
+                    stats.get("sent", math.nan),
+                )
+            )
     if sys.platform.startswith("linux"):
         for name, pct in _idle_cpu().items():
             out.append(result(f"idle CPU {name}", pct, "% core", "budget", IDLE_BUDGET_PCT))
