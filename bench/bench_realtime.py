@@ -114,9 +114,10 @@ def _load(
 
 def _tick_lateness(
     isolated: bool, loaded: bool, switch_interval_s: float = REALTIME_SWITCH_INTERVAL_S
-) -> tuple[dict[str, float], float]:
+) -> tuple[dict[str, float], dict[str, float], float]:
     """Lateness (s) of the robot server's ticks over TICK_S, as ``robotsocket serve`` runs
-    it, and the Herej calls per second the server answered meanwhile."""
+    it, the lateness of the samples (by whichever thread computed them first) and the Herej
+    calls per second the server answered meanwhile."""
     from robotsocket.emulator import HOME, RobotEmulator
     from robotsocket.service import RobotService
     from robotsocket.sync_service import attach_udp_sync
@@ -155,7 +156,7 @@ def _tick_lateness(
         robot.close()
         server.shutdown()
         sys.setswitchinterval(before)
-    return robot.jitter(), sum(calls) / TICK_S
+    return robot.jitter(), robot.sample_lateness(), sum(calls) / TICK_S
 
 
 def _live_delta_t(latency_s: float, clients: int, hogs: int) -> tuple[float, dict[str, Any]]:
@@ -277,9 +278,9 @@ def _idle_cpu() -> dict[str, float]:
 def run() -> list[Result]:
     out: list[Result] = []
     load = f"{HOGS} hogs + {CLIENTS} Herej clients"
-    idle, _ = _tick_lateness(isolated=True, loaded=False)
-    bare, _ = _tick_lateness(isolated=False, loaded=True)
-    iso, _ = _tick_lateness(isolated=True, loaded=True)
+    idle, _, _ = _tick_lateness(isolated=True, loaded=False)
+    bare, bare_samples, bare_rate = _tick_lateness(isolated=False, loaded=True)
+    iso, iso_samples, iso_rate = _tick_lateness(isolated=True, loaded=True)
     for key in ("p50", "p99", "max"):
         out.append(
             result(
@@ -290,6 +291,19 @@ def run() -> list[Result]:
                 bare[key] * 1e3,
             )
         )
+    for key in ("p50", "p99"):
+        out.append(
+            result(
+                f"robot sample lateness {key} (any thread), {load}, isolated",
+                iso_samples[key] * 1e3,
+                "ms",
+                f"same load, not isolated {key}",
+                bare_samples[key] * 1e3,
+            )
+        )
+    out.append(
+        result(f"Herej calls/s, {load}, isolated", iso_rate, "1/s", "not isolated", bare_rate)
+    )
     # the server's 64 connections: the experiment's and 63 Herej clients
     loads = ((f"{HOGS} hogs", 0), (f"{HOGS} hogs + {CLIENTS - 1} Herej clients", CLIENTS - 1))
     for what, clients in loads:

@@ -16,7 +16,7 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 from spec.realtime import (
     DEFAULT_RT_PRIORITY,
@@ -194,14 +194,19 @@ class RealTimeLoop:
 
     def jitter(self) -> dict[str, float]:
         """Tick lateness in seconds over the recent history: p50, p99, max, mean; count."""
-        samples = sorted(self._lateness)
-        if not samples:
-            return {"count": 0, "p50": 0.0, "p99": 0.0, "max": 0.0, "mean": 0.0}
-        n = len(samples)
-        return {
-            "count": float(n),
-            "p50": samples[n // 2],
-            "p99": samples[min(n - 1, int(0.99 * n))],
-            "max": samples[-1],
-            "mean": sum(samples) / n,
-        }
+        return lateness_summary(self._lateness)
+
+
+def lateness_summary(lateness: Iterable[float]) -> dict[str, float]:
+    """p50, p99, max and mean of lateness samples (s), and their count."""
+    samples = sorted(lateness)
+    if not samples:
+        return {"count": 0, "p50": 0.0, "p99": 0.0, "max": 0.0, "mean": 0.0}
+    n = len(samples)
+    return {
+        "count": float(n),
+        "p50": samples[n // 2],
+        "p99": samples[min(n - 1, int(0.99 * n))],
+        "max": samples[-1],
+        "mean": sum(samples) / n,
+    }

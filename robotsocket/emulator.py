@@ -37,7 +37,7 @@ from kinematics.transforms import (
     locations_to_transforms,
     transform_to_location,
 )
-from robotsocket.clock import RealTimeLoop, SimClock
+from robotsocket.clock import RealTimeLoop, SimClock, lateness_summary
 from robotsocket.interface import (
     IDENTITY_LOC,
     Array,
@@ -131,6 +131,7 @@ class RobotEmulator(RobotInterface):
         self._buffer = JointBuffer(capacity=max(2, round(buffer_seconds / period)))
         self._buffer.append(0.0, q0)
         self._idle_since = 0.0
+        self._sample_lateness: deque[float] = deque(maxlen=10000)
         self.cycle_hooks: list[CycleHook] = []
         self._simclock: SimClock | None = None
         self._loop: RealTimeLoop | None = None
@@ -160,6 +161,13 @@ class RobotEmulator(RobotInterface):
         if self._loop is None:
             return {"count": 0, "p50": 0.0, "p99": 0.0, "max": 0.0, "mean": 0.0}
         return self._loop.jitter()
+
+    def sample_lateness(self) -> dict[str, float]:
+        """Real clock, while the arm moves: how late each sample was computed after its grid
+        time, by whichever thread ran it first (the clock thread, or a reader's
+        :meth:`catch_up`); the same summary as :meth:`jitter`. This is when a sample became
+        visible to clients; :meth:`jitter` is the clock thread's own lateness."""
+        return lateness_summary(self._sample_lateness)
 
     def step(self, n_cycles: int = 1) -> None:
         """Simulated mode: run ``n_cycles`` controller cycles."""
@@ -214,6 +222,8 @@ class RobotEmulator(RobotInterface):
                 q_m = q_m + self._rng.normal(0.0, self.noise_deg, q_m.shape)
             self._measured = q_m
             self._buffer.append(t, q_m)
+            if self._loop is not None and self._gen.in_motion:
+                self._sample_lateness.append(max(self._loop.now() - t, 0.0))
             if self._gen.in_motion:
                 self._idle_since = math.inf
             elif self._idle_since == math.inf:

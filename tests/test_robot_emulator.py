@@ -222,3 +222,15 @@ def test_readers_run_due_cycles_when_the_clock_thread_does_not() -> None:
     t_sim, q_sim = sim.joint_log(-1.0)
     assert np.array_equal(t_sim, t) and np.array_equal(q_sim, q)
     assert not np.array_equal(q[-1], q[0])  # the arm moved: the comparison means something
+
+
+def test_sample_lateness_says_when_a_reader_computed_the_samples() -> None:
+    real = RobotEmulator(clock="real")  # no clock thread: readers compute every sample
+    real.enable_power()
+    real.joint_move(TARGET)
+    time.sleep(0.05)
+    real.herej()  # computes the ~12 cycles due, each late by up to 50 ms
+    s = real.sample_lateness()
+    assert s["count"] >= 10 and 0.0 <= s["p50"] <= s["max"] and s["max"] >= 0.04
+    assert real.jitter()["count"] == 0  # the clock thread's own record: it never ran
+    assert RobotEmulator().sample_lateness()["count"] == 0  # simulated: not recorded
