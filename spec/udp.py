@@ -9,7 +9,9 @@ clock by subtracting the datagram's age from the clock's current reading, so it 
 clock that runs at real-time rate (the robot clock, ``time.monotonic``). Where the platform
 has no such option (:func:`enable_kernel_timestamps` returns False) the stamp is ``None``
 and the arrival time is the clock read just after the receive (the fallback documented in
-PROTOCOL.md section 9 and docs/REALTIME.md).
+PROTOCOL.md section 9 and docs/REALTIME.md). Sent datagrams can be stamped likewise
+(:func:`enable_send_timestamps`, :func:`sent_stamp`: the time the kernel sent it, however
+long the sending thread waited between reading its clock and the ``sendto``).
 """
 
 from __future__ import annotations
@@ -26,11 +28,21 @@ __all__ = [
     "arrival_time",
     "bind_udp",
     "enable_kernel_timestamps",
+    "enable_send_timestamps",
     "recv_stamped",
+    "sent_stamp",
 ]
 
-# Linux's SO_TIMESTAMPNS (= SCM_TIMESTAMPNS); the socket module does not name it.
-_SO_TIMESTAMPNS = 35 if sys.platform.startswith("linux") else None
+# Linux's SO_TIMESTAMPNS (= SCM_TIMESTAMPNS) and SO_TIMESTAMPING (= SCM_TIMESTAMPING) with
+# the flags for software send timestamps, reported alone on the error queue; the socket
+# module names none of them.
+_LINUX = sys.platform.startswith("linux")
+_SO_TIMESTAMPNS = 35 if _LINUX else None
+_SO_TIMESTAMPING = 37 if _LINUX else None
+_SOF_TX_SOFTWARE = 1 << 1
+_SOF_SOFTWARE = 1 << 4
+_SOF_OPT_TSONLY = 1 << 11
+_MSG_ERRQUEUE: int = getattr(socket, "MSG_ERRQUEUE", 0)
 _TIMESPEC = struct.Struct("@ll")
 _ANCILLARY = socket.CMSG_SPACE(_TIMESPEC.size) if hasattr(socket, "CMSG_SPACE") else 0
 
@@ -62,6 +74,35 @@ def enable_kernel_timestamps(sock: socket.socket) -> bool:
     except OSError:
         return False
     return True
+
+
+def enable_send_timestamps(sock: socket.socket) -> bool:
+    """Ask the kernel to stamp every datagram ``sock`` sends (read with :func:`sent_stamp`);
+    False where it cannot."""
+    if _SO_TIMESTAMPING is None or not _MSG_ERRQUEUE or not _ANCILLARY:
+        return False
+    try:
+        sock.setsockopt(
+            socket.SOL_SOCKET, _SO_TIMESTAMPING, _SOF_TX_SOFTWARE | _SOF_SOFTWARE | _SOF_OPT_TSONLY
+        )
+    except OSError:
+        return False
+    return True
+
+
+def sent_stamp(sock: socket.socket) -> int | None:
+    """The kernel's send time (CLOCK_REALTIME ns) of the newest datagram ``sock`` sent since
+    the last call, read from its error queue (never blocks); None when there is none."""
+    newest = None
+    while True:
+        try:
+            _, ancillary, _, _ = sock.recvmsg(1, 512, _MSG_ERRQUEUE | socket.MSG_DONTWAIT)
+        except OSError:  # BlockingIOError: the queue is empty
+            return newest
+        for level, kind, payload in ancillary:
+            if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPING and len(payload) >= 16:
+                sec, nsec = _TIMESPEC.unpack_from(payload)  # the first timespec: software
+                newest = sec * 1_000_000_000 + nsec
 
 
 def recv_stamped(

@@ -11,7 +11,15 @@ from collections.abc import Iterator
 import pytest
 
 from spec import udp
-from spec.udp import MAX_STAMP_AGE_S, arrival_time, bind_udp, enable_kernel_timestamps, recv_stamped
+from spec.udp import (
+    MAX_STAMP_AGE_S,
+    arrival_time,
+    bind_udp,
+    enable_kernel_timestamps,
+    enable_send_timestamps,
+    recv_stamped,
+    sent_stamp,
+)
 
 
 @pytest.fixture
@@ -71,3 +79,33 @@ def test_arrival_time_on_any_clock_and_untrusted_stamps() -> None:
     # a wall clock stepped between stamp and read: the stamp is not used
     assert arrival_time(lambda: 100.0, now_ns + 60 * 10**9) == 100.0
     assert arrival_time(lambda: 100.0, now_ns - int((MAX_STAMP_AGE_S + 1) * 1e9)) == 100.0
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="SO_TIMESTAMPING is Linux's")
+def test_the_kernel_stamps_what_we_send(pair: tuple[socket.socket, socket.socket]) -> None:
+    rx, _ = pair
+    tx = bind_udp("127.0.0.1", 0)
+    try:
+        assert enable_send_timestamps(tx)
+        assert enable_kernel_timestamps(rx)
+        assert sent_stamp(tx) is None  # nothing sent yet: never blocks
+        before = time.time_ns()
+        tx.sendto(b"trigger", rx.getsockname())
+        after = time.time_ns()
+        sent = sent_stamp(tx)
+        assert sent is not None and before <= sent <= after
+        assert sent_stamp(tx) is None  # each stamp is read once
+        _wait_readable(rx)
+        _, _, received = recv_stamped(rx, 2048)
+        assert received is not None and 0 <= received - sent < 1_000_000  # loopback: < 1 ms
+        with pytest.raises(BlockingIOError):
+            tx.recvfrom(2048)  # the stamps never show up as received data
+    finally:
+        tx.close()
+
+
+def test_no_send_stamps_without_the_option(
+    pair: tuple[socket.socket, socket.socket], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(udp, "_SO_TIMESTAMPING", None)
+    assert not enable_send_timestamps(pair[0])
