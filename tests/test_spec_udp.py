@@ -50,8 +50,9 @@ def test_a_datagram_read_late_keeps_its_arrival_time(
     assert data == b"trigger" and source[1] == tx.getsockname()[1]
     assert stamp is not None
     t = arrival_time(time.monotonic, stamp)
-    # the kernel's time, carried onto the monotonic clock: before the late read
-    assert before - 1e-3 <= t <= read_at - 0.045
+    # the kernel's time, carried onto the monotonic clock: before the late read (the lower
+    # bound allows for a preempted conversion on a busy machine)
+    assert before - 5e-3 <= t <= read_at - 0.045
 
 
 def test_without_kernel_stamps_the_arrival_is_the_read(
