@@ -67,7 +67,11 @@ def bind_udp(host: str, port: int) -> socket.socket:
 
 
 def enable_kernel_timestamps(sock: socket.socket) -> bool:
-    """Ask the kernel to stamp every datagram ``sock`` receives; False where it cannot."""
+    """Ask the kernel to stamp every datagram ``sock`` receives; False where it cannot.
+
+    Linux switches receive stamping on for the whole system a moment after the first socket
+    asks (a deferred static key): a datagram received in that moment is stamped when it is
+    read. Our endpoints ask when they are built, long before the first trigger."""
     if _SO_TIMESTAMPNS is None or not _ANCILLARY:
         return False
     try:
