@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -67,6 +68,9 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 FloatArray = NDArray[np.float64]
+
+#: Longest wait of the real-time camera for the robot's setpoints to cover an exposure (s).
+TRUTH_WAIT_S = 0.5
 Loc = tuple[float, float, float, float, float, float]
 
 #: ^N_S T: the sensor's measuring point 200 mm out along the flange axis, 40 mm ahead of the
@@ -130,6 +134,8 @@ class EmulatedCell:
             self.robot.period,
             self.ready_joints,
         )
+        if self.clock != "sim":
+            self.motion.before_read = self.wait_for_truth
         self.scene = self._make_scene()
         self.camera_timing = TimingModel(
             rng=rng_timing,
@@ -217,6 +223,21 @@ class EmulatedCell:
         self.motion.append(t, q_sp)
         if self.link is not None:
             self.link.cycle(t, q_m)
+
+    def wait_for_truth(self, times: FloatArray) -> None:
+        """Real clock: make the robot's setpoints reach the latest of ``times`` (s) so the
+        camera renders the arm's motion, not a guess of it. An exposure that ends in the
+        future is waited for (at most ``TRUTH_WAIT_S``); the setpoints up to now are then
+        computed in this thread (:meth:`RobotEmulator.catch_up`), so a robot tick thread
+        that runs late (a busy machine) delays nothing and falsifies nothing."""
+        if not len(times):
+            return
+        period = self.robot.period
+        t_cover = math.ceil(float(np.max(times)) / period - 1e-9) * period
+        wait = t_cover - self.robot.time()
+        if wait > 0:
+            time.sleep(min(wait, TRUTH_WAIT_S))
+        self.robot.catch_up()
 
     def advance(self, seconds: float) -> None:
         """Simulated clock: run the cell for ``seconds``."""

@@ -47,6 +47,9 @@ class TrueMotion:
     ) -> None:
         self._flange2base = flange2base
         self.sensor2flange = sensor2flange
+        #: Called with the query times before a read: the real-time cell waits there for
+        #: the setpoints that cover an exposure (:meth:`cell.cell.EmulatedCell.wait_for_truth`).
+        self.before_read: Callable[[FloatArray], None] | None = None
         self._period = period_s
         self._lock = threading.Lock()
         self.truth = JointBuffer(capacity=2000)
@@ -77,6 +80,8 @@ class TrueMotion:
         t = np.asarray(times, dtype=np.float64)
         if not len(t):
             return np.empty((0, 4, 4))
+        if self.before_read is not None:
+            self.before_read(t)
         t_min, t_max = float(t.min()), float(t.max())
         with self._lock:
             # Only the samples around the query: the interval of the earliest query time and
@@ -107,6 +112,8 @@ class TrueMotion:
         t = np.asarray(times, dtype=np.float64)
         if not len(t):
             return None
+        if self.before_read is not None:
+            self.before_read(t)
         t_min, t_max = float(np.minimum.reduce(t)), float(np.maximum.reduce(t))
         with self._lock:
             buf_t, buf_q = self.truth.covering(t_min - 2.0 * self._period)

@@ -9,7 +9,9 @@ optional Gaussian noise, and are what Herej, Here and the joint log report.
 Clocks: ``clock="sim"`` (default) never advances by itself: call :meth:`RobotEmulator.step`
 or :meth:`RobotEmulator.advance_to`; :meth:`wait_end_move` *advances the simulated clock*
 until the motion is done or the timeout (simulated seconds) expires. ``clock="real"`` runs a
-:class:`~robotsocket.clock.RealTimeLoop` thread (call :meth:`start` and :meth:`close`).
+:class:`~robotsocket.clock.RealTimeLoop` thread (call :meth:`start` and :meth:`close`); every
+reader first runs the cycles that are due but not yet ticked (:meth:`RobotEmulator.catch_up`),
+so a late clock thread never makes a sample stale or wrong.
 
 Observers: callables in :attr:`RobotEmulator.cycle_hooks` are called every cycle with
 (t_k, q_setpoint (6,), q_measured (6,)) while the emulator's lock is held; keep them short.
@@ -34,7 +36,7 @@ from kinematics.transforms import (
     locations_to_transforms,
     transform_to_location,
 )
-from robotsocket.clock import RealTimeLoop, SimLoop
+from robotsocket.clock import RealTimeLoop, SimLoop, lateness_summary
 from robotsocket.interface import (
     IDENTITY_LOC,
     Array,
@@ -132,6 +134,7 @@ class RobotEmulator(RobotInterface):
         self._buffer = JointBuffer(capacity=max(2, round(buffer_seconds / period)))
         self._buffer.append(0.0, q0)
         self._idle_since = 0.0
+        self._sample_lateness: deque[float] = deque(maxlen=10000)
         self.cycle_hooks: list[CycleHook] = []
         #: (robot time s, output, value) of every SetOutput and every safety switch-off.
         self.io_log: deque[tuple[float, str, bool]] = deque(maxlen=IO_LOG_LENGTH)
@@ -140,7 +143,7 @@ class RobotEmulator(RobotInterface):
         if clock == "sim":
             self._simclock = SimLoop(period, self._tick)
         else:
-            self._loop = RealTimeLoop(period, self._tick)
+            self._loop = RealTimeLoop(period, self._tick, idle=self._at_rest)
 
     # --- clock -------------------------------------------------------------------------------
 
@@ -164,6 +167,13 @@ class RobotEmulator(RobotInterface):
             return {"count": 0, "p50": 0.0, "p99": 0.0, "max": 0.0, "mean": 0.0}
         return self._loop.jitter()
 
+    def sample_lateness(self) -> dict[str, float]:
+        """Real clock, while the arm moves: how late each sample was computed after its grid
+        time, by whichever thread ran it first (the clock thread, or a reader's
+        :meth:`catch_up`); the same summary as :meth:`jitter`. This is when a sample became
+        visible to clients; :meth:`jitter` is the clock thread's own lateness."""
+        return lateness_summary(self._sample_lateness)
+
     def step(self, n_cycles: int = 1) -> None:
         """Simulated mode: run ``n_cycles`` controller cycles."""
         if self._simclock is None:
@@ -184,8 +194,30 @@ class RobotEmulator(RobotInterface):
     def cycle(self) -> int:
         return self._simclock.cycle if self._simclock is not None else self._gen.k
 
+    def catch_up(self) -> None:
+        """Real clock: run every cycle due by now in the calling thread, if the clock
+        thread has not yet (a busy machine may not give it the CPU or the GIL in time).
+
+        The sample of cycle k is a function of the motion and t_k = k * T_r, so it is the
+        same whichever thread computes it and however late; readers (Herej, Here, status,
+        the joint log, a new move, the cell's camera) call this first and never see a
+        stale sample because the tick thread ran late (docs/REALTIME.md)."""
+        loop = self._loop
+        if loop is None:
+            return
+        # cycle k is due at start + k * T_r (RealTimeLoop's deadline); unlocked first look:
+        # the usual case, nothing due, costs no lock
+        k_now = math.floor(loop.now() / self.period + 1e-9)
+        if k_now <= self._gen.k:
+            return
+        with self._lock:
+            for k in range(self._gen.k + 1, k_now + 1):
+                self._tick(k)
+
     def _tick(self, k: int) -> None:
         with self._lock:
+            if k <= self._gen.k:
+                return  # already run by a reader's catch_up
             t = k * self.period
             q_sp = self._gen.step(k)
             self._setpoint = q_sp
@@ -195,6 +227,8 @@ class RobotEmulator(RobotInterface):
                 q_m = q_m + self._rng.normal(0.0, self.noise_deg, q_m.shape)
             self._measured = q_m
             self._buffer.append(t, q_m)
+            if self._loop is not None and self._gen.in_motion:
+                self._sample_lateness.append(max(self._loop.now() - t, 0.0))
             if self._gen.in_motion:
                 self._idle_since = math.inf
             elif self._idle_since == math.inf:
@@ -203,6 +237,11 @@ class RobotEmulator(RobotInterface):
                 hook(t, q_sp, q_m)
             if self._waiters:
                 self._cond.notify_all()
+
+    def _at_rest(self) -> bool:
+        """Nothing moves and nobody waits for a cycle: the clock thread may sleep (readers
+        compute the due cycles, :meth:`catch_up`); a new move or waiter wakes it."""
+        return self._waiters == 0 and not self._gen.in_motion and self._settled()
 
     def _delayed(self, t: float) -> Array:
         hist = self._setpoints
@@ -232,6 +271,7 @@ class RobotEmulator(RobotInterface):
         return self._gen.idle and t >= self._idle_since + self.encoder_latency - 1e-12
 
     def status(self) -> RobotStatus:
+        self.catch_up()
         with self._lock:
             return RobotStatus(
                 powered=self._powered,
@@ -243,18 +283,22 @@ class RobotEmulator(RobotInterface):
             )
 
     def herej(self) -> Array:
-        with self._lock:
-            return np.array(self._measured)
+        self.catch_up()
+        # No lock: the tick replaces _measured with a new array (never writes into it), so
+        # one reference read is a consistent sample; a reader holding the lock while it
+        # waits for the GIL would stall the 4 ms tick (priority inversion).
+        return np.array(self._measured)
 
     def setpoint(self) -> Array:
         """Latest commanded joints (6,) degrees."""
+        self.catch_up()
         with self._lock:
             return np.array(self._setpoint)
 
     def here(self, tool: Loc = IDENTITY_LOC, frame: Loc = IDENTITY_LOC) -> Loc:
         tool_T, frame_T = _loc(tool, "tool"), _loc(frame, "frame")
-        with self._lock:
-            q = np.array(self._measured)
+        self.catch_up()
+        q = np.array(self._measured)  # no lock, as in herej
         T = invert(frame_T) @ self.model.flange2base(q) @ tool_T
         x, y, z, rx, ry, rz = (float(v) for v in transform_to_location(T))
         return (x, y, z, rx, ry, rz)
@@ -286,6 +330,7 @@ class RobotEmulator(RobotInterface):
             raise BusyError(f"motion queue full ({MAX_QUEUE} moves)")
 
     def _queue(self, plan: Callable[[int, Array], object]) -> int:
+        self.catch_up()  # the move starts after now, not after a late tick's cycle
         with self._lock:
             try:
                 self._check_can_move()
@@ -301,6 +346,8 @@ class RobotEmulator(RobotInterface):
             assert isinstance(move, Move)
             self._next_move_id += 1
             self._gen.enqueue(move)
+            if self._loop is not None:
+                self._loop.wake()
             self._idle_since = math.inf
             log.debug("queued %s move %d", move.kind, move_id)
             return move_id
@@ -361,6 +408,8 @@ class RobotEmulator(RobotInterface):
             return self._advance_until_settled(timeout)
         with self._lock:
             self._waiters += 1
+            if self._loop is not None:
+                self._loop.wake()  # an idle clock thread: tick for the waiter
             try:
                 return self._cond.wait_for(self._settled, timeout)
             finally:
@@ -476,6 +525,7 @@ class RobotEmulator(RobotInterface):
         return list(self._outputs), list(self._inputs)
 
     def joint_log(self, since: float) -> tuple[Array, Array]:
+        self.catch_up()
         with self._lock:
             times, joints = self._buffer.since(since)
         keep = times > since

@@ -219,8 +219,9 @@ def attach_udp_sync(
         first_index=secrets.randbelow(1 << 30),
     )
     endpoint = UdpSyncEndpoint(
-        core, clock=robot.time, joints_since=robot.joint_log, host=host, port=port
-    )
+        core, clock=robot.time, joints_since=robot.joint_log, host=host, port=port,
+        simulated=bool(getattr(robot, "simulated", False)),  # [SY-5.7] stamps on its clock
+    )  # fmt: skip
     sync = SyncService(robot, core, endpoint)
     sync.install(service)
     return sync, endpoint

@@ -154,7 +154,13 @@ def cmd_serve(args: argparse.Namespace) -> int:
             what = f"UDP {args.host}:{udp_port} (--udp-port)"
             handler = TriggerHandler(sensor, network_delay_s=args.network_delay)
             listener = TriggerListener(
-                handler, args.host, udp_port, clock=clock, hold=not sim, allow=allow
+                handler,
+                args.host,
+                udp_port,
+                clock=clock,
+                hold=not sim,
+                allow=allow,
+                kernel_timestamps=not sim,
             )
     except OSError as exc:
         print(f"{PROG} serve: cannot bind {what}: {exc.strerror or exc}", file=sys.stderr)

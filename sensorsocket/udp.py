@@ -23,8 +23,9 @@ from sensorsocket.sensor import NAN_LOCATION, Clock, Reading
 from spec.auth import Network, address_allowed
 from spec.datagrams import decode_datagram, encode_data_fields, serial_newer, trigger_fields
 from spec.errors import DatagramError
+from spec.realtime import DEFAULT_RT_PRIORITY, promote_current_thread
 from spec.sockopt import set_kernel_timeouts
-from spec.udp import bind_udp
+from spec.udp import arrival_time, bind_udp, enable_kernel_timestamps, recv_stamped
 from spec.wire import SensorStatus
 
 log = logging.getLogger(__name__)
@@ -147,9 +148,11 @@ class TriggerHandler:
         return None if reply is None else reply.data
 
     def process(
-        self, datagram: bytes, t_arrival: float, source: Hashable = None
+        self, datagram: bytes, t_arrival: float, source: Hashable = None, *, stale: bool = False
     ) -> TriggerReply | None:
-        """Like :meth:`handle`, with the modelled send time of the reply."""
+        """Like :meth:`handle`, with the modelled send time of the reply. ``stale``: the
+        trigger waited too long before it could be handled (a backlog): answered OVERRUN
+        [SY-2.8] without an acquisition, so the ones after it are answered in time."""
         # Runs once per trigger behind the listener: no Trigger/SensorData objects, one unpack
         # of the trigger, one pack of the reply.
         with self._lock:
@@ -174,7 +177,7 @@ class TriggerHandler:
                 self._reordered += 1
                 return self._overrun(index, t_trigger, t_arrival)
             history.newest = index
-            if self.sensor.busy(t_arrival):
+            if stale or self.sensor.busy(t_arrival):
                 # [SY-2.8] the chip is still busy with earlier triggers: OVERRUN.
                 return self._overrun(index, t_trigger, t_arrival)
         # Acquire outside the handler lock; the sensor serialises acquisitions itself.
@@ -229,6 +232,8 @@ class TriggerHandler:
 
 
 _TICK_S = 0.2  # longest wait for a datagram before stop() is seen (s)
+MAX_BACKLOG_S = 0.02
+"""A trigger read later than this after its arrival is answered OVERRUN (SY-2.5's 20 ms)."""
 # Reads after select and all sends must not block; the socket itself blocks (see _run).
 _DONTWAIT: int = getattr(socket, "MSG_DONTWAIT", 0)
 
@@ -247,6 +252,18 @@ class TriggerListener:
     ``hold=True`` (real time) sends a reply no earlier than its modelled time ``t_send`` on
     ``clock``; while holding, the thread keeps reading triggers, so arrival stamps stay
     accurate. ``hold=False`` sends as soon as the frame is processed.
+
+    A trigger read more than ``max_backlog_s`` after it arrived (the thread fell behind:
+    a busy machine, or acquisitions slower than the trigger rate) is answered OVERRUN at once
+    instead of acquired [SY-2.8] (counted in ``stale``), so the queue drains and the readings
+    that are taken reach the robot in time [SY-2.5]; ``None`` acquires every trigger.
+
+    A trigger's arrival time is the kernel's receive timestamp (``SO_TIMESTAMPNS``) carried
+    onto ``clock`` (:func:`spec.udp.arrival_time`) when ``kernel_timestamps`` is True and
+    the platform has it (:attr:`kernel_timestamps` says whether it is in use), so a thread
+    that reads the trigger late still stamps when it arrived; otherwise the clock is read
+    just after the receive. A simulated clock must pass ``kernel_timestamps=False``. The
+    thread asks for real-time scheduling at ``rt_priority`` (0: normal; :mod:`spec.realtime`).
     """
 
     def __init__(
@@ -258,14 +275,22 @@ class TriggerListener:
         clock: Clock,
         hold: bool = True,
         allow: Iterable[Network] = (),
+        kernel_timestamps: bool = True,
+        rt_priority: int = DEFAULT_RT_PRIORITY,
+        max_backlog_s: float | None = MAX_BACKLOG_S,
     ) -> None:
         self.handler = handler
         #: Networks triggers may come from; empty: any [SY-1.5].
         self.allow: tuple[Network, ...] = tuple(allow)
         self._refused = 0
+        self.max_backlog_s = max_backlog_s
+        self._stale = 0
         self.clock = clock
         self.hold = hold
+        self.rt_priority = rt_priority
+        self.scheduling = "not started"
         self._sock = bind_udp(host, port)
+        self.kernel_timestamps = kernel_timestamps and enable_kernel_timestamps(self._sock)
         self.address: tuple[str, int] = self._sock.getsockname()[:2]
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -298,10 +323,16 @@ class TriggerListener:
         stats["sent"] = self._sent
         stats["send_errors"] = self._send_errors
         stats["refused_address"] = self._refused
+        stats["stale"] = self._stale
         return stats
 
     def _run(self) -> None:
+        self.scheduling = promote_current_thread(self.rt_priority)
+        log.debug("trigger listener: scheduling %s", self.scheduling)
         sock = self._sock
+        stamped = self.kernel_timestamps
+        # without kernel stamps the arrival is the read: a backlog cannot be seen
+        backlog = self.max_backlog_s if stamped else None
         process = self.handler.process
         clock = self.clock
         pending = self._pending
@@ -325,7 +356,10 @@ class TriggerListener:
                         continue
                     flags = _DONTWAIT
             try:
-                datagram, source = sock.recvfrom(2048, flags)
+                if stamped:
+                    datagram, source, stamp = recv_stamped(sock, 2048, flags)
+                else:
+                    datagram, source = sock.recvfrom(2048, flags)
             except (BlockingIOError, InterruptedError, TimeoutError):
                 continue  # a tick without a datagram: check stop and held replies
             except OSError as exc:
@@ -334,12 +368,14 @@ class TriggerListener:
                 # e.g. ICMP port unreachable of an earlier reply on some systems
                 log.debug("recvfrom: %s", exc)
                 continue
-            t_arrival = clock()
+            t_arrival = arrival_time(clock, stamp) if stamped else clock()
             if allow and not address_allowed(allow, source[0]):
                 self._refused += 1  # [SY-1.5] dropped unread and unanswered
                 continue
+            stale = backlog is not None and clock() - t_arrival > backlog
+            self._stale += stale
             try:
-                reply = process(datagram, t_arrival, source)
+                reply = process(datagram, t_arrival, source, stale=stale)
             except Exception:  # the listener must survive any sensor failure
                 log.exception("trigger handling failed")
                 continue

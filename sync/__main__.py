@@ -6,20 +6,29 @@
     python -m sync sweep ...                                (same as delay --sweep)
     python -m sync curvature --amplitude 2 --frequency 5 --speed 250
 
-Errors: one line on stderr, exit code 2.
+Exit codes: 0 a trusted result; 2 an error (one line on stderr); 3 a result that cannot be
+trusted (the quality gates of :func:`sync.delay.assess_run`: data lost or late, MSE minimum at
+the edge of the range, residual not better with synchronisation than without, ΔT drifting
+across the run; one line on stderr saying why, the same verdict in the JSON); 130 interrupted
+(Ctrl-C or SIGTERM: triggers and motion stopped, control released; one line on stderr).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
+import signal
 import sys
-from collections.abc import Sequence
+import time
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from types import FrameType
 from typing import Any
 
 from spec import cliargs
 from spec.errors import ProtocolError
 from sync.curvature import sine_min_radius, sine_min_radius_numeric
-from sync.delay import DelayEstimateError
+from sync.delay import DelayEstimateError, QualityLimits, Verdict, assess_run, window_delays
 from sync.experiment import (
     DEFAULT_SWEEP_HZ,
     DelayResult,
@@ -32,6 +41,16 @@ from sync.experiment import (
 )
 
 PROG = "python -m sync"
+EXIT_ERROR = 2
+EXIT_UNTRUSTED = 3
+EXIT_INTERRUPTED = 130
+
+
+_FORCE_AFTER_S = 5.0
+
+
+class Interrupted(Exception):
+    """Ctrl-C or SIGTERM arrived: the experiment stops at its next safe point."""
 
 
 #: Bounds of the experiment's options: beyond them the sine or the sample arrays stop making
@@ -79,6 +98,18 @@ def _parser() -> cliargs.Parser:
         d.add_argument(
             "--search-max-ms", type=_SEARCH_MS, default=20.0, help="largest ΔT searched (ms)"
         )
+        d.add_argument(
+            "--max-lost-pct",
+            type=cliargs.number_in(0.0, 100.0),
+            default=QualityLimits.max_lost_fraction * 100,
+            help="gate: triggers without data in time, at most this %% (default 2)",
+        )
+        d.add_argument(
+            "--max-spread-ms",
+            type=cliargs.number_in(0.0, 1000.0, low_open=True),
+            default=QualityLimits.max_spread_s * 1e3,
+            help="gate: spread of the per-window ΔT, at most (ms, default 0.5)",
+        )
         d.add_argument("--model", help="robot model for the DGM (default: from Hello)")
         token = d.add_mutually_exclusive_group()
         token.add_argument("--token", default="", help="control token of the robot")
@@ -121,16 +152,72 @@ def _parser() -> cliargs.Parser:
     return p
 
 
-def _progress(quiet: bool) -> Any:
-    def show(frac: float, msg: str) -> None:
-        print(f"\r  [{frac * 100:5.1f} %] {msg:50}", end="", file=sys.stderr, flush=True)
+class _Progress:
+    """The progress line on stderr (none with ``quiet``) and the interrupt check: a signal
+    only sets a flag; the experiment stops at its next progress report, between two calls,
+    so the connection stays in step and the clean-up commands get their own replies."""
 
-    return None if quiet else show
+    def __init__(self, quiet: bool) -> None:
+        self.quiet = quiet
+        self.open = False
+        self.interrupted = False
+        self._first_signal = 0.0
+
+    def __call__(self, frac: float, msg: str) -> None:
+        if self.interrupted:
+            raise Interrupted
+        if not self.quiet:
+            print(f"\r  [{frac * 100:5.1f} %] {msg:50}", end="", file=sys.stderr, flush=True)
+            self.open = True
+
+    def end(self) -> None:
+        """End the progress line, so what follows starts on a line of its own."""
+        if self.open:
+            print(file=sys.stderr, flush=True)
+            self.open = False
+
+    @contextmanager
+    def catching_signals(self) -> Iterator[None]:
+        """SIGINT and SIGTERM set the flag. Another signal within ``_FORCE_AFTER_S`` is
+        ignored (an interrupt inside a call would leave the connection out of step and the
+        clean-up would read the wrong replies); a later one interrupts at once (a hung
+        server)."""
+
+        def handler(signum: int, frame: FrameType | None) -> None:
+            now = time.monotonic()
+            if self.interrupted and now - self._first_signal > _FORCE_AFTER_S:
+                raise KeyboardInterrupt
+            if not self.interrupted:
+                self.interrupted, self._first_signal = True, now
+
+        try:
+            old = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+        except ValueError:  # not the main thread (embedded): no handlers
+            yield
+            return
+        try:
+            yield
+        finally:
+            for sig, h in old.items():
+                signal.signal(sig, h)
 
 
-def _print_result(r: DelayResult) -> None:
+def _print_result(r: DelayResult, verdict: Verdict) -> None:
     s = r.summary()
-    print(f"ΔT = {r.delta_t_ms:.3f} ms  ({s['frequency_hz']:g} Hz, {s['amplitude_mm']:g} mm)")
+    mark = "" if verdict.ok else "  UNTRUSTED (reason below)"
+    print(f"ΔT = {r.delta_t_ms:.3f} ms  ({s['frequency_hz']:g} Hz, {s['amplitude_mm']:g} mm){mark}")
+    st = r.data.statistics
+    print(
+        f"  this run: {st.get('sent', 0)} triggers, {verdict.lost_fraction:.1%} without data "
+        f"in time ({verdict.lost_on_wire} lost on the wire, {verdict.dropped_late} late)"
+    )
+    if math.isfinite(verdict.spread_s):
+        print(
+            f"  ΔT per window: spread {verdict.spread_s * 1e3:.3f} ms over "
+            f"{len(verdict.window_delta_t_s)} windows"
+        )
+    else:
+        print("  ΔT per window: not judged (fewer than two windows of full amplitude)")
     if "true_delta_t_ms" in s:
         print(f"  true ΔT (cell) = {s['true_delta_t_ms']:.3f} ms")
     print(
@@ -145,7 +232,33 @@ def _print_result(r: DelayResult) -> None:
     )
 
 
-def cmd_delay(args: argparse.Namespace) -> int:
+def _verdict(r: DelayResult, limits: QualityLimits) -> Verdict:
+    """The quality verdict of one run (:func:`sync.delay.assess_run`)."""
+    st = r.settings
+    # the full-amplitude part of the sine, with a cycle's margin for the start of the move
+    t0 = r.data.t_start + st.rest_s + st.ramp + 0.05
+    t1 = r.data.t_start + st.rest_s + st.duration_s - st.ramp
+    windows = window_delays(
+        r.data.t_robot,
+        r.data.y_robot,
+        r.data.t_trigger,
+        r.data.y_sensor,
+        (t0, t1),
+        period_s=1.0 / st.frequency_hz,
+        limits=limits,
+        search_min_s=st.search_min_s,
+        search_max_s=st.search_max_s,
+    )
+    return assess_run(r.estimate, r.residual, r.data.statistics, windows, limits)
+
+
+def _print_untrusted(verdicts: Sequence[tuple[str, Verdict]]) -> None:
+    for what, v in verdicts:
+        if not v.ok:
+            print(f"{PROG}: untrusted result{what}: {v.reason}", file=sys.stderr)
+
+
+def cmd_delay(args: argparse.Namespace, progress: _Progress) -> int:
     settings = ExperimentSettings(
         frequency_hz=args.frequency,
         amplitude_mm=args.amplitude,
@@ -156,7 +269,9 @@ def cmd_delay(args: argparse.Namespace) -> int:
         apply=args.apply,
         token=args.token,
     )
-    progress = _progress(args.quiet)
+    limits = QualityLimits(
+        max_lost_fraction=args.max_lost_pct / 100.0, max_spread_s=args.max_spread_ms * 1e-3
+    )
     cell: Any = None
     if args.emulate:
         from cell.cell import CellTiming, EmulatedCell
@@ -174,32 +289,41 @@ def cmd_delay(args: argparse.Namespace) -> int:
         if cell is not None:
             extra["true_delta_t_ms"] = cell.true_delta_t_s() * 1e3
         out: dict[str, Any]
+        verdicts: list[tuple[str, Verdict]] = []
         if args.sweep:
             results = run_sweep(robot, sensor, settings, args.frequencies, progress=progress)
-            if progress is not None:
-                print(file=sys.stderr)
+            progress.end()
             print(f"{'f (Hz)':>7} {'ΔT (ms)':>9} {'max (µm)':>9} {'rms (µm)':>9} {'at f (µm)':>9}")
+            sweep = []
             for r in results:
                 r.extra.update(extra)
                 s = r.summary()
-                edge = " (edge)" if s["at_edge"] else ""
+                v = _verdict(r, limits)
+                verdicts.append((f" at {s['frequency_hz']:g} Hz", v))
+                s["verdict"] = v.to_json()
+                sweep.append(s)
+                mark = "" if v.ok else "  UNTRUSTED"
                 print(
                     f"{s['frequency_hz']:7g} {s['delta_t_ms']:9.3f} {s['residual_max_um']:9.1f} "
-                    f"{s['residual_rms_um']:9.1f} {s['residual_sine_amplitude_um']:9.2f}{edge}"
+                    f"{s['residual_rms_um']:9.1f} {s['residual_sine_amplitude_um']:9.2f}{mark}"
                 )
             if extra:
                 print(f"true ΔT (cell) = {extra['true_delta_t_ms']:.3f} ms")
-            out = {"sweep": [r.summary() for r in results], **extra}
+            out = {"sweep": sweep, **extra}
             main_result = next(
                 (r for r in results if r.settings.frequency_hz == args.frequency), None
             )
         else:
-            main_result = run_delay_experiment(robot, sensor, settings, progress=progress)
-            if progress is not None:
-                print(file=sys.stderr)
+            main_result = run_delay_experiment(
+                robot, sensor, settings, progress=progress, require_interior=False
+            )
+            progress.end()
             main_result.extra.update(extra)
-            _print_result(main_result)
+            v = _verdict(main_result, limits)
+            verdicts.append(("", v))
+            _print_result(main_result, v)
             out = main_result.to_json()
+            out["verdict"] = v.to_json()
             results = []
         if args.json:
             write_json(args.json, out)
@@ -210,7 +334,8 @@ def cmd_delay(args: argparse.Namespace) -> int:
     finally:
         if cell is not None:
             cell.close()
-    return 0
+    _print_untrusted(verdicts)
+    return EXIT_UNTRUSTED if any(not v.ok for _, v in verdicts) else 0
 
 
 def cmd_curvature(args: argparse.Namespace) -> int:
@@ -225,15 +350,25 @@ def cmd_curvature(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    progress = _Progress(getattr(args, "quiet", True))
     try:
         if args.command == "curvature":
             return cmd_curvature(args)
-        return cmd_delay(args)
+        with progress.catching_signals():
+            return cmd_delay(args, progress)
     except BrokenPipeError:
         raise  # our stdout was closed (`| head`): cliargs.run_cli ends quietly
+    except (Interrupted, KeyboardInterrupt):
+        progress.end()
+        print(
+            f"{PROG}: interrupted: triggers and motion stopped, control released",
+            file=sys.stderr,
+        )
+        return EXIT_INTERRUPTED
     except (ExperimentError, DelayEstimateError, ProtocolError, OSError, ValueError) as exc:
+        progress.end()
         print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_ERROR
 
 
 def console() -> int:

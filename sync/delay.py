@@ -24,7 +24,9 @@ is the delay the synchronisation should apply.
 
 from __future__ import annotations
 
+import itertools
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,17 +37,25 @@ __all__ = [
     "DelayEstimate",
     "DelayEstimateError",
     "NoInteriorMinimumError",
+    "QualityLimits",
     "ResidualReport",
     "ResidualStats",
     "SineExperiment",
+    "Verdict",
+    "assess_run",
     "estimate_delay",
     "residual_after_sync",
     "simulate_sine_experiment",
     "upsample",
+    "window_delays",
 ]
 
 DEFAULT_GRID_STEP_S = 0.2e-3
 """Common time grid of section VI: 5 kHz."""
+
+GAP_FACTOR = 2.5
+"""Sensor samples further apart than this many median intervals bound a gap (lost data):
+the grid points inside it are left out of the MSE instead of interpolated across."""
 
 
 class DelayEstimateError(ValueError):
@@ -119,14 +129,32 @@ def upsample(
     return j0, np.interp(grid, t, y)
 
 
+def _gap_mask(
+    times: NDArray[np.float64], j0: int, n: int, grid_step_s: float
+) -> NDArray[np.float64] | None:
+    """1.0 on the grid points t_{j0} .. t_{j0+n-1} that lie between two samples at most
+    ``GAP_FACTOR`` median intervals apart, 0.0 inside longer gaps (lost data: a straight line
+    across a missing stretch of the sine is not a measurement); None when there is no gap."""
+    dt = np.diff(times)
+    gap = dt > GAP_FACTOR * float(np.median(dt))
+    if not np.any(gap):
+        return None
+    grid = np.arange(j0, j0 + n, dtype=np.float64) * grid_step_s
+    k = np.clip(np.searchsorted(times, grid, side="right") - 1, 0, dt.size - 1)
+    out: NDArray[np.float64] = np.where(gap[k], 0.0, 1.0)
+    return out
+
+
 def _mse_curve(
     jr: int,
     yr: NDArray[np.float64],
     js: int,
     ys: NDArray[np.float64],
     shifts: NDArray[np.int64],
+    mask: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-    """mean_j (ys[j] - yr[j + m])^2 over the overlap, per shift m (grid steps)."""
+    """mean_j (ys[j] - yr[j + m])^2 over the overlap, per shift m (grid steps); with a
+    ``mask`` (1.0 / 0.0 per sensor grid point) only over the points it keeps."""
     mse = np.full(shifts.shape[0], np.inf)
     overlap = np.zeros(shifts.shape[0], dtype=np.int64)
     r_end = jr + yr.shape[0]
@@ -139,10 +167,16 @@ def _mse_curve(
             continue
         # One preallocated buffer: a fresh 400 kB array per shift costs more than the maths.
         e = np.subtract(ys[lo - js : hi - js], yr[lo + m - jr : hi + m - jr], out=work[: hi - lo])
+        count = hi - lo
+        if mask is not None:
+            e *= mask[lo - js : hi - js]
+            count = int(np.add.reduce(mask[lo - js : hi - js]))
+            if count < 2:
+                continue
         # Square and sum in numpy, not np.dot: OpenBLAS splits a long dot product over its
         # threads, and on a busy machine one call could wait 50-400 ms for a core.
-        mse[n] = float(np.add.reduce(np.multiply(e, e, out=e))) / (hi - lo)
-        overlap[n] = hi - lo
+        mse[n] = float(np.add.reduce(np.multiply(e, e, out=e))) / count
+        overlap[n] = count
     return mse, overlap
 
 
@@ -193,7 +227,7 @@ def estimate_delay(
     js, ys = upsample(ts, ys_in, grid_step_s)
     shifts = np.arange(m_lo, m_hi + 1, dtype=np.int64)
     shifts_s = shifts.astype(np.float64) * grid_step_s
-    mse, overlap = _mse_curve(jr, yr, js, ys, shifts)
+    mse, overlap = _mse_curve(jr, yr, js, ys, shifts, _gap_mask(ts, js, ys.size, grid_step_s))
     if not np.all(np.isfinite(mse)):
         raise DelayEstimateError("robot and sensor signals do not overlap for every searched delay")
     i = int(np.argmin(mse))
@@ -401,4 +435,161 @@ def simulate_sine_experiment(
         mean_jitter_s=jitter_uniform_s / 2.0,
         amplitude_mm=amplitude_mm,
         frequency_hz=frequency_hz,
+    )
+
+
+@dataclass(frozen=True)
+class QualityLimits:
+    """When a ΔT run cannot be trusted (the gates of :func:`assess_run`).
+
+    max_lost_fraction: triggers without data in time (lost on the wire or dropped as late
+        by the loss rule [SY-3.3]) per trigger sent, at most.
+    max_spread_s: spread (max - min) of ΔT estimated per window, at most. With the
+        paper's timing a 1.33 s window's estimate scatters by σ ≈ 0.07 ms (six windows of
+        a 10 s run spread 0.10-0.18 ms on the emulated cell): 0.5 ms is about 7σ.
+    window_s: shortest window for the per-window ΔT (it also spans >= 2 sine periods).
+    max_windows: at most this many windows.
+    """
+
+    max_lost_fraction: float = 0.02
+    max_spread_s: float = 0.5e-3
+    window_s: float = 1.0
+    max_windows: int = 8
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The quality verdict of one ΔT run: ``ok`` or the ``reasons`` it cannot be trusted
+    (one line each, most important first), with the figures they were judged on."""
+
+    ok: bool
+    reasons: tuple[str, ...]
+    lost_fraction: float
+    lost_on_wire: int
+    dropped_late: int
+    window_delta_t_s: tuple[float, ...]
+    spread_s: float
+
+    @property
+    def reason(self) -> str:
+        """One line: every reason, ``; ``-separated ("" when ok)."""
+        return "; ".join(self.reasons)
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "ok": self.ok,
+            "reasons": list(self.reasons),
+            "lost_fraction": self.lost_fraction,
+            "lost_on_wire": self.lost_on_wire,
+            "dropped_late": self.dropped_late,
+            "window_delta_t_ms": [d * 1e3 for d in self.window_delta_t_s],
+            "spread_ms": self.spread_s * 1e3 if math.isfinite(self.spread_s) else None,
+        }
+
+
+def window_delays(
+    t_robot: ArrayLike,
+    y_robot: ArrayLike,
+    t_trigger: ArrayLike,
+    y_sensor: ArrayLike,
+    span: tuple[float, float],
+    *,
+    period_s: float,
+    limits: QualityLimits = QualityLimits(),
+    search_min_s: float = 0.0,
+    search_max_s: float = 20e-3,
+) -> list[DelayEstimate]:
+    """ΔT estimated on consecutive windows of ``span`` (t0, t1) s, the part of the run where
+    the sine moves at full amplitude; each window at least ``limits.window_s`` and two sine
+    periods (``period_s``) long. Fewer than two windows fit: an empty list (not judged)."""
+    t0, t1 = span
+    length = max(limits.window_s, 2.0 * period_s)
+    n = min(int((t1 - t0) / length), limits.max_windows) if t1 > t0 else 0
+    if n < 2:
+        return []
+    ts = np.asarray(t_trigger, dtype=np.float64)
+    ys = np.asarray(y_sensor, dtype=np.float64)
+    edges = np.linspace(t0, t1, n + 1)
+    out = []
+    for a, b in itertools.pairwise(edges.tolist()):
+        sel = (ts >= a) & (ts < b)
+        if np.count_nonzero(sel) < 10:
+            raise DelayEstimateError(
+                f"only {np.count_nonzero(sel)} sensor readings in the window {a:.2f}-{b:.2f} s"
+            )
+        out.append(
+            estimate_delay(
+                t_robot,
+                y_robot,
+                ts[sel],
+                ys[sel],
+                search_min_s=search_min_s,
+                search_max_s=search_max_s,
+                require_interior=False,
+            )
+        )
+    return out
+
+
+def assess_run(
+    estimate: DelayEstimate,
+    residual: ResidualReport,
+    statistics: Mapping[str, int],
+    windows: Sequence[DelayEstimate],
+    limits: QualityLimits = QualityLimits(),
+) -> Verdict:
+    """Judge one ΔT run: the gates of issue 12, each a one-line reason when it fails.
+
+    - the MSE minimum lies at the edge of the search range (no interior minimum);
+    - more than ``max_lost_fraction`` of the triggers got no data in time (``statistics``
+      are the run's own counters: ``sent``, ``lost`` (no data within the loss timeout) and
+      ``late`` (data that came after it: dropped by policy, not lost on the wire));
+    - the residual after synchronisation is not smaller (rms) than without it;
+    - ΔT estimated per window (``windows``, :func:`window_delays`) spreads by more than
+      ``max_spread_s`` or has a window minimum at the edge: ΔT drifted during the run.
+    """
+    reasons: list[str] = []
+    lo, hi = estimate.shifts_s[0] * 1e3, estimate.shifts_s[-1] * 1e3
+    if estimate.at_edge:
+        reasons.append(
+            f"MSE minimum at the edge of the search range [{lo:.2f}, {hi:.2f}] ms "
+            f"(at {estimate.delta_t_s * 1e3:.2f} ms): widen the range or check the data"
+        )
+    sent = int(statistics.get("sent", 0))
+    lost = int(statistics.get("lost", 0))
+    late = int(statistics.get("late", 0))
+    lost_fraction = lost / sent if sent else 0.0
+    if lost_fraction > limits.max_lost_fraction:
+        reasons.append(
+            f"{lost} of {sent} triggers ({lost_fraction:.1%}) got no data in time "
+            f"({lost - late} lost on the wire, {late} arrived after the loss timeout); "
+            f"limit {limits.max_lost_fraction:.1%}"
+        )
+    syn, uns = residual.synced, residual.unsynced
+    if not syn.rms_um < uns.rms_um:
+        reasons.append(
+            f"residual after synchronisation (rms {syn.rms_um:.1f} µm) is not smaller than "
+            f"without it (rms {uns.rms_um:.1f} µm)"
+        )
+    deltas = tuple(w.delta_t_s for w in windows)
+    spread = max(deltas) - min(deltas) if deltas else math.nan
+    if any(w.at_edge for w in windows):
+        reasons.append(
+            "ΔT drifted: a window's MSE minimum is at the edge of the search range "
+            f"(per-window ΔT {', '.join(f'{d * 1e3:.2f}' for d in deltas)} ms)"
+        )
+    elif deltas and spread > limits.max_spread_s:
+        reasons.append(
+            f"ΔT drifted by {spread * 1e3:.3f} ms across the run (per-window ΔT "
+            f"{', '.join(f'{d * 1e3:.2f}' for d in deltas)} ms); limit "
+            f"{limits.max_spread_s * 1e3:.2f} ms"
+        )
+    return Verdict(
+        ok=not reasons,
+        reasons=tuple(reasons),
+        lost_fraction=lost_fraction,
+        lost_on_wire=max(lost - late, 0),
+        dropped_late=late,
+        window_delta_t_s=deltas,
+        spread_s=spread,
     )

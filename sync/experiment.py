@@ -20,6 +20,7 @@ in S), stamped with t_i^T. :func:`sync.delay.estimate_delay` gives ΔT (eq. 6-7 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 from collections.abc import Callable, Sequence
@@ -217,6 +218,12 @@ def _endpoint(sensor: FramedClient) -> tuple[str, int]:
     return host, port
 
 
+def _sync_statistics(robot: FramedClient) -> dict[str, int]:
+    """GetSyncStatistics by field name (the counters since the robot's server started)."""
+    reply = _reply(robot, CommandId.GET_SYNC_STATISTICS)
+    return {k: v for k, v in reply.items() if isinstance(v, int) and not isinstance(v, bool)}
+
+
 def record_sine(
     robot: FramedClient,
     sensor: FramedClient | None,
@@ -264,6 +271,7 @@ def record_sine(
     t_start = _f(robot.get_time())
     log_since = t_start - 0.1
     count = math.ceil((s.total_s + 0.1) * s.trigger_rate_hz)
+    stats_before = _sync_statistics(robot)  # the counters run since the server started
     first = _reply(robot, CommandId.START_TRIGGERS, float(s.trigger_rate_hz), count)["first_index"]
     assert isinstance(first, int)
     try:
@@ -299,8 +307,11 @@ def record_sine(
                 break
     finally:
         robot.call(CommandId.STOP_TRIGGERS)
-    stats_reply = _reply(robot, CommandId.GET_SYNC_STATISTICS)
-    stats = {k: v for k, v in stats_reply.items() if isinstance(v, int)}
+    # This run's own counts; "pending" is a level, not a count.
+    stats = {
+        k: v - (stats_before.get(k, 0) if k != "pending" else 0)
+        for k, v in _sync_statistics(robot).items()
+    }
     if not logs or not points:
         raise ExperimentError(
             f"no data: {sum(len(x) for x in logs)} joint samples, "
@@ -365,11 +376,20 @@ def run_delay_experiment(
 ) -> DelayResult:
     """Connect, record the sine, analyse; optionally apply the estimate (SetSyncDelay)."""
     with FramedClient(*robot, timeout=timeout, client_name="sync-delay") as rc:
-        if sensor is not None:
-            with FramedClient(*sensor, timeout=timeout, client_name="sync-delay") as sc:
-                data = record_sine(rc, sc, settings, progress)
-        else:
-            data = record_sine(rc, None, settings, progress)
+        try:
+            if sensor is not None:
+                with FramedClient(*sensor, timeout=timeout, client_name="sync-delay") as sc:
+                    data = record_sine(rc, sc, settings, progress)
+            else:
+                data = record_sine(rc, None, settings, progress)
+        except BaseException:
+            # Interrupted (a progress callback raised, Ctrl-C) or failed: stop the motion this
+            # run started and give control back before the connection closes; best effort,
+            # the connection may be what failed.
+            with contextlib.suppress(Exception):
+                rc.call(CommandId.RESET_MOTION)
+                rc.release_control()
+            raise
         result = analyse(data, settings, require_interior=require_interior)
         if settings.apply:
             rc.call(CommandId.SET_SYNC_DELAY, float(result.estimate.delta_t_s))

@@ -3,6 +3,7 @@ renders and detects -> UDP data; everything through RobotSocket/SensorSocket."""
 
 from __future__ import annotations
 
+import sys
 from dataclasses import replace
 
 import numpy as np
@@ -71,6 +72,11 @@ def test_injected_faults_do_not_corrupt_the_seam_trajectory() -> None:
 @pytest.mark.slow
 @pytest.mark.realtime
 def test_real_time_over_sockets() -> None:
+    """Live, on the wall clock. What made this fail on a busy machine (a trigger's arrival
+    stamped when the listener got the CPU, frames rendered from poses extrapolated past a
+    late robot tick) is gone: arrivals are kernel stamps, the camera renders setpoints the
+    robot computed for the exposure's own times. The truth is the sensor's own records, so
+    load that delays a trigger shifts the truth with the estimate."""
     with EmulatedCell(clock="real", seed=2, timing=PAPER) as cell:
         first = cell.core.next_index
         r = run_delay_experiment(
@@ -79,6 +85,11 @@ def test_real_time_over_sockets() -> None:
             ExperimentSettings(duration_s=3.0, trigger_rate_hz=100.0),
         )
         truth = cell.measured_delta_t(first)
+        assert cell.listener is not None
+        stamped = cell.listener.kernel_timestamps
+    st = r.data.statistics
+    assert st["sent"] >= 300 and st["matched"] >= 0.9 * st["sent"]  # this run's own counts
+    assert stamped or not sys.platform.startswith("linux")
     assert abs(r.estimate.delta_t_s - truth) <= 0.2e-3
 
 

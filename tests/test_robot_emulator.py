@@ -183,15 +183,18 @@ def test_real_time_clock_ticks_and_reports_jitter() -> None:
         deadline = time.monotonic() + 5.0
         while robot.cycle < 25 and time.monotonic() < deadline:
             time.sleep(0.01)
+        # at rest the clock thread sleeps: cycles are run by readers and by the thread's
+        # wake-ups, none timed
+        assert robot.jitter()["count"] == 0
         robot.enable_power()
-        robot.joint_move(np.array([1.0, 0.0, 90.0, 0.0, 90.0, 0.0]))
+        robot.joint_move(np.array([20.0, 0.0, 90.0, 0.0, 90.0, 0.0]))
         assert robot.wait_end_move(10.0)
-        assert np.array_equal(robot.herej(), [1.0, 0.0, 90.0, 0.0, 90.0, 0.0])
+        assert np.array_equal(robot.herej(), [20.0, 0.0, 90.0, 0.0, 90.0, 0.0])
         with pytest.raises(Exception, match="simulated"):
             robot.step(1)
     finally:
         robot.close()
-    j = robot.jitter()
+    j = robot.jitter()  # the ticks of the move, each on its deadline
     assert j["count"] >= 25 and 0.0 <= j["p50"] <= j["p99"] <= j["max"]
     t, _ = robot.joint_log(-1.0)
     np.testing.assert_allclose(np.diff(t), 0.004, rtol=1e-9)
@@ -212,3 +215,39 @@ def test_io_log_records_every_output_change_on_the_robot_clock() -> None:
         (t2, "laser", False), (t2, "gas", False),  # control lost: laser first
         (t2, "crossjet", True), (t2, "crossjet", False),  # emergency stop
     ]  # fmt: skip
+
+
+def test_readers_run_due_cycles_when_the_clock_thread_does_not() -> None:
+    """A starved clock thread (here: never started) makes no sample stale or different: a
+    reader computes the due cycles itself, with the values the simulated clock gives."""
+    real = RobotEmulator(clock="real")  # the loop's thread is not started
+    time.sleep(0.05)  # the reader comes 12 cycles after the start
+    real.herej()
+    c0 = real.cycle
+    assert c0 >= 12
+    real.enable_power()
+    real.joint_move(TARGET)
+    moved_at = real.cycle  # the move was queued after the due cycles ran
+    time.sleep(0.1)
+    t, q = real.joint_log(-1.0)
+    assert t.size == real.cycle + 1 and np.array_equal(t, np.arange(t.size) * 0.004)
+    sim = RobotEmulator()
+    sim.step(moved_at)
+    sim.enable_power()
+    sim.joint_move(TARGET)
+    sim.step(real.cycle - moved_at)
+    t_sim, q_sim = sim.joint_log(-1.0)
+    assert np.array_equal(t_sim, t) and np.array_equal(q_sim, q)
+    assert not np.array_equal(q[-1], q[0])  # the arm moved: the comparison means something
+
+
+def test_sample_lateness_says_when_a_reader_computed_the_samples() -> None:
+    real = RobotEmulator(clock="real")  # no clock thread: readers compute every sample
+    real.enable_power()
+    real.joint_move(TARGET)
+    time.sleep(0.05)
+    real.herej()  # computes the ~12 cycles due, each late by up to 50 ms
+    s = real.sample_lateness()
+    assert s["count"] >= 10 and 0.0 <= s["p50"] <= s["max"] and s["max"] >= 0.04
+    assert real.jitter()["count"] == 0  # the clock thread's own record: it never ran
+    assert RobotEmulator().sample_lateness()["count"] == 0  # simulated: not recorded

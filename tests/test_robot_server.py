@@ -323,3 +323,39 @@ def test_controller_keeps_its_lease_while_a_slow_simulated_wait_runs(
     assert client.wait_end_move(30.0)
     assert client.status().in_control
     assert server.statistics()["watchdog_expired"] == 0
+
+
+def test_client_storm_sees_only_grid_samples() -> None:
+    """Herej under a storm of clients: the joint log stays on the 4 ms grid with every cycle
+    once, and every Herej reply is one of the logged samples (never a value of the moment
+    a thread happened to run)."""
+    import threading
+
+    robot = RobotEmulator(clock="real").start()
+    seen: set[tuple[float, ...]] = set()
+    stop = threading.Event()
+    try:
+        with FramedServer(RobotService(robot), "127.0.0.1", 0) as srv:
+            robot.enable_power()
+            robot.joint_move(np.array([20.0, -10.0, 100.0, 5.0, 60.0, 10.0]))
+
+            def storm() -> None:
+                with RobotClient(*srv.address, timeout=10.0) as c:
+                    while not stop.is_set():
+                        seen.add(tuple(c.herej().tolist()))
+
+            threads = [threading.Thread(target=storm) for _ in range(16)]
+            for th in threads:
+                th.start()
+            assert robot.wait_end_move(20.0)
+            stop.set()
+            for th in threads:
+                th.join(10.0)
+    finally:
+        robot.close()
+    t, q = robot.joint_log(-1.0)
+    k = np.rint(t / 0.004)
+    assert np.array_equal(k, np.arange(k[0], k[0] + k.size))  # every cycle, once, in order
+    assert np.array_equal(t, k * 0.004)
+    logged = {tuple(row) for row in q.tolist()} | {tuple(float(v) for v in HOME)}
+    assert len(seen) > 10 and seen <= logged

@@ -398,3 +398,92 @@ def test_listener_honours_the_allow_list(network: str, answered: bool) -> None:
     assert len(replies) == int(answered)
     assert stats["refused_address"] == int(not answered)
     assert stats["triggers"] == int(answered)  # a refused trigger never reaches the sensor
+
+
+def _warm_up(robot: socket.socket, lst: TriggerListener) -> None:
+    """One exchange first: Linux switches receive stamping on a moment after the listener's
+    socket asks (a deferred static key); a datagram received in that moment is stamped when
+    read, which is what these tests must tell apart from an arrival stamp."""
+    robot.sendto(trig(0), lst.address)
+    assert len(receive(robot, 1)) == 1
+
+
+class SlowSensor(StubSensor):
+    """The stub sensor whose acquisition of trigger 1 keeps the listener busy for 50 ms."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.arrivals: list[float] = []
+
+    def acquire(
+        self, t_arrival: float | None = None, *, index: int | None = None, t_trigger: float = 0.0
+    ) -> Reading:
+        assert t_arrival is not None
+        if index == 0:  # the warm-up trigger: not recorded
+            return super().acquire(t_arrival, index=index, t_trigger=t_trigger)
+        self.arrivals.append(t_arrival)
+        if index == 1:
+            time.sleep(0.05)  # the listener is busy (or starved) while trigger 2 arrives
+        return super().acquire(t_arrival, index=index, t_trigger=t_trigger)
+
+
+@pytest.mark.parametrize("kernel", [True, False])
+def test_arrival_is_the_kernel_stamp_not_the_read(kernel: bool) -> None:
+    sensor = SlowSensor()
+    lst = TriggerListener(
+        TriggerHandler(sensor), "127.0.0.1", 0, clock=time.monotonic, hold=False,
+        kernel_timestamps=kernel, rt_priority=0, max_backlog_s=None,
+    )  # fmt: skip
+    robot = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    robot.bind(("127.0.0.1", 0))
+    try:
+        with lst:
+            _warm_up(robot, lst)
+            robot.sendto(trig(1), lst.address)
+            before = time.monotonic()
+            robot.sendto(trig(2), lst.address)
+            after = time.monotonic()
+            assert len(receive(robot, 2)) == 2
+    finally:
+        robot.close()
+    if kernel and not lst.kernel_timestamps:
+        pytest.skip("no kernel receive timestamps on this platform")
+    if kernel:
+        # stamped when it came (loopback: inside the sendto), not 50 ms later when read
+        assert before - 1e-4 <= sensor.arrivals[1] <= after + 1e-4
+    else:
+        # the fallback stamps the read: after the busy acquisition
+        assert sensor.arrivals[1] >= sensor.arrivals[0] + 0.05
+
+
+def test_a_backlog_is_answered_overrun_at_once() -> None:
+    """Triggers that waited more than max_backlog_s behind a slow acquisition are answered
+    OVERRUN [SY-2.8] without acquiring, so the queue drains; none stays unanswered."""
+    sensor = SlowSensor()
+    lst = TriggerListener(
+        TriggerHandler(sensor), "127.0.0.1", 0, clock=time.monotonic, hold=False,
+        rt_priority=0, max_backlog_s=0.02,
+    )  # fmt: skip
+    robot = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    robot.bind(("127.0.0.1", 0))
+    try:
+        with lst:
+            _warm_up(robot, lst)
+            for i in (1, 2, 3):
+                robot.sendto(trig(i), lst.address)
+            replies = {d.index: d.status for d in receive(robot, 3)}
+            time.sleep(0.03)  # the backlog is gone: the next trigger is acquired again
+            robot.sendto(trig(4), lst.address)
+            replies.update({d.index: d.status for d in receive(robot, 1)})
+    finally:
+        robot.close()
+    if not lst.kernel_timestamps:
+        pytest.skip("no kernel receive timestamps: a backlog cannot be seen")
+    assert replies == {
+        1: SensorStatus.FOUND,
+        2: SensorStatus.OVERRUN,
+        3: SensorStatus.OVERRUN,
+        4: SensorStatus.FOUND,
+    }
+    stats = lst.statistics()
+    assert stats["stale"] == 2 and stats["overruns"] == 2 and len(sensor.arrivals) == 2

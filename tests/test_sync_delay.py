@@ -17,11 +17,15 @@ from sync.delay import (
     DelayEstimate,
     DelayEstimateError,
     NoInteriorMinimumError,
+    ResidualReport,
     SineExperiment,
+    Verdict,
+    assess_run,
     estimate_delay,
     residual_after_sync,
     simulate_sine_experiment,
     upsample,
+    window_delays,
 )
 
 TOL_S = 0.06e-3
@@ -173,3 +177,101 @@ def test_cramer_rao_sanity() -> None:
     std = float(np.std(errors, ddof=1))
     assert 0.5 * bound < std < 2.0 * bound
     assert abs(float(np.mean(errors))) < 3 * bound
+
+
+# --- quality gates of a run (issue 12) -------------------------------------------------------
+
+
+def _sine_run(
+    delay_of_t: Any, *, duration_s: float = 8.0, freq: float = 1.5, noise_mm: float = 0.01
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A recorded run whose sensor sees the sine ``delay_of_t(t)`` s after the trigger."""
+    rng = np.random.default_rng(4)
+    w = 2 * math.pi * freq
+    t_r = np.arange(0, int(duration_s / 4e-3) + 1) * 4e-3
+    y_r = 2.0 * np.sin(w * t_r)
+    t_t = np.arange(0.0013, duration_s - 0.05, 4e-3)
+    y_s = 2.0 * np.sin(w * (t_t + delay_of_t(t_t))) + rng.normal(0, noise_mm, t_t.shape)
+    return t_r, y_r, t_t, y_s
+
+
+def _assess(
+    run: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    stats: dict[str, int] | None = None,
+    search_max_s: float = 20e-3,
+) -> Verdict:
+    t_r, y_r, t_t, y_s = run
+    est = estimate_delay(t_r, y_r, t_t, y_s, search_max_s=search_max_s, require_interior=False)
+    res = residual_after_sync(t_r, y_r, t_t, y_s, est.delta_t_s, frequency_hz=1.5)
+    windows = window_delays(
+        t_r, y_r, t_t, y_s, (0.5, 7.5), period_s=1 / 1.5, search_max_s=search_max_s
+    )
+    return assess_run(est, res, stats or {"sent": t_t.size, "lost": 0, "late": 0}, windows)
+
+
+def test_a_clean_run_is_trusted() -> None:
+    v = _assess(_sine_run(lambda t: 4.9e-3))
+    assert v.ok and v.reasons == () and v.reason == ""
+    assert len(v.window_delta_t_s) == 5 and v.spread_s < 0.2e-3
+    assert v.to_json()["ok"] is True
+
+
+def test_drifting_delay_fails_with_the_spread() -> None:
+    # ΔT creeps from 4 to 8 ms over the run: the mean looks plausible, the windows do not
+    v = _assess(_sine_run(lambda t: 4e-3 + 0.5e-3 * t))
+    assert not v.ok
+    assert len(v.reasons) == 1 and v.reasons[0].startswith("ΔT drifted by ")
+    assert v.spread_s > 2e-3
+    assert v.to_json()["spread_ms"] == pytest.approx(v.spread_s * 1e3)
+
+
+def test_minimum_at_the_edge_fails() -> None:
+    v = _assess(_sine_run(lambda t: 4.9e-3), search_max_s=3e-3)
+    assert not v.ok
+    assert v.reasons[0].startswith("MSE minimum at the edge of the search range [0.00, 3.00]")
+    # every window hits the edge too: the drift gate says so instead of a spread
+    assert any("window's MSE minimum is at the edge" in r for r in v.reasons)
+
+
+def test_lost_and_late_data_fail_and_are_told_apart() -> None:
+    run = _sine_run(lambda t: 4.9e-3)
+    v = _assess(run, {"sent": 2000, "lost": 300, "late": 260})
+    assert not v.ok and v.lost_on_wire == 40 and v.dropped_late == 260
+    assert v.reason == (
+        "300 of 2000 triggers (15.0%) got no data in time (40 lost on the wire, 260 arrived "
+        "after the loss timeout); limit 2.0%"
+    )
+    assert _assess(run, {"sent": 2000, "lost": 40, "late": 0}).ok  # 2.0 %: at the limit
+
+
+def test_residual_not_better_than_without_fails() -> None:
+    t_r, y_r, t_t, y_s = _sine_run(lambda t: 4.9e-3)
+    est = estimate_delay(t_r, y_r, t_t, y_s)
+    good = residual_after_sync(t_r, y_r, t_t, y_s, est.delta_t_s, frequency_hz=1.5)
+    swapped = ResidualReport(synced=good.unsynced, unsynced=good.synced)
+    v = assess_run(est, swapped, {"sent": 10, "lost": 0}, [])
+    assert not v.ok and len(v.reasons) == 1
+    assert v.reasons[0].startswith("residual after synchronisation (rms ")
+    assert math.isnan(v.spread_s) and v.to_json()["spread_ms"] is None  # drift not judged
+
+
+def test_short_run_has_no_windows() -> None:
+    t_r, y_r, t_t, y_s = _sine_run(lambda t: 4.9e-3)
+    assert window_delays(t_r, y_r, t_t, y_s, (0.5, 1.5), period_s=1 / 1.5) == []
+    assert window_delays(t_r, y_r, t_t, y_s, (2.0, 1.0), period_s=1 / 1.5) == []
+
+
+def test_bursts_of_lost_data_leave_the_estimate_right() -> None:
+    """Half the readings lost in 100 ms bursts (a starved sensor): the readings that came
+    are still right, and the grid points inside the gaps are left out rather than
+    interpolated across, so the estimate stays on the delay."""
+    ex = simulate_sine_experiment(np.random.default_rng(8), duration_s=10.0)
+    burst = (np.floor(ex.t_trigger / 0.1).astype(int) % 2) == 1
+    keep = ~burst
+    est = estimate_delay(ex.t_robot, ex.y_robot, ex.t_trigger[keep], ex.y_sensor[keep])
+    assert np.count_nonzero(keep) < 0.55 * keep.size
+    # interpolated across the gaps it was 0.14 ms off
+    assert abs(est.delta_t_s - ex.expected_delta_t_s) < 2 * TOL_S
+    # the MSE averaged only the grid points inside the data, about half of the span
+    span = (ex.t_trigger[keep][-1] - ex.t_trigger[keep][0]) / est.grid_step_s
+    assert est.overlap.max() < 0.6 * span

@@ -67,3 +67,107 @@ def test_cli_emulate_writes_json_with_the_truth(tmp_path: Path) -> None:
     j = json.loads(out.read_text())
     assert j["true_delta_t_ms"] == pytest.approx(5.9)
     assert abs(j["delta_t_ms"] - 5.9) < 0.15
+
+
+def test_cli_untrusted_run_exits_3_with_its_reason_on_a_line_of_its_own(tmp_path: Path) -> None:
+    out = tmp_path / "d.json"
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "sync",
+            "delay",
+            "--emulate",
+            "--duration",
+            "2",
+            "--search-max-ms",
+            "3",
+            "--json",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 3, done.stderr
+    last = done.stderr.splitlines()[-1]
+    # the progress line ended before the reason: the reason is a line of its own
+    assert last.startswith("python -m sync: untrusted result: MSE minimum at the edge")
+    assert "Traceback" not in done.stderr
+    assert "UNTRUSTED" in done.stdout.splitlines()[0]
+    verdict = json.loads(out.read_text())["verdict"]
+    assert verdict["ok"] is False and verdict["reasons"][0] in last
+
+
+def test_statistics_are_the_runs_own() -> None:
+    from cell.cell import EmulatedCell
+    from sync.experiment import run_delay_experiment
+
+    s = ExperimentSettings(duration_s=1.0)
+    with EmulatedCell(clock="sim", seed=0) as cell:
+        first = run_delay_experiment(cell.robot_address, cell.sensor_address, s)
+        second = run_delay_experiment(cell.robot_address, cell.sensor_address, s)
+        total = cell.core.statistics()["sent"]
+    a, b = first.data.statistics, second.data.statistics
+    assert a["sent"] > 300 and b["sent"] > 300
+    assert a["sent"] + b["sent"] == total  # not counted since the server started
+    assert b["matched"] <= b["sent"]
+
+
+def test_interrupt_stops_triggers_and_releases_control() -> None:
+    from cell.cell import EmulatedCell
+    from spec.client import FramedClient
+    from sync.__main__ import Interrupted, _Progress
+    from sync.experiment import run_delay_experiment
+
+    progress = _Progress(quiet=True)
+    calls = []
+
+    def report(frac: float, msg: str) -> None:
+        calls.append(frac)
+        progress.interrupted = True  # as the SIGINT/SIGTERM handler does
+        progress(frac, msg)
+
+    with EmulatedCell(clock="sim", seed=0) as cell:
+        with pytest.raises(Interrupted):
+            run_delay_experiment(
+                cell.robot_address,
+                cell.sensor_address,
+                ExperimentSettings(duration_s=20.0),
+                progress=report,
+            )
+        assert len(calls) == 1  # stopped at the first safe point, not at the end
+        assert not cell.core.scheduler.active  # StopTriggers went through
+        with FramedClient(*cell.robot_address) as rc:
+            rc.hello()
+            rc.take_control("")  # control was released (the connection closed)
+            rc.release_control()
+
+
+def test_cli_sigterm_exits_130_with_one_line() -> None:
+    import signal
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sync", "delay", "--emulate", "--duration", "60"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stderr is not None
+        # wait for the first progress report: the motion and the triggers are running
+        buf = ""
+        while "%]" not in buf:
+            ch = proc.stderr.read(1)
+            assert ch, "no progress before exit"
+            buf += ch
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130
+    lines = (buf + err).split("\n")
+    assert lines[-1] == ""
+    assert lines[-2] == "python -m sync: interrupted: triggers and motion stopped, control released"
+    assert "Traceback" not in err and "error" not in err
+    assert out == ""
