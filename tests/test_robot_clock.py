@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from robotsocket.clock import RealTimeLoop, SimClock
+from robotsocket.clock import RealTimeLoop, SimLoop
 
 PERIOD_NS = 4_000_000
 
@@ -85,7 +85,7 @@ def test_a_failing_tick_does_not_stop_the_clock() -> None:
 
 def test_sim_clock_never_advances_by_itself() -> None:
     ticks: list[int] = []
-    clock = SimClock(0.004, ticks.append)
+    clock = SimLoop(0.004, ticks.append)
     assert clock.now() == 0.0 and ticks == []
     clock.advance(3)
     assert ticks == [1, 2, 3] and clock.now() == pytest.approx(0.012)
