@@ -16,12 +16,19 @@ from kinematics.transforms import invert, location_to_transform, transform_to_lo
 from welding.calibrate_cli import NoisySeams
 from welding.calibration import (
     CalibrationError,
+    EmulatedSpotDetector,
+    GaussianBeam,
+    LaserObservation,
+    LaserToolCalibration,
     Limits,
     SensorObservation,
     SensorToolCalibration,
+    SpotMeasurement,
     error_vs_true,
     sensor_plan,
+    solve_laser_tool,
     solve_sensor_tool,
+    spot_on_plate,
 )
 from welding.cli import main
 from welding.emulate import EmulatedSession
@@ -175,3 +182,48 @@ def test_cli_refuses_more_than_30_poses(tmp_path: Path, capsys: pytest.CaptureFi
     argv = ["calibrate", "sensor-tool", "--emulate", "--tools", str(tmp_path / "t.json")]
     assert main([*argv, "--poses", "31"]) == 1
     assert "at most 30" in capsys.readouterr().err
+
+
+@settings(
+    max_examples=3, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(error=errors, seed=st.integers(0, 2**32 - 1))
+def test_emulated_cell_recovers_random_laser_tool_errors(error: Loc, seed: int) -> None:
+    with EmulatedSession(laser_tool_error=error, seed=seed % 1000) as session:
+        detector = EmulatedSpotDetector(session.cell, np.random.default_rng(seed))
+        est = LaserToolCalibration(session.robot, detector, session.cell.laser_tool).run()
+        e = error_vs_true(est.tool, session.cell.true_laser_tool, beam_only=True)
+    assert est.poses <= 30
+    assert e["position_mm"] < 0.05 and e["orientation_deg"] < 0.05
+    assert math.isnan(est.sigma[5])  # the roll about the beam is not found
+
+
+def test_laser_poses_at_one_orientation_and_height_are_refused() -> None:
+    class Plate:
+        plate2base = np.eye(4)
+        beam = GaussianBeam()
+        sigma_centre_mm = sigma_radius_mm = 0.005
+
+        def measure(self) -> SpotMeasurement:
+            raise AssertionError("not called")
+
+    laser = location_to_transform((0.0, 0.0, 200.0, 0.0, 0.0, 0.0))
+    down = location_to_transform((0.0, 0.0, 0.0, 180.0, 0.0, 0.0))
+    obs = []
+    # the flange straight down at one height, moved across only: a tilt of the beam and an
+    # offset of the focus move every spot alike
+    for k in range(10):
+        flange = location_to_transform((k % 3, k % 2, 210.0, 0.0, 0.0, 0.0)) @ down
+        xy, s = spot_on_plate(flange @ laser, Plate.plate2base)
+        spot = SpotMeasurement(float(xy[0]), float(xy[1]), float(GaussianBeam().radius(s)))
+        obs.append(LaserObservation(flange, spot))
+    with pytest.raises(CalibrationError, match="degenerate pose set"):
+        solve_laser_tool(obs, (0.0, 0.0, 200.0, 0.0, 0.0, 0.0), Plate())
+
+
+def test_cli_laser_tool_needs_the_emulated_detector(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = ["calibrate", "laser-tool", "--robot", "127.0.0.1:1", "--tools", str(tmp_path / "t")]
+    assert main(argv) == 1
+    assert "spot detector" in capsys.readouterr().err

@@ -40,6 +40,7 @@ the angle between the beam axes. Unknowns: the tool (5: position and the beam's 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -58,14 +59,22 @@ from welding.tools import Loc
 
 __all__ = [
     "CalibrationError",
+    "EmulatedSpotDetector",
+    "GaussianBeam",
+    "LaserObservation",
+    "LaserToolCalibration",
     "Limits",
     "SensorObservation",
     "SensorToolCalibration",
+    "SpotMeasurement",
     "ToolEstimate",
     "error_vs_true",
+    "laser_plan",
     "least_squares",
     "sensor_plan",
+    "solve_laser_tool",
     "solve_sensor_tool",
+    "spot_on_plate",
 ]
 
 Array = npt.NDArray[np.float64]
@@ -499,3 +508,242 @@ class SensorToolCalibration:
             est.kind, est.nominal, est.tool, est.sigma, est.residuals_mm, est.noise_mm,
             est.condition, len(obs) + self.skipped, len(obs) * self.repeats, details,
         )  # fmt: skip
+
+
+# --- laser tool ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class GaussianBeam:
+    """The focused beam (mm): waist radius ``w0`` (1/e²) at the focus, Rayleigh length
+    ``z_r``; ``radius(s)`` at the distance ``s`` from the focus along the beam."""
+
+    w0: float = 0.3
+    z_r: float = 2.0
+
+    def radius(self, s: Array | float) -> Array:
+        out: Array = self.w0 * np.sqrt(1.0 + (np.asarray(s, dtype=np.float64) / self.z_r) ** 2)
+        return out
+
+
+@dataclass(frozen=True)
+class SpotMeasurement:
+    """The spot detector's reading: the spot centre (x, y) on its plate, in the plate frame D
+    (mm), and the beam's 1/e² radius there (mm)."""
+
+    x: float
+    y: float
+    radius: float
+
+
+@dataclass(frozen=True)
+class LaserObservation:
+    flange2base: Array
+    spot: SpotMeasurement
+
+
+class SpotDetector(Protocol):
+    """A spot detector fixed in the cell: ``plate2base`` ^B_D T (4, 4) mm (the plate is
+    z_D = 0), its ``beam``, the 1σ of its readings, and a reading of the spot now."""
+
+    plate2base: Array
+    beam: GaussianBeam
+    sigma_centre_mm: float
+    sigma_radius_mm: float
+
+    def measure(self) -> SpotMeasurement: ...
+
+
+def spot_on_plate(laser2base: Array, plate2base: Array) -> tuple[Array, float]:
+    """Where the beam (z axis of ``laser2base``, from its origin, the focus) meets the plate
+    (z = 0 of ``plate2base``): (x, y) in the plate frame and the distance s from the focus."""
+    n, o = plate2base[:3, 2], plate2base[:3, 3]
+    f, b = laser2base[:3, 3], laser2base[:3, 2]
+    s = float(n @ (o - f) / (n @ b))
+    p = plate2base[:3, :3].T @ (f + s * b - o)
+    out: Array = p[:2]
+    return out, s
+
+
+def _laser_residuals(
+    obs: Sequence[LaserObservation], nominal: Array, det: SpotDetector
+) -> Callable[[Array], Array]:
+    F = np.stack([o.flange2base for o in obs])
+    meas = np.array([(o.spot.x, o.spot.y, o.spot.radius) for o in obs])
+    n, o = det.plate2base[:3, 2], det.plate2base[:3, 3]
+    scale = np.array([det.sigma_centre_mm, det.sigma_centre_mm, det.sigma_radius_mm])
+
+    def fun(x: Array) -> Array:
+        T = _tool(nominal, np.append(x, 0.0))  # the roll about the beam stays nominal
+        f = np.einsum("kij,j->ki", F[:, :3, :3], T[:3, 3]) + F[:, :3, 3]
+        b = F[:, :3, :3] @ T[:3, 2]
+        s = ((o - f) @ n) / (b @ n)
+        p = (f + s[:, None] * b - o) @ det.plate2base[:3, :3]
+        model = np.stack([p[:, 0], p[:, 1], det.beam.radius(s)], axis=1)
+        out: Array = ((model - meas) / scale).reshape(-1)
+        return out
+
+    return fun
+
+
+def solve_laser_tool(
+    obs: Sequence[LaserObservation],
+    nominal: Loc,
+    detector: SpotDetector,
+    *,
+    limits: Limits = Limits(),
+) -> ToolEstimate:
+    """^N_L T (focus and beam axis; the roll about the beam stays nominal) from the spot
+    detector's readings at several flange poses (see the module docstring)."""
+    if len(obs) < 4:
+        raise CalibrationError(f"{len(obs)} observations: at least 4 are needed")
+    T0 = location_to_transform(nominal)
+    sol = least_squares(_laser_residuals(obs, T0, detector), np.zeros(5))
+    sig = _check(sol, 5, COMPONENTS[:5], limits)
+    r = sol.residuals.reshape(-1, 3) * np.array(
+        [detector.sigma_centre_mm, detector.sigma_centre_mm, detector.sigma_radius_mm]
+    )
+    return ToolEstimate(
+        kind="laser",
+        nominal=nominal,
+        tool=_loc(_tool(T0, np.append(sol.x, 0.0))),
+        sigma=(*sig, math.nan),
+        residuals_mm=tuple(float(v) for v in np.linalg.norm(r, axis=1)),
+        noise_mm=sol.sigma * detector.sigma_centre_mm,
+        condition=sol.condition(),
+        poses=len(obs),
+        measurements=len(obs),
+        details={"roll_about_beam": "nominal (not a property of a round beam)"},
+    )
+
+
+def laser_plan(n: int = 30) -> list[PlanPose]:
+    """``n`` poses for the laser tool: (turn about the beam, tilt about y_L, tilt about x_L
+    (deg), the plate's distance from the nominal focus s (mm, always past the focus, so the
+    radius tells s without the sign's ambiguity), where the spot should land on the plate
+    x, y (mm)). Tilts about two axes make the focus's offset show in the spot centres;
+    distances from 3 to 12 mm (1.5 to 6 Rayleigh lengths) make the radius tell s."""
+    out: list[PlanPose] = []
+    places = ((3.0, 3.0), (-3.0, -3.0), (3.0, -3.0), (-3.0, 3.0), (0.0, 0.0))
+    for i in range(n):
+        signs = [1.0 if (i >> k) & 1 else -1.0 for k in range(3)]
+        yaw, pitch, roll = 45.0 * signs[0], 20.0 * signs[1], 20.0 * signs[2]
+        if i % 8 == 7:
+            yaw = pitch = roll = 0.0
+        x, y = places[i % len(places)]
+        out.append((yaw, pitch, roll, 3.0 + 3.0 * (i % 4), x, y))
+    return out
+
+
+@dataclass
+class LaserToolCalibration:
+    """The laser tool procedure: ``poses`` poses of :func:`laser_plan` over the spot
+    detector, commanded with the nominal tool, ``repeats`` readings averaged at each."""
+
+    robot: Robot
+    detector: SpotDetector
+    nominal: Loc
+    poses: int = 30
+    repeats: int = 4
+    limits: Limits = field(default_factory=Limits)
+    move_timeout_s: float = 60.0
+
+    def run(self) -> ToolEstimate:
+        start = self.robot.here(IDENTITY)
+        plate = self.detector.plate2base
+        r0 = plate[:3, :3] @ np.diag([1.0, -1.0, -1.0])  # beam into the plate
+        obs = []
+        try:
+            for yaw, pitch, roll, s, x, y in laser_plan(self.poses):
+                R = r0 @ _rot(2, yaw) @ _rot(1, pitch) @ _rot(0, roll)
+                spot = plate[:3, :3] @ np.array([x, y, 0.0]) + plate[:3, 3]
+                # the nominal focus s before the plate along the (tilted) beam
+                b = R[:, 2]
+                depth = s / abs(float(b @ plate[:3, 2]))
+                pose = np.eye(4)
+                pose[:3, :3] = R
+                pose[:3, 3] = spot - depth * b
+                self.robot.tool_move_j(_loc(pose), self.nominal, IDENTITY)
+                if not self.robot.wait_end_move(self.move_timeout_s):
+                    raise CalibrationError(f"a move did not end within {self.move_timeout_s:g} s")
+                m = [self.detector.measure() for _ in range(self.repeats)]
+                avg = SpotMeasurement(
+                    float(np.mean([v.x for v in m])),
+                    float(np.mean([v.y for v in m])),
+                    float(np.mean([v.radius for v in m])),
+                )
+                flange = location_to_transform(self.robot.here(IDENTITY))
+                obs.append(LaserObservation(flange, avg))
+        finally:
+            self.robot.tool_move_j(start, IDENTITY, IDENTITY)
+            self.robot.wait_end_move(self.move_timeout_s)
+        det = _Averaged(self.detector, self.repeats)
+        est = solve_laser_tool(obs, self.nominal, det, limits=self.limits)
+        details = {
+            **est.details,
+            "repeats": self.repeats,
+            "beam": {"w0_mm": det.beam.w0, "rayleigh_mm": det.beam.z_r},
+            "detector_sigma_mm": {
+                "centre": self.detector.sigma_centre_mm,
+                "radius": self.detector.sigma_radius_mm,
+            },
+        }
+        return dataclasses.replace(est, measurements=len(obs) * self.repeats, details=details)
+
+
+@dataclass
+class _Averaged:
+    """The detector as its ``repeats``-reading averages see it (1σ / √repeats)."""
+
+    inner: SpotDetector
+    repeats: int
+
+    def __post_init__(self) -> None:
+        self.plate2base = self.inner.plate2base
+        self.beam = self.inner.beam
+        k = math.sqrt(self.repeats)
+        self.sigma_centre_mm = self.inner.sigma_centre_mm / k
+        self.sigma_radius_mm = self.inner.sigma_radius_mm / k
+
+    def measure(self) -> SpotMeasurement:
+        return self.inner.measure()
+
+
+class EmulatedSpotDetector:
+    """The emulated cell's spot detector: a plate 100 mm beside the laser focus of the ready
+    pose, 8 mm past it along the beam, facing the laser; it sees the spot where the cell's
+    *true* laser tool puts it, with Gaussian noise (``sigma_centre_mm`` on each centre
+    coordinate, ``sigma_radius_mm`` on the radius: a camera behind a diffusing plate, spot
+    centroid and second moment of a ~1 mm spot over ~100 pixels)."""
+
+    def __init__(
+        self,
+        cell: Any,
+        rng: np.random.Generator,
+        *,
+        beam: GaussianBeam = GaussianBeam(),
+        sigma_centre_mm: float = 0.005,
+        sigma_radius_mm: float = 0.005,
+    ) -> None:
+        self.cell = cell
+        self.beam = beam
+        self.sigma_centre_mm = sigma_centre_mm
+        self.sigma_radius_mm = sigma_radius_mm
+        self._rng = rng
+        q = np.asarray(cell.ready_joints, dtype=np.float64)
+        laser = cell.robot.model.flange2base(q) @ location_to_transform(cell.laser_tool)
+        plate = np.eye(4)
+        plate[:3, :3] = laser[:3, :3] @ np.diag([1.0, -1.0, -1.0])  # z_D against the beam
+        plate[:3, 3] = laser[:3, 3] + 8.0 * laser[:3, 2] + np.array([0.0, -100.0, 0.0])
+        self.plate2base = plate
+
+    def measure(self) -> SpotMeasurement:
+        # the arm's true pose: its latest setpoint (the reading is taken at rest)
+        flange = self.cell.robot.model.flange2base(self.cell.robot.setpoint())
+        xy, s = spot_on_plate(flange @ self.cell.laser2flange, self.plate2base)
+        nx, ny, nr = self._rng.normal(0.0, 1.0, 3)
+        return SpotMeasurement(
+            float(xy[0] + self.sigma_centre_mm * nx),
+            float(xy[1] + self.sigma_centre_mm * ny),
+            float(self.beam.radius(s) + self.sigma_radius_mm * nr),
+        )
