@@ -212,10 +212,15 @@ def test_cli_writes_json_and_saves_the_tool(tmp_path: Path) -> None:
     assert not math.isclose(saved.location[0], 40.0, abs_tol=1.0)
 
 
-def test_cli_refuses_more_than_30_poses(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.parametrize(
+    ("extra", "message"), [(["--poses", "31"], "at most 30"), (["--seam", "sine"], "straight seam")]
+)
+def test_cli_refusals(
+    extra: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     argv = ["calibrate", "sensor-tool", "--emulate", "--tools", str(tmp_path / "t.json")]
-    assert main([*argv, "--poses", "31"]) == 1
-    assert "at most 30" in capsys.readouterr().err
+    assert main([*argv, *extra]) == 1
+    assert message in capsys.readouterr().err
 
 
 @settings(
