@@ -161,7 +161,7 @@ def least_squares(
             if c_new <= cost or damping > 1e6:
                 break
             damping *= 10.0
-        if c_new > cost:
+        if not c_new <= cost:  # no step helps (or NaN): x is the solution
             break
         x, r, done = x + step, r_new, cost - c_new <= tolerance * max(cost, 1e-30)
         cost = c_new
@@ -504,10 +504,12 @@ class SensorToolCalibration:
             self.robot.wait_end_move(self.move_timeout_s)
         est = solve_sensor_tool(obs, self.nominal, direction=d0, limits=self.limits)
         details = {**est.details, "repeats": self.repeats, "poses_without_seam": self.skipped}
-        return ToolEstimate(
-            est.kind, est.nominal, est.tool, est.sigma, est.residuals_mm, est.noise_mm,
-            est.condition, len(obs) + self.skipped, len(obs) * self.repeats, details,
-        )  # fmt: skip
+        return dataclasses.replace(
+            est,
+            poses=len(obs) + self.skipped,
+            measurements=len(obs) * self.repeats,
+            details=details,
+        )
 
 
 # --- laser tool ------------------------------------------------------------------------------
