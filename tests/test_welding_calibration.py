@@ -28,6 +28,7 @@ from welding.calibration import (
     SensorToolCalibration,
     SpotMeasurement,
     error_vs_true,
+    laser_plan,
     sensor_plan,
     solve_laser_tool,
     solve_sensor_tool,
@@ -238,14 +239,6 @@ def test_emulated_cell_recovers_random_laser_tool_errors(error: Loc, seed: int) 
 
 
 def test_laser_poses_at_one_orientation_and_height_are_refused() -> None:
-    class Plate:
-        plate2base = np.eye(4)
-        beam = GaussianBeam()
-        sigma_centre_mm = sigma_radius_mm = 0.005
-
-        def measure(self) -> SpotMeasurement:
-            raise AssertionError("not called")
-
     laser = location_to_transform((0.0, 0.0, 200.0, 0.0, 0.0, 0.0))
     down = location_to_transform((0.0, 0.0, 0.0, 180.0, 0.0, 0.0))
     obs = []
@@ -253,11 +246,11 @@ def test_laser_poses_at_one_orientation_and_height_are_refused() -> None:
     # offset of the focus move every spot alike
     for k in range(10):
         flange = location_to_transform((k % 3, k % 2, 210.0, 0.0, 0.0, 0.0)) @ down
-        xy, s = spot_on_plate(flange @ laser, Plate.plate2base)
+        xy, s = spot_on_plate(flange @ laser, _Plate.plate2base)
         spot = SpotMeasurement(float(xy[0]), float(xy[1]), float(GaussianBeam().radius(s)))
         obs.append(LaserObservation(flange, spot))
     with pytest.raises(CalibrationError, match="degenerate pose set"):
-        solve_laser_tool(obs, (0.0, 0.0, 200.0, 0.0, 0.0, 0.0), Plate())
+        solve_laser_tool(obs, (0.0, 0.0, 200.0, 0.0, 0.0, 0.0), _Plate())
 
 
 def test_cli_laser_tool_needs_the_emulated_detector(
@@ -266,3 +259,44 @@ def test_cli_laser_tool_needs_the_emulated_detector(
     argv = ["calibrate", "laser-tool", "--robot", "127.0.0.1:1", "--tools", str(tmp_path / "t")]
     assert main(argv) == 1
     assert "spot detector" in capsys.readouterr().err
+
+
+class _Plate:
+    """A spot detector on exact geometry: the plate z = 0 of base, readings with noise."""
+
+    plate2base = np.eye(4)
+    beam = GaussianBeam()
+    sigma_centre_mm = sigma_radius_mm = 0.005
+
+    def measure(self) -> SpotMeasurement:
+        raise AssertionError("the observations are made by the test")
+
+
+@settings(max_examples=20, deadline=None)
+@given(error=errors, seed=st.integers(0, 2**32 - 1))
+def test_laser_exact_geometry_recovers_any_error_in_range(error: Loc, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    nominal: Loc = (0.0, 0.0, 200.0, 0.0, 0.0, 0.0)
+    n_tool = location_to_transform(nominal)
+    true_tool = n_tool @ location_to_transform(error)
+    r0 = np.diag([1.0, -1.0, -1.0])  # the beam down into the plate
+    obs = []
+    for yaw, pitch, roll, s, x, y in laser_plan(30):
+        R = r0 @ _rot(2, yaw) @ _rot(1, pitch) @ _rot(0, roll)
+        pose = np.eye(4)
+        pose[:3, :3] = R
+        pose[:3, 3] = np.array([x, y, 0.0]) - s / abs(R[2, 2]) * R[:, 2]
+        flange = pose @ invert(n_tool)
+        xy, dist = spot_on_plate(flange @ true_tool, _Plate.plate2base)
+        # 16 readings averaged: 5 µm / 4
+        nx, ny, nr = rng.normal(0.0, 0.00125, 3)
+        spot = SpotMeasurement(
+            float(xy[0] + nx), float(xy[1] + ny), float(GaussianBeam().radius(dist) + nr)
+        )
+        obs.append(LaserObservation(flange, spot))
+    plate = _Plate()
+    plate.sigma_centre_mm = plate.sigma_radius_mm = 0.00125
+    est = solve_laser_tool(obs, nominal, plate)
+    true = _loc(transform_to_location(true_tool))
+    e = error_vs_true(est.tool, true, beam_only=True)
+    assert e["position_mm"] < 0.05 and e["orientation_deg"] < 0.05
