@@ -7,6 +7,7 @@ jog                          one joint step or one Cartesian step
 move NAME --job JOB.xml      to a named location of a job (via, stitch, path start)
 record NAME --job JOB.xml    manual teaching: the current location as a via item
 teach                        3D seam teaching with the sensor; JSON and optionally a job
+calibrate sensor-tool|laser-tool   tool calibration by least squares (--json, --save)
 
 Robot and sensor: ``--robot HOST:PORT`` / ``--sensor HOST:PORT`` (RobotSocket 4000,
 SensorSocket 2000), or ``--emulate`` for an in-process emulated cell (simulated clock),
