@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from cell.cell import CellError, CellTiming, EmulatedCell
-from cell.options import add_timing_options, timing_kwargs
+from cell.options import add_timing_options, add_tool_error_options, timing_kwargs
 from sensorsocket.pgm import write_pgm
 from spec import cliargs
 from spec.client import FramedClient, wait_end_move
@@ -55,6 +55,7 @@ def _parser() -> cliargs.Parser:
         s.add_argument("--seed", type=cliargs.seed, default=0)
         s.add_argument("-v", "--verbose", action="store_true")
         add_timing_options(s)
+        add_tool_error_options(s)
         if name == "demo":
             s.add_argument("--out", default="out", help="directory for the frame and plots")
             s.add_argument(
@@ -81,6 +82,8 @@ def _cell(args: argparse.Namespace) -> EmulatedCell:
         joint=args.joint,
         seam=args.seam,
         seed=args.seed,
+        sensor_tool_error=args.sensor_tool_error,
+        laser_tool_error=args.laser_tool_error,
         host=args.host,
         robot_port=args.robot_port,
         sensor_port=args.sensor_port,

@@ -90,7 +90,12 @@ class EmulatedCell:
         clock: ``"sim"`` or ``"real"``.
         timing: the cell's timing (:class:`CellTiming`).
         model: robot model name.
-        sensor_tool, laser_tool: ^N_S T and ^N_L T as VAL3 locations (mm, deg).
+        sensor_tool, laser_tool: ^N_S T and ^N_L T as VAL3 locations (mm, deg): the nominal
+            tools, the ones the robot and the application know.
+        sensor_tool_error, laser_tool_error: how the true tools differ from the nominal ones,
+            as locations in the nominal tool frame (true = nominal · error; mm, deg). The
+            camera sees the scene through the true sensor tool and the laser spot lands where
+            the true laser tool puts it; the robot's synchronisation uses the nominal tool.
         joint, seam: the workpiece: ``butt|fillet|lap`` and ``straight|sine``.
         seed: seeds every random draw of the cell.
         host: address of the servers; ports 0 pick free ones.
@@ -102,6 +107,8 @@ class EmulatedCell:
     model: str = "RX90B"
     sensor_tool: Loc = DEFAULT_SENSOR_TOOL
     laser_tool: Loc = DEFAULT_LASER_TOOL
+    sensor_tool_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    laser_tool_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     joint: str = "butt"
     seam: str = "straight"
     seed: int = 0
@@ -125,8 +132,14 @@ class EmulatedCell:
             home=self.ready_joints,
             buffer_seconds=60.0,
         )
-        self.sensor2flange = location_to_transform(np.array(self.sensor_tool, dtype=np.float64))
-        self.laser2flange = location_to_transform(np.array(self.laser_tool, dtype=np.float64))
+        nominal = location_to_transform(np.array(self.sensor_tool, dtype=np.float64))
+        # the true tools (what the camera and the laser do) and the nominal sensor tool (what
+        # the robot's synchronisation computes with)
+        self.sensor2flange = nominal @ _error_transform(self.sensor_tool_error, "sensor")
+        self.laser2flange = location_to_transform(
+            np.array(self.laser_tool, dtype=np.float64)
+        ) @ _error_transform(self.laser_tool_error, "laser")
+        self.nominal_sensor2flange = nominal
         # the camera sees the arm's true motion (the setpoints), see cell.motion
         self.motion = TrueMotion(
             self.robot.model.flange2base_batch,
@@ -158,7 +171,7 @@ class EmulatedCell:
         self.core = RobotSyncCore(
             delta_t_s=self.delta_t_s,
             flange2base=flange2base,
-            sensor2flange=self.sensor2flange,
+            sensor2flange=self.nominal_sensor2flange,
         )
         self.robot.cycle_hooks.append(self._on_cycle)
         self.listener: TriggerListener | None = None
@@ -194,6 +207,16 @@ class EmulatedCell:
         self._started = False
 
     # --- geometry ----------------------------------------------------------------------------
+
+    @property
+    def true_sensor_tool(self) -> Loc:
+        """^N_S T the camera really has (mm, deg)."""
+        return _as_loc(transform_to_location(self.sensor2flange))
+
+    @property
+    def true_laser_tool(self) -> Loc:
+        """^N_L T the laser really has (mm, deg)."""
+        return _as_loc(transform_to_location(self.laser2flange))
 
     def _make_scene(self) -> Scene:
         joints = {"butt": Joint.butt(), "fillet": Joint.fillet(), "lap": Joint.lap()}
@@ -336,6 +359,8 @@ class EmulatedCell:
             + (" (simulated in-process, no socket)" if self.clock == "sim" else ""),
             "sensor_tool": list(self.sensor_tool),
             "laser_tool": list(self.laser_tool),
+            "sensor_tool_error": list(self.sensor_tool_error),
+            "laser_tool_error": list(self.laser_tool_error),
             "ready_sensor_location": [
                 round(float(v), 4) for v in transform_to_location(self.ready_sensor2base())
             ],
@@ -349,3 +374,18 @@ class EmulatedCell:
             "jitter_width_ms": t.jitter_width_s() * 1e3,
             "true_delta_t_ms": self.true_delta_t_s() * 1e3,
         }
+
+
+def _error_transform(error: Sequence[float], which: str) -> FloatArray:
+    """The tool error as a transform, checked: finite, at most 50 mm and 30 deg per component
+    (a mounting error, not another tool)."""
+    v = np.array(error, dtype=np.float64)
+    if v.shape != (6,) or not np.isfinite(v).all():
+        raise CellError(f"{which} tool error must be 6 finite numbers (mm, deg)")
+    if np.abs(v[:3]).max() > 50.0 or np.abs(v[3:]).max() > 30.0:
+        raise CellError(f"{which} tool error must be within 50 mm and 30 deg per component")
+    return location_to_transform(v)
+
+
+def _as_loc(v: FloatArray) -> Loc:
+    return (float(v[0]), float(v[1]), float(v[2]), float(v[3]), float(v[4]), float(v[5]))

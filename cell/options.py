@@ -4,11 +4,12 @@
 from __future__ import annotations
 
 import argparse
+import math
 from typing import Any
 
 from spec import cliargs
 
-__all__ = ["add_timing_options", "timing_kwargs"]
+__all__ = ["add_timing_options", "add_tool_error_options", "timing_kwargs", "tool_error"]
 
 #: (option, CellTiming field, factor to SI, default on the command line, help)
 _OPTIONS: tuple[tuple[str, str, float, float, str], ...] = (
@@ -52,3 +53,33 @@ def timing_kwargs(args: argparse.Namespace) -> dict[str, Any]:
             f" --network-delay-ms ({args.network_delay_ms:g}): a delay never goes below 0"
         )
     return out
+
+
+def tool_error(text: str) -> tuple[float, float, float, float, float, float]:
+    """``DX,DY,DZ,RX,RY,RZ`` (mm, deg): a tool error for ``--sensor-tool-error`` and
+    ``--laser-tool-error``."""
+    try:
+        v = [float(x) for x in text.split(",")]
+    except ValueError:
+        v = []
+    if len(v) != 6 or not all(math.isfinite(x) for x in v):
+        raise argparse.ArgumentTypeError(f"expected DX,DY,DZ,RX,RY,RZ (6 numbers), got {text!r}")
+    if max(abs(x) for x in v[:3]) > 50.0 or max(abs(x) for x in v[3:]) > 30.0:
+        raise argparse.ArgumentTypeError(f"{text!r}: at most 50 mm and 30 deg per component")
+    return (v[0], v[1], v[2], v[3], v[4], v[5])
+
+
+def add_tool_error_options(parser: argparse.ArgumentParser) -> None:
+    """Add ``--sensor-tool-error`` and ``--laser-tool-error`` (group "true tools")."""
+    group = parser.add_argument_group(
+        "true tools (the robot and the application only know the nominal ones)"
+    )
+    zero = (0.0,) * 6
+    for which in ("sensor", "laser"):
+        group.add_argument(
+            f"--{which}-tool-error",
+            type=tool_error,
+            default=zero,
+            metavar="DX,DY,DZ,RX,RY,RZ",
+            help=f"the true {which} tool = nominal · this error (mm, deg; default none)",
+        )

@@ -7,6 +7,7 @@ jog                          one joint step or one Cartesian step
 move NAME --job JOB.xml      to a named location of a job (via, stitch, path start)
 record NAME --job JOB.xml    manual teaching: the current location as a via item
 teach                        3D seam teaching with the sensor; JSON and optionally a job
+calibrate sensor-tool|laser-tool   tool calibration by least squares (--json, --save)
 
 Robot and sensor: ``--robot HOST:PORT`` / ``--sensor HOST:PORT`` (RobotSocket 4000,
 SensorSocket 2000), or ``--emulate`` for an in-process emulated cell (simulated clock),
@@ -40,7 +41,9 @@ from spec.callcli import parse_endpoint, sigterm_interrupts
 from spec.client import ClientTimeout
 from spec.errors import ProtocolError, RemoteError
 from spec.files import write_atomically
+from welding import calibrate_cli
 from welding import job as J
+from welding.calibration import CalibrationError
 from welding.process import JobAborted, JobRunner, PlanError, Progress, plan, steps_summary
 from welding.teach import SeamTeacher, TeachError, record_here, seam_path
 from welding.tools import TOOL_KINDS, Entry, Tables, ToolDB, ToolDBError, check_location
@@ -133,6 +136,14 @@ def _add_cell_options(
         help="the emulated cell's seam (with --emulate)",
     )
     p.add_argument("--seed", type=int, default=0, help="the emulated cell's seed")
+    for which in ("sensor", "laser"):
+        p.add_argument(
+            f"--{which}-tool-error",
+            type=_location,
+            default=(0.0,) * 6,
+            metavar="DX,DY,DZ,RX,RY,RZ",
+            help=f"the emulated cell's true {which} tool = nominal · this (mm, deg)",
+        )
     p.add_argument(
         "--token-file",
         metavar="PATH",
@@ -263,6 +274,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--power", type=cliargs.nonnegative_float, default=1000.0, help="W")
     p.add_argument("--preflow", type=cliargs.nonnegative_float, default=0.5, help="s")
     p.add_argument("--postflow", type=cliargs.nonnegative_float, default=0.5, help="s")
+
+    calibrate_cli.add_parser(sub, _add_cell_options)
     return parser
 
 
@@ -287,7 +300,12 @@ def _cell(args: argparse.Namespace, *, control: bool, sensor: bool = False) -> I
     if args.emulate:
         from welding.emulate import EmulatedSession  # the only path that builds a cell
 
-        session = EmulatedSession(args.seam, seed=args.seed)
+        session = EmulatedSession(
+            args.seam,
+            seed=args.seed,
+            sensor_tool_error=args.sensor_tool_error,
+            laser_tool_error=args.laser_tool_error,
+        )
         try:
             tables = _merge_cell_tools(args.tools, session.tables)
             if sensor:
@@ -729,6 +747,10 @@ def cmd_teach(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    return calibrate_cli.cmd_calibrate(args, _cell)
+
+
 # --- main ------------------------------------------------------------------------------------
 
 
@@ -740,6 +762,7 @@ COMMANDS = {
     "move": cmd_move,
     "record": cmd_record,
     "teach": cmd_teach,
+    "calibrate": cmd_calibrate,
 }
 
 
@@ -760,7 +783,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except CliError as exc:
         print(f"python -m welding: error: {exc}", file=sys.stderr)
         return exc.code
-    except (ToolDBError, PlanError, TeachError, ValueError) as exc:
+    except (ToolDBError, PlanError, TeachError, CalibrationError, ValueError) as exc:
         print(f"python -m welding: error: {exc}", file=sys.stderr)
         return EXIT_PROBLEMS
     except RemoteError as exc:

@@ -34,8 +34,21 @@ class EmulatedSession:
     with the arm powered, a sensor client, and tables naming its tools (``laser``,
     ``sensor``) and the workpiece frame (``workpiece``)."""
 
-    def __init__(self, seam: str = "straight", *, seed: int = 0) -> None:
-        self.cell = EmulatedCell(clock="sim", seam=seam, seed=seed)
+    def __init__(
+        self,
+        seam: str = "straight",
+        *,
+        seed: int = 0,
+        sensor_tool_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+        laser_tool_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    ) -> None:
+        self.cell = EmulatedCell(
+            clock="sim",
+            seam=seam,
+            seed=seed,
+            sensor_tool_error=sensor_tool_error,
+            laser_tool_error=laser_tool_error,
+        )
         self.cell.start()
         try:
             self.robot = RobotClient(*self.cell.robot_address, timeout=30.0)
