@@ -43,3 +43,27 @@ def test_reference_scores_100_percent(service: str) -> None:
     problems = {r.case.id: r.message for r in result.results if r.is_problem}
     assert set(problems) <= KNOWN_DEFECTS[service], problems
     assert any(r.outcome is Outcome.PASS for r in result.results)
+
+
+def test_simulated_robot_stamps_triggers_with_their_own_times() -> None:
+    """[SY-5.7] a simulated robot clock jumps ahead while the robot waits; the triggers due in
+    a jump carry their scheduled times, not one burst time (the harness advances the clock
+    with a small move, which needs --allow-motion)."""
+    from robotsocket.emulator import RobotEmulator
+    from robotsocket.service import RobotService
+    from robotsocket.sync_service import attach_udp_sync
+    from spec.server import FramedServer
+
+    robot = RobotEmulator(clock="sim")
+    service = RobotService(robot)
+    _, endpoint = attach_udp_sync(service, robot)
+    endpoint.start()
+    try:
+        with FramedServer(service, "127.0.0.1", 0) as srv:
+            selection = Selection("core", select=("robot.sync.trigger_times",))
+            options = Options(allow_motion=True)
+            result = run("robot", *srv.address, options, selection)
+    finally:
+        endpoint.stop()
+    (outcome,) = [(r.outcome, r.message) for r in result.results]
+    assert outcome[0] is Outcome.PASS, outcome

@@ -355,8 +355,11 @@ def _sent(ctx: Context, conn: Conn, sink: socket.socket, n: int) -> list[Trigger
                 f"{len(got)} of {n} triggers within 1.5 s: a simulated robot clock advances only"
                 " with motion (--allow-motion lets the harness move joint 1 by 2 degrees)"
             )
-        _advance_by_motion(conn)
-        got += _triggers(sink, n - len(got), 1.0)
+        for _ in range(5):  # each move lets the clock pass ~0.3 s
+            _advance_by_motion(conn)
+            got += _triggers(sink, n - len(got), 1.0)
+            if len(got) >= n:
+                break
     return got
 
 
