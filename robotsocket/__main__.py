@@ -69,7 +69,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         endpoint = None
         if args.udp_port is not None:
             _, endpoint = attach_udp_sync(service, robot, host=args.host, port=args.udp_port)
-            endpoint.allow = allow  # [SY-1.5] the UDP port honours --allow too
+            endpoint.allow = allow  # [RS-7.7] the UDP port honours --allow too
             endpoint.sensor_only = not args.data_from_any  # [SY-3.7]
         server = FramedServer(service, args.host, args.port, policy)
     except OSError as exc:

@@ -280,7 +280,7 @@ class TriggerListener:
         max_backlog_s: float | None = MAX_BACKLOG_S,
     ) -> None:
         self.handler = handler
-        #: Networks triggers may come from; empty: any [SY-1.5].
+        #: Networks triggers may come from; empty: any [RS-7.7].
         self.allow: tuple[Network, ...] = tuple(allow)
         self._refused = 0
         self.max_backlog_s = max_backlog_s
@@ -370,7 +370,7 @@ class TriggerListener:
                 continue
             t_arrival = arrival_time(clock, stamp) if stamped else clock()
             if allow and not address_allowed(allow, source[0]):
-                self._refused += 1  # [SY-1.5] dropped unread and unanswered
+                self._refused += 1  # [RS-7.7] dropped unread and unanswered
                 continue
             stale = backlog is not None and clock() - t_arrival > backlog
             self._stale += stale

@@ -19,7 +19,7 @@ Network = ipaddress.IPv4Network | ipaddress.IPv6Network
 
 def address_allowed(allow: Iterable[Network], host: str) -> bool:
     """Whether ``host`` (a numeric address, as a socket reports it) is in ``allow``; an empty
-    allow-list allows every address [RS-7.7, SY-1.5]."""
+    allow-list allows every address [RS-7.7]."""
     nets = tuple(allow)
     if not nets:
         return True

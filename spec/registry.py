@@ -156,7 +156,7 @@ COMMANDS: tuple[CommandSpec, ...] = (
         "TakeControl",
         "common",
         "Take control of the service for this connection (one holder at a time), as a lease "
-        "kept by sending frames within the watchdog period (1.1).",
+        "kept by sending frames within the watchdog period (watchdog: 1.2).",
         params=(
             P("token", T.STRING, "", 'shared secret if the server requires one, else ""'),
             P(

@@ -124,6 +124,8 @@ def invalid_frames() -> list[tuple[str, str, bytes, ErrorCode, bool]]:
         ("empty-payload", "payload without parameter count", _frame(b""), ErrorCode.BAD_PARAMETERS, False),
         ("one-byte-payload", "payload of one byte", _frame(b"\x00"), ErrorCode.BAD_PARAMETERS, False),
         ("unknown-tag", "type tag 0x7f", _frame(_params(1, b"\x7f\x00")), ErrorCode.BAD_PARAMETERS, False),
+        ("precedence-unknown-command-bad-tag", "unknown command 0xfff0 with an unknown type tag: the parameter list is decoded first [RS-6.4]", _frame(_params(1, b"\x7f\x00"), command=0xFFF0), ErrorCode.BAD_PARAMETERS, False),
+        ("precedence-bad-crc-and-version", "major version 2 and a wrong CRC: the CRC is checked first [RS-6.4]", _frame(count0, major=2)[:-1] + b"\x00", ErrorCode.BAD_CRC, False),
         ("tag-zero", "type tag 0x00", _frame(_params(1, b"\x00")), ErrorCode.BAD_PARAMETERS, False),
         ("count-too-high", "count 2, one parameter present", _frame(_params(2, b"\x03\x01")), ErrorCode.BAD_PARAMETERS, False),
         ("trailing-in-payload", "bytes after the last parameter", _frame(_params(1, b"\x03\x01\x00")), ErrorCode.BAD_PARAMETERS, False),

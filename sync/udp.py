@@ -520,7 +520,7 @@ class UdpSyncEndpoint:
         self._wake_r, self._wake_w = socket.socketpair()
         self._thread: threading.Thread | None = None
         self.send_errors = 0
-        #: Networks datagrams may come from; empty: any [SY-1.5].
+        #: Networks datagrams may come from; empty: any [RS-7.7].
         self.allow: tuple[Network, ...] = tuple(allow)
         #: Accept datagrams only from the sensor endpoint the triggers go to [SY-3.7].
         self.sensor_only = sensor_only

@@ -132,7 +132,7 @@ def test_harness_fault_is_exit_3() -> None:
 def test_json_report_schema() -> None:
     data = to_json(_run(Outcome.PASS, Outcome.FAIL))
     assert data["schema_version"] == 1
-    assert data["tool"] == "conformance" and data["spec_version"] == "1.1"
+    assert data["tool"] == "conformance" and data["spec_version"] == "1.2"
     assert {"suite_version", "seed", "endpoint", "summary", "measurements"} <= set(data)
     failed = data["cases"][1]
     assert failed["outcome"] == "fail" and failed["requirements"] == ["RS-3.4"]

@@ -376,7 +376,7 @@ def test_loopback_exchange(listener: TriggerListener) -> None:
 
 @pytest.mark.parametrize(("network", "answered"), [("10.0.0.0/8", False), ("127.0.0.0/8", True)])
 def test_listener_honours_the_allow_list(network: str, answered: bool) -> None:
-    """[SY-1.5] a trigger from outside the allow-list gets no data and is counted."""
+    """[RS-7.7] a trigger from outside the allow-list gets no data and is counted."""
     sensor = make_sensor()
     sensor.clock = time.monotonic
     lst = TriggerListener(

@@ -359,7 +359,7 @@ def test_udp_endpoint_takes_any_source_when_told() -> None:
 
 
 def test_udp_endpoint_honours_the_allow_list() -> None:
-    """[SY-1.5] a source outside --allow is dropped and counted, even the sensor's port."""
+    """[RS-7.7] a source outside --allow is dropped and counted, even the sensor's port."""
     ep, sensor = _endpoint_with_sensor(allow=parse_networks(["10.0.0.0/8"]))
     try:
         sensor.sendto(_data(7, 0.0, 0.5), ep.address)
