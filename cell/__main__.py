@@ -33,7 +33,13 @@ from spec.errors import ProtocolError
 from spec.params import Image, Joints, Location
 from spec.registry import CommandId
 from spec.server import serve_until_signal
-from sync.experiment import ExperimentError, ExperimentSettings, run_delay_experiment, write_plots
+from sync.experiment import (
+    ExperimentError,
+    ExperimentSettings,
+    judge,
+    run_delay_experiment,
+    write_plots,
+)
 
 log = logging.getLogger("cell")
 
@@ -109,12 +115,15 @@ def _fmt(loc: Any) -> str:
 
 def _robot_tour(robot: FramedClient) -> None:
     info = robot.hello()
-    print(f"robot: {info['vendor']!s} {info['model']!s} ({info['service']!s}, {info['version']!s})")
+    print(
+        f"\n2/4 RobotSocket (paper III-A): {info['vendor']!s} {info['model']!s}, protocol "
+        f"{info['version']!s}; VAL3-like commands over TCP"
+    )
     robot.take_control("")
     robot.call(CommandId.ENABLE_POWER)
     (q,) = robot.call(CommandId.HEREJ)
     assert isinstance(q, Joints)
-    print(f"  EnablePower; Herej = {_fmt(q.values)} deg")
+    print(f"  EnablePower, Herej() = {_fmt(q.values)} deg (the cell's ready pose)")
     away = list(q.values)
     away[0] += 10.0
     robot.call(CommandId.JOINT_MOVE, Joints(away))
@@ -124,18 +133,18 @@ def _robot_tour(robot: FramedClient) -> None:
     world = Location(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     (here,) = robot.call(CommandId.HERE, tool, world)
     assert isinstance(here, Location)
-    print(f"  JointMove(joint 1 + 10 deg); Here(sensor tool) = {_fmt(here.as_tuple())}")
+    print(f"  JointMove(joint 1 + 10 deg), Here(sensor tool) = {_fmt(here.as_tuple())} mm, deg")
     robot.call(CommandId.JOINT_MOVE, Joints(list(q.values)))
     wait_end_move(robot, 10.0)
     (here,) = robot.call(CommandId.HERE, tool, world)
     assert isinstance(here, Location)
-    print(f"  back over the seam:      Here(sensor tool) = {_fmt(here.as_tuple())}")
+    print(f"  back over the seam:          Here(sensor tool) = {_fmt(here.as_tuple())}")
     robot.release_control()
 
 
 def _sensor_tour(sensor: FramedClient, out: Path) -> None:
     info = sensor.hello()
-    print(f"sensor: {info['vendor']!s} {info['model']!s}")
+    print(f"\n3/4 SensorSocket (paper III-B): {info['vendor']!s} {info['model']!s}")
     sensor.take_control("")
     (index,) = sensor.call(CommandId.ACQUIRE)
     time.sleep(0.05)
@@ -148,85 +157,142 @@ def _sensor_tour(sensor: FramedClient, out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     path = out / "frame.pgm"
     write_pgm(path, pixels)
-    print(f"  Acquire -> frame {index!s}: {image.width}x{image.height} written to {path}")
+    print(
+        f"  Acquire: frame {index!s}, {image.width} x {image.height} laser-stripe image read "
+        f"column by column, saved as {path}"
+    )
     quality = data[3]
     assert isinstance(quality, float)
-    print(f"  GetData: status {data[1]!s}, seam in S = {_fmt(seam.as_tuple())}, q {quality:.2f}")
+    found = "found" if data[1] == 0 else f"status {data[1]!s}"
+    print(
+        f"  GetData: seam {found} at {_fmt(seam.as_tuple())} in the sensor frame S, quality "
+        f"{quality:.2f} (the cell starts with the seam centred under the sensor)"
+    )
     sensor.release_control()
 
 
-def _conformance(cell: EmulatedCell) -> None:
+def _conformance(cell: EmulatedCell) -> bool:
+    """Run the harness against the cell's three endpoints; True when all are conformant."""
     if importlib.util.find_spec("conformance.cli") is None:
-        print("conformance: harness not installed, skipped")
-        return
-    endpoints: tuple[tuple[str, tuple[str, int], list[str]], ...] = (
-        ("robot", cell.robot_address, ["--allow-motion"]),  # an emulator: nothing can be hurt
-        ("sensor", cell.sensor_address, []),
-        ("sync", cell.udp_address, []),
+        print("  harness not installed, skipped")
+        return True
+    endpoints: tuple[tuple[str, str, tuple[str, int], list[str]], ...] = (
+        ("robot", "RobotSocket, motion allowed", cell.robot_address, ["--allow-motion"]),
+        ("sensor", "SensorSocket", cell.sensor_address, []),
+        ("sync", "UDP trigger listener", cell.udp_address, []),
     )
-    # The robot cases engage the e-stop and drop a controller on purpose: their warnings are
-    # expected here, not news for the person watching the demo.
-    logging.getLogger("robotsocket").setLevel(logging.ERROR)
-    for service, (host, port), extra in endpoints:
+    ok = True
+    for service, what, (host, port), extra in endpoints:
         cmd = [sys.executable, "-m", "conformance", service, f"{host}:{port}", "-q", *extra]
         try:
             done = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
         except subprocess.TimeoutExpired:
-            print(f"conformance {service}: timed out")
+            print(f"  {service:<7} timed out")
+            ok = False
             continue
-        last = (done.stdout.strip().splitlines() or [""])[-1]
-        print(f"conformance {service}: exit {done.returncode} {last}")
+        total = (done.stdout.strip().splitlines() or [""])[-1]
+        counts = total.removeprefix("total: ").split("  (")[0]
+        verdict = (
+            "conformant" if done.returncode == 0 else f"NOT conformant (exit {done.returncode})"
+        )
+        print(f"  {service:<7} {verdict}: {counts} ({what})")
+        ok = ok and done.returncode == 0
+    return ok
+
+
+def _experiment(cell: EmulatedCell, args: argparse.Namespace, out: Path) -> bool:
+    """The ΔT measurement of paper section VI through the sockets; True when trusted."""
+    d = cell.describe()
+    settings = ExperimentSettings(duration_s=args.duration, trigger_rate_hz=args.rate)
+    print(
+        f"\n4/4 The ΔT measurement (paper VI): the sensor moves in a {settings.amplitude_mm:g} mm "
+        f"sine across a straight seam at {settings.frequency_hz:g} Hz for "
+        f"{settings.duration_s:g} s, triggered over UDP at {settings.trigger_rate_hz:g} Hz; the "
+        f"robot's joints and the sensor's seam positions are matched by shifting one by ΔT ..."
+    )
+    first = cell.core.next_index
+    result = run_delay_experiment(cell.robot_address, cell.sensor_address, settings)
+    verdict = judge(result)
+    truth = cell.measured_delta_t(first)
+    design = cell.true_delta_t_s()
+    t = cell.timing
+    s = result.summary()
+    syn, uns = s["residual_max_um"], s["unsynced_max_um"]
+    rows = (
+        ("ΔT measured (ms)", f"{result.delta_t_ms:.3f}", "4.9"),
+        ("ΔT true in this run (ms)", f"{truth * 1e3:.3f}", ""),
+        ("ΔT by design (ms)", f"{design * 1e3:.3f}", ""),
+        ("trigger jitter width (ms)", f"{d['jitter_width_ms']:.2f}", "0.6"),
+        ("seam error, synchronised, max (µm)", f"{syn:.1f}", "≈ 30"),
+        ("seam error, synchronised, rms (µm)", f"{s['residual_rms_um']:.1f}", ""),
+        ("seam error, not synchronised, max (µm)", f"{uns:.1f}", ""),
+    )
+    print(f"  {'':40} {'this run':>10} {'paper':>8}")
+    for name, here, paper in rows:
+        print(f"  {name:40} {here:>10} {paper:>8}")
+    print(
+        f"  ΔT by design = encoder latency {t.encoder_latency_s * 1e3:.2f} + network "
+        f"{t.network_delay_s * 1e3:.2f} + mean trigger poll wait {0.5e3 / t.poll_rate_hz:.3f} + "
+        f"mean start jitter {t.start_jitter_s * 0.5e3:.3f} + half the {t.acquisition_s * 1e3:.1f} "
+        "ms readout (the seam is read at mid-frame);\n  the true ΔT of this run is what its "
+        "exposures really had: the same plus this run's draw of the jitter."
+    )
+    st = result.data.statistics
+    print(
+        f"  datagrams this run: {st.get('sent', 0)} triggers sent, {st.get('matched', 0)} seam "
+        f"points, {st.get('lost', 0)} lost, {st.get('late', 0)} late"
+    )
+    try:
+        files = write_plots(out, result)
+        print(f"  figures 6, 7 and 9 of the paper: {', '.join(str(out / f.name) for f in files)}")
+    except ExperimentError as exc:
+        print(f"  plots skipped: {exc}")
+    if verdict.ok:
+        print(
+            f"  verdict: ΔT {result.delta_t_ms:.3f} ms, {abs(result.delta_t_ms - truth * 1e3):.3f}"
+            f" ms from this run's truth; synchronisation cuts the seam error {uns / syn:.1f}x "
+            f"({uns:.0f} -> {syn:.0f} µm). OK"
+        )
+    else:
+        print(f"  verdict: UNTRUSTED: {verdict.reason}")
+    return verdict.ok
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
     out = Path(args.out)
     t0 = time.monotonic()
+    # The harness engages the e-stop and drops controllers on purpose, and the robot's
+    # controlled stops log warnings: expected here, not news for the person watching.
+    for name in ("robotsocket", "sensorsocket", "spec", "sync"):
+        logging.getLogger(name).setLevel(logging.ERROR)
     with _cell(args) as cell:
         d = cell.describe()
-        print(f"cell ({d['clock']} clock): robot {d['robot']}, sensor {d['sensor']}, ", end="")
-        print(f"udp {d['udp']}")
         print(
-            f"  timing: encoder latency {d['encoder_latency_ms']:.2f} ms, network "
-            f"{d['network_delay_ms']:.2f} ms, poll {d['trigger_poll_hz']:g} Hz, start jitter "
-            f"{d['start_jitter_ms']:.2f} ms, acquisition {d['acquisition_ms']:.2f} ms"
+            "1/4 The work cell of the paper (Fig. 1), emulated: a Staubli RX90B with the "
+            f"seam-tracking sensor on its flange, {d['clock']} clock"
+        )
+        print(f"  robot {d['robot']} (TCP), sensor {d['sensor']} (TCP), triggers {d['udp']}")
+        print(
+            f"  timing as in the paper: encoder latency {d['encoder_latency_ms']:.2f} ms, network "
+            f"{d['network_delay_ms']:.2f} ms, trigger poll {d['trigger_poll_hz']:g} Hz, start "
+            f"jitter {d['start_jitter_ms']:.2f} ms, readout {d['acquisition_ms']:.2f} ms"
         )
         with FramedClient(*cell.robot_address, timeout=20.0) as robot:
             _robot_tour(robot)
         with FramedClient(*cell.sensor_address, timeout=20.0) as sensor:
             _sensor_tour(sensor, out)
-        settings = ExperimentSettings(duration_s=args.duration, trigger_rate_hz=args.rate)
-        print(
-            f"ΔT experiment through the sockets: {settings.amplitude_mm:g} mm sine at "
-            f"{settings.frequency_hz:g} Hz for {settings.duration_s:g} s, "
-            f"triggers at {settings.trigger_rate_hz:g} Hz ..."
-        )
-        first = cell.core.next_index
-        result = run_delay_experiment(cell.robot_address, cell.sensor_address, settings)
-        truth = cell.measured_delta_t(first)
-        s = result.summary()
-        print(f"  {'':28} {'here':>10} {'paper':>10}")
-        rows = (
-            ("ΔT (ms)", f"{result.delta_t_ms:.3f}", "4.9"),
-            ("true ΔT, cell records (ms)", f"{truth * 1e3:.3f}", ""),
-            ("true ΔT, parameters (ms)", f"{cell.true_delta_t_s() * 1e3:.3f}", ""),
-            ("jitter width (ms)", f"{d['jitter_width_ms']:.2f}", "0.6"),
-            ("residual max (µm)", f"{s['residual_max_um']:.1f}", "30"),
-            ("residual rms (µm)", f"{s['residual_rms_um']:.1f}", ""),
-            ("residual at 1.5 Hz (µm)", f"{s['residual_sine_amplitude_um']:.2f}", "none"),
-            ("unsynchronised max (µm)", f"{s['unsynced_max_um']:.1f}", ""),
-        )
-        for name, here, paper in rows:
-            print(f"  {name:28} {here:>10} {paper:>10}")
-        print(f"  datagrams: {result.data.statistics}")
-        try:
-            files = write_plots(out, result)
-            print(f"  figures 6, 7, 9 written to {out}/ ({', '.join(f.name for f in files)})")
-        except ExperimentError as exc:
-            print(f"  plots skipped: {exc}")
+        trusted = _experiment(cell, args, out)
+        conformant = True
         if not args.no_conformance:
-            _conformance(cell)
-    print(f"demo done in {time.monotonic() - t0:.1f} s")
-    return 0
+            print("\nConformance: the harness checks the three endpoints against PROTOCOL.md")
+            conformant = _conformance(cell)
+    seconds = time.monotonic() - t0
+    if trusted and conformant:
+        print(f"\nResult: everything worked ({seconds:.0f} s).")
+        return 0
+    what = "the ΔT run could not be trusted" if not trusted else "an endpoint is not conformant"
+    print(f"\nResult: {what} ({seconds:.0f} s); see above.")
+    return 3
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -28,12 +28,13 @@ from typing import Any
 from spec import cliargs
 from spec.errors import ProtocolError
 from sync.curvature import sine_min_radius, sine_min_radius_numeric
-from sync.delay import DelayEstimateError, QualityLimits, Verdict, assess_run, window_delays
+from sync.delay import DelayEstimateError, QualityLimits, Verdict
 from sync.experiment import (
     DEFAULT_SWEEP_HZ,
     DelayResult,
     ExperimentError,
     ExperimentSettings,
+    judge,
     run_delay_experiment,
     run_sweep,
     write_json,
@@ -232,26 +233,6 @@ def _print_result(r: DelayResult, verdict: Verdict) -> None:
     )
 
 
-def _verdict(r: DelayResult, limits: QualityLimits) -> Verdict:
-    """The quality verdict of one run (:func:`sync.delay.assess_run`)."""
-    st = r.settings
-    # the full-amplitude part of the sine, with a cycle's margin for the start of the move
-    t0 = r.data.t_start + st.rest_s + st.ramp + 0.05
-    t1 = r.data.t_start + st.rest_s + st.duration_s - st.ramp
-    windows = window_delays(
-        r.data.t_robot,
-        r.data.y_robot,
-        r.data.t_trigger,
-        r.data.y_sensor,
-        (t0, t1),
-        period_s=1.0 / st.frequency_hz,
-        limits=limits,
-        search_min_s=st.search_min_s,
-        search_max_s=st.search_max_s,
-    )
-    return assess_run(r.estimate, r.residual, r.data.statistics, windows, limits)
-
-
 def _print_untrusted(verdicts: Sequence[tuple[str, Verdict]]) -> None:
     for what, v in verdicts:
         if not v.ok:
@@ -298,7 +279,7 @@ def cmd_delay(args: argparse.Namespace, progress: _Progress) -> int:
             for r in results:
                 r.extra.update(extra)
                 s = r.summary()
-                v = _verdict(r, limits)
+                v = judge(r, limits)
                 verdicts.append((f" at {s['frequency_hz']:g} Hz", v))
                 s["verdict"] = v.to_json()
                 sweep.append(s)
@@ -319,7 +300,7 @@ def cmd_delay(args: argparse.Namespace, progress: _Progress) -> int:
             )
             progress.end()
             main_result.extra.update(extra)
-            v = _verdict(main_result, limits)
+            v = judge(main_result, limits)
             verdicts.append(("", v))
             _print_result(main_result, v)
             out = main_result.to_json()

@@ -37,7 +37,16 @@ from spec.client import FramedClient, wait_end_move
 from spec.files import atomic_path, prepare_output_path, write_atomically
 from spec.params import IDENTITY_LOCATION, FloatArray, IntArray, Location, Matrix, Value
 from spec.registry import BY_ID, SEAM_POINT_COLUMNS, CommandId
-from sync.delay import DelayEstimate, ResidualReport, estimate_delay, residual_after_sync
+from sync.delay import (
+    DelayEstimate,
+    QualityLimits,
+    ResidualReport,
+    Verdict,
+    assess_run,
+    estimate_delay,
+    residual_after_sync,
+    window_delays,
+)
 
 __all__ = [
     "DEFAULT_SWEEP_HZ",
@@ -46,6 +55,7 @@ __all__ = [
     "ExperimentError",
     "ExperimentSettings",
     "analyse",
+    "judge",
     "record_sine",
     "run_delay_experiment",
     "run_sweep",
@@ -507,3 +517,25 @@ def write_plots(
         ax.grid(True, which="both", lw=0.3)
         save(fig, "fig8_sweep.png")
     return files
+
+
+def judge(r: DelayResult, limits: QualityLimits | None = None) -> Verdict:
+    """The quality verdict of one run (:func:`sync.delay.assess_run`): ΔT per window over the
+    full-amplitude part of the sine, loss, the residual with and without synchronisation."""
+    limits = QualityLimits() if limits is None else limits
+    st = r.settings
+    # the full-amplitude part of the sine, with a cycle's margin for the start of the move
+    t0 = r.data.t_start + st.rest_s + st.ramp + 0.05
+    t1 = r.data.t_start + st.rest_s + st.duration_s - st.ramp
+    windows = window_delays(
+        r.data.t_robot,
+        r.data.y_robot,
+        r.data.t_trigger,
+        r.data.y_sensor,
+        (t0, t1),
+        period_s=1.0 / st.frequency_hz,
+        limits=limits,
+        search_min_s=st.search_min_s,
+        search_max_s=st.search_max_s,
+    )
+    return assess_run(r.estimate, r.residual, r.data.statistics, windows, limits)

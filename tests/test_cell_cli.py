@@ -79,7 +79,10 @@ def test_demo_runs_end_to_end(tmp_path: Path) -> None:
          "--no-conformance"],
         capture_output=True, text=True, env=ENV, cwd=ROOT, timeout=300,
     )  # fmt: skip
-    assert out.returncode == 0, out.stderr[-2000:]
     text = out.stdout
-    assert "EnablePower; Herej" in text and "ΔT" in text
+    # A real-clock run on a busy machine may be untrusted: then the demo says so and why
+    # (exit 3), it never prints a plausible wrong ΔT as if it were fine.
+    assert out.returncode in (0, 3), out.stderr[-2000:]
+    assert ("verdict: UNTRUSTED" in text) == (out.returncode == 3), text
+    assert "EnablePower, Herej()" in text and "ΔT measured (ms)" in text and "verdict:" in text
     assert any(p.suffix == ".pgm" for p in tmp_path.iterdir())
