@@ -24,7 +24,12 @@ lint: $(STAMP)
 test: lint
 	$(PY) -m pytest
 
-bench: $(STAMP)
+# The peer libraries of the benchmarks only here: `make test` must not need them.
+$(VENV)/.installed-bench: $(STAMP)
+	$(PY) -m pip install --quiet -e '.[test,plot,bench]'
+	touch $@
+
+bench: $(VENV)/.installed-bench
 	$(PY) -m bench -o bench-results/results.json
 
 fuzz: $(STAMP)
