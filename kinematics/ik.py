@@ -113,14 +113,19 @@ def _check_rigid_rows(rows: list[list[float]]) -> None:
         raise KinematicsError(f"{name}: contains NaN or infinity")
     if any(abs(v - e) > RIGID_TOL for v, e in zip(rows[3], (0.0, 0.0, 0.0, 1.0), strict=True)):
         raise KinematicsError(f"{name}: last row must be (0, 0, 0, 1)")
-    cols = [[rows[i][j] for i in range(3)] for j in range(3)]
-    for i in range(3):
-        for k in range(3):
-            dot = sum(a * b for a, b in zip(cols[i], cols[k], strict=True))
-            if abs(dot - (1.0 if i == k else 0.0)) > RIGID_TOL:
-                raise KinematicsError(f"{name}: rotation part is not orthonormal with det +1")
     (a, b, c), (d, e, f), (g, h, i_) = (rows[0][:3], rows[1][:3], rows[2][:3])
-    if a * (e * i_ - f * h) - b * (d * i_ - f * g) + c * (d * h - e * g) < 0.0:
+    # RᵀR - I, the six distinct entries
+    gram = (
+        a * a + d * d + g * g - 1.0,
+        b * b + e * e + h * h - 1.0,
+        c * c + f * f + i_ * i_ - 1.0,
+        a * b + d * e + g * h,
+        a * c + d * f + g * i_,
+        b * c + e * f + h * i_,
+    )
+    if any(abs(v) > RIGID_TOL for v in gram) or (
+        a * (e * i_ - f * h) - b * (d * i_ - f * g) + c * (d * h - e * g) < 0.0
+    ):
         raise KinematicsError(f"{name}: rotation part is not orthonormal with det +1")
 
 
@@ -374,16 +379,23 @@ class IkMixin(ConfigMixin):
                     wraps = ((t5p, pref4, t6), (-t5p, pref4, t6))
                 t2w = (t2 + math.pi) % (2.0 * math.pi) - math.pi
                 sing = (s5abs < SINGULAR_TOL, s3abs < SINGULAR_TOL, shoulder_sing)
+                # joints 1-3 are shared by both wrist branches: pick their turns once
+                arm = [
+                    _pick_turn_one(math.degrees(t) - off[i], lo_hi[i], target[i])
+                    for i, t in enumerate((t1, t2w, t3))
+                ]
                 for t5, t4, t6 in wraps:
-                    theta = (t1, t2w, t3, t4, t5, t6)
-                    q: list[float] | None = []
-                    for i in range(6):
-                        v = _pick_turn_one(math.degrees(theta[i]) - off[i], lo_hi[i], target[i])
-                        if v is None or q is None:
-                            q = None
-                            break
-                        q.append(v)
-                    out.append(_Branch(q if reach else None, reach, sing))
+                    q = [
+                        *arm,
+                        *(
+                            _pick_turn_one(math.degrees(t) - off[i], lo_hi[i], target[i])
+                            for i, t in ((3, t4), (4, t5), (5, t6))
+                        ),
+                    ]
+                    ok = reach and None not in q
+                    out.append(
+                        _Branch([v for v in q if v is not None] if ok else None, reach, sing)
+                    )
         return out
 
     def _turn_bounds(self) -> tuple[tuple[float, float], ...]:
