@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -62,6 +63,7 @@ def _wrap_pi(a: Array) -> Array:
 
 
 _ZERO6 = (0.0,) * 6
+_FREE = ConfigRequest()
 
 
 @dataclass(frozen=True, slots=True)
@@ -74,13 +76,15 @@ class _Branch:
     singular: tuple[bool, bool, bool]
 
 
-def _pick_turn_one(q: float, bounds: tuple[float, float], target: float) -> float | None:
+def _pick_turn_one(q: float, bounds: tuple[float, float, bool], target: float) -> float | None:
     """Scalar :meth:`IkMixin._pick_turn`: q + 360k (k in 0, -1, 1, ties keep the first)
-    inside ``bounds`` closest to ``target``, else None."""
+    inside ``bounds`` (lo, hi, only the base turn fits) closest to ``target``, else None."""
     base = q - 360.0 * round(q / 360.0)
     if base <= -180.0:
         base += 360.0
-    lo, hi = bounds
+    lo, hi, single = bounds
+    if single:
+        return base if lo <= base <= hi else None
     best, best_dist = None, math.inf
     for cand in (base, base - 360.0, base + 360.0):
         if lo <= cand <= hi:
@@ -281,16 +285,19 @@ class IkMixin(ConfigMixin):
         sols: list[IkSolution] = []
         found: list[list[float]] = []
         any_config = False
+        free = request == _FREE
         for cfg, b in zip(CONFIGS, branches, strict=True):
-            if not b.reachable or not request.matches(cfg, same_as):
+            if not b.reachable or not (free or request.matches(cfg, same_as)):
                 continue
             any_config = True
             q = b.joints_deg
             if q is None:
                 continue
-            if any(max(abs(u - v) for u, v in zip(q, f, strict=True)) <= 1e-9 for f in found):
-                continue  # the same joints twice, at a singularity
-            names = tuple(nm for nm, f in zip(SINGULARITY_NAMES, b.singular, strict=True) if f)
+            names: tuple[str, ...] = ()
+            if any(b.singular):  # branches coincide only at a singularity
+                if any(max(abs(u - v) for u, v in zip(q, f, strict=True)) <= 1e-9 for f in found):
+                    continue  # the same joints twice
+                names = tuple(nm for nm, f in zip(SINGULARITY_NAMES, b.singular, strict=True) if f)
             if names and raise_on_singularity:
                 raise SingularityError(
                     f"{self.name}: pose is at a {names[0]} singularity", kind=names[0]
@@ -300,7 +307,7 @@ class IkMixin(ConfigMixin):
             found.append(q)
             sols.append(IkSolution(arr, cfg, names))
         if not sols:
-            what = "" if request == ConfigRequest() else " with the requested configuration"
+            what = "" if free else " with the requested configuration"
             if not any_config:
                 raise UnreachableError(f"{self.name}: no solution{what}")
             raise JointLimitError(f"{self.name}: every solution{what} violates a joint limit")
@@ -333,7 +340,8 @@ class IkMixin(ConfigMixin):
         root = math.sqrt(max(disc, 0.0))
         phi = math.atan2(wy, wx)
         free1 = ref is not None and rho2 < len_tol**2
-        lo_hi = self._turn_bounds()
+        lo_hi = self._turn_bounds
+        pick = _pick_turn_one
         target = ref if ref is not None else _ZERO6
         out: list[_Branch] = []
         for r in (root, -root):
@@ -380,28 +388,33 @@ class IkMixin(ConfigMixin):
                 t2w = (t2 + math.pi) % (2.0 * math.pi) - math.pi
                 sing = (s5abs < SINGULAR_TOL, s3abs < SINGULAR_TOL, shoulder_sing)
                 # joints 1-3 are shared by both wrist branches: pick their turns once
-                arm = [
-                    _pick_turn_one(math.degrees(t) - off[i], lo_hi[i], target[i])
-                    for i, t in enumerate((t1, t2w, t3))
-                ]
+                q1 = pick(math.degrees(t1) - off[0], lo_hi[0], target[0])
+                q2 = pick(math.degrees(t2w) - off[1], lo_hi[1], target[1])
+                q3 = pick(math.degrees(t3) - off[2], lo_hi[2], target[2])
+                arm: tuple[float, float, float] | None = None
+                if reach and q1 is not None and q2 is not None and q3 is not None:
+                    arm = (q1, q2, q3)
                 for t5, t4, t6 in wraps:
-                    q = [
-                        *arm,
-                        *(
-                            _pick_turn_one(math.degrees(t) - off[i], lo_hi[i], target[i])
-                            for i, t in ((3, t4), (4, t5), (5, t6))
-                        ),
-                    ]
-                    ok = reach and None not in q
-                    out.append(
-                        _Branch([v for v in q if v is not None] if ok else None, reach, sing)
-                    )
+                    q: list[float] | None = None
+                    if arm is not None:
+                        q4 = pick(math.degrees(t4) - off[3], lo_hi[3], target[3])
+                        q5 = pick(math.degrees(t5) - off[4], lo_hi[4], target[4])
+                        q6 = pick(math.degrees(t6) - off[5], lo_hi[5], target[5])
+                        if q4 is not None and q5 is not None and q6 is not None:
+                            q = [*arm, q4, q5, q6]
+                    out.append(_Branch(q, reach, sing))
         return out
 
-    def _turn_bounds(self) -> tuple[tuple[float, float], ...]:
-        """Joint limits widened by the slack, as Python floats (the scalar IK's turn pick)."""
+    @cached_property
+    def _turn_bounds(self) -> tuple[tuple[float, float, bool], ...]:
+        """Per joint: the limits widened by the slack as Python floats, and whether only the
+        turn in (-180, 180] can lie inside them (the scalar IK's turn pick)."""
         lim = self._limits.tolist()
-        return tuple((lo - LIMIT_SLACK_DEG, hi + LIMIT_SLACK_DEG) for lo, hi in lim)
+        out = []
+        for lo, hi in lim:
+            lo, hi = lo - LIMIT_SLACK_DEG, hi + LIMIT_SLACK_DEG
+            out.append((lo, hi, lo > -180.0 and hi < 180.0))
+        return tuple(out)
 
     def _why_unreachable(self, T: Array) -> str:
         w = T[:3, 3] - self.wrist_to_flange_mm * T[:3, 2]
