@@ -224,7 +224,7 @@ def test_mse_curve_equals_the_definition(
     jr, yr = upsample(t_r, y_r, step)
     js, ys = upsample(t_s, y_s, step)
     shifts = np.arange(m_lo, m_lo + span + 1, dtype=np.int64)
-    mse, overlap = _mse_curve(jr, yr, js, ys, shifts, (t_r, y_r, step))
+    mse, overlap = _mse_curve(jr, len(yr), js, ys, shifts, (t_r, y_r, step))
     ref, ref_overlap = _plain_mse_curve(jr, yr, js, ys, shifts)
     np.testing.assert_array_equal(overlap, ref_overlap)
     finite = np.isfinite(ref)
