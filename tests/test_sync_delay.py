@@ -21,12 +21,12 @@ from sync.delay import (
     DelayEstimateError,
     NoInteriorMinimumError,
     SineExperiment,
+    _mse_curve,
     estimate_delay,
     residual_after_sync,
     simulate_sine_experiment,
     upsample,
 )
-from sync.delay import _mse_curve as _mse_curve
 
 TOL_S = 0.06e-3
 
