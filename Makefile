@@ -26,7 +26,12 @@ lint: $(STAMP)
 test: lint
 	$(PY) -m pytest
 
-bench: $(STAMP)
+# The peer libraries of the benchmarks only here: `make test` must not need them.
+$(VENV)/.installed-bench: $(STAMP)
+	$(PY) -m pip install --quiet -e '.[test,plot,xsd,bench]' --config-settings editable_mode=compat
+	touch $@
+
+bench: $(VENV)/.installed-bench
 	$(PY) -m bench -o bench-results/results.json
 
 fuzz: $(STAMP)

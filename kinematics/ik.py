@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -20,7 +21,7 @@ from kinematics.config import (
     ConfigRequest,
 )
 from kinematics.errors import JointLimitError, KinematicsError, SingularityError, UnreachableError
-from kinematics.transforms import Array, check_transform
+from kinematics.transforms import RIGID_TOL, Array, check_transform
 
 #: Below this, the closed form degenerates and the free joint takes the preferred value.
 _DEGENERATE = 1e-12
@@ -59,6 +60,77 @@ class IkBatch:
 
 def _wrap_pi(a: Array) -> Array:
     return np.asarray((a + np.pi) % (2.0 * np.pi) - np.pi)
+
+
+_ZERO6 = (0.0,) * 6
+_FREE = ConfigRequest()
+
+
+@dataclass(frozen=True, slots=True)
+class _Branch:
+    """One IK branch of one pose: joints (degrees, None when unreachable or outside the
+    limits), reachable (limits ignored), singular flags (wrist, elbow, shoulder)."""
+
+    joints_deg: list[float] | None
+    reachable: bool
+    singular: tuple[bool, bool, bool]
+
+
+def _pick_turn_one(q: float, bounds: tuple[float, float, bool], target: float) -> float | None:
+    """Scalar :meth:`IkMixin._pick_turn`: q + 360k (k in 0, -1, 1, ties keep the first)
+    inside ``bounds`` (lo, hi, only the base turn fits) closest to ``target``, else None."""
+    base = q - 360.0 * round(q / 360.0)
+    if base <= -180.0:
+        base += 360.0
+    lo, hi, single = bounds
+    if single:
+        return base if lo <= base <= hi else None
+    best, best_dist = None, math.inf
+    for cand in (base, base - 360.0, base + 360.0):
+        if lo <= cand <= hi:
+            dist = abs(cand - target)
+            if dist < best_dist:
+                best, best_dist = cand, dist
+    return best
+
+
+def _one_transform(T: Any) -> list[list[float]]:
+    """One flange2base (4, 4) as rows of Python floats, checked as ``check_transform`` does
+    (the batch check costs more than the single IK itself)."""
+    arr = check_transform(T, name="flange2base") if not _plain_4x4(T) else T
+    if arr.ndim != 2:
+        raise KinematicsError("ik: expected one (4, 4) flange2base; use ik_batch for N")
+    rows: list[list[float]] = arr.tolist()
+    if arr is T:
+        _check_rigid_rows(rows)
+    return rows
+
+
+def _plain_4x4(T: Any) -> bool:
+    return isinstance(T, np.ndarray) and T.dtype == np.float64 and T.shape == (4, 4)
+
+
+def _check_rigid_rows(rows: list[list[float]]) -> None:
+    """``check_transform``'s tests on one (4, 4) of Python floats, same messages."""
+    name = "flange2base"
+    if not all(math.isfinite(v) for row in rows for v in row):
+        raise KinematicsError(f"{name}: contains NaN or infinity")
+    if any(abs(v - e) > RIGID_TOL for v, e in zip(rows[3], (0.0, 0.0, 0.0, 1.0), strict=True)):
+        raise KinematicsError(f"{name}: last row must be (0, 0, 0, 1)")
+    (a, b, c), (d, e, f), (g, h, i_) = (rows[0][:3], rows[1][:3], rows[2][:3])
+    # RᵀR - I, the six distinct entries
+    gram = (
+        a * a + d * d + g * g - 1.0,
+        b * b + e * e + h * h - 1.0,
+        c * c + f * f + i_ * i_ - 1.0,
+        a * b + d * e + g * h,
+        a * c + d * f + g * i_,
+        b * c + e * f + h * i_,
+    )
+    if any(abs(v) > RIGID_TOL for v in gram) or (
+        a * (e * i_ - f * h) - b * (d * i_ - f * g) + c * (d * h - e * g) < 0.0
+    ):
+        raise KinematicsError(f"{name}: rotation part is not orthonormal with det +1")
 
 
 class IkMixin(ConfigMixin):
@@ -203,43 +275,146 @@ class IkMixin(ConfigMixin):
         singularity list it in ``singularities`` (or raise SingularityError when asked).
         Raises UnreachableError, or JointLimitError when only limit-violating ones exist.
         """
-        T = check_transform(flange2base_T, name="flange2base")
-        if T.ndim != 2:
-            raise KinematicsError("ik: expected one (4, 4) flange2base; use ik_batch for N")
-        ref = None if near is None else np.array(vector6(near, "near"))
+        rows = _one_transform(flange2base_T)
+        ref = None if near is None else vector6(near, "near")
         request = ConfigRequest.parse(config)
         same_as = None if ref is None else self.config_of(ref)
-        batch = self._ik_batch(T[None], ref)
-        if not np.any(batch.reachable[0]):
-            raise UnreachableError(self._why_unreachable(T))
+        branches = self._ik_one(rows, ref)
+        if not any(b.reachable for b in branches):
+            raise UnreachableError(self._why_unreachable(np.array(rows)))
         sols: list[IkSolution] = []
+        found: list[list[float]] = []
         any_config = False
-        for k, cfg in enumerate(CONFIGS):
-            if not batch.reachable[0, k] or not request.matches(cfg, same_as):
+        free = request == _FREE
+        for cfg, b in zip(CONFIGS, branches, strict=True):
+            if not b.reachable or not (free or request.matches(cfg, same_as)):
                 continue
             any_config = True
-            if not batch.valid[0, k]:
+            q = b.joints_deg
+            if q is None:
                 continue
-            q = batch.joints_deg[0, k].copy()
-            q.flags.writeable = False
-            if any(float(np.max(np.abs(q - s.joints_deg))) <= 1e-9 for s in sols):
-                continue  # the same joints twice, at a singularity
-            names = tuple(
-                nm for nm, f in zip(SINGULARITY_NAMES, batch.singular[0, k], strict=True) if f
-            )
+            names: tuple[str, ...] = ()
+            if any(b.singular):  # branches coincide only at a singularity
+                if any(max(abs(u - v) for u, v in zip(q, f, strict=True)) <= 1e-9 for f in found):
+                    continue  # the same joints twice
+                names = tuple(nm for nm, f in zip(SINGULARITY_NAMES, b.singular, strict=True) if f)
             if names and raise_on_singularity:
                 raise SingularityError(
                     f"{self.name}: pose is at a {names[0]} singularity", kind=names[0]
                 )
-            sols.append(IkSolution(q, cfg, names))
+            arr = np.array(q)
+            arr.flags.writeable = False
+            found.append(q)
+            sols.append(IkSolution(arr, cfg, names))
         if not sols:
-            what = "" if request == ConfigRequest() else " with the requested configuration"
+            what = "" if free else " with the requested configuration"
             if not any_config:
                 raise UnreachableError(f"{self.name}: no solution{what}")
             raise JointLimitError(f"{self.name}: every solution{what} violates a joint limit")
         if ref is not None:
-            sols.sort(key=lambda s: float(np.linalg.norm(s.joints_deg - ref)))
+            target = ref
+            sols.sort(
+                key=lambda s: math.sqrt(
+                    sum((u - v) ** 2 for u, v in zip(s.joints_deg.tolist(), target, strict=True))
+                )
+            )
         return sols
+
+    def _ik_one(self, T: list[list[float]], ref: list[float] | None) -> list[_Branch]:
+        """The 8 branches of one pose (``CONFIGS`` order), in Python floats.
+
+        The scalar twin of :meth:`_ik_core` + :meth:`_pick_turn`: the same formulas step for
+        step (tests check it against the batch), because numpy's per-call overhead on (1, 8)
+        arrays costs ten times the arithmetic; ToolMoveJ, jogging and the console pay it per
+        pose.
+        """
+        a1, d = self.shoulder_offset_mm, self.lateral_offset_mm
+        a2, d4, d6 = self.upper_arm_mm, self.forearm_mm, self.wrist_to_flange_mm
+        off = self.joint_offsets_deg
+        r0, r1, r2 = T[0], T[1], T[2]
+        wx, wy, wz = r0[3] - d6 * r0[2], r1[3] - d6 * r1[2], r2[3] - d6 * r2[2]
+        rho2 = wx * wx + wy * wy
+        disc = rho2 - d * d
+        len_tol = 1e-9 * (self.reach_mm + abs(a1) + abs(d))
+        reach_sh = disc >= -2.0 * len_tol * max(abs(d), 1.0)
+        root = math.sqrt(max(disc, 0.0))
+        phi = math.atan2(wy, wx)
+        free1 = ref is not None and rho2 < len_tol**2
+        lo_hi = self._turn_bounds
+        pick = _pick_turn_one
+        target = ref if ref is not None else _ZERO6
+        out: list[_Branch] = []
+        for r in (root, -root):
+            t1 = (
+                math.radians(ref[0] + off[0])
+                if free1 and ref is not None
+                else phi - math.atan2(d, r)
+            )
+            xp = r - a1
+            zp = wz
+            c3 = (xp * xp + zp * zp - a2 * a2 - d4 * d4) / (2.0 * a2 * d4)
+            reach = reach_sh and abs(c3) <= 1.0 + 1e-12
+            c3 = min(max(c3, -1.0), 1.0)
+            s3abs = math.sqrt(1.0 - c3 * c3)
+            s1, c1 = math.sin(t1), math.cos(t1)
+            # A = Rz(θ1)ᵀ·R, rows 0, 1, 2
+            A0 = [c1 * r0[j] + s1 * r1[j] for j in range(3)]
+            A1 = [-s1 * r0[j] + c1 * r1[j] for j in range(3)]
+            A2 = r2
+            shoulder_sing = abs(r) < SINGULAR_TOL * self.reach_mm
+            for s3 in (s3abs, -s3abs):
+                t3 = math.atan2(s3, c3)
+                t2 = math.atan2(xp, zp) - math.atan2(d4 * s3, a2 + d4 * c3)
+                t23 = t2 + t3
+                s23, c23 = math.sin(t23), math.cos(t23)
+                m00 = c23 * A0[0] - s23 * A2[0]
+                m02 = c23 * A0[2] - s23 * A2[2]
+                m10, m12 = A1[0], A1[2]
+                m20 = s23 * A0[0] + c23 * A2[0]
+                m21 = s23 * A0[1] + c23 * A2[1]
+                m22 = s23 * A0[2] + c23 * A2[2]
+                s5abs = math.hypot(m02, m12)
+                t5p = math.atan2(s5abs, m22)
+                wraps = ((t5p, math.atan2(m12, m02), math.atan2(m21, -m20)),
+                         (-t5p, math.atan2(-m12, -m02), math.atan2(-m21, m20)))  # fmt: skip
+                if s5abs < _DEGENERATE:
+                    # Axes 4 and 6 aligned: only θ4 ± θ6 is defined; keep θ4 (current or 0).
+                    pref4 = 0.0 if ref is None else math.radians(ref[3] + off[3])
+                    if m22 > 0.0:
+                        t6 = math.atan2(m10, m00) - pref4  # θ4 + θ6
+                    else:
+                        t6 = -math.atan2(-m10, -m00) + pref4  # θ6 - θ4 (θ5 = ±π)
+                    wraps = ((t5p, pref4, t6), (-t5p, pref4, t6))
+                t2w = (t2 + math.pi) % (2.0 * math.pi) - math.pi
+                sing = (s5abs < SINGULAR_TOL, s3abs < SINGULAR_TOL, shoulder_sing)
+                # joints 1-3 are shared by both wrist branches: pick their turns once
+                q1 = pick(math.degrees(t1) - off[0], lo_hi[0], target[0])
+                q2 = pick(math.degrees(t2w) - off[1], lo_hi[1], target[1])
+                q3 = pick(math.degrees(t3) - off[2], lo_hi[2], target[2])
+                arm: tuple[float, float, float] | None = None
+                if reach and q1 is not None and q2 is not None and q3 is not None:
+                    arm = (q1, q2, q3)
+                for t5, t4, t6 in wraps:
+                    q: list[float] | None = None
+                    if arm is not None:
+                        q4 = pick(math.degrees(t4) - off[3], lo_hi[3], target[3])
+                        q5 = pick(math.degrees(t5) - off[4], lo_hi[4], target[4])
+                        q6 = pick(math.degrees(t6) - off[5], lo_hi[5], target[5])
+                        if q4 is not None and q5 is not None and q6 is not None:
+                            q = [*arm, q4, q5, q6]
+                    out.append(_Branch(q, reach, sing))
+        return out
+
+    @cached_property
+    def _turn_bounds(self) -> tuple[tuple[float, float, bool], ...]:
+        """Per joint: the limits widened by the slack as Python floats, and whether only the
+        turn in (-180, 180] can lie inside them (the scalar IK's turn pick)."""
+        lim = self._limits.tolist()
+        out = []
+        for lo, hi in lim:
+            lo, hi = lo - LIMIT_SLACK_DEG, hi + LIMIT_SLACK_DEG
+            out.append((lo, hi, lo > -180.0 and hi < 180.0))
+        return tuple(out)
 
     def _why_unreachable(self, T: Array) -> str:
         w = T[:3, 3] - self.wrist_to_flange_mm * T[:3, 2]

@@ -5,6 +5,12 @@ intensity centroid after subtracting a threshold ``background + k·noise`` (back
 noise estimated per frame, robustly, from pixels just outside the windows). Second pass with
 the window re-centred on the centroid. A column is valid when its peak clears the background
 by ``max(min_contrast_dn, 6·noise)`` and the stripe is not wider than ``max_width_px`` (rms).
+Last, each valid column whose two neighbours on either side are valid and in line with it
+(second differences at most ``MAX_BEND_PX``) takes the [1, 2, 3, 2, 1]/9 average of the five
+centres: the noise of one column's centroid is pixel noise (read, shot, speckle) independent
+between columns, so averaging along a straight piece of stripe halves it without bias (a
+symmetric kernel on a line), as a blur across columns does before a centre of gravity;
+edges, steps and corners keep their own centre.
 Frames are in readout layout ``(columns, rows)``, see :mod:`sensorsocket.camera`; the seam
 stages are in :mod:`sensorsocket.detector`.
 """
@@ -27,6 +33,10 @@ _MIN_NOISE_DN = 0.5
 #: A valid column's peak clears the background by this many noise sigmas (or by
 #: ``min_contrast_dn``): over 512 columns, noise alone then practically never passes.
 _PEAK_SIGMAS = 6.0
+#: Cross-column smoothing only where the stripe is locally straight: a second difference of
+#: the rows above this (px) is an edge, step or corner, not noise (about 5 sigma of the
+#: second difference of the centroid noise), and is left alone.
+MAX_BEND_PX = 0.5
 
 
 @dataclass(frozen=True)
@@ -154,6 +164,8 @@ class StripeFinder:
         valid = peak >= background + contrast
         valid &= positive
         valid &= spread <= self.max_width_px**2
+        if n >= 5:
+            smooth_straight(rows, valid)
         return StripeProfile(
             first_column=first_column,
             rows=rows.astype(np.float64),
@@ -213,6 +225,27 @@ class StripeFinder:
                 arr.setflags(write=False)
             self._windows[half] = window
         return window
+
+
+def smooth_straight(rows: NDArray[np.float32], valid: NDArray[np.bool_]) -> None:
+    """[1, 2, 3, 2, 1]/9 across columns, in place, where a column and its two neighbours on
+    either side are valid and the three second differences about it are at most
+    ``MAX_BEND_PX`` (rows (n,), n >= 5). Written as rows + (b[-1] + 4·b[0] + b[1])/9 on the
+    second differences b, the same weights."""
+    bend = rows[:-2] + rows[2:]
+    bend -= 2.0 * rows[1:-1]  # bend[k]: second difference at column k + 1
+    straight = np.abs(bend) <= np.float32(MAX_BEND_PX)
+    straight &= valid[:-2]
+    straight &= valid[1:-1]
+    straight &= valid[2:]
+    ok = straight[:-2] & straight[1:-1]
+    ok &= straight[2:]
+    step = bend[1:-1] * np.float32(4.0)
+    step += bend[:-2]
+    step += bend[2:]
+    step *= np.float32(1.0 / 9.0)
+    step *= ok
+    rows[2:-2] += step
 
 
 def to_dn(a: NDArray[np.generic]) -> NDArray[np.float32]:

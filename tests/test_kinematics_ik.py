@@ -162,3 +162,74 @@ def test_bad_ik_input() -> None:
         m.ik_batch(np.eye(4))
     with pytest.raises(KinematicsError):
         m.flange2base_batch(np.zeros((3, 5)))
+
+
+def _special_poses(name: str) -> list[list[float]]:
+    """Joints on each singularity and on both wrist-degenerate branches, plus plain ones."""
+    m = get_model(name)
+    rng = np.random.default_rng(11)
+    qs = [list(v) for v in rng.uniform(m.limits[:, 0], m.limits[:, 1], (40, 6))]
+    for q in list(qs[:10]):
+        qs.append([q[0], q[1], q[2], q[3], 0.0, q[5]])  # axes 4 and 6 aligned
+        qs.append([q[0], q[1], -m.joint_offsets_deg[2], q[3], q[4], q[5]])  # stretched
+    return qs
+
+
+@pytest.mark.parametrize("name", MODELS)
+@pytest.mark.parametrize("with_near", [False, True])
+def test_scalar_ik_equals_the_batch_core_branch_by_branch(name: str, with_near: bool) -> None:
+    """The single-pose fast path is the batch formula in Python floats: every branch, its
+    reachability, joints (turn included) and singular flags agree."""
+    m = get_model(name)
+    for q in _special_poses(name):
+        T = m.flange2base(q)
+        ref = q if with_near else None
+        batch = m.ik_batch(T[None], near=ref)
+        branches = m._ik_one(T.tolist(), ref)
+        assert len(branches) == len(CONFIGS)
+        for k, b in enumerate(branches):
+            assert b.reachable == bool(batch.reachable[0, k])
+            assert b.singular == tuple(bool(f) for f in batch.singular[0, k])
+            if b.joints_deg is None:
+                assert not batch.valid[0, k]
+            else:
+                assert batch.valid[0, k]
+                np.testing.assert_allclose(b.joints_deg, batch.joints_deg[0, k], atol=1e-9)
+
+
+@SETTINGS
+@given(
+    i=st.integers(0, 3),
+    j=st.integers(0, 3),
+    delta=st.sampled_from([0.0, 1e-7, -1e-7, 2e-6, -2e-6, 1e-3, np.nan, np.inf]),
+)
+def test_single_pose_check_rejects_what_check_transform_rejects(
+    i: int, j: int, delta: float
+) -> None:
+    """ik()'s own check of one (4, 4) float64 accepts and rejects as check_transform."""
+    from kinematics.transforms import check_transform
+
+    m = get_model("RX90B")
+    T = m.flange2base([10.0, 20.0, 30.0, 40.0, 50.0, 60.0])
+    T[i, j] += delta
+    try:
+        check_transform(T, name="flange2base")
+        expected = None
+    except KinematicsError as exc:
+        expected = str(exc)
+    try:
+        m.ik(T)
+        got = None
+    except KinematicsError as exc:
+        got = str(exc)
+    if expected is None:
+        assert got is None or not got.startswith("flange2base:")
+    else:
+        assert got == expected
+
+
+def test_single_pose_check_rejects_a_reflection() -> None:
+    T = np.eye(4)
+    T[2, 2] = -1.0
+    with pytest.raises(KinematicsError, match="det"):
+        get_model().ik(T)

@@ -12,14 +12,19 @@ from typing import Any
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from sync.delay import (
+    DEFAULT_GRID_STEP_S,
     DelayEstimate,
     DelayEstimateError,
     NoInteriorMinimumError,
     ResidualReport,
     SineExperiment,
     Verdict,
+    _mse_curve,
+    _mse_curve_masked,
     assess_run,
     estimate_delay,
     residual_after_sync,
@@ -117,7 +122,8 @@ def test_mse_is_normalised_per_overlap() -> None:
     )
     est = _estimate(ex, search_max_s=200e-3)
     assert est.shifts_s[est.min_index] == pytest.approx(5.0e-3)
-    assert est.mse[est.min_index] < 1e-20
+    # zero up to the round-off of Σys² + Σyr² - 2Σys·yr on a 2 mm signal (~1e-14 mm²)
+    assert est.mse[est.min_index] < 1e-12
     assert np.all(est.mse <= 16.0)
     assert est.overlap[0] > est.overlap[-1]
     assert abs(est.delta_t_s - 5.0e-3) < 1e-6
@@ -275,3 +281,40 @@ def test_bursts_of_lost_data_leave_the_estimate_right() -> None:
     # the MSE averaged only the grid points inside the data, about half of the span
     span = (ex.t_trigger[keep][-1] - ex.t_trigger[keep][0]) / est.grid_step_s
     assert est.overlap.max() < 0.6 * span
+
+
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    robot_period=st.sampled_from([0.2e-3, 1e-3, 4e-3, 4.1e-3]),
+    jitter=st.floats(0.0, 0.9),
+    offset=st.floats(-5.0, 5.0),
+    m_lo=st.integers(-200, 50),
+    span=st.integers(2, 150),
+)
+def test_mse_curve_equals_the_definition(
+    seed: int, robot_period: float, jitter: float, offset: float, m_lo: int, span: int
+) -> None:
+    """The prefix-sum / robot-piece form of the MSE curve is the plain per-shift mean, for
+    robot samples on and off the grid, jittered, far from zero, shifts beyond the overlap."""
+    rng = np.random.default_rng(seed)
+    n_r = int(0.4 / robot_period)
+    t_r = rng.uniform(0.0, 0.05) + robot_period * (
+        np.arange(n_r) + jitter * rng.uniform(-0.5, 0.5, n_r)
+    )
+    y_r = offset + np.sin(2 * np.pi * 3.0 * t_r) + 0.01 * rng.standard_normal(n_r)
+    t_s = np.sort(rng.uniform(0.0, 0.45, 90))
+    t_s = t_s[np.concatenate([[True], np.diff(t_s) > 1e-6])]
+    y_s = offset + np.sin(2 * np.pi * 3.0 * (t_s + 0.005)) + 0.01 * rng.standard_normal(len(t_s))
+    step = DEFAULT_GRID_STEP_S
+    jr, yr = upsample(t_r, y_r, step)
+    js, ys = upsample(t_s, y_s, step)
+    shifts = np.arange(m_lo, m_lo + span + 1, dtype=np.int64)
+    mse, overlap = _mse_curve(jr, len(yr), js, ys, shifts, (t_r, y_r, step))
+    # the plain per-shift mean (the path of runs with lost data), every point kept
+    ref, ref_overlap = _mse_curve_masked(jr, yr, js, ys, shifts, np.ones(len(ys)))
+    np.testing.assert_array_equal(overlap, ref_overlap)
+    finite = np.isfinite(ref)
+    np.testing.assert_array_equal(np.isfinite(mse), finite)
+    scale = 1.0 + offset * offset
+    np.testing.assert_allclose(mse[finite], ref[finite], rtol=1e-9, atol=1e-11 * scale)
