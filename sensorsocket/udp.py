@@ -24,6 +24,7 @@ from spec.auth import Network, address_allowed
 from spec.datagrams import decode_datagram, encode_data_fields, serial_newer, trigger_fields
 from spec.errors import DatagramError
 from spec.realtime import DEFAULT_RT_PRIORITY, promote_current_thread
+from spec.shells import register
 from spec.sockopt import set_kernel_timeouts
 from spec.udp import arrival_time, bind_udp, enable_kernel_timestamps, recv_stamped
 from spec.wire import SensorStatus
@@ -298,6 +299,9 @@ class TriggerListener:
         self._seq = 0
         self._send_errors = 0
         self._sent = 0
+        #: Exceptions the loop caught and survived (tests make them fatal, spec.shells).
+        self.handler_errors: list[BaseException] = []
+        register(self)
 
     def start(self) -> TriggerListener:
         self._thread = threading.Thread(target=self._run, name="sensor-udp", daemon=True)
@@ -376,7 +380,8 @@ class TriggerListener:
             self._stale += stale
             try:
                 reply = process(datagram, t_arrival, source, stale=stale)
-            except Exception:  # the listener must survive any sensor failure
+            except Exception as exc:  # the listener must survive any sensor failure
+                self.handler_errors.append(exc)
                 log.exception("trigger handling failed")
                 continue
             if reply is None:

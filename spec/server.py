@@ -53,6 +53,7 @@ from spec.codec import (
 from spec.errors import ErrorCode, PeerError, ProtocolError
 from spec.params import IntArray, Value
 from spec.registry import CommandId, CommandSpec, check_params, commands_for, lookup
+from spec.shells import register
 from spec.sockopt import set_kernel_timeouts
 from spec.wire import PacketKind
 
@@ -334,6 +335,7 @@ class FramedServer:
         self.control_holder: Session | None = None
         self._auth = AuthBackoff()  # failed TakeControl attempts per address [RS-7.20]
         self.handler_errors: list[BaseException] = []
+        register(self)
         self._implemented = frozenset(service.implemented()) | {int(c) for c in _COMMON}
 
     # --- lifecycle ---------------------------------------------------------------------------

@@ -38,6 +38,7 @@ from spec.datagrams import INDEX_MODULUS, SensorData, Trigger, decode_datagram, 
 from spec.errors import DatagramError
 from spec.realtime import DEFAULT_RT_PRIORITY, promote_current_thread
 from spec.registry import SEAM_POINT_COLUMNS
+from spec.shells import register
 from spec.udp import (
     arrival_time,
     bind_udp,
@@ -520,6 +521,9 @@ class UdpSyncEndpoint:
         self._wake_r, self._wake_w = socket.socketpair()
         self._thread: threading.Thread | None = None
         self.send_errors = 0
+        #: Exceptions the loop caught and survived (tests make them fatal, spec.shells).
+        self.handler_errors: list[BaseException] = []
+        register(self)
         #: Networks datagrams may come from; empty: any [RS-7.7].
         self.allow: tuple[Network, ...] = tuple(allow)
         #: Accept datagrams only from the sensor endpoint the triggers go to [SY-3.7].
@@ -547,6 +551,12 @@ class UdpSyncEndpoint:
         self._thread = threading.Thread(target=self._run, name="robot-sync-udp", daemon=True)
         self._thread.start()
         return self
+
+    def __enter__(self) -> UdpSyncEndpoint:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
 
     def stop(self, timeout: float = 2.0) -> None:
         self._stop.set()
@@ -592,7 +602,8 @@ class UdpSyncEndpoint:
                     self.core.add_joints(t, q)
                     last_joint_t = float(t[-1])
                 self.core.poll(self.clock())
-            except Exception:  # the endpoint must survive a bad joint source
+            except Exception as exc:  # the endpoint must survive a bad joint source
+                self.handler_errors.append(exc)
                 log.exception("synchronisation poll failed")
 
     def _send_due(self) -> None:

@@ -12,6 +12,7 @@ from collections.abc import Callable, Iterator
 import pytest
 
 from spec.server import FramedServer, ServerPolicy, Service
+from spec.shells import live_shells
 
 Serve = Callable[[Service, ServerPolicy | None], FramedServer]
 
@@ -31,3 +32,14 @@ def serve() -> Iterator[Serve]:
         srv.shutdown()
     for srv in servers:
         assert not srv.handler_errors, srv.handler_errors
+
+
+@pytest.fixture(autouse=True)
+def _shell_errors_are_fatal() -> Iterator[None]:
+    """Any exception a socket shell's loop caught and survived during a test fails it (a
+    test that provokes one on purpose clears ``handler_errors`` after checking it)."""
+    before = {id(s) for s in live_shells()}
+    yield
+    for shell in live_shells():
+        if id(shell) not in before:
+            assert not shell.handler_errors, (type(shell).__name__, shell.handler_errors)
