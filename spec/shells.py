@@ -1,6 +1,7 @@
 """What the socket shells share beyond start / stop / ``with``: the exceptions their loops
-caught and survived (``handler_errors``), and a registry of the live shells, so that tests
-can make any such exception fatal (tests/conftest.py) instead of finding it only in a log.
+caught and survived (``handler_errors``), and a way for tests to collect every shell created
+while they run, so that any such exception fails the test (tests/conftest.py) instead of
+being found only in a log.
 
 The shells are :class:`spec.server.FramedServer`, :class:`sync.udp.UdpSyncEndpoint` and
 :class:`sensorsocket.udp.TriggerListener`.
@@ -8,7 +9,8 @@ The shells are :class:`spec.server.FramedServer`, :class:`sync.udp.UdpSyncEndpoi
 
 from __future__ import annotations
 
-import weakref
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Protocol
 
 
@@ -16,17 +18,24 @@ class Shell(Protocol):
     handler_errors: list[BaseException]
 
 
-_LIVE: weakref.WeakSet[Shell] = weakref.WeakSet()
+_collectors: list[list[Shell]] = []
 
 
 def register(shell: Shell) -> None:
-    """Called by a shell's constructor."""
-    _LIVE.add(shell)
+    """Called by a shell's constructor: every active :func:`collect` sees it."""
+    for shells in _collectors:
+        shells.append(shell)
 
 
-def live_shells() -> list[Shell]:
-    """The shells created and not yet garbage-collected."""
-    return list(_LIVE)
+@contextmanager
+def collect() -> Iterator[list[Shell]]:
+    """The shells created inside the ``with`` block (kept alive until it ends)."""
+    shells: list[Shell] = []
+    _collectors.append(shells)
+    try:
+        yield shells
+    finally:
+        _collectors.remove(shells)
 
 
-__all__ = ["Shell", "live_shells", "register"]
+__all__ = ["Shell", "collect", "register"]

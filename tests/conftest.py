@@ -12,7 +12,7 @@ from collections.abc import Callable, Iterator
 import pytest
 
 from spec.server import FramedServer, ServerPolicy, Service
-from spec.shells import live_shells
+from spec.shells import collect
 
 Serve = Callable[[Service, ServerPolicy | None], FramedServer]
 
@@ -38,8 +38,7 @@ def serve() -> Iterator[Serve]:
 def _shell_errors_are_fatal() -> Iterator[None]:
     """Any exception a socket shell's loop caught and survived during a test fails it (a
     test that provokes one on purpose clears ``handler_errors`` after checking it)."""
-    before = {id(s) for s in live_shells()}
-    yield
-    for shell in live_shells():
-        if id(shell) not in before:
-            assert not shell.handler_errors, (type(shell).__name__, shell.handler_errors)
+    with collect() as shells:
+        yield
+    for shell in shells:
+        assert not shell.handler_errors, (type(shell).__name__, shell.handler_errors)
