@@ -11,6 +11,7 @@ from __future__ import annotations
 import itertools
 import math
 import time
+from dataclasses import dataclass
 
 from conformance.connection import Conn
 from conformance.context import Context
@@ -478,6 +479,25 @@ def motion_queued(ctx: Context) -> str:
 def motion_control_lost(ctx: Context) -> str:
     """When the controlling connection closes mid-move the arm stops, the queue empties and
     power stays on."""
+    lost = _lose_controller_mid_move(ctx, wait_pending=False, requirement="RS-7.10")
+    if not lost.status.get("powered"):
+        raise Fail(
+            "power changed when control was lost", "powered", lost.status, requirement="RS-7.10"
+        )
+    return "stopped and emptied the queue; power stayed on"
+
+
+@dataclass
+class _Lost:
+    status: dict[str, Value]
+    stopped_after_s: float
+    ran_to_the_end: bool
+
+
+def _lose_controller_mid_move(ctx: Context, *, wait_pending: bool, requirement: str) -> _Lost:
+    """Queue joint 1 +STEP_DEG and back, close the controlling connection (with a
+    WaitEndMove pending if asked), watch the arm stop from another connection, then bring
+    joint 1 back. ``ran_to_the_end``: the second move ran although the controller left."""
     watcher = ctx.connect()
     with _Motion(ctx) as m:
         conn = m.conn
@@ -487,29 +507,32 @@ def motion_control_lost(ctx: Context) -> str:
         target[0] += STEP_DEG
         conn.ok(C.JOINT_MOVE, Joints(target))
         conn.ok(C.JOINT_MOVE, Joints(start))
+        if wait_pending:
+            conn.request(C.WAIT_END_MOVE, 60.0)
+            time.sleep(0.05)
         conn.close()
-    deadline = time.monotonic() + 10.0
+    closed = time.monotonic()
     status = _status(watcher)
-    while time.monotonic() < deadline:
+    while time.monotonic() < closed + 10.0:
         status = _status(watcher)
         if not status.get("moving") and status.get("queue") == 0:
             break
-        time.sleep(0.05)
+        time.sleep(0.01)
     else:
         raise Fail(
             "the arm did not stop after the controller left",
             "stopped, queue 0",
             status,
-            requirement="RS-7.10",
+            requirement=requirement,
         )
-    if not status.get("powered"):
-        raise Fail("power changed when control was lost", "powered", status, requirement="RS-7.10")
+    stopped_after = time.monotonic() - closed
+    ran_to_the_end = abs(_joints(watcher)[0] - start[0]) < 0.05
     # Bring joint 1 back to where it started.
     ctx.take_control(watcher)
     watcher.ok(C.JOINT_MOVE, Joints(start))
     _wait_still(watcher, 30.0)
     watcher.call(C.RELEASE_CONTROL)
-    return "stopped and emptied the queue; power stayed on"
+    return _Lost(status, stopped_after, ran_to_the_end)
 
 
 @case(
@@ -621,48 +644,16 @@ def trajectory_tracking(ctx: Context) -> str:
 def close_while_waiting(ctx: Context) -> str:
     """A controller that closes while its WaitEndMove is pending stops the arm: the queue
     empties and the second move never runs."""
-    watcher = ctx.connect()
-    with _Motion(ctx) as m:
-        conn = m.conn
-        m.power()
-        start = _joints(conn)
-        target = list(start)
-        target[0] += STEP_DEG
-        conn.ok(C.JOINT_MOVE, Joints(target))
-        conn.ok(C.JOINT_MOVE, Joints(start))
-        conn.request(C.WAIT_END_MOVE, 60.0)
-        time.sleep(0.05)
-        conn.close()
-    closed = time.monotonic()
-    status = _status(watcher)
-    while time.monotonic() < closed + 10.0:
-        status = _status(watcher)
-        if not status.get("moving") and status.get("queue") == 0:
-            break
-        time.sleep(0.01)
-    else:
-        raise Fail(
-            "the arm did not stop after the controller closed during WaitEndMove",
-            "stopped, queue 0",
-            status,
-            requirement="RS-7.12",
-        )
-    stopped_after = time.monotonic() - closed
-    ctx.measure("close_while_waiting", stop_s=stopped_after)
-    back = abs(_joints(watcher)[0] - start[0]) < 0.05
-    # Bring joint 1 back to where it started.
-    ctx.take_control(watcher)
-    watcher.ok(C.JOINT_MOVE, Joints(start))
-    _wait_still(watcher, 30.0)
-    watcher.call(C.RELEASE_CONTROL)
-    if back:
+    lost = _lose_controller_mid_move(ctx, wait_pending=True, requirement="RS-7.12")
+    ctx.measure("close_while_waiting", stop_s=lost.stopped_after_s)
+    if lost.ran_to_the_end:
         raise Fail(
             "the queue ran to its end although the controller closed during WaitEndMove",
             "stopped on the way (second move dropped)",
             "back at the start",
             requirement="RS-7.12",
         )
-    return f"stopped {stopped_after * 1e3:.0f} ms after the close"
+    return f"stopped {lost.stopped_after_s * 1e3:.0f} ms after the close"
 
 
 @case(
