@@ -160,19 +160,20 @@ class FramedClient:
                 self.connect()
             request_id = self._new_request_id()
             data = encode_packet(request(command, request_id, *params))
+            # Marked abandoned until its reply is read: an interruption anywhere from here on
+            # (Ctrl-C between the send and the wait too) leaves its late reply to be dropped.
+            self._abandoned.add(request_id)
             try:
                 self._send(data)
             except OSError:
                 if not self.auto_reconnect:
                     raise
                 self.connect()
+                self._abandoned.add(request_id)
                 self._send(data)
-            try:
-                reply = self._receive(timeout if timeout is not None else self.timeout, command)
-            except BaseException:
-                if self._sock is not None:
-                    self._abandoned.add(request_id)
-                raise
+            wait = timeout if timeout is not None else self.timeout
+            reply = self._receive(wait, command, request_id)
+            self._abandoned.discard(request_id)
         return self._check_reply(command, request_id, reply)
 
     def _new_request_id(self) -> int:
@@ -192,7 +193,7 @@ class FramedClient:
             self.close()
             raise ClientTimeout("the server does not take the request (send timed out)") from None
 
-    def _receive(self, timeout: float, command: int = -1) -> Packet:
+    def _receive(self, timeout: float, command: int = -1, request_id: int = -1) -> Packet:
         assert self._sock is not None
         deadline = time.monotonic() + timeout
         decoder = self._decoder
@@ -203,7 +204,7 @@ class FramedClient:
                 if isinstance(event, Packet):
                     if event.kind is PacketKind.EVENT:
                         continue  # [RS-3.14] an event is never the reply to a request
-                    if event.request_id in self._abandoned:
+                    if event.request_id in self._abandoned and event.request_id != request_id:
                         self._abandoned.discard(event.request_id)
                         continue  # the late reply of an interrupted request
                     if command == CommandId.EMERGENCY_STOP and _is_limit_notice(event):

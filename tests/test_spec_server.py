@@ -564,13 +564,13 @@ def test_an_interrupted_call_leaves_no_stale_reply(server: FramedServer) -> None
         original = client._receive
         calls = 0
 
-        def interrupted(timeout: float, command: int = -1) -> Packet:
+        def interrupted(timeout: float, command: int = -1, request_id: int = -1) -> Packet:
             nonlocal calls
             calls += 1
             if calls == 1:
                 timer.start()
                 raise KeyboardInterrupt  # as if Ctrl-C hit while waiting for WaitEndMove
-            return original(timeout, command)
+            return original(timeout, command, request_id)
 
         client._receive = interrupted  # type: ignore[method-assign]
         with pytest.raises(KeyboardInterrupt):
@@ -578,3 +578,27 @@ def test_an_interrupted_call_leaves_no_stale_reply(server: FramedServer) -> None
         (joints,) = client.call(CommandId.HEREJ)  # the WaitEndMove reply comes first
         assert joints == Joints([1, 2, 3, 4, 5, 6])
         timer.join()
+
+
+def test_an_interrupt_right_after_the_send_leaves_no_stale_reply(server: FramedServer) -> None:
+    """Ctrl-C between the send and the wait for the reply (the race a SIGTERM'd `call` hit):
+    the request is already marked abandoned, so its reply is dropped too."""
+    service = server.service
+    assert isinstance(service, EchoRobot)
+    service.stopped.set()  # WaitEndMove answers at once
+    with FramedClient(*server.address) as client:
+        original = client._send
+        sent = 0
+
+        def send_then_interrupt(data: bytes) -> None:
+            nonlocal sent
+            original(data)
+            sent += 1
+            if sent == 1:
+                raise KeyboardInterrupt
+
+        client._send = send_then_interrupt  # type: ignore[method-assign]
+        with pytest.raises(KeyboardInterrupt):
+            client.call(CommandId.WAIT_END_MOVE, 5.0)
+        (joints,) = client.call(CommandId.HEREJ)
+        assert joints == Joints([1, 2, 3, 4, 5, 6])
