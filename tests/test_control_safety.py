@@ -240,3 +240,85 @@ def test_close_is_seen_while_a_long_wait_end_move_is_pending(cell: Cell) -> None
         assert cell.server.statistics()["watchdog_expired"] == 0
     finally:
         proc.kill()
+
+
+STREAMING = textwrap.dedent(
+    """
+    import sys, time
+    from robotsocket.client import RobotClient
+    from spec.params import FloatArray, Location, Matrix
+    from spec.registry import CommandId as C
+    robot = RobotClient(sys.argv[1], int(sys.argv[2]))
+    robot.take_control()
+    here = robot.here()
+    times = [0.5 * k for k in range(21)]  # 10 s along a straight line, 5 mm per 0.5 s
+    locs = [(here[0], here[1] + 5.0 * k, *here[2:]) for k in range(21)]
+    flat = [v for loc in locs for v in loc]
+    ident = Location(0, 0, 0, 0, 0, 0)
+    robot.call(C.TOOL_MOVE_TRAJECTORY, FloatArray(times), Matrix(21, 6, flat), ident, ident)
+    robot.set_output("laser", True)
+    print("streaming", flush=True)
+    time.sleep(60)
+    """
+)
+
+IDLE = textwrap.dedent(
+    """
+    import sys, time
+    from robotsocket.client import RobotClient
+    robot = RobotClient(sys.argv[1], int(sys.argv[2]))
+    robot.take_control()
+    robot.set_output("laser", True)
+    robot.set_output("gas", True)
+    print("idle", flush=True)
+    time.sleep(60)
+    """
+)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGSTOP])
+def test_a_streamed_trajectory_stops_when_its_controller_dies_or_freezes(
+    cell: Cell, sig: signal.Signals
+) -> None:
+    host, port = cell.server.address
+    proc = subprocess.Popen(
+        [sys.executable, "-c", STREAMING, host, str(port)],
+        stdout=subprocess.PIPE, text=True, env=ENV, cwd=ROOT,
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == "streaming"
+        assert cell.wait_until(cell.moving)
+        y0 = cell.robot.here()[1]
+        proc.send_signal(sig)
+        assert cell.wait_until(lambda: not cell.moving() and cell.server.control_holder is None)
+        assert cell.robot.read_io("laser") == (False, True)
+        assert abs(cell.robot.here()[1] - y0) < 50.0  # stopped, far short of the 100 mm path
+        assert cell.robot.status().queue == 0
+    finally:
+        if sig == signal.SIGSTOP:
+            proc.send_signal(signal.SIGCONT)
+        proc.kill()
+        proc.wait(5)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGSTOP])
+def test_an_idle_controller_that_dies_or_freezes_leaves_the_outputs_off(
+    cell: Cell, sig: signal.Signals
+) -> None:
+    host, port = cell.server.address
+    proc = subprocess.Popen(
+        [sys.executable, "-c", IDLE, host, str(port)],
+        stdout=subprocess.PIPE, text=True, env=ENV, cwd=ROOT,
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == "idle"
+        assert cell.robot.read_io("laser") == (True, True)
+        proc.send_signal(sig)
+        assert cell.wait_until(lambda: cell.server.control_holder is None)
+        assert cell.robot.read_io("laser") == (False, True)
+        assert cell.robot.read_io("gas") == (False, True)
+    finally:
+        if sig == signal.SIGSTOP:
+            proc.send_signal(signal.SIGCONT)
+        proc.kill()
+        proc.wait(5)
