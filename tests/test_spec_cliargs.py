@@ -155,7 +155,13 @@ VALUES = st.one_of(
 
 
 @pytest.mark.parametrize(
-    ("parse", "before", "option", "attr"), NUMERIC_OPTIONS, ids=lambda v: str(v)
+    ("parse", "before", "option", "attr"),
+    NUMERIC_OPTIONS,
+    # stable ids (a lambda's repr holds its address, which differs between test processes)
+    ids=[
+        f"{i}-{'_'.join(before)}-{option}"
+        for i, (_, before, option, _) in enumerate(NUMERIC_OPTIONS)
+    ],
 )
 @settings(max_examples=60, deadline=None)
 @given(value=VALUES)
