@@ -75,18 +75,23 @@ def corrected_flange(flange2base: Array, tool2flange: Array, correction: Array) 
     return out
 
 
-def _limit(error: Array, v: Array, vmax: float, amax: float, dt: float) -> Array:
-    """Velocity (n,) for the next cycle: towards ``error`` (n,) no faster than vmax, with a
-    speed change of at most amax * dt, braking in time to stop at the target."""
-    dist = float(np.linalg.norm(error))
+def _limit(error: Array, v: Array, v_ff: Array, vmax: float, amax: float, dt: float) -> Array:
+    """Velocity (n,) for the next cycle: the target's own velocity ``v_ff`` (n,) plus a
+    velocity towards what remains of ``error`` (n,), braking in time to stop at the target;
+    no faster than vmax and with a speed change of at most amax * dt."""
+    rest = error - v_ff * dt
+    dist = float(np.linalg.norm(rest))
     if dist < _EPS:
-        v_want = np.zeros_like(v)
+        v_want = v_ff.copy()
     else:
         # fastest speed from which braking at amax (one cycle of reaction) stops by the
         # target on the 4 ms grid: v * dt + v^2 / (2 amax) = dist
         brake = -amax * dt + math.sqrt((amax * dt) ** 2 + 2.0 * amax * dist)
         speed = min(vmax, brake, dist / dt)
-        v_want = error / dist * speed
+        v_want = v_ff + rest / dist * speed
+    n_want = float(np.linalg.norm(v_want))
+    if n_want > vmax:
+        v_want = v_want * (vmax / n_want)
     dv = v_want - v
     n = float(np.linalg.norm(dv))
     if n > amax * dt:
@@ -109,6 +114,7 @@ class AlterState:
         self.target = np.zeros(6)
         self.applied = np.zeros(6)
         self._v = np.zeros(6)
+        self._last_target = np.zeros(6)
         self._last_rx = 0.0
         self.lost = 0  # streams declared lost (statistics)
 
@@ -162,6 +168,7 @@ class AlterState:
         self.target = np.zeros(6)
         self.applied = np.zeros(6)
         self._v = np.zeros(6)
+        self._last_target = np.zeros(6)
 
     def step(self, now: float) -> bool:
         """Advance the applied correction one cycle; True when the stream was just declared
@@ -173,9 +180,13 @@ class AlterState:
         dt = self.period
         scale = MAX_ROTATION_DEG / MAX_OFFSET_MM
         err = self.target - self.applied
-        self._v[:3] = _limit(err[:3], self._v[:3], MAX_SPEED_MM_S, MAX_ACCEL_MM_S2, dt)
+        # how far the target moved since the last cycle: a stream of corrections moving at
+        # constant speed is followed without lag; a held target has none [RS-5.35]
+        v_ff = (self.target - self._last_target) / dt
+        self._last_target = self.target.copy()
+        self._v[:3] = _limit(err[:3], self._v[:3], v_ff[:3], MAX_SPEED_MM_S, MAX_ACCEL_MM_S2, dt)
         self._v[3:] = _limit(
-            err[3:], self._v[3:], MAX_SPEED_MM_S * scale, MAX_ACCEL_MM_S2 * scale, dt
+            err[3:], self._v[3:], v_ff[3:], MAX_SPEED_MM_S * scale, MAX_ACCEL_MM_S2 * scale, dt
         )
         self.applied = self.applied + self._v * dt
         if (

@@ -186,3 +186,18 @@ def test_emulator_control_loss_ends_alter_mode() -> None:
         robot.alter([1.0, 0.0, 0.0, 0.0, 0.0, 0.0])
     robot.step(100)
     assert np.all(robot.alter_applied() == 0.0)
+
+
+def test_a_moving_target_is_followed_without_lag() -> None:
+    state = AlterState(PERIOD)
+    state.begin(np.eye(4), 1.0, 0.0)
+    t = 0.0
+    lag = []
+    for k in range(1, 200):
+        # a 2 mm, 5 Hz sine: 63 mm/s, 2000 mm/s^2 at most (the paper's seam at 250 mm/s)
+        y = 2.0 * np.sin(2 * np.pi * 5.0 * (k + 1) * PERIOD)
+        state.command(np.array([0.0, y, 0.0, 0.0, 0.0, 0.0]), t)
+        t += PERIOD
+        state.step(t)
+        lag.append(state.applied[1] - y)
+    assert np.abs(lag[50:]).max() < 1e-9
