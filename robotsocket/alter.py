@@ -23,12 +23,13 @@ from kinematics.transforms import invert
 from robotsocket.interface import Array, BadStateError, OutOfRangeError
 
 #: [RS-5.33] Largest correction: translation (mm) and rotation (deg).
-MAX_OFFSET_MM = 5.0
+MAX_OFFSET_MM = 10.0
 MAX_ROTATION_DEG = 2.0
-#: [RS-5.34] Largest speed and acceleration of the applied correction (translation; the
-#: rotation's limits scale with MAX_ROTATION_DEG / MAX_OFFSET_MM).
+#: [RS-5.34] Largest speed and acceleration of the applied correction.
 MAX_SPEED_MM_S = 100.0
 MAX_ACCEL_MM_S2 = 10_000.0
+MAX_ROT_SPEED_DEG_S = 40.0
+MAX_ROT_ACCEL_DEG_S2 = 4_000.0
 #: [RS-5.36] Accepted stream timeouts (s).
 MIN_TIMEOUT = 0.008
 MAX_TIMEOUT = 1.0
@@ -178,7 +179,6 @@ class AlterState:
             self.lost += 1
             self.abandon()
         dt = self.period
-        scale = MAX_ROTATION_DEG / MAX_OFFSET_MM
         err = self.target - self.applied
         # how far the target moved since the last cycle: a stream of corrections moving at
         # constant speed is followed without lag; a held target has none [RS-5.35]
@@ -186,7 +186,7 @@ class AlterState:
         self._last_target = self.target.copy()
         self._v[:3] = _limit(err[:3], self._v[:3], v_ff[:3], MAX_SPEED_MM_S, MAX_ACCEL_MM_S2, dt)
         self._v[3:] = _limit(
-            err[3:], self._v[3:], v_ff[3:], MAX_SPEED_MM_S * scale, MAX_ACCEL_MM_S2 * scale, dt
+            err[3:], self._v[3:], v_ff[3:], MAX_ROT_SPEED_DEG_S, MAX_ROT_ACCEL_DEG_S2, dt
         )
         self.applied = self.applied + self._v * dt
         if (

@@ -591,7 +591,7 @@ class RobotEmulator(RobotInterface):
                 self._loop.wake()
             log.info("alter mode on (stream timeout %.0f ms)", timeout * 1000)
 
-    def alter(self, correction: Sequence[float]) -> Array:
+    def alter(self, correction: Sequence[float] | Array) -> Array:
         self.catch_up()
         with self._lock:
             return self._alter.command(np.asarray(correction, dtype=np.float64), self.time())

@@ -245,7 +245,7 @@ class RobotInterface(ABC):
         ``timeout`` s is lost [RS-5.36]. Optional: a robot without it answers UNKNOWN_COMMAND."""
         raise NotImplementedError
 
-    def alter(self, correction: Sequence[float]) -> Array:
+    def alter(self, correction: Sequence[float] | Array) -> Array:
         """[RS-5.33] The whole correction in force (6,): dx, dy, dz (mm), rx, ry, rz (deg),
         base frame; returns the correction applied at the last cycle (6,)."""
         raise NotImplementedError

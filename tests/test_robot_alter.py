@@ -31,9 +31,9 @@ def _run(state: AlterState, cycles: int, t0: float = 0.0) -> tuple[np.ndarray, f
 
 
 def test_correction_size_is_limited() -> None:
-    check_correction(np.array([3.0, 4.0, 0.0, 1.0, 1.0, 0.0]))  # exactly 5 mm, 1.41 deg
+    check_correction(np.array([6.0, 8.0, 0.0, 1.0, 1.0, 0.0]))  # exactly 10 mm, 1.41 deg
     with pytest.raises(OutOfRangeError, match="translation"):
-        check_correction(np.array([3.0, 4.1, 0.0, 0.0, 0.0, 0.0]))
+        check_correction(np.array([6.0, 8.1, 0.0, 0.0, 0.0, 0.0]))
     with pytest.raises(OutOfRangeError, match="rotation"):
         check_correction(np.array([0.0, 0.0, 0.0, 0.0, 2.1, 0.0]))
     with pytest.raises(OutOfRangeError):
@@ -165,7 +165,7 @@ def test_emulator_alter_rules_and_emergency_stop_without_a_jump() -> None:
         robot.alter([0.0] * 6)
     robot.alter_begin(TOOL, 0.1)
     with pytest.raises(OutOfRangeError):
-        robot.alter([0.0, 6.0, 0.0, 0.0, 0.0, 0.0])
+        robot.alter([0.0, 11.0, 0.0, 0.0, 0.0, 0.0])
     for _ in range(100):
         robot.alter([0.0, 4.0, 0.0, 0.0, 0.0, 0.0])
         robot.step()

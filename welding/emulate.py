@@ -9,17 +9,20 @@ the I/O log carries the robot-clock times a real controller would have.
 
 from __future__ import annotations
 
+import math
+from dataclasses import asdict, dataclass, field
 from types import TracebackType
 
 import numpy as np
 import numpy.typing as npt
 
-from cell.cell import EmulatedCell
+from cell.cell import CellTiming, EmulatedCell
 from kinematics.transforms import transform_to_location
 from robotsocket.client import RobotClient
 from sensorsocket.client import SensorClient
 from spec.errors import ProtocolError
 from welding.tools import Entry, Loc, Tables
+from welding.tracking import MIN_FIT_POINTS, NominalWeld, Tracker, TrackingError, seam_error
 
 __all__ = ["EmulatedSession"]
 
@@ -101,3 +104,180 @@ class EmulatedSession:
         self, et: type[BaseException] | None, e: BaseException | None, tb: TracebackType | None
     ) -> None:
         self.close()
+
+
+# --- real-time seam tracking on the emulated cell (welding.tracking) ------------------------
+
+#: Seams of the tracking benchmark: the cell's seam shape and the workpiece placement error
+#: (location in the workpiece frame, mm, deg) that puts it off the nominal path.
+TRACK_SEAMS: dict[str, tuple[str, Loc]] = {
+    "straight": ("straight", (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)),
+    "offset": ("straight", (0.0, 5.0, 0.0, 0.0, 0.0, 0.0)),
+    "sine": ("sine", (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)),
+}
+
+
+@dataclass
+class TrackingRun:
+    """One tracked weld on the emulated cell; errors in mm, truth from the cell."""
+
+    seam: str
+    speed_mm_s: float
+    delta_t_ms: float
+    true_delta_t_ms: float
+    tracked: bool
+    stopped: str  # why the weld stopped early; "" when it was completed
+    welded_mm: float
+    tracking_error_max_mm: float
+    tracking_error_rms_mm: float
+    lateral_max_mm: float
+    height_max_mm: float
+    nominal_error_max_mm: float  # the untracked nominal path against the same seam
+    laser_on_at_end: bool
+    plot: dict[str, npt.NDArray[np.float64]] = field(default_factory=dict, repr=False)
+
+    def summary(self) -> dict[str, object]:
+        return {k: v for k, v in asdict(self).items() if k != "plot"}
+
+
+def run_tracking(
+    seam: str = "sine",
+    speed_mm_s: float = 250.0,
+    *,
+    delta_t_ms: float | None = None,
+    timing: CellTiming | None = None,
+    weld_mm: float = 250.0,
+    rate_hz: float = 200.0,
+    seed: int = 0,
+    track: bool = True,
+    workpiece_error: Loc | None = None,
+    sensor_silent_after_mm: float | None = None,
+) -> TrackingRun:
+    """Weld ``weld_mm`` of ``seam`` (``straight|offset|sine``) at ``speed_mm_s`` on the
+    simulated cell, correcting the laser every cycle from the synchronised seam points.
+
+    The ΔT in force is the one an operator would have measured (the cell's true ΔT stands for
+    the section VI measurement) unless ``delta_t_ms`` overrides it. ``track=False`` welds the
+    nominal path (the baseline). ``sensor_silent_after_mm`` stops the sensor's data once the
+    laser has welded that far (a dropped sensor)."""
+    if seam not in TRACK_SEAMS:
+        raise ValueError(f"seam must be one of {', '.join(TRACK_SEAMS)}, got {seam!r}")
+    shape, placement = TRACK_SEAMS[seam]
+    cell = EmulatedCell(
+        clock="sim",
+        timing=timing or CellTiming(),
+        seam=shape,
+        workpiece_error=workpiece_error or placement,
+        seed=seed,
+    )
+    robot = cell.robot
+    period = robot.period
+    true_dt = cell.true_delta_t_s()
+    dt = true_dt if delta_t_ms is None else delta_t_ms * 1e-3
+    cell.core.set_delay(dt)
+    truth: list[npt.NDArray[np.float64]] = []
+    robot.cycle_hooks.append(lambda t, q_sp, q_m: truth.append(q_sp))
+
+    laser_tool = cell.laser_tool
+    start = np.array(robot.here(laser_tool))
+    s2b = cell.ready_sensor2base()
+    direction = s2b[:3, 0]  # the nominal seam runs along the sensor's x axis
+    look_ahead = float((s2b[:3, 3] - start[:3]) @ direction)
+    ramp_mm = speed_mm_s**2 / (2.0 * 2500.0)
+    weld = NominalWeld(
+        start=start[:3],
+        direction=direction,
+        angles=start[3:],
+        length_mm=look_ahead + weld_mm + ramp_mm + 1.0,
+        speed_mm_s=speed_mm_s,
+    )
+    tracker = Tracker(weld, look_ahead)
+    robot.enable_power()
+    cell.sync.set_endpoint(*cell.udp_address)
+    cell.sync.start(rate_hz, 0)
+    robot.alter_begin(laser_tool, 0.1)
+
+    last_index = -1
+    stopped = ""
+    laser_on = False
+    on_cycles: list[int] = []
+    applied: list[npt.NDArray[np.float64]] = []
+
+    def fetch() -> None:
+        nonlocal last_index
+        rows = cell.core.points_since(last_index)
+        if len(rows):
+            last_index = int(rows[-1, 0])
+            tracker.model.add(rows[:, 11:14])
+
+    # the arm stands still while the sensor measures the seam's start and the laser is
+    # brought onto it
+    t0 = robot.time() + 0.25
+    while robot.time() < t0 - 1e-9:
+        fetch()
+        ready = track and tracker.model.count >= MIN_FIT_POINTS
+        robot.alter(tracker.correction(0.0) if ready else np.zeros(6))
+        robot.step()
+        applied.append(robot.alter_applied())
+    times, locs = weld.timed_path(period)
+    t0 = robot.time()  # the move's law starts at the current cycle
+    robot.tool_move_trajectory(times, locs, laser_tool, (0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+    while robot.status().queue:
+        fetch()
+        t_move = robot.time() + period - t0  # the correction applies at the next cycle
+        s = float(weld.s_at(t_move))
+        if sensor_silent_after_mm is not None and s > look_ahead + sensor_silent_after_mm:
+            cell.core.stop()  # no more seam points: the sensor has dropped out
+        try:
+            correction = tracker.correction(t_move) if track else np.zeros(6)
+        except TrackingError as exc:
+            # safe stop: laser off first, then the arm stops along its path
+            robot.set_output("laser", False)
+            laser_on = False
+            robot.reset_motion()
+            stopped = str(exc)
+            break
+        robot.alter(correction)
+        want_on = look_ahead <= s <= look_ahead + weld_mm
+        if want_on != laser_on:
+            robot.set_output("laser", want_on)
+            laser_on = want_on
+        robot.step()
+        applied.append(robot.alter_applied())
+        if laser_on:
+            on_cycles.append(len(truth) - 1)
+    robot.alter_end()
+    cell.core.stop()
+    robot.wait_end_move(5.0)
+    laser_on_at_end = robot.read_io("laser")[0]
+
+    q = np.array(truth)
+    laser_pts = (robot.model.flange2base_batch(q[on_cycles]) @ cell.laser2flange)[:, :3, 3]
+    corr = np.array(applied)[-len(truth) :][on_cycles, :3] if on_cycles else np.zeros((0, 3))
+    b2w = cell.scene.base2workpiece
+    h = cell.scene.joint.seam_height_mm
+    lat, hgt = seam_error(laser_pts, b2w, cell.scene.path.lateral, h)
+    n_lat, _ = seam_error(laser_pts - corr, b2w, cell.scene.path.lateral, h)
+    err = np.hypot(lat, hgt)
+    welded = len(on_cycles) * period * speed_mm_s
+    return TrackingRun(
+        seam=seam,
+        speed_mm_s=speed_mm_s,
+        delta_t_ms=dt * 1e3,
+        true_delta_t_ms=true_dt * 1e3,
+        tracked=track,
+        stopped=stopped,
+        welded_mm=round(welded, 1),
+        tracking_error_max_mm=float(err.max()) if len(err) else math.nan,
+        tracking_error_rms_mm=float(np.sqrt(np.mean(err**2))) if len(err) else math.nan,
+        lateral_max_mm=float(np.abs(lat).max()) if len(lat) else math.nan,
+        height_max_mm=float(np.abs(hgt).max()) if len(hgt) else math.nan,
+        nominal_error_max_mm=float(np.abs(n_lat).max()) if len(n_lat) else math.nan,
+        laser_on_at_end=laser_on_at_end,
+        plot={"laser": _to_w(laser_pts, b2w), "nominal": _to_w(laser_pts - corr, b2w)},
+    )
+
+
+def _to_w(points: npt.NDArray[np.float64], b2w: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    out: npt.NDArray[np.float64] = (np.column_stack([points, np.ones(len(points))]) @ b2w.T)[:, :3]
+    return out

@@ -63,7 +63,7 @@ def _stream(conn: Conn, dz: float, seconds: float) -> float:
     commands=ALTER,
 )
 def alter_rules(ctx: Context) -> str:
-    """Alter outside alter mode, a second AlterBegin, a bad timeout and a 6 mm correction are
+    """Alter outside alter mode, a second AlterBegin, a bad timeout and an 11 mm correction are
     refused; a 1 mm correction moves the standing tool by 1 mm; AlterEnd takes it back."""
     with _Motion(ctx) as m:
         conn = m.conn
@@ -91,8 +91,8 @@ def alter_rules(ctx: Context) -> str:
                 IDENTITY_LOCATION,
                 1.0,
             )
-            big = Location(0.0, 6.0, 0.0, 0.0, 0.0, 0.0)
-            _expect(conn, ErrorCode.OUT_OF_RANGE, "a 6 mm correction", "RS-5.33", C.ALTER, big)
+            big = Location(0.0, 11.0, 0.0, 0.0, 0.0, 0.0)
+            _expect(conn, ErrorCode.OUT_OF_RANGE, "an 11 mm correction", "RS-5.33", C.ALTER, big)
             applied = _stream(conn, 1.0, SETTLE_S)
             if abs(applied - 1.0) > 1e-3:
                 raise Fail(
