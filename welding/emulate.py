@@ -9,18 +9,24 @@ the I/O log carries the robot-clock times a real controller would have.
 
 from __future__ import annotations
 
+import argparse
+import json
 import math
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from types import TracebackType
 
 import numpy as np
 import numpy.typing as npt
 
 from cell.cell import CellTiming, EmulatedCell
+from cell.options import add_timing_options, timing_kwargs
 from kinematics.transforms import transform_to_location
 from robotsocket.client import RobotClient
 from sensorsocket.client import SensorClient
+from spec import cliargs
 from spec.errors import ProtocolError
+from spec.files import write_atomically
 from welding.tools import Entry, Loc, Tables
 from welding.tracking import MIN_FIT_POINTS, NominalWeld, Tracker, TrackingError, seam_error
 
@@ -146,7 +152,7 @@ def run_tracking(
     *,
     delta_t_ms: float | None = None,
     timing: CellTiming | None = None,
-    weld_mm: float = 250.0,
+    weld_mm: float = 200.0,
     rate_hz: float = 200.0,
     seed: int = 0,
     track: bool = True,
@@ -274,10 +280,107 @@ def run_tracking(
         height_max_mm=float(np.abs(hgt).max()) if len(hgt) else math.nan,
         nominal_error_max_mm=float(np.abs(n_lat).max()) if len(n_lat) else math.nan,
         laser_on_at_end=laser_on_at_end,
-        plot={"laser": _to_w(laser_pts, b2w), "nominal": _to_w(laser_pts - corr, b2w)},
+        plot={
+            "laser": _to_w(laser_pts, b2w),
+            "nominal": _to_w(laser_pts - corr, b2w),
+            "measured": _to_w(tracker.model.points(), b2w),
+            "seam": _true_seam(cell, laser_pts, b2w),
+        },
     )
 
 
 def _to_w(points: npt.NDArray[np.float64], b2w: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     out: npt.NDArray[np.float64] = (np.column_stack([points, np.ones(len(points))]) @ b2w.T)[:, :3]
     return out
+
+
+def _true_seam(
+    cell: EmulatedCell, laser_pts: npt.NDArray[np.float64], b2w: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """The true seam (N, 3) in the workpiece frame under the laser's x."""
+    x = _to_w(laser_pts, b2w)[:, 0]
+    return np.column_stack(
+        [x, cell.scene.path.y(x), np.full_like(x, cell.scene.joint.seam_height_mm)]
+    )
+
+
+# --- command line: python -m welding track --emulate ... ------------------------------------
+
+
+def add_track_options(p: argparse.ArgumentParser) -> None:
+    """Options of ``python -m welding track`` (the cell's timing options included)."""
+    p.add_argument(
+        "--emulate",
+        action="store_true",
+        required=True,
+        help="track on the in-process emulated cell (simulated clock); required",
+    )
+    p.add_argument("--seam", choices=tuple(TRACK_SEAMS), default="sine")
+    p.add_argument("--speed", type=cliargs.number_in(1.0, 500.0), default=250.0, help="mm/s")
+    p.add_argument(
+        "--delta-t-ms",
+        type=cliargs.number_in(-100.0, 100.0),
+        help="override the ΔT in force (default: the cell's true ΔT, as measured)",
+    )
+    p.add_argument("--length", type=cliargs.number_in(10.0, 200.0), default=200.0, help="mm")
+    p.add_argument("--rate", type=cliargs.number_in(10.0, 1000.0), default=200.0, help="Hz")
+    p.add_argument("--untracked", action="store_true", help="weld the nominal path (baseline)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", type=cliargs.output_file, metavar="OUT.json")
+    p.add_argument("--plot", metavar="DIR", help="write track.png (needs matplotlib)")
+    add_timing_options(p)
+
+
+def cmd_track(args: argparse.Namespace) -> int:
+    """Run one tracked weld; print and optionally write the result. Exit 1 when the weld
+    stopped early (the laser is off)."""
+    run = run_tracking(
+        args.seam,
+        args.speed,
+        delta_t_ms=args.delta_t_ms,
+        timing=CellTiming(**timing_kwargs(args)),
+        weld_mm=args.length,
+        rate_hz=args.rate,
+        seed=args.seed,
+        track=not args.untracked,
+    )
+    data = run.summary()
+    if args.json:
+        write_atomically(args.json, json.dumps(data, indent=1) + "\n")
+    if args.plot:
+        _plot(run, Path(args.plot))
+    print(
+        f"{run.seam} seam at {run.speed_mm_s:g} mm/s, ΔT {run.delta_t_ms:.2f} ms: "
+        f"tracking error max {run.tracking_error_max_mm * 1e3:.1f} µm, "
+        f"rms {run.tracking_error_rms_mm * 1e3:.1f} µm over {run.welded_mm:g} mm "
+        f"(nominal path {run.nominal_error_max_mm:.3f} mm)"
+        + (f"; STOPPED: {run.stopped}" if run.stopped else "")
+    )
+    return 1 if run.stopped else 0
+
+
+def _plot(run: TrackingRun, out_dir: Path) -> None:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise ValueError("--plot needs matplotlib") from None
+    out_dir.mkdir(parents=True, exist_ok=True)
+    fig, ax = plt.subplots(figsize=(10, 4))
+    for key, style in (("nominal", "k--"), ("seam", "g-"), ("laser", "r-")):
+        pts = run.plot[key]
+        ax.plot(pts[:, 0], pts[:, 1], style, label=key, linewidth=1)
+    m = run.plot["measured"]
+    ax.plot(m[:, 0], m[:, 1], "b.", markersize=2, label="measured seam")
+    ax.set_xlabel("x workpiece (mm)")
+    ax.set_ylabel("y workpiece (mm)")
+    ax.set_title(
+        f"{run.seam} at {run.speed_mm_s:g} mm/s, ΔT {run.delta_t_ms:.2f} ms: "
+        f"max {run.tracking_error_max_mm * 1e3:.0f} µm"
+    )
+    ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out_dir / "track.png", dpi=100)
+    plt.close(fig)

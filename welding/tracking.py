@@ -131,6 +131,13 @@ class SeamModel:
     def count(self) -> int:
         return len(self._s)
 
+    def points(self) -> FloatArray:
+        """The measured seam points (M, 3), base frame."""
+        if not self._s:
+            return np.zeros((0, 3))
+        out: FloatArray = self.weld.point(np.array(self._s)) + np.array(self._e)
+        return out
+
     @property
     def furthest(self) -> float:
         """The furthest arc length measured (mm; -inf before the first point)."""
