@@ -1,4 +1,4 @@
-"""Path correction of a running motion (alter mode, PROTOCOL.md RS-5.32 ... RS-5.39), pure.
+"""Path correction of a running motion (alter mode, PROTOCOL.md RS-5.32 ... RS-5.38), pure.
 
 Modelled on Stäubli VAL3's ``alterBegin`` / ``alter`` / ``alterEnd`` and on the 4 ms
 correction streams of KUKA RSI and ABB EGM: the client sends the *whole* correction in force

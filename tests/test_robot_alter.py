@@ -1,4 +1,4 @@
-"""Alter mode (path correction, RS-5.32 ... RS-5.39): the pure limiter and the emulator."""
+"""Alter mode (path correction, RS-5.32 ... RS-5.38): the pure limiter and the emulator."""
 
 from __future__ import annotations
 

@@ -158,14 +158,16 @@ def run_tracking(
     track: bool = True,
     workpiece_error: Loc | None = None,
     sensor_silent_after_mm: float | None = None,
+    measure_delta_t: bool = False,
 ) -> TrackingRun:
     """Weld ``weld_mm`` of ``seam`` (``straight|offset|sine``) at ``speed_mm_s`` on the
     simulated cell, correcting the laser every cycle from the synchronised seam points.
 
-    The ΔT in force is the one an operator would have measured (the cell's true ΔT stands for
-    the section VI measurement) unless ``delta_t_ms`` overrides it. ``track=False`` welds the
-    nominal path (the baseline). ``sensor_silent_after_mm`` stops the sensor's data once the
-    laser has welded that far (a dropped sensor)."""
+    The tracker uses the ΔT in force on the robot: ``delta_t_ms`` when given, else the one
+    the section VI procedure measures first when ``measure_delta_t`` (as an operator would,
+    through the sockets, a few seconds of simulated sine), else the cell's true ΔT.
+    ``track=False`` welds the nominal path (the baseline). ``sensor_silent_after_mm`` stops
+    the sensor's data once the laser has welded that far (a dropped sensor)."""
     if seam not in TRACK_SEAMS:
         raise ValueError(f"seam must be one of {', '.join(TRACK_SEAMS)}, got {seam!r}")
     shape, placement = TRACK_SEAMS[seam]
@@ -179,8 +181,13 @@ def run_tracking(
     robot = cell.robot
     period = robot.period
     true_dt = cell.true_delta_t_s()
-    dt = true_dt if delta_t_ms is None else delta_t_ms * 1e-3
-    cell.core.set_delay(dt)
+    if delta_t_ms is not None:
+        cell.core.set_delay(delta_t_ms * 1e-3)
+    elif measure_delta_t:
+        _measure_delta_t(cell)
+    else:
+        cell.core.set_delay(true_dt)
+    dt = cell.core.delta_t_s  # what GetSyncConfig reports: the ΔT in force
     truth: list[npt.NDArray[np.float64]] = []
     robot.cycle_hooks.append(lambda t, q_sp, q_m: truth.append(q_sp))
 
@@ -289,6 +296,22 @@ def run_tracking(
     )
 
 
+def _measure_delta_t(cell: EmulatedCell) -> None:
+    """The section VI procedure through the sockets; SetSyncDelay applies the estimate. The
+    arm returns to the ready pose."""
+    from sync.experiment import ExperimentSettings, run_delay_experiment
+
+    cell.start()
+    try:
+        run_delay_experiment(
+            cell.robot_address,
+            cell.sensor_address,
+            ExperimentSettings(apply=True, duration_s=4.0),
+        )
+    finally:
+        cell.close()
+
+
 def _to_w(points: npt.NDArray[np.float64], b2w: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
     out: npt.NDArray[np.float64] = (np.column_stack([points, np.ones(len(points))]) @ b2w.T)[:, :3]
     return out
@@ -320,7 +343,12 @@ def add_track_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--delta-t-ms",
         type=cliargs.number_in(-100.0, 100.0),
-        help="override the ΔT in force (default: the cell's true ΔT, as measured)",
+        help="override the ΔT in force (default: measured first, section VI procedure)",
+    )
+    p.add_argument(
+        "--true-delta-t",
+        action="store_true",
+        help="skip the measurement: the cell's true ΔT is set in force",
     )
     p.add_argument("--length", type=cliargs.number_in(10.0, 200.0), default=200.0, help="mm")
     p.add_argument("--rate", type=cliargs.number_in(10.0, 1000.0), default=200.0, help="Hz")
@@ -338,6 +366,7 @@ def cmd_track(args: argparse.Namespace) -> int:
         args.seam,
         args.speed,
         delta_t_ms=args.delta_t_ms,
+        measure_delta_t=not args.true_delta_t,
         timing=CellTiming(**timing_kwargs(args)),
         weld_mm=args.length,
         rate_hz=args.rate,

@@ -171,3 +171,96 @@ def alter_stream_lost(ctx: Context) -> None:
                 requirement="RS-5.36",
             )
         conn.ok(C.RESET_MOTION)  # clears last_error for the cases after this one
+
+
+@case(
+    "robot.alter.limits",
+    requirements=["RS-5.34"],
+    tags=["robot", "motion", "alter", "limits"],
+    service="robot",
+    motion=True,
+    budget=30.0,
+    commands=[*ALTER, C.GET_TIME],
+)
+def alter_limits(ctx: Context) -> str:
+    """A 5 mm step of the correction is applied no faster than 100 mm/s (robot clock, one
+    cycle of slack) and never beyond 5 mm."""
+    with _Motion(ctx) as m:
+        conn = m.conn
+        m.power()
+        step = Location(0.0, 0.0, 5.0, 0.0, 0.0, 0.0)
+        conn.ok(C.ALTER_BEGIN, IDENTITY_LOCATION, 1.0)
+        fastest = 0.0
+        try:
+            t0 = conn.ok(C.GET_TIME)[0]
+            assert isinstance(t0, float)
+            end = time.monotonic() + SETTLE_S
+            while time.monotonic() < end:
+                applied = conn.ok(C.ALTER, step)[0]
+                now = conn.ok(C.GET_TIME)[0]
+                assert isinstance(applied, Location) and isinstance(now, float)
+                # the reply's correction was applied at a cycle no later than `now`
+                allowed = 100.0 * (now - t0) + 100.0 * 0.004 + 1e-6
+                if applied.z > allowed or applied.z > 5.0 + 1e-6:
+                    raise Fail(
+                        "the correction is applied too fast or overshoots",
+                        f"<= {min(allowed, 5.0):.3f} mm after {now - t0:.3f} s",
+                        f"{applied.z:.3f} mm",
+                        requirement="RS-5.34",
+                    )
+                if now > t0:
+                    fastest = max(fastest, applied.z / (now - t0))
+                time.sleep(0.01)
+        finally:
+            conn.call(C.ALTER_END)
+        if not _wait_still(conn, 10.0):
+            raise Fail(
+                "the correction does not ramp back", "still", "moving", requirement="RS-5.37"
+            )
+        return f"mean speed of the step at most {fastest:.0f} mm/s"
+
+
+@case(
+    "robot.alter.control_lost",
+    requirements=["RS-5.38"],
+    tags=["robot", "motion", "alter", "safety", "control"],
+    service="robot",
+    motion=True,
+    budget=30.0,
+    commands=ALTER,
+)
+def alter_control_lost(ctx: Context) -> None:
+    """The controller closes its connection in alter mode: alter mode ends and the correction
+    goes back to zero (a new controller finds it not active and the tool back)."""
+    first = ctx.connect()
+    ctx.take_control(first)
+    if _status(first).get("moving"):
+        first.close()
+        raise Fail("the arm is already moving", "still", "moving")
+    first.ok(C.ENABLE_POWER)
+    p0 = _here(first)
+    first.ok(C.ALTER_BEGIN, IDENTITY_LOCATION, 1.0)
+    _stream(first, 0.5, 0.3)
+    first.close()  # control lost [RS-7.10]
+    watcher = ctx.connect()
+    if not _wait_still(watcher, 10.0):  # the correction ramps back
+        raise Fail("the correction does not ramp back", "still", "moving", requirement="RS-5.38")
+    with _Motion(ctx) as m:
+        conn = m.conn
+        answer = conn.call(C.ALTER, Location(0.0, 0.0, 0.5, 0.0, 0.0, 0.0))
+        if answer.error is None or answer.error[0] != ErrorCode.BAD_STATE:
+            conn.call(C.ALTER_END)
+            raise Fail(
+                "alter mode survives the loss of its controller",
+                "BAD_STATE for Alter",
+                "accepted" if answer.error is None else answer.error,
+                requirement="RS-5.38",
+            )
+        back = math.dist(_here(conn)[:3], p0[:3])
+        if back > 0.01:
+            raise Fail(
+                "the correction outlives its controller",
+                "<= 0.01 mm",
+                f"{back:.4f} mm",
+                requirement="RS-5.38",
+            )
