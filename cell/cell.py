@@ -47,7 +47,7 @@ from robotsocket.emulator import RobotEmulator
 from robotsocket.service import RobotService
 from robotsocket.sync_service import SyncService, flange2base_for
 from sensorsocket.emulator import CameraEmulator
-from sensorsocket.scene import CornerPath, Joint, Scene, SeamPath, rot_x
+from sensorsocket.scene import CornerPath, JogPath, Joint, Scene, SeamPath, rot_x
 from sensorsocket.sensor import Sensor
 from sensorsocket.service import SensorService
 from sensorsocket.timing import TimingModel
@@ -225,8 +225,9 @@ class EmulatedCell:
         joints = {"butt": Joint.butt(), "fillet": Joint.fillet(), "lap": Joint.lap()}
         paths = {"straight": SeamPath.straight(), "sine": SeamPath.paper_sine()}
         paths["corner"] = CornerPath()
+        paths["jog"] = JogPath()
         if self.joint not in joints or self.seam not in paths:
-            raise CellError("joint must be butt|fillet|lap and seam straight|sine|corner")
+            raise CellError("joint must be butt|fillet|lap and seam straight|sine|corner|jog")
         s2b = self.ready_sensor2base()
         # Workpiece: seam along x_S through the sensor origin, surface normal towards the
         # sensor (z_W = -z_S); the seam height of the joint is subtracted so the seam point

@@ -72,7 +72,9 @@ def test_tracker_stops_when_the_seam_ahead_is_not_measured() -> None:
         tracker.correction(0.1 + (40.0 - 12.5) / 250.0)  # sensor at 80 mm, seam up to 59
 
 
-@pytest.mark.parametrize(("seam", "speed"), [("offset", 250.0), ("sine", 100.0), ("sine", 250.0)])
+@pytest.mark.parametrize(
+    ("seam", "speed"), [("offset", 250.0), ("sine", 100.0), ("sine", 250.0), ("arc", 250.0)]
+)
 def test_tracked_weld_meets_the_paper_accuracy(seam: str, speed: float) -> None:
     run = run_tracking(seam, speed, weld_mm=100.0, seed=3)
     assert run.stopped == "" and run.welded_mm == pytest.approx(100.0, abs=1.0)

@@ -120,6 +120,8 @@ TRACK_SEAMS: dict[str, tuple[str, Loc]] = {
     "straight": ("straight", (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)),
     "offset": ("straight", (0.0, 5.0, 0.0, 0.0, 0.0, 0.0)),
     "sine": ("sine", (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)),
+    # R = 32 mm arcs (the paper's sine radius) turning 15 deg: a 4.9 mm jog off the path
+    "arc": ("jog", (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)),
 }
 
 
