@@ -111,11 +111,13 @@ class RobotService(HandlerService):
             (C.GET_JOINT_LOG, self._joint_log),
             (C.GET_JOINT_LIMITS, self._joint_limits),
             (C.TOOL_MOVE_TRAJECTORY, self._tool_move_trajectory),
-            (C.ALTER_BEGIN, self._alter_begin),
-            (C.ALTER, self._alter),
-            (C.ALTER_END, self._alter_end),
         ):
             self.register(cid, handler)
+        # alter mode is optional: listed in Hello only when the robot implements it
+        if type(robot).alter_begin is not RobotInterface.alter_begin:
+            self.register(C.ALTER_BEGIN, self._alter_begin)
+            self.register(C.ALTER, self._alter)
+            self.register(C.ALTER_END, self._alter_end)
 
     # --- Service -----------------------------------------------------------------------------
 

@@ -14,7 +14,9 @@ from robotsocket.alter import (
     corrected_flange,
 )
 from robotsocket.emulator import RobotEmulator
-from robotsocket.interface import BadStateError, NotPoweredError, OutOfRangeError
+from robotsocket.interface import BadStateError, NotPoweredError, OutOfRangeError, RobotInterface
+from robotsocket.service import RobotService
+from spec.registry import CommandId
 
 PERIOD = 0.004
 TOOL = (0.0, 0.0, 150.0, 0.0, 0.0, 0.0)
@@ -201,3 +203,12 @@ def test_a_moving_target_is_followed_without_lag() -> None:
         state.step(t)
         lag.append(state.applied[1] - y)
     assert np.abs(lag[50:]).max() < 1e-9
+
+
+def test_alter_commands_are_listed_only_by_a_robot_that_has_them() -> None:
+    class NoAlter(RobotEmulator):
+        alter_begin = RobotInterface.alter_begin
+
+    alter = {CommandId.ALTER_BEGIN, CommandId.ALTER, CommandId.ALTER_END}
+    assert alter <= set(RobotService(RobotEmulator()).implemented())
+    assert not alter & set(RobotService(NoAlter()).implemented())
