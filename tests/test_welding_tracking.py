@@ -104,3 +104,12 @@ def test_seam_beyond_the_correction_range_stops_the_weld() -> None:
     assert "off the path" in run.stopped
     assert run.welded_mm < 150.0 and not run.laser_on_at_end
     assert run.tracking_error_max_mm <= 0.1  # tracked well until it stopped
+
+
+def test_tracking_through_the_sockets_gives_the_same_weld() -> None:
+    direct = run_tracking("sine", 250.0, weld_mm=60.0, seed=5)
+    sockets = run_tracking("sine", 250.0, weld_mm=60.0, seed=5, over_sockets=True)
+    assert sockets.stopped == "" and sockets.welded_mm == direct.welded_mm
+    # the same commands on the same simulated clock: the same weld, to the last digit
+    assert sockets.tracking_error_max_mm == direct.tracking_error_max_mm
+    assert sockets.tracking_error_rms_mm == direct.tracking_error_rms_mm

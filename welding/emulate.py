@@ -10,11 +10,13 @@ the I/O log carries the robot-clock times a real controller would have.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from types import TracebackType
+from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -27,6 +29,8 @@ from sensorsocket.client import SensorClient
 from spec import cliargs
 from spec.errors import ProtocolError
 from spec.files import write_atomically
+from spec.params import IDENTITY_LOCATION, FloatArray, Location, Matrix, Value
+from spec.registry import CommandId
 from welding.tools import Entry, Loc, Tables
 from welding.tracking import MIN_FIT_POINTS, NominalWeld, Tracker, TrackingError, seam_error
 
@@ -161,6 +165,7 @@ def run_tracking(
     workpiece_error: Loc | None = None,
     sensor_silent_after_mm: float | None = None,
     measure_delta_t: bool = False,
+    over_sockets: bool = False,
 ) -> TrackingRun:
     """Weld ``weld_mm`` of ``seam`` (``straight|offset|sine``) at ``speed_mm_s`` on the
     simulated cell, correcting the laser every cycle from the synchronised seam points.
@@ -169,7 +174,10 @@ def run_tracking(
     the section VI procedure measures first when ``measure_delta_t`` (as an operator would,
     through the sockets, a few seconds of simulated sine), else the cell's true ΔT.
     ``track=False`` welds the nominal path (the baseline). ``sensor_silent_after_mm`` stops
-    the sensor's data once the laser has welded that far (a dropped sensor)."""
+    the sensor's data once the laser has welded that far (a dropped sensor).
+    ``over_sockets`` runs the tracker as a client of the cell's servers (AlterBegin, Alter,
+    GetSeamPoints, WaitEndMove of one cycle to advance the simulated clock) instead of
+    calling the robot and the sync core in-process; the truth is the same."""
     if seam not in TRACK_SEAMS:
         raise ValueError(f"seam must be one of {', '.join(TRACK_SEAMS)}, got {seam!r}")
     shape, placement = TRACK_SEAMS[seam]
@@ -189,86 +197,44 @@ def run_tracking(
         _measure_delta_t(cell)
     else:
         cell.core.set_delay(true_dt)
-    dt = cell.core.delta_t_s  # what GetSyncConfig reports: the ΔT in force
+    # the emulator's truth, every cycle: true setpoints, correction applied, laser output
     truth: list[npt.NDArray[np.float64]] = []
-    robot.cycle_hooks.append(lambda t, q_sp, q_m: truth.append(q_sp))
-
-    laser_tool = cell.laser_tool
-    start = np.array(robot.here(laser_tool))
-    s2b = cell.ready_sensor2base()
-    direction = s2b[:3, 0]  # the nominal seam runs along the sensor's x axis
-    look_ahead = float((s2b[:3, 3] - start[:3]) @ direction)
-    ramp_mm = speed_mm_s**2 / (2.0 * 2500.0)
-    weld = NominalWeld(
-        start=start[:3],
-        direction=direction,
-        angles=start[3:],
-        length_mm=look_ahead + weld_mm + ramp_mm + 1.0,
-        speed_mm_s=speed_mm_s,
-    )
-    tracker = Tracker(weld, look_ahead)
-    robot.enable_power()
-    cell.sync.set_endpoint(*cell.udp_address)
-    cell.sync.start(rate_hz, 0)
-    robot.alter_begin(laser_tool, 0.1)
-
-    last_index = -1
-    stopped = ""
-    laser_on = False
-    on_cycles: list[int] = []
     applied: list[npt.NDArray[np.float64]] = []
+    lasing: list[bool] = []
 
-    def fetch() -> None:
-        nonlocal last_index
-        rows = cell.core.points_since(last_index)
-        if len(rows):
-            last_index = int(rows[-1, 0])
-            tracker.model.add(rows[:, 11:14])
-
-    # the arm stands still while the sensor measures the seam's start and the laser is
-    # brought onto it
-    t0 = robot.time() + 0.25
-    while robot.time() < t0 - 1e-9:
-        fetch()
-        ready = track and tracker.model.count >= MIN_FIT_POINTS
-        robot.alter(tracker.correction(0.0) if ready else np.zeros(6))
-        robot.step()
+    def record(t: float, q_sp: npt.NDArray[np.float64], q_m: npt.NDArray[np.float64]) -> None:
+        truth.append(q_sp)
         applied.append(robot.alter_applied())
-    times, locs = weld.timed_path(period)
-    t0 = robot.time()  # the move's law starts at the current cycle
-    robot.tool_move_trajectory(times, locs, laser_tool, (0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
-    while robot.status().queue:
-        fetch()
-        t_move = robot.time() + period - t0  # the correction applies at the next cycle
-        s = float(weld.s_at(t_move))
-        if sensor_silent_after_mm is not None and s > look_ahead + sensor_silent_after_mm:
-            cell.core.stop()  # no more seam points: the sensor has dropped out
-        try:
-            correction = tracker.correction(t_move) if track else np.zeros(6)
-        except TrackingError as exc:
-            # safe stop: laser off first, then the arm stops along its path
-            robot.set_output("laser", False)
-            laser_on = False
-            robot.reset_motion()
-            stopped = str(exc)
-            break
-        robot.alter(correction)
-        want_on = look_ahead <= s <= look_ahead + weld_mm
-        if want_on != laser_on:
-            robot.set_output("laser", want_on)
-            laser_on = want_on
-        robot.step()
-        applied.append(robot.alter_applied())
-        if laser_on:
-            on_cycles.append(len(truth) - 1)
-    robot.alter_end()
-    cell.core.stop()
-    robot.wait_end_move(5.0)
-    laser_on_at_end = robot.read_io("laser")[0]
+        lasing.append(robot.read_io("laser")[0])
 
+    robot.cycle_hooks.append(record)
+    link: _Link = _SocketLink(cell) if over_sockets else _DirectLink(cell)
+    try:
+        dt = link.delta_t()  # the ΔT in force (GetSyncConfig)
+        laser_tool = cell.laser_tool
+        start = np.array(link.here(laser_tool))
+        s2b = cell.ready_sensor2base()
+        direction = s2b[:3, 0]  # the nominal seam runs along the sensor's x axis
+        look_ahead = float((s2b[:3, 3] - start[:3]) @ direction)
+        ramp_mm = speed_mm_s**2 / (2.0 * 2500.0)
+        weld = NominalWeld(
+            start=start[:3],
+            direction=direction,
+            angles=start[3:],
+            length_mm=look_ahead + weld_mm + ramp_mm + 1.0,
+            speed_mm_s=speed_mm_s,
+        )
+        tracker = Tracker(weld, look_ahead)
+        stopped = _weld_tracked(
+            link, tracker, laser_tool, weld_mm, rate_hz, track, sensor_silent_after_mm
+        )
+        laser_on_at_end = robot.read_io("laser")[0]
+    finally:
+        link.close()
+    on_cycles = [i for i, on in enumerate(lasing) if on]
     q = np.array(truth)
     laser_pts = (robot.model.flange2base_batch(q[on_cycles]) @ cell.laser2flange)[:, :3, 3]
-    corr = np.array(applied)[-len(truth) :][on_cycles, :3] if on_cycles else np.zeros((0, 3))
+    corr = np.array(applied)[on_cycles, :3] if on_cycles else np.zeros((0, 3))
     b2w = cell.scene.base2workpiece
     h = cell.scene.joint.seam_height_mm
     lat, hgt = seam_error(laser_pts, b2w, cell.scene.path.lateral, h)
@@ -296,6 +262,228 @@ def run_tracking(
             "seam": _true_seam(cell, laser_pts, b2w),
         },
     )
+
+
+def _weld_tracked(
+    link: _Link,
+    tracker: Tracker,
+    laser_tool: Loc,
+    weld_mm: float,
+    rate_hz: float,
+    track: bool,
+    sensor_silent_after_mm: float | None,
+) -> str:
+    """The tracking loop, one pass per controller cycle; returns why the weld stopped early
+    ("" when it was completed)."""
+    weld = tracker.weld
+    look_ahead = tracker.look_ahead_mm
+    period = link.period
+    last_index = -1
+    stopped = ""
+    laser_on = False
+
+    def fetch() -> None:
+        nonlocal last_index
+        rows = link.points(last_index)
+        if len(rows):
+            last_index = int(rows[-1, 0])
+            tracker.model.add(rows[:, 11:14])
+
+    link.start(laser_tool, rate_hz)
+    # the arm stands still while the sensor measures the seam's start and the laser is
+    # brought onto it
+    t0 = link.time() + 0.25
+    while link.time() < t0 - 1e-9:
+        fetch()
+        ready = track and tracker.model.count >= MIN_FIT_POINTS
+        link.alter(tracker.correction(0.0) if ready else np.zeros(6))
+        link.step()
+    times, locs = weld.timed_path(period)
+    t0 = link.time()  # the move's law starts at the current cycle
+    link.move(times, locs, laser_tool)
+    while link.queued():
+        fetch()
+        t_move = link.time() + period - t0  # the correction applies at the next cycle
+        s = float(weld.s_at(t_move))
+        if sensor_silent_after_mm is not None and s > look_ahead + sensor_silent_after_mm:
+            link.stop_triggers()  # no more seam points: the sensor has dropped out
+        try:
+            correction = tracker.correction(t_move) if track else np.zeros(6)
+        except TrackingError as exc:
+            # safe stop: laser off first, then the arm stops along its path
+            link.set_laser(False)
+            link.reset_motion()
+            stopped = str(exc)
+            break
+        link.alter(correction)
+        want_on = look_ahead <= s <= look_ahead + weld_mm
+        if want_on != laser_on:
+            link.set_laser(want_on)
+            laser_on = want_on
+        link.step()
+    link.finish()
+    return stopped
+
+
+class _Link(Protocol):
+    """What the tracking loop needs of the robot (and its sync service)."""
+
+    period: float
+
+    def delta_t(self) -> float: ...
+    def here(self, tool: Loc) -> Loc: ...
+    def start(self, tool: Loc, rate_hz: float) -> None: ...
+    def time(self) -> float: ...
+    def points(self, since: int) -> npt.NDArray[np.float64]: ...
+    def alter(self, correction: npt.NDArray[np.float64]) -> None: ...
+    def step(self) -> None: ...
+    def move(
+        self, times: npt.NDArray[np.float64], locs: npt.NDArray[np.float64], tool: Loc
+    ) -> None: ...
+    def queued(self) -> int: ...
+    def set_laser(self, on: bool) -> None: ...
+    def reset_motion(self) -> None: ...
+    def stop_triggers(self) -> None: ...
+    def finish(self) -> None: ...
+    def close(self) -> None: ...
+
+
+class _DirectLink:
+    """In-process: the emulator's robot API and the sync core (the data GetSeamPoints serves)."""
+
+    def __init__(self, cell: EmulatedCell) -> None:
+        self.cell = cell
+        self.robot = cell.robot
+        self.period = cell.robot.period
+
+    def delta_t(self) -> float:
+        return self.cell.core.delta_t_s
+
+    def here(self, tool: Loc) -> Loc:
+        return self.robot.here(tool)
+
+    def start(self, tool: Loc, rate_hz: float) -> None:
+        self.robot.enable_power()
+        self.cell.sync.set_endpoint(*self.cell.udp_address)
+        self.cell.sync.start(rate_hz, 0)
+        self.robot.alter_begin(tool, 0.1)
+
+    def time(self) -> float:
+        return self.robot.time()
+
+    def points(self, since: int) -> npt.NDArray[np.float64]:
+        return self.cell.core.points_since(since)
+
+    def alter(self, correction: npt.NDArray[np.float64]) -> None:
+        self.robot.alter(correction)
+
+    def step(self) -> None:
+        self.robot.step()
+
+    def move(
+        self, times: npt.NDArray[np.float64], locs: npt.NDArray[np.float64], tool: Loc
+    ) -> None:
+        self.robot.tool_move_trajectory(times, locs, tool, (0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+
+    def queued(self) -> int:
+        return self.robot.status().queue
+
+    def set_laser(self, on: bool) -> None:
+        self.robot.set_output("laser", on)
+
+    def reset_motion(self) -> None:
+        self.robot.reset_motion()
+
+    def stop_triggers(self) -> None:
+        self.cell.core.stop()
+
+    def finish(self) -> None:
+        self.robot.alter_end()
+        self.cell.core.stop()
+        self.robot.wait_end_move(5.0)
+
+    def close(self) -> None:
+        pass
+
+
+class _SocketLink:
+    """Through the cell's RobotSocket server, as any client would; WaitEndMove with a timeout
+    of one cycle advances the simulated clock by one cycle."""
+
+    def __init__(self, cell: EmulatedCell) -> None:
+        from spec.client import FramedClient
+
+        self.cell = cell.start()
+        self.period = cell.robot.period
+        self.client = FramedClient(*cell.robot_address, timeout=10.0, client_name="track")
+        self.client.take_control()
+
+    def _call(self, command: CommandId, *params: Value) -> tuple[Value, ...]:
+        return self.client.call(command, *params)
+
+    def delta_t(self) -> float:
+        return float(self._call(CommandId.GET_SYNC_CONFIG)[2])  # type: ignore[arg-type]
+
+    def here(self, tool: Loc) -> Loc:
+        loc = self._call(CommandId.HERE, Location(*tool), IDENTITY_LOCATION)[0]
+        assert isinstance(loc, Location)
+        return loc.as_tuple()
+
+    def start(self, tool: Loc, rate_hz: float) -> None:
+        self._call(CommandId.ENABLE_POWER)
+        self._call(CommandId.SET_SENSOR_ENDPOINT, *self.cell.udp_address)
+        self._call(CommandId.START_TRIGGERS, float(rate_hz), 0)
+        self._call(CommandId.ALTER_BEGIN, Location(*tool), 0.1)
+
+    def time(self) -> float:
+        return float(self._call(CommandId.GET_TIME)[0])  # type: ignore[arg-type]
+
+    def points(self, since: int) -> npt.NDArray[np.float64]:
+        m = self._call(CommandId.GET_SEAM_POINTS, since)[0]
+        assert isinstance(m, Matrix)
+        return np.array(m.values, dtype=np.float64).reshape(m.rows, m.cols)
+
+    def alter(self, correction: npt.NDArray[np.float64]) -> None:
+        self._call(CommandId.ALTER, Location(*(float(v) for v in correction)))
+
+    def step(self) -> None:
+        self._call(CommandId.WAIT_END_MOVE, self.period)
+
+    def move(
+        self, times: npt.NDArray[np.float64], locs: npt.NDArray[np.float64], tool: Loc
+    ) -> None:
+        self._call(
+            CommandId.TOOL_MOVE_TRAJECTORY,
+            FloatArray(times.tolist()),
+            Matrix(len(locs), 6, locs.ravel().tolist()),
+            Location(*tool),
+            IDENTITY_LOCATION,
+        )
+
+    def queued(self) -> int:
+        return int(self._call(CommandId.ROBOT_STATUS)[3])  # type: ignore[arg-type]
+
+    def set_laser(self, on: bool) -> None:
+        self._call(CommandId.SET_OUTPUT, "laser", on)
+
+    def reset_motion(self) -> None:
+        self._call(CommandId.RESET_MOTION)
+
+    def stop_triggers(self) -> None:
+        self._call(CommandId.STOP_TRIGGERS)
+
+    def finish(self) -> None:
+        self._call(CommandId.ALTER_END)
+        self._call(CommandId.STOP_TRIGGERS)
+        self._call(CommandId.WAIT_END_MOVE, 5.0)
+
+    def close(self) -> None:
+        try:
+            with contextlib.suppress(Exception):
+                self.client.release_control()
+            self.client.close()
+        finally:
+            self.cell.close()
 
 
 def _measure_delta_t(cell: EmulatedCell) -> None:
@@ -374,6 +562,7 @@ def cmd_track(args: argparse.Namespace) -> int:
         rate_hz=args.rate,
         seed=args.seed,
         track=not args.untracked,
+        over_sockets=True,
     )
     data = run.summary()
     if args.json:
