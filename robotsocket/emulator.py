@@ -320,7 +320,11 @@ class RobotEmulator(RobotInterface):
 
     def _settled(self) -> bool:
         t = self._gen.k * self.period
-        return self._gen.idle and t >= self._idle_since + self.encoder_latency - 1e-12
+        return (
+            self._gen.idle
+            and not self._alter.engaged  # alter mode moves the arm without a move queued
+            and t >= self._idle_since + self.encoder_latency - 1e-12
+        )
 
     def status(self) -> RobotStatus:
         self.catch_up()

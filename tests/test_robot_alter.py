@@ -212,3 +212,13 @@ def test_alter_commands_are_listed_only_by_a_robot_that_has_them() -> None:
     alter = {CommandId.ALTER_BEGIN, CommandId.ALTER, CommandId.ALTER_END}
     assert alter <= set(RobotService(RobotEmulator()).implemented())
     assert not alter & set(RobotService(NoAlter()).implemented())
+
+
+def test_alter_mode_keeps_a_settled_arm_from_counting_as_settled() -> None:
+    robot = _robot()
+    robot.step(10)
+    assert robot.wait_end_move(0.1)  # settled: returns at once
+    t = robot.time()
+    robot.alter_begin(TOOL, 0.5)
+    assert not robot.wait_end_move(0.004)  # one cycle: the clock advances
+    assert robot.time() == pytest.approx(t + 0.004)

@@ -188,6 +188,39 @@ def run_tracking(
         workpiece_error=workpiece_error or placement,
         seed=seed,
     )
+    servers = over_sockets or (measure_delta_t and delta_t_ms is None)
+    if servers:
+        cell.start()
+    try:
+        return _track_on(
+            cell,
+            seam,
+            speed_mm_s,
+            delta_t_ms,
+            weld_mm,
+            rate_hz,
+            track,
+            sensor_silent_after_mm,
+            measure_delta_t,
+            over_sockets,
+        )
+    finally:
+        if servers:
+            cell.close()
+
+
+def _track_on(
+    cell: EmulatedCell,
+    seam: str,
+    speed_mm_s: float,
+    delta_t_ms: float | None,
+    weld_mm: float,
+    rate_hz: float,
+    track: bool,
+    sensor_silent_after_mm: float | None,
+    measure_delta_t: bool,
+    over_sockets: bool,
+) -> TrackingRun:
     robot = cell.robot
     period = robot.period
     true_dt = cell.true_delta_t_s()
@@ -289,7 +322,8 @@ def _weld_tracked(
             last_index = int(rows[-1, 0])
             tracker.model.add(rows[:, 11:14])
 
-    link.start(laser_tool, rate_hz)
+    # points of earlier runs (the ΔT measurement, another weld) are not this seam's
+    last_index = link.start(laser_tool, rate_hz) - 1
     # the arm stands still while the sensor measures the seam's start and the laser is
     # brought onto it
     t0 = link.time() + 0.25
@@ -332,7 +366,7 @@ class _Link(Protocol):
 
     def delta_t(self) -> float: ...
     def here(self, tool: Loc) -> Loc: ...
-    def start(self, tool: Loc, rate_hz: float) -> None: ...
+    def start(self, tool: Loc, rate_hz: float) -> int: ...
     def time(self) -> float: ...
     def points(self, since: int) -> npt.NDArray[np.float64]: ...
     def alter(self, correction: npt.NDArray[np.float64]) -> None: ...
@@ -362,11 +396,13 @@ class _DirectLink:
     def here(self, tool: Loc) -> Loc:
         return self.robot.here(tool)
 
-    def start(self, tool: Loc, rate_hz: float) -> None:
+    def start(self, tool: Loc, rate_hz: float) -> int:
+        """Power, triggers, alter mode; the index of the first trigger."""
         self.robot.enable_power()
         self.cell.sync.set_endpoint(*self.cell.udp_address)
-        self.cell.sync.start(rate_hz, 0)
+        first = self.cell.sync.start(rate_hz, 0)
         self.robot.alter_begin(tool, 0.1)
+        return first
 
     def time(self) -> float:
         return self.robot.time()
@@ -413,7 +449,7 @@ class _SocketLink:
     def __init__(self, cell: EmulatedCell) -> None:
         from spec.client import FramedClient
 
-        self.cell = cell.start()
+        self.cell = cell
         self.period = cell.robot.period
         self.client = FramedClient(*cell.robot_address, timeout=10.0, client_name="track")
         self.client.take_control()
@@ -429,11 +465,13 @@ class _SocketLink:
         assert isinstance(loc, Location)
         return loc.as_tuple()
 
-    def start(self, tool: Loc, rate_hz: float) -> None:
+    def start(self, tool: Loc, rate_hz: float) -> int:
         self._call(CommandId.ENABLE_POWER)
         self._call(CommandId.SET_SENSOR_ENDPOINT, *self.cell.udp_address)
-        self._call(CommandId.START_TRIGGERS, float(rate_hz), 0)
+        first = self._call(CommandId.START_TRIGGERS, float(rate_hz), 0)[0]
         self._call(CommandId.ALTER_BEGIN, Location(*tool), 0.1)
+        assert isinstance(first, int)
+        return first
 
     def time(self) -> float:
         return float(self._call(CommandId.GET_TIME)[0])  # type: ignore[arg-type]
@@ -478,12 +516,9 @@ class _SocketLink:
         self._call(CommandId.WAIT_END_MOVE, 5.0)
 
     def close(self) -> None:
-        try:
-            with contextlib.suppress(Exception):
-                self.client.release_control()
-            self.client.close()
-        finally:
-            self.cell.close()
+        with contextlib.suppress(Exception):
+            self.client.release_control()
+        self.client.close()
 
 
 def _measure_delta_t(cell: EmulatedCell) -> None:
@@ -491,15 +526,11 @@ def _measure_delta_t(cell: EmulatedCell) -> None:
     arm returns to the ready pose."""
     from sync.experiment import ExperimentSettings, run_delay_experiment
 
-    cell.start()
-    try:
-        run_delay_experiment(
-            cell.robot_address,
-            cell.sensor_address,
-            ExperimentSettings(apply=True, duration_s=4.0),
-        )
-    finally:
-        cell.close()
+    run_delay_experiment(
+        cell.robot_address,
+        cell.sensor_address,
+        ExperimentSettings(apply=True, duration_s=4.0),
+    )
 
 
 def _to_w(points: npt.NDArray[np.float64], b2w: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:

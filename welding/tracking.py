@@ -115,8 +115,8 @@ class SeamModel:
 
     weld: NominalWeld
     half_width_mm: float = FIT_HALF_WIDTH_MM
-    _s: list[float] = field(default_factory=list)
-    _e: list[FloatArray] = field(default_factory=list)
+    _s: FloatArray = field(default_factory=lambda: np.zeros(0))
+    _e: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
 
     def add(self, points: FloatArray) -> None:
         """Seam points (M, 3) in the base frame (^B_G T translations)."""
@@ -124,8 +124,8 @@ class SeamModel:
         p = p[np.all(np.isfinite(p), axis=1)]
         s = (p - self.weld.start) @ self.weld.direction
         e = p - self.weld.point(s)
-        self._s.extend(float(v) for v in s)
-        self._e.extend(e)
+        self._s = np.concatenate([self._s, s])
+        self._e = np.concatenate([self._e, e])
 
     @property
     def count(self) -> int:
@@ -133,30 +133,28 @@ class SeamModel:
 
     def points(self) -> FloatArray:
         """The measured seam points (M, 3), base frame."""
-        if not self._s:
-            return np.zeros((0, 3))
-        out: FloatArray = self.weld.point(np.array(self._s)) + np.array(self._e)
+        out: FloatArray = self.weld.point(self._s) + self._e
         return out
 
     @property
     def furthest(self) -> float:
         """The furthest arc length measured (mm; -inf before the first point)."""
-        return max(self._s) if self._s else -math.inf
+        return float(self._s.max()) if len(self._s) else -math.inf
 
     def offset_at(self, s: float) -> FloatArray:
         """Seam offset (3,) at arc length ``s``: a tricube-weighted quadratic fit of the
         points within ``half_width_mm``; before the first measured point, the offset there
         (the laser is brought onto the seam before it reaches it)."""
-        if not self._s:
+        if not len(self._s):
             raise TrackingError("no seam point measured")
-        ss = np.array(self._s)
+        ss = self._s
         s0 = max(s, float(ss.min()))
         h = self.half_width_mm
         near = np.abs(ss - s0) <= h
         if np.count_nonzero(near) < MIN_FIT_POINTS:
             raise TrackingError(f"too few seam points around s = {s0:.1f} mm")
         x = ss[near] - s0
-        y = np.array(self._e)[near]
+        y = self._e[near]
         w = (1.0 - (np.abs(x) / h) ** 3) ** 3 + 1e-6
         span = float(x.max() - x.min())
         deg = 2 if span > 0.5 * h else 0  # a standing arm measures one place: average it
