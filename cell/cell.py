@@ -47,7 +47,7 @@ from robotsocket.emulator import RobotEmulator
 from robotsocket.service import RobotService
 from robotsocket.sync_service import SyncService, flange2base_for
 from sensorsocket.emulator import CameraEmulator
-from sensorsocket.scene import CornerPath, Joint, Scene, SeamPath, rot_x
+from sensorsocket.scene import CornerPath, JogPath, Joint, Scene, SeamPath, rot_x
 from sensorsocket.sensor import Sensor
 from sensorsocket.service import SensorService
 from sensorsocket.timing import TimingModel
@@ -96,6 +96,8 @@ class EmulatedCell:
             as locations in the nominal tool frame (true = nominal · error; mm, deg). The
             camera sees the scene through the true sensor tool and the laser spot lands where
             the true laser tool puts it; the robot's synchronisation uses the nominal tool.
+        workpiece_error: where the workpiece really lies, as a location in the nominal
+            workpiece frame (placement error; mm, deg): a seam tracker must find it.
         joint, seam: the workpiece: ``butt|fillet|lap`` and ``straight|sine``.
         seed: seeds every random draw of the cell.
         host: address of the servers; ports 0 pick free ones.
@@ -109,6 +111,7 @@ class EmulatedCell:
     laser_tool: Loc = DEFAULT_LASER_TOOL
     sensor_tool_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     laser_tool_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    workpiece_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     joint: str = "butt"
     seam: str = "straight"
     seed: int = 0
@@ -222,8 +225,9 @@ class EmulatedCell:
         joints = {"butt": Joint.butt(), "fillet": Joint.fillet(), "lap": Joint.lap()}
         paths = {"straight": SeamPath.straight(), "sine": SeamPath.paper_sine()}
         paths["corner"] = CornerPath()
+        paths["jog"] = JogPath()
         if self.joint not in joints or self.seam not in paths:
-            raise CellError("joint must be butt|fillet|lap and seam straight|sine|corner")
+            raise CellError("joint must be butt|fillet|lap and seam straight|sine|corner|jog")
         s2b = self.ready_sensor2base()
         # Workpiece: seam along x_S through the sensor origin, surface normal towards the
         # sensor (z_W = -z_S); the seam height of the joint is subtracted so the seam point
@@ -232,6 +236,7 @@ class EmulatedCell:
         w[:3, :3] = s2b[:3, :3] @ rot_x(math.pi)
         joint = joints[self.joint]
         w[:3, 3] = s2b[:3, 3] - w[:3, 2] * joint.seam_height_mm
+        w = w @ _error_transform(self.workpiece_error, "workpiece")
         return Scene(joint, paths[self.seam], w)
 
     def ready_sensor2base(self) -> FloatArray:
@@ -361,6 +366,7 @@ class EmulatedCell:
             "laser_tool": list(self.laser_tool),
             "sensor_tool_error": list(self.sensor_tool_error),
             "laser_tool_error": list(self.laser_tool_error),
+            "workpiece_error": list(self.workpiece_error),
             "ready_sensor_location": [
                 round(float(v), 4) for v in transform_to_location(self.ready_sensor2base())
             ],
@@ -377,8 +383,8 @@ class EmulatedCell:
 
 
 def _error_transform(error: Sequence[float], which: str) -> FloatArray:
-    """The tool error as a transform, checked: finite, at most 50 mm and 30 deg per component
-    (a mounting error, not another tool)."""
+    """The tool (or workpiece) error as a transform, checked: finite, at most 50 mm and
+    30 deg per component (a mounting or placement error, not another tool)."""
     v = np.array(error, dtype=np.float64)
     if v.shape != (6,) or not np.isfinite(v).all():
         raise CellError(f"{which} tool error must be 6 finite numbers (mm, deg)")

@@ -36,6 +36,7 @@ from kinematics.transforms import (
     locations_to_transforms,
     transform_to_location,
 )
+from robotsocket.alter import AlterState, corrected_flange
 from robotsocket.clock import RealTimeLoop, SimLoop, lateness_summary
 from robotsocket.interface import (
     IDENTITY_LOC,
@@ -135,6 +136,7 @@ class RobotEmulator(RobotInterface):
         self._buffer.append(0.0, q0)
         self._idle_since = 0.0
         self._sample_lateness: deque[float] = deque(maxlen=10000)
+        self._alter = AlterState(period)
         self.cycle_hooks: list[CycleHook] = []
         #: (robot time s, output, value) of every SetOutput and every safety switch-off.
         self.io_log: deque[tuple[float, str, bool]] = deque(maxlen=IO_LOG_LENGTH)
@@ -220,6 +222,8 @@ class RobotEmulator(RobotInterface):
                 return  # already run by a reader's catch_up
             t = k * self.period
             q_sp = self._gen.step(k)
+            if self._alter.engaged:
+                q_sp = self._altered(t, q_sp)
             self._setpoint = q_sp
             self._setpoints.append((t, q_sp))
             q_m = self._delayed(t - self.encoder_latency)
@@ -229,7 +233,7 @@ class RobotEmulator(RobotInterface):
             self._buffer.append(t, q_m)
             if self._loop is not None and self._gen.in_motion:
                 self._sample_lateness.append(max(self._loop.now() - t, 0.0))
-            if self._gen.in_motion:
+            if self._gen.in_motion or self._alter.engaged:
                 self._idle_since = math.inf
             elif self._idle_since == math.inf:
                 self._idle_since = t
@@ -241,7 +245,55 @@ class RobotEmulator(RobotInterface):
     def _at_rest(self) -> bool:
         """Nothing moves and nobody waits for a cycle: the clock thread may sleep (readers
         compute the due cycles, :meth:`catch_up`); a new move or waiter wakes it."""
-        return self._waiters == 0 and not self._gen.in_motion and self._settled()
+        return (
+            self._waiters == 0
+            and not self._gen.in_motion
+            and not self._alter.engaged
+            and self._settled()
+        )
+
+    def _altered(self, t: float, q_nominal: Array) -> Array:
+        """[RS-5.32] The nominal setpoint with the alter correction of this cycle applied
+        (IK re-solved next to the nominal joints). A stream that stopped [RS-5.36] switches the
+        laser off and stops the motion along its path; a correction the arm cannot follow
+        stops the arm where it is."""
+        alter = self._alter
+        if alter.step(t):
+            self._switch_off("laser", "alter stream lost")
+            self._gen.reset()
+            self._last_error = BadStateError(
+                f"alter stream lost: no correction for {alter.timeout * 1000:.0f} ms"
+            )
+            log.warning("alter stream lost: laser off, motion stopped along the path")
+        if not np.any(alter.applied):
+            return q_nominal
+        flange = corrected_flange(
+            self.model.flange2base(q_nominal), alter.tool2flange, alter.applied
+        )
+        try:
+            q: Array = self.model.ik(flange, near=q_nominal)[0].joints_deg
+        except KinematicsError as exc:
+            self._last_error = robot_error(exc)
+            self._switch_off("laser", "alter correction unreachable")
+            self._gen.halt()
+            self._gen.hold_q = self._setpoint.copy()
+            alter.fold()
+            log.warning("alter correction unreachable: arm stopped (%s)", exc)
+            return self._gen.hold_q
+        return q
+
+    def _switch_off(self, name: str, why: str) -> None:
+        if self._outputs[name]:
+            self._outputs[name] = False
+            self.io_log.append((self.time(), name, False))
+            log.warning("%s: %s off", why, name)
+
+    def _halt(self) -> None:
+        """Immediate stop at the last (corrected) setpoint; any correction is folded in."""
+        self._gen.halt()
+        if self._alter.engaged:
+            self._gen.hold_q = self._setpoint.copy()
+            self._alter.fold()
 
     def _delayed(self, t: float) -> Array:
         hist = self._setpoints
@@ -268,7 +320,11 @@ class RobotEmulator(RobotInterface):
 
     def _settled(self) -> bool:
         t = self._gen.k * self.period
-        return self._gen.idle and t >= self._idle_since + self.encoder_latency - 1e-12
+        return (
+            self._gen.idle
+            and not self._alter.engaged  # alter mode moves the arm without a move queued
+            and t >= self._idle_since + self.encoder_latency - 1e-12
+        )
 
     def status(self) -> RobotStatus:
         self.catch_up()
@@ -316,7 +372,7 @@ class RobotEmulator(RobotInterface):
 
     def disable_power(self) -> None:
         with self._lock:
-            self._gen.halt()
+            self._halt()
             if self._powered:
                 self._powered = False
                 log.info("arm power off")
@@ -465,6 +521,8 @@ class RobotEmulator(RobotInterface):
             if not self._gen.idle:
                 log.warning("controller lost: decelerating along the path and dropping the queue")
             self._gen.reset()
+            if self._alter.active:
+                self._alter.abandon()  # [RS-5.38] the correction ramps back to zero
             for name in ("crossjet", "gas"):
                 if self._outputs[name]:
                     self._outputs[name] = False
@@ -473,7 +531,7 @@ class RobotEmulator(RobotInterface):
 
     def emergency_stop(self) -> None:
         with self._lock:
-            self._gen.halt()
+            self._halt()
             self._estop = True
             self._powered = False
             # Safety: the process outputs (laser, gas, crossjet) go off with the arm.
@@ -523,6 +581,35 @@ class RobotEmulator(RobotInterface):
 
     def list_io(self) -> tuple[list[str], list[str]]:
         return list(self._outputs), list(self._inputs)
+
+    def alter_begin(self, tool: Loc, timeout: float) -> None:
+        tool_T = _loc(tool, "tool")
+        self.catch_up()
+        with self._lock:
+            if self._estop:
+                raise EmergencyStopError("emergency stop engaged")
+            if not self._powered:
+                raise NotPoweredError("arm power is off: EnablePower first")
+            self._alter.begin(tool_T, timeout, self.time())
+            if self._loop is not None:
+                self._loop.wake()
+            log.info("alter mode on (stream timeout %.0f ms)", timeout * 1000)
+
+    def alter(self, correction: Sequence[float] | Array) -> Array:
+        self.catch_up()
+        with self._lock:
+            return self._alter.command(np.asarray(correction, dtype=np.float64), self.time())
+
+    def alter_end(self) -> None:
+        self.catch_up()
+        with self._lock:
+            self._alter.end()
+            log.info("alter mode off: the correction ramps back to zero")
+
+    def alter_applied(self) -> Array:
+        """The correction (6,) applied at the last cycle (mm, deg, base frame)."""
+        with self._lock:
+            return self._alter.applied.copy()
 
     def joint_log(self, since: float) -> tuple[Array, Array]:
         self.catch_up()

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -237,6 +238,20 @@ class RobotInterface(ABC):
         """Queue a timed path: ``tool`` passes location k of ``locations`` (N, 6) (mm, deg,
         in ``frame``) at ``times[k]`` (N,) s after the move starts [RS-5.23]. Optional:
         a robot without it answers UNKNOWN_COMMAND."""
+        raise NotImplementedError
+
+    def alter_begin(self, tool: Loc, timeout: float) -> None:
+        """[RS-5.32] Start correcting the running motion of ``tool``; a stream silent for
+        ``timeout`` s is lost [RS-5.36]. Optional: a robot without it answers UNKNOWN_COMMAND."""
+        raise NotImplementedError
+
+    def alter(self, correction: Sequence[float] | Array) -> Array:
+        """[RS-5.33] The whole correction in force (6,): dx, dy, dz (mm), rx, ry, rz (deg),
+        base frame; returns the correction applied at the last cycle (6,)."""
+        raise NotImplementedError
+
+    def alter_end(self) -> None:
+        """[RS-5.37] End alter mode; the correction ramps back to zero within the limits."""
         raise NotImplementedError
 
     def on_control_lost(self) -> None:

@@ -113,6 +113,11 @@ class RobotService(HandlerService):
             (C.TOOL_MOVE_TRAJECTORY, self._tool_move_trajectory),
         ):
             self.register(cid, handler)
+        # alter mode is optional: listed in Hello only when the robot implements it
+        if type(robot).alter_begin is not RobotInterface.alter_begin:
+            self.register(C.ALTER_BEGIN, self._alter_begin)
+            self.register(C.ALTER, self._alter)
+            self.register(C.ALTER_END, self._alter_end)
 
     # --- Service -----------------------------------------------------------------------------
 
@@ -202,6 +207,27 @@ class RobotService(HandlerService):
                 "ToolMoveTrajectory not implemented", ErrorCode.UNKNOWN_COMMAND
             ) from None
         return (move_id,)
+
+    def _alter_begin(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        try:
+            self.robot.alter_begin(_loc(params[0]), _float(params[1]))
+        except NotImplementedError:
+            raise ProtocolError("alter mode not implemented", ErrorCode.UNKNOWN_COMMAND) from None
+        return ()
+
+    def _alter(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        try:
+            applied = self.robot.alter(_loc(params[0]))
+        except NotImplementedError:
+            raise ProtocolError("alter mode not implemented", ErrorCode.UNKNOWN_COMMAND) from None
+        return (Location(*(float(v) for v in applied)),)
+
+    def _alter_end(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        try:
+            self.robot.alter_end()
+        except NotImplementedError:
+            raise ProtocolError("alter mode not implemented", ErrorCode.UNKNOWN_COMMAND) from None
+        return ()
 
     def _set_mdesc(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
         self.robot.set_motion_desc(MotionDesc(*(_float(p) for p in params)))

@@ -238,6 +238,69 @@ class CornerPath(SeamPath):
         return 0.0
 
 
+@dataclass(frozen=True)
+class JogPath(SeamPath):
+    """A seam that leaves the straight line by a jog: straight along x_W up to
+    ``start_x_mm``, an arc of ``radius_mm`` turning by ``angle_deg``, a straight leg of
+    ``straight_mm`` (along x_W), an arc back and straight again, ``offset_mm`` to the side."""
+
+    start_x_mm: float = 30.0
+    radius_mm: float = 32.0
+    angle_deg: float = 15.0
+    straight_mm: float = 10.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not (self.radius_mm > 0.0 and 0.0 < self.angle_deg < 60.0 and self.straight_mm >= 0):
+            raise SceneError("jog: radius > 0, 0 < angle < 60 deg, straight >= 0")
+
+    @property
+    def straight_line(self) -> bool:
+        return False
+
+    def _knots(self) -> tuple[float, float, float, float, float, float]:
+        r, th = self.radius_mm, math.radians(self.angle_deg)
+        x1 = self.start_x_mm + r * math.sin(th)
+        y1 = r * (1.0 - math.cos(th))
+        x2 = x1 + self.straight_mm
+        y2 = y1 + self.straight_mm * math.tan(th)
+        x3 = x2 + r * math.sin(th)
+        return x1, y1, x2, y2, x3, y2 + y1
+
+    @property
+    def offset_mm(self) -> float:
+        return self._knots()[5]
+
+    def y(self, x: FloatArray) -> FloatArray:
+        x = np.asarray(x, dtype=np.float64)
+        r, a = self.radius_mm, self.start_x_mm
+        x1, y1, x2, _y2, x3, h = self._knots()
+        t = math.tan(math.radians(self.angle_deg))
+        arc1 = r - np.sqrt(np.maximum(r * r - (x - a) ** 2, 0.0))
+        arc2 = h - r + np.sqrt(np.maximum(r * r - (x - x3) ** 2, 0.0))
+        out: FloatArray = np.select(
+            [x < a, x < x1, x < x2, x < x3], [0.0 * x, arc1, y1 + (x - x1) * t, arc2], h + 0.0 * x
+        )
+        return out
+
+    def slope(self, x: FloatArray) -> FloatArray:
+        x = np.asarray(x, dtype=np.float64)
+        r, a = self.radius_mm, self.start_x_mm
+        x1, _y1, x2, _y2, x3, _h = self._knots()
+        t = math.tan(math.radians(self.angle_deg))
+        d1 = np.sqrt(np.maximum(r * r - (x - a) ** 2, 1e-12))
+        d2 = np.sqrt(np.maximum(r * r - (x - x3) ** 2, 1e-12))
+        out: FloatArray = np.select(
+            [x < a, x < x1, x < x2, x < x3],
+            [0.0 * x, (x - a) / d1, t + 0.0 * x, -(x - x3) / d2],
+            0.0 * x,
+        )
+        return out
+
+    def min_radius_mm(self) -> float:
+        return self.radius_mm
+
+
 def _check_transform(t: ArrayLike, name: str) -> FloatArray:
     a = np.asarray(t, dtype=np.float64)
     if a.shape != (4, 4) or not np.all(np.isfinite(a)):

@@ -51,6 +51,9 @@ class CommandId(IntEnum):
     GET_JOINT_LOG = 0x1014
     GET_JOINT_LIMITS = 0x1015
     TOOL_MOVE_TRAJECTORY = 0x1016
+    ALTER_BEGIN = 0x1017
+    ALTER = 0x1018
+    ALTER_END = 0x1019
 
     SENSOR_STATUS = 0x2001
     GET_DATA = 0x2002
@@ -407,6 +410,45 @@ COMMANDS: tuple[CommandSpec, ...] = (
             _FRAME,
         ),
         reply=(_MOVE_ID,),
+        needs_control=True,
+        moves=True,
+    ),
+    CommandSpec(
+        CommandId.ALTER_BEGIN,
+        "AlterBegin",
+        "robot",
+        "Start correcting the running motion (alter mode, as VAL3 alterBegin): corrections "
+        "then move tool, applied from the next 4 ms cycle.",
+        params=(
+            _TOOL,
+            P("timeout", T.FLOAT, "s", "a stream silent this long is lost; 0.008 to 1"),
+        ),
+        needs_control=True,
+        moves=True,
+    ),
+    CommandSpec(
+        CommandId.ALTER,
+        "Alter",
+        "robot",
+        "The whole correction in force (not an increment); the robot follows it within the "
+        "size, speed and acceleration limits.",
+        params=(
+            P(
+                "correction",
+                T.LOCATION,
+                "mm, deg",
+                "dx, dy, dz and rotation vector rx, ry, rz of the tool, base frame",
+            ),
+        ),
+        reply=(P("applied", T.LOCATION, "mm, deg", "the correction applied at the last cycle"),),
+        needs_control=True,
+        moves=True,
+    ),
+    CommandSpec(
+        CommandId.ALTER_END,
+        "AlterEnd",
+        "robot",
+        "End alter mode: the correction ramps back to zero within the limits.",
         needs_control=True,
         moves=True,
     ),

@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sensorsocket.scene import (
+    JogPath,
     Joint,
     JointType,
     Scene,
@@ -132,3 +133,13 @@ def test_corner_path_has_two_straight_legs_at_90_degrees() -> None:
     for station in (12.5, 45.0):
         truth = scene.seam2sensor(scene.sensor_over_seam(station, seam_y_mm=1.0)[None])[0]
         np.testing.assert_allclose(truth[:3, 3], [0.0, 1.0, 0.0], atol=1e-9)
+
+
+def test_jog_path_is_continuous_with_its_slope_and_radius() -> None:
+    jog = JogPath()
+    x = np.linspace(0.0, 100.0, 100_001)
+    y = jog.y(x)
+    assert np.abs(np.diff(y)).max() < 1e-3  # no step anywhere
+    assert np.allclose(np.gradient(y, x)[1:-1], jog.slope(x)[1:-1], atol=2e-3)
+    assert y[0] == 0.0 and y[-1] == pytest.approx(jog.offset_mm)
+    assert 4.0 < jog.offset_mm < 6.0 and jog.min_radius_mm() == 32.0

@@ -169,3 +169,23 @@ def test_ctrl_c_during_a_run_exits_130_with_the_log(monkeypatch: pytest.MonkeyPa
     assert (log["result"], log["reason"]) == ("aborted", "interrupted")
     stops = [e["step"] for e in log["entries"] if e["event"] == "safe stop"]
     assert stops == ["laser off", "motion reset", "crossjet off", "gas off"]
+
+
+def test_track_writes_the_json_fields(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "track.json"
+    argv = ["track", "--emulate", "--seam", "offset", "--speed", "100", "--length", "40"]
+    assert main([*argv, "--true-delta-t", "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert data["speed_mm_s"] == 100.0 and data["delta_t_ms"] == pytest.approx(4.9)
+    assert data["tracking_error_max_mm"] <= 0.1
+    assert data["tracking_error_rms_mm"] <= data["tracking_error_max_mm"]
+    assert "tracking error max" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("bad", [["--speed", "0"], ["--seam", "zigzag"], []])
+def test_track_refuses_bad_options(bad: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["track", *bad] if not bad else ["track", "--emulate", *bad]
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    assert "error" in capsys.readouterr().err

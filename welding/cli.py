@@ -8,6 +8,7 @@ move NAME --job JOB.xml      to a named location of a job (via, stitch, path sta
 record NAME --job JOB.xml    manual teaching: the current location as a via item
 teach                        3D seam teaching with the sensor; JSON and optionally a job
 calibrate sensor-tool|laser-tool   tool calibration by least squares (--json, --save)
+track --emulate              real-time seam tracking (--seam, --speed, --delta-t-ms, --json)
 
 Robot and sensor: ``--robot HOST:PORT`` / ``--sensor HOST:PORT`` (RobotSocket 4000,
 SensorSocket 2000), or ``--emulate`` for an in-process emulated cell (simulated clock),
@@ -276,6 +277,11 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--postflow", type=cliargs.nonnegative_float, default=0.5, help="s")
 
     calibrate_cli.add_parser(sub, _add_cell_options)
+
+    from welding.emulate import add_track_options  # the emulated cell's path
+
+    p = sub.add_parser("track", help="real-time seam tracking on the emulated cell")
+    add_track_options(p)
     return parser
 
 
@@ -751,6 +757,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     return calibrate_cli.cmd_calibrate(args, _cell)
 
 
+def cmd_track(args: argparse.Namespace) -> int:
+    from welding.emulate import cmd_track as run_track
+
+    return run_track(args)
+
+
 # --- main ------------------------------------------------------------------------------------
 
 
@@ -763,6 +775,7 @@ COMMANDS = {
     "record": cmd_record,
     "teach": cmd_teach,
     "calibrate": cmd_calibrate,
+    "track": cmd_track,
 }
 
 

@@ -9,17 +9,30 @@ the I/O log carries the robot-clock times a real controller would have.
 
 from __future__ import annotations
 
+import argparse
+import contextlib
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from types import TracebackType
+from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
 
-from cell.cell import EmulatedCell
+from cell.cell import CellTiming, EmulatedCell
+from cell.options import add_timing_options, timing_kwargs
 from kinematics.transforms import transform_to_location
 from robotsocket.client import RobotClient
 from sensorsocket.client import SensorClient
+from spec import cliargs
 from spec.errors import ProtocolError
+from spec.files import write_atomically
+from spec.params import IDENTITY_LOCATION, FloatArray, Location, Matrix, Value
+from spec.registry import CommandId
 from welding.tools import Entry, Loc, Tables
+from welding.tracking import MIN_FIT_POINTS, NominalWeld, Tracker, TrackingError, seam_error
 
 __all__ = ["EmulatedSession"]
 
@@ -101,3 +114,524 @@ class EmulatedSession:
         self, et: type[BaseException] | None, e: BaseException | None, tb: TracebackType | None
     ) -> None:
         self.close()
+
+
+# --- real-time seam tracking on the emulated cell (welding.tracking) ------------------------
+
+#: Seams of the tracking benchmark: the cell's seam shape and the workpiece placement error
+#: (location in the workpiece frame, mm, deg) that puts it off the nominal path.
+TRACK_SEAMS: dict[str, tuple[str, Loc]] = {
+    "straight": ("straight", (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)),
+    "offset": ("straight", (0.0, 5.0, 0.0, 0.0, 0.0, 0.0)),
+    "sine": ("sine", (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)),
+    # R = 32 mm arcs (the paper's sine radius) turning 15 deg: a 4.9 mm jog off the path
+    "arc": ("jog", (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)),
+}
+
+
+@dataclass
+class TrackingRun:
+    """One tracked weld on the emulated cell; errors in mm, truth from the cell."""
+
+    seam: str
+    speed_mm_s: float
+    delta_t_ms: float
+    true_delta_t_ms: float
+    tracked: bool
+    stopped: str  # why the weld stopped early; "" when it was completed
+    welded_mm: float
+    tracking_error_max_mm: float
+    tracking_error_rms_mm: float
+    lateral_max_mm: float
+    height_max_mm: float
+    nominal_error_max_mm: float  # the untracked nominal path against the same seam
+    laser_on_at_end: bool
+    plot: dict[str, npt.NDArray[np.float64]] = field(default_factory=dict, repr=False)
+
+    def summary(self) -> dict[str, object]:
+        return {k: v for k, v in asdict(self).items() if k != "plot"}
+
+
+def run_tracking(
+    seam: str = "sine",
+    speed_mm_s: float = 250.0,
+    *,
+    delta_t_ms: float | None = None,
+    timing: CellTiming | None = None,
+    weld_mm: float = 200.0,
+    rate_hz: float = 200.0,
+    seed: int = 0,
+    track: bool = True,
+    workpiece_error: Loc | None = None,
+    sensor_silent_after_mm: float | None = None,
+    measure_delta_t: bool = False,
+    over_sockets: bool = False,
+) -> TrackingRun:
+    """Weld ``weld_mm`` of ``seam`` (``straight|offset|sine``) at ``speed_mm_s`` on the
+    simulated cell, correcting the laser every cycle from the synchronised seam points.
+
+    The tracker uses the ΔT in force on the robot: ``delta_t_ms`` when given, else the one
+    the section VI procedure measures first when ``measure_delta_t`` (as an operator would,
+    through the sockets, a few seconds of simulated sine), else the cell's true ΔT.
+    ``track=False`` welds the nominal path (the baseline). ``sensor_silent_after_mm`` stops
+    the sensor's data once the laser has welded that far (a dropped sensor).
+    ``over_sockets`` runs the tracker as a client of the cell's servers (AlterBegin, Alter,
+    GetSeamPoints, WaitEndMove of one cycle to advance the simulated clock) instead of
+    calling the robot and the sync core in-process; the truth is the same."""
+    if seam not in TRACK_SEAMS:
+        raise ValueError(f"seam must be one of {', '.join(TRACK_SEAMS)}, got {seam!r}")
+    shape, placement = TRACK_SEAMS[seam]
+    cell = EmulatedCell(
+        clock="sim",
+        timing=timing or CellTiming(),
+        seam=shape,
+        workpiece_error=workpiece_error or placement,
+        seed=seed,
+    )
+    servers = over_sockets or (measure_delta_t and delta_t_ms is None)
+    if servers:
+        cell.start()
+    try:
+        return _track_on(
+            cell,
+            seam,
+            speed_mm_s,
+            delta_t_ms,
+            weld_mm,
+            rate_hz,
+            track,
+            sensor_silent_after_mm,
+            measure_delta_t,
+            over_sockets,
+        )
+    finally:
+        if servers:
+            cell.close()
+
+
+def _track_on(
+    cell: EmulatedCell,
+    seam: str,
+    speed_mm_s: float,
+    delta_t_ms: float | None,
+    weld_mm: float,
+    rate_hz: float,
+    track: bool,
+    sensor_silent_after_mm: float | None,
+    measure_delta_t: bool,
+    over_sockets: bool,
+) -> TrackingRun:
+    robot = cell.robot
+    period = robot.period
+    true_dt = cell.true_delta_t_s()
+    if delta_t_ms is not None:
+        cell.core.set_delay(delta_t_ms * 1e-3)
+    elif measure_delta_t:
+        _measure_delta_t(cell)
+    else:
+        cell.core.set_delay(true_dt)
+    # the emulator's truth, every cycle: true setpoints, correction applied, laser output
+    truth: list[npt.NDArray[np.float64]] = []
+    applied: list[npt.NDArray[np.float64]] = []
+    lasing: list[bool] = []
+
+    def record(t: float, q_sp: npt.NDArray[np.float64], q_m: npt.NDArray[np.float64]) -> None:
+        truth.append(q_sp)
+        applied.append(robot.alter_applied())
+        lasing.append(robot.read_io("laser")[0])
+
+    robot.cycle_hooks.append(record)
+    link: _Link = _SocketLink(cell) if over_sockets else _DirectLink(cell)
+    try:
+        dt = link.delta_t()  # the ΔT in force (GetSyncConfig)
+        laser_tool = cell.laser_tool
+        start = np.array(link.here(laser_tool))
+        s2b = cell.ready_sensor2base()
+        direction = s2b[:3, 0]  # the nominal seam runs along the sensor's x axis
+        look_ahead = float((s2b[:3, 3] - start[:3]) @ direction)
+        ramp_mm = speed_mm_s**2 / (2.0 * 2500.0)
+        weld = NominalWeld(
+            start=start[:3],
+            direction=direction,
+            angles=start[3:],
+            length_mm=look_ahead + weld_mm + ramp_mm + 1.0,
+            speed_mm_s=speed_mm_s,
+        )
+        tracker = Tracker(weld, look_ahead)
+        stopped = _weld_tracked(
+            link, tracker, laser_tool, weld_mm, rate_hz, track, sensor_silent_after_mm
+        )
+        laser_on_at_end = robot.read_io("laser")[0]
+    finally:
+        link.close()
+    on_cycles = [i for i, on in enumerate(lasing) if on]
+    q = np.array(truth)
+    laser_pts = (robot.model.flange2base_batch(q[on_cycles]) @ cell.laser2flange)[:, :3, 3]
+    corr = np.array(applied)[on_cycles, :3] if on_cycles else np.zeros((0, 3))
+    b2w = cell.scene.base2workpiece
+    h = cell.scene.joint.seam_height_mm
+    lat, hgt = seam_error(laser_pts, b2w, cell.scene.path.lateral, h)
+    n_lat, _ = seam_error(laser_pts - corr, b2w, cell.scene.path.lateral, h)
+    err = np.hypot(lat, hgt)
+    welded = len(on_cycles) * period * speed_mm_s
+    return TrackingRun(
+        seam=seam,
+        speed_mm_s=speed_mm_s,
+        delta_t_ms=dt * 1e3,
+        true_delta_t_ms=true_dt * 1e3,
+        tracked=track,
+        stopped=stopped,
+        welded_mm=round(welded, 1),
+        tracking_error_max_mm=float(err.max()) if len(err) else math.nan,
+        tracking_error_rms_mm=float(np.sqrt(np.mean(err**2))) if len(err) else math.nan,
+        lateral_max_mm=float(np.abs(lat).max()) if len(lat) else math.nan,
+        height_max_mm=float(np.abs(hgt).max()) if len(hgt) else math.nan,
+        nominal_error_max_mm=float(np.abs(n_lat).max()) if len(n_lat) else math.nan,
+        laser_on_at_end=laser_on_at_end,
+        plot={
+            "laser": _to_w(laser_pts, b2w),
+            "nominal": _to_w(laser_pts - corr, b2w),
+            "measured": _to_w(tracker.model.points(), b2w),
+            "seam": _true_seam(cell, laser_pts, b2w),
+        },
+    )
+
+
+def _weld_tracked(
+    link: _Link,
+    tracker: Tracker,
+    laser_tool: Loc,
+    weld_mm: float,
+    rate_hz: float,
+    track: bool,
+    sensor_silent_after_mm: float | None,
+) -> str:
+    """The tracking loop, one pass per controller cycle; returns why the weld stopped early
+    ("" when it was completed)."""
+    weld = tracker.weld
+    look_ahead = tracker.look_ahead_mm
+    period = link.period
+    last_index = -1
+    stopped = ""
+    laser_on = False
+
+    def fetch() -> None:
+        nonlocal last_index
+        rows = link.points(last_index)
+        if len(rows):
+            last_index = int(rows[-1, 0])
+            tracker.model.add(rows[:, 11:14])
+
+    # points of earlier runs (the ΔT measurement, another weld) are not this seam's
+    last_index = link.start(laser_tool, rate_hz) - 1
+    # the arm stands still while the sensor measures the seam's start and the laser is
+    # brought onto it
+    t0 = link.time() + 0.25
+    while link.time() < t0 - 1e-9:
+        fetch()
+        ready = track and tracker.model.count >= MIN_FIT_POINTS
+        link.alter(tracker.correction(0.0) if ready else np.zeros(6))
+        link.step()
+    times, locs = weld.timed_path(period)
+    t0 = link.time()  # the move's law starts at the current cycle
+    link.move(times, locs, laser_tool)
+    while link.queued():
+        fetch()
+        t_move = link.time() + period - t0  # the correction applies at the next cycle
+        s = float(weld.s_at(t_move))
+        if sensor_silent_after_mm is not None and s > look_ahead + sensor_silent_after_mm:
+            link.stop_triggers()  # no more seam points: the sensor has dropped out
+        try:
+            correction = tracker.correction(t_move) if track else np.zeros(6)
+        except TrackingError as exc:
+            # safe stop: laser off first, then the arm stops along its path
+            link.set_laser(False)
+            link.reset_motion()
+            stopped = str(exc)
+            break
+        link.alter(correction)
+        want_on = look_ahead <= s <= look_ahead + weld_mm
+        if want_on != laser_on:
+            link.set_laser(want_on)
+            laser_on = want_on
+        link.step()
+    link.finish()
+    return stopped
+
+
+class _Link(Protocol):
+    """What the tracking loop needs of the robot (and its sync service)."""
+
+    period: float
+
+    def delta_t(self) -> float: ...
+    def here(self, tool: Loc) -> Loc: ...
+    def start(self, tool: Loc, rate_hz: float) -> int: ...
+    def time(self) -> float: ...
+    def points(self, since: int) -> npt.NDArray[np.float64]: ...
+    def alter(self, correction: npt.NDArray[np.float64]) -> None: ...
+    def step(self) -> None: ...
+    def move(
+        self, times: npt.NDArray[np.float64], locs: npt.NDArray[np.float64], tool: Loc
+    ) -> None: ...
+    def queued(self) -> int: ...
+    def set_laser(self, on: bool) -> None: ...
+    def reset_motion(self) -> None: ...
+    def stop_triggers(self) -> None: ...
+    def finish(self) -> None: ...
+    def close(self) -> None: ...
+
+
+class _DirectLink:
+    """In-process: the emulator's robot API and the sync core (the data GetSeamPoints serves)."""
+
+    def __init__(self, cell: EmulatedCell) -> None:
+        self.cell = cell
+        self.robot = cell.robot
+        self.period = cell.robot.period
+
+    def delta_t(self) -> float:
+        return self.cell.core.delta_t_s
+
+    def here(self, tool: Loc) -> Loc:
+        return self.robot.here(tool)
+
+    def start(self, tool: Loc, rate_hz: float) -> int:
+        """Power, triggers, alter mode; the index of the first trigger."""
+        self.robot.enable_power()
+        self.cell.sync.set_endpoint(*self.cell.udp_address)
+        first = self.cell.sync.start(rate_hz, 0)
+        self.robot.alter_begin(tool, 0.1)
+        return first
+
+    def time(self) -> float:
+        return self.robot.time()
+
+    def points(self, since: int) -> npt.NDArray[np.float64]:
+        return self.cell.core.points_since(since)
+
+    def alter(self, correction: npt.NDArray[np.float64]) -> None:
+        self.robot.alter(correction)
+
+    def step(self) -> None:
+        self.robot.step()
+
+    def move(
+        self, times: npt.NDArray[np.float64], locs: npt.NDArray[np.float64], tool: Loc
+    ) -> None:
+        self.robot.tool_move_trajectory(times, locs, tool, (0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+
+    def queued(self) -> int:
+        return self.robot.status().queue
+
+    def set_laser(self, on: bool) -> None:
+        self.robot.set_output("laser", on)
+
+    def reset_motion(self) -> None:
+        self.robot.reset_motion()
+
+    def stop_triggers(self) -> None:
+        self.cell.core.stop()
+
+    def finish(self) -> None:
+        self.robot.alter_end()
+        self.cell.core.stop()
+        self.robot.wait_end_move(5.0)
+
+    def close(self) -> None:
+        pass
+
+
+class _SocketLink:
+    """Through the cell's RobotSocket server, as any client would; WaitEndMove with a timeout
+    of one cycle advances the simulated clock by one cycle."""
+
+    def __init__(self, cell: EmulatedCell) -> None:
+        from spec.client import FramedClient
+
+        self.cell = cell
+        self.period = cell.robot.period
+        self.client = FramedClient(*cell.robot_address, timeout=10.0, client_name="track")
+        self.client.take_control()
+
+    def _call(self, command: CommandId, *params: Value) -> tuple[Value, ...]:
+        return self.client.call(command, *params)
+
+    def delta_t(self) -> float:
+        return float(self._call(CommandId.GET_SYNC_CONFIG)[2])  # type: ignore[arg-type]
+
+    def here(self, tool: Loc) -> Loc:
+        loc = self._call(CommandId.HERE, Location(*tool), IDENTITY_LOCATION)[0]
+        assert isinstance(loc, Location)
+        return loc.as_tuple()
+
+    def start(self, tool: Loc, rate_hz: float) -> int:
+        self._call(CommandId.ENABLE_POWER)
+        self._call(CommandId.SET_SENSOR_ENDPOINT, *self.cell.udp_address)
+        first = self._call(CommandId.START_TRIGGERS, float(rate_hz), 0)[0]
+        self._call(CommandId.ALTER_BEGIN, Location(*tool), 0.1)
+        assert isinstance(first, int)
+        return first
+
+    def time(self) -> float:
+        return float(self._call(CommandId.GET_TIME)[0])  # type: ignore[arg-type]
+
+    def points(self, since: int) -> npt.NDArray[np.float64]:
+        m = self._call(CommandId.GET_SEAM_POINTS, since)[0]
+        assert isinstance(m, Matrix)
+        return np.array(m.values, dtype=np.float64).reshape(m.rows, m.cols)
+
+    def alter(self, correction: npt.NDArray[np.float64]) -> None:
+        self._call(CommandId.ALTER, Location(*(float(v) for v in correction)))
+
+    def step(self) -> None:
+        self._call(CommandId.WAIT_END_MOVE, self.period)
+
+    def move(
+        self, times: npt.NDArray[np.float64], locs: npt.NDArray[np.float64], tool: Loc
+    ) -> None:
+        self._call(
+            CommandId.TOOL_MOVE_TRAJECTORY,
+            FloatArray(times.tolist()),
+            Matrix(len(locs), 6, locs.ravel().tolist()),
+            Location(*tool),
+            IDENTITY_LOCATION,
+        )
+
+    def queued(self) -> int:
+        return int(self._call(CommandId.ROBOT_STATUS)[3])  # type: ignore[arg-type]
+
+    def set_laser(self, on: bool) -> None:
+        self._call(CommandId.SET_OUTPUT, "laser", on)
+
+    def reset_motion(self) -> None:
+        self._call(CommandId.RESET_MOTION)
+
+    def stop_triggers(self) -> None:
+        self._call(CommandId.STOP_TRIGGERS)
+
+    def finish(self) -> None:
+        self._call(CommandId.ALTER_END)
+        self._call(CommandId.STOP_TRIGGERS)
+        self._call(CommandId.WAIT_END_MOVE, 5.0)
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self.client.release_control()
+        self.client.close()
+
+
+def _measure_delta_t(cell: EmulatedCell) -> None:
+    """The section VI procedure through the sockets; SetSyncDelay applies the estimate. The
+    arm returns to the ready pose."""
+    from sync.experiment import ExperimentSettings, run_delay_experiment
+
+    run_delay_experiment(
+        cell.robot_address,
+        cell.sensor_address,
+        ExperimentSettings(apply=True, duration_s=4.0),
+    )
+
+
+def _to_w(points: npt.NDArray[np.float64], b2w: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    out: npt.NDArray[np.float64] = (np.column_stack([points, np.ones(len(points))]) @ b2w.T)[:, :3]
+    return out
+
+
+def _true_seam(
+    cell: EmulatedCell, laser_pts: npt.NDArray[np.float64], b2w: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """The true seam (N, 3) in the workpiece frame under the laser's x."""
+    x = _to_w(laser_pts, b2w)[:, 0]
+    return np.column_stack(
+        [x, cell.scene.path.y(x), np.full_like(x, cell.scene.joint.seam_height_mm)]
+    )
+
+
+# --- command line: python -m welding track --emulate ... ------------------------------------
+
+
+def add_track_options(p: argparse.ArgumentParser) -> None:
+    """Options of ``python -m welding track`` (the cell's timing options included)."""
+    p.add_argument(
+        "--emulate",
+        action="store_true",
+        required=True,
+        help="track on the in-process emulated cell (simulated clock); required",
+    )
+    p.add_argument("--seam", choices=tuple(TRACK_SEAMS), default="sine")
+    p.add_argument("--speed", type=cliargs.number_in(1.0, 500.0), default=250.0, help="mm/s")
+    p.add_argument(
+        "--delta-t-ms",
+        type=cliargs.number_in(-100.0, 100.0),
+        help="override the ΔT in force (default: measured first, section VI procedure)",
+    )
+    p.add_argument(
+        "--true-delta-t",
+        action="store_true",
+        help="skip the measurement: the cell's true ΔT is set in force",
+    )
+    p.add_argument("--length", type=cliargs.number_in(10.0, 200.0), default=200.0, help="mm")
+    p.add_argument("--rate", type=cliargs.number_in(10.0, 1000.0), default=200.0, help="Hz")
+    p.add_argument("--untracked", action="store_true", help="weld the nominal path (baseline)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", type=cliargs.output_file, metavar="OUT.json")
+    p.add_argument("--plot", metavar="DIR", help="write track.png (needs matplotlib)")
+    add_timing_options(p)
+
+
+def cmd_track(args: argparse.Namespace) -> int:
+    """Run one tracked weld; print and optionally write the result. Exit 1 when the weld
+    stopped early (the laser is off)."""
+    run = run_tracking(
+        args.seam,
+        args.speed,
+        delta_t_ms=args.delta_t_ms,
+        measure_delta_t=not args.true_delta_t,
+        timing=CellTiming(**timing_kwargs(args)),
+        weld_mm=args.length,
+        rate_hz=args.rate,
+        seed=args.seed,
+        track=not args.untracked,
+        over_sockets=True,
+    )
+    data = run.summary()
+    if args.json:
+        write_atomically(args.json, json.dumps(data, indent=1) + "\n")
+    if args.plot:
+        _plot(run, Path(args.plot))
+    print(
+        f"{run.seam} seam at {run.speed_mm_s:g} mm/s, ΔT {run.delta_t_ms:.2f} ms: "
+        f"tracking error max {run.tracking_error_max_mm * 1e3:.1f} µm, "
+        f"rms {run.tracking_error_rms_mm * 1e3:.1f} µm over {run.welded_mm:g} mm "
+        f"(nominal path {run.nominal_error_max_mm:.3f} mm)"
+        + (f"; STOPPED: {run.stopped}" if run.stopped else "")
+    )
+    return 1 if run.stopped else 0
+
+
+def _plot(run: TrackingRun, out_dir: Path) -> None:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise ValueError("--plot needs matplotlib") from None
+    out_dir.mkdir(parents=True, exist_ok=True)
+    fig, ax = plt.subplots(figsize=(10, 4))
+    for key, style in (("nominal", "k--"), ("seam", "g-"), ("laser", "r-")):
+        pts = run.plot[key]
+        ax.plot(pts[:, 0], pts[:, 1], style, label=key, linewidth=1)
+    m = run.plot["measured"]
+    ax.plot(m[:, 0], m[:, 1], "b.", markersize=2, label="measured seam")
+    ax.set_xlabel("x workpiece (mm)")
+    ax.set_ylabel("y workpiece (mm)")
+    ax.set_title(
+        f"{run.seam} at {run.speed_mm_s:g} mm/s, ΔT {run.delta_t_ms:.2f} ms: "
+        f"max {run.tracking_error_max_mm * 1e3:.0f} µm"
+    )
+    ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out_dir / "track.png", dpi=100)
+    plt.close(fig)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from conformance.cases import (  # noqa: F401  (imported for their registrations)
     access,
+    alter,
     commands,
     control,
     framing,

@@ -1,0 +1,115 @@
+"""Seam tracking: the pure seam model and tracker, and tracked welds on the simulated cell
+(fixed seeds, simulated clock; the error figures are the cell's truth, not timings)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from welding.emulate import run_tracking
+from welding.tracking import NominalWeld, SeamModel, Tracker, TrackingError
+
+DIRECTION = np.array([1.0, 0.0, 0.0])
+
+
+def _weld(speed: float = 250.0, length: float = 300.0) -> NominalWeld:
+    return NominalWeld(
+        start=np.array([500.0, 0.0, 300.0]),
+        direction=DIRECTION,
+        angles=np.array([180.0, 0.0, 0.0]),
+        length_mm=length,
+        speed_mm_s=speed,
+    )
+
+
+def test_nominal_weld_law_and_timed_path() -> None:
+    weld = _weld()
+    t = np.linspace(0.0, weld.duration, 2001)
+    s = weld.s_at(t)
+    assert s[0] == 0.0 and s[-1] == pytest.approx(300.0)
+    v = np.diff(s) / np.diff(t)
+    assert v.max() == pytest.approx(250.0, rel=1e-3) and np.all(v >= -1e-9)
+    times, locs = weld.timed_path(0.004)
+    assert times[0] == 0.0 and times[-1] >= weld.duration - 1e-12
+    assert np.allclose(locs[:, 0] - 500.0, weld.s_at(times))
+    assert np.allclose(locs[:, 3:], [180.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="too short"):
+        _weld(length=10.0).duration  # noqa: B018
+
+
+def _sine_points(rng: np.random.Generator, s: np.ndarray, noise: float) -> np.ndarray:
+    y = 2.0 * np.sin(2.0 * np.pi * s / 50.0)
+    pts = np.column_stack([500.0 + s, y, np.full_like(s, 300.0)])
+    out: np.ndarray = pts + rng.normal(0.0, noise, pts.shape)
+    return out
+
+
+def test_seam_model_filters_noise_without_lag_on_the_paper_sine() -> None:
+    rng = np.random.default_rng(1)
+    model = SeamModel(_weld())
+    model.add(_sine_points(rng, np.arange(0.0, 200.0, 1.25), 0.010))
+    s = np.arange(10.0, 190.0, 0.5)
+    fit = np.array([model.offset_at(v)[1] for v in s])
+    truth = 2.0 * np.sin(2.0 * np.pi * s / 50.0)
+    # 10 µm noise per point, about 6 µm after the fit; no lag: no error of the slope's order
+    assert np.abs(fit - truth).max() < 0.03
+    assert np.abs(fit - truth).std() < 0.01
+
+
+def test_tracker_stops_when_the_seam_ahead_is_not_measured() -> None:
+    weld = _weld()
+    tracker = Tracker(weld, look_ahead_mm=40.0)
+    with pytest.raises(TrackingError, match="not measured"):
+        tracker.correction(0.0)
+    rng = np.random.default_rng(2)
+    tracker.model.add(_sine_points(rng, np.arange(0.0, 60.0, 1.0), 0.0))
+    # the 250 mm/s is reached after 0.1 s and 12.5 mm
+    t_20 = 0.1 + (20.0 - 12.5) / 250.0
+    assert float(weld.s_at(t_20)) == pytest.approx(20.0)
+    c = tracker.correction(t_20)
+    assert c[1] == pytest.approx(2.0 * np.sin(2.0 * np.pi * 20.0 / 50.0), abs=1e-3)
+    with pytest.raises(TrackingError, match="not measured"):
+        tracker.correction(0.1 + (40.0 - 12.5) / 250.0)  # sensor at 80 mm, seam up to 59
+
+
+@pytest.mark.parametrize(
+    ("seam", "speed"), [("offset", 250.0), ("sine", 100.0), ("sine", 250.0), ("arc", 250.0)]
+)
+def test_tracked_weld_meets_the_paper_accuracy(seam: str, speed: float) -> None:
+    run = run_tracking(seam, speed, weld_mm=100.0, seed=3)
+    assert run.stopped == "" and run.welded_mm == pytest.approx(100.0, abs=1.0)
+    assert run.nominal_error_max_mm > 1.9  # the untracked path misses the seam
+    assert run.tracking_error_max_mm <= 0.1
+    assert not run.laser_on_at_end
+
+
+def test_no_synchronisation_makes_the_sine_error_grow() -> None:
+    good = run_tracking("sine", 250.0, weld_mm=100.0, seed=4)
+    none = run_tracking("sine", 250.0, weld_mm=100.0, seed=4, delta_t_ms=0.0)
+    assert none.tracking_error_max_mm > 3.0 * good.tracking_error_max_mm
+
+
+def test_dropped_sensor_stops_the_weld_with_the_laser_off() -> None:
+    run = run_tracking("straight", 250.0, weld_mm=150.0, sensor_silent_after_mm=50.0)
+    assert "not measured" in run.stopped
+    assert 50.0 <= run.welded_mm < 100.0
+    assert not run.laser_on_at_end
+
+
+def test_seam_beyond_the_correction_range_stops_the_weld() -> None:
+    # workpiece turned by 6 deg: the seam walks off the nominal path at 0.1 mm per mm
+    run = run_tracking(
+        "straight", 250.0, weld_mm=150.0, workpiece_error=(0.0, 0.0, 0.0, 0.0, 0.0, 6.0)
+    )
+    assert "off the path" in run.stopped
+    assert run.welded_mm < 150.0 and not run.laser_on_at_end
+    assert run.tracking_error_max_mm <= 0.1  # tracked well until it stopped
+
+
+def test_tracking_through_the_sockets_gives_the_same_weld() -> None:
+    direct = run_tracking("sine", 250.0, weld_mm=60.0, seed=5)
+    sockets = run_tracking("sine", 250.0, weld_mm=60.0, seed=5, over_sockets=True)
+    assert sockets.stopped == "" and sockets.welded_mm == direct.welded_mm
+    # the same commands on the same simulated clock: the same weld, to the last digit
+    assert sockets.tracking_error_max_mm == direct.tracking_error_max_mm
+    assert sockets.tracking_error_rms_mm == direct.tracking_error_rms_mm
