@@ -236,6 +236,7 @@ def cmd_snapshot(args: argparse.Namespace) -> int:
         client = SensorClient(host, port, timeout=args.timeout)
         try:
             index, image = _fetch(client, args.acquire, token)
+            settings = client.get_settings()
         finally:
             client.close()
     except RemoteError as exc:
@@ -249,6 +250,14 @@ def cmd_snapshot(args: argparse.Namespace) -> int:
     else:
         write_pgm(out, image)
     print(f"wrote {out} ({image.shape[1]}x{image.shape[0]}, frame {index})")
+    if settings.columns < settings.width:
+        # the window is the sensor's, not this connection's: a frame half black is not a fault
+        last = settings.first_column + settings.columns - 1
+        print(
+            f"readout window in force: columns {settings.first_column}..{last} of "
+            f"{settings.width}, the rest of the frame is not read out "
+            f"(SetReadoutWindow 0 {settings.width} restores the full frame)"
+        )
     return 0
 
 
