@@ -45,6 +45,7 @@ from sync.delay import (
     assess_run,
     estimate_delay,
     residual_after_sync,
+    sine_amplitude,
     window_delays,
 )
 
@@ -538,4 +539,11 @@ def judge(r: DelayResult, limits: QualityLimits | None = None) -> Verdict:
         search_min_s=st.search_min_s,
         search_max_s=st.search_max_s,
     )
-    return assess_run(r.estimate, r.residual, r.data.statistics, windows, limits)
+    full = (r.data.t_trigger >= t0) & (r.data.t_trigger <= t1)
+    robot = (r.data.t_robot >= t0) & (r.data.t_robot <= t1)
+    motion = (
+        sine_amplitude(r.data.t_trigger[full], r.data.y_sensor[full], st.frequency_hz),
+        sine_amplitude(r.data.t_robot[robot], r.data.y_robot[robot], st.frequency_hz),
+        st.frequency_hz,
+    )
+    return assess_run(r.estimate, r.residual, r.data.statistics, windows, limits, motion=motion)
