@@ -404,6 +404,7 @@ def run_delay_experiment(
         result = analyse(data, settings, require_interior=require_interior)
         if settings.apply:
             rc.call(CommandId.SET_SYNC_DELAY, float(result.estimate.delta_t_s))
+            result.extra["applied_delta_t_ms"] = result.estimate.delta_t_s * 1e3
         rc.release_control()
     return result
 
