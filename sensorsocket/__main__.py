@@ -13,6 +13,7 @@ cannot be reached.
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import sys
 import time
@@ -178,9 +179,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     def stop() -> None:
         if listener is not None:
-            log.info("trigger statistics: %s", listener.statistics())
+            log.info("trigger statistics: %s", json.dumps(listener.statistics()))
             listener.stop()
-        log.info("server statistics: %s", server.statistics())
+        log.info("server statistics: %s", json.dumps(server.statistics()))
 
     serve_until_signal([server], on_stop=stop)
     return 0
