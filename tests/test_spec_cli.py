@@ -6,6 +6,9 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
+from spec.__main__ import main
 from spec.vectorgen import load
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,3 +69,24 @@ def test_decode_a_capture_of_several_frames(tmp_path: Path) -> None:
     capture.write_bytes(b"".join(frames) + frames[0][:5])
     r = run("decode", str(capture))
     assert r.returncode == 2 and "truncated frame" in r.stderr
+
+
+def test_vectors_end_with_a_summary_and_the_shipped_capture_decodes(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    assert main(["vectors"]) == 0
+    last = capsys.readouterr().out.splitlines()[-1]
+    n = len(load("frames.json")) + len(load("datagrams.json"))
+    assert last.startswith(f"{n} vectors: ") and last.endswith("all as expected")
+    assert main(["decode", str(ROOT / "spec" / "capture.bin")]) == 0
+    assert "== frame 6 of 6" in capsys.readouterr().out
+
+
+def test_vectors_exit_1_naming_a_vector_not_as_marked(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bad = {**load("frames.json")[0], "name": "marked-wrongly", "valid": False, "error": "BAD_CRC"}
+    monkeypatch.setattr("spec.vectorgen.load", lambda name: [bad] if name == "frames.json" else [])
+    assert main(["vectors"]) == 1
+    last = capsys.readouterr().out.splitlines()[-1]
+    assert last == "1 vectors: 0 valid, 1 invalid; 1 not as expected: frames.json:marked-wrongly"
