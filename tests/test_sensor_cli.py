@@ -246,4 +246,4 @@ def test_allow_list_applies_to_tcp_and_udp() -> None:
             proc.kill()
             proc.communicate()
     assert proc.returncode == 0, err
-    assert "'refused_address': 1" in err
+    assert '"refused_address": 1' in err
