@@ -94,7 +94,8 @@ def _parser() -> _Parser:
     ik.add_argument("--frame")
     ik.add_argument("--config", help="e.g. righty,epositive,wpositive (any subset)")
     ik.add_argument("--near", help="current joints J1,...,J6: sort by distance to them")
-    sub.add_parser("models", help="list the models with their parameters and limits")
+    models = sub.add_parser("models", help="list the models with their parameters and limits")
+    models.add_argument("--json", action="store_true", help="every field as JSON")
     return p
 
 
@@ -127,14 +128,39 @@ def _run(argv: Sequence[str]) -> dict[str, Any] | list[dict[str, Any]]:
     return {"solutions": out}
 
 
+def _models_table(models: list[dict[str, Any]]) -> str:
+    """One row per model: the link lengths (mm) and the joint ranges (deg) a user picks by."""
+    head = ("model", "shoulder", "lateral", "upper_arm", "forearm", "wrist", "joint limits")
+    rows = [head]
+    for m in models:
+        limits = " ".join(f"{lo:g}..{hi:g}" for lo, hi in m["joint_limits_deg"])
+        lengths = (
+            m["shoulder_offset_mm"],
+            m["lateral_offset_mm"],
+            m["upper_arm_mm"],
+            m["forearm_mm"],
+            m["wrist_to_flange_mm"],
+        )
+        rows.append((m["name"], *(f"{v:g}" for v in lengths), limits))
+    widths = [max(len(r[i]) for r in rows) for i in range(len(head) - 1)]
+    lines = [
+        "  ".join([*(c.ljust(w) for c, w in zip(r, widths, strict=False)), r[-1]]) for r in rows
+    ]
+    return "\n".join([*lines, "lengths in mm, limits in degrees (J1 … J6); --json for every field"])
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
     try:
-        result = _run(sys.argv[1:] if argv is None else argv)
+        result = _run(argv)
     except (_UsageError, KinematicsError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     try:
-        print(json.dumps(result), flush=True)
+        if isinstance(result, list) and "--json" not in argv:
+            print(_models_table(result), flush=True)
+        else:
+            print(json.dumps(result), flush=True)
     except BrokenPipeError:  # `… | head -c N`: end quietly, as a Unix tool does
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141

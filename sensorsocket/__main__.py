@@ -13,6 +13,7 @@ cannot be reached.
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import sys
 import time
@@ -178,9 +179,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     def stop() -> None:
         if listener is not None:
-            log.info("trigger statistics: %s", listener.statistics())
+            log.info("trigger statistics: %s", json.dumps(listener.statistics()))
             listener.stop()
-        log.info("server statistics: %s", server.statistics())
+        log.info("server statistics: %s", json.dumps(server.statistics()))
 
     serve_until_signal([server], on_stop=stop)
     return 0
@@ -236,6 +237,7 @@ def cmd_snapshot(args: argparse.Namespace) -> int:
         client = SensorClient(host, port, timeout=args.timeout)
         try:
             index, image = _fetch(client, args.acquire, token)
+            settings = client.get_settings()
         finally:
             client.close()
     except RemoteError as exc:
@@ -249,6 +251,14 @@ def cmd_snapshot(args: argparse.Namespace) -> int:
     else:
         write_pgm(out, image)
     print(f"wrote {out} ({image.shape[1]}x{image.shape[0]}, frame {index})")
+    if settings.columns < settings.width:
+        # the window is the sensor's, not this connection's: a frame half black is not a fault
+        last = settings.first_column + settings.columns - 1
+        print(
+            f"readout window in force: columns {settings.first_column}..{last} of "
+            f"{settings.width}, the rest of the frame is not read out "
+            f"(SetReadoutWindow 0 {settings.width} restores the full frame)"
+        )
     return 0
 
 

@@ -74,17 +74,35 @@ def cmd_vectors(args: argparse.Namespace) -> int:
         if not written:
             print("vectors exist; use --force to overwrite them", file=sys.stderr)
         return 0
+    counts = {"valid": 0, "invalid": 0}
+    wrong: list[str] = []
     for name in ("frames.json", "datagrams.json"):
         for v in vectorgen.load(name):
             print(f"== {name}:{v['name']}  {v.get('description', '')}")
             raw = bytes.fromhex(v["hex"])
+            counts["valid" if v["valid"] else "invalid"] += 1
             try:
                 print(describe(raw))
+                rejected = None
             except PeerError as exc:
                 print(f"rejected: {exc}")
+                rejected = exc.code.name
             if not v["valid"]:
                 print(f"expected: {v['error']}")
-    return 0
+            # the summary's verdict: a vector decodes exactly when it is marked valid, and an
+            # invalid one is refused with the error code it names (INCOMPLETE means a stream
+            # decoder waits for more; the one-shot dissector calls that a truncated BAD_FRAME)
+            expected = None if v["valid"] else v["error"]
+            if expected == "INCOMPLETE":
+                expected = "BAD_FRAME"
+            if rejected != expected:
+                wrong.append(f"{name}:{v['name']}")
+    total = counts["valid"] + counts["invalid"]
+    print(
+        f"{total} vectors: {counts['valid']} valid, {counts['invalid']} invalid; "
+        + (f"{len(wrong)} not as expected: {', '.join(wrong)}" if wrong else "all as expected")
+    )
+    return 1 if wrong else 0
 
 
 def cmd_requirements(args: argparse.Namespace) -> int:

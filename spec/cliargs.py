@@ -108,7 +108,8 @@ def timeout(text: str) -> float:
     """Seconds to wait, MIN_TIMEOUT to MAX_TIMEOUT."""
     value = _number(text)
     if not MIN_TIMEOUT <= value <= MAX_TIMEOUT:
-        msg = f"must be between {MIN_TIMEOUT:g} and {MAX_TIMEOUT:g} s, got {text}"
+        # the parsed value, not the raw text: "\r0" is 0 too and must not break the line
+        msg = f"must be between {MIN_TIMEOUT:g} and {MAX_TIMEOUT:g} s, got {value:g}"
         raise argparse.ArgumentTypeError(msg)
     return value
 

@@ -303,6 +303,12 @@ def cmd_delay(args: argparse.Namespace, progress: _Progress) -> int:
             v = judge(main_result, limits)
             verdicts.append(("", v))
             _print_result(main_result, v)
+            if "applied_delta_t_ms" in main_result.extra:
+                print(
+                    f"SetSyncDelay: the robot now synchronises with ΔT = "
+                    f"{main_result.extra['applied_delta_t_ms']:.3f} ms"
+                    + ("" if v.ok else " (an UNTRUSTED estimate: check the reasons below)")
+                )
             out = main_result.to_json()
             out["verdict"] = v.to_json()
             results = []

@@ -46,6 +46,7 @@ __all__ = [
     "estimate_delay",
     "residual_after_sync",
     "simulate_sine_experiment",
+    "sine_amplitude",
     "upsample",
     "window_delays",
 ]
@@ -599,6 +600,23 @@ class QualityLimits:
     max_spread_s: float = 0.5e-3
     window_s: float = 1.0
     max_windows: int = 8
+    # the sensor's seam signal must move at the sine frequency by at least this fraction of the
+    # robot's motion; a sensor that does not see the robot (two servers that share no scene)
+    # moves by its noise alone, a few µm of 2 mm
+    min_motion_seen: float = 0.25
+
+
+def sine_amplitude(t: ArrayLike, y: ArrayLike, frequency_hz: float) -> float:
+    """Amplitude (units of ``y``) of the least-squares fit a·sin(2πft) + b·cos(2πft) + c to the
+    samples ``y`` (n,) at times ``t`` (n,) s; 0.0 for fewer than three samples."""
+    ts = np.asarray(t, dtype=np.float64)
+    ys = np.asarray(y, dtype=np.float64)
+    if ts.size < 3:
+        return 0.0
+    w = 2.0 * math.pi * frequency_hz * ts
+    basis = np.column_stack([np.sin(w), np.cos(w), np.ones_like(ts)])
+    (a, b, _), *_ = np.linalg.lstsq(basis, ys, rcond=None)
+    return float(math.hypot(a, b))
 
 
 @dataclass(frozen=True)
@@ -681,9 +699,15 @@ def assess_run(
     statistics: Mapping[str, int],
     windows: Sequence[DelayEstimate],
     limits: QualityLimits = QualityLimits(),
+    *,
+    motion: tuple[float, float, float] | None = None,
 ) -> Verdict:
     """Judge one ΔT run: the gates of issue 12, each a one-line reason when it fails.
 
+    - the sensor never saw the robot's motion: ``motion`` = (sensor amplitude, robot
+      amplitude, frequency) in mm and Hz (:func:`sine_amplitude`), the sensor's below
+      ``limits.min_motion_seen`` of the robot's; then every other figure is meaningless, so
+      this reason comes first;
     - the MSE minimum lies at the edge of the search range (no interior minimum);
     - more than ``max_lost_fraction`` of the triggers got no data in time (``statistics``
       are the run's own counters: ``sent``, ``lost`` (no data within the loss timeout) and
@@ -693,6 +717,14 @@ def assess_run(
       ``max_spread_s`` or has a window minimum at the edge: ΔT drifted during the run.
     """
     reasons: list[str] = []
+    if motion is not None and not motion[0] >= limits.min_motion_seen * motion[1]:
+        seen, moved, frequency = motion
+        reasons.append(
+            f"the sensor never saw the robot's motion: its seam moved {seen * 1e3:.1f} µm at "
+            f"{frequency:g} Hz while the robot moved {moved * 1e3:.0f} µm; do robot and sensor "
+            "share one scene? (two separately started servers do not: serve them as one cell, "
+            "python -m cell serve)"
+        )
     lo, hi = estimate.shifts_s[0] * 1e3, estimate.shifts_s[-1] * 1e3
     if estimate.at_edge:
         reasons.append(

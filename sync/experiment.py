@@ -45,6 +45,7 @@ from sync.delay import (
     assess_run,
     estimate_delay,
     residual_after_sync,
+    sine_amplitude,
     window_delays,
 )
 
@@ -403,6 +404,7 @@ def run_delay_experiment(
         result = analyse(data, settings, require_interior=require_interior)
         if settings.apply:
             rc.call(CommandId.SET_SYNC_DELAY, float(result.estimate.delta_t_s))
+            result.extra["applied_delta_t_ms"] = result.estimate.delta_t_s * 1e3
         rc.release_control()
     return result
 
@@ -474,9 +476,13 @@ def write_plots(
         tr, ts = data.t_robot - t0, data.t_trigger - t0
         inside = (tr >= ts.min()) & (tr <= ts.max())  # the robot log also holds the approach
         fig, (a, b) = plt.subplots(2, 1, figsize=(8, 6))
+        # top: lines only (every 4 ms sample and every trigger as a dot made a solid band);
+        # bottom, the zoom: the samples themselves
+        a.plot(tr[inside], data.y_robot[inside], "-", lw=0.8, label="$y^R(t_k^R)$")
+        a.plot(ts, data.y_sensor, "-", lw=0.6, alpha=0.8, label="$y^S(t_i^T)$")
+        b.plot(tr[inside], data.y_robot[inside], ".-", ms=3, lw=0.8, label="$y^R(t_k^R)$")
+        b.plot(ts, data.y_sensor, ".", ms=3, label="$y^S(t_i^T)$")
         for ax in (a, b):
-            ax.plot(tr[inside], data.y_robot[inside], ".-", ms=3, lw=0.8, label="$y^R(t_k^R)$")
-            ax.plot(ts, data.y_sensor, ".", ms=3, label="$y^S(t_i^T)$")
             ax.set_xlabel("time (s)")
             ax.set_ylabel("y (mm)")
         # Zoom on the rising zero crossing nearest the middle, where the delay shows.
@@ -489,7 +495,8 @@ def write_plots(
             lo, hi = data.y_sensor[window].min(), data.y_sensor[window].max()
             b.set_ylim(lo - 0.1 * (hi - lo + 1e-3), hi + 0.1 * (hi - lo + 1e-3))
         b.set_title("zoom: y^S stamped at t^T runs ΔT ahead of the robot log y^R")
-        a.legend()
+        # outside the axes: inside, the legend covered the first peak
+        a.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize="small")
         a.set_title(f"Fig. 6: sine motion at {result.settings.frequency_hz:g} Hz")
         save(fig, "fig6_sine.png")
         est = result.estimate
@@ -510,7 +517,11 @@ def write_plots(
     if sweep:
         fig, ax = plt.subplots(figsize=(6, 4))
         f = [r.settings.frequency_hz for r in sweep]
-        ax.semilogx(f, [r.delta_t_ms for r in sweep], "o-")
+        ax.semilogx(f, [r.delta_t_ms for r in sweep], "o-", label="estimated ΔT")
+        true_ms = sweep[0].extra.get("true_delta_t_ms")
+        if true_ms is not None:
+            ax.axhline(true_ms, color="k", ls="--", lw=0.8, label=f"true ΔT {true_ms:.3f} ms")
+            ax.legend(fontsize="small")
         ax.set_xlabel("frequency (Hz)")
         ax.set_ylabel("ΔT (ms)")
         ax.set_title("Fig. 8: ΔT against the sine frequency")
@@ -538,4 +549,11 @@ def judge(r: DelayResult, limits: QualityLimits | None = None) -> Verdict:
         search_min_s=st.search_min_s,
         search_max_s=st.search_max_s,
     )
-    return assess_run(r.estimate, r.residual, r.data.statistics, windows, limits)
+    full = (r.data.t_trigger >= t0) & (r.data.t_trigger <= t1)
+    robot = (r.data.t_robot >= t0) & (r.data.t_robot <= t1)
+    motion = (
+        sine_amplitude(r.data.t_trigger[full], r.data.y_sensor[full], st.frequency_hz),
+        sine_amplitude(r.data.t_robot[robot], r.data.y_robot[robot], st.frequency_hz),
+        st.frequency_hz,
+    )
+    return assess_run(r.estimate, r.residual, r.data.statistics, windows, limits, motion=motion)

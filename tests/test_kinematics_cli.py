@@ -106,11 +106,19 @@ def test_errors_are_one_line_exit_2(
 
 
 def test_models_lists_parameters(capsys: pytest.CaptureFixture[str]) -> None:
-    code, out, _ = run(["models"], capsys)
+    code, out, _ = run(["models", "--json"], capsys)
     assert code == 0 and isinstance(out, list)
     by_name = {m["name"]: m for m in out}
     assert by_name["RX160"]["shoulder_offset_mm"] == 150.0
     assert by_name["RX90B"]["joint_limits_deg"][0] == [-160.0, 160.0]
+
+
+def test_models_table_one_row_per_model(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["models"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    rows = {line.split()[0]: line.split() for line in lines[1:-1]}
+    assert lines[0].split()[0] == "model" and "--json" in lines[-1]
+    assert rows["RX160"][1] == "150" and rows["RX90B"][-6] == "-160..160"
 
 
 def test_module_entry_point() -> None:

@@ -130,6 +130,19 @@ def test_snapshot_writes_the_frame(served: Served, tmp_path: Path, run: Callable
     assert image.shape == (256, 512) and read_pgm(out).dtype == np.uint8
     assert image.max() > 100 and np.median(image) < 30  # a bright stripe on a dark chip
     assert [p.name for p in tmp_path.iterdir()] == ["frame.pgm"]  # no temporary left
+    assert "readout window" not in r.stdout
+
+
+def test_snapshot_says_a_readout_window_is_in_force(
+    served: Served, tmp_path: Path, run: Callable[..., Ran], call: Callable[..., dict[str, object]]
+) -> None:
+    call("SetReadoutWindow", "128", "256")
+    try:
+        r = run("snapshot", served.tcp, "-o", str(tmp_path / "frame.pgm"), "--acquire")
+    finally:
+        call("SetReadoutWindow", "0", "512")
+    assert r.returncode == 0, r.stderr
+    assert "readout window in force: columns 128..383 of 512" in r.stdout
 
 
 def test_udp_trigger_through_the_cli_server(served: Served) -> None:
@@ -233,4 +246,4 @@ def test_allow_list_applies_to_tcp_and_udp() -> None:
             proc.kill()
             proc.communicate()
     assert proc.returncode == 0, err
-    assert "'refused_address': 1" in err
+    assert '"refused_address": 1' in err

@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import argparse
 import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
+from spec.__main__ import cmd_vectors
 from spec.vectorgen import load
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,3 +70,27 @@ def test_decode_a_capture_of_several_frames(tmp_path: Path) -> None:
     capture.write_bytes(b"".join(frames) + frames[0][:5])
     r = run("decode", str(capture))
     assert r.returncode == 2 and "truncated frame" in r.stderr
+
+
+def test_vectors_end_with_a_summary_and_the_shipped_capture_decodes() -> None:
+    r = run("vectors")
+    last = r.stdout.splitlines()[-1]
+    vectors = load("frames.json") + load("datagrams.json")
+    valid = sum(v["valid"] for v in vectors)
+    expected = (
+        f"{len(vectors)} vectors: {valid} valid, {len(vectors) - valid} invalid; all as expected"
+    )
+    assert r.returncode == 0 and last == expected
+    r = run("decode", "spec/capture.bin")
+    assert r.returncode == 0 and "== frame 6 of 6" in r.stdout
+
+
+def test_vectors_exit_1_naming_a_vector_not_as_marked(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bad = {**load("frames.json")[0], "name": "marked-wrongly", "valid": False, "error": "BAD_CRC"}
+    monkeypatch.setattr("spec.vectorgen.load", lambda name: [bad] if name == "frames.json" else [])
+    # cmd_vectors, not main: main sets SIGPIPE to its default, which would outlive this test
+    assert cmd_vectors(argparse.Namespace(generate=False, force=False)) == 1
+    last = capsys.readouterr().out.splitlines()[-1]
+    assert last == "1 vectors: 0 valid, 1 invalid; 1 not as expected: frames.json:marked-wrongly"

@@ -29,6 +29,7 @@ from sync.delay import (
     estimate_delay,
     residual_after_sync,
     simulate_sine_experiment,
+    sine_amplitude,
     upsample,
     window_delays,
 )
@@ -259,6 +260,33 @@ def test_residual_not_better_than_without_fails() -> None:
     assert not v.ok and len(v.reasons) == 1
     assert v.reasons[0].startswith("residual after synchronisation (rms ")
     assert math.isnan(v.spread_s) and v.to_json()["spread_ms"] is None  # drift not judged
+
+
+def test_sine_amplitude_of_a_shifted_noisy_sine() -> None:
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 4.0, 0.004)
+    y = 5.0 + 2.0 * np.sin(2 * np.pi * 1.5 * (t + 4.9e-3)) + rng.normal(0, 0.01, t.shape)
+    assert sine_amplitude(t, y, 1.5) == pytest.approx(2.0, abs=2e-3)
+    assert sine_amplitude(t, y, 4.0) < 0.01  # another frequency: nothing there
+    assert sine_amplitude(t[:2], y[:2], 1.5) == 0.0
+
+
+def test_a_sensor_that_never_saw_the_motion_says_so_first() -> None:
+    # two servers sharing no scene: the sensor reads a still seam while the robot moves 2 mm
+    t_r, y_r, t_t, _ = _sine_run(lambda t: 4.9e-3)
+    y_still = np.random.default_rng(1).normal(0, 0.005, t_t.shape)
+    est = estimate_delay(t_r, y_r, t_t, y_still, require_interior=False)
+    res = residual_after_sync(t_r, y_r, t_t, y_still, est.delta_t_s, frequency_hz=1.5)
+    motion = (sine_amplitude(t_t, y_still, 1.5), sine_amplitude(t_r, y_r, 1.5), 1.5)
+    v = assess_run(est, res, {"sent": t_t.size, "lost": 0}, [], motion=motion)
+    assert not v.ok and v.reasons[0].startswith("the sensor never saw the robot's motion")
+    assert "while the robot moved 2000 µm" in v.reasons[0]
+    # the same gate passes a sensor that follows the motion
+    t_r, y_r, t_t, y_s = _sine_run(lambda t: 4.9e-3)
+    est = estimate_delay(t_r, y_r, t_t, y_s)
+    res = residual_after_sync(t_r, y_r, t_t, y_s, est.delta_t_s, frequency_hz=1.5)
+    motion = (sine_amplitude(t_t, y_s, 1.5), sine_amplitude(t_r, y_r, 1.5), 1.5)
+    assert assess_run(est, res, {"sent": t_t.size, "lost": 0}, [], motion=motion).ok
 
 
 def test_short_run_has_no_windows() -> None:

@@ -60,13 +60,17 @@ def test_cli_curvature_and_usage_errors(capsys: pytest.CaptureFixture[str]) -> N
     assert done.returncode == 2 and "HOST:PORT" in done.stderr and "Traceback" not in done.stderr
 
 
-def test_cli_emulate_writes_json_with_the_truth(tmp_path: Path) -> None:
+def test_cli_emulate_writes_json_with_the_truth_and_says_what_apply_set(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / "d.json"
-    argv = ["delay", "--emulate", "-q", "--duration", "2", "--json", str(out)]
+    argv = ["delay", "--emulate", "-q", "--duration", "2", "--json", str(out), "--apply"]
     assert main([*argv, "--encoder-latency-ms", "3.8"]) == 0
     j = json.loads(out.read_text())
     assert j["true_delta_t_ms"] == pytest.approx(5.9)
     assert abs(j["delta_t_ms"] - 5.9) < 0.15
+    said = f"SetSyncDelay: the robot now synchronises with ΔT = {j['delta_t_ms']:.3f} ms\n"
+    assert said in capsys.readouterr().out
 
 
 def test_cli_untrusted_run_exits_3_with_its_reason_on_a_line_of_its_own(tmp_path: Path) -> None:

@@ -1,0 +1,264 @@
+"""README.md and docs/*.md run as written (issue 19), the way cram or doctest keep docs honest.
+
+Every line of every ```sh block and every ```python block is run, in document order, in one
+scratch directory (so ``echo s3cret > token.txt`` in one block serves the later ones):
+
+- a shell line runs with ``bash -c`` and ``PATH`` starting with this interpreter's directory,
+  which is what ``. .venv/bin/activate`` gives a user (``python`` and the console scripts);
+- the documented addresses are the ones in ADDRESSES, replaced by those of a cell served for
+  the block (``cell serve --clock real``: robot and sensor share one scene, as ``sync delay``
+  needs) when the block names one; a fresh cell per block, so a move in one block does not
+  leave the arm somewhere the next block's example does not expect;
+- a ``serve`` line runs for ever, so it is started with its ports overridden to 0 (appended
+  options: argparse keeps the last), must come up and is then stopped with SIGINT;
+- a line whose comment says ``→ exit N`` must end with N, every other line with 0;
+- SKIPPED lists the lines not run, each with the reason; FROM_CHECKOUT the checkout files copied
+  into the scratch directory (the examples run from the clone's root).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.slow  # about 3 min of end-to-end runs on the shared 2-core VM
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCUMENTS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+
+# documented address -> which endpoint of the block's served cell stands in for it
+ADDRESSES = {
+    "127.0.0.1:4000": "robot",
+    "127.0.0.1:2000": "sensor",
+    "127.0.0.1:2001": "udp",
+    "10.0.0.5:4000": "robot",
+    "10.0.0.6:2000": "sensor",
+    "10.0.0.6:2001": "udp",
+}
+
+SKIPPED = {
+    # `make test` runs this very test; `make demo` is `python -m cell demo`, which runs below
+    "make demo": "make: its command `python -m cell demo` is run from the README itself",
+    "make test": "make: would run this test suite inside itself",
+    # the test's PATH already starts with the interpreter's bin directory
+    ". .venv/bin/activate": "the test runs with the .venv's bin directory first on PATH",
+}
+
+SERVE = re.compile(r"\b(?:robotsocket|sensorsocket|cell) serve\b")  # also rsf-cell, -m cell
+PORTS_TO_ZERO = {
+    "robotsocket": " --port 0 --udp-port 0",
+    "sensorsocket": " --port 0 --udp-port 0",
+    "cell": " --robot-port 0 --sensor-port 0 --udp-port 0",
+}
+EXPECTED_EXIT = re.compile(r"#.*→ exit (\d+)")
+TIMEOUT_S = 180.0
+
+
+@dataclass(frozen=True)
+class Block:
+    document: str
+    line: int
+    language: str
+    text: str
+
+    @property
+    def id(self) -> str:
+        return f"{self.document}:{self.line}"
+
+    def commands(self) -> list[str]:
+        """The block's shell commands: continuation lines joined, comment-only lines left out."""
+        out: list[str] = []
+        pending = ""
+        for raw in self.text.splitlines():
+            if pending:
+                pending += " " + raw.strip()
+            elif raw.strip() and not raw.lstrip().startswith("#"):
+                pending = raw.strip()
+            else:
+                continue
+            if pending.endswith("\\"):
+                pending = pending[:-1].rstrip()
+            else:
+                out.append(pending)
+                pending = ""
+        return out
+
+
+def blocks() -> list[Block]:
+    found: list[Block] = []
+    fence = re.compile(r"^```(\w*)\s*$")
+    for path in DOCUMENTS:
+        lines = path.read_text(encoding="utf-8").splitlines()
+        i = 0
+        while i < len(lines):
+            m = fence.match(lines[i])
+            if not m:
+                i += 1
+                continue
+            end = next(j for j in range(i + 1, len(lines)) if lines[j].startswith("```"))
+            if m.group(1) in ("sh", "python"):
+                text = "\n".join(lines[i + 1 : end])
+                found.append(Block(path.relative_to(ROOT).as_posix(), i + 1, m.group(1), text))
+            i = end + 1
+    return found
+
+
+BLOCKS = blocks()
+
+
+# the scratch directory stands in for the clone: the checkout files the examples read
+FROM_CHECKOUT = ["spec/capture.bin"]
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("readme")
+    for name in FROM_CHECKOUT:
+        (path / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(ROOT / name, path / name)
+    return path
+
+
+def _env() -> dict[str, str]:
+    bindir = str(Path(sys.executable).parent)
+    env = dict(os.environ, PATH=bindir + os.pathsep + os.environ.get("PATH", ""))
+    env.pop("PYTHONPATH", None)  # the installed package, as for a user
+    return env
+
+
+@dataclass
+class Cell:
+    robot: str
+    sensor: str
+    udp: str
+
+
+@pytest.fixture
+def cell(request: pytest.FixtureRequest, workdir: Path) -> Iterator[Cell | None]:
+    block: Block = request.param
+    if _substitute(block.text, Cell("robot:1", "sensor:2", "udp:3")) == block.text:
+        yield None
+        return
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cell", "serve", "--clock", "real", "--robot-port", "0",
+         "--sensor-port", "0", "--udp-port", "0"],
+        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=_env(), cwd=workdir,
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        described: dict[str, str] = {}
+        while "true_delta_t_ms" not in described:
+            line = proc.stdout.readline()
+            assert line, "cell serve ended before describing the cell"
+            key, _, value = line.partition(":")
+            described[key.strip()] = value.strip()
+        yield Cell(described["robot"], described["sensor"], described["udp"])
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def _substitute(text: str, cell: Cell | None) -> str:
+    if cell is None:
+        return text
+    for documented, role in ADDRESSES.items():
+        served = getattr(cell, role)
+        host, port = documented.split(":")
+        served_host, served_port = served.split(":")
+        text = text.replace(documented, served)
+        text = text.replace(f'"{host}", {port}', f'"{served_host}", {served_port}')
+    return text
+
+
+def _serve(command: str, workdir: Path) -> None:
+    """A serve line must come up (it names its address) and stop on SIGINT."""
+    tool = next(name for name in PORTS_TO_ZERO if re.search(rf"\b{name} serve\b", command))
+    proc = subprocess.Popen(
+        ["bash", "-c", "exec " + command.split("#")[0] + PORTS_TO_ZERO[tool]],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=_env(), cwd=workdir,
+    )  # fmt: skip
+    seen: list[str] = []
+    try:
+        assert proc.stdout is not None
+        while True:
+            line = proc.stdout.readline()
+            assert line, f"{command!r} ended before serving:\n{''.join(seen)}"
+            seen.append(line)
+            if re.search(r"listening on|serving tcp|true_delta_t_ms", line):
+                break
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def _interesting(output: str) -> str:
+    """The output without the passing lines of a conformance run, at most 6000 characters."""
+    kept = [line for line in output.splitlines() if not line.lstrip().startswith("pass ")]
+    return "\n".join(kept)[-6000:]
+
+
+def test_documents_have_examples() -> None:
+    assert {b.document for b in BLOCKS} >= {"README.md"}
+    assert sum(len(b.commands()) for b in BLOCKS if b.language == "sh") >= 30
+
+
+@pytest.mark.parametrize("document", DOCUMENTS, ids=[d.name for d in DOCUMENTS])
+def test_relative_links_resolve(document: Path) -> None:
+    text = document.read_text(encoding="utf-8")
+    targets = re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text)
+    local = [t for t in targets if not re.match(r"\w+:", t)]
+    missing = [t for t in local if not (document.parent / t).exists()]
+    assert not missing, f"{document.name}: no such file: {missing}"
+
+
+def test_commands_split_on_continuations_and_drop_comment_lines() -> None:
+    block = Block("x", 1, "sh", "# a comment\npython -m x \\\n    --y 1   # why\n\nls")
+    assert block.commands() == ["python -m x --y 1   # why", "ls"]
+
+
+@pytest.mark.parametrize("cell", BLOCKS, ids=[b.id for b in BLOCKS], indirect=True)
+def test_example_runs_as_written(
+    cell: Cell | None, workdir: Path, request: pytest.FixtureRequest
+) -> None:
+    block: Block = request.node.callspec.params["cell"]
+    if block.language == "python":
+        proc = subprocess.run(
+            [sys.executable, "-c", _substitute(block.text, cell)],
+            capture_output=True, text=True, env=_env(), cwd=workdir, timeout=TIMEOUT_S,
+        )  # fmt: skip
+        assert proc.returncode == 0, f"{block.id}\n{proc.stdout}\n{proc.stderr}"
+        return
+    for command in block.commands():
+        if command in SKIPPED or command.split("#")[0].strip() in SKIPPED:
+            continue
+        command = _substitute(command, cell)
+        if SERVE.search(command):
+            _serve(command, workdir)
+            continue
+        m = EXPECTED_EXIT.search(command)
+        expected = int(m.group(1)) if m else 0
+        proc = subprocess.run(
+            ["bash", "-c", command],
+            capture_output=True, text=True, env=_env(), cwd=workdir, timeout=TIMEOUT_S,
+        )  # fmt: skip
+        assert proc.returncode == expected, (
+            f"{block.id}: {command}\nexit {proc.returncode}, documented {expected}\n"
+            f"{_interesting(proc.stdout)}\n{proc.stderr[-3000:]}"
+        )
