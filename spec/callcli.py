@@ -258,7 +258,7 @@ def main_call(
         return EXIT_USAGE
     queued = False
     try:
-        with sigterm_interrupts(), FramedClient(host, port, timeout=timeout) as client:
+        with stop_signals_interrupt(), FramedClient(host, port, timeout=timeout) as client:
             take = spec.needs_control and spec.id != CommandId.TAKE_CONTROL
             if take:
                 client.take_control(token or "")
@@ -305,18 +305,21 @@ def _stop_what_was_started(client: FramedClient, moved: bool) -> None:
 
 
 @contextmanager
-def sigterm_interrupts() -> Iterator[None]:
-    """SIGTERM ends a call the way Ctrl-C does (a KeyboardInterrupt in the main thread)."""
+def stop_signals_interrupt() -> Iterator[None]:
+    """SIGINT and SIGTERM end a command that holds control with a KeyboardInterrupt in the main
+    thread, so it stops what it started. Installed explicitly: a process started with SIGINT
+    ignored (a background job of a script, a test runner's worker) must still stop the arm."""
 
     def interrupt(signum: int, frame: object) -> None:
         raise KeyboardInterrupt
 
     try:
-        previous = signal.signal(signal.SIGTERM, interrupt)
+        previous = {s: signal.signal(s, interrupt) for s in (signal.SIGINT, signal.SIGTERM)}
     except ValueError:  # not the main thread: leave signals alone
         yield
         return
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for s, handler in previous.items():
+            signal.signal(s, handler)

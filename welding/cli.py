@@ -38,7 +38,7 @@ import numpy as np
 from robotsocket.client import RobotClient
 from sensorsocket.client import SensorClient
 from spec import cliargs
-from spec.callcli import parse_endpoint, sigterm_interrupts
+from spec.callcli import parse_endpoint, stop_signals_interrupt
 from spec.client import ClientTimeout
 from spec.errors import ProtocolError, RemoteError
 from spec.files import write_atomically
@@ -786,7 +786,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         format="%(asctime)s %(name)s %(levelname)s %(message)s",
     )
     try:
-        with sigterm_interrupts():
+        with stop_signals_interrupt():
             return COMMANDS[args.command](args)
     except BrokenPipeError:
         raise  # our stdout was closed (`| head`): cliargs.run_cli ends quietly
