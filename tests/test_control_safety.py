@@ -17,6 +17,7 @@ import sys
 import textwrap
 import time
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -276,17 +277,29 @@ IDLE = textwrap.dedent(
 )
 
 
+@contextmanager
+def controller(cell: Cell, script: str, ready: str) -> Iterator[subprocess.Popen[str]]:
+    """A controlling client process running ``script`` (which prints ``ready`` once it holds
+    control); always let go and killed afterwards, frozen or not."""
+    host, port = cell.server.address
+    proc = subprocess.Popen(
+        [sys.executable, "-c", script, host, str(port)],
+        stdout=subprocess.PIPE, text=True, env=ENV, cwd=ROOT,
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == ready
+        yield proc
+    finally:
+        proc.send_signal(signal.SIGCONT)
+        proc.kill()
+        proc.wait(5)
+
+
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGSTOP])
 def test_a_streamed_trajectory_stops_when_its_controller_dies_or_freezes(
     cell: Cell, sig: signal.Signals
 ) -> None:
-    host, port = cell.server.address
-    proc = subprocess.Popen(
-        [sys.executable, "-c", STREAMING, host, str(port)],
-        stdout=subprocess.PIPE, text=True, env=ENV, cwd=ROOT,
-    )  # fmt: skip
-    try:
-        assert proc.stdout is not None and proc.stdout.readline().strip() == "streaming"
+    with controller(cell, STREAMING, "streaming") as proc:
         assert cell.wait_until(cell.moving)
         y0 = cell.robot.here()[1]
         proc.send_signal(sig)
@@ -294,31 +307,15 @@ def test_a_streamed_trajectory_stops_when_its_controller_dies_or_freezes(
         assert cell.robot.read_io("laser") == (False, True)
         assert abs(cell.robot.here()[1] - y0) < 50.0  # stopped, far short of the 100 mm path
         assert cell.robot.status().queue == 0
-    finally:
-        if sig == signal.SIGSTOP:
-            proc.send_signal(signal.SIGCONT)
-        proc.kill()
-        proc.wait(5)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGSTOP])
 def test_an_idle_controller_that_dies_or_freezes_leaves_the_outputs_off(
     cell: Cell, sig: signal.Signals
 ) -> None:
-    host, port = cell.server.address
-    proc = subprocess.Popen(
-        [sys.executable, "-c", IDLE, host, str(port)],
-        stdout=subprocess.PIPE, text=True, env=ENV, cwd=ROOT,
-    )  # fmt: skip
-    try:
-        assert proc.stdout is not None and proc.stdout.readline().strip() == "idle"
+    with controller(cell, IDLE, "idle") as proc:
         assert cell.robot.read_io("laser") == (True, True)
         proc.send_signal(sig)
         assert cell.wait_until(lambda: cell.server.control_holder is None)
         assert cell.robot.read_io("laser") == (False, True)
         assert cell.robot.read_io("gas") == (False, True)
-    finally:
-        if sig == signal.SIGSTOP:
-            proc.send_signal(signal.SIGCONT)
-        proc.kill()
-        proc.wait(5)
