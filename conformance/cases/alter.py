@@ -112,18 +112,8 @@ def alter_rules(ctx: Context) -> str:
         finally:
             conn.call(C.ALTER_END)
         _expect(conn, ErrorCode.BAD_STATE, "AlterEnd outside alter mode", "RS-5.37", C.ALTER_END)
-        if not _wait_still(conn, 10.0):
-            raise Fail(
-                "the correction does not ramp back", "still", "moving", requirement="RS-5.37"
-            )
-        back = math.dist(_here(conn)[:3], p0[:3])
-        if back > 0.01:
-            raise Fail(
-                "the tool is not back after AlterEnd",
-                "<= 0.01 mm",
-                f"{back:.4f} mm",
-                requirement="RS-5.37",
-            )
+        _ramped_back(conn, "RS-5.37")
+        back = _back_at(conn, p0, "the tool is not back after AlterEnd", "RS-5.37")
         return f"1 mm correction applied, back within {back * 1000:.1f} µm"
 
 
@@ -158,18 +148,8 @@ def alter_stream_lost(ctx: Context) -> None:
         last = _status(conn).get("last_error")
         if last != ErrorCode.BAD_STATE:
             raise Fail("the lost stream is not reported", "BAD_STATE", last, requirement="RS-5.36")
-        if not _wait_still(conn, 10.0):
-            raise Fail(
-                "the correction does not ramp back", "still", "moving", requirement="RS-5.36"
-            )
-        back = math.dist(_here(conn)[:3], p0[:3])
-        if back > 0.01:
-            raise Fail(
-                "the correction of a lost stream is not taken back",
-                "<= 0.01 mm",
-                f"{back:.4f} mm",
-                requirement="RS-5.36",
-            )
+        _ramped_back(conn, "RS-5.36")
+        _back_at(conn, p0, "the correction of a lost stream is not taken back", "RS-5.36")
         conn.ok(C.RESET_MOTION)  # clears last_error for the cases after this one
 
 
@@ -213,10 +193,7 @@ def alter_limits(ctx: Context) -> str:
                 time.sleep(0.01)
         finally:
             conn.call(C.ALTER_END)
-        if not _wait_still(conn, 10.0):
-            raise Fail(
-                "the correction does not ramp back", "still", "moving", requirement="RS-5.37"
-            )
+        _ramped_back(conn, "RS-5.37")
         return f"mean speed of the step at most {fastest:.0f} mm/s"
 
 
@@ -243,8 +220,7 @@ def alter_control_lost(ctx: Context) -> None:
     _stream(first, 0.5, 0.3)
     first.close()  # control lost [RS-7.10]
     watcher = ctx.connect()
-    if not _wait_still(watcher, 10.0):  # the correction ramps back
-        raise Fail("the correction does not ramp back", "still", "moving", requirement="RS-5.38")
+    _ramped_back(watcher, "RS-5.38")
     with _Motion(ctx) as m:
         conn = m.conn
         answer = conn.call(C.ALTER, Location(0.0, 0.0, 0.5, 0.0, 0.0, 0.0))
@@ -256,11 +232,18 @@ def alter_control_lost(ctx: Context) -> None:
                 "accepted" if answer.error is None else answer.error,
                 requirement="RS-5.38",
             )
-        back = math.dist(_here(conn)[:3], p0[:3])
-        if back > 0.01:
-            raise Fail(
-                "the correction outlives its controller",
-                "<= 0.01 mm",
-                f"{back:.4f} mm",
-                requirement="RS-5.38",
-            )
+        _back_at(conn, p0, "the correction outlives its controller", "RS-5.38")
+
+
+def _ramped_back(conn: Conn, requirement: str) -> None:
+    """The correction ramps back to zero: the arm comes to rest within 10 s."""
+    if not _wait_still(conn, 10.0):
+        raise Fail("the correction does not ramp back", "still", "moving", requirement=requirement)
+
+
+def _back_at(conn: Conn, p0: tuple[float, ...], what: str, requirement: str) -> float:
+    """The tool is back within 0.01 mm of ``p0`` (mm); the distance, or Fail saying ``what``."""
+    back = math.dist(_here(conn)[:3], p0[:3])
+    if back > 0.01:
+        raise Fail(what, "<= 0.01 mm", f"{back:.4f} mm", requirement=requirement)
+    return back
