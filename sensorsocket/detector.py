@@ -148,17 +148,6 @@ class SeamDetector:
         """Stage 1, the stripe of every column: :meth:`StripeFinder.stripe`."""
         return self.stripes.stripe(frame, first_column)
 
-    def mass_at(
-        self,
-        frame: NDArray[np.generic],
-        stripe: StripeProfile,
-        columns: NDArray[np.intp],
-        rows: FloatArray,
-        half: int,
-    ) -> FloatArray:
-        """Thresholded light around given rows: :meth:`StripeFinder.mass_at`."""
-        return self.stripes.mass_at(frame, stripe, columns, rows, half)
-
     # -- stage 2 and 3 ---------------------------------------------------------------------
     def detect(self, frame: NDArray[np.generic], first_column: int = 0) -> Detection:
         """Stripe, profile and seam of one frame (n columns, rows) starting at chip column
@@ -334,7 +323,9 @@ class SeamDetector:
         n_l = len(cols_l)
         rows = self._line_rows(cols_l, left) + self._line_rows(cols_r, right)
         cols = np.array(cols_l + cols_r)
-        m = self.mass_at(frame, stripe, cols, np.array(rows), self.config.half_window).tolist()
+        m = self.stripes.mass_at(
+            frame, stripe, cols, np.array(rows), self.config.half_window
+        ).tolist()
         out = []
         for side, masses, edge in ((-1, m[:n_l], edge_l), (1, m[n_l:], edge_r)):
             ref = _list_median(masses[:n_ref])
@@ -452,7 +443,9 @@ class SeamDetector:
         if not math.isfinite(sep):
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         half = int(max(1, min(cfg.half_window, math.floor(sep / 2.0 - 0.5))))
-        m_up = self.mass_at(frame, stripe, np.array(all_cols), np.array(r_up), half).tolist()
+        m_up = self.stripes.mass_at(
+            frame, stripe, np.array(all_cols), np.array(r_up), half
+        ).tolist()
         ref = _list_median(m_up[n_cols:]) if ref_cols.size else 0.0
         if ref <= 0.0:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
