@@ -96,7 +96,11 @@ def test_exact_geometry_recovers_any_error_in_range(error: Loc, seed: int) -> No
     est = solve_sensor_tool(obs, NOMINAL, direction=SEAM_DIR)
     e = error_vs_true(est.tool, _true(error))
     assert e["position_mm"] < 0.05 and e["orientation_deg"] < 0.05
-    assert 0.0015 < est.noise_mm < 0.0035  # the residual sees the noise that went in
+    # The residual sees the noise that went in, but not all of it: the part along the seam
+    # does not show, so its noise estimate is about 0.85 x 2.5 µm with an 11 % spread (60
+    # residuals, 10 unknowns; 1500 seeds: 2.11 ± 0.23 µm, 1.28 to 2.86 µm). The bounds lie
+    # 4.8 and 8 spreads away: a property test must not fail on an unlucky seed.
+    assert 0.0010 < est.noise_mm < 0.0040
 
 
 def test_without_noise_the_tool_is_exact() -> None:
