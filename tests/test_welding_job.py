@@ -44,6 +44,7 @@ def items(name: str) -> st.SearchStrategy[J.Item]:
             power=st.floats(0, J.MAX_POWER),
             gas=st.booleans(),
             crossjet=st.booleans(),
+            tracked=st.booleans(),
             preflow=seconds,
             postflow=seconds,
         ),

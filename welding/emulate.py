@@ -16,7 +16,6 @@ import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -27,12 +26,12 @@ from kinematics.transforms import transform_to_location
 from robotsocket.client import RobotClient
 from sensorsocket.client import SensorClient
 from spec import cliargs
+from spec.client import FramedClient
 from spec.errors import ProtocolError
 from spec.files import write_atomically
-from spec.params import IDENTITY_LOCATION, FloatArray, Location, Matrix, Value
-from spec.registry import CommandId
 from welding.tools import Entry, Loc, Tables
-from welding.tracking import MIN_FIT_POINTS, NominalWeld, Tracker, TrackingError, seam_error
+from welding.track_loop import RobotLink, TrackedWeld, TrackLink, weld_tracked
+from welding.tracking import NominalWeld, Tracker, seam_error
 
 __all__ = ["EmulatedSession"]
 
@@ -241,7 +240,11 @@ def _track_on(
         lasing.append(robot.read_io("laser")[0])
 
     robot.cycle_hooks.append(record)
-    link: _Link = _SocketLink(cell) if over_sockets else _DirectLink(cell)
+    link: TrackLink = _DirectLink(cell)
+    if over_sockets:
+        client = FramedClient(*cell.robot_address, timeout=10.0, client_name="track")
+        client.take_control()
+        link = RobotLink(client, cell.udp_address, period=period)
     try:
         dt = link.delta_t()  # the ΔT in force (GetSyncConfig)
         laser_tool = cell.laser_tool
@@ -258,12 +261,14 @@ def _track_on(
             speed_mm_s=speed_mm_s,
         )
         tracker = Tracker(weld, look_ahead)
-        stopped = _weld_tracked(
-            link, tracker, laser_tool, weld_mm, rate_hz, track, sensor_silent_after_mm
-        )
+        plan = TrackedWeld(tracker, laser_tool, look_ahead, look_ahead + weld_mm, rate_hz, track)
+        stopped = weld_tracked(link, plan, sensor_silent_after_mm=sensor_silent_after_mm).stopped
         laser_on_at_end = robot.read_io("laser")[0]
     finally:
-        link.close()
+        if over_sockets:
+            with contextlib.suppress(Exception):
+                client.release_control()
+            client.close()
     on_cycles = [i for i, on in enumerate(lasing) if on]
     q = np.array(truth)
     laser_pts = (robot.model.flange2base_batch(q[on_cycles]) @ cell.laser2flange)[:, :3, 3]
@@ -297,91 +302,6 @@ def _track_on(
     )
 
 
-def _weld_tracked(
-    link: _Link,
-    tracker: Tracker,
-    laser_tool: Loc,
-    weld_mm: float,
-    rate_hz: float,
-    track: bool,
-    sensor_silent_after_mm: float | None,
-) -> str:
-    """The tracking loop, one pass per controller cycle; returns why the weld stopped early
-    ("" when it was completed)."""
-    weld = tracker.weld
-    look_ahead = tracker.look_ahead_mm
-    period = link.period
-    last_index = -1
-    stopped = ""
-    laser_on = False
-
-    def fetch() -> None:
-        nonlocal last_index
-        rows = link.points(last_index)
-        if len(rows):
-            last_index = int(rows[-1, 0])
-            tracker.model.add(rows[:, 11:14])
-
-    # points of earlier runs (the ΔT measurement, another weld) are not this seam's
-    last_index = link.start(laser_tool, rate_hz) - 1
-    # the arm stands still while the sensor measures the seam's start and the laser is
-    # brought onto it
-    t0 = link.time() + 0.25
-    while link.time() < t0 - 1e-9:
-        fetch()
-        ready = track and tracker.model.count >= MIN_FIT_POINTS
-        link.alter(tracker.correction(0.0) if ready else np.zeros(6))
-        link.step()
-    times, locs = weld.timed_path(period)
-    t0 = link.time()  # the move's law starts at the current cycle
-    link.move(times, locs, laser_tool)
-    while link.queued():
-        fetch()
-        t_move = link.time() + period - t0  # the correction applies at the next cycle
-        s = float(weld.s_at(t_move))
-        if sensor_silent_after_mm is not None and s > look_ahead + sensor_silent_after_mm:
-            link.stop_triggers()  # no more seam points: the sensor has dropped out
-        try:
-            correction = tracker.correction(t_move) if track else np.zeros(6)
-        except TrackingError as exc:
-            # safe stop: laser off first, then the arm stops along its path
-            link.set_laser(False)
-            link.reset_motion()
-            stopped = str(exc)
-            break
-        link.alter(correction)
-        want_on = look_ahead <= s <= look_ahead + weld_mm
-        if want_on != laser_on:
-            link.set_laser(want_on)
-            laser_on = want_on
-        link.step()
-    link.finish()
-    return stopped
-
-
-class _Link(Protocol):
-    """What the tracking loop needs of the robot (and its sync service)."""
-
-    period: float
-
-    def delta_t(self) -> float: ...
-    def here(self, tool: Loc) -> Loc: ...
-    def start(self, tool: Loc, rate_hz: float) -> int: ...
-    def time(self) -> float: ...
-    def points(self, since: int) -> npt.NDArray[np.float64]: ...
-    def alter(self, correction: npt.NDArray[np.float64]) -> None: ...
-    def step(self) -> None: ...
-    def move(
-        self, times: npt.NDArray[np.float64], locs: npt.NDArray[np.float64], tool: Loc
-    ) -> None: ...
-    def queued(self) -> int: ...
-    def set_laser(self, on: bool) -> None: ...
-    def reset_motion(self) -> None: ...
-    def stop_triggers(self) -> None: ...
-    def finish(self) -> None: ...
-    def close(self) -> None: ...
-
-
 class _DirectLink:
     """In-process: the emulator's robot API and the sync core (the data GetSeamPoints serves)."""
 
@@ -407,6 +327,9 @@ class _DirectLink:
     def time(self) -> float:
         return self.robot.time()
 
+    def next_cycle(self) -> float:
+        return self.robot.time() + self.period
+
     def points(self, since: int) -> npt.NDArray[np.float64]:
         return self.cell.core.points_since(since)
 
@@ -418,8 +341,10 @@ class _DirectLink:
 
     def move(
         self, times: npt.NDArray[np.float64], locs: npt.NDArray[np.float64], tool: Loc
-    ) -> None:
+    ) -> tuple[float, bool]:
+        t0 = self.robot.time()  # the move's law starts at the current cycle
         self.robot.tool_move_trajectory(times, locs, tool, (0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+        return t0, True
 
     def queued(self) -> int:
         return self.robot.status().queue
@@ -440,85 +365,6 @@ class _DirectLink:
 
     def close(self) -> None:
         pass
-
-
-class _SocketLink:
-    """Through the cell's RobotSocket server, as any client would; WaitEndMove with a timeout
-    of one cycle advances the simulated clock by one cycle."""
-
-    def __init__(self, cell: EmulatedCell) -> None:
-        from spec.client import FramedClient
-
-        self.cell = cell
-        self.period = cell.robot.period
-        self.client = FramedClient(*cell.robot_address, timeout=10.0, client_name="track")
-        self.client.take_control()
-
-    def _call(self, command: CommandId, *params: Value) -> tuple[Value, ...]:
-        return self.client.call(command, *params)
-
-    def delta_t(self) -> float:
-        return float(self._call(CommandId.GET_SYNC_CONFIG)[2])  # type: ignore[arg-type]
-
-    def here(self, tool: Loc) -> Loc:
-        loc = self._call(CommandId.HERE, Location(*tool), IDENTITY_LOCATION)[0]
-        assert isinstance(loc, Location)
-        return loc.as_tuple()
-
-    def start(self, tool: Loc, rate_hz: float) -> int:
-        self._call(CommandId.ENABLE_POWER)
-        self._call(CommandId.SET_SENSOR_ENDPOINT, *self.cell.udp_address)
-        first = self._call(CommandId.START_TRIGGERS, float(rate_hz), 0)[0]
-        self._call(CommandId.ALTER_BEGIN, Location(*tool), 0.1)
-        assert isinstance(first, int)
-        return first
-
-    def time(self) -> float:
-        return float(self._call(CommandId.GET_TIME)[0])  # type: ignore[arg-type]
-
-    def points(self, since: int) -> npt.NDArray[np.float64]:
-        m = self._call(CommandId.GET_SEAM_POINTS, since)[0]
-        assert isinstance(m, Matrix)
-        return np.array(m.values, dtype=np.float64).reshape(m.rows, m.cols)
-
-    def alter(self, correction: npt.NDArray[np.float64]) -> None:
-        self._call(CommandId.ALTER, Location(*(float(v) for v in correction)))
-
-    def step(self) -> None:
-        self._call(CommandId.WAIT_END_MOVE, self.period)
-
-    def move(
-        self, times: npt.NDArray[np.float64], locs: npt.NDArray[np.float64], tool: Loc
-    ) -> None:
-        self._call(
-            CommandId.TOOL_MOVE_TRAJECTORY,
-            FloatArray(times.tolist()),
-            Matrix(len(locs), 6, locs.ravel().tolist()),
-            Location(*tool),
-            IDENTITY_LOCATION,
-        )
-
-    def queued(self) -> int:
-        return int(self._call(CommandId.ROBOT_STATUS)[3])  # type: ignore[arg-type]
-
-    def set_laser(self, on: bool) -> None:
-        self._call(CommandId.SET_OUTPUT, "laser", on)
-
-    def reset_motion(self) -> None:
-        self._call(CommandId.RESET_MOTION)
-
-    def stop_triggers(self) -> None:
-        self._call(CommandId.STOP_TRIGGERS)
-
-    def finish(self) -> None:
-        self._call(CommandId.ALTER_END)
-        self._call(CommandId.STOP_TRIGGERS)
-        self._call(CommandId.WAIT_END_MOVE, 5.0)
-
-    def close(self) -> None:
-        with contextlib.suppress(Exception):
-            self.client.release_control()
-        self.client.close()
 
 
 def _measure_delta_t(cell: EmulatedCell) -> None:

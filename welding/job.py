@@ -5,7 +5,8 @@ repeats allowed) or, without one, in document order:
 
 - :class:`Path`: a welding trajectory, a start location then linear (:class:`Line`) and
   circular (:class:`Arc`, through a middle location) segments, with its process parameters
-  (velocity, laser on/off and power, process gas on/off with pre- and post-flow, crossjet);
+  (velocity, laser on/off and power, process gas on/off with pre- and post-flow, crossjet),
+  optionally ``tracked`` (the seam tracker corrects it during the weld);
 - :class:`Via`: an in-between (joint-interpolated) move to a location;
 - :class:`Stitch`: a spot weld at a location for a duration;
 - :class:`Pause`: the robot waits.
@@ -113,6 +114,9 @@ class Path:
     crossjet: bool = True
     preflow: float = 0.0
     postflow: float = 0.0
+    #: seam tracking (method 2): the sensor measures the seam ahead of the laser and the
+    #: path is corrected every cycle (lines only; corners rounded, see welding.tracking)
+    tracked: bool = False
 
     def locations(self) -> Iterator[Location]:
         yield self.start
@@ -224,7 +228,7 @@ SCHEMA: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "description": ((), ()),
     "path": (
         ("name", "velocity"),
-        ("laser", "power", "gas", "crossjet", "preflow", "postflow"),
+        ("laser", "power", "gas", "crossjet", "preflow", "postflow", "tracked"),
     ),
     "start": (LOCATION_ATTRS, ()),
     "line": (LOCATION_ATTRS, ()),
@@ -375,6 +379,7 @@ class _Reader:
             crossjet=self.flag(el, "crossjet", True),
             preflow=self.number(el, "preflow", 0.0, 0.0, MAX_SECONDS),
             postflow=self.number(el, "postflow", 0.0, 0.0, MAX_SECONDS),
+            tracked=self.flag(el, "tracked", False),
         )
         return path if start is not None and segments else None
 
@@ -545,6 +550,7 @@ def _item_xml(item: Item) -> list[str]:
         ("crossjet", _flag(item.crossjet)),
         ("preflow", _num(item.preflow)),
         ("postflow", _num(item.postflow)),
+        ("tracked", _flag(item.tracked)),
     ]
     lines = [f"  <path{_attrs(a)}>", f"    <start{_attrs(_loc_attrs(item.start))}/>"]
     for seg in item.segments:

@@ -39,24 +39,28 @@ class TrackingError(Exception):
     """The seam is lost (sensor silent, seam out of view or beyond the correction range)."""
 
 
-@dataclass(frozen=True)
-class NominalWeld:
-    """The laser tool's nominal path: a straight line from ``start`` (3,) mm along the unit
-    ``direction`` (3,), base frame, ``length_mm`` long, at ``speed_mm_s`` with constant
-    acceleration ramps of ``accel_mm_s2`` at both ends; the tool keeps ``angles`` (3,) deg."""
+class WeldPath:
+    """The motion law along a nominal laser path of ``length_mm`` (arc length s): constant
+    acceleration ramps of ``accel_mm_s2`` at both ends, ``speed_mm_s`` between; the tool
+    keeps ``angles`` (3,) deg. Subclasses give the geometry: :meth:`point` and
+    :meth:`project`."""
 
-    start: FloatArray
-    direction: FloatArray
     angles: FloatArray
     length_mm: float
     speed_mm_s: float
-    accel_mm_s2: float = 2500.0
+    accel_mm_s2: float
 
-    def __post_init__(self) -> None:
+    def _check_law(self) -> None:
         if not (0.0 < self.speed_mm_s <= 1000.0):
             raise ValueError(f"speed must be in (0, 1000] mm/s, got {self.speed_mm_s}")
         if not (0.0 < self.length_mm <= 2000.0):
             raise ValueError(f"length must be in (0, 2000] mm, got {self.length_mm}")
+
+    def point(self, s: FloatArray | float) -> FloatArray:
+        raise NotImplementedError
+
+    def project(self, points: FloatArray) -> FloatArray:
+        raise NotImplementedError
 
     @property
     def _ramp(self) -> tuple[float, float]:
@@ -91,12 +95,6 @@ class NominalWeld:
         out: FloatArray = s
         return out
 
-    def point(self, s: FloatArray | float) -> FloatArray:
-        """Nominal laser points (..., 3) at arc lengths ``s``."""
-        ss = np.asarray(s, dtype=np.float64)[..., None]
-        out: FloatArray = self.start + ss * self.direction
-        return out
-
     def timed_path(self, period: float) -> tuple[FloatArray, FloatArray]:
         """(times (N,), laser locations (N, 6)) sampled every ``period`` for
         ToolMoveTrajectory; the robot's path between samples is linear, so the tracker's
@@ -109,11 +107,39 @@ class NominalWeld:
         return times, locs
 
 
+@dataclass(frozen=True)
+class NominalWeld(WeldPath):
+    """The laser tool's nominal path: a straight line from ``start`` (3,) mm along the unit
+    ``direction`` (3,), base frame, ``length_mm`` long, at ``speed_mm_s`` with constant
+    acceleration ramps of ``accel_mm_s2`` at both ends; the tool keeps ``angles`` (3,) deg."""
+
+    start: FloatArray
+    direction: FloatArray
+    angles: FloatArray
+    length_mm: float
+    speed_mm_s: float
+    accel_mm_s2: float = 2500.0
+
+    def __post_init__(self) -> None:
+        self._check_law()
+
+    def point(self, s: FloatArray | float) -> FloatArray:
+        """Nominal laser points (..., 3) at arc lengths ``s``."""
+        ss = np.asarray(s, dtype=np.float64)[..., None]
+        out: FloatArray = self.start + ss * self.direction
+        return out
+
+    def project(self, points: FloatArray) -> FloatArray:
+        """Arc lengths (M,) of the points (M, 3) projected on the line (unbounded)."""
+        out: FloatArray = (points - self.start) @ self.direction
+        return out
+
+
 @dataclass
 class SeamModel:
     """The measured seam as offsets e(s) (3,) from the nominal laser path, base frame."""
 
-    weld: NominalWeld
+    weld: WeldPath
     half_width_mm: float = FIT_HALF_WIDTH_MM
     _s: FloatArray = field(default_factory=lambda: np.zeros(0))
     _e: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
@@ -122,7 +148,7 @@ class SeamModel:
         """Seam points (M, 3) in the base frame (^B_G T translations)."""
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         p = p[np.all(np.isfinite(p), axis=1)]
-        s = (p - self.weld.start) @ self.weld.direction
+        s = self.weld.project(p)
         e = p - self.weld.point(s)
         self._s = np.concatenate([self._s, s])
         self._e = np.concatenate([self._e, e])
@@ -170,9 +196,12 @@ class Tracker:
     cycle that applies it. ``look_ahead_mm`` is the sensor's lead over the laser (the sensor
     tool offset); ``max_correction_mm`` the robot's alter limit."""
 
-    weld: NominalWeld
+    weld: WeldPath
     look_ahead_mm: float
     max_correction_mm: float = MAX_OFFSET_MM
+    #: arc length (mm) where the seam may end (the weld's end): the sensor need not see
+    #: beyond it; default the path's end
+    seam_end_mm: float | None = None
     model: SeamModel = field(init=False)
 
     def __post_init__(self) -> None:
@@ -183,7 +212,8 @@ class Tracker:
         start. Raises :class:`TrackingError` when the seam ahead is not measured or needs more
         than the robot may correct: the weld must stop."""
         s = float(self.weld.s_at(t_move))
-        sensor_at = min(s + self.look_ahead_mm, self.weld.length_mm)
+        end = self.weld.length_mm if self.seam_end_mm is None else self.seam_end_mm
+        sensor_at = min(s + self.look_ahead_mm, end)
         if self.model.furthest < sensor_at - MIN_AHEAD_MM:
             raise TrackingError(
                 f"seam not measured ahead of the laser: furthest point {self.model.furthest:.1f}"
@@ -209,3 +239,190 @@ def seam_error(
     lateral = lateral_of(p[:, 0], p[:, 1])
     height = p[:, 2] - seam_height_mm
     return np.asarray(lateral, dtype=np.float64), np.asarray(height, dtype=np.float64)
+
+
+#: Corner radius (mm) of a tracked polyline path: the paper's smallest radius of curvature
+#: of its Fig. 10 seam, which the tracker is shown to follow within 0.1 mm at 250 mm/s.
+CORNER_RADIUS_MM = 32.0
+#: Half the field of view across the laser stripe (mm): the 512 columns over 20.48 mm of the
+#: sensor (DESIGN.md); the seam must stay inside it, less :data:`FIELD_MARGIN_MM`.
+SENSOR_HALF_FIELD_MM = 10.24
+#: Room kept at the edge of the field for the correction and the seam's own deviation (mm).
+FIELD_MARGIN_MM = 1.5
+
+
+class CornerError(ValueError):
+    """A polyline corner the tracker cannot follow; ``corner`` is the vertex index."""
+
+    def __init__(self, corner: int, message: str) -> None:
+        super().__init__(message)
+        self.corner = corner
+
+
+@dataclass(frozen=True)
+class PolylineWeld(WeldPath):
+    """A nominal laser path through ``vertices`` (K, 3) mm, base frame, its corners rounded
+    with ``radius_mm`` (tangent arcs: the path a seam tracker can follow at speed); law as
+    :class:`NominalWeld`. Two vertices give the straight line of :class:`NominalWeld` with
+    the same arithmetic. Raises :class:`CornerError` for a corner whose rounding does not
+    fit between its neighbours."""
+
+    vertices: FloatArray
+    angles: FloatArray
+    speed_mm_s: float
+    accel_mm_s2: float = 2500.0
+    radius_mm: float = CORNER_RADIUS_MM
+    length_mm: float = field(init=False)
+    #: primitives: kind (0 line, 1 arc), start s, and per kind the geometry (see _build)
+    _prims: tuple[tuple[int, float, FloatArray, FloatArray, FloatArray, float], ...] = field(
+        init=False, repr=False
+    )
+
+    def __post_init__(self) -> None:
+        prims = _build(np.asarray(self.vertices, dtype=np.float64), self.radius_mm)
+        _kind, s0, _, _, _, length = prims[-1]
+        object.__setattr__(self, "_prims", prims)
+        object.__setattr__(self, "length_mm", s0 + length)
+        self._check_law()
+
+    @property
+    def start(self) -> FloatArray:
+        return self._prims[0][2]
+
+    @property
+    def direction(self) -> FloatArray:
+        """Direction (3,) of the first segment."""
+        return self._prims[0][3]
+
+    def point(self, s: FloatArray | float) -> FloatArray:
+        """Nominal laser points (..., 3) at arc lengths ``s`` (the end segments extended)."""
+        ss = np.asarray(s, dtype=np.float64)
+        starts = np.array([p[1] for p in self._prims])
+        idx = np.clip(np.searchsorted(starts, ss, side="right") - 1, 0, len(starts) - 1)
+        out = np.empty((*ss.shape, 3))
+        for k, (kind, s0, a, b, c, _length) in enumerate(self._prims):
+            m = idx == k
+            if not np.any(m):
+                continue
+            u = ss[m] - s0
+            if kind == 0:  # line: a + u·b
+                out[m] = a + u[..., None] * b
+            else:  # arc: centre a, start radius direction -n = b, start tangent c
+                th = u / self.radius_mm
+                r = self.radius_mm
+                out[m] = a + r * (np.cos(th)[..., None] * b + np.sin(th)[..., None] * c)
+        return out
+
+    def project(self, points: FloatArray) -> FloatArray:
+        """Arc lengths (M,) of the nearest path points of ``points`` (M, 3)."""
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        best_s = np.zeros(len(p))
+        best_d = np.full(len(p), np.inf)
+        last = len(self._prims) - 1
+        for k, (kind, s0, a, b, c, length) in enumerate(self._prims):
+            if kind == 0:
+                u = (p - a) @ b
+                u = np.clip(u, -np.inf if k == 0 else 0.0, np.inf if k == last else length)
+                q = a + u[:, None] * b
+            else:
+                th = np.arctan2((p - a) @ c, (p - a) @ b)
+                u = np.clip(th, 0.0, length / self.radius_mm) * self.radius_mm
+                th = u / self.radius_mm
+                q = a + self.radius_mm * (np.cos(th)[:, None] * b + np.sin(th)[:, None] * c)
+            d = np.linalg.norm(p - q, axis=1)
+            better = d < best_d
+            best_d = np.where(better, d, best_d)
+            best_s = np.where(better, s0 + u, best_s)
+        return best_s
+
+    def corner_s(self) -> list[tuple[int, float]]:
+        """(vertex index, arc length of the middle of its rounding) of every corner."""
+        out: list[tuple[int, float]] = []
+        for kind, s0, _a, _b, _c, length in self._prims:
+            if kind == 1:
+                out.append((len(out) + 1, s0 + length / 2))
+        return out
+
+
+def _build(
+    v: FloatArray, radius: float
+) -> tuple[tuple[int, float, FloatArray, FloatArray, FloatArray, float], ...]:
+    """Lines (0, s0, start, direction, -, length) and arcs (1, s0, centre, start radius
+    direction, start tangent, length) of the rounded polyline; collinear vertices pass."""
+    if v.ndim != 2 or v.shape[1] != 3 or len(v) < 2 or not np.all(np.isfinite(v)):
+        raise ValueError("a polyline needs at least two finite vertices (K, 3)")
+    seg = np.diff(v, axis=0)
+    lengths = np.linalg.norm(seg, axis=1)
+    if np.any(lengths < 1e-9):
+        raise CornerError(int(np.argmin(lengths)) + 1, "two consecutive vertices coincide")
+    dirs = seg / lengths[:, None]
+    turns = [0.0]  # tangent length of the rounding at each vertex
+    for k in range(1, len(v) - 1):
+        cos_phi = float(np.clip(dirs[k - 1] @ dirs[k], -1.0, 1.0))
+        phi = math.acos(cos_phi)
+        if phi > math.radians(179.0):
+            raise CornerError(k, f"the path turns back on itself ({math.degrees(phi):.0f}°)")
+        turns.append(radius * math.tan(phi / 2.0))
+    turns.append(0.0)
+    for k, length in enumerate(lengths):
+        need = turns[k] + turns[k + 1]
+        if need > length + 1e-9:
+            corner = k if turns[k] >= turns[k + 1] else k + 1
+            raise CornerError(
+                corner,
+                f"segment {k + 1} is {length:.1f} mm long: rounding its corners with "
+                f"R {radius:g} mm needs {need:.1f} mm",
+            )
+    prims: list[tuple[int, float, FloatArray, FloatArray, FloatArray, float]] = []
+    s = 0.0
+    none = np.zeros(3)
+    for k, length in enumerate(lengths):
+        a = v[k] + turns[k] * dirs[k]
+        run = float(length - turns[k] - turns[k + 1])
+        if run > 0.0 or k == 0 or k == len(lengths) - 1:
+            prims.append((0, s, v[k] if k == 0 else a, dirs[k], none, run))
+            s += run
+        if k + 1 < len(lengths) and turns[k + 1] > 0.0:
+            d0, d1 = dirs[k], dirs[k + 1]
+            n = d1 - (d0 @ d1) * d0
+            n /= np.linalg.norm(n)
+            phi = math.acos(float(np.clip(d0 @ d1, -1.0, 1.0)))
+            start = v[k + 1] - turns[k + 1] * d0
+            prims.append((1, s, start + radius * n, -n, d0, radius * phi))
+            s += radius * phi
+    return tuple(prims)
+
+
+def check_sensor_view(
+    weld: PolylineWeld,
+    laser2sensor_offset: FloatArray,
+    stripe_normal: FloatArray,
+    stripe_across: FloatArray,
+    *,
+    half_field_mm: float = SENSOR_HALF_FIELD_MM - FIELD_MARGIN_MM,
+    step_mm: float = 1.0,
+) -> None:
+    """Raise :class:`CornerError` where the sensor, at ``laser2sensor_offset`` (3,) from the
+    laser in the base frame (the tool keeps its orientation), would not see the nominal path
+    in its laser plane (normal ``stripe_normal`` (3,)) within ``half_field_mm`` across it
+    (along ``stripe_across`` (3,)): the seam would be lost there and the weld stop."""
+    s_fine = np.arange(0.0, weld.length_mm + step_mm / 10, step_mm / 10)
+    path = weld.point(s_fine)
+    corners = weld.corner_s()
+    for s in np.arange(0.0, weld.length_mm + 1e-9, step_mm):
+        sensor = weld.point(s) + laser2sensor_offset
+        f = (path - sensor) @ stripe_normal
+        cross = np.nonzero((np.sign(f[:-1]) != np.sign(f[1:])) & (s_fine[:-1] >= s))[0]
+        if not len(cross):
+            if sensor @ stripe_normal >= path[-1] @ stripe_normal:
+                return  # past the end of the path: the rest was seen already
+            lateral = math.inf
+        else:
+            lateral = abs(float((path[cross[0]] - sensor) @ stripe_across))
+        if lateral > half_field_mm:
+            at = min(corners, key=lambda c: abs(c[1] - s))[0] if corners else 0
+            raise CornerError(
+                at,
+                f"the corner turns too sharply for the sensor: it would see the seam "
+                f"{lateral:.1f} mm off the middle of its field (at most {half_field_mm:g} mm)",
+            )

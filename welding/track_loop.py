@@ -1,0 +1,265 @@
+"""The seam-tracking loop, one pass per 4 ms controller cycle, shared by ``welding track``
+and the processing of a tracked job path (``<path tracked="on">``).
+
+The loop talks to the robot through a :class:`TrackLink`: :class:`RobotLink` is any
+RobotSocket server (GetSeamPoints, Alter, ...), on a simulated clock (WaitEndMove of one
+cycle advances it) or on a real one (the loop waits for the next cycle on the robot's
+clock); the emulated cell also has an in-process link (:mod:`welding.emulate`).
+
+Sequence: triggers on, alter mode on; the arm stands while the sensor measures the seam
+where it looks and the laser is brought onto it (``settle_s``); the nominal path starts on
+the cycle grid; every cycle the seam points since the last ones, the correction for the
+cycle that applies it, the laser on only inside the weld window and only while the tracker
+has a valid correction. A lost seam or a silent sensor: laser off first, then the motion is
+reset (the arm stops along its path), and the reason is returned.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from spec.params import IDENTITY_LOCATION, FloatArray, Location, Matrix, Value
+from spec.registry import CommandId
+from welding.tools import Loc
+from welding.tracking import MIN_FIT_POINTS, Tracker, TrackingError
+
+Array = npt.NDArray[np.float64]
+
+__all__ = ["RobotLink", "TrackLink", "TrackOutcome", "TrackedWeld", "weld_tracked"]
+
+
+class TrackLink(Protocol):
+    """What the tracking loop needs of the robot (and its sync service)."""
+
+    period: float
+
+    def delta_t(self) -> float: ...
+    def here(self, tool: Loc) -> Loc: ...
+    def start(self, tool: Loc, rate_hz: float) -> int: ...
+    def time(self) -> float: ...
+    def next_cycle(self) -> float: ...
+    def points(self, since: int) -> Array: ...
+    def alter(self, correction: Array) -> None: ...
+    def step(self) -> None: ...
+    def move(self, times: Array, locs: Array, tool: Loc) -> tuple[float, bool]: ...
+    def queued(self) -> int: ...
+    def set_laser(self, on: bool) -> None: ...
+    def reset_motion(self) -> None: ...
+    def stop_triggers(self) -> None: ...
+    def finish(self) -> None: ...
+    def close(self) -> None: ...
+
+
+@dataclass(frozen=True)
+class TrackedWeld:
+    """One tracked weld: the tracker (nominal path, look-ahead), the laser tool (flange,
+    mm, deg) the path is in (base frame), and the laser window: on from ``laser_from_mm``
+    to ``laser_to_mm`` of arc length. ``laser=False`` keeps it off (a dry run);
+    ``track=False`` runs the nominal path uncorrected (the baseline)."""
+
+    tracker: Tracker
+    laser_tool: Loc
+    laser_from_mm: float
+    laser_to_mm: float
+    rate_hz: float = 200.0
+    track: bool = True
+    laser: bool = True
+    settle_s: float = 0.25
+
+
+@dataclass(frozen=True)
+class TrackOutcome:
+    """``stopped``: why the weld stopped early ("" when completed); ``cycles``: controller
+    cycles of the move; ``corrections``: corrections sent during it (one per cycle when the
+    loop keeps up); ``start_on_grid``: the cycle the move started on is known exactly."""
+
+    stopped: str
+    cycles: int
+    corrections: int
+    start_on_grid: bool
+
+
+def weld_tracked(
+    link: TrackLink, weld: TrackedWeld, *, sensor_silent_after_mm: float | None = None
+) -> TrackOutcome:
+    """Run ``weld`` on ``link``; ``sensor_silent_after_mm`` stops the triggers once the laser
+    is that far past ``laser_from_mm`` (a dropped sensor, for tests)."""
+    tracker = weld.tracker
+    nominal = tracker.weld
+    period = link.period
+    last_index = -1
+    stopped = ""
+    laser_on = False
+    track = weld.track
+
+    def fetch() -> None:
+        nonlocal last_index
+        rows = link.points(last_index)
+        if len(rows):
+            last_index = int(rows[-1, 0])
+            tracker.model.add(rows[:, 11:14])
+
+    # points of earlier runs (the ΔT measurement, another weld) are not this seam's
+    last_index = link.start(weld.laser_tool, weld.rate_hz) - 1
+    # the arm stands still while the sensor measures the seam's start and the laser is
+    # brought onto it
+    t0 = link.time() + weld.settle_s
+    while link.time() < t0 - 1e-9:
+        fetch()
+        ready = track and tracker.model.count >= MIN_FIT_POINTS
+        link.alter(tracker.correction(0.0) if ready else np.zeros(6))
+        link.step()
+    times, locs = nominal.timed_path(period)
+    t0, on_grid = link.move(times, locs, weld.laser_tool)  # the law's start, a cycle time
+    corrections = 0
+    held = np.zeros(6)
+    while link.queued():
+        fetch()
+        t_move = link.next_cycle() - t0  # the correction applies at the next cycle
+        s = float(nominal.s_at(t_move))
+        if sensor_silent_after_mm is not None and s > weld.laser_from_mm + sensor_silent_after_mm:
+            link.stop_triggers()  # no more seam points: the sensor has dropped out
+        if s <= weld.laser_to_mm:
+            try:
+                held = tracker.correction(t_move) if track else np.zeros(6)
+            except TrackingError as exc:
+                # safe stop: laser off first, then the arm stops along its path
+                link.set_laser(False)
+                link.reset_motion()
+                stopped = str(exc)
+                break
+        # past the weld's end the seam no longer matters: the last correction is held
+        link.alter(held)
+        corrections += 1
+        want_on = weld.laser and weld.laser_from_mm <= s <= weld.laser_to_mm
+        if want_on != laser_on:
+            link.set_laser(want_on)
+            laser_on = want_on
+        link.step()
+    if laser_on and not stopped:
+        link.set_laser(False)
+    cycles = round((link.time() - t0) / period)
+    link.finish()
+    return TrackOutcome(stopped, cycles, corrections, on_grid)
+
+
+class RobotLink:
+    """Through a RobotSocket server, as any client would. ``client`` holds control (a
+    :class:`~robotsocket.client.RobotClient` or any ``call(command, *params)``);
+    ``sensor_endpoint`` the sensor's trigger address for SetSensorEndpoint (None: as
+    configured). ``real_time``: the robot runs on the wall clock, so the loop waits for the
+    next cycle on it; otherwise WaitEndMove of one cycle advances the simulated clock."""
+
+    def __init__(
+        self,
+        client: _Caller,
+        sensor_endpoint: tuple[str, int] | None = None,
+        *,
+        period: float = 0.004,
+        real_time: bool = False,
+    ) -> None:
+        self.client = client
+        self.sensor_endpoint = sensor_endpoint
+        self.period = period
+        self.real_time = real_time
+
+    def _call(self, command: CommandId, *params: Value) -> tuple[Value, ...]:
+        return self.client.call(command, *params)
+
+    def delta_t(self) -> float:
+        return float(self._call(CommandId.GET_SYNC_CONFIG)[2])  # type: ignore[arg-type]
+
+    def here(self, tool: Loc) -> Loc:
+        loc = self._call(CommandId.HERE, Location(*tool), IDENTITY_LOCATION)[0]
+        assert isinstance(loc, Location)
+        return loc.as_tuple()
+
+    def start(self, tool: Loc, rate_hz: float) -> int:
+        self._call(CommandId.ENABLE_POWER)
+        if self.sensor_endpoint is not None:
+            self._call(CommandId.SET_SENSOR_ENDPOINT, *self.sensor_endpoint)
+        first = self._call(CommandId.START_TRIGGERS, float(rate_hz), 0)[0]
+        self._call(CommandId.ALTER_BEGIN, Location(*tool), 0.1)
+        assert isinstance(first, int)
+        return first
+
+    def time(self) -> float:
+        return float(self._call(CommandId.GET_TIME)[0])  # type: ignore[arg-type]
+
+    def _cycle_of(self, t: float) -> int:
+        return math.floor(t / self.period + 1e-9)
+
+    def next_cycle(self) -> float:
+        """Robot time of the cycle that applies the next command."""
+        if not self.real_time:
+            return self.time() + self.period  # the simulated clock stands on a cycle
+        return (self._cycle_of(self.time()) + 1) * self.period
+
+    def points(self, since: int) -> Array:
+        m = self._call(CommandId.GET_SEAM_POINTS, since)[0]
+        assert isinstance(m, Matrix)
+        return np.array(m.values, dtype=np.float64).reshape(m.rows, m.cols)
+
+    def alter(self, correction: Array) -> None:
+        self._call(CommandId.ALTER, Location(*(float(v) for v in correction)))
+
+    def step(self) -> None:
+        if not self.real_time:
+            self._call(CommandId.WAIT_END_MOVE, self.period)
+            return
+        # wait for the next cycle on the robot's clock (a deadline, not a guess: the time
+        # is read back from the robot), a little after it so the cycle has run
+        t = self.time()
+        wait = (self._cycle_of(t) + 1) * self.period - t + 0.0003
+        deadline = time.monotonic() + wait
+        while (left := deadline - time.monotonic()) > 0:
+            time.sleep(left)
+
+    def move(self, times: Array, locs: Array, tool: Loc) -> tuple[float, bool]:
+        """Queue the timed path; (the robot time its law starts at, known exactly). The
+        robot starts a queued move's law at the cycle during which it was queued."""
+        before = self.time()
+        self._call(
+            CommandId.TOOL_MOVE_TRAJECTORY,
+            FloatArray(times.tolist()),
+            Matrix(len(locs), 6, locs.ravel().tolist()),
+            Location(*tool),
+            IDENTITY_LOCATION,
+        )
+        if not self.real_time:
+            return before, True  # the simulated clock did not move meanwhile
+        after = self.time()
+        k = self._cycle_of(before)
+        return k * self.period, k == self._cycle_of(after)
+
+    def queued(self) -> int:
+        return int(self._call(CommandId.ROBOT_STATUS)[3])  # type: ignore[arg-type]
+
+    def set_laser(self, on: bool) -> None:
+        self._call(CommandId.SET_OUTPUT, "laser", on)
+
+    def reset_motion(self) -> None:
+        self._call(CommandId.RESET_MOTION)
+
+    def stop_triggers(self) -> None:
+        self._call(CommandId.STOP_TRIGGERS)
+
+    def finish(self) -> None:
+        self._call(CommandId.ALTER_END)
+        self._call(CommandId.STOP_TRIGGERS)
+        self._call(CommandId.WAIT_END_MOVE, 5.0)
+
+    def close(self) -> None:
+        pass
+
+
+class _Caller(Protocol):
+    def call(
+        self, command: int, *params: Value, timeout: float | None = ...
+    ) -> tuple[Value, ...]: ...
