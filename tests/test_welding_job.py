@@ -123,6 +123,16 @@ def test_example_reads_as_written() -> None:
     assert job.tools() == {"laser"} and job.frames() == {"table"}
 
 
+def test_tracked_path_reads_and_writes_on_off() -> None:
+    assert not J.loads(EXAMPLE).item("seam").tracked  # type: ignore[union-attr]
+    job = J.loads(edit('laser="on"', 'laser="on" tracked="on"'))
+    seam = job.item("seam")
+    assert isinstance(seam, J.Path) and seam.tracked
+    text = J.dumps(job)
+    assert 'tracked="on"' in text and J.loads(text) == job
+    assert XSD.is_valid(text)
+
+
 def problems(text: str, **kw: object) -> list[tuple[int, str]]:
     with pytest.raises(J.JobError) as info:
         J.loads(text, **kw)  # type: ignore[arg-type]
@@ -147,6 +157,7 @@ def edit(old: str, new: str) -> str:
         (edit('velocity="20"', 'velocity="nan"'), 5, "must be finite"),
         (edit('duration="2"', 'duration="-1"'), 16, "must be >= 0"),
         (edit('laser="on"', 'laser="yes"'), 5, "expected 'on' or 'off'"),
+        (edit('laser="on"', 'tracked="yes"'), 5, "tracked='yes': expected 'on' or 'off'"),
         (edit('x="50" y="0"', 'x="50" q="0"'), 8, "unknown attribute 'q'"),
         (edit(' x="50" y="0"', ' y="0"'), 8, "missing attribute 'x'"),
         (edit('<pause name="cool"', '<pause name="spot"'), 16, "already used at line 14"),
@@ -291,6 +302,7 @@ def test_example_is_valid_by_the_schema() -> None:
         ('velocity="20"', 'velocity="0"'),
         ('duration="2"', 'duration="-1"'),
         ('laser="on"', 'laser="yes"'),
+        ('laser="on"', 'tracked="yes"'),
         ('x="50" y="0"', 'x="50" q="0"'),
         (' x="50" y="0"', ' y="0"'),
         ('<pause name="cool"', '<pause name="spot"'),

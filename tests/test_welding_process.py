@@ -8,11 +8,13 @@ import math
 import socket
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from kinematics.transforms import invert, location_to_transform
+from sensorsocket.scene import JogPath
 from welding import job as J
 from welding.emulate import EmulatedSession
 from welding.process import (
@@ -22,10 +24,12 @@ from welding.process import (
     MoveL,
     Output,
     PlanError,
+    Track,
     arc_points,
     plan,
 )
 from welding.tools import Tables, ToolDBError
+from welding.tracking import seam_error
 
 W = "workpiece"
 
@@ -306,3 +310,144 @@ def test_a_second_ctrl_c_cannot_cut_the_safe_stop_short(session: EmulatedSession
         JobRunner(session.robot, session.tables, dwell=session.dwell).run(JOB)
     check_stopped_safely(session, info.value)
     assert signal.getsignal(signal.SIGINT) is before  # the runner put the handler back
+
+
+# --- tracked paths (seam tracking, welding.track_loop) ---------------------------------------
+
+
+def tracking_tables() -> Tables:
+    t = tables()
+    from welding.tools import Entry
+
+    t.add(Entry("sensor", "sensor", (40.0, 0.0, 200.0, 0.0, 0.0, 0.0)))
+    return t
+
+
+def tracked(*points: tuple[float, float], velocity: float = 100.0, z: float = 0.0) -> J.Job:
+    start, *rest = (L(x, y, z) for x, y in points)
+    path = J.Path("seam", start, tuple(J.Line(p) for p in rest), velocity, tracked=True)
+    return J.Job("t", (path,))
+
+
+def test_tracked_path_plans_lead_in_and_track_step() -> None:
+    steps = plan(
+        tracked((0, 0), (100, 0), (100 + 100 * math.cos(0.1), 100 * math.sin(0.1))),
+        tracking_tables(),
+    )
+    (track,) = [s for s in steps if isinstance(s, Track)]
+    # the sensor is 40 mm ahead of the laser: the motion starts 40 mm before the path, the
+    # laser window is the path itself (its corner rounded with R 32 mm)
+    assert track.look_ahead_mm == pytest.approx(40.0)
+    assert track.laser_from_mm == pytest.approx(40.0)
+    corner = 0.1 * 32.0 - 2 * 32.0 * math.tan(0.05)  # the arc minus the two cut corners
+    assert track.laser_to_mm == pytest.approx(40.0 + 200.0 + corner)
+    # the laser is switched by the Track step only, never by an Output step of this path
+    assert not [s for s in steps if isinstance(s, Output) and s.name == "laser" and s.value]
+
+
+@pytest.mark.parametrize(
+    ("points", "pattern"),
+    [
+        (
+            ((0, 0), (80, 0), (80 + 80 * math.cos(0.8), 80 * math.sin(0.8))),
+            "point 2 .* too sharply",
+        ),
+        (((0, 0), (80, 0), (82, 0.5), (160, 0)), "point 3 .* rounding its corners with R 32"),
+        (((0, 0), (80, 0), (0, 1)), "turns back on itself"),
+    ],
+)
+def test_tracked_corner_too_sharp_is_refused(
+    points: tuple[tuple[float, float], ...], pattern: str
+) -> None:
+    with pytest.raises(PlanError, match=pattern):
+        plan(tracked(*points), tracking_tables())
+
+
+def test_tracked_path_needs_lines_a_sensor_ahead_and_one_orientation() -> None:
+    arc = J.Job("t", (replace(SEAM, tracked=True),))
+    with pytest.raises(PlanError, match="<line> segments only"):
+        plan(arc, tracking_tables())
+    with pytest.raises(PlanError, match="sensor tool 'sensor'"):
+        plan(tracked((0, 0), (100, 0)), tables())
+    with pytest.raises(PlanError, match=r"-40\.0 mm ahead"):
+        plan(tracked((100, 0), (0, 0)), tracking_tables())
+    turned = J.Job(
+        "t",
+        (J.Path("p", L(0, 0, 0), (J.Line(replace(L(100, 0, 0), rz=5.0)),), 100.0, tracked=True),),
+    )
+    with pytest.raises(PlanError, match="point 2 turns the tool"):
+        plan(turned, tracking_tables())
+
+
+def _jog_polyline() -> list[tuple[float, float]]:
+    """The corner points (workpiece frame) of the cell's jog seam: its R 32 mm arcs are the
+    polyline's corners rounded, so the nominal path is the seam where it should be."""
+    jog = JogPath()
+    x1, y1, x2, y2, _x3, h = jog._knots()
+    t = math.tan(math.radians(jog.angle_deg))
+    return [(x1 - y1 / t, 0.0), (x2 + (h - y2) / t, h)]
+
+
+def _laser_truth(s: EmulatedSession) -> list[tuple[np.ndarray, bool]]:
+    robot = s.cell.robot
+    truth: list[tuple[np.ndarray, bool]] = []
+    robot.cycle_hooks.append(lambda t, q_sp, q_m: truth.append((q_sp, robot.read_io("laser")[0])))
+    return truth
+
+
+def _seam_error(s: EmulatedSession, q: np.ndarray) -> np.ndarray:
+    pts = (s.cell.robot.model.flange2base_batch(q) @ s.cell.laser2flange)[:, :3, 3]
+    scene = s.cell.scene
+    lat, hgt = seam_error(pts, scene.base2workpiece, scene.path.lateral, scene.joint.seam_height_mm)
+    return np.hypot(lat, hgt)
+
+
+def _laser_z(s: EmulatedSession) -> float:
+    """Height of the laser focus over the workpiece at the ready pose (on the seam)."""
+    return s.robot.here(s.tables.tool("laser").location, s.tables.frame(W).location)[2]
+
+
+def _runner(s: EmulatedSession) -> JobRunner:
+    return JobRunner(
+        s.robot, s.tables, dwell=s.dwell, sensor_endpoint=s.cell.udp_address, real_time=False
+    )
+
+
+def test_tracked_job_follows_the_misplaced_jog_seam_within_target() -> None:
+    # workpiece 1.5 mm and 0.5 deg off where the job says; the path has two 15 deg corners
+    with EmulatedSession("jog", seed=1, workpiece_error=(0.0, 1.5, 0.0, 0.0, 0.0, 0.5)) as s:
+        points = [(0.0, 0.0), *_jog_polyline()]
+        points.append((points[-1][0] + 60.0, points[-1][1]))
+        job = tracked(*points, velocity=250.0, z=_laser_z(s))
+        truth = _laser_truth(s)
+        log = _runner(s).run(job)
+        (entry,) = [e for e in log if e.event == "tracked"]
+        q = np.array([qq for qq, on in truth if on])
+        err = _seam_error(s, q)
+        assert not s.cell.robot.read_io("laser")[0]
+    assert entry.detail["corrections"] == entry.detail["cycles"]  # one per cycle
+    welded = len(q) * 0.004 * 250.0
+    assert welded == pytest.approx(points[-1][0], abs=3.0)  # the 15 deg legs add 0.4 mm
+    assert err.max() <= 0.1
+
+
+def test_tracked_job_that_loses_the_seam_stops_with_the_laser_off() -> None:
+    # the workpiece turned by 6 deg: the seam walks off the path by 0.1 mm per mm until it
+    # is beyond the robot's 10 mm correction range
+    with EmulatedSession("straight", seed=2, workpiece_error=(0.0, 0.0, 0.0, 0.0, 0.0, 6.0)) as s:
+        job = tracked((0.0, 0.0), (200.0, 0.0), velocity=250.0, z=_laser_z(s))
+        truth = _laser_truth(s)
+        with pytest.raises(JobAborted) as info:
+            _runner(s).run(job)
+        io = s.io_log
+        status = s.robot.status()
+        q_on = np.array([qq for qq, on in truth if on])
+        err = _seam_error(s, q_on)
+    assert info.value.reason == "seam lost" and "off the path" in info.value.message
+    assert not status.moving and status.queue == 0
+    laser = [(t, v) for t, name, v in io if name == "laser"]
+    assert laser[-1][1] is False
+    t_off = laser[-1][0]
+    assert not any(on for t, on in laser if t > t_off)
+    assert 0 < len(q_on) * 0.004 * 250.0 < 200.0  # welded part of the way, tracked well
+    assert err.max() <= 0.1

@@ -7,7 +7,14 @@ import numpy as np
 import pytest
 
 from welding.emulate import run_tracking
-from welding.tracking import NominalWeld, SeamModel, Tracker, TrackingError
+from welding.tracking import (
+    CornerError,
+    NominalWeld,
+    PolylineWeld,
+    SeamModel,
+    Tracker,
+    TrackingError,
+)
 
 DIRECTION = np.array([1.0, 0.0, 0.0])
 
@@ -113,3 +120,58 @@ def test_tracking_through_the_sockets_gives_the_same_weld() -> None:
     # the same commands on the same simulated clock: the same weld, to the last digit
     assert sockets.tracking_error_max_mm == direct.tracking_error_max_mm
     assert sockets.tracking_error_rms_mm == direct.tracking_error_rms_mm
+
+
+def _corner_weld(turn_deg: float = 12.0) -> PolylineWeld:
+    a = np.radians(turn_deg)
+    v = np.array(
+        [[500.0, 0.0, 300.0], [600.0, 0.0, 300.0], [600 + 100 * np.cos(a), 100 * np.sin(a), 300.0]]
+    )
+    return PolylineWeld(v, np.array([180.0, 0.0, 0.0]), 250.0)
+
+
+def test_polyline_rounds_its_corners_and_projects_back() -> None:
+    weld = _corner_weld()
+    s = np.linspace(-5.0, weld.length_mm + 5.0, 4001)
+    p = weld.point(s)
+    assert np.abs(weld.project(p) - s).max() < 1e-9
+    step = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    assert step.max() - step.min() < 1e-6  # arc length is the parameter: no kink, no jump
+    # the rounding is a tangent arc of R 32 mm: the corner point is cut by R (1/cos(a/2) - 1)
+    ((k, s_mid),) = weld.corner_s()
+    gap = np.linalg.norm(weld.point(s_mid) - weld.vertices[1])
+    assert k == 1 and gap == pytest.approx(32.0 * (1 / np.cos(np.radians(6.0)) - 1.0))
+    # two vertices: the straight NominalWeld, to the last digit
+    line = PolylineWeld(np.array([[500.0, 0.0, 300.0], [800.0, 0.0, 300.0]]), weld.angles, 250.0)
+    assert np.array_equal(line.point(s), _weld().point(s))
+    assert np.array_equal(line.project(p), _weld().project(p))
+    assert np.array_equal(line.timed_path(0.004)[1], _weld().timed_path(0.004)[1])
+
+
+def test_polyline_corner_is_tracked_within_target() -> None:
+    # the true seam runs 1.5 mm beside the rounded path, measured with 10 µm noise at the
+    # spacing of 200 Hz at 250 mm/s: the fitted offset follows it through the corner
+    weld = _corner_weld()
+
+    def seam(s: np.ndarray) -> np.ndarray:
+        tangent = np.gradient(weld.point(s), s, axis=0)
+        normal = np.cross([0.0, 0.0, 1.0], tangent)
+        out: np.ndarray = weld.point(s) + 1.5 * normal / np.linalg.norm(normal, axis=1)[:, None]
+        return out
+
+    rng = np.random.default_rng(7)
+    tracker = Tracker(weld, look_ahead_mm=40.0)
+    s = np.arange(0.0, weld.length_mm, 1.25)
+    tracker.model.add(seam(s) + rng.normal(0.0, 0.010, (len(s), 3)))
+    t = np.arange(0.0, weld.duration, 0.004)
+    t = t[weld.s_at(t) < weld.length_mm - 45.0]
+    laser = weld.point(weld.s_at(t)) + np.array([tracker.correction(tt)[:3] for tt in t])
+    truth = seam(np.arange(0.0, weld.length_mm, 0.01))
+    err = np.array([np.linalg.norm(truth - p, axis=1).min() for p in laser])
+    assert err.max() < 0.05
+
+
+def test_polyline_refuses_a_rounding_that_does_not_fit() -> None:
+    v = np.array([[0.0, 0.0, 0.0], [50.0, 0.0, 0.0], [50.0, 20.0, 0.0]])
+    with pytest.raises(CornerError, match=r"from point 1 to point 2 is 20\.0 mm long"):
+        PolylineWeld(v, np.zeros(3), 100.0)

@@ -484,12 +484,16 @@ class _ProgressBar:
 def cmd_run(args: argparse.Namespace) -> int:
     with _cell(args, control=True) as cell:
         job = _load_job(args.job, cell.tables)
+        emulated = cell.emulated is not None
         runner = JobRunner(
             cell.robot,
             cell.tables,
             dry_run=args.dry_run,
             dwell=cell.dwell,
             on_progress=_ProgressBar(not args.no_progress),
+            # tracked paths: the emulated cell's trigger endpoint and simulated clock
+            sensor_endpoint=cell.emulated.cell.udp_address if emulated else None,
+            real_time=not emulated,
         )
         try:
             entries = runner.run(job)

@@ -22,7 +22,7 @@ import numpy.typing as npt
 
 from cell.cell import CellTiming, EmulatedCell
 from cell.options import add_timing_options, timing_kwargs
-from kinematics.transforms import transform_to_location
+from kinematics.transforms import invert, location_to_transform, transform_to_location
 from robotsocket.client import RobotClient
 from sensorsocket.client import SensorClient
 from spec import cliargs
@@ -42,9 +42,10 @@ def _loc(values: object) -> Loc:
 
 
 class EmulatedSession:
-    """A started simulated cell (``seam``: straight|sine), a robot client holding control
-    with the arm powered, a sensor client, and tables naming its tools (``laser``,
-    ``sensor``) and the workpiece frame (``workpiece``)."""
+    """A started simulated cell (``seam``: straight|sine|corner|jog), a robot client holding
+    control with the arm powered, a sensor client, and tables naming its tools (``laser``,
+    ``sensor``) and the workpiece frame (``workpiece``: where it should be; the cell puts it
+    ``workpiece_error`` off that)."""
 
     def __init__(
         self,
@@ -53,6 +54,7 @@ class EmulatedSession:
         seed: int = 0,
         sensor_tool_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
         laser_tool_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+        workpiece_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
     ) -> None:
         self.cell = EmulatedCell(
             clock="sim",
@@ -60,7 +62,11 @@ class EmulatedSession:
             seed=seed,
             sensor_tool_error=sensor_tool_error,
             laser_tool_error=laser_tool_error,
+            workpiece_error=workpiece_error,
         )
+        # the ΔT in force: the cell's true one stands for what the section VI procedure
+        # measures (tracked paths use it)
+        self.cell.core.set_delay(self.cell.true_delta_t_s())
         self.cell.start()
         try:
             self.robot = RobotClient(*self.cell.robot_address, timeout=30.0)
@@ -73,7 +79,9 @@ class EmulatedSession:
         self.tables = Tables({}, {})
         self.tables.add(Entry("laser", "laser", self.cell.laser_tool, "^N_L T of the cell"))
         self.tables.add(Entry("sensor", "sensor", self.cell.sensor_tool, "^N_S T of the cell"))
-        w2b = _loc(transform_to_location(self.cell.scene.workpiece2base))
+        # the workpiece as the operator believes it placed: without the placement error
+        placed = self.cell.scene.workpiece2base @ invert(location_to_transform(workpiece_error))
+        w2b = _loc(transform_to_location(placed))
         self.tables.add(Entry("workpiece", "frame", w2b, "^B_W T of the cell's workpiece"))
 
     def dwell(self, seconds: float) -> None:

@@ -13,6 +13,14 @@ laser goes off first, then the motion is reset (the arm decelerates along its pa
 queue is dropped), then crossjet and gas go off. When the connection itself is gone the
 server's controlled stop does the same [RS-7.10].
 
+Tracked paths (``tracked="on"``, method 2): the path's lines become a
+:class:`~welding.tracking.PolylineWeld` in the base frame, corners rounded with R 32 mm, with a
+lead-in of the sensor's look-ahead before the start (the sensor must have seen the seam
+before the laser gets there) and a run-out of the braking distance after the end; a
+:class:`Track` step runs it through :mod:`welding.track_loop`: the laser is on from the
+path's start to its end and only while the tracker has a valid correction; a lost seam or
+a silent sensor switches it off and stops the arm, and the job aborts ("seam lost").
+
 Time: the robot's clock stamps the log; waits without motion (pre-/post-flow, stitch
 duration, pauses) go through ``dwell(seconds)``, ``time.sleep`` on a real robot and the
 simulated clock's advance on the emulated cell.
@@ -32,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from kinematics.transforms import (
+    invert,
     location_to_transform,
     matrix_from_rotvec,
     rotvec_from_matrix,
@@ -40,8 +49,18 @@ from kinematics.transforms import (
 from robotsocket.client import MotionDesc, RobotClient
 from spec.client import ConnectionClosed
 from spec.errors import ProtocolError, RemoteError
+from spec.params import Location as Location6
+from spec.registry import CommandId
 from welding.job import Item, Job, Line, Location, Path, Pause, Stitch, Via
-from welding.tools import Tables
+from welding.tools import Tables, ToolDBError
+from welding.track_loop import RobotLink, TrackedWeld, weld_tracked
+from welding.tracking import (
+    MIN_AHEAD_MM,
+    CornerError,
+    PolylineWeld,
+    Tracker,
+    check_sensor_view,
+)
 
 __all__ = [
     "ARC_TOLERANCE_MM",
@@ -55,7 +74,9 @@ __all__ = [
     "Output",
     "PlanError",
     "Progress",
+    "SeamLost",
     "Step",
+    "Track",
     "Wait",
     "arc_points",
     "plan",
@@ -63,6 +84,7 @@ __all__ = [
 ]
 
 Loc = tuple[float, float, float, float, float, float]
+IDENTITY: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 #: Largest distance (mm) between an arc and the chords it is run as.
 ARC_TOLERANCE_MM = 0.005
 OUTPUTS = ("laser", "crossjet", "gas")
@@ -117,7 +139,26 @@ class Mark:
     phase: str
 
 
-Step = MoveJ | MoveL | Wait | Output | Dwell | Mark
+@dataclass(frozen=True)
+class Track:
+    """A tracked weld (:mod:`welding.track_loop`): the nominal ``weld`` of the laser
+    ``tool`` in the base frame, the sensor ``look_ahead_mm`` ahead, the laser on from
+    ``laser_from_mm`` to ``laser_to_mm`` of arc length (never when ``laser`` is False)."""
+
+    weld: PolylineWeld
+    tool: Loc
+    look_ahead_mm: float
+    laser_from_mm: float
+    laser_to_mm: float
+    laser: bool
+    sensor_tool: Loc | None  # ^N_S T the robot's synchronisation computes seam points with
+
+
+Step = MoveJ | MoveL | Wait | Output | Dwell | Mark | Track
+
+
+def _loc6(v: tuple[float, ...]) -> Loc:
+    return (v[0], v[1], v[2], v[3], v[4], v[5])
 
 
 def _resolve(loc: Location, tables: Tables) -> tuple[Loc, Loc, Loc]:
@@ -166,7 +207,76 @@ def arc_points(a: Loc, m: Loc, b: Loc, tolerance: float = ARC_TOLERANCE_MM) -> l
     return out
 
 
-def _item_steps(index: int, item: Item, tables: Tables, dry_run: bool) -> Iterator[Step]:
+def _angle_deg(a: np.ndarray[Any, Any], b: np.ndarray[Any, Any]) -> float:
+    return math.degrees(float(np.linalg.norm(rotvec_from_matrix(a[:3, :3].T @ b[:3, :3]))))
+
+
+def _track_step(path: Path, tables: Tables, sensor_tool: str | None, laser: bool) -> Track:
+    """The :class:`Track` of a tracked path; :class:`PlanError` when it cannot be tracked."""
+    name = path.name
+    if any(not isinstance(seg, Line) for seg in path.segments):
+        raise PlanError(f"path {name!r}: a tracked path takes <line> segments only")
+    locs = list(path.locations())
+    if len({loc.tool for loc in locs}) != 1:
+        raise PlanError(f"path {name!r}: a tracked path keeps one tool")
+    tool = tables.tool(path.start.tool).location
+    poses = [
+        location_to_transform(tables.frame(loc.frame).location) @ location_to_transform(loc.values)
+        for loc in locs
+    ]
+    for k, pose in enumerate(poses[1:], 2):
+        if _angle_deg(poses[0], pose) > 0.01:
+            raise PlanError(
+                f"path {name!r}: point {k} turns the tool; a tracked path keeps the start's "
+                "orientation (the sensor stays ahead of the laser)"
+            )
+    vertices = np.array([p[:3, 3] for p in poses])
+    d0 = vertices[1] - vertices[0]
+    d0 /= max(float(np.linalg.norm(d0)), 1e-12)
+    d1 = vertices[-1] - vertices[-2]
+    d1 /= max(float(np.linalg.norm(d1)), 1e-12)
+    look_ahead = 0.0
+    sensor2base = np.eye(4)
+    sensor_loc: Loc | None = None
+    if sensor_tool is not None:
+        try:
+            sensor_loc = tables.tool(sensor_tool).location
+            sensor2flange = location_to_transform(sensor_loc)
+        except ToolDBError:
+            raise PlanError(
+                f"path {name!r}: a tracked path needs the sensor tool {sensor_tool!r} in the "
+                "tool database"
+            ) from None
+        sensor2base = poses[0] @ invert(location_to_transform(tool)) @ sensor2flange
+        look_ahead = float((sensor2base[:3, 3] - vertices[0]) @ d0)
+        if look_ahead < MIN_AHEAD_MM + 5.0:
+            raise PlanError(
+                f"path {name!r}: the sensor is {look_ahead:.1f} mm ahead of the laser along "
+                f"the first line; tracking needs it at least {MIN_AHEAD_MM + 5.0:g} mm ahead"
+            )
+    speed = path.velocity
+    run_out = speed * speed / (2.0 * 2500.0) + 1.0
+    lead_in = max(look_ahead, run_out)
+    ext = np.vstack([vertices[0] - lead_in * d0, vertices, vertices[-1] + run_out * d1])
+    angles = np.array(transform_to_location(poses[0])[3:], dtype=np.float64)
+    try:
+        weld = PolylineWeld(ext, angles, speed)
+        if sensor_tool is not None:
+            check_sensor_view(
+                weld, sensor2base[:3, 3] - vertices[0], sensor2base[:3, 0], sensor2base[:3, 1]
+            )
+    except CornerError as exc:
+        point = min(max(exc.corner, 1), len(locs))  # the job's point (the lead-in is 0)
+        raise PlanError(f"path {name!r}, point {point} of the path: {exc}") from None
+    except ValueError as exc:
+        raise PlanError(f"path {name!r}: {exc}") from None
+    laser_to = weld.length_mm - run_out
+    return Track(weld, tool, look_ahead, lead_in, laser_to, laser, sensor_loc)
+
+
+def _item_steps(
+    index: int, item: Item, tables: Tables, dry_run: bool, sensor_tool: str | None
+) -> Iterator[Step]:
     def out(name: str, value: bool, wanted: bool = True) -> Iterator[Step]:
         if wanted and not dry_run:
             yield Output(name, value)
@@ -181,9 +291,17 @@ def _item_steps(index: int, item: Item, tables: Tables, dry_run: bool) -> Iterat
         yield Wait()
         return
     at = item.at if isinstance(item, Stitch) else item.start
+    track = None
+    if isinstance(item, Path) and item.tracked:
+        track = _track_step(item, tables, sensor_tool, item.laser and not dry_run)
     yield Mark(index, item.name, "approach")
     speed = item.speed if isinstance(item, Stitch) else 10.0
-    yield MoveJ(*_resolve(at, tables), speed)
+    if track is None:
+        yield MoveJ(*_resolve(at, tables), speed)
+    else:  # to the lead-in's start, in the base frame
+        p0 = track.weld.point(0.0)
+        start = (*(float(v) for v in p0), *(float(v) for v in track.weld.angles))
+        yield MoveJ(_loc6(start), track.tool, IDENTITY, speed)
     yield Wait()
     yield Mark(index, item.name, "preflow")
     yield from out("gas", True, item.gas)
@@ -191,10 +309,12 @@ def _item_steps(index: int, item: Item, tables: Tables, dry_run: bool) -> Iterat
         yield Dwell(item.preflow)
     yield from out("crossjet", True, item.crossjet)
     laser = item.laser if isinstance(item, Path) else True
-    yield from out("laser", True, laser)
+    yield from out("laser", True, laser and track is None)  # a Track switches it itself
     yield Mark(index, item.name, "weld")
     if isinstance(item, Stitch):
         yield Dwell(item.duration)
+    elif track is not None:
+        yield track
     else:
         prev = item.start
         for seg in item.segments:
@@ -219,7 +339,7 @@ def _item_steps(index: int, item: Item, tables: Tables, dry_run: bool) -> Iterat
                     yield MoveL(p, tool, frame, item.velocity, blend)
             prev = seg.to
         yield Wait()
-    yield from out("laser", False, laser)
+    yield from out("laser", False, laser and track is None)
     yield from out("crossjet", False, item.crossjet)
     yield Mark(index, item.name, "postflow")
     if item.gas and item.postflow > 0:
@@ -227,12 +347,16 @@ def _item_steps(index: int, item: Item, tables: Tables, dry_run: bool) -> Iterat
     yield from out("gas", False, item.gas)
 
 
-def plan(job: Job, tables: Tables, *, dry_run: bool = False) -> list[Step]:
+def plan(
+    job: Job, tables: Tables, *, dry_run: bool = False, sensor_tool: str | None = "sensor"
+) -> list[Step]:
     """The steps of ``job`` with the tools and frames of ``tables``; raises
-    :class:`PlanError` or :class:`~welding.tools.ToolDBError` before anything moves."""
+    :class:`PlanError` or :class:`~welding.tools.ToolDBError` before anything moves.
+    ``sensor_tool``: the tool database's name of ^N_S T, which tracked paths need (None:
+    skip the checks that need it, e.g. a job checked without a database)."""
     steps: list[Step] = [Output(n, False) for n in OUTPUTS]  # a known start: all off
     for index, item in enumerate(job.sequence()):
-        steps.extend(_item_steps(index, item, tables, dry_run))
+        steps.extend(_item_steps(index, item, tables, dry_run, sensor_tool))
     steps.append(Mark(len(job.sequence()), "", "done"))
     return steps
 
@@ -262,9 +386,13 @@ class LogEntry:
                 "item": self.item, **self.detail}  # fmt: skip
 
 
+class SeamLost(Exception):
+    """A tracked weld stopped: the tracker lost the seam (the laser is already off)."""
+
+
 class JobAborted(Exception):
     """The job stopped before its end: ``reason`` ("interrupted", "connection lost",
-    "error reply", "timeout" or "error"), ``log`` up to and including the safe stop."""
+    "error reply", "timeout", "seam lost" or "error"), ``log`` up to and including the safe stop."""
 
     def __init__(self, reason: str, message: str, log: list[LogEntry]) -> None:
         super().__init__(f"job aborted ({reason}): {message}")
@@ -278,7 +406,10 @@ class JobRunner:
 
     ``dwell(seconds)`` waits on the robot's time base (default ``time.sleep``);
     ``on_progress`` is called at each item's phase; ``move_timeout`` bounds each wait for
-    the end of a move (s)."""
+    the end of a move (s). Tracked paths: ``sensor_endpoint`` is the sensor's trigger
+    address (None: as configured on the robot), ``real_time`` whether the robot runs on the
+    wall clock (False: a simulated clock advanced by WaitEndMove), ``rate_hz`` the trigger
+    rate."""
 
     def __init__(
         self,
@@ -289,8 +420,14 @@ class JobRunner:
         dwell: Callable[[float], None] = time.sleep,
         on_progress: Callable[[Progress], None] | None = None,
         move_timeout: float = 300.0,
+        sensor_endpoint: tuple[str, int] | None = None,
+        real_time: bool = True,
+        rate_hz: float = 200.0,
     ) -> None:
         self.robot = robot
+        self.sensor_endpoint = sensor_endpoint
+        self.real_time = real_time
+        self.rate_hz = rate_hz
         self.tables = tables
         self.dry_run = dry_run
         self.dwell = dwell
@@ -307,9 +444,9 @@ class JobRunner:
     def _note(self, event: str, item: str = "", **detail: Any) -> None:
         self.log.append(LogEntry(self._now(), event, item, detail))
 
-    def run(self, job: Job) -> list[LogEntry]:
+    def run(self, job: Job, *, sensor_tool: str = "sensor") -> list[LogEntry]:
         """Run ``job``; returns the log. Raises :class:`JobAborted` (after the safe stop)."""
-        steps = plan(job, self.tables, dry_run=self.dry_run)
+        steps = plan(job, self.tables, dry_run=self.dry_run, sensor_tool=sensor_tool)
         total = len(job.sequence())
         self.log = []
         self._note("start", job=job.name, dry_run=self.dry_run, items=total)
@@ -336,6 +473,8 @@ class JobRunner:
                     wanted = replace(desc, tool_speed=step.velocity, blend=step.blend)
                     sent = self._desc(sent, wanted)
                     self.robot.tool_move_l(step.loc, step.tool, step.frame)
+                elif isinstance(step, Track):
+                    self._track(step, item)
                 elif not self.robot.wait_end_move(self.move_timeout):
                     raise TimeoutError(f"the move did not end within {self.move_timeout:g} s")
             self.robot.set_motion_desc(desc)
@@ -346,6 +485,26 @@ class JobRunner:
             raise JobAborted(reason, str(exc) or type(exc).__name__, self.log) from exc
         self._note("end", job=job.name)
         return self.log
+
+    def _track(self, step: Track, item: str) -> None:
+        if step.sensor_tool is not None:
+            self.robot.call(CommandId.SET_SENSOR_TOOL, Location6(*step.sensor_tool))
+        tracker = Tracker(step.weld, step.look_ahead_mm, seam_end_mm=step.laser_to_mm)
+        link = RobotLink(self.robot, self.sensor_endpoint, real_time=self.real_time)
+        weld = TrackedWeld(
+            tracker, step.tool, step.laser_from_mm, step.laser_to_mm, self.rate_hz, laser=step.laser
+        )
+        outcome = weld_tracked(link, weld)
+        self._note(
+            "tracked",
+            item,
+            cycles=outcome.cycles,
+            corrections=outcome.corrections,
+            seam_points=tracker.model.count,
+            delta_t_ms=link.delta_t() * 1e3,
+        )
+        if outcome.stopped:
+            raise SeamLost(outcome.stopped)
 
     def _desc(self, sent: MotionDesc, wanted: MotionDesc) -> MotionDesc:
         if wanted != sent:
@@ -400,6 +559,8 @@ def _reason(exc: BaseException) -> str:
         return "error reply"
     if isinstance(exc, TimeoutError):
         return "timeout"
+    if isinstance(exc, SeamLost):
+        return "seam lost"
     return "error"
 
 

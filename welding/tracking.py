@@ -337,11 +337,11 @@ class PolylineWeld(WeldPath):
 
     def corner_s(self) -> list[tuple[int, float]]:
         """(vertex index, arc length of the middle of its rounding) of every corner."""
-        out: list[tuple[int, float]] = []
-        for kind, s0, _a, _b, _c, length in self._prims:
-            if kind == 1:
-                out.append((len(out) + 1, s0 + length / 2))
-        return out
+        v = np.asarray(self.vertices, dtype=np.float64)
+        d = np.diff(v, axis=0)
+        d /= np.linalg.norm(d, axis=1)[:, None]
+        turns = [k for k in range(1, len(v) - 1) if float(d[k - 1] @ d[k]) < 1.0 - 1e-12]
+        return [(k, float(self.project(v[k])[0])) for k in turns]
 
 
 def _build(
@@ -370,8 +370,8 @@ def _build(
             corner = k if turns[k] >= turns[k + 1] else k + 1
             raise CornerError(
                 corner,
-                f"segment {k + 1} is {length:.1f} mm long: rounding its corners with "
-                f"R {radius:g} mm needs {need:.1f} mm",
+                f"the line from point {k} to point {k + 1} is {length:.1f} mm long: rounding"
+                f" its corners with R {radius:g} mm needs {need:.1f} mm",
             )
     prims: list[tuple[int, float, FloatArray, FloatArray, FloatArray, float]] = []
     s = 0.0
@@ -402,27 +402,37 @@ def check_sensor_view(
     half_field_mm: float = SENSOR_HALF_FIELD_MM - FIELD_MARGIN_MM,
     step_mm: float = 1.0,
 ) -> None:
-    """Raise :class:`CornerError` where the sensor, at ``laser2sensor_offset`` (3,) from the
-    laser in the base frame (the tool keeps its orientation), would not see the nominal path
-    in its laser plane (normal ``stripe_normal`` (3,)) within ``half_field_mm`` across it
-    (along ``stripe_across`` (3,)): the seam would be lost there and the weld stop."""
+    """Raise :class:`CornerError` (at the corner nearest the worst place) when the sensor,
+    at ``laser2sensor_offset`` (3,) from the laser in the base frame (the tool keeps its
+    orientation), would not see the nominal path in its laser plane (normal
+    ``stripe_normal`` (3,)) within ``half_field_mm`` across it (along ``stripe_across``):
+    the seam would be lost there and the weld stop."""
     s_fine = np.arange(0.0, weld.length_mm + step_mm / 10, step_mm / 10)
     path = weld.point(s_fine)
-    corners = weld.corner_s()
+    worst, worst_s = 0.0, 0.0
     for s in np.arange(0.0, weld.length_mm + 1e-9, step_mm):
         sensor = weld.point(s) + laser2sensor_offset
         f = (path - sensor) @ stripe_normal
         cross = np.nonzero((np.sign(f[:-1]) != np.sign(f[1:])) & (s_fine[:-1] >= s))[0]
-        if not len(cross):
-            if sensor @ stripe_normal >= path[-1] @ stripe_normal:
-                return  # past the end of the path: the rest was seen already
-            lateral = math.inf
-        else:
+        if len(cross):
             lateral = abs(float((path[cross[0]] - sensor) @ stripe_across))
-        if lateral > half_field_mm:
-            at = min(corners, key=lambda c: abs(c[1] - s))[0] if corners else 0
-            raise CornerError(
-                at,
-                f"the corner turns too sharply for the sensor: it would see the seam "
-                f"{lateral:.1f} mm off the middle of its field (at most {half_field_mm:g} mm)",
-            )
+        elif sensor @ stripe_normal >= path[-1] @ stripe_normal:
+            break  # past the end of the path: the rest was seen already
+        else:
+            lateral = math.inf
+        if lateral > worst:
+            worst, worst_s = lateral, float(s)
+    if worst > half_field_mm:
+        corners = weld.corner_s()
+        at = min(corners, key=lambda c: abs(c[1] - worst_s))[0] if corners else 0
+        ahead = float(laser2sensor_offset @ weld.direction)
+        seen = (
+            "would lose the seam"
+            if math.isinf(worst)
+            else (f"would see the seam up to {worst:.1f} mm off the middle of its field")
+        )
+        raise CornerError(
+            at,
+            f"the corner turns too sharply for the sensor {ahead:.0f} mm ahead: it {seen}"
+            f" (at most {half_field_mm:g} mm)",
+        )
