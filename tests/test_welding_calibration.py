@@ -35,7 +35,7 @@ from welding.calibration import (
     spot_on_plate,
 )
 from welding.cli import main
-from welding.emulate import EmulatedSession
+from welding.emulate import EmulatedSession, run_tracking
 from welding.teach import SeamTeacher
 from welding.tools import Loc, ToolDB
 
@@ -186,11 +186,13 @@ def _taught_error(session: EmulatedSession, tool: Loc) -> float:
 
 
 def test_calibration_corrects_teaching_and_tracking() -> None:
-    """1 mm / 1 deg of sensor tool error: with the nominal tool the taught seam and the
-    tracked seam points (the weld's path under tracking) are off by more than the 0.1 mm
-    budget; with the calibrated tool the taught seam is within 0.05 mm and the tracked
-    points within 0.1 mm (their own residual: 10 µm noise and the synchronisation)."""
-    with EmulatedSession(sensor_tool_error=(1.0, 1.0, 1.0, 1.0, 1.0, 1.0), seed=5) as session:
+    """1 mm / 1 deg of sensor tool error: with the nominal tool the taught seam, the
+    tracked seam points and the tracked weld (the laser against the true seam, the sine at
+    250 mm/s) are off by more than the 0.1 mm budget; with the calibrated tool the taught
+    seam is within 0.05 mm and the tracked points and the tracked weld within 0.1 mm (their
+    own residual: 10 µm noise and the synchronisation)."""
+    error = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0)
+    with EmulatedSession(sensor_tool_error=error, seed=5) as session:
         session.sensor.take_control()
         nominal = session.cell.sensor_tool
         before = _taught_error(session, nominal), _tracked_error(session, nominal)
@@ -199,6 +201,13 @@ def test_calibration_corrects_teaching_and_tracking() -> None:
     assert min(before) > 0.1
     assert after[0] < 0.05
     assert after[1] < 0.1
+    welds = [
+        run_tracking("sine", 250.0, weld_mm=60.0, seed=3, sensor_tool_error=error, sensor_tool=t)
+        for t in (None, tool)
+    ]
+    assert all(w.stopped == "" for w in welds)
+    assert welds[0].tracking_error_max_mm > 1.0  # the weld follows the wrongly placed points
+    assert welds[1].tracking_error_max_mm <= 0.1
 
 
 def test_cli_writes_json_and_saves_the_tool(tmp_path: Path) -> None:

@@ -185,8 +185,8 @@ def _parser() -> argparse.ArgumentParser:
         p = jsub.add_parser(action, help=text, description=text)
         p.add_argument("job", metavar="JOB.xml")
         if action == "run":
-            # seam tracking (issue 13) will use the sensor during the run
-            _add_cell_options(p, sensor=True, sensor_help="; not used by a run without tracking")
+            # tracked paths trigger the sensor: its trigger endpoint (else as on the robot)
+            _add_cell_options(p, sensor=True, sensor_help="; its triggers, for tracked paths")
             p.add_argument("--dry-run", action="store_true", help="motion only, every output off")
             p.add_argument(
                 "--log",
@@ -282,6 +282,7 @@ def _parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("track", help="real-time seam tracking on the emulated cell")
     add_track_options(p)
+    _add_tools_option(p)
     return parser
 
 
@@ -402,7 +403,10 @@ def cmd_job(args: argparse.Namespace) -> int:
         return cmd_run(args)
     tables = None if args.no_tools else _read_tables(args.tools)
     job = _load_job(args.job, tables)
-    steps = plan(job, tables if tables is not None else _any_tables(job))
+    # without a database only the names are known: tracked paths' sensor view is unchecked
+    any_tables = tables is None
+    sensor_tool = None if any_tables else "sensor"
+    steps = plan(job, tables if tables is not None else _any_tables(job), sensor_tool=sensor_tool)
     if args.action == "check":
         n = len(job.sequence())
         print(f"{args.job}: ok, job {job.name!r}, {n} items to run, {len(steps)} steps")
@@ -416,6 +420,7 @@ def cmd_job(args: argparse.Namespace) -> int:
     s = steps_summary(steps)
     print(
         f"  {s.get('MoveJ', 0)} joint moves, {s.get('MoveL', 0)} linear moves, "
+        f"{s.get('Track', 0)} tracked welds, "
         f"{s.get('Output', 0)} output switches, {s.get('Dwell', 0)} dwells"
     )
     return 0
@@ -447,7 +452,7 @@ def _describe(item: J.Item) -> str:
         f"path {item.name}: {len(item.segments) - arcs} lines, {arcs} arcs, "
         f"{item.velocity:g} mm/s, laser {'on' if item.laser else 'off'} {item.power:g} W, "
         f"gas {'on' if item.gas else 'off'} (pre {item.preflow:g} s, post {item.postflow:g} s), "
-        f"crossjet {'on' if item.crossjet else 'off'}"
+        f"crossjet {'on' if item.crossjet else 'off'}" + (", tracked" if item.tracked else "")
     )
 
 
@@ -482,7 +487,7 @@ class _ProgressBar:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    with _cell(args, control=True) as cell:
+    with _cell(args, control=True, sensor=not args.emulate and args.sensor is not None) as cell:
         job = _load_job(args.job, cell.tables)
         emulated = cell.emulated is not None
         runner = JobRunner(
@@ -492,7 +497,9 @@ def cmd_run(args: argparse.Namespace) -> int:
             dwell=cell.dwell,
             on_progress=_ProgressBar(not args.no_progress),
             # tracked paths: the emulated cell's trigger endpoint and simulated clock
-            sensor_endpoint=cell.emulated.cell.udp_address if emulated else None,
+            sensor_endpoint=cell.emulated.cell.udp_address
+            if emulated
+            else (cell.sensor.get_trigger_endpoint() if cell.sensor is not None else None),
             real_time=not emulated,
         )
         try:
@@ -764,6 +771,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 def cmd_track(args: argparse.Namespace) -> int:
     from welding.emulate import cmd_track as run_track
 
+    args.sensor_tool_location = None
+    if args.sensor_tool is not None:
+        args.sensor_tool_location = _read_tables(args.tools).tool(args.sensor_tool).location
     return run_track(args)
 
 

@@ -21,7 +21,7 @@ import numpy as np
 import numpy.typing as npt
 
 from cell.cell import CellTiming, EmulatedCell
-from cell.options import add_timing_options, timing_kwargs
+from cell.options import add_timing_options, add_tool_error_options, timing_kwargs
 from kinematics.transforms import invert, location_to_transform, transform_to_location
 from robotsocket.client import RobotClient
 from sensorsocket.client import SensorClient
@@ -173,6 +173,9 @@ def run_tracking(
     sensor_silent_after_mm: float | None = None,
     measure_delta_t: bool = False,
     over_sockets: bool = False,
+    sensor_tool_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    laser_tool_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    sensor_tool: Loc | None = None,
 ) -> TrackingRun:
     """Weld ``weld_mm`` of ``seam`` (``straight|offset|sine``) at ``speed_mm_s`` on the
     simulated cell, correcting the laser every cycle from the synchronised seam points.
@@ -184,7 +187,11 @@ def run_tracking(
     the sensor's data once the laser has welded that far (a dropped sensor).
     ``over_sockets`` runs the tracker as a client of the cell's servers (AlterBegin, Alter,
     GetSeamPoints, WaitEndMove of one cycle to advance the simulated clock) instead of
-    calling the robot and the sync core in-process; the truth is the same."""
+    calling the robot and the sync core in-process; the truth is the same.
+    ``sensor_tool_error`` / ``laser_tool_error`` make the cell's true tools differ from the
+    nominal ones;
+    ``sensor_tool`` is the ^N_S T the robot computes seam points with (SetSensorTool;
+    default the nominal one), e.g. a calibrated tool."""
     if seam not in TRACK_SEAMS:
         raise ValueError(f"seam must be one of {', '.join(TRACK_SEAMS)}, got {seam!r}")
     shape, placement = TRACK_SEAMS[seam]
@@ -194,7 +201,11 @@ def run_tracking(
         seam=shape,
         workpiece_error=workpiece_error or placement,
         seed=seed,
+        sensor_tool_error=sensor_tool_error,
+        laser_tool_error=laser_tool_error,
     )
+    if sensor_tool is not None:
+        cell.core.sensor2flange = location_to_transform(np.array(sensor_tool, dtype=np.float64))
     servers = over_sockets or (measure_delta_t and delta_t_ms is None)
     if servers:
         cell.start()
@@ -431,7 +442,14 @@ def add_track_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", type=cliargs.output_file, metavar="OUT.json")
     p.add_argument("--plot", metavar="DIR", help="write track.png (needs matplotlib)")
+    p.add_argument(
+        "--sensor-tool",
+        metavar="NAME",
+        help="the sensor tool the robot computes seam points with, from the tool database "
+        "(e.g. one `calibrate sensor-tool --save NAME` wrote; default: the cell's nominal)",
+    )
     add_timing_options(p)
+    add_tool_error_options(p)
 
 
 def cmd_track(args: argparse.Namespace) -> int:
@@ -448,6 +466,9 @@ def cmd_track(args: argparse.Namespace) -> int:
         seed=args.seed,
         track=not args.untracked,
         over_sockets=True,
+        sensor_tool_error=args.sensor_tool_error,
+        laser_tool_error=args.laser_tool_error,
+        sensor_tool=args.sensor_tool_location,
     )
     data = run.summary()
     if args.json:
