@@ -153,6 +153,10 @@ class TrackingRun:
     height_max_mm: float
     nominal_error_max_mm: float  # the untracked nominal path against the same seam
     laser_on_at_end: bool
+    clock: str = "sim"
+    cycles: int = 0  # controller cycles of the move
+    corrections: int = 0  # corrections sent during it: one per cycle when the loop keeps up
+    start_on_grid: bool = True  # the cycle the move started on is known exactly
     plot: dict[str, npt.NDArray[np.float64]] = field(default_factory=dict, repr=False)
 
     def summary(self) -> dict[str, object]:
@@ -176,6 +180,7 @@ def run_tracking(
     sensor_tool_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
     laser_tool_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
     sensor_tool: Loc | None = None,
+    clock: str = "sim",
 ) -> TrackingRun:
     """Weld ``weld_mm`` of ``seam`` (``straight|offset|sine``) at ``speed_mm_s`` on the
     simulated cell, correcting the laser every cycle from the synchronised seam points.
@@ -191,12 +196,17 @@ def run_tracking(
     ``sensor_tool_error`` / ``laser_tool_error`` make the cell's true tools differ from the
     nominal ones;
     ``sensor_tool`` is the ^N_S T the robot computes seam points with (SetSensorTool;
-    default the nominal one), e.g. a calibrated tool."""
+    default the nominal one), e.g. a calibrated tool. ``clock="real"``: the cell runs on the
+    wall clock (its 4 ms cycle in a thread) and the tracker is a client of its servers that
+    waits for each cycle; a loop that stalls misses cycles (the robot holds the last
+    correction), which ``corrections`` < ``cycles`` shows."""
     if seam not in TRACK_SEAMS:
         raise ValueError(f"seam must be one of {', '.join(TRACK_SEAMS)}, got {seam!r}")
     shape, placement = TRACK_SEAMS[seam]
+    if clock == "real":
+        over_sockets = True  # the robot's clock runs by itself: only its servers reach it
     cell = EmulatedCell(
-        clock="sim",
+        clock=clock,
         timing=timing or CellTiming(),
         seam=shape,
         workpiece_error=workpiece_error or placement,
@@ -263,7 +273,7 @@ def _track_on(
     if over_sockets:
         client = FramedClient(*cell.robot_address, timeout=10.0, client_name="track")
         client.take_control()
-        link = RobotLink(client, cell.udp_address, period=period)
+        link = RobotLink(client, cell.udp_address, period=period, real_time=cell.clock == "real")
     try:
         dt = link.delta_t()  # the ΔT in force (GetSyncConfig)
         laser_tool = cell.laser_tool
@@ -281,7 +291,8 @@ def _track_on(
         )
         tracker = Tracker(weld, look_ahead)
         plan = TrackedWeld(tracker, laser_tool, look_ahead, look_ahead + weld_mm, rate_hz, track)
-        stopped = weld_tracked(link, plan, sensor_silent_after_mm=sensor_silent_after_mm).stopped
+        outcome = weld_tracked(link, plan, sensor_silent_after_mm=sensor_silent_after_mm)
+        stopped = outcome.stopped
         laser_on_at_end = robot.read_io("laser")[0]
     finally:
         if over_sockets:
@@ -312,6 +323,10 @@ def _track_on(
         height_max_mm=float(np.abs(hgt).max()) if len(hgt) else math.nan,
         nominal_error_max_mm=float(np.abs(n_lat).max()) if len(n_lat) else math.nan,
         laser_on_at_end=laser_on_at_end,
+        clock=cell.clock,
+        cycles=outcome.cycles,
+        corrections=outcome.corrections,
+        start_on_grid=outcome.start_on_grid,
         plot={
             "laser": _to_w(laser_pts, b2w),
             "nominal": _to_w(laser_pts - corr, b2w),
@@ -422,7 +437,7 @@ def add_track_options(p: argparse.ArgumentParser) -> None:
         "--emulate",
         action="store_true",
         required=True,
-        help="track on the in-process emulated cell (simulated clock); required",
+        help="track on an in-process emulated cell (--clock: simulated or real); required",
     )
     p.add_argument("--seam", choices=tuple(TRACK_SEAMS), default="sine")
     p.add_argument("--speed", type=cliargs.number_in(1.0, 500.0), default=250.0, help="mm/s")
@@ -440,6 +455,13 @@ def add_track_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rate", type=cliargs.number_in(10.0, 1000.0), default=200.0, help="Hz")
     p.add_argument("--untracked", action="store_true", help="weld the nominal path (baseline)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--clock",
+        choices=("sim", "real"),
+        default="sim",
+        help="sim: the cell's simulated clock (deterministic); real: its 4 ms cycle on the "
+        "wall clock, the tracker a client that keeps pace (default %(default)s)",
+    )
     p.add_argument("--json", type=cliargs.output_file, metavar="OUT.json")
     p.add_argument("--plot", metavar="DIR", help="write track.png (needs matplotlib)")
     p.add_argument(
@@ -469,6 +491,7 @@ def cmd_track(args: argparse.Namespace) -> int:
         sensor_tool_error=args.sensor_tool_error,
         laser_tool_error=args.laser_tool_error,
         sensor_tool=args.sensor_tool_location,
+        clock=args.clock,
     )
     data = run.summary()
     if args.json:
@@ -482,6 +505,11 @@ def cmd_track(args: argparse.Namespace) -> int:
         f"(nominal path {run.nominal_error_max_mm:.3f} mm)"
         + (f"; STOPPED: {run.stopped}" if run.stopped else "")
     )
+    if run.clock == "real":
+        print(
+            f"real clock: {run.corrections} corrections in {run.cycles} cycles of the move"
+            + ("" if run.start_on_grid else "; the move's start cycle was not known exactly")
+        )
     return 1 if run.stopped else 0
 
 

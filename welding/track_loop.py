@@ -16,6 +16,7 @@ reset (the arm stops along its path), and the reason is returned.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from dataclasses import dataclass
@@ -24,6 +25,7 @@ from typing import Protocol
 import numpy as np
 import numpy.typing as npt
 
+from spec.errors import RemoteError
 from spec.params import IDENTITY_LOCATION, FloatArray, Location, Matrix, Value
 from spec.registry import CommandId
 from welding.tools import Loc
@@ -135,7 +137,13 @@ def weld_tracked(
                 stopped = str(exc)
                 break
         # past the weld's end the seam no longer matters: the last correction is held
-        link.alter(held)
+        try:
+            link.alter(held)
+        except RemoteError as exc:  # the robot ended alter mode: a stream it found silent
+            link.set_laser(False)
+            link.reset_motion()
+            stopped = f"the robot refused the correction: {exc}"
+            break
         corrections += 1
         want_on = weld.laser and weld.laser_from_mm <= s <= weld.laser_to_mm
         if want_on != laser_on:
@@ -168,6 +176,8 @@ class RobotLink:
         self.sensor_endpoint = sensor_endpoint
         self.period = period
         self.real_time = real_time
+        self._offset = 0.0  # robot time - local monotonic time (real clock)
+        self._end = -math.inf  # robot time the queued move's law ends (real clock)
 
     def _call(self, command: CommandId, *params: Value) -> tuple[Value, ...]:
         return self.client.call(command, *params)
@@ -186,11 +196,31 @@ class RobotLink:
             self._call(CommandId.SET_SENSOR_ENDPOINT, *self.sensor_endpoint)
         first = self._call(CommandId.START_TRIGGERS, float(rate_hz), 0)[0]
         self._call(CommandId.ALTER_BEGIN, Location(*tool), 0.1)
+        if self.real_time:
+            self._sync_clock()
         assert isinstance(first, int)
         return first
 
     def time(self) -> float:
+        if self.real_time:
+            return time.monotonic() + self._offset
+        return self._robot_time()
+
+    def _robot_time(self) -> float:
         return float(self._call(CommandId.GET_TIME)[0])  # type: ignore[arg-type]
+
+    def _sync_clock(self) -> None:
+        """Real clock: the robot's time as the local monotonic clock plus an offset, taken
+        from the GetTime of the shortest of a few round trips (its middle); one round trip
+        per cycle less, and a stalled reply no longer shifts the time the loop works with."""
+        best = math.inf
+        for _ in range(5):
+            t0 = time.monotonic()
+            robot = self._robot_time()
+            t1 = time.monotonic()
+            if t1 - t0 < best:
+                best = t1 - t0
+                self._offset = robot - (t0 + t1) / 2.0
 
     def _cycle_of(self, t: float) -> int:
         return math.floor(t / self.period + 1e-9)
@@ -213,17 +243,20 @@ class RobotLink:
         if not self.real_time:
             self._call(CommandId.WAIT_END_MOVE, self.period)
             return
-        # wait for the next cycle on the robot's clock (a deadline, not a guess: the time
-        # is read back from the robot), a little after it so the cycle has run
-        t = self.time()
-        wait = (self._cycle_of(t) + 1) * self.period - t + 0.0003
+        # wait for the next cycle on the robot's clock (a deadline on it, not a guess), a
+        # little after it so the cycle has run
+        wait = self.next_cycle() + 0.0003 - self.time()
         deadline = time.monotonic() + wait
         while (left := deadline - time.monotonic()) > 0:
             time.sleep(left)
 
     def move(self, times: Array, locs: Array, tool: Loc) -> tuple[float, bool]:
-        """Queue the timed path; (the robot time its law starts at, known exactly). The
-        robot starts a queued move's law at the cycle during which it was queued."""
+        """Queue the timed path; (the robot time its law starts at, whether that is
+        certain). The robot starts a queued move's law at the cycle during which it queued
+        it; on the real clock that is the cycle the request was sent in, certain when the
+        reply came within it (a long path takes the robot longer to plan)."""
+        if self.real_time:
+            self.step()  # sent just after a cycle starts: the robot queues it in that cycle
         before = self.time()
         self._call(
             CommandId.TOOL_MOVE_TRAJECTORY,
@@ -236,9 +269,12 @@ class RobotLink:
             return before, True  # the simulated clock did not move meanwhile
         after = self.time()
         k = self._cycle_of(before)
+        self._end = k * self.period + float(times[-1])
         return k * self.period, k == self._cycle_of(after)
 
     def queued(self) -> int:
+        if self.real_time and self.time() < self._end:
+            return 1  # the move runs until its law ends: no round trip to ask
         return int(self._call(CommandId.ROBOT_STATUS)[3])  # type: ignore[arg-type]
 
     def set_laser(self, on: bool) -> None:
@@ -251,7 +287,9 @@ class RobotLink:
         self._call(CommandId.STOP_TRIGGERS)
 
     def finish(self) -> None:
-        self._call(CommandId.ALTER_END)
+        # alter mode may have ended already (the robot stopped a stream that went silent)
+        with contextlib.suppress(RemoteError):
+            self._call(CommandId.ALTER_END)
         self._call(CommandId.STOP_TRIGGERS)
         self._call(CommandId.WAIT_END_MOVE, 5.0)
 
