@@ -109,48 +109,48 @@ def weld_tracked(
 
     # points of earlier runs (the ΔT measurement, another weld) are not this seam's
     last_index = link.start(weld.laser_tool, weld.rate_hz) - 1
-    # the arm stands still while the sensor measures the seam's start and the laser is
-    # brought onto it
-    t0 = link.time() + weld.settle_s
-    while link.time() < t0 - 1e-9:
-        fetch()
-        ready = track and tracker.model.count >= MIN_FIT_POINTS
-        link.alter(tracker.correction(0.0) if ready else np.zeros(6))
-        link.step()
-    times, locs = nominal.timed_path(period)
-    t0, on_grid = link.move(times, locs, weld.laser_tool)  # the law's start, a cycle time
+    t0 = link.time()
+    on_grid = False
     corrections = 0
-    held = np.zeros(6)
-    while link.queued():
-        fetch()
-        t_move = link.next_cycle() - t0  # the correction applies at the next cycle
-        s = float(nominal.s_at(t_move))
-        if sensor_silent_after_mm is not None and s > weld.laser_from_mm + sensor_silent_after_mm:
-            link.stop_triggers()  # no more seam points: the sensor has dropped out
-        if s <= weld.laser_to_mm:
-            try:
+    try:
+        # the arm stands still while the sensor measures the seam's start and the laser is
+        # brought onto it
+        t_go = t0 + weld.settle_s
+        while link.time() < t_go - 1e-9:
+            fetch()
+            ready = track and tracker.model.count >= MIN_FIT_POINTS
+            link.alter(tracker.correction(0.0) if ready else np.zeros(6))
+            link.step()
+        times, locs = nominal.timed_path(period)
+        t0, on_grid = link.move(times, locs, weld.laser_tool)  # the law's start, a cycle
+        held = np.zeros(6)
+        while link.queued():
+            fetch()
+            t_move = link.next_cycle() - t0  # the correction applies at the next cycle
+            s = float(nominal.s_at(t_move))
+            if (
+                sensor_silent_after_mm is not None
+                and s > weld.laser_from_mm + sensor_silent_after_mm
+            ):
+                link.stop_triggers()  # no more seam points: the sensor has dropped out
+            if s <= weld.laser_to_mm:
                 held = tracker.correction(t_move) if track else np.zeros(6)
-            except TrackingError as exc:
-                # safe stop: laser off first, then the arm stops along its path
-                link.set_laser(False)
-                link.reset_motion()
-                stopped = str(exc)
-                break
-        # past the weld's end the seam no longer matters: the last correction is held
-        try:
+            # past the weld's end the seam no longer matters: the last correction is held
             link.alter(held)
-        except RemoteError as exc:  # the robot ended alter mode: a stream it found silent
-            link.set_laser(False)
-            link.reset_motion()
-            stopped = f"the robot refused the correction: {exc}"
-            break
-        corrections += 1
-        want_on = weld.laser and weld.laser_from_mm <= s <= weld.laser_to_mm
-        if want_on != laser_on:
-            link.set_laser(want_on)
-            laser_on = want_on
-        link.step()
-    if laser_on and not stopped:
+            corrections += 1
+            want_on = weld.laser and weld.laser_from_mm <= s <= weld.laser_to_mm
+            if want_on != laser_on:
+                link.set_laser(want_on)
+                laser_on = want_on
+            link.step()
+    except (TrackingError, RemoteError) as exc:
+        # the seam is lost, or the robot refused a correction (it ends alter mode when the
+        # stream goes silent): laser off first, then the arm stops along its path
+        link.set_laser(False)
+        link.reset_motion()
+        laser_on = False
+        stopped = str(exc) if isinstance(exc, TrackingError) else f"the robot refused: {exc}"
+    if laser_on:
         link.set_laser(False)
     cycles = round((link.time() - t0) / period)
     link.finish()
