@@ -189,3 +189,48 @@ def test_track_refuses_bad_options(bad: list[str], capsys: pytest.CaptureFixture
         main(argv)
     assert exc.value.code == 2
     assert "error" in capsys.readouterr().err
+
+
+def _tracked_job(name: str, *points: tuple[float, float]) -> None:
+    def loc(tag: str, x: float, y: float) -> str:
+        return (f'<{tag} tool="laser" frame="workpiece" x="{x}" y="{y}" z="0" rx="180" '
+                'ry="0" rz="0"/>')  # fmt: skip
+
+    (x0, y0), *rest = points
+    lines = "".join(loc("line", x, y) for x, y in rest)
+    Path(name).write_text(
+        f'<job name="t" version="1"><path name="seam" velocity="100" tracked="on">'
+        f"{loc('start', x0, y0)}{lines}</path></job>\n"
+    )
+
+
+def test_tracked_job_checked_shown_and_run(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["status", "--emulate"]) == 0  # the cell's tools into the database
+    _tracked_job("ok.xml", (0, 0), (100, 0))
+    _tracked_job("sharp.xml", (0, 0), (60, 0), (100, 30))
+    capsys.readouterr()
+    assert main(["job", "check", "sharp.xml"]) == 1
+    assert "point 2 of the path: the corner turns too sharply" in capsys.readouterr().err
+    assert main(["job", "show", "ok.xml"]) == 0
+    assert "tracked" in capsys.readouterr().out
+    argv = ["job", "run", "ok.xml", "--emulate", "--log", "log.json", "--no-progress"]
+    assert main(argv) == 0
+    log = json.loads(Path("log.json").read_text())
+    (tracked,) = [e for e in log["entries"] if e["event"] == "tracked"]
+    assert tracked["corrections"] == tracked["cycles"] > 250  # 140 mm at 100 mm/s
+
+
+def test_track_on_the_real_clock_reports_its_cycles() -> None:
+    # timing is not asserted (a shared machine): only that it runs, reports and ends safely
+    argv = ["track", "--emulate", "--clock", "real", "--true-delta-t", "--speed", "100",
+            "--length", "20", "--json", "rt.json"]  # fmt: skip
+    assert main(argv) in (0, 1)  # 1: the weld stopped (the loop stalled); the laser is off
+    data = json.loads(Path("rt.json").read_text())
+    assert data["clock"] == "real" and data["cycles"] > 0
+    assert 0 <= data["corrections"] <= data["cycles"] + 1
+    assert data["laser_on_at_end"] is False
+
+
+def test_track_with_an_unknown_sensor_tool(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["track", "--emulate", "--sensor-tool", "nope"]) == 1
+    assert "no tool named 'nope'" in capsys.readouterr().err
