@@ -58,7 +58,7 @@ EXIT_USAGE = 2
 EXIT_UNREACHABLE = 3
 EXIT_INTERRUPTED = 130
 DEFAULT_TOOLS = "welding-tools.json"
-SEAMS = ("straight", "sine", "corner")
+SEAMS = ("straight", "sine", "corner", "jog")
 
 
 class CliError(Exception):
