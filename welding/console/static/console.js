@@ -257,7 +257,7 @@ function drawPlot(canvas, pts, marks, xlabel, ylabel) {
   ctx.fillText(`${xlabel} ${x0.toFixed(1)}…${x1.toFixed(1)} mm`, 4, H - 4);
   ctx.fillText(`${ylabel} ${y0.toFixed(1)}…${y1.toFixed(1)} mm`, 4, 12);
   ctx.fillStyle = "#1565c0";
-  for (const [x, y] of pts) ctx.fillRect(X(x) - 1.5, Y(y) - 1.5, 3, 3);
+  for (const [x, y] of pts) ctx.fillRect(X(x) - 2.5, Y(y) - 2.5, 5, 5);
   ctx.strokeStyle = "#d50000"; ctx.lineWidth = 2;
   for (const [x, y] of marks) { ctx.beginPath(); ctx.arc(X(x), Y(y), 6, 0, 2 * Math.PI); ctx.stroke(); }
 }
