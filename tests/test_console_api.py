@@ -146,6 +146,7 @@ def test_status_stream_updates_and_refusals_before_control(env: Any) -> None:
         ("POST", "/api/jobs/demo.xml/run", {"dry_run": True}, 409, "take control"),
         ("POST", "/api/abort", {}, 409, "nothing is running"),
         ("POST", "/api/teach", {}, 409, "take control"),
+        ("POST", "/api/delta-t", {}, 409, "take control"),
     ],
 )
 def test_bad_requests_get_a_clear_error(
@@ -266,6 +267,13 @@ def test_estop_gets_through_and_stops(env: Any) -> None:
         assert not s["jogging"]
     assert call(client, "POST", "/api/estop/reset").status_code == 200
     wait_for(client, lambda s: not s["estop"])
+
+
+def test_delta_t_settings_are_checked(env: Any) -> None:
+    client, _, _ = env
+    _power_on(client)
+    r = call(client, "POST", "/api/delta-t", {"frequency": 100})
+    assert r.status_code == 400 and "frequency: 100 is outside 0.1..10" in r.json()["error"]
 
 
 def test_teaching_shows_points_and_save_as(env: Any, tmp_path: Path) -> None:

@@ -2,7 +2,8 @@
 ``python -m welding console --emulate`` run as a subprocess. One operator session, step by
 step: status updates, take control and power on (with confirmation), jog moves the arm,
 E-stop stops it, a job is edited, saved and dry-run, the arm moves to a named location, a
-teaching run shows its points. Screenshots of each page go to docs/console/."""
+teaching run shows its points, a ΔT measurement shows Figs. 6 and 7. Screenshots of each
+page go to docs/console/."""
 
 from __future__ import annotations
 
@@ -192,6 +193,15 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             expect(page.locator("#teach-info")).to_have_attribute("data-state", "done")
             assert int(page.locator("#teach-info").get_attribute("data-count") or 0) >= 3
             _shot(page, "teach")
+
+            # ΔT (section VI) from where teaching ended, the seam in view: Figs. 6 and 7
+            page.locator("nav a[data-page=deltat]").click()
+            page.locator("#dt-duration").fill("3")
+            page.locator("#dt-start").click()
+            _confirm(page)
+            expect(page.locator("#dt-info")).to_have_attribute("data-state", "done", timeout=30_000)
+            expect(page.locator("#dt-result")).to_contain_text(re.compile(r"ΔT\s*\d+\.\d+ ms"))
+            _shot(page, "deltat")
 
             # tools and frames: add one through the table, a bad one is refused
             page.locator("nav a[data-page=tools]").click()

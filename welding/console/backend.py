@@ -70,7 +70,7 @@ class ConsoleError(Exception):
 class Activity:
     """A long-running action (job run or teaching) the status stream reports."""
 
-    kind: str  # "job" | "teach"
+    kind: str  # "job" | "teach" | "delta_t"
     state: str = "running"  # running | done | aborted | failed
     message: str = ""
     detail: dict[str, Any] = field(default_factory=dict)
@@ -131,6 +131,7 @@ class Console:
         self._lock = threading.Lock()  # guards jog, activity, selections
         self._jog: Jog | None = None
         self.activity: Activity | None = None
+        self.delta_t_result: dict[str, Any] | None = None
         self._selections: dict[int, tuple[str, str]] = {}
         self._snapshot: dict[str, Any] = {"seq": 0, "connected": False}
         self._seq = 0
@@ -652,6 +653,56 @@ class Console:
             except Exception as exc:  # reported to the operator, never a dead thread
                 act.state, act.message = "failed", str(exc)
                 log.exception("teaching")
+
+        self._start(act, work)
+
+    # --- ΔT (section VI) ---------------------------------------------------------------------
+
+    def delta_t(self, body: Any) -> None:
+        """Run the ΔT measurement: a sine perpendicular to the seam, from where the arm is (the
+        seam in the middle of the sensor's view, as in the paper)."""
+        from sync.experiment import ExperimentError, ExperimentSettings, analyse, record_sine
+        from welding.console.deltat import result_json
+
+        self._need_control()
+        if self.sensor is None:
+            raise ConsoleError("the ΔT measurement needs the sensor", 409)
+        b = body if isinstance(body, dict) else {}
+        settings = ExperimentSettings(
+            frequency_hz=_num(b.get("frequency", 1.5), "frequency", 0.1, 10.0),
+            amplitude_mm=_num(b.get("amplitude", 2.0), "amplitude", 0.1, 5.0),
+            duration_s=_num(b.get("duration", 5.0), "duration", 1.0, 30.0),
+            token=self.token,
+        )
+        act = Activity("delta_t", detail={"fraction": 0.0})
+        cancelled = threading.Event()
+        sensor = self.sensor
+
+        def progress(fraction: float, text: str) -> None:
+            if cancelled.is_set():
+                raise ExperimentError("cancelled by the operator")
+            act.detail["fraction"] = round(fraction, 3)
+
+        act.cancel = cancelled.set
+
+        def work() -> None:
+            try:
+                data = record_sine(self.control, sensor, settings, progress)
+                result = result_json(analyse(data, settings))
+                self.delta_t_result = result
+                act.detail.update(
+                    fraction=1.0,
+                    delta_t_ms=result["delta_t_ms"],
+                    trusted=result["trusted"],
+                )
+                act.state, act.message = "done", "; ".join(result["reasons"])
+            except Exception as exc:  # reported to the operator, never a dead thread
+                act.state = "aborted" if cancelled.is_set() else "failed"
+                act.message = str(exc)
+                try:
+                    self.control.reset_motion()
+                except (OSError, ProtocolError, RemoteError):
+                    pass
 
         self._start(act, work)
 

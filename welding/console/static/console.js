@@ -50,6 +50,7 @@ function showPage() {
   if (page === "tools") loadTools();
   if (page === "jobs") loadJobs();
   if (page === "sensor") loadSettings();
+  if (page === "deltat") loadDeltaT().catch(() => {});
 }
 window.addEventListener("hashchange", showPage);
 
@@ -433,6 +434,15 @@ function showActivity(a) {
       const current = a.state === "running" ? a.order[a.index] : null;
       $("job-items").querySelectorAll("tr[data-item]").forEach((tr) => tr.classList.toggle("current", tr.dataset.item === current));
     }
+  } else if (a.kind === "delta_t") {
+    $("dt-info").textContent = a.state === "running"
+      ? `running: ${Math.round(100 * a.fraction)} %`
+      : `${a.state}${a.message ? ": " + a.message : ""}`;
+    $("dt-info").dataset.state = a.state;
+    if (a.state === "done" && $("dt-info").dataset.shown !== String(a.delta_t_ms)) {
+      $("dt-info").dataset.shown = String(a.delta_t_ms);
+      loadDeltaT();
+    }
   } else if (a.kind === "teach") {
     $("teach-info").textContent = `${a.count} points, ${a.state}${a.message ? ": " + a.message : ""}`;
     $("teach-info").dataset.state = a.state;
@@ -448,6 +458,60 @@ $("teach-start").onclick = async () => {
   });
   say("teaching started");
 };
+
+// --- ΔT ------------------------------------------------------------------------------------
+
+function drawXY(canvas, series, xlabel, ylabel, vline) {
+  const ctx = canvas.getContext("2d");
+  const W = canvas.width, H = canvas.height, m = 40;
+  ctx.clearRect(0, 0, W, H);
+  const all = series.flatMap((s) => s.pts);
+  if (!all.length) return;
+  let [x0, x1, y0, y1] = [Infinity, -Infinity, Infinity, -Infinity];
+  for (const [x, y] of all) { x0 = Math.min(x0, x); x1 = Math.max(x1, x); y0 = Math.min(y0, y); y1 = Math.max(y1, y); }
+  if (x1 === x0) x1 = x0 + 1;
+  if (y1 === y0) y1 = y0 + 1;
+  const X = (x) => m + ((x - x0) / (x1 - x0)) * (W - 1.5 * m);
+  const Y = (y) => H - m + ((y0 - y) / (y1 - y0)) * (H - 1.5 * m);
+  ctx.strokeStyle = "#999"; ctx.lineWidth = 1;
+  ctx.strokeRect(m, m / 2, W - 1.5 * m, H - 1.5 * m);
+  ctx.fillStyle = "#333"; ctx.font = "11px sans-serif";
+  ctx.fillText(`${xlabel}: ${x0.toPrecision(4)} … ${x1.toPrecision(4)}`, m, H - 8);
+  ctx.fillText(`${ylabel}: ${y0.toPrecision(4)} … ${y1.toPrecision(4)}`, m, 12);
+  for (const s of series) {
+    ctx.strokeStyle = s.color; ctx.lineWidth = 1.2;
+    ctx.beginPath();
+    s.pts.forEach(([x, y], i) => (i ? ctx.lineTo(X(x), Y(y)) : ctx.moveTo(X(x), Y(y))));
+    ctx.stroke();
+  }
+  if (vline !== undefined) {
+    ctx.strokeStyle = "#d50000"; ctx.beginPath(); ctx.moveTo(X(vline), m / 2); ctx.lineTo(X(vline), H - m); ctx.stroke();
+  }
+}
+
+async function loadDeltaT() {
+  const { result } = await api("GET", "/api/delta-t");
+  if (!result) return;
+  const rows = [
+    ["ΔT", `${result.delta_t_ms.toFixed(3)} ms`],
+    ["trusted", result.trusted ? "yes" : `NO: ${result.reasons.join("; ")}`],
+    ["residual (synchronised)", `max ${result.residual_max_um.toFixed(1)} µm, rms ${result.residual_rms_um.toFixed(1)} µm`],
+    ["residual (ΔT = 0)", `max ${result.unsynced_max_um.toFixed(1)} µm, rms ${result.unsynced_rms_um.toFixed(1)} µm`],
+    ["readings", `${result.n_robot} joint samples, ${result.n_sensor} seam points`],
+  ];
+  $("dt-result").innerHTML = rows.map(([k, v]) => `<tr><th>${k}</th><td>${v}</td></tr>`).join("");
+  drawXY($("dt-fig6"), [{ pts: result.fig6.robot, color: "#1565c0" }, { pts: result.fig6.sensor, color: "#d50000" }], "t (s)", "y (mm)");
+  drawXY($("dt-fig7"), [{ pts: result.fig7, color: "#1565c0" }], "ΔT (ms)", "MSE (µm²)", result.delta_t_ms);
+}
+
+$("dt-start").onclick = async () => {
+  if (!(await confirmAction("Measure ΔT? The arm moves in a sine across the seam."))) return;
+  await api("POST", "/api/delta-t", {
+    frequency: Number($("dt-frequency").value), amplitude: Number($("dt-amplitude").value), duration: Number($("dt-duration").value),
+  });
+  say("ΔT measurement started");
+};
+$("dt-abort").onclick = async () => { await api("POST", "/api/abort"); say("abort sent"); };
 
 // --- start ---------------------------------------------------------------------------------
 
