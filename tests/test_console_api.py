@@ -147,6 +147,7 @@ def test_status_stream_updates_and_refusals_before_control(env: Any) -> None:
         ("POST", "/api/abort", {}, 409, "nothing is running"),
         ("POST", "/api/teach", {}, 409, "take control"),
         ("POST", "/api/delta-t", {}, 409, "take control"),
+        ("POST", "/api/calibrate", {}, 409, "take control"),
     ],
 )
 def test_bad_requests_get_a_clear_error(
@@ -269,11 +270,15 @@ def test_estop_gets_through_and_stops(env: Any) -> None:
     wait_for(client, lambda s: not s["estop"])
 
 
-def test_delta_t_settings_are_checked(env: Any) -> None:
+def test_measurement_settings_are_checked(env: Any) -> None:
     client, _, _ = env
     _power_on(client)
     r = call(client, "POST", "/api/delta-t", {"frequency": 100})
     assert r.status_code == 400 and "frequency: 100 is outside 0.1..10" in r.json()["error"]
+    r = call(client, "POST", "/api/calibrate", {"poses": 3})
+    assert r.status_code == 400 and "poses: 3 is outside 8..30" in r.json()["error"]
+    r = call(client, "POST", "/api/calibrate", {"tool": "nosuch"})
+    assert r.status_code == 400 and "nosuch" in r.json()["error"]
 
 
 def test_teaching_shows_points_and_save_as(env: Any, tmp_path: Path) -> None:

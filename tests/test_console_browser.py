@@ -2,8 +2,8 @@
 ``python -m welding console --emulate`` run as a subprocess. One operator session, step by
 step: status updates, take control and power on (with confirmation), jog moves the arm,
 E-stop stops it, a job is edited, saved and dry-run, the arm moves to a named location, a
-teaching run shows its points, a ΔT measurement shows Figs. 6 and 7. Screenshots of each
-page go to docs/console/."""
+teaching run shows its points, a calibration its result, a ΔT measurement Figs. 6 and 7.
+Screenshots of each page go to docs/console/."""
 
 from __future__ import annotations
 
@@ -193,6 +193,27 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             expect(page.locator("#teach-info")).to_have_attribute("data-state", "done")
             assert int(page.locator("#teach-info").get_attribute("data-count") or 0) >= 3
             _shot(page, "teach")
+
+            # sensor tool calibration from where teaching ended (over the straight seam). A
+            # short run on the real-time cell may be refused as too uncertain: the page must
+            # then say why; a result can be saved into the tool database.
+            page.locator("nav a[data-page=calibration]").click()
+            page.locator("#cal-poses").fill("10")
+            page.locator("#cal-repeats").fill("4")
+            page.locator("#cal-start").click()
+            _confirm(page)
+            expect(page.locator("#cal-info")).to_have_attribute(
+                "data-state", re.compile("done|failed"), timeout=30_000
+            )
+            if page.locator("#cal-info").get_attribute("data-state") == "done":
+                expect(page.locator("#cal-result")).to_contain_text("± 1σ")
+                page.locator("#cal-save").click()
+                expect(page.locator("#message")).to_have_text(
+                    "sensor_cal saved in the tool database"
+                )
+            else:
+                expect(page.locator("#cal-info")).to_contain_text("is uncertain by")
+            _shot(page, "calibration")
 
             # ΔT (section VI) from where teaching ended, the seam in view: Figs. 6 and 7
             page.locator("nav a[data-page=deltat]").click()

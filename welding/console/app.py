@@ -184,7 +184,10 @@ def create_app(console: Console) -> Starlette:
         Route("/api/abort", _api(lambda r, b: console.abort()), methods=post),
         Route("/api/teach", _api(lambda r, b: console.teach(b)), methods=post),
         Route("/api/delta-t", _api(lambda r, b: console.delta_t(b)), methods=post),
-        Route("/api/delta-t", _api(lambda r, b: {"result": console.delta_t_result})),
+        Route("/api/calibrate", _api(lambda r, b: console.calibrate(b)), methods=post),
+        Route(
+            "/api/result/{kind}", _api(lambda r, b: {"result": console.results.get(p(r, "kind"))})
+        ),
         Route("/api/sensor/frame", frame),
         Route("/api/sensor/settings", _api(lambda r, b: console.sensor_settings())),
         Route(

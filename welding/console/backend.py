@@ -70,7 +70,7 @@ class ConsoleError(Exception):
 class Activity:
     """A long-running action (job run or teaching) the status stream reports."""
 
-    kind: str  # "job" | "teach" | "delta_t"
+    kind: str  # "job" | "teach" | "delta_t" | "calibration"
     state: str = "running"  # running | done | aborted | failed
     message: str = ""
     detail: dict[str, Any] = field(default_factory=dict)
@@ -131,7 +131,9 @@ class Console:
         self._lock = threading.Lock()  # guards jog, activity, selections
         self._jog: Jog | None = None
         self.activity: Activity | None = None
-        self.delta_t_result: dict[str, Any] | None = None
+        #: The last result of each measurement ("delta_t", "calibration"), served on its own
+        #: (large for the status stream, which goes out 20 times a second).
+        self.results: dict[str, dict[str, Any]] = {}
         self._selections: dict[int, tuple[str, str]] = {}
         self._snapshot: dict[str, Any] = {"seq": 0, "connected": False}
         self._seq = 0
@@ -689,13 +691,67 @@ class Console:
             try:
                 data = record_sine(self.control, sensor, settings, progress)
                 result = result_json(analyse(data, settings))
-                self.delta_t_result = result
+                self.results["delta_t"] = result
                 act.detail.update(
                     fraction=1.0,
                     delta_t_ms=result["delta_t_ms"],
                     trusted=result["trusted"],
                 )
                 act.state, act.message = "done", "; ".join(result["reasons"])
+            except Exception as exc:  # reported to the operator, never a dead thread
+                act.state = "aborted" if cancelled.is_set() else "failed"
+                act.message = str(exc)
+                try:
+                    self.control.reset_motion()
+                except (OSError, ProtocolError, RemoteError):
+                    pass
+
+        self._start(act, work)
+
+    # --- sensor tool calibration --------------------------------------------------------------
+
+    def calibrate(self, body: Any) -> None:
+        """The sensor tool calibration (:class:`~welding.calibration.SensorToolCalibration`)
+        from where the arm is, the sensor over a straight seam; the estimate with its 1σ."""
+        from welding.calibration import CalibrationError, SensorToolCalibration
+
+        self._need_control()
+        if self.sensor is None or not self.sensor_in_control:
+            raise ConsoleError("the calibration needs the sensor (and its control)", 409)
+        b = body if isinstance(body, dict) else {}
+        poses = int(_num(b.get("poses", 30), "poses", 8, 30))
+        repeats = int(_num(b.get("repeats", 16), "repeats", 1, 64))
+        name = str(b.get("tool", "sensor"))
+        try:
+            nominal = self.tables().tool(name)
+        except ToolDBError as exc:
+            raise ConsoleError(str(exc)) from None
+        act = Activity("calibration", detail={"measurements": 0})
+        cancelled = threading.Event()
+        sensor = self.sensor
+
+        class Watched:
+            """The sensor, counting acquisitions for the page and stopping on abort."""
+
+            def acquire(self) -> int:
+                if cancelled.is_set():
+                    raise CalibrationError("cancelled by the operator")
+                act.detail["measurements"] += 1
+                return sensor.acquire()
+
+            def get_data(self) -> Any:
+                return sensor.get_data()
+
+        cal = SensorToolCalibration(
+            self.control, Watched(), nominal.location, poses=poses, repeats=repeats
+        )
+        act.cancel = cancelled.set
+
+        def work() -> None:
+            try:
+                est = cal.run()
+                self.results["calibration"] = est.to_json() | {"nominal_tool": nominal.name}
+                act.state, act.message = "done", f"residual rms {est.residual_rms_mm * 1e3:.1f} µm"
             except Exception as exc:  # reported to the operator, never a dead thread
                 act.state = "aborted" if cancelled.is_set() else "failed"
                 act.message = str(exc)

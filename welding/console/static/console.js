@@ -51,6 +51,7 @@ function showPage() {
   if (page === "jobs") loadJobs();
   if (page === "sensor") loadSettings();
   if (page === "deltat") loadDeltaT().catch(() => {});
+  if (page === "calibration") loadCalibration().catch(() => {});
 }
 window.addEventListener("hashchange", showPage);
 
@@ -434,6 +435,13 @@ function showActivity(a) {
       const current = a.state === "running" ? a.order[a.index] : null;
       $("job-items").querySelectorAll("tr[data-item]").forEach((tr) => tr.classList.toggle("current", tr.dataset.item === current));
     }
+  } else if (a.kind === "calibration") {
+    $("cal-info").textContent = `${a.measurements} measurements, ${a.state}${a.message ? ": " + a.message : ""}`;
+    $("cal-info").dataset.state = a.state;
+    if (a.state === "done" && $("cal-info").dataset.shown !== a.message) {
+      $("cal-info").dataset.shown = a.message;
+      loadCalibration();
+    }
   } else if (a.kind === "delta_t") {
     $("dt-info").textContent = a.state === "running"
       ? `running: ${Math.round(100 * a.fraction)} %`
@@ -457,6 +465,42 @@ $("teach-start").onclick = async () => {
     step: Number($("teach-step").value), length: Number($("teach-length").value), speed: Number($("teach-speed").value),
   });
   say("teaching started");
+};
+
+// --- calibration ---------------------------------------------------------------------------
+
+let calibrated = null;
+async function loadCalibration() {
+  const { result } = await api("GET", "/api/result/calibration");
+  if (!result) return;
+  calibrated = result;
+  const names = ["x", "y", "z", "rx", "ry", "rz"];
+  const head = `<tr><th></th>${names.map((n) => `<th>${n}</th>`).join("")}</tr>`;
+  const row = (label, vals, digits) => `<tr><th>${label}</th>${vals.map((v) => `<td>${v === null ? "–" : v.toFixed(digits)}</td>`).join("")}</tr>`;
+  $("cal-result").innerHTML = head + row(`nominal (${result.nominal_tool})`, result.nominal, 3) +
+    row("estimate", result.tool, 4) + row("± 1σ", names.map((n) => result.uncertainty[n]), 4) +
+    `<tr><th>residual</th><td colspan="6">rms ${(result.residual_rms_mm * 1e3).toFixed(1)} µm, max ${(result.residual_max_mm * 1e3).toFixed(1)} µm, ${result.poses} poses, ${result.measurements} measurements</td></tr>`;
+  drawXY($("cal-plot"), [{ pts: result.residuals_mm.map((r, i) => [i, r]), color: "#1565c0" }], "measurement", "residual (mm)");
+}
+$("cal-start").onclick = async () => {
+  if (!(await confirmAction("Calibrate the sensor tool? The arm moves to poses around the seam."))) return;
+  await api("POST", "/api/calibrate", {
+    tool: $("cal-tool").value, poses: Number($("cal-poses").value), repeats: Number($("cal-repeats").value),
+  });
+  say("calibration started");
+};
+$("cal-abort").onclick = async () => { await api("POST", "/api/abort"); say("abort sent"); };
+$("cal-save").onclick = async () => {
+  if (!calibrated) return;
+  const name = $("cal-save-name").value;
+  const note = `calibrated, ${calibrated.poses} poses, residual ${calibrated.residual_rms_mm.toFixed(4)} mm`;
+  const tools = await api("GET", "/api/tools");
+  if (tools.entries.some((e) => e.name === name)) {
+    await api("PUT", `/api/tools/${encodeURIComponent(name)}`, { location: calibrated.tool, note });
+  } else {
+    await api("POST", "/api/tools", { name, kind: "sensor", location: calibrated.tool, note });
+  }
+  say(`${name} saved in the tool database`);
 };
 
 // --- ΔT ------------------------------------------------------------------------------------
@@ -490,7 +534,7 @@ function drawXY(canvas, series, xlabel, ylabel, vline) {
 }
 
 async function loadDeltaT() {
-  const { result } = await api("GET", "/api/delta-t");
+  const { result } = await api("GET", "/api/result/delta_t");
   if (!result) return;
   const rows = [
     ["ΔT", `${result.delta_t_ms.toFixed(3)} ms`],
