@@ -148,6 +148,7 @@ def test_status_stream_updates_and_refusals_before_control(env: Any) -> None:
         ("POST", "/api/teach", {}, 409, "take control"),
         ("POST", "/api/delta-t", {}, 409, "take control"),
         ("POST", "/api/calibrate", {}, 409, "take control"),
+        ("POST", "/api/track", {}, 409, "emulated cell only"),
     ],
 )
 def test_bad_requests_get_a_clear_error(

@@ -2,7 +2,8 @@
 ``python -m welding console --emulate`` run as a subprocess. One operator session, step by
 step: status updates, take control and power on (with confirmation), jog moves the arm,
 E-stop stops it, a job is edited, saved and dry-run, the arm moves to a named location, a
-teaching run shows its points, a calibration its result, a ΔT measurement Figs. 6 and 7.
+teaching run shows its points, a calibration its result, a ΔT measurement Figs. 6 and 7,
+a tracked weld its error.
 Screenshots of each page go to docs/console/."""
 
 from __future__ import annotations
@@ -223,6 +224,13 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             expect(page.locator("#dt-info")).to_have_attribute("data-state", "done", timeout=30_000)
             expect(page.locator("#dt-result")).to_contain_text(re.compile(r"ΔT\s*\d+\.\d+ ms"))
             _shot(page, "deltat")
+
+            # a tracked weld on the emulated cell: its tracking error plotted
+            page.locator("nav a[data-page=track]").click()
+            page.locator("#tr-start").click()
+            expect(page.locator("#tr-info")).to_have_attribute("data-state", "done", timeout=60_000)
+            expect(page.locator("#tr-result")).to_contain_text("tracking error")
+            _shot(page, "track")
 
             # tools and frames: add one through the table, a bad one is refused
             page.locator("nav a[data-page=tools]").click()

@@ -185,6 +185,7 @@ def create_app(console: Console) -> Starlette:
         Route("/api/teach", _api(lambda r, b: console.teach(b)), methods=post),
         Route("/api/delta-t", _api(lambda r, b: console.delta_t(b)), methods=post),
         Route("/api/calibrate", _api(lambda r, b: console.calibrate(b)), methods=post),
+        Route("/api/track", _api(lambda r, b: console.track(b)), methods=post),
         Route(
             "/api/result/{kind}", _api(lambda r, b: {"result": console.results.get(p(r, "kind"))})
         ),

@@ -70,7 +70,7 @@ class ConsoleError(Exception):
 class Activity:
     """A long-running action (job run or teaching) the status stream reports."""
 
-    kind: str  # "job" | "teach" | "delta_t" | "calibration"
+    kind: str  # "job" | "teach" | "delta_t" | "calibration" | "track"
     state: str = "running"  # running | done | aborted | failed
     message: str = ""
     detail: dict[str, Any] = field(default_factory=dict)
@@ -759,6 +759,46 @@ class Console:
                     self.control.reset_motion()
                 except (OSError, ProtocolError, RemoteError):
                     pass
+
+        self._start(act, work)
+
+    # --- tracked weld (emulated cell only) ----------------------------------------------------
+
+    def track(self, body: Any) -> None:
+        """A tracked weld (:func:`welding.emulate.run_tracking`) on a simulated copy of the
+        emulated cell, scored against its true seam: only with ``--emulate`` (tracking on a
+        live cell is the ``welding track`` path's job once it has one)."""
+        if not self.emulated:
+            raise ConsoleError("the tracked weld runs on the emulated cell only (--emulate)", 409)
+        from welding.emulate import TRACK_SEAMS, run_tracking
+
+        b = body if isinstance(body, dict) else {}
+        seam = b.get("seam", "sine")
+        if seam not in TRACK_SEAMS:
+            raise ConsoleError(f"seam: one of {', '.join(TRACK_SEAMS)}")
+        speed = _num(b.get("speed", 250.0), "speed", 1.0, 500.0)
+        tracked = b.get("tracked", True)
+        if not isinstance(tracked, bool):
+            raise ConsoleError("tracked: expected true or false")
+        act = Activity("track", detail={"seam": seam, "speed": speed})
+
+        def work() -> None:
+            try:
+                run = run_tracking(str(seam), speed, track=tracked)
+                laser, true = run.plot["laser"], run.plot["seam"]
+                self.results["track"] = run.summary() | {
+                    "top": {k: np.round(v[:, :2], 4).tolist() for k, v in run.plot.items()},
+                    "error_um": np.round(
+                        np.column_stack([laser[:, 0], (laser[:, 1] - true[:, 1]) * 1e3]), 3
+                    ).tolist(),
+                }
+                act.state = "done"
+                act.message = f"max {run.tracking_error_max_mm * 1e3:.1f} µm" + (
+                    f"; STOPPED: {run.stopped}" if run.stopped else ""
+                )
+            except Exception as exc:  # reported to the operator, never a dead thread
+                act.state, act.message = "failed", str(exc)
+                log.exception("tracked weld")
 
         self._start(act, work)
 

@@ -52,6 +52,7 @@ function showPage() {
   if (page === "sensor") loadSettings();
   if (page === "deltat") loadDeltaT().catch(() => {});
   if (page === "calibration") loadCalibration().catch(() => {});
+  if (page === "track") loadTrack().catch(() => {});
 }
 window.addEventListener("hashchange", showPage);
 
@@ -442,6 +443,13 @@ function showActivity(a) {
       $("cal-info").dataset.shown = a.message;
       loadCalibration();
     }
+  } else if (a.kind === "track") {
+    $("tr-info").textContent = `${a.seam} at ${a.speed} mm/s: ${a.state}${a.message ? ", " + a.message : ""}`;
+    $("tr-info").dataset.state = a.state;
+    if (a.state === "done" && $("tr-info").dataset.shown !== a.message) {
+      $("tr-info").dataset.shown = a.message;
+      loadTrack();
+    }
   } else if (a.kind === "delta_t") {
     $("dt-info").textContent = a.state === "running"
       ? `running: ${Math.round(100 * a.fraction)} %`
@@ -556,6 +564,34 @@ $("dt-start").onclick = async () => {
   say("ΔT measurement started");
 };
 $("dt-abort").onclick = async () => { await api("POST", "/api/abort"); say("abort sent"); };
+
+// --- tracked weld --------------------------------------------------------------------------
+
+async function loadTrack() {
+  const { result } = await api("GET", "/api/result/track");
+  if (!result) return;
+  const um = (v) => `${(v * 1e3).toFixed(1)} µm`;
+  const rows = [
+    ["seam, speed", `${result.seam}, ${result.speed_mm_s} mm/s, ${result.tracked ? "tracked" : "untracked"}`],
+    ["ΔT used", `${result.delta_t_ms.toFixed(3)} ms (true ${result.true_delta_t_ms.toFixed(3)} ms)`],
+    ["tracking error", `max ${um(result.tracking_error_max_mm)}, rms ${um(result.tracking_error_rms_mm)}`],
+    ["nominal path off the seam", `max ${um(result.nominal_error_max_mm)}`],
+    ["welded", `${result.welded_mm} mm${result.stopped ? ", STOPPED: " + result.stopped : ""}`],
+  ];
+  $("tr-result").innerHTML = rows.map(([k, v]) => `<tr><th>${k}</th><td>${v}</td></tr>`).join("");
+  const t = result.top;
+  drawXY($("tr-top"), [
+    { pts: t.seam, color: "#2e7d32" }, { pts: t.nominal, color: "#000" },
+    { pts: t.laser, color: "#d50000" }, { pts: t.measured, color: "#1565c0" },
+  ], "x (mm)", "y (mm)");
+  drawXY($("tr-error"), [{ pts: result.error_um, color: "#d50000" }], "x (mm)", "error (µm)");
+}
+$("tr-start").onclick = async () => {
+  await api("POST", "/api/track", {
+    seam: $("tr-seam").value, speed: Number($("tr-speed").value), tracked: $("tr-tracked").checked,
+  });
+  say("tracked weld started");
+};
 
 // --- start ---------------------------------------------------------------------------------
 
