@@ -166,6 +166,20 @@ def test_body_that_is_not_json(env: Any) -> None:
     assert r.status_code == 400 and r.json() == {"error": "the request body is not JSON"}
 
 
+def test_a_broken_tool_database_is_an_error_not_a_dead_console(env: Any) -> None:
+    client, console, _ = env
+    good = console.tools.path.read_bytes()
+    try:
+        console.tools.path.write_text("{broken")
+        r = call(client, "GET", "/api/tools")
+        assert r.status_code == 400 and str(console.tools.path) in r.json()["error"]
+        seq = status(client)["seq"]
+        s = wait_for(client, lambda s: s["seq"] > seq + 2)  # the status keeps flowing
+        assert s["connected"] and "flange@world" in s["poses"]
+    finally:
+        console.tools.path.write_bytes(good)
+
+
 def test_job_validation_is_the_job_checks(env: Any) -> None:
     client, _, _ = env
     opened = call(client, "GET", "/api/jobs/demo.xml").json()

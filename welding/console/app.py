@@ -27,6 +27,7 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from spec.errors import ProtocolError, RemoteError
 from welding.console.backend import STATUS_HZ, Console, ConsoleError
+from welding.tools import ToolDBError
 
 __all__ = ["create_app"]
 
@@ -59,6 +60,8 @@ def _api(fn: Callable[[Request, Any], Any]) -> Handler:
             result = await run_in_threadpool(fn, request, body)
         except ConsoleError as exc:
             return _error(str(exc), exc.status)
+        except ToolDBError as exc:  # e.g. a database file broken by hand
+            return _error(str(exc), 400)
         except RemoteError as exc:
             return _error(f"the robot refused: {exc}", 409)
         except (ProtocolError, OSError) as exc:

@@ -136,6 +136,7 @@ class Console:
         self.results: dict[str, dict[str, Any]] = {}
         self._selections: dict[int, tuple[str, str]] = {}
         self._snapshot: dict[str, Any] = {"seq": 0, "connected": False}
+        self._tables_ok = Tables({}, {})
         self._seq = 0
         self._stop = threading.Event()
         self.status_reads = 0
@@ -192,7 +193,11 @@ class Console:
         r = self.poll
         st = r.status()
         joints = [round(float(q), 4) for q in r.herej()]
-        tables = self.tables()
+        try:
+            tables = self._tables_ok = self.tables()
+        except ToolDBError as exc:  # a broken file: positions in the last good tables
+            log.warning("status: %s", exc)
+            tables = self._tables_ok
         with self._lock:
             wanted = set(self._selections.values()) | {("flange", "world")}
         poses = {}
@@ -234,6 +239,10 @@ class Console:
             except (OSError, ProtocolError, RemoteError) as exc:
                 snap = {"connected": False, "error": str(exc)}
                 self._reconnect_poll()
+            except Exception as exc:  # the status must keep flowing whatever went wrong
+                log.exception("status")
+                snap = {"connected": False, "error": f"console: {exc}"}
+                self._stop.wait(1.0)
             self._seq += 1
             snap["seq"] = self._seq
             self._snapshot = snap
