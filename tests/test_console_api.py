@@ -83,6 +83,13 @@ def finished(s: dict[str, Any], kind: str) -> bool:
     return a is not None and a["kind"] == kind and a["state"] != "running"
 
 
+def next_error(ws: Any) -> dict[str, Any]:
+    while True:
+        msg: dict[str, Any] = ws.receive_json()
+        if msg["type"] == "error":
+            return msg
+
+
 def test_status_stream_updates_and_refusals_before_control(env: Any) -> None:
     client, _, _ = env
     with client.websocket_connect("/ws") as ws:
@@ -98,11 +105,12 @@ def test_status_stream_updates_and_refusals_before_control(env: Any) -> None:
         for _ in range(5):
             msg = ws.receive_json()
         assert "laser@workpiece" in msg["poses"]
+        # a malformed message gets an error message, the socket stays
+        ws.send_json(["not", "an", "object"])
+        assert "unknown message type" in next_error(ws)["message"]
         # nothing moves without control: refused, and said so on the socket
         ws.send_json({"type": "jog", "mode": "joint", "axis": 1, "direction": 1, "speed": 10})
-        while msg["type"] != "error":
-            msg = ws.receive_json()
-        assert "take control" in msg["message"]
+        assert "take control" in next_error(ws)["message"]
     r = call(client, "POST", "/api/power", {"on": True})
     assert r.status_code == 409 and "take control" in r.json()["error"]
 

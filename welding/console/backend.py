@@ -343,7 +343,7 @@ class Console:
             self.stop_jog(None, "new jog")
         desc = r.motion_desc()
         if mode == "joint":
-            if axis not in range(1, 7):
+            if not isinstance(axis, int) or isinstance(axis, bool) or not 1 <= axis <= 6:
                 raise ConsoleError("joint: expected 1..6")
             limits = r.joint_limits()
             q = [float(v) for v in r.herej()]
