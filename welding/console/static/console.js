@@ -10,6 +10,9 @@ let selection = { tool: "flange", frame: "world" };
 let job = null; // the open job (JSON), edited in place
 let jobFile = "";
 
+// Text from the robot, the database or a job file goes into the page as text, never as HTML.
+const esc = (v) => String(v).replace(/[&<>"']/g, (c) => `&#${c.charCodeAt(0)};`);
+
 function say(text, kind = "info") {
   const m = $("message");
   m.textContent = text;
@@ -295,9 +298,9 @@ async function loadTools() {
   $("new-kind").innerHTML = t.kinds.map((k) => `<option>${k}</option>`).join("");
   const rows = t.entries.map((e) => {
     const loc = e.location.join(", ");
-    if (e.builtin) return `<tr><td>${e.name}</td><td>${e.kind}</td><td>${loc}</td><td>${e.note}</td><td></td></tr>`;
+    if (e.builtin) return `<tr><td>${e.name}</td><td>${e.kind}</td><td>${loc}</td><td>${esc(e.note)}</td><td></td></tr>`;
     return `<tr data-name="${e.name}"><td>${e.name}</td><td>${e.kind}</td>
-      <td><input class="wide loc" value="${loc}"></td><td><input class="note" value="${e.note}"></td>
+      <td><input class="wide loc" value="${loc}"></td><td><input class="note" value="${esc(e.note)}"></td>
       <td><button class="save">Save</button> <button class="remove">Remove</button></td></tr>`;
   });
   $("tools-table").innerHTML = `<tr><th>name</th><th>kind</th><th>location x, y, z, rx, ry, rz</th><th>note</th><th></th></tr>${rows.join("")}`;
@@ -399,8 +402,8 @@ $("job-desc").onchange = () => { job.description = $("job-desc").value; };
 
 function showProblems(r) {
   const p = $("job-problems");
-  if (r.ok) p.innerHTML = `<span class="good">${r.summary}</span>`;
-  else p.innerHTML = r.problems.map((q) => `<div class="problem">${q.line ? `${q.line}:${q.column}: ` : ""}${q.message}</div>`).join("");
+  if (r.ok) p.innerHTML = `<span class="good">${esc(r.summary)}</span>`;
+  else p.innerHTML = r.problems.map((q) => `<div class="problem">${q.line ? `${q.line}:${q.column}: ` : ""}${esc(q.message)}</div>`).join("");
 }
 
 $("job-check").onclick = async () => {
@@ -430,7 +433,7 @@ function showActivity(a) {
   if (!a) return;
   if (a.kind === "job") {
     $("job-progress").innerHTML = `<b>${a.dry_run ? "dry run" : "weld"} ${a.file}</b>: ${a.state}` +
-      (a.state === "running" ? `, item ${Math.min(a.index + 1, a.total)}/${a.total} ${a.item} (${a.phase})` : ` ${a.message}`);
+      (a.state === "running" ? `, item ${Math.min(a.index + 1, a.total)}/${a.total} ${a.item} (${a.phase})` : ` ${esc(a.message)}`);
     $("job-progress").dataset.state = a.state;
     if (a.file === jobFile) {
       const current = a.state === "running" ? a.order[a.index] : null;
@@ -551,7 +554,7 @@ async function loadDeltaT() {
     ["residual (ΔT = 0)", `max ${result.unsynced_max_um.toFixed(1)} µm, rms ${result.unsynced_rms_um.toFixed(1)} µm`],
     ["readings", `${result.n_robot} joint samples, ${result.n_sensor} seam points`],
   ];
-  $("dt-result").innerHTML = rows.map(([k, v]) => `<tr><th>${k}</th><td>${v}</td></tr>`).join("");
+  $("dt-result").innerHTML = rows.map(([k, v]) => `<tr><th>${k}</th><td>${esc(v)}</td></tr>`).join("");
   drawXY($("dt-fig6"), [{ pts: result.fig6.robot, color: "#1565c0" }, { pts: result.fig6.sensor, color: "#d50000" }], "t (s)", "y (mm)");
   drawXY($("dt-fig7"), [{ pts: result.fig7, color: "#1565c0" }], "ΔT (ms)", "MSE (µm²)", result.delta_t_ms);
 }
@@ -578,7 +581,7 @@ async function loadTrack() {
     ["nominal path off the seam", `max ${um(result.nominal_error_max_mm)}`],
     ["welded", `${result.welded_mm} mm${result.stopped ? ", STOPPED: " + result.stopped : ""}`],
   ];
-  $("tr-result").innerHTML = rows.map(([k, v]) => `<tr><th>${k}</th><td>${v}</td></tr>`).join("");
+  $("tr-result").innerHTML = rows.map(([k, v]) => `<tr><th>${k}</th><td>${esc(v)}</td></tr>`).join("");
   const t = result.top;
   drawXY($("tr-top"), [
     { pts: t.seam, color: "#2e7d32" }, { pts: t.nominal, color: "#000" },
