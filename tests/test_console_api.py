@@ -304,6 +304,19 @@ def test_measurement_settings_are_checked(env: Any) -> None:
     assert r.status_code == 400 and "nosuch" in r.json()["error"]
 
 
+def test_estop_gets_through_while_the_control_connection_is_busy(env: Any) -> None:
+    client, console, _ = env
+    _power_on(client)
+    console.control.joint_move([30.0, 30.0, 100.0, 0.0, 50.0, 0.0])
+    # a request pending on the control connection (as a long WaitEndMove would be)
+    with console.control._lock:
+        wait_for(client, lambda s: s["moving"])
+        assert call(client, "POST", "/api/estop").status_code == 200
+        wait_for(client, lambda s: s["estop"] and not s["moving"])
+    assert call(client, "POST", "/api/estop/reset").status_code == 200
+    wait_for(client, lambda s: not s["estop"])
+
+
 def test_teaching_shows_points_and_save_as(env: Any, tmp_path: Path) -> None:
     client, console, _ = env
     _power_on(client)
