@@ -4,7 +4,9 @@ step: status updates, take control and power on (with confirmation), jog moves t
 E-stop stops it, a job is edited, saved and dry-run, the arm moves to a named location, a
 teaching run shows its points, a calibration its result, a ΔT measurement Figs. 6 and 7,
 a tracked weld its error.
-Screenshots of each page go to docs/console/."""
+Screenshots of each page go to the test's temporary folder; with CONSOLE_SCREENSHOTS=1 they
+replace docs/console/*.png (the README's pictures), so a plain `make test` leaves the checkout
+clean."""
 
 from __future__ import annotations
 
@@ -33,7 +35,7 @@ pytest.importorskip("starlette", reason="the console extra is not installed")
 
 from playwright.sync_api import Page, expect, sync_playwright  # noqa: E402
 
-SHOTS = Path(__file__).resolve().parent.parent / "docs" / "console"
+DOCS_SHOTS = Path(__file__).resolve().parent.parent / "docs" / "console"
 ARGS = [
     "--headless",
     "--no-sandbox",
@@ -92,9 +94,23 @@ def _confirm(page: Page) -> None:
     page.locator("#confirm-yes").click()
 
 
+_shots_dir: Path | None = None
+
+
+@pytest.fixture(autouse=True)
+def _screenshot_folder(tmp_path: Path) -> Iterator[None]:
+    global _shots_dir
+    _shots_dir = DOCS_SHOTS if os.environ.get("CONSOLE_SCREENSHOTS") == "1" else tmp_path
+    yield
+    _shots_dir = None
+
+
 def _shot(page: Page, name: str) -> None:
-    SHOTS.mkdir(parents=True, exist_ok=True)
-    page.screenshot(path=str(SHOTS / f"{name}.png"), full_page=True)
+    assert _shots_dir is not None
+    _shots_dir.mkdir(parents=True, exist_ok=True)
+    path = _shots_dir / f"{name}.png"
+    page.screenshot(path=str(path), full_page=True)
+    assert path.stat().st_size > 1000, f"screenshot {name} is empty"
 
 
 def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path) -> None:
