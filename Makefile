@@ -5,14 +5,14 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint bench fuzz clean
+.PHONY: demo test lint chromium bench fuzz clean
 
 $(STAMP): pyproject.toml Makefile
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	# PYTHONWARNINGS: setuptools warns on every editable install that the checkout's folders
 	# share the packages' names, which is this layout by design; the warning tells a user nothing.
-	PYTHONWARNINGS=ignore $(PY) -m pip install --quiet -e '.[test,plot,xsd]'
+	PYTHONWARNINGS=ignore $(PY) -m pip install --quiet -e '.[test,plot,xsd,console]'
 	touch $(STAMP)
 
 demo: $(STAMP)
@@ -25,12 +25,21 @@ lint: $(STAMP)
 
 # Two workers: the suite is mostly waiting (sockets, subprocesses, real-time runs), and the
 # real-time tests hold up with the other worker busy beside them (they must: #12).
-test: lint
+test: lint chromium
 	$(PY) -m pytest -n 2
+
+# The console's browser tests drive Debian's chromium (no browser download): installed here
+# when missing and we are root (CI on a fresh machine), else they are skipped, loudly.
+chromium:
+	@if [ -x /usr/bin/chromium ]; then :; \
+	elif [ "$$(id -u)" = 0 ]; then export DEBIAN_FRONTEND=noninteractive; \
+		apt-get install -y chromium || { apt-get update && apt-get install -y chromium; } || \
+		echo "BROWSER TESTS WILL BE SKIPPED: apt-get could not install chromium"; \
+	else echo "BROWSER TESTS WILL BE SKIPPED: /usr/bin/chromium not installed (not root)"; fi
 
 # The peer libraries of the benchmarks only here: `make test` must not need them.
 $(VENV)/.installed-bench: $(STAMP)
-	PYTHONWARNINGS=ignore $(PY) -m pip install --quiet -e '.[test,plot,xsd,bench]'
+	PYTHONWARNINGS=ignore $(PY) -m pip install --quiet -e '.[test,plot,xsd,console,bench]'
 	touch $@
 
 bench: $(VENV)/.installed-bench

@@ -76,21 +76,37 @@ class _Branch:
     singular: tuple[bool, bool, bool]
 
 
+#: Two turns of a joint tie when they lie 180° either side of the target; numpy's (SIMD)
+#: atan2 and libm's differ in the last bit, so the tie goes to the turn above the target
+#: by this margin instead of to whichever rounding makes nearer.
+_TIE_DEG = 1e-9
+
+
+def _base_turn(q: Any, rnd: Any = round) -> Any:
+    """q wrapped into (-180, 180]; a float with ``round``, an array with ``np.round``."""
+    base = q - 360.0 * rnd(q / 360.0)
+    return base + 360.0 * (base <= -180.0)
+
+
+def _turn_cost(cand: Any, target: Any) -> Any:
+    """How far a turn candidate is from the target, ties at 180° going to the one above it;
+    floats and arrays alike (one rule for both IK paths)."""
+    return abs(cand - target - _TIE_DEG)
+
+
 def _pick_turn_one(q: float, bounds: tuple[float, float, bool], target: float) -> float | None:
-    """Scalar :meth:`IkMixin._pick_turn`: q + 360k (k in 0, -1, 1, ties keep the first)
-    inside ``bounds`` (lo, hi, only the base turn fits) closest to ``target``, else None."""
-    base = q - 360.0 * round(q / 360.0)
-    if base <= -180.0:
-        base += 360.0
+    """Scalar :meth:`IkMixin._pick_turn`: q + 360k (k in 0, -1, 1) inside ``bounds``
+    (lo, hi, only the base turn fits) with the least :func:`_turn_cost`, else None."""
+    base = _base_turn(q)
     lo, hi, single = bounds
     if single:
         return base if lo <= base <= hi else None
-    best, best_dist = None, math.inf
+    best, best_cost = None, math.inf
     for cand in (base, base - 360.0, base + 360.0):
         if lo <= cand <= hi:
-            dist = abs(cand - target)
-            if dist < best_dist:
-                best, best_dist = cand, dist
+            cost = _turn_cost(cand, target)
+            if cost < best_cost:
+                best, best_cost = cand, cost
     return best
 
 
@@ -165,14 +181,13 @@ class IkMixin(ConfigMixin):
         return IkBatch(joints_deg=q, valid=valid, reachable=reach, singular=sing)
 
     def _pick_turn(self, q: Array, ref: Array | None) -> Array:
-        """Per joint, the value q + 360k (k in -1, 0, 1) inside the limits closest to ref."""
-        base = q - 360.0 * np.round(q / 360.0)
-        base = np.where(base <= -180.0, base + 360.0, base)  # (-180, 180]
-        cand = base[..., None] + np.array([0.0, -360.0, 360.0])  # (N, 8, 6, 3); ties keep base
+        """Per joint, the value q + 360k (k in -1, 0, 1) inside the limits with the least
+        :func:`_turn_cost` to ref."""
+        cand = _base_turn(q, np.round)[..., None] + np.array([0.0, -360.0, 360.0])  # (N, 8, 6, 3)
         lo = self._limits[:, 0, None] - LIMIT_SLACK_DEG
         hi = self._limits[:, 1, None] + LIMIT_SLACK_DEG
         target = np.zeros(6) if ref is None else ref[:, None, :]
-        dist = np.abs(cand - np.asarray(target)[..., None])
+        dist = _turn_cost(cand, np.asarray(target)[..., None])
         dist = np.where((cand >= lo) & (cand <= hi), dist, np.inf)
         k = np.argmin(dist, axis=-1)
         best = np.take_along_axis(cand, k[..., None], axis=-1)[..., 0]

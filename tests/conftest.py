@@ -42,3 +42,14 @@ def _shell_errors_are_fatal() -> Iterator[None]:
         yield
     for shell in shells:
         assert not shell.handler_errors, (type(shell).__name__, shell.handler_errors)
+
+
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
+    """Say loudly at the end when the browser tests could not run (no chromium)."""
+    reasons = {
+        str(r.longrepr[2])
+        for r in terminalreporter.stats.get("skipped", [])
+        if isinstance(r.longrepr, tuple) and "BROWSER TESTS SKIPPED" in str(r.longrepr[2])
+    }
+    for reason in sorted(reasons):
+        terminalreporter.write_sep("!", reason.removeprefix("Skipped: "), red=True, bold=True)

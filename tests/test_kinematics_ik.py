@@ -233,3 +233,23 @@ def test_single_pose_check_rejects_a_reflection() -> None:
     T[2, 2] = -1.0
     with pytest.raises(KinematicsError, match="det"):
         get_model().ik(T)
+
+
+@pytest.mark.parametrize("ulps", [-3, 0, 3])
+def test_a_turn_tie_at_180_goes_above_the_target_in_both_paths(ulps: int) -> None:
+    """Two turns 180° either side of the target tie; which one wins must not hang on the last
+    bits of atan2 (numpy's and libm's differ), in the scalar and the batch pick alike."""
+    from kinematics.ik import _pick_turn_one
+
+    m = get_model("RX90B")
+    target = 66.79407317732193
+    q = np.nextafter(target - 180.0, np.inf * ulps) if ulps else target - 180.0
+    for _ in range(abs(ulps) - 1):
+        q = np.nextafter(q, np.inf * ulps)
+    bounds = m._turn_bounds[3]  # ±270°: both turns inside
+    assert not bounds[2]
+    one = _pick_turn_one(float(q), bounds, target)
+    qb = np.full((1, 8, 6), float(q))
+    batch = m._pick_turn(qb, np.full((1, 6), target))[0, 0, 3]
+    assert one == batch
+    assert one is not None and abs(one - (target + 180.0)) < 1e-9

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import socket
+import threading
 import time
 from collections.abc import Iterator
 from dataclasses import replace
@@ -266,6 +267,35 @@ def test_ctrl_c_switches_the_laser_off_first_and_stops(session: EmulatedSession)
     assert stopped
     steps = [e.detail.get("step") for e in info.value.log if e.event == "safe stop"]
     assert steps == ["laser off", "motion reset", "crossjet off", "gas off"]
+
+
+def test_cancel_from_another_thread_ends_the_wait_laser_off_first(
+    session: EmulatedSession,
+) -> None:
+    robot = session.robot
+    real_wait = robot.wait_end_move
+    runner = JobRunner(robot, session.tables, dwell=session.dwell, poll=0.1)
+    pieces: list[float] = []
+    cancelled_at: list[int] = []
+
+    def wait(timeout: float = 60.0) -> bool:
+        pieces.append(timeout)
+        if robot.read_io("laser") and not runner.cancelled:
+            # the operator's abort arrives from another thread during the seam
+            t = threading.Thread(target=runner.cancel)
+            t.start()
+            t.join()
+            cancelled_at.append(len(pieces))
+        return real_wait(timeout)
+
+    robot.wait_end_move = wait  # type: ignore[method-assign]
+    with pytest.raises(JobAborted) as info:
+        runner.run(JOB)
+    assert info.value.reason == "cancelled"
+    # the wait goes in pieces: the abort is seen after the piece it came in, mid-seam
+    assert max(pieces) == 0.1 and cancelled_at == [len(pieces)]
+    assert [e.item for e in info.value.log if e.event == "abort"] == ["seam"]
+    check_stopped_safely(session, info.value)
 
 
 def test_error_reply_switches_the_laser_off_first(session: EmulatedSession) -> None:

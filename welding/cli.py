@@ -9,6 +9,7 @@ record NAME --job JOB.xml    manual teaching: the current location as a via item
 teach                        3D seam teaching with the sensor; JSON and optionally a job
 calibrate sensor-tool|laser-tool   tool calibration by least squares (--json, --save)
 track --emulate              real-time seam tracking (--seam, --speed, --delta-t-ms, --json)
+console --emulate            the operator console in the browser (127.0.0.1:8024)
 
 Robot and sensor: ``--robot HOST:PORT`` / ``--sensor HOST:PORT`` (RobotSocket 4000,
 SensorSocket 2000), or ``--emulate`` for an in-process emulated cell (simulated clock),
@@ -45,6 +46,7 @@ from spec.files import write_atomically
 from welding import calibrate_cli
 from welding import job as J
 from welding.calibration import CalibrationError
+from welding.console import cli as console_cli
 from welding.process import JobAborted, JobRunner, PlanError, Progress, plan, steps_summary
 from welding.teach import SeamTeacher, TeachError, record_here, seam_path
 from welding.tools import TOOL_KINDS, Entry, Tables, ToolDB, ToolDBError, check_location
@@ -277,6 +279,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--postflow", type=cliargs.nonnegative_float, default=0.5, help="s")
 
     calibrate_cli.add_parser(sub, _add_cell_options)
+    console_cli.add_parser(sub, _endpoint, _add_tools_option)
 
     from welding.emulate import add_track_options  # the emulated cell's path
 
@@ -314,7 +317,7 @@ def _cell(args: argparse.Namespace, *, control: bool, sensor: bool = False) -> I
             laser_tool_error=args.laser_tool_error,
         )
         try:
-            tables = _merge_cell_tools(args.tools, session.tables)
+            tables = merge_cell_tools(args.tools, session.tables)
             if sensor:
                 session.sensor.take_control()
             yield Cell(session.robot, session.sensor, tables, session.dwell, session)
@@ -357,7 +360,7 @@ def _cell(args: argparse.Namespace, *, control: bool, sensor: bool = False) -> I
                 c.close()
 
 
-def _merge_cell_tools(path: str, cell_tables: Tables) -> Tables:
+def merge_cell_tools(path: str, cell_tables: Tables) -> Tables:
     """The database with the emulated cell's tools and frame added when it lacks them (the
     file is updated, so later commands without --emulate know them too)."""
     db = ToolDB(path)
@@ -650,20 +653,12 @@ def cmd_jog(args: argparse.Namespace) -> int:
         return 0
 
 
-def _named_location(job: J.Job, name: str) -> J.Location:
-    try:
-        item = job.item(name)
-    except KeyError:
-        names = ", ".join(i.name for i in job.items if not isinstance(i, J.Pause))
-        raise CliError(f"no location named {name!r}; the job has {names}") from None
-    if isinstance(item, J.Pause):
-        raise CliError(f"{name!r} is a pause, not a location")
-    return item.start if isinstance(item, J.Path) else item.at
-
-
 def cmd_move(args: argparse.Namespace) -> int:
     with _cell(args, control=True) as cell:
-        loc = _named_location(_load_job(args.job, cell.tables), args.name)
+        try:
+            loc = J.named_location(_load_job(args.job, cell.tables), args.name)
+        except KeyError as exc:
+            raise CliError(exc.args[0]) from None
         tool = cell.tables.tool(loc.tool).location
         frame = cell.tables.frame(loc.frame).location
         move = cell.robot.tool_move_l if args.linear else cell.robot.tool_move_j
@@ -790,6 +785,7 @@ COMMANDS = {
     "teach": cmd_teach,
     "calibrate": cmd_calibrate,
     "track": cmd_track,
+    "console": console_cli.cmd_console,
 }
 
 

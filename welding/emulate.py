@@ -33,12 +33,31 @@ from welding.tools import Entry, Loc, Tables
 from welding.track_loop import RobotLink, TrackedWeld, TrackLink, weld_tracked
 from welding.tracking import NominalWeld, Tracker, seam_error
 
-__all__ = ["EmulatedSession"]
+__all__ = ["EmulatedSession", "cell_tables", "realtime_cell"]
 
 
 def _loc(values: object) -> Loc:
     v = [float(x) for x in np.asarray(values, dtype=np.float64)]
     return (v[0], v[1], v[2], v[3], v[4], v[5])
+
+
+def cell_tables(cell: EmulatedCell) -> Tables:
+    """The cell's tools ``laser``, ``sensor`` and its frame ``workpiece`` (where it should
+    be: the cell puts it its ``workpiece_error`` off that)."""
+    tables = Tables({}, {})
+    tables.add(Entry("laser", "laser", cell.laser_tool, "^N_L T of the cell"))
+    tables.add(Entry("sensor", "sensor", cell.sensor_tool, "^N_S T of the cell"))
+    # the workpiece as the operator believes it placed: without the placement error
+    error = location_to_transform(np.array(cell.workpiece_error, dtype=np.float64))
+    w2b = _loc(transform_to_location(cell.scene.workpiece2base @ invert(error)))
+    tables.add(Entry("workpiece", "frame", w2b, "^B_W T of the cell's workpiece"))
+    return tables
+
+
+def realtime_cell(seam: str = "straight", *, seed: int = 0) -> EmulatedCell:
+    """A started emulated cell on the real-time clock (the operator console's ``--emulate``:
+    an operator watches and jogs it at the speed a real arm moves)."""
+    return EmulatedCell(clock="real", seam=seam, seed=seed).start()
 
 
 class EmulatedSession:
@@ -76,13 +95,7 @@ class EmulatedSession:
         except BaseException:
             self.cell.close()
             raise
-        self.tables = Tables({}, {})
-        self.tables.add(Entry("laser", "laser", self.cell.laser_tool, "^N_L T of the cell"))
-        self.tables.add(Entry("sensor", "sensor", self.cell.sensor_tool, "^N_S T of the cell"))
-        # the workpiece as the operator believes it placed: without the placement error
-        placed = self.cell.scene.workpiece2base @ invert(location_to_transform(workpiece_error))
-        w2b = _loc(transform_to_location(placed))
-        self.tables.add(Entry("workpiece", "frame", w2b, "^B_W T of the cell's workpiece"))
+        self.tables = cell_tables(self.cell)
 
     def dwell(self, seconds: float) -> None:
         """Let ``seconds`` of robot time pass (the simulated clock)."""

@@ -51,6 +51,7 @@ __all__ = [
     "dumps",
     "load",
     "loads",
+    "named_location",
     "save",
 ]
 
@@ -194,6 +195,19 @@ class Job:
 
     def frames(self) -> set[str]:
         return {loc.frame for loc in self.locations()}
+
+
+def named_location(job: Job, name: str) -> Location:
+    """Where the item ``name`` is (a via's or stitch's location, a path's start); KeyError
+    with a message naming the job's locations when there is none of that name."""
+    try:
+        item = job.item(name)
+    except KeyError:
+        names = ", ".join(i.name for i in job.items if not isinstance(i, Pause))
+        raise KeyError(f"no location named {name!r}; the job has {names}") from None
+    if isinstance(item, Pause):
+        raise KeyError(f"{name!r} is a pause, not a location")
+    return item.start if isinstance(item, Path) else item.at
 
 
 # --- problems ------------------------------------------------------------------------------

@@ -8,7 +8,8 @@ crossjet off; post-flow; gas off. A stitch weld is the same with a dwell of its 
 instead of the segments. The laser therefore is on only while the arm stands at or moves
 along a welding path. ``dry_run`` keeps every output off (motion only).
 
-Abort: Ctrl-C (KeyboardInterrupt), a lost connection or an error reply stop the job: the
+Abort: Ctrl-C (KeyboardInterrupt), :meth:`JobRunner.cancel` (from another thread: the
+operator console's abort), a lost connection or an error reply stop the job: the
 laser goes off first, then the motion is reset (the arm decelerates along its path and the
 queue is dropped), then crossjet and gas go off. When the connection itself is gone the
 server's controlled stop does the same [RS-7.10].
@@ -66,6 +67,7 @@ __all__ = [
     "ARC_TOLERANCE_MM",
     "Dwell",
     "JobAborted",
+    "JobCancelled",
     "JobRunner",
     "LogEntry",
     "Mark",
@@ -391,8 +393,9 @@ class SeamLost(Exception):
 
 
 class JobAborted(Exception):
-    """The job stopped before its end: ``reason`` ("interrupted", "connection lost",
-    "error reply", "timeout", "seam lost" or "error"), ``log`` up to and including the safe stop."""
+    """The job stopped before its end: ``reason`` ("interrupted", "cancelled", "connection
+    lost", "error reply", "timeout", "seam lost" or "error"), ``log`` up to and including the
+    safe stop."""
 
     def __init__(self, reason: str, message: str, log: list[LogEntry]) -> None:
         super().__init__(f"job aborted ({reason}): {message}")
@@ -401,15 +404,21 @@ class JobAborted(Exception):
         self.log = log
 
 
+class JobCancelled(Exception):
+    """:meth:`JobRunner.cancel` was called."""
+
+
 class JobRunner:
     """Runs jobs on ``robot`` (a :class:`RobotClient` that holds control, arm powered).
 
     ``dwell(seconds)`` waits on the robot's time base (default ``time.sleep``);
     ``on_progress`` is called at each item's phase; ``move_timeout`` bounds each wait for
-    the end of a move (s). Tracked paths: ``sensor_endpoint`` is the sensor's trigger
-    address (None: as configured on the robot), ``real_time`` whether the robot runs on the
-    wall clock (False: a simulated clock advanced by WaitEndMove), ``rate_hz`` the trigger
-    rate."""
+    the end of a move (s); ``poll`` (s), when given, splits each wait for the end of a move
+    into pieces that long, so :meth:`cancel` from another thread takes effect within one
+    piece (the client sends one request at a time; a whole wait would hold it). Tracked
+    paths: ``sensor_endpoint`` is the sensor's trigger address (None: as configured on the
+    robot), ``real_time`` whether the robot runs on the wall clock (False: a simulated clock
+    advanced by WaitEndMove), ``rate_hz`` the trigger rate."""
 
     def __init__(
         self,
@@ -423,6 +432,7 @@ class JobRunner:
         sensor_endpoint: tuple[str, int] | None = None,
         real_time: bool = True,
         rate_hz: float = 200.0,
+        poll: float | None = None,
     ) -> None:
         self.robot = robot
         self.sensor_endpoint = sensor_endpoint
@@ -433,7 +443,19 @@ class JobRunner:
         self.dwell = dwell
         self.on_progress = on_progress
         self.move_timeout = move_timeout
+        self.poll = poll
         self.log: list[LogEntry] = []
+        self._cancel = threading.Event()
+
+    def cancel(self) -> None:
+        """Stop the running job at its next step or wait piece: laser off first, then the
+        controlled stop (:meth:`safe_stop`); :meth:`run` raises :class:`JobAborted`
+        ("cancelled")."""
+        self._cancel.set()
+
+    @property
+    def cancelled(self) -> bool:
+        return self._cancel.is_set()
 
     def _now(self) -> float:
         try:
@@ -449,12 +471,15 @@ class JobRunner:
         steps = plan(job, self.tables, dry_run=self.dry_run, sensor_tool=sensor_tool)
         total = len(job.sequence())
         self.log = []
+        self._cancel.clear()
         self._note("start", job=job.name, dry_run=self.dry_run, items=total)
         desc = self.robot.motion_desc()
         sent = desc  # sent again only when it changes: one round trip less per chord
         item = ""
         try:
             for step in steps:
+                if self._cancel.is_set():
+                    raise JobCancelled("cancelled by the operator")
                 if isinstance(step, Mark):
                     item = step.item
                     if step.phase != "done":
@@ -475,7 +500,7 @@ class JobRunner:
                     self.robot.tool_move_l(step.loc, step.tool, step.frame)
                 elif isinstance(step, Track):
                     self._track(step, item)
-                elif not self.robot.wait_end_move(self.move_timeout):
+                elif not self._wait_end_move():
                     raise TimeoutError(f"the move did not end within {self.move_timeout:g} s")
             self.robot.set_motion_desc(desc)
         except BaseException as exc:
@@ -505,6 +530,19 @@ class JobRunner:
         )
         if outcome.stopped:
             raise SeamLost(outcome.stopped)
+
+    def _wait_end_move(self) -> bool:
+        if self.poll is None:
+            return self.robot.wait_end_move(self.move_timeout)
+        waited = 0.0
+        while waited < self.move_timeout:
+            piece = min(self.poll, self.move_timeout - waited)
+            if self.robot.wait_end_move(piece):
+                return True
+            waited += piece
+            if self._cancel.is_set():
+                raise JobCancelled("cancelled by the operator")
+        return False
 
     def _desc(self, sent: MotionDesc, wanted: MotionDesc) -> MotionDesc:
         if wanted != sent:
@@ -553,6 +591,8 @@ def _no_interrupts() -> Iterator[None]:
 def _reason(exc: BaseException) -> str:
     if isinstance(exc, KeyboardInterrupt):
         return "interrupted"
+    if isinstance(exc, JobCancelled):
+        return "cancelled"
     if isinstance(exc, ConnectionClosed | ConnectionError):
         return "connection lost"
     if isinstance(exc, RemoteError):

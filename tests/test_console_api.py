@@ -1,0 +1,334 @@
+"""The console's API on an emulated cell (real-time clock, real sockets): status stream,
+validation errors, the token kept server-side, dead-man jog, jobs, abort."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+pytest.importorskip("starlette", reason="the console extra is not installed")
+pytest.importorskip("httpx2", reason="the console extra is not installed")
+
+from starlette.testclient import TestClient
+
+from cell.cell import READY_JOINTS
+from welding import job as J
+from welding.cli import merge_cell_tools
+from welding.console.app import create_app
+from welding.console.backend import Console
+from welding.console.cli import demo_job
+from welding.emulate import cell_tables, realtime_cell
+
+TOKEN = "s3cret-console-token-4711"
+
+
+class Recorder:
+    """Every reply body and WebSocket message, to check the token is in none of them."""
+
+    def __init__(self) -> None:
+        self.texts: list[str] = []
+
+
+@pytest.fixture(scope="module")
+def env(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[TestClient, Console, Any]]:
+    tmp = tmp_path_factory.mktemp("console")
+    cell = realtime_cell("straight")
+    cell.robot_server.policy = dataclasses.replace(cell.robot_server.policy, token=TOKEN)
+    tools = tmp / "tools.json"
+    merge_cell_tools(str(tools), cell_tables(cell))
+    jobs = tmp / "jobs"
+    jobs.mkdir()
+    J.save(demo_job(), jobs / "demo.xml")
+    console = Console(cell.robot_address, cell.sensor_address, tools=tools, jobs=jobs, token=TOKEN)
+    try:
+        with TestClient(create_app(console)) as client:
+            yield client, console, cell
+    finally:
+        console.close()
+        cell.close()
+
+
+SEEN = Recorder()
+
+
+def call(client: TestClient, method: str, path: str, body: Any = None) -> Any:
+    r = client.request(method, path, json=body)
+    SEEN.texts.append(r.text)
+    return r
+
+
+def status(client: TestClient) -> dict[str, Any]:
+    s: dict[str, Any] = call(client, "GET", "/api/status").json()
+    return s
+
+
+def wait_for(client: TestClient, pred: Any, timeout: float = 10.0) -> dict[str, Any]:
+    deadline = time.monotonic() + timeout
+    while True:
+        s = status(client)
+        if pred(s):
+            return s
+        if time.monotonic() > deadline:
+            raise AssertionError(f"condition not reached; last status {s}")
+        time.sleep(0.05)
+
+
+def finished(s: dict[str, Any], kind: str) -> bool:
+    a = s["activity"]
+    return a is not None and a["kind"] == kind and a["state"] != "running"
+
+
+def next_error(ws: Any) -> dict[str, Any]:
+    while True:
+        msg: dict[str, Any] = ws.receive_json()
+        if msg["type"] == "error":
+            return msg
+
+
+def test_status_stream_updates_and_refusals_before_control(env: Any) -> None:
+    client, _, _ = env
+    with client.websocket_connect("/ws") as ws:
+        seqs = []
+        for _ in range(12):
+            msg = ws.receive_json()
+            SEEN.texts.append(str(msg))
+            assert msg["type"] == "status"
+            seqs.append(msg["seq"])
+        assert seqs == sorted(seqs) and len(set(seqs)) == 12  # fresh readings each time
+        assert msg["connected"] and len(msg["joints"]) == 6 and "flange@world" in msg["poses"]
+        ws.send_json({"type": "select", "tool": "laser", "frame": "workpiece"})
+        for _ in range(5):
+            msg = ws.receive_json()
+        assert "laser@workpiece" in msg["poses"]
+        # a malformed message gets an error message, the socket stays
+        ws.send_json(["not", "an", "object"])
+        assert "unknown message type" in next_error(ws)["message"]
+        # nothing moves without control: refused, and said so on the socket
+        ws.send_json({"type": "jog", "mode": "joint", "axis": 1, "direction": 1, "speed": 10})
+        assert "take control" in next_error(ws)["message"]
+    r = call(client, "POST", "/api/power", {"on": True})
+    assert r.status_code == 409 and "take control" in r.json()["error"]
+
+
+@pytest.mark.parametrize(
+    ("method", "path", "body", "code", "text"),
+    [
+        ("POST", "/api/power", {"on": "yes"}, 400, "on: expected true or false"),
+        ("POST", "/api/control", None, 400, "take: expected true or false"),
+        ("GET", "/api/jobs/..secret.xml", None, 400, "bad job file name"),
+        ("GET", "/api/jobs/missing.xml", None, 404, "no job file"),
+        (
+            "POST",
+            "/api/tools",
+            {"name": "t1", "kind": "laser", "location": [1, 2]},
+            400,
+            "expected 6 numbers",
+        ),
+        (
+            "POST",
+            "/api/tools",
+            {"name": "-bad", "kind": "laser", "location": [0] * 6},
+            400,
+            "bad name",
+        ),
+        (
+            "POST",
+            "/api/tools",
+            {"name": "t2", "kind": "hammer", "location": [0] * 6},
+            400,
+            "kind",
+        ),
+        ("PUT", "/api/tools/nosuch", {"location": [0] * 6}, 400, "nosuch"),
+        (
+            "POST",
+            "/api/jobs/demo.xml/check",
+            {"job": {"items": 3}},
+            400,
+            "job: 'items': expected list",
+        ),
+        ("POST", "/api/jobs/demo.xml/run", {"dry_run": True}, 409, "take control"),
+        ("POST", "/api/abort", {}, 409, "nothing is running"),
+        ("POST", "/api/teach", {}, 409, "take control"),
+        ("POST", "/api/delta-t", {}, 409, "take control"),
+        ("POST", "/api/calibrate", {}, 409, "take control"),
+        ("POST", "/api/track", {}, 409, "emulated cell only"),
+    ],
+)
+def test_bad_requests_get_a_clear_error(
+    env: Any, method: str, path: str, body: Any, code: int, text: str
+) -> None:
+    client, _, _ = env
+    r = call(client, method, path, body)
+    assert r.status_code == code, r.text
+    assert text in r.json()["error"]
+
+
+def test_body_that_is_not_json(env: Any) -> None:
+    client, _, _ = env
+    r = client.post("/api/power", content=b"{not json")
+    assert r.status_code == 400 and r.json() == {"error": "the request body is not JSON"}
+
+
+def test_a_broken_tool_database_is_an_error_not_a_dead_console(env: Any) -> None:
+    client, console, _ = env
+    good = console.tools.path.read_bytes()
+    try:
+        console.tools.path.write_text("{broken")
+        r = call(client, "GET", "/api/tools")
+        assert r.status_code == 400 and str(console.tools.path) in r.json()["error"]
+        seq = status(client)["seq"]
+        s = wait_for(client, lambda s: s["seq"] > seq + 2)  # the status keeps flowing
+        assert s["connected"] and "flange@world" in s["poses"]
+    finally:
+        console.tools.path.write_bytes(good)
+
+
+def test_job_validation_is_the_job_checks(env: Any) -> None:
+    client, _, _ = env
+    opened = call(client, "GET", "/api/jobs/demo.xml").json()
+    assert opened["ok"] and opened["job"]["items"][1]["velocity"] == 20
+    job = opened["job"]
+    job["items"][1]["velocity"] = -5.0
+    job["items"][0]["at"]["tool"] = "nosuch"
+    checked = call(client, "POST", "/api/jobs/demo.xml/check", {"job": job}).json()
+    assert not checked["ok"]
+    with pytest.raises(J.JobError) as err:
+        tables = env[1].tables()
+        J.loads(checked["xml"], source="demo.xml", has_tool=tables.has_tool,
+                has_frame=tables.has_frame)  # fmt: skip
+    expected = [{"line": p.line, "column": p.column, "message": p.message}
+                for p in err.value.problems]  # fmt: skip
+    assert checked["problems"] == expected and len(expected) == 2
+    # a job with problems is not saved
+    saved = call(client, "PUT", "/api/jobs/demo.xml", {"job": job}).json()
+    assert saved["saved"] is False
+    assert J.load(env[1].job_path("demo.xml")) == demo_job()
+
+
+def test_token_is_never_sent_to_the_browser(env: Any) -> None:
+    client, _, _ = env
+    assert call(client, "POST", "/api/control", {"take": True}).status_code == 200
+    try:
+        with client.websocket_connect("/ws") as ws:
+            for _ in range(5):
+                SEEN.texts.append(str(ws.receive_json()))
+        for path in ("/api/status", "/api/tools", "/api/jobs", "/api/sensor/settings"):
+            call(client, "GET", path)
+        assert status(client)["owner"] == "console"
+        assert SEEN.texts and not [t for t in SEEN.texts if TOKEN in t]
+    finally:
+        call(client, "POST", "/api/control", {"take": False})
+
+
+def _power_on(client: TestClient) -> None:
+    assert call(client, "POST", "/api/control", {"take": True}).status_code == 200
+    assert call(client, "POST", "/api/power", {"on": True}).status_code == 200
+    wait_for(client, lambda s: s["powered"] and not s["moving"])
+
+
+def test_deadman_stops_a_jog_without_hold_and_on_a_closed_socket(env: Any) -> None:
+    client, console, _ = env
+    _power_on(client)
+    before = status(client)["joints"][0]
+    with client.websocket_connect("/ws") as ws:
+        ws.send_json({"type": "jog", "mode": "joint", "axis": 1, "direction": 1, "speed": 20})
+        s = wait_for(client, lambda s: s["jogging"] and s["moving"])
+        t0 = time.monotonic()
+        # no "hold" comes: the console stops the jog by itself
+        s = wait_for(client, lambda s: not s["jogging"] and not s["moving"])
+        stopped_after = time.monotonic() - t0
+        moved = s["joints"][0] - before
+        assert 0.0 < moved < 60.0  # it moved, and not to the joint limit
+        assert stopped_after < 5.0
+        # held, it keeps going; a closed socket stops it
+        ws.send_json({"type": "jog", "mode": "cartesian", "axis": "z", "direction": 1,
+                      "speed": 10})  # fmt: skip
+        deadline = time.monotonic() + 0.8
+        while time.monotonic() < deadline:
+            ws.send_json({"type": "hold"})
+            time.sleep(0.1)
+        assert status(client)["jogging"]
+    wait_for(client, lambda s: not s["jogging"] and not s["moving"])
+    assert console.stop_jog(None, "test") is False
+
+
+def test_dry_run_with_progress_then_abort_laser_off(env: Any) -> None:
+    client, _, cell = env
+    _power_on(client)
+    r = call(client, "POST", "/api/jobs/demo.xml/run", {"dry_run": True})
+    assert r.status_code == 200, r.text
+    s = wait_for(client, lambda s: finished(s, "job"), timeout=30)
+    assert s["activity"]["state"] == "done" and s["activity"]["total"] == 4
+    # welding this time, aborted while it runs: laser off, motion stopped
+    r = call(client, "POST", "/api/jobs/demo.xml/run", {"dry_run": False})
+    assert r.status_code == 200, r.text
+    wait_for(client, lambda s: (s["activity"] or {}).get("item") == "seam", timeout=30)
+    # a second job or a jog is refused while one runs
+    assert call(client, "POST", "/api/jobs/demo.xml/run", {"dry_run": True}).status_code == 409
+    assert call(client, "POST", "/api/abort", {}).status_code == 200
+    s = wait_for(client, lambda s: finished(s, "job"))
+    assert s["activity"]["state"] == "aborted" and "cancelled" in s["activity"]["message"]
+    wait_for(client, lambda s: not s["moving"])
+    assert cell.robot.io_log[-1][2] is False or all(not v for _, n, v in cell.robot.io_log[-3:])
+    outputs = {n: v for _, n, v in cell.robot.io_log}
+    assert outputs == {"laser": False, "crossjet": False, "gas": False}
+
+
+def test_estop_gets_through_and_stops(env: Any) -> None:
+    client, _, _ = env
+    _power_on(client)
+    with client.websocket_connect("/ws") as ws:
+        ws.send_json({"type": "jog", "mode": "joint", "axis": 1, "direction": -1, "speed": 20})
+        ws.send_json({"type": "hold"})
+        wait_for(client, lambda s: s["moving"])
+        assert call(client, "POST", "/api/estop").status_code == 200
+        s = wait_for(client, lambda s: s["estop"] and not s["moving"])
+        assert not s["jogging"]
+    assert call(client, "POST", "/api/estop/reset").status_code == 200
+    wait_for(client, lambda s: not s["estop"])
+
+
+def test_measurement_settings_are_checked(env: Any) -> None:
+    client, _, _ = env
+    _power_on(client)
+    r = call(client, "POST", "/api/delta-t", {"frequency": 100})
+    assert r.status_code == 400 and "frequency: 100 is outside 0.1..10" in r.json()["error"]
+    r = call(client, "POST", "/api/calibrate", {"poses": 3})
+    assert r.status_code == 400 and "poses: 3 is outside 8..30" in r.json()["error"]
+    r = call(client, "POST", "/api/calibrate", {"tool": "nosuch"})
+    assert r.status_code == 400 and "nosuch" in r.json()["error"]
+
+
+def test_estop_gets_through_while_the_control_connection_is_busy(env: Any) -> None:
+    client, console, _ = env
+    _power_on(client)
+    console.control.joint_move([30.0, 30.0, 100.0, 0.0, 50.0, 0.0])
+    # a request pending on the control connection (as a long WaitEndMove would be)
+    with console.control._lock:
+        wait_for(client, lambda s: s["moving"])
+        assert call(client, "POST", "/api/estop").status_code == 200
+        wait_for(client, lambda s: s["estop"] and not s["moving"])
+    assert call(client, "POST", "/api/estop/reset").status_code == 200
+    wait_for(client, lambda s: not s["estop"])
+
+
+def test_teaching_shows_points_and_save_as(env: Any, tmp_path: Path) -> None:
+    client, console, _ = env
+    _power_on(client)
+    console.control.joint_move(READY_JOINTS)  # where the sensor sees the seam
+    assert console.control.wait_end_move(30.0)
+    r = call(client, "POST", "/api/teach", {"step": 5, "length": 15, "speed": 50})
+    assert r.status_code == 200, r.text
+    s = wait_for(client, lambda s: finished(s, "teach"), timeout=30)
+    assert s["activity"]["state"] == "done", s["activity"]
+    assert s["activity"]["count"] >= 3 and len(s["activity"]["points"][0]) == 3
+    job = call(client, "GET", "/api/jobs/demo.xml").json()["job"]
+    job["items"][1]["power"] = 1500.0
+    saved = call(client, "PUT", "/api/jobs/copy.xml", {"job": job}).json()
+    assert saved["saved"] and saved["ok"]
+    assert J.load(console.job_path("copy.xml")).item("seam").power == 1500.0  # type: ignore[union-attr]

@@ -1,0 +1,131 @@
+"""``python -m welding console``: the operator console in the browser.
+
+``--emulate`` starts an emulated cell on the real-time clock in this process (its robot and
+sensor servers on free loopback ports) and connects to it as it would to a real cell;
+``--robot HOST:PORT [--sensor HOST:PORT] [--token-file PATH]`` connects to a real one. The
+console binds to 127.0.0.1:8024 unless ``--host``/``--port`` say otherwise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+from typing import Any
+
+from spec import cliargs
+from welding import job as J
+
+__all__ = ["add_parser", "cmd_console", "demo_job"]
+
+log = logging.getLogger("welding.console")
+DEFAULT_PORT = 8024
+
+
+def add_parser(sub: Any, endpoint: Any, add_tools_option: Any) -> None:
+    p = sub.add_parser(
+        "console",
+        help="the operator console in the browser (pip install '.[console]')",
+        description="Serve the operator console: status, jog, sensor view, tools and frames, "
+        "jobs, teaching. Open http://HOST:PORT/ in a browser.",
+    )
+    where = p.add_mutually_exclusive_group(required=True)
+    where.add_argument("--robot", type=endpoint(4000), metavar="HOST:PORT")
+    where.add_argument(
+        "--emulate", action="store_true", help="start an emulated cell (real-time clock)"
+    )
+    p.add_argument("--sensor", type=endpoint(2000), metavar="HOST:PORT", help="with --robot")
+    p.add_argument("--token-file", metavar="PATH", type=cliargs.token_file)
+    p.add_argument(
+        "--seam", choices=("straight", "sine", "corner"), default="straight", help="--emulate"
+    )
+    p.add_argument("--host", default="127.0.0.1", help="address to serve on (default loopback)")
+    p.add_argument("--port", type=int, default=DEFAULT_PORT, help="default %(default)s")
+    p.add_argument("--jobs", metavar="DIR", default=".", help="folder of job files (default: here)")
+    p.add_argument("--timeout", type=cliargs.positive_float, default=10.0)
+    add_tools_option(p)
+
+
+def demo_job() -> J.Job:
+    """A short job on the emulated cell's workpiece: approach, a seam, a stitch, away."""
+
+    def at(x: float, y: float, z: float) -> J.Location:
+        return J.Location(x, y, z, 180.0, 0.0, 0.0, "laser", "workpiece")
+
+    return J.Job(
+        "demo",
+        (
+            J.Via("approach", at(-40, 0, 30), speed=20),
+            J.Path(
+                "seam",
+                at(-40, 0, 0),
+                (J.Line(at(0, 0, 0)),),
+                velocity=20,
+                power=1000,
+                preflow=0.2,
+                postflow=0.2,
+            ),
+            J.Stitch("spot", at(10, 0, 0), duration=0.2, power=800),
+            J.Via("away", at(10, 0, 40), speed=20),
+        ),
+        description="the emulated cell's straight seam",
+    )
+
+
+def cmd_console(args: argparse.Namespace) -> int:
+    try:
+        import uvicorn
+
+        from welding.console.app import create_app
+        from welding.console.backend import Console
+    except ImportError as exc:
+        print(
+            f"python -m welding console: {exc.name} is missing: pip install '.[console]'",
+            file=sys.stderr,
+        )
+        return 2
+    from welding.cli import CliError, merge_cell_tools
+
+    cell = None
+    if args.emulate:
+        from welding.emulate import cell_tables, realtime_cell
+
+        cell = realtime_cell(args.seam)
+        robot, sensor = cell.robot_address, cell.sensor_address
+        merge_cell_tools(args.tools, cell_tables(cell))
+        jobs = Path(args.jobs)
+        if not any(jobs.glob("*.xml")):
+            jobs.mkdir(parents=True, exist_ok=True)
+            J.save(demo_job(), jobs / "demo.xml")
+    else:
+        robot, sensor = args.robot, args.sensor
+    try:
+        try:
+            console = Console(
+                robot,
+                sensor,
+                tools=args.tools,
+                jobs=args.jobs,
+                token=args.token_file or "",
+                timeout=args.timeout,
+                emulated=args.emulate,
+            )
+        except OSError as exc:
+            raise CliError(f"robot or sensor unreachable: {exc}", 3) from None
+        try:
+            print(f"console: http://{args.host}:{args.port}/", file=sys.stderr, flush=True)
+            uvicorn.run(
+                create_app(console),
+                host=args.host,
+                port=args.port,
+                log_level="warning",
+                ws_ping_interval=5.0,
+                ws_ping_timeout=5.0,
+            )
+        finally:
+            console.close()
+    finally:
+        if cell is not None:
+            cell.close()
+    return 0
