@@ -202,12 +202,12 @@ class FramedClient:
             event = decoder.next_event()
             if event is not None:
                 if isinstance(event, Packet):
-                    if event.kind is PacketKind.EVENT:
+                    if event.kind is _EVENT:
                         continue  # [RS-3.14] an event is never the reply to a request
                     if event.request_id in self._abandoned and event.request_id != request_id:
                         self._abandoned.discard(event.request_id)
                         continue  # the late reply of an interrupted request
-                    if command == CommandId.EMERGENCY_STOP and _is_limit_notice(event):
+                    if command == _EMERGENCY_STOP and _is_limit_notice(event):
                         continue  # [RS-7.14] a reserved connection still takes EmergencyStop
                     return event
                 self.close()
@@ -254,7 +254,7 @@ class FramedClient:
             self._sock.settimeout(remaining)
 
     def _check_reply(self, command: int, request_id: int, reply: Packet) -> tuple[Value, ...]:
-        if reply.kind is PacketKind.ERROR:
+        if reply.kind is _ERROR:
             code, message = reply.error or (0, "")
             if reply.request_id in (request_id, 0):
                 raise RemoteError(code, message, reply.command, reply.request_id)
@@ -264,7 +264,7 @@ class FramedClient:
                 f"reply does not match request: expected command 0x{command:04x} id "
                 f"{request_id}, got 0x{reply.command:04x} id {reply.request_id}"
             )
-        if reply.kind is not PacketKind.REPLY:
+        if reply.kind is not _REPLY:
             self.close()
             raise PeerError(f"expected a REPLY packet, got {reply.kind.name}")
         spec = BY_ID.get(command)
@@ -359,6 +359,12 @@ class FramedClient:
         (t,) = self.call(CommandId.GET_TIME)
         assert isinstance(t, float)
         return t
+
+
+# Enum members as constants: an enum attribute look-up is slow in Python 3.11 and these are
+# read on every call.
+_EVENT, _ERROR, _REPLY = PacketKind.EVENT, PacketKind.ERROR, PacketKind.REPLY
+_EMERGENCY_STOP = int(CommandId.EMERGENCY_STOP)
 
 
 def wait_end_move(client: FramedClient, timeout: float) -> bool:

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from typing import NamedTuple, NoReturn
 
 from spec import wire
+from spec.crc import crc32_parts
 from spec.errors import (
     BadCrcError,
     ErrorCode,
@@ -33,9 +34,8 @@ from spec.params import Value, decode_params, encode_params_parts
 from spec.wire import PacketKind
 
 
-@dataclass(frozen=True, slots=True)
-class Packet:
-    """One decoded frame (PROTOCOL.md section 3)."""
+class Packet(NamedTuple):
+    """One decoded frame (PROTOCOL.md section 3). A named tuple: one is built per frame."""
 
     kind: PacketKind
     command: int
@@ -94,13 +94,8 @@ def encode_packet_parts(
         length,
     )
     parts.insert(0, header)
-    if not crc:
-        parts.append(_NO_CRC_TRAILER)
-        return parts
-    checksum = 0
-    for part in parts:
-        checksum = zlib.crc32(part, checksum)
-    parts.append(wire.TRAILER.pack(checksum))
+    # An image sent again is not scanned again: its CRC comes from the cache (spec.crc).
+    parts.append(wire.TRAILER.pack(crc32_parts(parts)) if crc else _NO_CRC_TRAILER)
     return parts
 
 
@@ -148,6 +143,8 @@ Event = Packet | Rejected
 
 #: Frames at least this long are received in place (get_buffer) instead of chunk by chunk.
 LARGE_FRAME = 64 * 1024
+#: The largest frame buffer a decoder keeps for the next large frame.
+_SPARE_MAX = wire.DEFAULT_MAX_PAYLOAD + wire.FRAME_OVERHEAD
 
 
 @dataclass
@@ -175,7 +172,8 @@ class FrameDecoder:
     _size: int = field(default=0, repr=False)
     _failed: PeerError | None = field(default=None, repr=False)
     # A large frame being received in place: its buffer, bytes filled, and its header.
-    _frame: bytearray | None = field(default=None, repr=False)
+    _frame: memoryview | None = field(default=None, repr=False)
+    _spare: bytearray = field(default_factory=bytearray, repr=False)
     _filled: int = field(default=0, repr=False)
     _frame_header: Header | None = field(default=None, repr=False)
 
@@ -217,7 +215,11 @@ class FrameDecoder:
             ):
                 return None  # small, complete or bad: next_event handles it
             # Everything buffered belongs to this unfinished frame: move it into place.
-            frame = bytearray(end)
+            # A 128 KiB image every call: reuse one buffer (the decoded values are copies, so
+            # nothing refers to it after a frame), sparing an allocation and page faults.
+            if len(self._spare) < end:
+                self._spare = bytearray(end) if end <= _SPARE_MAX else bytearray()
+            frame = memoryview(self._spare)[:end] if self._spare else memoryview(bytearray(end))
             pos = 0
             for i, chunk in enumerate(self._chunks):
                 piece = memoryview(chunk)[self._offset :] if i == 0 else chunk
@@ -226,7 +228,7 @@ class FrameDecoder:
             self._chunks.clear()
             self._offset = self._size = 0
             self._frame, self._filled, self._frame_header = frame, pos, header
-        return memoryview(self._frame)[self._filled :]
+        return self._frame[self._filled :]
 
     def buffer_updated(self, n: int) -> None:
         """``n`` bytes were written at the start of the last :meth:`get_buffer` view."""
@@ -267,35 +269,42 @@ class FrameDecoder:
             raise self._failed
         if self._frame is not None:
             return self._large_frame_event()
-        if self._size < 2:
+        size = self._size
+        if size < wire.HEADER_SIZE:
+            if size >= 2:
+                self._check_magic(self._contiguous(2), self._offset)
             return None
-        data = self._contiguous(min(self._size, wire.HEADER_SIZE))
-        off = self._offset
-        if data[off : off + 2] != wire.MAGIC:
-            # [RS-3.8] unusable header: the frame boundary is lost, the connection ends.
-            self._fail(FrameError(f"bad magic {data[off : off + 2].hex()}, expected 5253"))
-        if self._size < wire.HEADER_SIZE:
-            return None
-        header = Header.unpack(data, off)
-        if header.length > self.max_payload:
+        data, off = self._chunks[0], self._offset
+        if len(data) - off < wire.HEADER_SIZE:
+            data, off = self._contiguous(wire.HEADER_SIZE), 0
+        header = _HEADER_UNPACK(data, off)
+        if header[0] != wire.MAGIC:
+            self._check_magic(data, off)
+        length = header[7]
+        if length > self.max_payload:
             # [RS-3.5] never buffer an oversized frame: reject before reading it.
             self._fail(
                 FrameTooLargeError(
-                    f"payload length {header.length} exceeds the maximum {self.max_payload}"
+                    f"payload length {length} exceeds the maximum {self.max_payload}"
                 ),
             )
-        end = wire.HEADER_SIZE + header.length + wire.TRAILER_SIZE
-        if self._size < end:
+        end = wire.FRAME_OVERHEAD + length
+        if size < end:
             return None
-        data = self._contiguous(end)
-        off = self._offset
-        frame = memoryview(data)[off : off + end]
-        self._offset += end
-        self._size -= end
-        if self._offset == len(data):
+        if len(data) - off < end:
+            data, off = self._contiguous(end), 0
+        self._size = size - end
+        if off + end == len(data):
             self._chunks.popleft()
             self._offset = 0
-        return self._decode(header, frame)
+        else:
+            self._offset = off + end
+        return self._decode(header, memoryview(data)[off : off + end])
+
+    def _check_magic(self, data: bytes, off: int) -> None:
+        if data[off : off + 2] != wire.MAGIC:
+            # [RS-3.8] unusable header: the frame boundary is lost, the connection ends.
+            self._fail(FrameError(f"bad magic {data[off : off + 2].hex()}, expected 5253"))
 
     def _large_frame_event(self) -> Event | None:
         assert self._frame is not None and self._frame_header is not None
@@ -303,13 +312,15 @@ class FrameDecoder:
             return None
         frame, header = self._frame, self._frame_header
         self._frame, self._filled, self._frame_header = None, 0, None
-        return self._decode(header, memoryview(frame))
+        return self._decode(header, frame)
 
-    def _decode(self, header: Header, frame: memoryview) -> Event:
+    def _decode(
+        self, header: tuple[bytes, int, int, int, int, int, int, int], frame: memoryview
+    ) -> Event:
         try:
             return _decode_frame(header, frame, self.kinds, self.accept_no_crc)
         except PeerError as exc:
-            return Rejected(header, exc)
+            return Rejected(Header._make(header), exc)
 
     def _fail(self, error: PeerError) -> NoReturn:
         self._failed = error
@@ -324,28 +335,37 @@ _ALL_KINDS = frozenset(PacketKind)
 
 
 def _decode_frame(
-    header: Header, frame: memoryview, kinds: frozenset[PacketKind], accept_no_crc: bool = False
+    header: tuple[bytes, int, int, int, int, int, int, int],
+    frame: memoryview,
+    kinds: frozenset[PacketKind],
+    accept_no_crc: bool = False,
 ) -> Packet:
-    payload_end = wire.HEADER_SIZE + header.length
-    no_crc = accept_no_crc and header.flags == wire.FLAG_NO_CRC
+    """Check and decode one delimited frame; ``header`` is its unpacked :data:`wire.HEADER`
+    (a plain tuple or a :class:`Header`)."""
+    _, major, minor, kind_byte, flags, command, request_id, length = header
+    payload_end = wire.HEADER_SIZE + length
+    no_crc = accept_no_crc and flags == wire.FLAG_NO_CRC
     if not no_crc:
-        (crc,) = wire.TRAILER.unpack_from(frame, payload_end)
+        (crc,) = _TRAILER_UNPACK(frame, payload_end)
         if zlib.crc32(frame[:payload_end]) != crc:
             raise BadCrcError(f"CRC-32 mismatch (frame says {crc:08x})")
-    if header.version_major != wire.VERSION_MAJOR:
+    if major != wire.VERSION_MAJOR:
         raise VersionError(
-            f"protocol version {header.version_major}.{header.version_minor} not supported;"
-            f" this peer speaks {wire.VERSION}"
+            f"protocol version {major}.{minor} not supported; this peer speaks {wire.VERSION}"
         )
-    kind = _KINDS.get(header.kind)
+    kind = _KINDS.get(kind_byte)
     if kind is None:
-        raise FrameError(f"unknown packet kind {header.kind}")
+        raise FrameError(f"unknown packet kind {kind_byte}")
     if kind not in kinds:
         raise FrameError(f"packet kind {kind.name} not accepted here")
-    if header.flags != 0 and not no_crc:
-        raise FrameError(f"reserved flags must be 0, got 0x{header.flags:02x}")
+    if flags and not no_crc:
+        raise FrameError(f"reserved flags must be 0, got 0x{flags:02x}")
     params = decode_params(frame[wire.HEADER_SIZE : payload_end])
-    return Packet(kind, header.command, header.request_id, params, header.version_minor)
+    return Packet(kind, command, request_id, params, minor)
+
+
+_HEADER_UNPACK = wire.HEADER.unpack_from
+_TRAILER_UNPACK = wire.TRAILER.unpack_from
 
 
 def decode_packet(data: bytes, max_payload: int = wire.MAX_PAYLOAD) -> Packet:

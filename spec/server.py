@@ -158,13 +158,18 @@ class Session:
     def send(self, packet: Packet) -> None:
         self.send_parts(encode_packet_parts(packet, wire.MAX_PAYLOAD, crc=self.crc))
 
-    def send_parts(self, parts: list[bytes]) -> None:
+    def send_parts(self, parts: list[bytes], *, reply: bool = False) -> None:
         """Send one encoded frame given as pieces: small frames joined and sent at once,
-        large ones (images) handed to the kernel piece by piece, never copied here."""
+        large ones (images) handed to the kernel piece by piece, never copied here.
+        ``reply``: count it as a reply (with its bytes, under one lock)."""
         size = sum(map(len, parts))
         # Counted before sending: a client that reads statistics() right after the reply
         # must find it counted.
-        self.server._count("bytes_out", size)
+        server = self.server
+        with server._lock:
+            server._stats["bytes_out"] += size
+            if reply:
+                server._stats["replies"] += 1
         with self._send_lock:
             if size < LARGE_FRAME or not hasattr(self.sock, "sendmsg"):
                 self.sock.sendall(parts[0] if len(parts) == 1 else b"".join(parts))
@@ -337,6 +342,15 @@ class FramedServer:
         self.handler_errors: list[BaseException] = []
         register(self)
         self._implemented = frozenset(service.implemented()) | {int(c) for c in _COMMON}
+        # Per request, one dict look-up finds what the shell needs to know of a command.
+        name = service.identity.service
+        self._specs: dict[int, CommandSpec] = {}
+        for command in self._implemented:
+            spec = lookup(command, name)
+            if spec is not None:
+                self._specs[command] = spec
+        self._urgent = frozenset(service.urgent)
+        self._blocking = frozenset(service.blocking)
 
     # --- lifecycle ---------------------------------------------------------------------------
 
@@ -545,10 +559,12 @@ class FramedServer:
             last_byte = time.monotonic()
             try:
                 decoder.feed(data)
-                for event in decoder.events():
+                event = decoder.next_event()
+                while event is not None:
                     # [RS-7.13] every frame from the controller renews its lease.
                     session.alive_at = last_byte
                     self._route(session, event)
+                    event = decoder.next_event()
             except PeerError as exc:
                 # [RS-3.8] header unusable: say why with request ID 0, then close.
                 self._reject_code(exc.code)
@@ -561,9 +577,9 @@ class FramedServer:
 
     def _route(self, session: Session, event: Packet | Rejected) -> None:
         """Answer now on the reader, or queue on the session's worker [RS-7.12]."""
-        if isinstance(event, Packet) and event.command in self.service.urgent:
+        if type(event) is Packet and event.command in self._urgent:
             self._answer(session, event)  # may overtake the pending replies
-        elif session.busy or (isinstance(event, Packet) and event.command in self.service.blocking):
+        elif session.busy or (type(event) is Packet and event.command in self._blocking):
             if session._worker is None:
                 session._worker = _Worker(self, session)
             session._worker.submit(event)
@@ -674,7 +690,7 @@ class FramedServer:
                 session, packet.command, packet.request_id, ErrorCode.INTERNAL_ERROR, message
             )
             return
-        reply = Packet(PacketKind.REPLY, packet.command, packet.request_id, params)
+        reply = Packet(_REPLY, packet.command, packet.request_id, params)
         try:
             parts = encode_packet_parts(reply, wire.MAX_PAYLOAD, crc=crc)
         except ProtocolError as exc:  # reply too large to encode: a server-side bug
@@ -683,15 +699,14 @@ class FramedServer:
                 session, packet.command, packet.request_id, ErrorCode.INTERNAL_ERROR, str(exc)
             )
             return
-        self._count("replies")  # before sending, so statistics() never lags a received reply
-        session.send_parts(parts)
+        session.send_parts(parts, reply=True)
 
     def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
-        service = self.service.identity.service
-        spec = lookup(packet.command, service)
-        if spec is None or packet.command not in self._implemented:
+        spec = self._specs.get(packet.command)
+        if spec is None:
             raise ProtocolError(
-                f"unknown command 0x{packet.command:04x} for the {service} service",
+                f"unknown command 0x{packet.command:04x} for the"
+                f" {self.service.identity.service} service",
                 ErrorCode.UNKNOWN_COMMAND,
             )
         if session.reserved and packet.command != CommandId.EMERGENCY_STOP:
@@ -811,6 +826,8 @@ class FramedServer:
         log.info("session %d: frame CRC %s", session.id, "on" if session.crc else "off")
         return (session.crc,)
 
+
+_REPLY = PacketKind.REPLY  # an enum attribute look-up is slow in Python 3.11
 
 _Handler = Callable[[FramedServer, Session, tuple[Value, ...]], tuple[Value, ...]]
 _COMMON: dict[int, _Handler] = {

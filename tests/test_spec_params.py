@@ -132,3 +132,24 @@ def test_large_arrays_and_images_decode() -> None:
 def test_payload_must_be_filled_exactly() -> None:
     with pytest.raises(ParameterError):
         decode_params(encode_params([1]) + b"\x00")
+
+
+def test_large_frames_received_in_place_reuse_one_buffer_without_aliasing() -> None:
+    """Two large frames through get_buffer / buffer_updated (as a socket's recv_into): the
+    decoder reuses its buffer, and the first decoded image is not overwritten by the second."""
+    decoder = FrameDecoder()
+    images = [Image(512, 256, bytes([fill]) * (512 * 256)) for fill in (7, 9)]
+    got = []
+    for i, image in enumerate(images):
+        raw = encode_packet(Packet(PacketKind.REPLY, 0x2003, i + 1, (i, image)))
+        decoder.feed(raw[:100])
+        pos = 100
+        while pos < len(raw):
+            view = decoder.get_buffer()
+            assert view is not None
+            n = min(len(view), 40000, len(raw) - pos)
+            view[:n] = raw[pos : pos + n]
+            decoder.buffer_updated(n)
+            pos += n
+        got.extend(decoder.events())
+    assert [p.params for p in got] == [(0, images[0]), (1, images[1])]
