@@ -77,6 +77,7 @@ class FramedClient:
         self._id_lock = threading.Lock()
         self._send_lock = threading.Lock()
         self._scratch = bytearray(1 << 18)  # reused receive buffer: no allocation per recv
+        self._scratch_view = memoryview(self._scratch)
         self._lock = threading.RLock()
         self.server_info: dict[str, Value] = {}
         #: Request IDs whose reply was not waited for (interrupted): dropped when they come.
@@ -159,7 +160,7 @@ class FramedClient:
                     raise ConnectionClosed("not connected")
                 self.connect()
             request_id = self._new_request_id()
-            data = encode_packet(request(command, request_id, *params))
+            data = encode_packet(Packet(_REQUEST, command, request_id, params))
             # Marked abandoned until its reply is read: an interruption anywhere from here on
             # (Ctrl-C between the send and the wait too) leaves its late reply to be dropped.
             self._abandoned.add(request_id)
@@ -234,8 +235,7 @@ class FramedClient:
                 decoder.buffer_updated(n)
                 continue
             try:
-                with memoryview(self._scratch) as scratch, scratch[:n] as chunk:
-                    decoder.feed(chunk)
+                decoder.feed(self._scratch_view[:n])
             except PeerError:
                 self.close()
                 raise
@@ -257,7 +257,7 @@ class FramedClient:
         if reply.kind is _ERROR:
             code, message = reply.error or (0, "")
             if reply.request_id in (request_id, 0):
-                raise RemoteError(code, message, reply.command, reply.request_id)
+                raise self._remote_error(code, message, reply.command, reply.request_id)
         if reply.request_id != request_id or reply.command != command:
             self.close()
             raise PeerError(
@@ -271,6 +271,11 @@ class FramedClient:
         if spec is not None:
             check_params(spec.reply, reply.params, f"{spec.name} reply", allow_extra=True)
         return reply.params
+
+    def _remote_error(self, code: int, message: str, command: int, request_id: int) -> RemoteError:
+        """The exception an error packet raises (a service's client maps codes to its own
+        subclasses here)."""
+        return RemoteError(code, message, command, request_id)
 
     # --- common commands ---------------------------------------------------------------------
 
@@ -363,7 +368,8 @@ class FramedClient:
 
 # Enum members as constants: an enum attribute look-up is slow in Python 3.11 and these are
 # read on every call.
-_EVENT, _ERROR, _REPLY = PacketKind.EVENT, PacketKind.ERROR, PacketKind.REPLY
+_REQUEST, _EVENT, _ERROR = PacketKind.REQUEST, PacketKind.EVENT, PacketKind.ERROR
+_REPLY = PacketKind.REPLY
 _EMERGENCY_STOP = int(CommandId.EMERGENCY_STOP)
 
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from typing import NamedTuple, NoReturn
 
 from spec import wire
-from spec.crc import crc32_parts
+from spec.crc import CACHED_MIN, crc32_parts
 from spec.errors import (
     BadCrcError,
     ErrorCode,
@@ -70,35 +70,36 @@ def error_packet(command: int, request_id: int, code: ErrorCode | int, message: 
 def encode_packet_parts(
     packet: Packet, max_payload: int = wire.MAX_PAYLOAD, *, crc: bool = True
 ) -> list[bytes]:
-    """One frame as a list of byte strings (header, parameter list pieces, trailer), so a large
-    payload (an image) is never copied to build the frame: send it with ``sendmsg``.
+    """One frame as a list of byte strings, so a large payload (an image) is never copied to
+    build the frame: send it with ``sendmsg``. A small frame (no part of
+    :data:`spec.crc.CACHED_MIN` bytes) comes as one piece, ready for ``sendall``.
 
     ``crc=False`` sends the frame with the NO_CRC flag and a zero trailer, on a connection
     where the client turned CRCs off (SetFrameCrc, [RS-3.16])."""
-    if not 0 <= packet.command <= 0xFFFF:
-        raise UsageError(f"command ID {packet.command} does not fit in 16 bits")
-    if not 0 <= packet.request_id <= 0xFFFFFFFF:
-        raise UsageError(f"request ID {packet.request_id} does not fit in 32 bits")
-    parts = encode_params_parts(packet.params)
+    kind, command, request_id, params, minor = packet
+    if not 0 <= command <= 0xFFFF:
+        raise UsageError(f"command ID {command} does not fit in 16 bits")
+    if not 0 <= request_id <= 0xFFFFFFFF:
+        raise UsageError(f"request ID {request_id} does not fit in 32 bits")
+    parts = encode_params_parts(params)
     length = sum(map(len, parts))
     if length > max_payload:
         raise UsageError(f"payload of {length} bytes exceeds the maximum of {max_payload}")
-    header = wire.HEADER.pack(
-        wire.MAGIC,
-        wire.VERSION_MAJOR,
-        packet.version_minor,
-        packet.kind,
-        0 if crc else wire.FLAG_NO_CRC,
-        packet.command,
-        packet.request_id,
-        length,
+    flags = 0 if crc else wire.FLAG_NO_CRC
+    header = _HEADER_PACK(
+        wire.MAGIC, wire.VERSION_MAJOR, minor, kind, flags, command, request_id, length
     )
+    if length < CACHED_MIN:
+        body = header + b"".join(parts)
+        return [body + (_TRAILER_PACK(zlib.crc32(body)) if crc else _NO_CRC_TRAILER)]
     parts.insert(0, header)
     # An image sent again is not scanned again: its CRC comes from the cache (spec.crc).
-    parts.append(wire.TRAILER.pack(crc32_parts(parts)) if crc else _NO_CRC_TRAILER)
+    parts.append(_TRAILER_PACK(crc32_parts(parts)) if crc else _NO_CRC_TRAILER)
     return parts
 
 
+_HEADER_PACK = wire.HEADER.pack
+_TRAILER_PACK = wire.TRAILER.pack
 _NO_CRC_TRAILER = wire.TRAILER.pack(0)
 
 

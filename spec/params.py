@@ -46,6 +46,13 @@ def _trusted(cls: type[_T], **fields: object) -> _T:
     return obj
 
 
+def _trusted_values(cls: type[_T], values: tuple[Any, ...]) -> _T:
+    """:func:`_trusted` for the classes whose one field is ``values`` (the common replies)."""
+    obj = object.__new__(cls)
+    object.__setattr__(obj, "values", values)
+    return obj
+
+
 def _floats(values: object, what: str) -> tuple[float, ...]:
     try:
         return tuple(map(float, values))  # type: ignore[call-overload]
@@ -474,13 +481,13 @@ def _dec_string(buf: memoryview, pos: int, index: int) -> _Decoded:
 def _dec_float_array(buf: memoryview, pos: int, index: int) -> _Decoded:
     n = _counted(buf, pos, index, _PT_FLOAT_ARRAY, 8)
     vals = _f64s(n).unpack_from(buf, pos + 4)
-    return _trusted(FloatArray, values=vals), pos + 4 + 8 * n
+    return _trusted_values(FloatArray, vals), pos + 4 + 8 * n
 
 
 def _dec_int_array(buf: memoryview, pos: int, index: int) -> _Decoded:
     n = _counted(buf, pos, index, _PT_INT_ARRAY, 8)
     vals = _i64s(n).unpack_from(buf, pos + 4)
-    return _trusted(IntArray, values=vals), pos + 4 + 8 * n
+    return _trusted_values(IntArray, vals), pos + 4 + 8 * n
 
 
 def _dec_joints(buf: memoryview, pos: int, index: int) -> _Decoded:
@@ -491,7 +498,7 @@ def _dec_joints(buf: memoryview, pos: int, index: int) -> _Decoded:
     _need(buf, pos + 1, 8 * n, index, _PT_JOINTS)
     joints = _f64s(n).unpack_from(buf, pos + 1)
     _finite(joints, index, _PT_JOINTS)
-    return _trusted(Joints, values=joints), pos + 1 + 8 * n
+    return _trusted_values(Joints, joints), pos + 1 + 8 * n
 
 
 def _dec_location(buf: memoryview, pos: int, index: int) -> _Decoded:
@@ -508,7 +515,7 @@ def _dec_transform(buf: memoryview, pos: int, index: int) -> _Decoded:
     _finite(t, index, _PT_TRANSFORM)
     if t[12:] != (0.0, 0.0, 0.0, 1.0):
         raise ParameterError(f"parameter {index}: TRANSFORM last row must be 0 0 0 1")
-    return _trusted(Transform, values=t), pos + wire.TRANSFORM.size
+    return _trusted_values(Transform, t), pos + wire.TRANSFORM.size
 
 
 def _dec_matrix(buf: memoryview, pos: int, index: int) -> _Decoded:

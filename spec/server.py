@@ -162,7 +162,7 @@ class Session:
         """Send one encoded frame given as pieces: small frames joined and sent at once,
         large ones (images) handed to the kernel piece by piece, never copied here.
         ``reply``: count it as a reply (with its bytes, under one lock)."""
-        size = sum(map(len, parts))
+        size = len(parts[0]) if len(parts) == 1 else sum(map(len, parts))
         # Counted before sending: a client that reads statistics() right after the reply
         # must find it counted.
         server = self.server
