@@ -221,6 +221,8 @@ class FramedClient:
             self._arm_timeout(remaining)
             # The rest of a large frame (an image) goes straight into its own buffer.
             view = decoder.get_buffer()
+            if view is None:
+                decoder.keep()  # the scratch buffer is about to be written again
             try:
                 n = self._sock.recv_into(self._scratch if view is None else view)
             except (TimeoutError, BlockingIOError):
@@ -235,7 +237,7 @@ class FramedClient:
                 decoder.buffer_updated(n)
                 continue
             try:
-                decoder.feed(self._scratch_view[:n])
+                decoder.feed(self._scratch_view[:n], borrow=True)
             except PeerError:
                 self.close()
                 raise

@@ -168,7 +168,8 @@ class FrameDecoder:
     # Received bytes as a queue of chunks: a large frame arriving in many pieces is joined
     # once when complete (no growing buffer, no quadratic copying); ``_offset`` is where the
     # unread part of the first chunk starts.
-    _chunks: deque[bytes] = field(default_factory=deque, repr=False)
+    _chunks: deque[bytes | memoryview] = field(default_factory=deque, repr=False)
+    _borrowed: bool = field(default=False, repr=False)
     _offset: int = field(default=0, repr=False)
     _size: int = field(default=0, repr=False)
     _failed: PeerError | None = field(default=None, repr=False)
@@ -178,7 +179,10 @@ class FrameDecoder:
     _filled: int = field(default=0, repr=False)
     _frame_header: Header | None = field(default=None, repr=False)
 
-    def feed(self, data: bytes | bytearray | memoryview) -> None:
+    def feed(self, data: bytes | bytearray | memoryview, *, borrow: bool = False) -> None:
+        """Queue received bytes. ``borrow``: ``data`` is a view of the caller's receive buffer,
+        queued without a copy; the caller calls :meth:`keep` before it writes there again
+        (decoded values never refer to it: they are copies)."""
         if self._failed is not None:
             raise self._failed
         if not data:
@@ -191,9 +195,23 @@ class FrameDecoder:
             data = data[take:]
             if not data:
                 return
-        chunk = data if isinstance(data, bytes) else bytes(data)
+        if borrow and type(data) is memoryview:
+            self._borrowed = True
+            chunk: bytes | memoryview = data
+        else:
+            chunk = data if isinstance(data, bytes) else bytes(data)
         self._chunks.append(chunk)
         self._size += len(chunk)
+
+    def keep(self) -> None:
+        """Copy the unread bytes of borrowed views (:meth:`feed`) into bytes of our own."""
+        if self._borrowed:
+            chunks = self._chunks
+            if chunks:
+                first = bytes(chunks[0][self._offset :])
+                self._chunks = deque([first, *(bytes(c) for c in list(chunks)[1:])])
+                self._offset = 0
+            self._borrowed = False
 
     def get_buffer(self) -> memoryview | None:
         """Where the next bytes of a large frame go (``sock.recv_into``), or None when bytes
@@ -253,7 +271,7 @@ class FrameDecoder:
                 return
             yield event
 
-    def _contiguous(self, n: int) -> bytes:
+    def _contiguous(self, n: int) -> bytes | memoryview:
         """The first chunk, merged with the following ones until it holds ``n`` unread bytes
         (the caller checked ``_size >= n``)."""
         first = self._chunks[0]
@@ -302,7 +320,7 @@ class FrameDecoder:
             self._offset = off + end
         return self._decode(header, memoryview(data)[off : off + end])
 
-    def _check_magic(self, data: bytes, off: int) -> None:
+    def _check_magic(self, data: bytes | memoryview, off: int) -> None:
         if data[off : off + 2] != wire.MAGIC:
             # [RS-3.8] unusable header: the frame boundary is lost, the connection ends.
             self._fail(FrameError(f"bad magic {data[off : off + 2].hex()}, expected 5253"))

@@ -532,11 +532,10 @@ def _dec_image(buf: memoryview, pos: int, index: int) -> _Decoded:
     _need(buf, pos, wire.IMAGE_HEADER.size, index, _PT_IMAGE)
     width, height, fmt, order, n = wire.IMAGE_HEADER.unpack_from(buf, pos)
     pos += wire.IMAGE_HEADER.size
-    try:
-        pixel_format, pixel_order = PixelFormat(fmt), PixelOrder(order)
-    except ValueError:
+    pixel_format, pixel_order = _PIXEL_FORMATS.get(fmt), _PIXEL_ORDERS.get(order)
+    if pixel_format is None or pixel_order is None:
         msg = f"parameter {index}: unknown image format {fmt} / order {order}"
-        raise ParameterError(msg) from None
+        raise ParameterError(msg)
     if n != width * height * wire.BYTES_PER_PIXEL[pixel_format]:
         raise ParameterError(f"parameter {index}: IMAGE length {n} != width*height*bpp")
     _need(buf, pos, n, index, _PT_IMAGE)
@@ -546,6 +545,10 @@ def _dec_image(buf: memoryview, pos: int, index: int) -> _Decoded:
     )
     return image, pos + n
 
+
+# Look-ups by value without calling the enum class (slow in Python 3.11).
+_PIXEL_FORMATS = {int(f): f for f in PixelFormat}
+_PIXEL_ORDERS = {int(o): o for o in PixelOrder}
 
 _DECODERS: dict[int, Callable[[memoryview, int, int], _Decoded]] = {
     ParamType.INT: _dec_int,

@@ -538,6 +538,9 @@ class FramedServer:
             tick = min(tick, policy.reserved_grace / 4)
         ticking = set_kernel_timeouts(sock, tick)
         last_byte = frame_start = time.monotonic()
+        # Received bytes land in one reused buffer; the decoder borrows them (no copy).
+        scratch = bytearray(65536)
+        view = memoryview(scratch)
         while not self._shutdown.is_set() and not session.closed:
             now = time.monotonic()
             deadline, why = self._deadline(session, decoder.in_frame, frame_start, last_byte)
@@ -548,17 +551,18 @@ class FramedServer:
                 return
             if not ticking:
                 sock.settimeout(min(deadline - now, 1.0))
+            decoder.keep()  # the scratch buffer is about to be written again
             try:
-                data = sock.recv(65536)
+                n = sock.recv_into(scratch)
             except (TimeoutError, BlockingIOError):
                 continue  # a tick without data: check the deadlines again
-            if not data:
+            if not n:
                 return
             with self._lock:
-                self._stats["bytes_in"] += len(data)
+                self._stats["bytes_in"] += n
             last_byte = time.monotonic()
             try:
-                decoder.feed(data)
+                decoder.feed(view[:n], borrow=True)
                 event = decoder.next_event()
                 while event is not None:
                     # [RS-7.13] every frame from the controller renews its lease.

@@ -153,3 +153,27 @@ def test_large_frames_received_in_place_reuse_one_buffer_without_aliasing() -> N
             pos += n
         got.extend(decoder.events())
     assert [p.params for p in got] == [(0, images[0]), (1, images[1])]
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.lists(values, max_size=3), min_size=1, max_size=4), st.data())
+def test_borrowed_feed_matches_copied_feed(lists: list[list[Value]], data: st.DataObject) -> None:
+    """Bytes fed as views of one reused receive buffer (borrow=True, keep() before it is
+    overwritten) decode to the same packets as bytes fed as copies."""
+    packets = [Packet(PacketKind.REPLY, 7, i + 1, tuple(p)) for i, p in enumerate(lists)]
+    stream = b"".join(encode_packet(p) for p in packets)
+    cuts = sorted(data.draw(st.lists(st.integers(0, len(stream)), max_size=8)))
+    pieces = [stream[a:b] for a, b in zip([0, *cuts], [*cuts, len(stream)], strict=True)]
+    scratch = bytearray(len(stream) + 1)
+    borrowed, copied = FrameDecoder(), FrameDecoder()
+    got: list[object] = []
+    want: list[object] = []
+    for piece in pieces:
+        borrowed.keep()
+        scratch[:] = b"\xee" * len(scratch)  # what the previous piece left is overwritten
+        scratch[: len(piece)] = piece
+        borrowed.feed(memoryview(scratch)[: len(piece)], borrow=True)
+        got.extend(borrowed.events())
+        copied.feed(piece)
+        want.extend(copied.events())
+    assert got == want == packets
