@@ -10,6 +10,7 @@ behind, so its late reply is dropped instead of being taken for the next one's.
 
 from __future__ import annotations
 
+import itertools
 import socket
 import threading
 import time
@@ -73,8 +74,8 @@ class FramedClient:
         self._sock: socket.socket | None = None
         self._kernel_timeout: float | None = None  # SO_RCVTIMEO in force, None: Python's
         self._decoder = FrameDecoder(max_payload=wire.MAX_PAYLOAD)
-        self._next_id = 1
-        self._id_lock = threading.Lock()
+        # next() of an itertools.count is atomic: the lease keeper takes IDs beside a call.
+        self._ids = itertools.count()
         self._send_lock = threading.Lock()
         self._scratch = bytearray(1 << 18)  # reused receive buffer: no allocation per recv
         self._scratch_view = memoryview(self._scratch)
@@ -178,10 +179,8 @@ class FramedClient:
         return self._check_reply(command, request_id, reply)
 
     def _new_request_id(self) -> int:
-        with self._id_lock:
-            request_id = self._next_id
-            self._next_id = (self._next_id % 0xFFFFFFFF) + 1
-            return request_id
+        """1, 2, ... 0xFFFFFFFF, then 1 again (0 is never a request's ID)."""
+        return next(self._ids) % 0xFFFFFFFF + 1
 
     def _send(self, data: bytes) -> None:
         sock = self._sock

@@ -719,7 +719,7 @@ class FramedServer:
                 f"client limit reached: only EmergencyStop is served here, not {spec.name}",
                 ErrorCode.BUSY,
             )
-        check_params(spec.params, packet.params, f"{spec.name}")
+        check_params(spec.params, packet.params, spec.name)
         if spec.needs_control and not session.in_control:
             # [RS-7.4] commands that move or switch anything need control.
             if session.control_lost is not None:
