@@ -687,21 +687,27 @@ def check_params(
     *,
     allow_extra: bool = False,
 ) -> None:
-    """:func:`check_params_reference`, with a fast path for the case of every request and
-    reply: exactly the declared parameters, each of its type's exact Python class."""
+    """:func:`check_params_reference`, with a fast path for the case of nearly every request
+    and reply: the declared parameters (optional ones may be left off), each of its type's
+    exact Python class."""
     entry = _exact.get(id(specs))
     if entry is None or entry[0] is not specs:
         if len(_exact) > 1024:  # lists built on the fly (not from COMMANDS): stay bounded
             _exact.clear()
-        entry = _exact[id(specs)] = (specs, tuple(CLASS_OF[s.type] for s in specs))
-    if tuple(map(type, values)) == entry[1]:
-        return
+        required = sum(1 for s in specs if not s.optional and not s.repeated)
+        entry = _exact[id(specs)] = (specs, tuple(CLASS_OF[s.type] for s in specs), required)
+    types = tuple(map(type, values))
+    classes = entry[1]
+    if types == classes or (
+        entry[2] <= len(types) < len(classes) and types == classes[: len(types)]
+    ):
+        return  # the declared parameters, or all that are required and some optional ones
     check_params_reference(specs, values, what, allow_extra=allow_extra)
 
 
-# The exact classes of each parameter list seen, by identity (the lists live in COMMANDS;
-# the entry keeps its key alive, so an id is never reused while it is here).
-_exact: dict[int, tuple[tuple[ParamSpec, ...], tuple[type, ...]]] = {}
+# The exact classes of each parameter list seen and how many are required, by identity (the
+# lists live in COMMANDS; the entry keeps its key alive, so an id is never reused meanwhile).
+_exact: dict[int, tuple[tuple[ParamSpec, ...], tuple[type, ...], int]] = {}
 
 
 def check_params_reference(
