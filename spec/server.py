@@ -158,18 +158,13 @@ class Session:
     def send(self, packet: Packet) -> None:
         self.send_parts(encode_packet_parts(packet, wire.MAX_PAYLOAD, crc=self.crc))
 
-    def send_parts(self, parts: list[bytes], *, reply: bool = False) -> None:
+    def send_parts(self, parts: list[bytes]) -> None:
         """Send one encoded frame given as pieces: small frames joined and sent at once,
-        large ones (images) handed to the kernel piece by piece, never copied here.
-        ``reply``: count it as a reply (with its bytes, under one lock)."""
+        large ones (images) handed to the kernel piece by piece, never copied here."""
         size = len(parts[0]) if len(parts) == 1 else sum(map(len, parts))
         # Counted before sending: a client that reads statistics() right after the reply
         # must find it counted.
-        server = self.server
-        with server._lock:
-            server._stats["bytes_out"] += size
-            if reply:
-                server._stats["replies"] += 1
+        self.server._count("bytes_out", size)
         with self._send_lock:
             if size < LARGE_FRAME or not hasattr(self.sock, "sendmsg"):
                 self.sock.sendall(parts[0] if len(parts) == 1 else b"".join(parts))
@@ -703,7 +698,8 @@ class FramedServer:
                 session, packet.command, packet.request_id, ErrorCode.INTERNAL_ERROR, str(exc)
             )
             return
-        session.send_parts(parts, reply=True)
+        self._count("replies")  # before sending, so statistics() never lags a received reply
+        session.send_parts(parts)
 
     def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
         spec = self._specs.get(packet.command)
