@@ -9,6 +9,7 @@ rounds so that a busy moment of the machine hits both alike; figures are medians
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -36,10 +37,12 @@ def _samples(fn: Callable[[], object], n: int) -> list[float]:
 
 
 def _throughput(
-    connect: Callable[[], tuple[Callable[[], object], Callable[[], None]]], n: int
+    connect: Callable[[], tuple[Callable[[], object], Callable[[], None]]], n: int, what: str
 ) -> float:
-    """Calls per second of ``n`` client threads, each with its own connection."""
+    """Calls per second of ``n`` client threads, each with its own connection. A client whose
+    call fails stops (its calls so far count); how many did is printed, not raised."""
     counts = [0] * n
+    failed: list[str] = []
     stop = threading.Event()
     ready = threading.Barrier(n + 1)
 
@@ -50,6 +53,8 @@ def _throughput(
             while not stop.is_set():
                 call()
                 counts[i] += 1
+        except Exception as exc:
+            failed.append(str(exc))
         finally:
             close()
 
@@ -62,6 +67,8 @@ def _throughput(
     stop.set()
     for t in threads:
         t.join()
+    if failed:
+        print(f"  {what}: {len(failed)} of {n} clients failed ({failed[0]})", file=sys.stderr)
     return sum(counts) / (time.perf_counter() - t0)
 
 
@@ -117,8 +124,8 @@ def _herej(results: list[Result]) -> None:
             ra: list[float] = []
             rb: list[float] = []
             for _ in range(2):
-                ra.append(_throughput(connect_ours, n))
-                rb.append(_throughput(connect_modbus, n))
+                ra.append(_throughput(connect_ours, n, "ours"))
+                rb.append(_throughput(connect_modbus, n, "pyModbusTCP"))
             results.append(
                 result(
                     f"robot herej throughput, {n} client(s), server process",

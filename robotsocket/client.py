@@ -26,7 +26,7 @@ from robotsocket import interface
 from robotsocket.interface import IDENTITY_LOC, Array, Loc, MotionDesc
 from spec.client import ClientTimeout, ConnectionClosed, FramedClient, wait_end_move
 from spec.errors import ErrorCode, RemoteError
-from spec.params import Joints, Location, Matrix, Value
+from spec.params import Joints, Location, Matrix
 from spec.registry import CommandId
 
 
@@ -122,14 +122,9 @@ class RobotClient(FramedClient):
     def __enter__(self) -> RobotClient:
         return self
 
-    def call(self, command: int, *params: Value, timeout: float | None = None) -> tuple[Value, ...]:
-        try:
-            return super().call(command, *params, timeout=timeout)
-        except RemoteError as exc:
-            if isinstance(exc, RobotRemoteError):
-                raise
-            cls = _ERRORS.get(exc.raw_code, RobotRemoteError)
-            raise cls(exc.raw_code, exc.message, exc.command, exc.request_id) from None
+    def _remote_error(self, code: int, message: str, command: int, request_id: int) -> RemoteError:
+        cls = _ERRORS.get(code, RobotRemoteError)
+        return cls(code, message, command, request_id)
 
     # --- state -------------------------------------------------------------------------------
 

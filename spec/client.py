@@ -10,6 +10,7 @@ behind, so its late reply is dropped instead of being taken for the next one's.
 
 from __future__ import annotations
 
+import itertools
 import socket
 import threading
 import time
@@ -73,10 +74,11 @@ class FramedClient:
         self._sock: socket.socket | None = None
         self._kernel_timeout: float | None = None  # SO_RCVTIMEO in force, None: Python's
         self._decoder = FrameDecoder(max_payload=wire.MAX_PAYLOAD)
-        self._next_id = 1
-        self._id_lock = threading.Lock()
+        # next() of an itertools.count is atomic: the lease keeper takes IDs beside a call.
+        self._ids = itertools.count()
         self._send_lock = threading.Lock()
         self._scratch = bytearray(1 << 18)  # reused receive buffer: no allocation per recv
+        self._scratch_view = memoryview(self._scratch)
         self._lock = threading.RLock()
         self.server_info: dict[str, Value] = {}
         #: Request IDs whose reply was not waited for (interrupted): dropped when they come.
@@ -159,7 +161,7 @@ class FramedClient:
                     raise ConnectionClosed("not connected")
                 self.connect()
             request_id = self._new_request_id()
-            data = encode_packet(request(command, request_id, *params))
+            data = encode_packet(Packet(_REQUEST, command, request_id, params))
             # Marked abandoned until its reply is read: an interruption anywhere from here on
             # (Ctrl-C between the send and the wait too) leaves its late reply to be dropped.
             self._abandoned.add(request_id)
@@ -177,10 +179,8 @@ class FramedClient:
         return self._check_reply(command, request_id, reply)
 
     def _new_request_id(self) -> int:
-        with self._id_lock:
-            request_id = self._next_id
-            self._next_id = (self._next_id % 0xFFFFFFFF) + 1
-            return request_id
+        """1, 2, ... 0xFFFFFFFF, then 1 again (0 is never a request's ID)."""
+        return next(self._ids) % 0xFFFFFFFF + 1
 
     def _send(self, data: bytes) -> None:
         sock = self._sock
@@ -202,12 +202,12 @@ class FramedClient:
             event = decoder.next_event()
             if event is not None:
                 if isinstance(event, Packet):
-                    if event.kind is PacketKind.EVENT:
+                    if event.kind is _EVENT:
                         continue  # [RS-3.14] an event is never the reply to a request
                     if event.request_id in self._abandoned and event.request_id != request_id:
                         self._abandoned.discard(event.request_id)
                         continue  # the late reply of an interrupted request
-                    if command == CommandId.EMERGENCY_STOP and _is_limit_notice(event):
+                    if command == _EMERGENCY_STOP and _is_limit_notice(event):
                         continue  # [RS-7.14] a reserved connection still takes EmergencyStop
                     return event
                 self.close()
@@ -220,6 +220,8 @@ class FramedClient:
             self._arm_timeout(remaining)
             # The rest of a large frame (an image) goes straight into its own buffer.
             view = decoder.get_buffer()
+            if view is None:
+                decoder.keep()  # the scratch buffer is about to be written again
             try:
                 n = self._sock.recv_into(self._scratch if view is None else view)
             except (TimeoutError, BlockingIOError):
@@ -234,8 +236,7 @@ class FramedClient:
                 decoder.buffer_updated(n)
                 continue
             try:
-                with memoryview(self._scratch) as scratch, scratch[:n] as chunk:
-                    decoder.feed(chunk)
+                decoder.feed(self._scratch_view[:n], borrow=True)
             except PeerError:
                 self.close()
                 raise
@@ -254,23 +255,28 @@ class FramedClient:
             self._sock.settimeout(remaining)
 
     def _check_reply(self, command: int, request_id: int, reply: Packet) -> tuple[Value, ...]:
-        if reply.kind is PacketKind.ERROR:
+        if reply.kind is _ERROR:
             code, message = reply.error or (0, "")
             if reply.request_id in (request_id, 0):
-                raise RemoteError(code, message, reply.command, reply.request_id)
+                raise self._remote_error(code, message, reply.command, reply.request_id)
         if reply.request_id != request_id or reply.command != command:
             self.close()
             raise PeerError(
                 f"reply does not match request: expected command 0x{command:04x} id "
                 f"{request_id}, got 0x{reply.command:04x} id {reply.request_id}"
             )
-        if reply.kind is not PacketKind.REPLY:
+        if reply.kind is not _REPLY:
             self.close()
             raise PeerError(f"expected a REPLY packet, got {reply.kind.name}")
         spec = BY_ID.get(command)
         if spec is not None:
             check_params(spec.reply, reply.params, f"{spec.name} reply", allow_extra=True)
         return reply.params
+
+    def _remote_error(self, code: int, message: str, command: int, request_id: int) -> RemoteError:
+        """The exception an error packet raises (a service's client maps codes to its own
+        subclasses here)."""
+        return RemoteError(code, message, command, request_id)
 
     # --- common commands ---------------------------------------------------------------------
 
@@ -359,6 +365,13 @@ class FramedClient:
         (t,) = self.call(CommandId.GET_TIME)
         assert isinstance(t, float)
         return t
+
+
+# Enum members as constants: an enum attribute look-up is slow in Python 3.11 and these are
+# read on every call.
+_REQUEST, _EVENT, _ERROR = PacketKind.REQUEST, PacketKind.EVENT, PacketKind.ERROR
+_REPLY = PacketKind.REPLY
+_EMERGENCY_STOP = int(CommandId.EMERGENCY_STOP)
 
 
 def wait_end_move(client: FramedClient, timeout: float) -> bool:

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from typing import NamedTuple, NoReturn
 
 from spec import wire
+from spec.crc import CACHED_MIN, crc32_parts
 from spec.errors import (
     BadCrcError,
     ErrorCode,
@@ -33,9 +34,8 @@ from spec.params import Value, decode_params, encode_params_parts
 from spec.wire import PacketKind
 
 
-@dataclass(frozen=True, slots=True)
-class Packet:
-    """One decoded frame (PROTOCOL.md section 3)."""
+class Packet(NamedTuple):
+    """One decoded frame (PROTOCOL.md section 3). A named tuple: one is built per frame."""
 
     kind: PacketKind
     command: int
@@ -70,40 +70,36 @@ def error_packet(command: int, request_id: int, code: ErrorCode | int, message: 
 def encode_packet_parts(
     packet: Packet, max_payload: int = wire.MAX_PAYLOAD, *, crc: bool = True
 ) -> list[bytes]:
-    """One frame as a list of byte strings (header, parameter list pieces, trailer), so a large
-    payload (an image) is never copied to build the frame: send it with ``sendmsg``.
+    """One frame as a list of byte strings, so a large payload (an image) is never copied to
+    build the frame: send it with ``sendmsg``. A small frame (no part of
+    :data:`spec.crc.CACHED_MIN` bytes) comes as one piece, ready for ``sendall``.
 
     ``crc=False`` sends the frame with the NO_CRC flag and a zero trailer, on a connection
     where the client turned CRCs off (SetFrameCrc, [RS-3.16])."""
-    if not 0 <= packet.command <= 0xFFFF:
-        raise UsageError(f"command ID {packet.command} does not fit in 16 bits")
-    if not 0 <= packet.request_id <= 0xFFFFFFFF:
-        raise UsageError(f"request ID {packet.request_id} does not fit in 32 bits")
-    parts = encode_params_parts(packet.params)
+    kind, command, request_id, params, minor = packet
+    if not 0 <= command <= 0xFFFF:
+        raise UsageError(f"command ID {command} does not fit in 16 bits")
+    if not 0 <= request_id <= 0xFFFFFFFF:
+        raise UsageError(f"request ID {request_id} does not fit in 32 bits")
+    parts = encode_params_parts(params)
     length = sum(map(len, parts))
     if length > max_payload:
         raise UsageError(f"payload of {length} bytes exceeds the maximum of {max_payload}")
-    header = wire.HEADER.pack(
-        wire.MAGIC,
-        wire.VERSION_MAJOR,
-        packet.version_minor,
-        packet.kind,
-        0 if crc else wire.FLAG_NO_CRC,
-        packet.command,
-        packet.request_id,
-        length,
+    flags = 0 if crc else wire.FLAG_NO_CRC
+    header = _HEADER_PACK(
+        wire.MAGIC, wire.VERSION_MAJOR, minor, kind, flags, command, request_id, length
     )
+    if length < CACHED_MIN:
+        body = header + b"".join(parts)
+        return [body + (_TRAILER_PACK(zlib.crc32(body)) if crc else _NO_CRC_TRAILER)]
     parts.insert(0, header)
-    if not crc:
-        parts.append(_NO_CRC_TRAILER)
-        return parts
-    checksum = 0
-    for part in parts:
-        checksum = zlib.crc32(part, checksum)
-    parts.append(wire.TRAILER.pack(checksum))
+    # An image sent again is not scanned again: its CRC comes from the cache (spec.crc).
+    parts.append(_TRAILER_PACK(crc32_parts(parts)) if crc else _NO_CRC_TRAILER)
     return parts
 
 
+_HEADER_PACK = wire.HEADER.pack
+_TRAILER_PACK = wire.TRAILER.pack
 _NO_CRC_TRAILER = wire.TRAILER.pack(0)
 
 
@@ -148,6 +144,8 @@ Event = Packet | Rejected
 
 #: Frames at least this long are received in place (get_buffer) instead of chunk by chunk.
 LARGE_FRAME = 64 * 1024
+#: The largest frame buffer a decoder keeps for the next large frame.
+_SPARE_MAX = wire.DEFAULT_MAX_PAYLOAD + wire.FRAME_OVERHEAD
 
 
 @dataclass
@@ -170,16 +168,21 @@ class FrameDecoder:
     # Received bytes as a queue of chunks: a large frame arriving in many pieces is joined
     # once when complete (no growing buffer, no quadratic copying); ``_offset`` is where the
     # unread part of the first chunk starts.
-    _chunks: deque[bytes] = field(default_factory=deque, repr=False)
+    _chunks: deque[bytes | memoryview] = field(default_factory=deque, repr=False)
+    _borrowed: bool = field(default=False, repr=False)
     _offset: int = field(default=0, repr=False)
     _size: int = field(default=0, repr=False)
     _failed: PeerError | None = field(default=None, repr=False)
     # A large frame being received in place: its buffer, bytes filled, and its header.
-    _frame: bytearray | None = field(default=None, repr=False)
+    _frame: memoryview | None = field(default=None, repr=False)
+    _spare: bytearray = field(default_factory=bytearray, repr=False)
     _filled: int = field(default=0, repr=False)
     _frame_header: Header | None = field(default=None, repr=False)
 
-    def feed(self, data: bytes | bytearray | memoryview) -> None:
+    def feed(self, data: bytes | bytearray | memoryview, *, borrow: bool = False) -> None:
+        """Queue received bytes. ``borrow``: ``data`` is a view of the caller's receive buffer,
+        queued without a copy; the caller calls :meth:`keep` before it writes there again
+        (decoded values never refer to it: they are copies)."""
         if self._failed is not None:
             raise self._failed
         if not data:
@@ -192,9 +195,23 @@ class FrameDecoder:
             data = data[take:]
             if not data:
                 return
-        chunk = data if isinstance(data, bytes) else bytes(data)
+        if borrow and type(data) is memoryview:
+            self._borrowed = True
+            chunk: bytes | memoryview = data
+        else:
+            chunk = data if isinstance(data, bytes) else bytes(data)
         self._chunks.append(chunk)
         self._size += len(chunk)
+
+    def keep(self) -> None:
+        """Copy the unread bytes of borrowed views (:meth:`feed`) into bytes of our own."""
+        if self._borrowed:
+            chunks = self._chunks
+            if chunks:
+                first = bytes(chunks[0][self._offset :])
+                self._chunks = deque([first, *(bytes(c) for c in list(chunks)[1:])])
+                self._offset = 0
+            self._borrowed = False
 
     def get_buffer(self) -> memoryview | None:
         """Where the next bytes of a large frame go (``sock.recv_into``), or None when bytes
@@ -217,7 +234,11 @@ class FrameDecoder:
             ):
                 return None  # small, complete or bad: next_event handles it
             # Everything buffered belongs to this unfinished frame: move it into place.
-            frame = bytearray(end)
+            # A 128 KiB image every call: reuse one buffer (the decoded values are copies, so
+            # nothing refers to it after a frame), sparing an allocation and page faults.
+            if len(self._spare) < end:
+                self._spare = bytearray(end) if end <= _SPARE_MAX else bytearray()
+            frame = memoryview(self._spare)[:end] if self._spare else memoryview(bytearray(end))
             pos = 0
             for i, chunk in enumerate(self._chunks):
                 piece = memoryview(chunk)[self._offset :] if i == 0 else chunk
@@ -226,7 +247,7 @@ class FrameDecoder:
             self._chunks.clear()
             self._offset = self._size = 0
             self._frame, self._filled, self._frame_header = frame, pos, header
-        return memoryview(self._frame)[self._filled :]
+        return self._frame[self._filled :]
 
     def buffer_updated(self, n: int) -> None:
         """``n`` bytes were written at the start of the last :meth:`get_buffer` view."""
@@ -250,7 +271,7 @@ class FrameDecoder:
                 return
             yield event
 
-    def _contiguous(self, n: int) -> bytes:
+    def _contiguous(self, n: int) -> bytes | memoryview:
         """The first chunk, merged with the following ones until it holds ``n`` unread bytes
         (the caller checked ``_size >= n``)."""
         first = self._chunks[0]
@@ -267,35 +288,42 @@ class FrameDecoder:
             raise self._failed
         if self._frame is not None:
             return self._large_frame_event()
-        if self._size < 2:
+        size = self._size
+        if size < wire.HEADER_SIZE:
+            if size >= 2:
+                self._check_magic(self._contiguous(2), self._offset)
             return None
-        data = self._contiguous(min(self._size, wire.HEADER_SIZE))
-        off = self._offset
-        if data[off : off + 2] != wire.MAGIC:
-            # [RS-3.8] unusable header: the frame boundary is lost, the connection ends.
-            self._fail(FrameError(f"bad magic {data[off : off + 2].hex()}, expected 5253"))
-        if self._size < wire.HEADER_SIZE:
-            return None
-        header = Header.unpack(data, off)
-        if header.length > self.max_payload:
+        data, off = self._chunks[0], self._offset
+        if len(data) - off < wire.HEADER_SIZE:
+            data, off = self._contiguous(wire.HEADER_SIZE), 0
+        header = _HEADER_UNPACK(data, off)
+        if header[0] != wire.MAGIC:
+            self._check_magic(data, off)
+        length = header[7]
+        if length > self.max_payload:
             # [RS-3.5] never buffer an oversized frame: reject before reading it.
             self._fail(
                 FrameTooLargeError(
-                    f"payload length {header.length} exceeds the maximum {self.max_payload}"
+                    f"payload length {length} exceeds the maximum {self.max_payload}"
                 ),
             )
-        end = wire.HEADER_SIZE + header.length + wire.TRAILER_SIZE
-        if self._size < end:
+        end = wire.FRAME_OVERHEAD + length
+        if size < end:
             return None
-        data = self._contiguous(end)
-        off = self._offset
-        frame = memoryview(data)[off : off + end]
-        self._offset += end
-        self._size -= end
-        if self._offset == len(data):
+        if len(data) - off < end:
+            data, off = self._contiguous(end), 0
+        self._size = size - end
+        if off + end == len(data):
             self._chunks.popleft()
             self._offset = 0
-        return self._decode(header, frame)
+        else:
+            self._offset = off + end
+        return self._decode(header, memoryview(data)[off : off + end])
+
+    def _check_magic(self, data: bytes | memoryview, off: int) -> None:
+        if data[off : off + 2] != wire.MAGIC:
+            # [RS-3.8] unusable header: the frame boundary is lost, the connection ends.
+            self._fail(FrameError(f"bad magic {data[off : off + 2].hex()}, expected 5253"))
 
     def _large_frame_event(self) -> Event | None:
         assert self._frame is not None and self._frame_header is not None
@@ -303,13 +331,15 @@ class FrameDecoder:
             return None
         frame, header = self._frame, self._frame_header
         self._frame, self._filled, self._frame_header = None, 0, None
-        return self._decode(header, memoryview(frame))
+        return self._decode(header, frame)
 
-    def _decode(self, header: Header, frame: memoryview) -> Event:
+    def _decode(
+        self, header: tuple[bytes, int, int, int, int, int, int, int], frame: memoryview
+    ) -> Event:
         try:
             return _decode_frame(header, frame, self.kinds, self.accept_no_crc)
         except PeerError as exc:
-            return Rejected(header, exc)
+            return Rejected(Header._make(header), exc)
 
     def _fail(self, error: PeerError) -> NoReturn:
         self._failed = error
@@ -324,28 +354,37 @@ _ALL_KINDS = frozenset(PacketKind)
 
 
 def _decode_frame(
-    header: Header, frame: memoryview, kinds: frozenset[PacketKind], accept_no_crc: bool = False
+    header: tuple[bytes, int, int, int, int, int, int, int],
+    frame: memoryview,
+    kinds: frozenset[PacketKind],
+    accept_no_crc: bool = False,
 ) -> Packet:
-    payload_end = wire.HEADER_SIZE + header.length
-    no_crc = accept_no_crc and header.flags == wire.FLAG_NO_CRC
+    """Check and decode one delimited frame; ``header`` is its unpacked :data:`wire.HEADER`
+    (a plain tuple or a :class:`Header`)."""
+    _, major, minor, kind_byte, flags, command, request_id, length = header
+    payload_end = wire.HEADER_SIZE + length
+    no_crc = accept_no_crc and flags == wire.FLAG_NO_CRC
     if not no_crc:
-        (crc,) = wire.TRAILER.unpack_from(frame, payload_end)
+        (crc,) = _TRAILER_UNPACK(frame, payload_end)
         if zlib.crc32(frame[:payload_end]) != crc:
             raise BadCrcError(f"CRC-32 mismatch (frame says {crc:08x})")
-    if header.version_major != wire.VERSION_MAJOR:
+    if major != wire.VERSION_MAJOR:
         raise VersionError(
-            f"protocol version {header.version_major}.{header.version_minor} not supported;"
-            f" this peer speaks {wire.VERSION}"
+            f"protocol version {major}.{minor} not supported; this peer speaks {wire.VERSION}"
         )
-    kind = _KINDS.get(header.kind)
+    kind = _KINDS.get(kind_byte)
     if kind is None:
-        raise FrameError(f"unknown packet kind {header.kind}")
+        raise FrameError(f"unknown packet kind {kind_byte}")
     if kind not in kinds:
         raise FrameError(f"packet kind {kind.name} not accepted here")
-    if header.flags != 0 and not no_crc:
-        raise FrameError(f"reserved flags must be 0, got 0x{header.flags:02x}")
+    if flags and not no_crc:
+        raise FrameError(f"reserved flags must be 0, got 0x{flags:02x}")
     params = decode_params(frame[wire.HEADER_SIZE : payload_end])
-    return Packet(kind, header.command, header.request_id, params, header.version_minor)
+    return Packet(kind, command, request_id, params, minor)
+
+
+_HEADER_UNPACK = wire.HEADER.unpack_from
+_TRAILER_UNPACK = wire.TRAILER.unpack_from
 
 
 def decode_packet(data: bytes, max_payload: int = wire.MAX_PAYLOAD) -> Packet:

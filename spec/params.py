@@ -46,6 +46,13 @@ def _trusted(cls: type[_T], **fields: object) -> _T:
     return obj
 
 
+def _trusted_values(cls: type[_T], values: tuple[Any, ...]) -> _T:
+    """:func:`_trusted` for the classes whose one field is ``values`` (the common replies)."""
+    obj = object.__new__(cls)
+    object.__setattr__(obj, "values", values)
+    return obj
+
+
 def _floats(values: object, what: str) -> tuple[float, ...]:
     try:
         return tuple(map(float, values))  # type: ignore[call-overload]
@@ -234,6 +241,14 @@ _TYPE_OF_CLASS: dict[type, ParamType] = {
 }
 
 
+#: The exact Python class of each wire type (a subclass, e.g. an IntEnum member, also encodes).
+CLASS_OF: dict[ParamType, type] = {
+    ParamType.BOOL: bool,
+    ParamType.INT: int,
+    **{kind: cls for cls, kind in _TYPE_OF_CLASS.items()},
+}
+
+
 # --- encoding ---------------------------------------------------------------------------------
 
 
@@ -276,61 +291,72 @@ def _enc_bool(value: bool) -> tuple[bytes, ...]:
 def _enc_int(value: int) -> tuple[bytes, ...]:
     if not -(1 << 63) <= value < (1 << 63):
         raise UsageError(f"INT out of the signed 64-bit range: {value}")
-    return (_TAG[ParamType.INT] + wire.I64.pack(value),)
+    return (_TAG_INT + wire.I64.pack(value),)
 
 
 def _enc_float(value: float) -> tuple[bytes, ...]:
-    return (_TAG[ParamType.FLOAT] + wire.F64.pack(value),)
+    return (_TAG_FLOAT + wire.F64.pack(value),)
 
 
 def _enc_str(value: str) -> tuple[bytes, ...]:
     raw = value.encode("utf-8")
-    return (_TAG[ParamType.STRING] + wire.U32.pack(len(raw)) + raw,)
+    return (_TAG_STRING + wire.U32.pack(len(raw)) + raw,)
 
 
 def _enc_bytes(value: bytes) -> tuple[bytes, ...]:
-    return (_TAG[ParamType.BYTES] + wire.U32.pack(len(value)), value)
+    return (_TAG_BYTES + wire.U32.pack(len(value)), value)
 
 
 def _enc_float_array(value: FloatArray) -> tuple[bytes, ...]:
     n = len(value.values)
-    return (_TAG[ParamType.FLOAT_ARRAY] + wire.U32.pack(n) + _f64s(n).pack(*value.values),)
+    return (_TAG_FLOAT_ARRAY + wire.U32.pack(n) + _f64s(n).pack(*value.values),)
 
 
 def _enc_int_array(value: IntArray) -> tuple[bytes, ...]:
     n = len(value.values)
     try:
-        return (_TAG[ParamType.INT_ARRAY] + wire.U32.pack(n) + _i64s(n).pack(*value.values),)
+        return (_TAG_INT_ARRAY + wire.U32.pack(n) + _i64s(n).pack(*value.values),)
     except struct.error as exc:
         raise UsageError(f"IntArray: {exc}") from None
 
 
 def _enc_joints(value: Joints) -> tuple[bytes, ...]:
     n = len(value.values)
-    return (_TAG[ParamType.JOINTS] + wire.U8.pack(n) + _f64s(n).pack(*value.values),)
+    return (_TAG_JOINTS + wire.U8.pack(n) + _f64s(n).pack(*value.values),)
 
 
 def _enc_location(value: Location) -> tuple[bytes, ...]:
-    return (_TAG[ParamType.LOCATION] + wire.LOCATION.pack(*value.as_tuple()),)
+    return (_TAG_LOCATION + wire.LOCATION.pack(*value.as_tuple()),)
 
 
 def _enc_transform(value: Transform) -> tuple[bytes, ...]:
-    return (_TAG[ParamType.TRANSFORM] + wire.TRANSFORM.pack(*value.values),)
+    return (_TAG_TRANSFORM + wire.TRANSFORM.pack(*value.values),)
 
 
 def _enc_matrix(value: Matrix) -> tuple[bytes, ...]:
     shape = wire.MATRIX_SHAPE.pack(value.rows, value.cols)
-    return (_TAG[ParamType.MATRIX] + shape + _f64s(len(value.values)).pack(*value.values),)
+    return (_TAG_MATRIX + shape + _f64s(len(value.values)).pack(*value.values),)
 
 
 def _enc_image(value: Image) -> tuple[bytes, ...]:
     meta = wire.IMAGE_HEADER.pack(
         value.width, value.height, int(value.format), int(value.order), len(value.data)
     )
-    return (_TAG[ParamType.IMAGE] + meta, value.data)
+    return (_TAG_IMAGE + meta, value.data)
 
 
 _TAG = {t: wire.TAG.pack(t) for t in ParamType}  # the one-byte tag of each type
+_TAG_BYTES = _TAG[ParamType.BYTES]
+_TAG_FLOAT = _TAG[ParamType.FLOAT]
+_TAG_FLOAT_ARRAY = _TAG[ParamType.FLOAT_ARRAY]
+_TAG_IMAGE = _TAG[ParamType.IMAGE]
+_TAG_INT = _TAG[ParamType.INT]
+_TAG_INT_ARRAY = _TAG[ParamType.INT_ARRAY]
+_TAG_JOINTS = _TAG[ParamType.JOINTS]
+_TAG_LOCATION = _TAG[ParamType.LOCATION]
+_TAG_MATRIX = _TAG[ParamType.MATRIX]
+_TAG_STRING = _TAG[ParamType.STRING]
+_TAG_TRANSFORM = _TAG[ParamType.TRANSFORM]
 _ENCODERS: dict[type, Callable[[Any], tuple[bytes, ...]]] = {
     bool: _enc_bool,
     int: _enc_int,
@@ -348,6 +374,22 @@ _ENCODERS: dict[type, Callable[[Any], tuple[bytes, ...]]] = {
 
 
 # --- decoding ---------------------------------------------------------------------------------
+
+
+# Enum members as module constants: an enum attribute look-up costs a few hundred ns in
+# Python 3.11, and the decoders name their type on every call.
+_PT_BOOL = ParamType.BOOL
+_PT_BYTES = ParamType.BYTES
+_PT_FLOAT = ParamType.FLOAT
+_PT_FLOAT_ARRAY = ParamType.FLOAT_ARRAY
+_PT_IMAGE = ParamType.IMAGE
+_PT_INT = ParamType.INT
+_PT_INT_ARRAY = ParamType.INT_ARRAY
+_PT_JOINTS = ParamType.JOINTS
+_PT_LOCATION = ParamType.LOCATION
+_PT_MATRIX = ParamType.MATRIX
+_PT_STRING = ParamType.STRING
+_PT_TRANSFORM = ParamType.TRANSFORM
 
 
 def decode_params(payload: bytes | memoryview) -> tuple[Value, ...]:
@@ -399,17 +441,17 @@ def _i64s(n: int) -> struct.Struct:
 
 
 def _dec_int(buf: memoryview, pos: int, index: int) -> _Decoded:
-    _need(buf, pos, 8, index, ParamType.INT)
+    _need(buf, pos, 8, index, _PT_INT)
     return wire.I64.unpack_from(buf, pos)[0], pos + 8
 
 
 def _dec_float(buf: memoryview, pos: int, index: int) -> _Decoded:
-    _need(buf, pos, 8, index, ParamType.FLOAT)
+    _need(buf, pos, 8, index, _PT_FLOAT)
     return wire.F64.unpack_from(buf, pos)[0], pos + 8
 
 
 def _dec_bool(buf: memoryview, pos: int, index: int) -> _Decoded:
-    _need(buf, pos, 1, index, ParamType.BOOL)
+    _need(buf, pos, 1, index, _PT_BOOL)
     if buf[pos] > 1:
         raise ParameterError(f"parameter {index}: BOOL must be 0 or 1, got {buf[pos]}")
     return buf[pos] == 1, pos + 1
@@ -424,12 +466,12 @@ def _counted(buf: memoryview, pos: int, index: int, tag: ParamType, size: int) -
 
 
 def _dec_bytes(buf: memoryview, pos: int, index: int) -> _Decoded:
-    n = _counted(buf, pos, index, ParamType.BYTES, 1)
+    n = _counted(buf, pos, index, _PT_BYTES, 1)
     return bytes(buf[pos + 4 : pos + 4 + n]), pos + 4 + n
 
 
 def _dec_string(buf: memoryview, pos: int, index: int) -> _Decoded:
-    n = _counted(buf, pos, index, ParamType.STRING, 1)
+    n = _counted(buf, pos, index, _PT_STRING, 1)
     try:
         return str(buf[pos + 4 : pos + 4 + n], "utf-8"), pos + 4 + n
     except UnicodeDecodeError:
@@ -437,73 +479,76 @@ def _dec_string(buf: memoryview, pos: int, index: int) -> _Decoded:
 
 
 def _dec_float_array(buf: memoryview, pos: int, index: int) -> _Decoded:
-    n = _counted(buf, pos, index, ParamType.FLOAT_ARRAY, 8)
+    n = _counted(buf, pos, index, _PT_FLOAT_ARRAY, 8)
     vals = _f64s(n).unpack_from(buf, pos + 4)
-    return _trusted(FloatArray, values=vals), pos + 4 + 8 * n
+    return _trusted_values(FloatArray, vals), pos + 4 + 8 * n
 
 
 def _dec_int_array(buf: memoryview, pos: int, index: int) -> _Decoded:
-    n = _counted(buf, pos, index, ParamType.INT_ARRAY, 8)
+    n = _counted(buf, pos, index, _PT_INT_ARRAY, 8)
     vals = _i64s(n).unpack_from(buf, pos + 4)
-    return _trusted(IntArray, values=vals), pos + 4 + 8 * n
+    return _trusted_values(IntArray, vals), pos + 4 + 8 * n
 
 
 def _dec_joints(buf: memoryview, pos: int, index: int) -> _Decoded:
-    _need(buf, pos, 1, index, ParamType.JOINTS)
+    _need(buf, pos, 1, index, _PT_JOINTS)
     n = buf[pos]
     if not 1 <= n <= wire.MAX_JOINTS:
         raise ParameterError(f"parameter {index}: JOINTS count {n} not in 1..16")
-    _need(buf, pos + 1, 8 * n, index, ParamType.JOINTS)
+    _need(buf, pos + 1, 8 * n, index, _PT_JOINTS)
     joints = _f64s(n).unpack_from(buf, pos + 1)
-    _finite(joints, index, ParamType.JOINTS)
-    return _trusted(Joints, values=joints), pos + 1 + 8 * n
+    _finite(joints, index, _PT_JOINTS)
+    return _trusted_values(Joints, joints), pos + 1 + 8 * n
 
 
 def _dec_location(buf: memoryview, pos: int, index: int) -> _Decoded:
-    _need(buf, pos, wire.LOCATION.size, index, ParamType.LOCATION)
+    _need(buf, pos, wire.LOCATION.size, index, _PT_LOCATION)
     loc = wire.LOCATION.unpack_from(buf, pos)
-    _finite(loc, index, ParamType.LOCATION)
+    _finite(loc, index, _PT_LOCATION)
     value = _trusted(Location, x=loc[0], y=loc[1], z=loc[2], rx=loc[3], ry=loc[4], rz=loc[5])
     return value, pos + wire.LOCATION.size
 
 
 def _dec_transform(buf: memoryview, pos: int, index: int) -> _Decoded:
-    _need(buf, pos, wire.TRANSFORM.size, index, ParamType.TRANSFORM)
+    _need(buf, pos, wire.TRANSFORM.size, index, _PT_TRANSFORM)
     t = wire.TRANSFORM.unpack_from(buf, pos)
-    _finite(t, index, ParamType.TRANSFORM)
+    _finite(t, index, _PT_TRANSFORM)
     if t[12:] != (0.0, 0.0, 0.0, 1.0):
         raise ParameterError(f"parameter {index}: TRANSFORM last row must be 0 0 0 1")
-    return _trusted(Transform, values=t), pos + wire.TRANSFORM.size
+    return _trusted_values(Transform, t), pos + wire.TRANSFORM.size
 
 
 def _dec_matrix(buf: memoryview, pos: int, index: int) -> _Decoded:
-    _need(buf, pos, wire.MATRIX_SHAPE.size, index, ParamType.MATRIX)
+    _need(buf, pos, wire.MATRIX_SHAPE.size, index, _PT_MATRIX)
     rows, cols = wire.MATRIX_SHAPE.unpack_from(buf, pos)
     pos += wire.MATRIX_SHAPE.size
     n = rows * cols
-    _need(buf, pos, 8 * n, index, ParamType.MATRIX)
+    _need(buf, pos, 8 * n, index, _PT_MATRIX)
     vals = _f64s(n).unpack_from(buf, pos)
     return _trusted(Matrix, rows=rows, cols=cols, values=vals), pos + 8 * n
 
 
 def _dec_image(buf: memoryview, pos: int, index: int) -> _Decoded:
-    _need(buf, pos, wire.IMAGE_HEADER.size, index, ParamType.IMAGE)
+    _need(buf, pos, wire.IMAGE_HEADER.size, index, _PT_IMAGE)
     width, height, fmt, order, n = wire.IMAGE_HEADER.unpack_from(buf, pos)
     pos += wire.IMAGE_HEADER.size
-    try:
-        pixel_format, pixel_order = PixelFormat(fmt), PixelOrder(order)
-    except ValueError:
+    pixel_format, pixel_order = _PIXEL_FORMATS.get(fmt), _PIXEL_ORDERS.get(order)
+    if pixel_format is None or pixel_order is None:
         msg = f"parameter {index}: unknown image format {fmt} / order {order}"
-        raise ParameterError(msg) from None
+        raise ParameterError(msg)
     if n != width * height * wire.BYTES_PER_PIXEL[pixel_format]:
         raise ParameterError(f"parameter {index}: IMAGE length {n} != width*height*bpp")
-    _need(buf, pos, n, index, ParamType.IMAGE)
+    _need(buf, pos, n, index, _PT_IMAGE)
     data = bytes(buf[pos : pos + n])
     image = _trusted(
         Image, width=width, height=height, data=data, format=pixel_format, order=pixel_order
     )
     return image, pos + n
 
+
+# Look-ups by value without calling the enum class (slow in Python 3.11).
+_PIXEL_FORMATS = {int(f): f for f in PixelFormat}
+_PIXEL_ORDERS = {int(o): o for o in PixelOrder}
 
 _DECODERS: dict[int, Callable[[memoryview, int, int], _Decoded]] = {
     ParamType.INT: _dec_int,

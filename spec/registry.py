@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 from spec.errors import ParameterError
-from spec.params import Value, type_of
+from spec.params import CLASS_OF, Value, type_of
 from spec.wire import ParamType
 
 T = ParamType
@@ -681,6 +681,36 @@ def lookup(command: int, service: str) -> CommandSpec | None:
 
 
 def check_params(
+    specs: tuple[ParamSpec, ...],
+    values: tuple[Value, ...],
+    what: str = "request",
+    *,
+    allow_extra: bool = False,
+) -> None:
+    """:func:`check_params_reference`, with a fast path for the case of nearly every request
+    and reply: the declared parameters (optional ones may be left off), each of its type's
+    exact Python class."""
+    entry = _exact.get(id(specs))
+    if entry is None or entry[0] is not specs:
+        if len(_exact) > 1024:  # lists built on the fly (not from COMMANDS): stay bounded
+            _exact.clear()
+        required = sum(1 for s in specs if not s.optional and not s.repeated)
+        entry = _exact[id(specs)] = (specs, tuple(CLASS_OF[s.type] for s in specs), required)
+    types = tuple(map(type, values))
+    classes = entry[1]
+    if types == classes or (
+        entry[2] <= len(types) < len(classes) and types == classes[: len(types)]
+    ):
+        return  # the declared parameters, or all that are required and some optional ones
+    check_params_reference(specs, values, what, allow_extra=allow_extra)
+
+
+# The exact classes of each parameter list seen and how many are required, by identity (the
+# lists live in COMMANDS; the entry keeps its key alive, so an id is never reused meanwhile).
+_exact: dict[int, tuple[tuple[ParamSpec, ...], tuple[type, ...], int]] = {}
+
+
+def check_params_reference(
     specs: tuple[ParamSpec, ...],
     values: tuple[Value, ...],
     what: str = "request",

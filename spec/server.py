@@ -161,7 +161,7 @@ class Session:
     def send_parts(self, parts: list[bytes]) -> None:
         """Send one encoded frame given as pieces: small frames joined and sent at once,
         large ones (images) handed to the kernel piece by piece, never copied here."""
-        size = sum(map(len, parts))
+        size = len(parts[0]) if len(parts) == 1 else sum(map(len, parts))
         # Counted before sending: a client that reads statistics() right after the reply
         # must find it counted.
         self.server._count("bytes_out", size)
@@ -337,6 +337,15 @@ class FramedServer:
         self.handler_errors: list[BaseException] = []
         register(self)
         self._implemented = frozenset(service.implemented()) | {int(c) for c in _COMMON}
+        # Per request, one dict look-up finds what the shell needs to know of a command.
+        name = service.identity.service
+        self._specs: dict[int, CommandSpec] = {}
+        for command in self._implemented:
+            spec = lookup(command, name)
+            if spec is not None:
+                self._specs[command] = spec
+        self._urgent = frozenset(service.urgent)
+        self._blocking = frozenset(service.blocking)
 
     # --- lifecycle ---------------------------------------------------------------------------
 
@@ -524,6 +533,9 @@ class FramedServer:
             tick = min(tick, policy.reserved_grace / 4)
         ticking = set_kernel_timeouts(sock, tick)
         last_byte = frame_start = time.monotonic()
+        # Received bytes land in one reused buffer; the decoder borrows them (no copy).
+        scratch = bytearray(65536)
+        view = memoryview(scratch)
         while not self._shutdown.is_set() and not session.closed:
             now = time.monotonic()
             deadline, why = self._deadline(session, decoder.in_frame, frame_start, last_byte)
@@ -534,21 +546,24 @@ class FramedServer:
                 return
             if not ticking:
                 sock.settimeout(min(deadline - now, 1.0))
+            decoder.keep()  # the scratch buffer is about to be written again
             try:
-                data = sock.recv(65536)
+                n = sock.recv_into(scratch)
             except (TimeoutError, BlockingIOError):
                 continue  # a tick without data: check the deadlines again
-            if not data:
+            if not n:
                 return
             with self._lock:
-                self._stats["bytes_in"] += len(data)
+                self._stats["bytes_in"] += n
             last_byte = time.monotonic()
             try:
-                decoder.feed(data)
-                for event in decoder.events():
+                decoder.feed(view[:n], borrow=True)
+                event = decoder.next_event()
+                while event is not None:
                     # [RS-7.13] every frame from the controller renews its lease.
                     session.alive_at = last_byte
                     self._route(session, event)
+                    event = decoder.next_event()
             except PeerError as exc:
                 # [RS-3.8] header unusable: say why with request ID 0, then close.
                 self._reject_code(exc.code)
@@ -561,9 +576,9 @@ class FramedServer:
 
     def _route(self, session: Session, event: Packet | Rejected) -> None:
         """Answer now on the reader, or queue on the session's worker [RS-7.12]."""
-        if isinstance(event, Packet) and event.command in self.service.urgent:
+        if type(event) is Packet and event.command in self._urgent:
             self._answer(session, event)  # may overtake the pending replies
-        elif session.busy or (isinstance(event, Packet) and event.command in self.service.blocking):
+        elif session.busy or (type(event) is Packet and event.command in self._blocking):
             if session._worker is None:
                 session._worker = _Worker(self, session)
             session._worker.submit(event)
@@ -674,7 +689,7 @@ class FramedServer:
                 session, packet.command, packet.request_id, ErrorCode.INTERNAL_ERROR, message
             )
             return
-        reply = Packet(PacketKind.REPLY, packet.command, packet.request_id, params)
+        reply = Packet(_REPLY, packet.command, packet.request_id, params)
         try:
             parts = encode_packet_parts(reply, wire.MAX_PAYLOAD, crc=crc)
         except ProtocolError as exc:  # reply too large to encode: a server-side bug
@@ -687,11 +702,11 @@ class FramedServer:
         session.send_parts(parts)
 
     def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
-        service = self.service.identity.service
-        spec = lookup(packet.command, service)
-        if spec is None or packet.command not in self._implemented:
+        spec = self._specs.get(packet.command)
+        if spec is None:
             raise ProtocolError(
-                f"unknown command 0x{packet.command:04x} for the {service} service",
+                f"unknown command 0x{packet.command:04x} for the"
+                f" {self.service.identity.service} service",
                 ErrorCode.UNKNOWN_COMMAND,
             )
         if session.reserved and packet.command != CommandId.EMERGENCY_STOP:
@@ -700,7 +715,7 @@ class FramedServer:
                 f"client limit reached: only EmergencyStop is served here, not {spec.name}",
                 ErrorCode.BUSY,
             )
-        check_params(spec.params, packet.params, f"{spec.name}")
+        check_params(spec.params, packet.params, spec.name)
         if spec.needs_control and not session.in_control:
             # [RS-7.4] commands that move or switch anything need control.
             if session.control_lost is not None:
@@ -811,6 +826,8 @@ class FramedServer:
         log.info("session %d: frame CRC %s", session.id, "on" if session.crc else "off")
         return (session.crc,)
 
+
+_REPLY = PacketKind.REPLY  # an enum attribute look-up is slow in Python 3.11
 
 _Handler = Callable[[FramedServer, Session, tuple[Value, ...]], tuple[Value, ...]]
 _COMMON: dict[int, _Handler] = {

@@ -132,3 +132,48 @@ def test_large_arrays_and_images_decode() -> None:
 def test_payload_must_be_filled_exactly() -> None:
     with pytest.raises(ParameterError):
         decode_params(encode_params([1]) + b"\x00")
+
+
+def test_large_frames_received_in_place_reuse_one_buffer_without_aliasing() -> None:
+    """Two large frames through get_buffer / buffer_updated (as a socket's recv_into): the
+    decoder reuses its buffer, and the first decoded image is not overwritten by the second."""
+    decoder = FrameDecoder()
+    images = [Image(512, 256, bytes([fill]) * (512 * 256)) for fill in (7, 9)]
+    got = []
+    for i, image in enumerate(images):
+        raw = encode_packet(Packet(PacketKind.REPLY, 0x2003, i + 1, (i, image)))
+        decoder.feed(raw[:100])
+        pos = 100
+        while pos < len(raw):
+            view = decoder.get_buffer()
+            assert view is not None
+            n = min(len(view), 40000, len(raw) - pos)
+            view[:n] = raw[pos : pos + n]
+            decoder.buffer_updated(n)
+            pos += n
+        got.extend(decoder.events())
+    assert [p.params for p in got] == [(0, images[0]), (1, images[1])]
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.lists(values, max_size=3), min_size=1, max_size=4), st.data())
+def test_borrowed_feed_matches_copied_feed(lists: list[list[Value]], data: st.DataObject) -> None:
+    """Bytes fed as views of one reused receive buffer (borrow=True, keep() before it is
+    overwritten) decode to the same packets as bytes fed as copies."""
+    packets = [Packet(PacketKind.REPLY, 7, i + 1, tuple(p)) for i, p in enumerate(lists)]
+    stream = b"".join(encode_packet(p) for p in packets)
+    cuts = sorted(data.draw(st.lists(st.integers(0, len(stream)), max_size=8)))
+    pieces = [stream[a:b] for a, b in zip([0, *cuts], [*cuts, len(stream)], strict=True)]
+    scratch = bytearray(len(stream) + 1)
+    borrowed, copied = FrameDecoder(), FrameDecoder()
+    got: list[object] = []
+    want: list[object] = []
+    for piece in pieces:
+        borrowed.keep()
+        scratch[:] = b"\xee" * len(scratch)  # what the previous piece left is overwritten
+        scratch[: len(piece)] = piece
+        borrowed.feed(memoryview(scratch)[: len(piece)], borrow=True)
+        got.extend(borrowed.events())
+        copied.feed(piece)
+        want.extend(copied.events())
+    assert got == want == packets

@@ -4,9 +4,30 @@ from __future__ import annotations
 
 import re
 
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from spec import doc, wire
-from spec.errors import ERROR_MEANINGS, ErrorCode
-from spec.registry import COMMANDS, CommandId, commands_for
+from spec.errors import ERROR_MEANINGS, ErrorCode, ParameterError
+from spec.params import (
+    CLASS_OF,
+    FloatArray,
+    Image,
+    IntArray,
+    Joints,
+    Location,
+    Matrix,
+    Transform,
+    type_of,
+)
+from spec.registry import (
+    COMMANDS,
+    CommandId,
+    CommandSpec,
+    check_params,
+    check_params_reference,
+    commands_for,
+)
 from spec.requirements import PROTOCOL_MD, parse, requirements
 
 
@@ -76,3 +97,48 @@ def test_duplicate_requirement_is_refused() -> None:
 
     with pytest.raises(ValueError):
         parse("## 1. A\n- **[RS-1.1]** MUST x\n- **[RS-1.1]** MUST y\n")
+
+
+_SAMPLES: tuple[object, ...] = (
+    0,
+    True,
+    1.5,
+    "s",
+    b"b",
+    ErrorCode.BUSY,  # an IntEnum: not of INT's exact class, still an INT
+    FloatArray([1.0]),
+    IntArray([1]),
+    Joints([0.0] * 6),
+    Location(0, 0, 0, 0, 0, 0),
+    Transform(),
+    Matrix(1, 1, [0.0]),
+    Image(1, 1, b"x"),
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.sampled_from(COMMANDS),
+    st.booleans(),
+    st.lists(st.sampled_from(_SAMPLES), max_size=5),
+    st.booleans(),
+)
+def test_fast_parameter_check_agrees_with_the_reference(
+    command: CommandSpec, reply: bool, values: list[object], allow_extra: bool
+) -> None:
+    specs = command.reply if reply else command.params
+    if values and values[0] is True:  # often exactly the declared classes
+        values = [CLASS_SAMPLE[s.type] for s in specs]
+    elif values and values[0] == "s":  # or a prefix of them (optional ones left off)
+        values = [CLASS_SAMPLE[s.type] for s in specs][: len(values) % (len(specs) + 1)]
+    outcomes = []
+    for check in (check_params, check_params_reference):
+        try:
+            check(specs, tuple(values), "x", allow_extra=allow_extra)  # type: ignore[arg-type]
+            outcomes.append(None)
+        except ParameterError as exc:
+            outcomes.append(str(exc))
+    assert outcomes[0] == outcomes[1]
+
+
+CLASS_SAMPLE = {type_of(v): v for v in _SAMPLES if type(v) in CLASS_OF.values()}  # type: ignore[arg-type]
