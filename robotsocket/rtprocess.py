@@ -30,6 +30,7 @@ import itertools
 import logging
 import os
 import queue
+import signal
 import socket
 import subprocess
 import sys
@@ -261,6 +262,9 @@ class _ChildHost:
 def child_main(argv: list[str]) -> int:
     """The child's entry, with arguments FD STATE_PATH: read (builder, config) from the
     pipe on FD, build, say ready, serve."""
+    # Ctrl-C in a terminal reaches the whole process group: the server process stops the
+    # child (close), a lost server makes it stop the arm; never a KeyboardInterrupt here.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     conn = Connection(int(argv[0]))
     target, config = conn.recv()
     logging.basicConfig(
