@@ -66,7 +66,7 @@ class CellProcess:
         sensor_port: int = 0,
         **cell: Any,
     ) -> None:
-        config = {"cell": {"host": host, **cell}, "log_level": logging.getLogger().level}
+        config = {"cell": {"host": host, **cell}}
         self.child = RealtimeProcess("cell.rtcell:build_cell", config)
         try:
             self.robot_server = FramedServer(RobotProcess(self.child), host, robot_port)

@@ -123,7 +123,6 @@ def _serve_child(args: argparse.Namespace, allow: tuple[Network, ...]) -> int:
         "udp_port": args.udp_port,
         "allow": allow,
         "data_from_any": args.data_from_any,
-        "log_level": logging.getLogger().level,
     }
     try:
         child = RealtimeProcess("robotsocket.rtprocess:build_robot", config)

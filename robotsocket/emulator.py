@@ -157,7 +157,7 @@ class RobotEmulator(RobotInterface):
         if clock == "sim":
             self._simclock = SimLoop(period, self._tick)
         else:
-            self._loop = RealTimeLoop(period, self._tick, idle=self._at_rest)
+            self._loop = RealTimeLoop(period, self._tick, idle=self.at_rest)
 
     # --- clock -------------------------------------------------------------------------------
 
@@ -262,7 +262,7 @@ class RobotEmulator(RobotInterface):
             if self._waiters:
                 self._cond.notify_all()
 
-    def _at_rest(self) -> bool:
+    def at_rest(self) -> bool:
         """Nothing moves and nobody waits for a cycle: the clock thread may sleep (readers
         compute the due cycles, :meth:`catch_up`); a new move or waiter wakes it."""
         return (

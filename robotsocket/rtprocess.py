@@ -52,6 +52,7 @@ from robotsocket.shared_state import SharedState, Snapshot
 from robotsocket.sync_service import attach_udp_sync
 from spec.errors import ErrorCode, ProtocolError
 from spec.params import Joints, Location, Value
+from spec.realtime import promote_current_thread
 from spec.registry import CommandId, lookup
 from spec.server import Handler, HandlerService, Identity, Session
 
@@ -70,6 +71,10 @@ log = logging.getLogger(__name__)
 COMMAND_TIMEOUT_S = 30.0
 #: Start-up of the child (imports, building the emulator, binding its UDP port).
 READY_TIMEOUT_S = 60.0
+#: Real-time priority of the child's command threads (below the timing threads' 50): a
+#: thread holding the child's GIL must not be preempted by other processes, or the timing
+#: threads wait for it (priority inversion through the GIL).
+COMMAND_PRIORITY = 40
 #: How often the child checks that its parent still exists when the pipe is quiet.
 PARENT_CHECK_S = 0.5
 #: The longest the child waits for the arm to stand after its parent is gone.
@@ -173,6 +178,7 @@ class _ChildHost:
         self.state = state
         self.parent = parent
         self.close_rid = 0
+        self._rest_published = False
         self._send_lock = threading.Lock()
         self._queues: dict[str, queue.SimpleQueue[tuple[Any, ...] | None]] = {}
         for name in parts.services:
@@ -180,8 +186,16 @@ class _ChildHost:
             self._queues[name] = q
             threading.Thread(target=self._work, args=(q,), name=f"rt-{name}", daemon=True).start()
 
-    def publish(self, *_: object) -> None:
+    def publish(self) -> None:
         self.state.write(self.parts.robot.snapshot())
+
+    def on_cycle(self, *_: object) -> None:
+        """Publish each cycle, except the cycles a robot at rest runs after an idle wait: they
+        change nothing but the cycle number (the server reads the time from the clock)."""
+        rest = self.parts.robot.at_rest()
+        if not (rest and self._rest_published):
+            self.publish()
+        self._rest_published = rest
 
     def _send(self, msg: tuple[Any, ...]) -> None:
         with self._send_lock:
@@ -191,6 +205,7 @@ class _ChildHost:
                 pass  # the parent is gone: serve() notices and stops the arm
 
     def _work(self, q: queue.SimpleQueue[tuple[Any, ...] | None]) -> None:
+        promote_current_thread(COMMAND_PRIORITY)
         while (item := q.get()) is not None:
             self._execute(*item)
 
@@ -214,6 +229,8 @@ class _ChildHost:
 
     def serve(self) -> str:
         """Answer the parent until it says close (returns "close") or is gone."""
+        got = promote_current_thread(COMMAND_PRIORITY)
+        log.info("command threads: scheduling %s", got)
         while True:
             try:
                 if not self.conn.poll(PARENT_CHECK_S):
@@ -281,7 +298,7 @@ def child_main(argv: list[str]) -> int:
         conn.send(("failed", str(exc)))
         return 2
     host = _ChildHost(conn, parts, state, parent)
-    parts.robot.cycle_hooks.append(host.publish)
+    parts.robot.cycle_hooks.append(host.on_cycle)
     parts.start()
     state.set_start_ns(parts.robot.clock_start_ns)
     host.publish()
@@ -337,6 +354,8 @@ class RealtimeProcess:
             pass_fds=(theirs.fileno(),),
         )
         theirs.close()
+        # the child logs what this process would log
+        config = {"log_level": logging.getLogger().getEffectiveLevel(), **config}
         self._conn.send((target, config))
         msg: tuple[Any, ...] = ("failed", "")
         try:
