@@ -149,6 +149,7 @@ def _serve_child(args: argparse.Namespace, allow: tuple[Network, ...]) -> int:
     print(f"listening on {server.address[0]}:{server.address[1]}", flush=True)
 
     def on_stop() -> None:
+        server.shutdown()  # a controller's work stops first, in the child [RS-7.10]
         child.close()  # the child logs its tick jitter and UDP drops
         log.info("statistics: %s", json.dumps(server.statistics()))
 
