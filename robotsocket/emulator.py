@@ -361,6 +361,13 @@ class RobotEmulator(RobotInterface):
     def _moving(self) -> bool:
         return self._gen.in_motion or (not self._settled() and not self._gen.held)
 
+    def publish(self, write: Callable[[Snapshot], None]) -> None:
+        """``write(self.snapshot())`` under the lock: writes from several threads arrive in
+        the order of the states they show (a command's state never overwritten by an older
+        cycle's)."""
+        with self._lock:
+            write(self.snapshot())
+
     def snapshot(self) -> Snapshot:
         """The state as of the latest cycle, without running due cycles (what the real-time
         process publishes each cycle, :mod:`robotsocket.shared_state`)."""

@@ -187,7 +187,7 @@ class _ChildHost:
             threading.Thread(target=self._work, args=(q,), name=f"rt-{name}", daemon=True).start()
 
     def publish(self) -> None:
-        self.state.write(self.parts.robot.snapshot())
+        self.parts.robot.publish(self.state.write)
 
     def on_cycle(self, *_: object) -> None:
         """Publish each cycle, except the cycles a robot at rest runs after an idle wait: they

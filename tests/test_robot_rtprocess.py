@@ -116,7 +116,9 @@ def test_the_child_answers_as_in_process(served: tuple[str, int]) -> None:
         endpoint.stop()
         robot.close()
     got = _run(served)
-    assert got == expected
+    steps = ["hello", *(f"{CommandId(c).name}{p}" for c, p, _ in SEQUENCE), "joint log"]
+    for step, g, e in zip(steps, got, expected, strict=True):
+        assert g == e, step
     assert ("error", ErrorCode.NOT_POWERED) in got and ("error", ErrorCode.BAD_STATE) in got
 
 
