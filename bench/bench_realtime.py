@@ -1,17 +1,20 @@
 """Real time under load (issue 12): the 4 ms tick, the live ΔT and the idle cost.
 
-Load: ``HOGS`` CPU-bound processes and a process with ``CLIENTS`` threads polling Herej as
+Load: ``HOGS`` CPU-bound processes and a process with ``CLIENTS - 1`` threads polling Herej as
 fast as they can, on the same machine (two cores here). Figures, each with a baseline from
 the same run:
 
-- robot tick lateness p50 / p99 / max under load with the real-time isolation of
-  docs/REALTIME.md (SCHED_FIFO thread, 0.5 ms GIL switch interval), against the same load
-  without it (a normal thread, the 5 ms default interval), and idle with isolation;
+- robot tick lateness p50 / p99 / max under load, the server as ``robotsocket serve --clock
+  real`` runs it (the 4 ms loop in a real-time child process; the child's own record of its
+  ticks), against the same load with ``--in-process`` (one process, SCHED_FIFO clock thread,
+  0.5 ms GIL switch interval), and the child idle;
 - live ΔT of the real-clock cell at 250 Hz under load, |estimate - truth| with encoder
-  latencies 0 and 10 ms, against the same error on an idle machine (truth: the cell's own
-  records of each acquisition, :meth:`cell.cell.EmulatedCell.measured_delta_t`); and the
-  data datagrams lost under load;
-- idle CPU (% of one core over ``IDLE_S``) of each server process, against the 0.5 % budget.
+  latencies 0 and 10 ms, the cell as ``cell serve`` runs it (real-time child) against the
+  in-process cell under the same load (truth: the cell's own records of each acquisition,
+  :meth:`cell.cell.EmulatedCell.measured_delta_t`); the data datagrams late or lost and the
+  readings used;
+- idle CPU (% of one core over ``IDLE_S``, a server and its child process) of each server,
+  against the 0.5 % budget.
 
 Run alone: ``python -m bench --only realtime``; ``python -m bench.bench_realtime herej
 HOST PORT N`` is the Herej load process it starts.
@@ -28,15 +31,12 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from bench.common import Result, result
-from spec.realtime import REALTIME_SWITCH_INTERVAL_S
 
 HOGS = 2
 CLIENTS = 64
@@ -112,70 +112,107 @@ def _load(
             p.wait()
 
 
-def _tick_lateness(
-    isolated: bool, loaded: bool, switch_interval_s: float = REALTIME_SWITCH_INTERVAL_S
-) -> tuple[dict[str, float], dict[str, float], float]:
-    """Lateness (s) of the robot server's ticks over TICK_S, as ``robotsocket serve`` runs
-    it, the lateness of the samples (by whichever thread computed them first) and the Herej
-    calls per second the server answered meanwhile."""
-    from robotsocket.emulator import HOME, RobotEmulator
+def _in_process_server() -> tuple[Any, Callable[[], dict[str, float]], Callable[[], None]]:
+    """``robotsocket serve --clock real --in-process``: the server, the tick jitter, stop."""
+    from robotsocket.emulator import RobotEmulator
     from robotsocket.service import RobotService
     from robotsocket.sync_service import attach_udp_sync
     from spec.server import FramedServer
 
-    before = sys.getswitchinterval()
     robot = RobotEmulator(clock="real")
-    loop = robot._loop
-    assert loop is not None
-    loop.switch_interval_s = switch_interval_s
-    if not isolated:
-        loop.rt_priority = 0
-        loop.switch_interval_s = None
-        sys.setswitchinterval(0.005)  # CPython's default
     service = RobotService(robot)
     _, endpoint = attach_udp_sync(service, robot)
-    server = FramedServer(service, "127.0.0.1", 0)
-    server.start()
+    server = FramedServer(service, "127.0.0.1", 0).start()
     robot.start()
     endpoint.start()
-    calls: list[int] = []
-    try:
-        # the arm moves back and forth the whole time: at rest the clock thread sleeps
-        robot.enable_power()
-        a, b = np.array([-15.0, 0.0, 90.0, 0.0, 90.0, 0.0]), np.array(HOME)
-        for i in range(40):
-            robot.joint_move(a if i % 2 == 0 else b)
-        with contextlib.ExitStack() as stack:
-            if loaded:
-                calls = stack.enter_context(_load(server.address))
-            n0 = robot.jitter()["count"]
-            time.sleep(TICK_S)
-            assert robot.status().moving and robot.jitter()["count"] > n0
-    finally:
+
+    def stop() -> None:
         endpoint.stop()
         robot.close()
         server.shutdown()
+
+    return server, robot.jitter, stop
+
+
+def _child_server() -> tuple[Any, Callable[[], dict[str, float]], Callable[[], None]]:
+    """``robotsocket serve --clock real`` (the default): the loop in a real-time child; the
+    jitter is the child's record of its own ticks."""
+    from robotsocket.rtprocess import RealtimeProcess, RobotProcess
+    from spec.server import FramedServer
+
+    config = {
+        "model": "RX90B",
+        "encoder_latency_s": 0.0,
+        "host": "127.0.0.1",
+        "udp_port": 0,
+        "allow": (),
+        "data_from_any": False,
+    }
+    child = RealtimeProcess("robotsocket.rtprocess:build_robot", config)
+    server = FramedServer(RobotProcess(child), "127.0.0.1", 0).start()
+
+    def stop() -> None:
+        server.shutdown()
+        child.close()
+
+    return server, lambda: dict(child.query("jitter")), stop
+
+
+def _tick_lateness(child: bool, loaded: bool) -> tuple[dict[str, float], float]:
+    """Lateness (s) of the robot's 4 ms ticks over TICK_S while the arm moves back and forth,
+    with the server as ``robotsocket serve --clock real`` runs it (``child``) or with
+    ``--in-process``, and the Herej calls per second it answered meanwhile."""
+    from robotsocket.client import RobotClient
+    from robotsocket.emulator import HOME
+
+    before = sys.getswitchinterval()
+    server, jitter, stop = _child_server() if child else _in_process_server()
+    calls: list[int] = []
+    try:
+        with RobotClient(*server.address, timeout=10.0) as c:
+            c.take_control("")
+            c.enable_power()
+            a, b = [-15.0, 0.0, 90.0, 0.0, 90.0, 0.0], list(HOME)
+            for i in range(40):  # at rest the clock thread sleeps: keep it moving
+                c.joint_move(a if i % 2 == 0 else b)
+            with contextlib.ExitStack() as stack:
+                if loaded:
+                    calls = stack.enter_context(_load(server.address, clients=CLIENTS - 1))
+                n0 = jitter()["count"]
+                time.sleep(TICK_S)
+                assert c.status().moving and jitter()["count"] > n0
+            j = jitter()
+    finally:
+        stop()
         sys.setswitchinterval(before)
-    return robot.jitter(), robot.sample_lateness(), sum(calls) / TICK_S
+    return j, sum(calls) / TICK_S
 
 
-def _live_delta_t(latency_s: float, clients: int, hogs: int) -> tuple[float, dict[str, Any]]:
+def _live_delta_t(
+    latency_s: float, clients: int, hogs: int, child: bool
+) -> tuple[float, dict[str, Any]]:
     """|ΔT estimate - truth| (s) of a 3 s live ``python -m sync delay`` at 250 Hz (its own
-    process, as a user runs it) against the real-clock cell, and its JSON (statistics,
-    verdict)."""
+    process, as a user runs it) against the real-clock cell (``child``: as ``cell serve``
+    runs it, else ``--in-process``), and its JSON (statistics, verdict)."""
     from cell.cell import CellTiming, EmulatedCell
+    from cell.rtcell import CellProcess
 
     timing = replace(CellTiming(), encoder_latency_s=latency_s)
-    with (
-        tempfile.TemporaryDirectory() as tmp,
-        EmulatedCell(clock="real", seed=2, timing=timing) as cell,
-    ):
+    with contextlib.ExitStack() as cells, tempfile.TemporaryDirectory() as tmp:
+        if child:
+            proc = cells.enter_context(CellProcess(seed=2, timing=timing))
+            first = proc.next_index()
+            truth_of: Callable[[int], float] = proc.measured_delta_t
+            robot, sensor = proc.robot_address, proc.sensor_address
+        else:
+            cell = cells.enter_context(EmulatedCell(clock="real", seed=2, timing=timing))
+            first = cell.core.next_index
+            truth_of = cell.measured_delta_t
+            robot, sensor = cell.robot_address, cell.sensor_address
         out = Path(tmp) / "d.json"
-        first = cell.core.next_index
         with contextlib.ExitStack() as stack:
             if clients or hogs:
-                stack.enter_context(_load(cell.robot_address, clients=clients, hogs=hogs))
-            robot, sensor = cell.robot_address, cell.sensor_address
+                stack.enter_context(_load(robot, clients=clients, hogs=hogs))
             done = subprocess.run(
                 [
                     sys.executable,
@@ -196,7 +233,7 @@ def _live_delta_t(latency_s: float, clients: int, hogs: int) -> tuple[float, dic
                 text=True,
                 timeout=120,
             )
-        truth = cell.measured_delta_t(first)
+        truth = truth_of(first)
         if not out.exists():  # no result at all: say why
             lines = done.stderr.strip().splitlines() or ["?"]
             return math.nan, {"exit": done.returncode, "error": lines[-1]}
@@ -207,12 +244,33 @@ def _live_delta_t(latency_s: float, clients: int, hogs: int) -> tuple[float, dic
 _SERVERS = {
     "robotsocket serve --clock sim": ["robotsocket", "serve", "--clock", "sim", "--port", "0"],
     "robotsocket serve --clock real": ["robotsocket", "serve", "--clock", "real", "--port", "0"],
+    "robotsocket serve --clock real --in-process": [
+        "robotsocket",
+        "serve",
+        "--clock",
+        "real",
+        "--in-process",
+        "--port",
+        "0",
+    ],
     "sensorsocket serve --clock sim": [
         "sensorsocket",
         "serve",
         "--clock",
         "sim",
         "--port",
+        "0",
+        "--udp-port",
+        "0",
+    ],
+    "cell serve --clock real": [
+        "cell",
+        "serve",
+        "--clock",
+        "real",
+        "--robot-port",
+        "0",
+        "--sensor-port",
         "0",
         "--udp-port",
         "0",
@@ -233,16 +291,20 @@ _SERVERS = {
 
 
 def _cpu_s(pid: int) -> float:
-    """CPU time of every thread of ``pid`` (s), from schedstat (ns; /proc/PID/stat counts in
-    10 ms ticks, too coarse for a 0.5 % budget)."""
+    """CPU time of every thread of ``pid`` and of its child processes (the real-time child)
+    (s), from schedstat (ns; /proc/PID/stat counts in 10 ms ticks, too coarse for a 0.5 %
+    budget)."""
     total = 0
+    kids: list[int] = []
     for tid in os.listdir(f"/proc/{pid}/task"):
         try:
             with open(f"/proc/{pid}/task/{tid}/schedstat") as f:
                 total += int(f.read().split()[0])
+            with open(f"/proc/{pid}/task/{tid}/children") as f:
+                kids.extend(int(k) for k in f.read().split())
         except (FileNotFoundError, ProcessLookupError):
             continue  # a thread that just ended
-    return total / 1e9
+    return total / 1e9 + sum(_cpu_s(k) for k in kids)
 
 
 def _idle_cpu() -> dict[str, float]:
@@ -277,70 +339,63 @@ def _idle_cpu() -> dict[str, float]:
 
 def run() -> list[Result]:
     out: list[Result] = []
-    load = f"{HOGS} hogs + {CLIENTS} Herej clients"
-    idle, _, _ = _tick_lateness(isolated=True, loaded=False)
-    bare, bare_samples, bare_rate = _tick_lateness(isolated=False, loaded=True)
-    iso, iso_samples, iso_rate = _tick_lateness(isolated=True, loaded=True)
+    load = f"{HOGS} hogs + {CLIENTS - 1} Herej clients"
+    idle, _ = _tick_lateness(child=True, loaded=False)
+    inproc, inproc_rate = _tick_lateness(child=False, loaded=True)
+    child, child_rate = _tick_lateness(child=True, loaded=True)
     for key in ("p50", "p99", "max"):
         out.append(
             result(
-                f"robot tick lateness {key}, {load}, isolated",
-                iso[key] * 1e3,
+                f"robot tick lateness {key}, {load}, real-time child",
+                child[key] * 1e3,
                 "ms",
-                f"same load, not isolated {key} (idle isolated {idle[key] * 1e3:.3f} ms)",
-                bare[key] * 1e3,
-            )
-        )
-    for key in ("p50", "p99"):
-        out.append(
-            result(
-                f"robot sample lateness {key} (any thread), {load}, isolated",
-                iso_samples[key] * 1e3,
-                "ms",
-                f"same load, not isolated {key}",
-                bare_samples[key] * 1e3,
+                f"same load, in-process {key} (idle child {idle[key] * 1e3:.3f} ms)",
+                inproc[key] * 1e3,
             )
         )
     out.append(
-        result(f"Herej calls/s, {load}, isolated", iso_rate, "1/s", "not isolated", bare_rate)
+        result(
+            f"Herej calls/s, {load}, real-time child", child_rate, "1/s", "in-process", inproc_rate
+        )
     )
     # the server's 64 connections: the experiment's and 63 Herej clients
-    loads = ((f"{HOGS} hogs", 0), (f"{HOGS} hogs + {CLIENTS - 1} Herej clients", CLIENTS - 1))
+    loads = ((f"{HOGS} hogs", 0), (load, CLIENTS - 1))
     for what, clients in loads:
         for latency in (0.0, 10e-3):
-            err_idle, _ = _live_delta_t(latency, 0, 0)
-            err, j = _live_delta_t(latency, clients, HOGS)
-            stats = j.get("statistics", {})
+            runs = {c: _live_delta_t(latency, clients, HOGS, child=c) for c in (True, False)}
+            (err, j), (err_in, j_in) = runs[True], runs[False]
+            stats, stats_in = j.get("statistics", {}), j_in.get("statistics", {})
             verdict = j.get("verdict", {})
             if "error" in j:
                 note = f" (no result, exit {j['exit']}: {j['error'][:60]})"
             else:
                 note = "" if verdict.get("ok") else " (UNTRUSTED: exit 3)"
+            tag = f"encoder {latency * 1e3:g} ms, {what}"
             out.append(
                 result(
-                    f"live ΔT |error| 250 Hz, encoder {latency * 1e3:g} ms, {what}{note}",
+                    f"live ΔT |error| 250 Hz, {tag}, real-time child{note}",
                     err * 1e3,
                     "ms",
-                    "same, idle machine",
-                    err_idle * 1e3,
+                    "same, in-process cell",
+                    err_in * 1e3,
                 )
             )
             out.append(
                 result(
-                    f"live ΔT data late or lost (encoder {latency * 1e3:g} ms, {what})",
+                    f"live ΔT data late or lost of {stats.get('sent', math.nan)} ({tag}, child)",
                     stats.get("lost", math.nan),
                     "datagrams",
-                    "triggers sent",
-                    stats.get("sent", math.nan),
+                    "in-process cell",
+                    stats_in.get("lost", math.nan),
                 )
             )
             out.append(
                 result(
-                    f"live ΔT readings used (encoder {latency * 1e3:g} ms, {what})",
+                    f"live ΔT readings used of {stats.get('sent', math.nan)} ({tag}, child)",
                     stats.get("matched", math.nan),
                     "readings",
-                    "triggers sent (the rest: OVERRUN, the sensor's backlog)",
-                    stats.get("sent", math.nan),
+                    "in-process cell",
+                    stats_in.get("matched", math.nan),
                 )
             )
     if sys.platform.startswith("linux"):

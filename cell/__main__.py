@@ -26,6 +26,8 @@ import numpy as np
 
 from cell.cell import CellError, CellTiming, EmulatedCell
 from cell.options import add_timing_options, add_tool_error_options, timing_kwargs
+from cell.rtcell import CellProcess
+from robotsocket.rtprocess import ChildStartError
 from sensorsocket.pgm import write_pgm
 from spec import cliargs
 from spec.client import FramedClient, wait_end_move
@@ -62,6 +64,13 @@ def _parser() -> cliargs.Parser:
         s.add_argument("-v", "--verbose", action="store_true")
         add_timing_options(s)
         add_tool_error_options(s)
+        if name == "serve":
+            s.add_argument(
+                "--in-process",
+                action="store_true",
+                help="real clock: run the robot loop, UDP and sensor in this process, not in "
+                "a real-time child process (the default; docs/REALTIME.md)",
+            )
         if name == "demo":
             s.add_argument("--out", default="out", help="directory for the frame and plots")
             s.add_argument(
@@ -80,25 +89,35 @@ def _parser() -> cliargs.Parser:
     return p
 
 
+def _cell_kwargs(args: argparse.Namespace) -> dict[str, Any]:
+    return {
+        "timing": CellTiming(**timing_kwargs(args)),
+        "model": args.model,
+        "joint": args.joint,
+        "seam": args.seam,
+        "seed": args.seed,
+        "sensor_tool_error": args.sensor_tool_error,
+        "laser_tool_error": args.laser_tool_error,
+        "host": args.host,
+        "robot_port": args.robot_port,
+        "sensor_port": args.sensor_port,
+        "udp_port": args.udp_port,
+    }
+
+
 def _cell(args: argparse.Namespace) -> EmulatedCell:
-    return EmulatedCell(
-        clock=args.clock,
-        timing=CellTiming(**timing_kwargs(args)),
-        model=args.model,
-        joint=args.joint,
-        seam=args.seam,
-        seed=args.seed,
-        sensor_tool_error=args.sensor_tool_error,
-        laser_tool_error=args.laser_tool_error,
-        host=args.host,
-        robot_port=args.robot_port,
-        sensor_port=args.sensor_port,
-        udp_port=args.udp_port,
-    )
+    return EmulatedCell(clock=args.clock, **_cell_kwargs(args))
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
-    cell = _cell(args).start()
+    cell: EmulatedCell | CellProcess
+    if args.clock == "real" and not args.in_process:
+        try:  # the real-time part in a child process (docs/REALTIME.md)
+            cell = CellProcess(**_cell_kwargs(args)).start()
+        except ChildStartError as exc:
+            raise CellError(str(exc)) from None
+    else:
+        cell = _cell(args).start()
     for k, v in cell.describe().items():
         print(f"{k:>22}: {round(v, 9) if isinstance(v, float) else v}")
     if args.clock == "sim":

@@ -102,6 +102,9 @@ class EmulatedCell:
         seed: seeds every random draw of the cell.
         host: address of the servers; ports 0 pick free ones.
         delta_t_s: the robot's initial ΔT setting (the synchronisation commands change it).
+        serve: serve robot and sensor over TCP here; False leaves that to another process
+            (:mod:`cell.rtcell`), with the services in :attr:`robot_service` and
+            :attr:`sensor_service`.
     """
 
     clock: str = "sim"
@@ -121,6 +124,7 @@ class EmulatedCell:
     udp_port: int = 0
     delta_t_s: float = 0.0
     ready_joints: Sequence[float] = READY_JOINTS
+    serve: bool = True
 
     def __post_init__(self) -> None:
         if self.clock not in ("sim", "real"):
@@ -199,14 +203,15 @@ class EmulatedCell:
                 port=0,
             )
             self.sync = SyncService(self.robot, self.core, self.endpoint)
-        robot_service = RobotService(self.robot)
-        self.sync.install(robot_service)
-        self.robot_server = FramedServer(robot_service, self.host, self.robot_port)
-        self.sensor_server = FramedServer(
-            SensorService(self.sensor, trigger_endpoint=self.udp_address),
-            self.host,
-            self.sensor_port,
-        )
+        self.robot_service = RobotService(self.robot)
+        self.sync.install(self.robot_service)
+        self.sensor_service = SensorService(self.sensor, trigger_endpoint=self.udp_address)
+        # serve=False: another process serves the two services (cell.rtcell)
+        self.robot_server: FramedServer | None = None
+        self.sensor_server: FramedServer | None = None
+        if self.serve:
+            self.robot_server = FramedServer(self.robot_service, self.host, self.robot_port)
+            self.sensor_server = FramedServer(self.sensor_service, self.host, self.sensor_port)
         self._started = False
 
     # --- geometry ----------------------------------------------------------------------------
@@ -308,11 +313,11 @@ class EmulatedCell:
 
     @property
     def robot_address(self) -> tuple[str, int]:
-        return self.robot_server.address
+        return self.robot_server.address if self.robot_server else (self.host, self.robot_port)
 
     @property
     def sensor_address(self) -> tuple[str, int]:
-        return self.sensor_server.address
+        return self.sensor_server.address if self.sensor_server else (self.host, self.sensor_port)
 
     def start(self) -> EmulatedCell:
         if self._started:
@@ -323,8 +328,9 @@ class EmulatedCell:
             self.listener.start()
         if self.endpoint is not None:
             self.endpoint.start()
-        self.robot_server.start()
-        self.sensor_server.start()
+        for server in (self.robot_server, self.sensor_server):
+            if server is not None:
+                server.start()
         log.info(
             "cell (%s clock): robot %s:%d, sensor %s:%d, udp %s:%d, true ΔT %.3f ms",
             self.clock,
@@ -336,8 +342,9 @@ class EmulatedCell:
         return self
 
     def close(self) -> None:
-        self.robot_server.shutdown()
-        self.sensor_server.shutdown()
+        for server in (self.robot_server, self.sensor_server):
+            if server is not None:
+                server.shutdown()
         if self.endpoint is not None:
             self.endpoint.stop()
         if self.listener is not None:

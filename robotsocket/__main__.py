@@ -24,9 +24,11 @@ from collections.abc import Sequence
 from kinematics.errors import KinematicsError
 from robotsocket.client import RobotClient
 from robotsocket.emulator import RobotEmulator
+from robotsocket.rtprocess import ChildStartError, RealtimeProcess, RobotProcess
 from robotsocket.service import RobotService
 from robotsocket.sync_service import attach_udp_sync
 from spec import callcli, cliargs
+from spec.auth import Network
 from spec.client import ClientTimeout, ConnectionClosed
 from spec.errors import ProtocolError, RemoteError
 from spec.server import FramedServer, ServerPolicy, serve_until_signal
@@ -53,6 +55,8 @@ def parse_endpoint(text: str) -> tuple[str, int]:
 def cmd_serve(args: argparse.Namespace) -> int:
     token: str | None = args.token  # read (and refused if empty) by cliargs.token_file
     allow = tuple(args.allow or ())
+    if args.clock == "real" and not args.in_process:
+        return _serve_child(args, allow)
     try:
         robot = RobotEmulator(
             args.model, clock=args.clock, encoder_latency=args.encoder_latency_ms / 1000.0
@@ -109,6 +113,50 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def _serve_child(args: argparse.Namespace, allow: tuple[Network, ...]) -> int:
+    """The real clock's default: the 4 ms loop and the UDP endpoint in a real-time child
+    process, the TCP server here (docs/REALTIME.md)."""
+    config = {
+        "model": args.model,
+        "encoder_latency_s": args.encoder_latency_ms / 1000.0,
+        "host": args.host,
+        "udp_port": args.udp_port,
+        "allow": allow,
+        "data_from_any": args.data_from_any,
+    }
+    try:
+        child = RealtimeProcess("robotsocket.rtprocess:build_robot", config)
+    except ChildStartError as exc:
+        raise CliError(str(exc)) from None
+    policy = ServerPolicy(
+        max_clients=args.max_clients, allow=allow, token=args.token, watchdog=args.watchdog
+    )
+    try:
+        server = FramedServer(RobotProcess(child), args.host, args.port, policy)
+    except OSError as exc:
+        child.close()
+        raise CliError(f"cannot listen on {args.host}:{args.port}: {exc.strerror}") from None
+    log.info(
+        "robot %s emulator, real-time clock in process %d, encoder latency %.1f ms, "
+        "control token %s, allow %s",
+        args.model,
+        child.pid,
+        args.encoder_latency_ms,
+        "required" if args.token else "not required",
+        ", ".join(str(n) for n in allow) or "any",
+    )
+    server.start()
+    print(f"listening on {server.address[0]}:{server.address[1]}", flush=True)
+
+    def on_stop() -> None:
+        server.shutdown()  # a controller's work stops first, in the child [RS-7.10]
+        child.close()  # the child logs its tick jitter and UDP drops
+        log.info("statistics: %s", json.dumps(server.statistics()))
+
+    serve_until_signal([server], on_stop)
+    return 0
+
+
 # --- call -------------------------------------------------------------------------------------
 
 
@@ -153,6 +201,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--host", default="127.0.0.1", help="listen address (default loopback)")
     s.add_argument("--port", type=cliargs.port, default=4000)
     s.add_argument("--clock", choices=("real", "sim"), default="real")
+    s.add_argument(
+        "--in-process",
+        action="store_true",
+        help="real clock: run the 4 ms loop in the server's process, not in a real-time "
+        "child process (the default; docs/REALTIME.md)",
+    )
     s.add_argument(
         "--allow",
         nargs="+",

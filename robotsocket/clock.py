@@ -114,6 +114,11 @@ class RealTimeLoop:
     def now(self) -> float:
         return (self._clock_ns() - self._start_ns) / 1e9
 
+    @property
+    def start_ns(self) -> int:
+        """The clock's zero on ``clock_ns`` (set again by :meth:`start`)."""
+        return self._start_ns
+
     def start(self) -> RealTimeLoop:
         if self.switch_interval_s is not None:
             shorten_switch_interval(self.switch_interval_s)

@@ -56,6 +56,8 @@ from robotsocket.interface import (
     robot_error,
 )
 from robotsocket.paths import Move, plan_joint, plan_linear
+from robotsocket.service import error_code
+from robotsocket.shared_state import Snapshot
 from robotsocket.timed_path import plan_timed
 from robotsocket.trajectory import PERIOD, TrajectoryGenerator
 from sync.joint_buffer import JointBuffer
@@ -81,6 +83,16 @@ def _loc(values: Sequence[float], what: str) -> Array:
     if arr.shape != (6,) or not np.all(np.isfinite(arr)):
         raise InvalidArgumentError(f"{what}: expected 6 finite numbers (x, y, z, rx, ry, rz)")
     return location_to_transform(arr)
+
+
+def here_at(model: RobotModel, q: Array, tool: Array | Loc, frame: Array | Loc) -> Loc:
+    """[RS-5.16] Here: the tool's location in ``frame`` at joints ``q`` (6,) deg; ``tool`` and
+    ``frame`` as 4x4 transforms or VAL3 locations (checked: BAD_PARAMETERS)."""
+    tool_T = tool if isinstance(tool, np.ndarray) else _loc(tool, "tool")
+    frame_T = frame if isinstance(frame, np.ndarray) else _loc(frame, "frame")
+    T = invert(frame_T) @ model.flange2base(q) @ tool_T
+    x, y, z, rx, ry, rz = (float(v) for v in transform_to_location(T))
+    return (x, y, z, rx, ry, rz)
 
 
 class RobotEmulator(RobotInterface):
@@ -145,7 +157,7 @@ class RobotEmulator(RobotInterface):
         if clock == "sim":
             self._simclock = SimLoop(period, self._tick)
         else:
-            self._loop = RealTimeLoop(period, self._tick, idle=self._at_rest)
+            self._loop = RealTimeLoop(period, self._tick, idle=self.at_rest)
 
     # --- clock -------------------------------------------------------------------------------
 
@@ -162,6 +174,14 @@ class RobotEmulator(RobotInterface):
     def close(self) -> None:
         if self._loop is not None:
             self._loop.stop()
+
+    @property
+    def clock_start_ns(self) -> int:
+        """Real clock: the robot clock's zero on ``time.monotonic_ns`` (any process can read
+        the robot time from it)."""
+        if self._loop is None:
+            raise BadStateError("the simulated clock has no zero on the monotonic clock")
+        return self._loop.start_ns
 
     def jitter(self) -> dict[str, float]:
         """Real-time tick lateness summary (s); empty counts in simulated mode."""
@@ -242,7 +262,7 @@ class RobotEmulator(RobotInterface):
             if self._waiters:
                 self._cond.notify_all()
 
-    def _at_rest(self) -> bool:
+    def at_rest(self) -> bool:
         """Nothing moves and nobody waits for a cycle: the clock thread may sleep (readers
         compute the due cycles, :meth:`catch_up`); a new move or waiter wakes it."""
         return (
@@ -332,10 +352,39 @@ class RobotEmulator(RobotInterface):
             return RobotStatus(
                 powered=self._powered,
                 estop=self._estop,
-                moving=self._gen.in_motion or (not self._settled() and not self._gen.held),
+                moving=self._moving(),
                 queue=self._gen.queued,
                 last_error=self._last_error,
                 time=self.time(),
+            )
+
+    def _moving(self) -> bool:
+        return self._gen.in_motion or (not self._settled() and not self._gen.held)
+
+    def publish(self, write: Callable[[Snapshot], None]) -> None:
+        """``write(self.snapshot())`` under the lock: writes from several threads arrive in
+        the order of the states they show (a command's state never overwritten by an older
+        cycle's)."""
+        with self._lock:
+            write(self.snapshot())
+
+    def snapshot(self) -> Snapshot:
+        """The state as of the latest cycle, without running due cycles (what the real-time
+        process publishes each cycle, :mod:`robotsocket.shared_state`)."""
+        with self._lock:
+            err = self._last_error
+            return Snapshot(
+                cycle=self._gen.k,
+                t=self._gen.k * self.period,
+                measured=tuple(float(v) for v in self._measured),
+                setpoint=tuple(float(v) for v in self._setpoint),
+                powered=self._powered,
+                estop=self._estop,
+                moving=self._moving(),
+                settled=self._settled(),
+                queue=self._gen.queued,
+                error_code=0 if err is None else int(error_code(err)),
+                error_message="" if err is None else str(err),
             )
 
     def herej(self) -> Array:
@@ -355,9 +404,7 @@ class RobotEmulator(RobotInterface):
         tool_T, frame_T = _loc(tool, "tool"), _loc(frame, "frame")
         self.catch_up()
         q = np.array(self._measured)  # no lock, as in herej
-        T = invert(frame_T) @ self.model.flange2base(q) @ tool_T
-        x, y, z, rx, ry, rz = (float(v) for v in transform_to_location(T))
-        return (x, y, z, rx, ry, rz)
+        return here_at(self.model, q, tool_T, frame_T)
 
     def joint_limits(self) -> Array:
         return np.array(self.model.limits)

@@ -28,6 +28,7 @@ from robotsocket.interface import (
     OutOfRangeError,
     RobotError,
     RobotInterface,
+    RobotStatus,
     SingularityError,
     UnreachableError,
 )
@@ -57,6 +58,21 @@ def error_code(exc: RobotError) -> ErrorCode:
         if isinstance(exc, cls):
             return code
     return ErrorCode.INTERNAL_ERROR
+
+
+def status_reply(st: RobotStatus, code: int, message: str, session: Session) -> tuple[Value, ...]:
+    """The RobotStatus reply parameters (the last error as its wire code and message)."""
+    return (
+        st.powered,
+        st.estop,
+        st.moving,
+        st.queue,
+        session.in_control,
+        session.server.control_holder is not None,
+        code,
+        message,
+        float(st.time),
+    )
 
 
 def _loc(value: Value) -> Loc:
@@ -151,17 +167,8 @@ class RobotService(HandlerService):
     def _status(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
         st = self.robot.status()
         err = st.last_error
-        return (
-            st.powered,
-            st.estop,
-            st.moving,
-            st.queue,
-            session.in_control,
-            session.server.control_holder is not None,
-            0 if err is None else int(error_code(err)),
-            "" if err is None else str(err),
-            float(st.time),
-        )
+        code, message = (0, "") if err is None else (int(error_code(err)), str(err))
+        return status_reply(st, code, message, session)
 
     def _herej(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
         return (Joints(self.robot.herej().tolist()),)

@@ -1,0 +1,121 @@
+"""The real-clock cell with its real-time part in a process of its own (docs/REALTIME.md).
+
+The child process (:mod:`robotsocket.rtprocess`, built by :func:`build_cell`) runs the whole
+:class:`~cell.cell.EmulatedCell` except its TCP servers: the robot's 4 ms loop, the UDP
+trigger sender and data receiver, the sensor's trigger listener and camera. So the trigger
+stamps, the exposures and the data replies never wait for the GIL behind the request threads
+of many clients. :class:`CellProcess`, in the calling process, serves RobotSocket (the polls
+from shared memory, the rest forwarded) and SensorSocket (forwarded).
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from cell.cell import EmulatedCell
+from robotsocket.rtprocess import ChildParts, ForwardedService, RealtimeProcess, RobotProcess
+from spec.server import FramedServer
+
+__all__ = ["CellProcess", "build_cell"]
+
+log = logging.getLogger(__name__)
+
+
+def build_cell(config: dict[str, Any]) -> ChildParts:
+    """The child's cell: real clock, not serving TCP itself."""
+    cell = EmulatedCell(clock="real", serve=False, **config["cell"])
+
+    def stop() -> None:
+        cell.close()
+        j = cell.robot.jitter()
+        if j["count"]:
+            log.info(
+                "tick jitter: p50 %.3f ms, p99 %.3f ms, max %.3f ms over %d ticks",
+                j["p50"] * 1e3, j["p99"] * 1e3, j["max"] * 1e3, int(j["count"]),
+            )  # fmt: skip
+
+    assert cell.listener is not None
+    listener = cell.listener
+    queries = {
+        "measured_delta_t": cell.measured_delta_t,
+        "next_index": lambda: cell.core.next_index,
+        "jitter": cell.robot.jitter,
+        "kernel_timestamps": lambda: listener.kernel_timestamps,
+    }
+    facts = {
+        "describe": cell.describe(),
+        "udp_address": cell.udp_address,
+        "period": cell.robot.period,
+    }
+    services = {"robot": cell.robot_service, "sensor": cell.sensor_service}
+    return ChildParts(cell.robot, services, cell.start, stop, queries, facts)  # type: ignore[arg-type]
+
+
+class CellProcess:
+    """``python -m cell serve --clock real``: the cell's real-time part in a child process,
+    its two TCP servers here. Keyword arguments are :class:`~cell.cell.EmulatedCell`'s
+    (``clock`` is real). Raises :class:`~robotsocket.rtprocess.ChildStartError` when the
+    child cannot be built and ``OSError`` when a port cannot be bound."""
+
+    def __init__(
+        self,
+        *,
+        host: str = "127.0.0.1",
+        robot_port: int = 0,
+        sensor_port: int = 0,
+        **cell: Any,
+    ) -> None:
+        config = {"cell": {"host": host, **cell}}
+        self.child = RealtimeProcess("cell.rtcell:build_cell", config)
+        try:
+            self.robot_server = FramedServer(RobotProcess(self.child), host, robot_port)
+            self.sensor_server = FramedServer(
+                ForwardedService(self.child, "sensor"), host, sensor_port
+            )
+        except OSError:
+            self.child.close()
+            raise
+        self.udp_address: tuple[str, int] = tuple(self.child.facts["udp_address"])
+
+    @property
+    def robot_address(self) -> tuple[str, int]:
+        return self.robot_server.address
+
+    @property
+    def sensor_address(self) -> tuple[str, int]:
+        return self.sensor_server.address
+
+    def describe(self) -> dict[str, object]:
+        """As :meth:`EmulatedCell.describe`, with the addresses served here."""
+        d = dict(self.child.facts["describe"])
+        d["robot"] = "{}:{}".format(*self.robot_address)
+        d["sensor"] = "{}:{}".format(*self.sensor_address)
+        d["real_time_process"] = self.child.pid
+        return d
+
+    def measured_delta_t(self, first_index: int = 0) -> float:
+        """:meth:`EmulatedCell.measured_delta_t`, from the child's records."""
+        out: float = self.child.query("measured_delta_t", first_index)
+        return out
+
+    def next_index(self) -> int:
+        """The index the robot's next trigger will carry."""
+        out: int = self.child.query("next_index")
+        return out
+
+    def start(self) -> CellProcess:
+        self.robot_server.start()
+        self.sensor_server.start()
+        return self
+
+    def close(self) -> None:
+        self.robot_server.shutdown()
+        self.sensor_server.shutdown()
+        self.child.close()
+
+    def __enter__(self) -> CellProcess:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

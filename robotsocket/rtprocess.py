@@ -1,0 +1,561 @@
+"""The robot's real-time loop in a process of its own (docs/REALTIME.md, issue 12).
+
+Why a process: CPython hands the GIL to any waiting thread, so in one process the 4 ms tick
+waits behind the request threads of 64 clients (p99 7-118 ms measured). Here the child
+process runs the robot emulator's clock, the UDP trigger/data endpoint (and, for the cell,
+the emulated sensor's trigger handling) with no request thread in it; the server process
+keeps the TCP connections.
+
+- **Shared memory** (:mod:`robotsocket.shared_state`): the child publishes the joints, the
+  status and the motion state every cycle and after every command; the server answers
+  Herej, Here, RobotStatus, GetTime and WaitEndMove from it without asking the child.
+- **A pipe** (a socket pair carrying pickled tuples): every other command is forwarded as
+  (service, command ID, parameters, what the session holds) to the child's own
+  :class:`~spec.server.HandlerService`, which answers exactly as in-process; its error
+  packets come back with their codes. The child runs the service's urgent commands
+  (EmergencyStop, StopMove, ResetMotion) and a lost controller the moment they arrive, the
+  others in order on a worker, so the stopping ones overtake a slow move plan.
+- **Failure**: the server process gone (pipe EOF, or a new parent pid) -> the child does the
+  controlled stop of a lost controller (laser off first, [RS-7.10]), waits for the arm to
+  stand, and exits. The child gone -> every command is refused with BAD_STATE, at once.
+
+What the child builds is named by ``"module:function"`` (``build_robot`` here; the cell's in
+:mod:`cell.rtcell`), so a layer above can put more into it without an upward import.
+"""
+
+from __future__ import annotations
+
+import importlib
+import itertools
+import logging
+import os
+import queue
+import signal
+import socket
+import subprocess
+import sys
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
+from types import SimpleNamespace
+from typing import Any, cast
+
+import numpy as np
+
+from kinematics.errors import KinematicsError
+from kinematics.robot import get_model
+from robotsocket.emulator import RobotEmulator, here_at
+from robotsocket.interface import OutOfRangeError, RobotError, RobotStatus
+from robotsocket.service import RobotService, error_code, status_reply
+from robotsocket.shared_state import SharedState, Snapshot
+from robotsocket.sync_service import attach_udp_sync
+from spec.errors import ErrorCode, ProtocolError
+from spec.params import Joints, Location, Value
+from spec.realtime import promote_current_thread
+from spec.registry import CommandId, lookup
+from spec.server import Handler, HandlerService, Identity, Session
+
+__all__ = [
+    "ChildParts",
+    "ChildStartError",
+    "ForwardedService",
+    "RealtimeProcess",
+    "RobotProcess",
+    "build_robot",
+]
+
+log = logging.getLogger(__name__)
+
+#: A forwarded command that takes longer is answered BAD_STATE (a frozen child).
+COMMAND_TIMEOUT_S = 30.0
+#: Start-up of the child (imports, building the emulator, binding its UDP port).
+READY_TIMEOUT_S = 60.0
+#: Real-time priority of the child's command threads (below the timing threads' 50): a
+#: thread holding the child's GIL must not be preempted by other processes, or the timing
+#: threads wait for it (priority inversion through the GIL).
+COMMAND_PRIORITY = 40
+#: How often the child checks that its parent still exists when the pipe is quiet.
+PARENT_CHECK_S = 0.5
+#: The longest the child waits for the arm to stand after its parent is gone.
+STOP_WAIT_S = 10.0
+
+
+class ChildStartError(RuntimeError):
+    """The real-time process could not be built (bad option, port in use): one line."""
+
+
+@dataclass(frozen=True)
+class ServiceInfo:
+    """What the server process needs to know about one of the child's services."""
+
+    identity: Identity
+    implemented: tuple[int, ...]
+    urgent: frozenset[int]
+    blocking: frozenset[int]
+
+
+@dataclass
+class ChildParts:
+    """What a builder puts into the child: the robot (its state is published), the services
+    the server forwards to (by name), how to start and stop the real-time parts, named
+    queries the parent may call, and facts sent to the parent once at start-up."""
+
+    robot: RobotEmulator
+    services: dict[str, HandlerService]
+    start: Callable[[], object]
+    stop: Callable[[], None]
+    queries: dict[str, Callable[..., Any]] = field(default_factory=dict)
+    facts: dict[str, Any] = field(default_factory=dict)
+
+
+def build_robot(config: dict[str, Any]) -> ChildParts:
+    """The child of ``python -m robotsocket serve --clock real``: the emulator, its service
+    and the UDP synchronisation endpoint."""
+    robot = RobotEmulator(
+        config["model"], clock="real", encoder_latency=config["encoder_latency_s"]
+    )
+    service = RobotService(robot)
+    endpoint = None
+    if config["udp_port"] is not None:
+        host, port = config["host"], config["udp_port"]
+        try:
+            _, endpoint = attach_udp_sync(service, robot, host=host, port=port)
+        except OSError as exc:
+            raise ChildStartError(f"cannot listen on {host}:{port} (UDP): {exc.strerror}") from None
+        endpoint.allow = tuple(config["allow"])  # [RS-7.7]
+        endpoint.sensor_only = not config["data_from_any"]  # [SY-3.7]
+
+    def start() -> None:
+        robot.start()
+        if endpoint is not None:
+            endpoint.start()
+
+    def stop() -> None:
+        if endpoint is not None:
+            if endpoint.dropped:
+                log.info("udp datagrams dropped: %s", dict(endpoint.dropped))
+            endpoint.stop()
+        robot.close()
+        j = robot.jitter()
+        if j["count"]:
+            log.info(
+                "tick jitter: p50 %.3f ms, p99 %.3f ms, max %.3f ms over %d ticks",
+                j["p50"] * 1e3, j["p99"] * 1e3, j["max"] * 1e3, int(j["count"]),
+            )  # fmt: skip
+
+    facts = {
+        "udp_address": endpoint.address if endpoint is not None else None,
+        "period": robot.period,
+    }
+    return ChildParts(robot, {"robot": service}, start, stop, {"jitter": robot.jitter}, facts)
+
+
+# --- the child ----------------------------------------------------------------------------------
+
+
+class _RemoteSession:
+    """What a forwarded handler sees of the server's session."""
+
+    def __init__(self, sid: int, peer: tuple[str, int], in_control: bool, held: bool) -> None:
+        self.id = sid
+        self.peer = peer
+        self.in_control = in_control
+        self.server = SimpleNamespace(control_holder=object() if held else None)
+
+
+_NOBODY = _RemoteSession(0, ("", 0), False, False)
+
+
+class _ChildHost:
+    """The child's side of the pipe: runs forwarded commands, publishes the state."""
+
+    def __init__(
+        self, conn: Connection, parts: ChildParts, state: SharedState, parent: int
+    ) -> None:
+        self.conn = conn
+        self.parts = parts
+        self.state = state
+        self.parent = parent
+        self.close_rid = 0
+        self._rest_published = False
+        self._send_lock = threading.Lock()
+        self._queues: dict[str, queue.SimpleQueue[tuple[Any, ...] | None]] = {}
+        for name in parts.services:
+            q: queue.SimpleQueue[tuple[Any, ...] | None] = queue.SimpleQueue()
+            self._queues[name] = q
+            threading.Thread(target=self._work, args=(q,), name=f"rt-{name}", daemon=True).start()
+
+    def publish(self) -> None:
+        self.parts.robot.publish(self.state.write)
+
+    def on_cycle(self, *_: object) -> None:
+        """Publish each cycle, except the cycles a robot at rest runs after an idle wait: they
+        change nothing but the cycle number (the server reads the time from the clock)."""
+        rest = self.parts.robot.at_rest()
+        if not (rest and self._rest_published):
+            self.publish()
+        self._rest_published = rest
+
+    def _send(self, msg: tuple[Any, ...]) -> None:
+        with self._send_lock:
+            try:
+                self.conn.send(msg)
+            except OSError:
+                pass  # the parent is gone: serve() notices and stops the arm
+
+    def _work(self, q: queue.SimpleQueue[tuple[Any, ...] | None]) -> None:
+        promote_current_thread(COMMAND_PRIORITY)
+        while (item := q.get()) is not None:
+            self._execute(*item)
+
+    def _execute(
+        self, rid: int, name: str, cid: int, params: tuple[Value, ...], who: tuple[Any, ...]
+    ) -> None:
+        service = self.parts.services[name]
+        spec = lookup(cid, service.identity.service)
+        try:
+            assert spec is not None
+            reply: tuple[Any, ...] = (
+                "ok", rid, service.handle(cast(Session, _RemoteSession(*who)), spec, params)
+            )  # fmt: skip
+        except ProtocolError as exc:
+            reply = ("err", rid, int(exc.code), exc.message)
+        except Exception as exc:
+            log.exception("forwarded command 0x%04x failed", cid)
+            reply = ("err", rid, int(ErrorCode.INTERNAL_ERROR), f"internal error: {exc!r}")
+        self.publish()  # before the reply: a poll after it sees the command's effect
+        self._send(reply)
+
+    def serve(self) -> str:
+        """Answer the parent until it says close (returns "close") or is gone."""
+        got = promote_current_thread(COMMAND_PRIORITY)
+        log.info("command threads: scheduling %s", got)
+        while True:
+            try:
+                if not self.conn.poll(PARENT_CHECK_S):
+                    if os.getppid() != self.parent:
+                        return "the server process is gone (new parent)"
+                    continue
+                msg = self.conn.recv()
+            except (EOFError, OSError):
+                return "the server process is gone (pipe closed)"
+            kind, rid = msg[0], msg[1]
+            if kind == "cmd":
+                _, _, name, cid, params, who = msg
+                if cid in self.parts.services[name].urgent:
+                    self._execute(rid, name, cid, params, who)  # overtakes queued commands
+                else:
+                    self._queues[name].put((rid, name, cid, params, who))
+            elif kind == "lost":
+                self.parts.services[msg[2]].on_control_lost(cast(Session, _NOBODY))
+                self.publish()
+                self._send(("ok", rid, ()))
+            elif kind == "query":
+                try:
+                    self._send(("ok", rid, self.parts.queries[msg[2]](*msg[3])))
+                except Exception as exc:
+                    self._send(("err", rid, int(ErrorCode.INTERNAL_ERROR), repr(exc)))
+            elif kind == "close":
+                self.close_rid = rid
+                return "close"
+
+    def controlled_stop(self, why: str) -> None:
+        """[RS-7.10] as for a lost controller: laser off first, the arm decelerates along its
+        path, the triggers stop; then wait for the arm to stand."""
+        log.warning("%s: controlled stop", why)
+        for service in self.parts.services.values():
+            try:
+                service.on_control_lost(cast(Session, _NOBODY))
+            except Exception:
+                log.exception("controlled stop failed")
+        robot = self.parts.robot
+        stood = robot.wait_end_move(STOP_WAIT_S)
+        self.publish()
+        q = ", ".join(f"{v:.3f}" for v in robot.herej())
+        log.warning("arm %s at [%s]", "stopped" if stood else "NOT stopped", q)
+
+
+def child_main(argv: list[str]) -> int:
+    """The child's entry, with arguments FD STATE_PATH: read (builder, config) from the
+    pipe on FD, build, say ready, serve."""
+    # Ctrl-C in a terminal reaches the whole process group: the server process stops the
+    # child (close), a lost server makes it stop the arm; never a KeyboardInterrupt here.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    conn = Connection(int(argv[0]))
+    target, config = conn.recv()
+    logging.basicConfig(
+        level=config.get("log_level", logging.INFO),
+        format="%(asctime)s %(levelname)-7s %(name)s[rt]: %(message)s",
+        stream=sys.stderr,
+    )
+    parent = os.getppid()
+    state = SharedState.attach(argv[1])
+    module, func = target.split(":")
+    try:
+        parts: ChildParts = getattr(importlib.import_module(module), func)(config)
+    except (ChildStartError, ValueError, KinematicsError, OSError) as exc:
+        conn.send(("failed", str(exc)))
+        return 2
+    host = _ChildHost(conn, parts, state, parent)
+    parts.robot.cycle_hooks.append(host.on_cycle)
+    parts.start()
+    state.set_start_ns(parts.robot.clock_start_ns)
+    host.publish()
+    infos = {
+        name: ServiceInfo(s.identity, s.implemented(), s.urgent, s.blocking)
+        for name, s in parts.services.items()
+    }
+    conn.send(("ready", infos, parts.facts))
+    log.info("real-time process pid %d serving %s", os.getpid(), ", ".join(infos))
+    why = host.serve()
+    if why != "close":
+        host.controlled_stop(why)
+    parts.stop()
+    state.close()
+    if why == "close":
+        try:
+            conn.send(("ok", host.close_rid, ()))
+        except OSError:
+            pass
+    log.info("real-time process exits")
+    return 0
+
+
+# --- the server's side --------------------------------------------------------------------------
+
+
+#: The child's command line (not ``-m``: its classes must pickle under their module's name).
+_CHILD = (
+    "import sys; from robotsocket.rtprocess import child_main; sys.exit(child_main(sys.argv[1:]))"
+)
+
+
+class _Waiter:
+    def __init__(self) -> None:
+        self.event = threading.Event()
+        self.reply: tuple[Any, ...] | None = None
+
+
+class RealtimeProcess:
+    """The child process and the pipe to it, as the server process sees them.
+
+    ``target`` names the builder (``"module:function"`` returning :class:`ChildParts`),
+    ``config`` its (picklable) settings. Raises :class:`ChildStartError` when the child
+    cannot be built. :attr:`state` is the shared state; :attr:`facts` what the builder said.
+    """
+
+    def __init__(self, target: str, config: dict[str, Any]) -> None:
+        self.state = SharedState.create()
+        ours, theirs = socket.socketpair()
+        self._conn = Connection(ours.detach())
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", _CHILD, str(theirs.fileno()), self.state.path],
+            pass_fds=(theirs.fileno(),),
+        )
+        theirs.close()
+        # the child logs what this process would log
+        config = {"log_level": logging.getLogger().getEffectiveLevel(), **config}
+        self._conn.send((target, config))
+        msg: tuple[Any, ...] = ("failed", "")
+        try:
+            if self._conn.poll(READY_TIMEOUT_S):
+                msg = self._conn.recv()
+        except (EOFError, OSError):
+            pass
+        self.state.unlink()  # both sides have it mapped: nothing left behind after a crash
+        if msg[0] != "ready":
+            self._kill()
+            raise ChildStartError(msg[1] or f"real-time process failed (exit {self.proc.poll()})")
+        self.infos: dict[str, ServiceInfo] = msg[1]
+        self.facts: dict[str, Any] = msg[2]
+        self.pid = self.proc.pid
+        self._lock = threading.Lock()
+        self._send_lock = threading.Lock()
+        self._pending: dict[int, _Waiter] = {}
+        self._ids = itertools.count(1)
+        self.dead: str | None = None
+        self._closing = False
+        self._reader = threading.Thread(target=self._read, name="rt-pipe", daemon=True)
+        self._reader.start()
+        log.info("real-time process pid %d started", self.pid)
+
+    def _kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait()
+        self._conn.close()
+        self.state.close()
+
+    def _read(self) -> None:
+        while True:
+            try:
+                msg = self._conn.recv()
+            except (EOFError, OSError):
+                break
+            with self._lock:
+                waiter = self._pending.pop(msg[1], None)
+            if waiter is not None:
+                waiter.reply = msg
+                waiter.event.set()
+        code = self.proc.wait()
+        with self._lock:
+            if self.dead is None:
+                self.dead = f"the real-time process ended (exit code {code})"
+                if not self._closing:
+                    log.error("%s: motion refused", self.dead)
+            pending, self._pending = self._pending, {}
+        for waiter in pending.values():
+            waiter.event.set()
+
+    @property
+    def alive(self) -> bool:
+        return self.dead is None
+
+    def check_alive(self) -> None:
+        """Raise BAD_STATE when the child is gone."""
+        if self.dead is not None:
+            raise ProtocolError(f"robot unavailable: {self.dead}", ErrorCode.BAD_STATE)
+
+    def _call(self, kind: str, *body: Any, timeout: float = COMMAND_TIMEOUT_S) -> Any:
+        waiter = _Waiter()
+        with self._lock:
+            self.check_alive()
+            rid = next(self._ids)
+            self._pending[rid] = waiter
+        try:
+            with self._send_lock:
+                self._conn.send((kind, rid, *body))
+        except OSError:
+            pass  # the reader sees the EOF and fails the waiter
+        if not waiter.event.wait(timeout):
+            with self._lock:
+                self._pending.pop(rid, None)
+            raise ProtocolError(
+                f"robot unavailable: the real-time process did not answer in {timeout:g} s",
+                ErrorCode.BAD_STATE,
+            )
+        reply = waiter.reply
+        if reply is None:
+            self.check_alive()
+            raise ProtocolError("robot unavailable", ErrorCode.BAD_STATE)
+        if reply[0] == "err":
+            try:
+                code = ErrorCode(reply[2])
+            except ValueError:
+                code = ErrorCode.INTERNAL_ERROR
+            raise ProtocolError(reply[3], code)
+        return reply[2]
+
+    def command(
+        self, name: str, cid: int, params: tuple[Value, ...], session: Session
+    ) -> tuple[Value, ...]:
+        held = session.server.control_holder is not None
+        who = (session.id, session.peer, session.in_control, held)
+        out: tuple[Value, ...] = self._call("cmd", name, cid, params, who)
+        return out
+
+    def control_lost(self, name: str) -> None:
+        self._call("lost", name)
+
+    def query(self, name: str, *args: Any) -> Any:
+        return self._call("query", name, args)
+
+    def close(self, timeout: float = 10.0) -> None:
+        """Stop the child (its loops stop, it logs its tick jitter) and wait for it."""
+        self._closing = True
+        if self.dead is None:
+            try:
+                self._call("close", timeout=timeout)
+            except ProtocolError:
+                pass
+        try:
+            self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        self._reader.join(timeout)
+        self._conn.close()
+        self.state.close()
+
+
+class ForwardedService(HandlerService):
+    """A service of the child, served in this process: every command is forwarded."""
+
+    def __init__(self, child: RealtimeProcess, name: str) -> None:
+        super().__init__()
+        info = child.infos[name]
+        self.child = child
+        self.name = name
+        self.identity = info.identity
+        self.urgent = info.urgent
+        self.blocking = info.blocking
+        for cid in info.implemented:
+            self.register(cid, self._forwarder(cid))
+
+    def _forwarder(self, cid: int) -> Handler:
+        def handler(session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+            return self.child.command(self.name, cid, params, session)
+
+        return handler
+
+    def clock(self) -> float:
+        return self.child.state.now()
+
+    def on_control_lost(self, session: Session) -> None:
+        try:
+            self.child.control_lost(self.name)
+        except ProtocolError as exc:
+            log.error("controlled stop not forwarded: %s", exc.message)
+
+
+class RobotProcess(ForwardedService):
+    """The robot service of the child: the polls (Herej, Here, RobotStatus, GetTime,
+    WaitEndMove) are answered from the shared state, the rest is forwarded."""
+
+    def __init__(self, child: RealtimeProcess, name: str = "robot") -> None:
+        super().__init__(child, name)
+        self.model = get_model(self.identity.model)
+        self.period = float(child.facts.get("period", 0.004))
+        C = CommandId
+        self.register(C.HEREJ, self._herej)
+        self.register(C.HERE, self._here)
+        self.register(C.ROBOT_STATUS, self._status)
+        self.register(C.WAIT_END_MOVE, self._wait_end_move)
+
+    def error_code(self, exc: Exception) -> ErrorCode | None:
+        return error_code(exc) if isinstance(exc, RobotError) else None
+
+    def snapshot(self) -> Snapshot:
+        self.child.check_alive()
+        return self.child.state.read()
+
+    def _herej(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        return (Joints(list(self.snapshot().measured)),)
+
+    def _here(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        tool, frame = params
+        assert isinstance(tool, Location) and isinstance(frame, Location)
+        q = np.array(self.snapshot().measured)
+        return (Location(*here_at(self.model, q, tool.as_tuple(), frame.as_tuple())),)
+
+    def _status(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        s = self.snapshot()
+        st = RobotStatus(s.powered, s.estop, s.moving, s.queue, None, self.child.state.now())
+        return status_reply(st, s.error_code, s.error_message, session)
+
+    def _wait_end_move(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        (timeout,) = params
+        assert isinstance(timeout, float)
+        if not (0.0 < timeout <= 3600.0):
+            raise OutOfRangeError(f"timeout must be in (0, 3600] s, got {timeout}")
+        # the child publishes every cycle: look once a cycle until settled or the deadline
+        deadline = self.child.state.now() + timeout
+        wake = threading.Event()  # never set: a wait with a timeout, not a short sleep
+        while True:
+            if self.snapshot().settled:
+                return (True,)
+            left = deadline - self.child.state.now()
+            if left <= 0.0:
+                return (False,)
+            wake.wait(min(self.period, left))
