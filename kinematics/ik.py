@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -66,10 +66,10 @@ _ZERO6 = (0.0,) * 6
 _FREE = ConfigRequest()
 
 
-@dataclass(frozen=True, slots=True)
-class _Branch:
+class _Branch(NamedTuple):
     """One IK branch of one pose: joints (degrees, None when unreachable or outside the
-    limits), reachable (limits ignored), singular flags (wrist, elbow, shoulder)."""
+    limits), reachable (limits ignored), singular flags (wrist, elbow, shoulder). A tuple:
+    eight are built per ik() call."""
 
     joints_deg: list[float] | None
     reachable: bool
@@ -101,12 +101,12 @@ def _pick_turn_one(q: float, bounds: tuple[float, float, bool], target: float) -
     lo, hi, single = bounds
     if single:
         return base if lo <= base <= hi else None
-    best, best_cost = None, math.inf
+    best = None
     for cand in (base, base - 360.0, base + 360.0):
-        if lo <= cand <= hi:
-            cost = _turn_cost(cand, target)
-            if cost < best_cost:
-                best, best_cost = cand, cost
+        if lo <= cand <= hi and (
+            best is None or _turn_cost(cand, target) < _turn_cost(best, target)
+        ):
+            best = cand
     return best
 
 
@@ -129,11 +129,18 @@ def _plain_4x4(T: Any) -> bool:
 def _check_rigid_rows(rows: list[list[float]]) -> None:
     """``check_transform``'s tests on one (4, 4) of Python floats, same messages."""
     name = "flange2base"
-    if not all(math.isfinite(v) for row in rows for v in row):
+    r0, r1, r2, r3 = rows
+    # a NaN or an infinity makes the sum one; only an overflow needs the look at each entry
+    if not math.isfinite(sum(r0) + sum(r1) + sum(r2) + sum(r3)) and not all(
+        math.isfinite(v) for row in rows for v in row
+    ):
         raise KinematicsError(f"{name}: contains NaN or infinity")
-    if any(abs(v - e) > RIGID_TOL for v, e in zip(rows[3], (0.0, 0.0, 0.0, 1.0), strict=True)):
+    tol = RIGID_TOL
+    if abs(r3[0]) > tol or abs(r3[1]) > tol or abs(r3[2]) > tol or abs(r3[3] - 1.0) > tol:
         raise KinematicsError(f"{name}: last row must be (0, 0, 0, 1)")
-    (a, b, c), (d, e, f), (g, h, i_) = (rows[0][:3], rows[1][:3], rows[2][:3])
+    a, b, c, _ = r0
+    d, e, f, _ = r1
+    g, h, i_, _ = r2
     # RᵀR - I, the six distinct entries
     gram = (
         a * a + d * d + g * g - 1.0,
@@ -143,8 +150,10 @@ def _check_rigid_rows(rows: list[list[float]]) -> None:
         a * c + d * f + g * i_,
         b * c + e * f + h * i_,
     )
-    if any(abs(v) > RIGID_TOL for v in gram) or (
-        a * (e * i_ - f * h) - b * (d * i_ - f * g) + c * (d * h - e * g) < 0.0
+    if (
+        max(gram) > tol
+        or min(gram) < -tol
+        or (a * (e * i_ - f * h) - b * (d * i_ - f * g) + c * (d * h - e * g) < 0.0)
     ):
         raise KinematicsError(f"{name}: rotation part is not orthonormal with det +1")
 
@@ -292,48 +301,45 @@ class IkMixin(ConfigMixin):
         """
         rows = _one_transform(flange2base_T)
         ref = None if near is None else vector6(near, "near")
-        request = ConfigRequest.parse(config)
-        same_as = None if ref is None else self.config_of(ref)
+        request = _FREE if config is None else ConfigRequest.parse(config)
+        free = request == _FREE
+        same_as = None if ref is None or free else self.config_of(ref)
         branches = self._ik_one(rows, ref)
         if not any(b.reachable for b in branches):
             raise UnreachableError(self._why_unreachable(np.array(rows)))
-        sols: list[IkSolution] = []
-        found: list[list[float]] = []
+        kept: list[tuple[list[float], Config, tuple[str, ...]]] = []
         any_config = False
-        free = request == _FREE
-        for cfg, b in zip(CONFIGS, branches, strict=True):
-            if not b.reachable or not (free or request.matches(cfg, same_as)):
+        for cfg, (q, reachable, singular) in zip(CONFIGS, branches, strict=True):
+            if not reachable or not (free or request.matches(cfg, same_as)):
                 continue
             any_config = True
-            q = b.joints_deg
             if q is None:
                 continue
             names: tuple[str, ...] = ()
-            if any(b.singular):  # branches coincide only at a singularity
-                if any(max(abs(u - v) for u, v in zip(q, f, strict=True)) <= 1e-9 for f in found):
+            if singular[0] or singular[1] or singular[2]:  # branches coincide only there
+                if any(max(abs(u - v) for u, v in zip(q, k[0], strict=True)) <= 1e-9 for k in kept):
                     continue  # the same joints twice
-                names = tuple(nm for nm, f in zip(SINGULARITY_NAMES, b.singular, strict=True) if f)
-            if names and raise_on_singularity:
-                raise SingularityError(
-                    f"{self.name}: pose is at a {names[0]} singularity", kind=names[0]
-                )
-            arr = np.array(q)
-            arr.flags.writeable = False
-            found.append(q)
-            sols.append(IkSolution(arr, cfg, names))
-        if not sols:
+                names = tuple(nm for nm, f in zip(SINGULARITY_NAMES, singular, strict=True) if f)
+                if raise_on_singularity:
+                    raise SingularityError(
+                        f"{self.name}: pose is at a {names[0]} singularity", kind=names[0]
+                    )
+            kept.append((q, cfg, names))
+        if not kept:
             what = "" if free else " with the requested configuration"
             if not any_config:
                 raise UnreachableError(f"{self.name}: no solution{what}")
             raise JointLimitError(f"{self.name}: every solution{what} violates a joint limit")
         if ref is not None:
-            target = ref
-            sols.sort(
-                key=lambda s: math.sqrt(
-                    sum((u - v) ** 2 for u, v in zip(s.joints_deg.tolist(), target, strict=True))
-                )
-            )
-        return sols
+            r0, r1, r2, r3, r4, r5 = ref
+            kept.sort(
+                key=lambda k: (k[0][0] - r0) ** 2 + (k[0][1] - r1) ** 2 + (k[0][2] - r2) ** 2
+                + (k[0][3] - r3) ** 2 + (k[0][4] - r4) ** 2 + (k[0][5] - r5) ** 2
+            )  # fmt: skip
+        # one read-only array, a row per solution: one numpy call, not one per solution
+        joints = np.array([q for q, _, _ in kept])
+        joints.flags.writeable = False
+        return [IkSolution(j, cfg, names) for j, (_, cfg, names) in zip(joints, kept, strict=True)]
 
     def _ik_one(self, T: list[list[float]], ref: list[float] | None) -> list[_Branch]:
         """The 8 branches of one pose (``CONFIGS`` order), in Python floats.
@@ -350,8 +356,10 @@ class IkMixin(ConfigMixin):
         wx, wy, wz = r0[3] - d6 * r0[2], r1[3] - d6 * r1[2], r2[3] - d6 * r2[2]
         rho2 = wx * wx + wy * wy
         disc = rho2 - d * d
-        len_tol = 1e-9 * (self.reach_mm + abs(a1) + abs(d))
+        reach_mm = a2 + d4
+        len_tol = 1e-9 * (reach_mm + abs(a1) + abs(d))
         reach_sh = disc >= -2.0 * len_tol * max(abs(d), 1.0)
+        shoulder_tol = SINGULAR_TOL * reach_mm
         root = math.sqrt(max(disc, 0.0))
         phi = math.atan2(wy, wx)
         free1 = ref is not None and rho2 < len_tol**2
@@ -373,22 +381,36 @@ class IkMixin(ConfigMixin):
             s3abs = math.sqrt(1.0 - c3 * c3)
             s1, c1 = math.sin(t1), math.cos(t1)
             # A = Rz(θ1)ᵀ·R, rows 0, 1, 2
-            A0 = [c1 * r0[j] + s1 * r1[j] for j in range(3)]
-            A1 = [-s1 * r0[j] + c1 * r1[j] for j in range(3)]
-            A2 = r2
-            shoulder_sing = abs(r) < SINGULAR_TOL * self.reach_mm
+            a00 = c1 * r0[0] + s1 * r1[0]
+            a01 = c1 * r0[1] + s1 * r1[1]
+            a02 = c1 * r0[2] + s1 * r1[2]
+            m10, m12 = -s1 * r0[0] + c1 * r1[0], -s1 * r0[2] + c1 * r1[2]
+            a20, a21, a22 = r2[0], r2[1], r2[2]
+            shoulder_sing = abs(r) < shoulder_tol
+            # joint 1 is shared by the four branches of this shoulder: its turn picked once
+            q1 = pick(math.degrees(t1) - off[0], lo_hi[0], target[0]) if reach else None
             for s3 in (s3abs, -s3abs):
                 t3 = math.atan2(s3, c3)
                 t2 = math.atan2(xp, zp) - math.atan2(d4 * s3, a2 + d4 * c3)
                 t23 = t2 + t3
                 s23, c23 = math.sin(t23), math.cos(t23)
-                m00 = c23 * A0[0] - s23 * A2[0]
-                m02 = c23 * A0[2] - s23 * A2[2]
-                m10, m12 = A1[0], A1[2]
-                m20 = s23 * A0[0] + c23 * A2[0]
-                m21 = s23 * A0[1] + c23 * A2[1]
-                m22 = s23 * A0[2] + c23 * A2[2]
+                m02 = c23 * a02 - s23 * a22
+                m22 = s23 * a02 + c23 * a22
                 s5abs = math.hypot(m02, m12)
+                sing = (s5abs < SINGULAR_TOL, s3abs < SINGULAR_TOL, shoulder_sing)
+                # joints 2-3 are shared by both wrist branches: their turns picked once
+                q2 = q3 = None
+                if q1 is not None:
+                    t2w = (t2 + math.pi) % (2.0 * math.pi) - math.pi
+                    q2 = pick(math.degrees(t2w) - off[1], lo_hi[1], target[1])
+                    if q2 is not None:
+                        q3 = pick(math.degrees(t3) - off[2], lo_hi[2], target[2])
+                if q1 is None or q2 is None or q3 is None:
+                    out += (_Branch(None, reach, sing), _Branch(None, reach, sing))
+                    continue
+                m00 = c23 * a00 - s23 * a20
+                m20 = s23 * a00 + c23 * a20
+                m21 = s23 * a01 + c23 * a21
                 t5p = math.atan2(s5abs, m22)
                 wraps = ((t5p, math.atan2(m12, m02), math.atan2(m21, -m20)),
                          (-t5p, math.atan2(-m12, -m02), math.atan2(-m21, m20)))  # fmt: skip
@@ -400,23 +422,13 @@ class IkMixin(ConfigMixin):
                     else:
                         t6 = -math.atan2(-m10, -m00) + pref4  # θ6 - θ4 (θ5 = ±π)
                     wraps = ((t5p, pref4, t6), (-t5p, pref4, t6))
-                t2w = (t2 + math.pi) % (2.0 * math.pi) - math.pi
-                sing = (s5abs < SINGULAR_TOL, s3abs < SINGULAR_TOL, shoulder_sing)
-                # joints 1-3 are shared by both wrist branches: pick their turns once
-                q1 = pick(math.degrees(t1) - off[0], lo_hi[0], target[0])
-                q2 = pick(math.degrees(t2w) - off[1], lo_hi[1], target[1])
-                q3 = pick(math.degrees(t3) - off[2], lo_hi[2], target[2])
-                arm: tuple[float, float, float] | None = None
-                if reach and q1 is not None and q2 is not None and q3 is not None:
-                    arm = (q1, q2, q3)
                 for t5, t4, t6 in wraps:
                     q: list[float] | None = None
-                    if arm is not None:
-                        q4 = pick(math.degrees(t4) - off[3], lo_hi[3], target[3])
-                        q5 = pick(math.degrees(t5) - off[4], lo_hi[4], target[4])
-                        q6 = pick(math.degrees(t6) - off[5], lo_hi[5], target[5])
-                        if q4 is not None and q5 is not None and q6 is not None:
-                            q = [*arm, q4, q5, q6]
+                    q4 = pick(math.degrees(t4) - off[3], lo_hi[3], target[3])
+                    q5 = pick(math.degrees(t5) - off[4], lo_hi[4], target[4])
+                    q6 = pick(math.degrees(t6) - off[5], lo_hi[5], target[5])
+                    if q4 is not None and q5 is not None and q6 is not None:
+                        q = [q1, q2, q3, q4, q5, q6]
                     out.append(_Branch(q, reach, sing))
         return out
 
