@@ -122,7 +122,24 @@ def upsample(
     _check_signal("signal", t, y)
     j0, end = _grid_span(t, grid_step_s)
     grid = np.arange(j0, end, dtype=np.float64) * grid_step_s
-    return j0, np.interp(grid, t, y)
+    return j0, _interp_sorted(grid, t, y)
+
+
+def _interp_sorted(
+    x: NDArray[np.float64], xp: NDArray[np.float64], fp: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """``np.interp(x, xp, fp)`` for increasing x (a grid), bit for bit: the same
+    slope·(x - xp[j]) + fp[j] per point, but the piece j of every x found by one search of
+    the K knots in x, not one search per point (a 5 kHz grid has 20 points per piece)."""
+    pos = np.searchsorted(x, xp)  # x[pos[j]:pos[j + 1]] lies in [xp[j], xp[j + 1])
+    counts = np.diff(pos)
+    slope = np.diff(fp) / np.diff(xp)
+    out = np.repeat(xp[:-1], counts)
+    np.subtract(x[pos[0] : pos[-1]], out, out=out)
+    out *= np.repeat(slope, counts)
+    out += np.repeat(fp[:-1], counts)
+    # outside [xp[0], xp[-1]) np.interp gives the end values (at xp[-1] exactly fp[-1])
+    return np.concatenate([np.full(pos[0], fp[0]), out, np.full(x.shape[0] - pos[-1], fp[-1])])
 
 
 def _grid_span(t: NDArray[np.float64], grid_step_s: float) -> tuple[int, int]:
@@ -181,7 +198,6 @@ def _mse_curve(
     lo = np.clip(jr - shifts - js, 0, ls)
     hi = np.clip(jr + lr - shifts - js, 0, ls)
     overlap = np.maximum(hi - lo, 0)
-    q_s = _prefix(ys * ys)
     u = np.arange(ls, dtype=np.float64)
     p0 = _prefix(ys)
     p1 = _prefix(u * ys)
@@ -197,7 +213,7 @@ def _mse_curve(
     db = np.concatenate([[-b[0]], b[:-1] - b[1:], [b[-1]]])
     shift_u = shifts + (js - jr)
     cross = _knot_sums(p0, p1, e, shift_u, da, db)
-    sq_s = q_s.take(hi) - q_s.take(lo)
+    sq_s = _range_sums(ys * ys, lo, hi)
     start = a + b * e[:-1]  # yr at each piece's first grid point
     whole = np.concatenate([[0.0], np.cumsum(_square_sums(start, b, np.diff(e)))])
     v_lo = np.clip(lo + shift_u, 0, lr)
@@ -275,9 +291,30 @@ def _knot_sums(
     return out
 
 
+def _range_sums(
+    x: NDArray[np.float64], lo: NDArray[np.int64], hi: NDArray[np.int64]
+) -> NDArray[np.float64]:
+    """Σ x[lo:hi] per pair (lo <= hi). One pair per shift: the starts lie in one short run
+    and the ends in another, so only those runs get prefix sums and the stretch between
+    them one plain sum, not a prefix sum over all of x."""
+    a0, a1 = int(lo.min()), int(lo.max())
+    b0, b1 = int(hi.min()), int(hi.max())
+    if a1 > b0:  # the runs overlap (a short signal): one prefix sum over all of it
+        q = _prefix(x)
+        out: NDArray[np.float64] = q.take(hi) - q.take(lo)
+        return out
+    head = _prefix(x[a0:a1])
+    tail = _prefix(x[b0:b1])
+    out = head[-1] - head.take(lo - a0)
+    out += float(np.add.reduce(x[a1:b0]))
+    out += tail.take(hi - b0)
+    return out
+
+
 def _prefix(x: NDArray[np.float64]) -> NDArray[np.float64]:
     """[0, x0, x0 + x1, ...]: the sum of x[lo:hi] is out[hi] - out[lo]."""
-    out = np.zeros(x.shape[0] + 1)
+    out = np.empty(x.shape[0] + 1)  # not zeros: a fresh 400 kB zeroed block costs a memset
+    out[0] = 0.0
     np.cumsum(x, out=out[1:])
     return out
 

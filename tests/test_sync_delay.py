@@ -23,6 +23,7 @@ from sync.delay import (
     ResidualReport,
     SineExperiment,
     Verdict,
+    _interp_sorted,
     _mse_curve,
     _mse_curve_masked,
     assess_run,
@@ -346,3 +347,25 @@ def test_mse_curve_equals_the_definition(
     np.testing.assert_array_equal(np.isfinite(mse), finite)
     scale = 1.0 + offset * offset
     np.testing.assert_allclose(mse[finite], ref[finite], rtol=1e-9, atol=1e-11 * scale)
+
+
+@settings(max_examples=200, deadline=None, derandomize=True)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n_knots=st.integers(2, 40),
+    n_points=st.integers(0, 300),
+    on_knots=st.booleans(),
+)
+def test_grid_interpolation_is_np_interp_bit_for_bit(
+    seed: int, n_knots: int, n_points: int, on_knots: bool
+) -> None:
+    """The one-search-per-knot interpolation is np.interp exactly, points outside the knots,
+    on a knot and on the last knot included."""
+    rng = np.random.default_rng(seed)
+    xp = np.cumsum(rng.uniform(1e-6, 1.0, n_knots)) + rng.uniform(-5.0, 5.0)
+    fp = rng.normal(0.0, 3.0, n_knots)
+    x = rng.uniform(xp[0] - 1.0, xp[-1] + 1.0, n_points)
+    if on_knots:
+        x = np.concatenate([x, xp])
+    x.sort()
+    np.testing.assert_array_equal(_interp_sorted(x, xp, fp), np.interp(x, xp, fp))
