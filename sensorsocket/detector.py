@@ -356,16 +356,16 @@ class SeamDetector:
         for _ in range(2):
             lm = y < y_split - cfg.corner_margin_mm
             rm = y > y_split + cfg.corner_margin_mm
-            # the same sides as before: the same lines and corner (often, as the corner
-            # moves by less than a column)
-            if (
-                lm_prev is not None
-                and rm_prev is not None
-                and not ((lm ^ lm_prev).any() or (rm ^ rm_prev).any())
-            ):
+            # a side with the same points as before keeps its line (often, as the corner
+            # moves by less than a column); both the same: the same corner
+            new_l = lm_prev is None or bool((lm ^ lm_prev).any())
+            new_r = rm_prev is None or bool((rm ^ rm_prev).any())
+            if not (new_l or new_r):
                 break
-            left = _robust_line(p, lm)
-            right = _robust_line(p, rm)
+            if new_l:
+                left = _robust_line(p, lm)
+            if new_r:
+                right = _robust_line(p, rm)
             if left is None or right is None or left.b == right.b:
                 return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
             y_split = (right.a - left.a) / (left.b - right.b)
