@@ -526,7 +526,8 @@ def _robust_line(
             if keep is None and float(fitted[-1]) <= limit:
                 break
             new_keep = res <= limit
-            if new_keep.all() if keep is None else not (new_keep ^ keep).any():
+            # (in the first fit some residual is beyond the limit, or it broke off above)
+            if keep is not None and not (new_keep ^ keep).any():
                 break
             keep = new_keep
             qk = q.compress(keep, axis=1)
