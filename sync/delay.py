@@ -134,12 +134,16 @@ def _interp_sorted(
     pos = np.searchsorted(x, xp)  # x[pos[j]:pos[j + 1]] lies in [xp[j], xp[j + 1])
     counts = np.diff(pos)
     slope = np.diff(fp) / np.diff(xp)
-    out = np.repeat(xp[:-1], counts)
-    np.subtract(x[pos[0] : pos[-1]], out, out=out)
-    out *= np.repeat(slope, counts)
-    out += np.repeat(fp[:-1], counts)
+    first, last = int(pos[0]), int(pos[-1])
+    out = np.empty(x.shape[0])
     # outside [xp[0], xp[-1]) np.interp gives the end values (at xp[-1] exactly fp[-1])
-    return np.concatenate([np.full(pos[0], fp[0]), out, np.full(x.shape[0] - pos[-1], fp[-1])])
+    out[:first] = fp[0]
+    out[last:] = fp[-1]
+    inner = out[first:last]
+    np.subtract(x[first:last], np.repeat(xp[:-1], counts), out=inner)
+    inner *= np.repeat(slope, counts)
+    inner += np.repeat(fp[:-1], counts)
+    return out
 
 
 def _grid_span(t: NDArray[np.float64], grid_step_s: float) -> tuple[int, int]:
