@@ -88,7 +88,8 @@ _ran: dict[str, float] = {}
 
 
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:
-    _ran[report.nodeid] = _ran.get(report.nodeid, 0.0) + report.duration
+    if not isinstance(report, pytest.SubtestReport):  # the test's call report holds its time
+        _ran[report.nodeid] = _ran.get(report.nodeid, 0.0) + report.duration
 
 
 def pytest_sessionfinish(session: pytest.Session) -> None:

@@ -239,20 +239,6 @@ def test_commands_split_on_continuations_and_drop_comment_lines() -> None:
     assert block.commands() == ["python -m x --y 1   # why", "ls"]
 
 
-@pytest.mark.parametrize("document", EXAMPLES, ids=[d.name for d in EXAMPLES])
-def test_examples_run_as_written(document: Path, tmp_path: Path) -> None:
-    name = document.relative_to(ROOT).as_posix()
-    workdir = _scratch(tmp_path)
-    if name != SETUP.document:
-        _run(SETUP, None, workdir)
-    for block in (b for b in BLOCKS if b.document == name):
-        if not _names_an_address(block):
-            _run(block, None, workdir)
-            continue
-        with _served_cell(workdir) as cell:  # a fresh cell: the arm at its ready pose
-            _run(block, cell, workdir)
-
-
 def _run(block: Block, cell: Cell | None, workdir: Path) -> None:
     if block.language == "python":
         proc = subprocess.run(
@@ -278,3 +264,19 @@ def _run(block: Block, cell: Cell | None, workdir: Path) -> None:
             f"{block.id}: {command}\nexit {proc.returncode}, documented {expected}\n"
             f"{_interesting(proc.stdout)}\n{proc.stderr[-3000:]}"
         )
+
+
+@pytest.mark.parametrize("document", EXAMPLES, ids=[d.name for d in EXAMPLES])
+def test_examples_run_as_written(document: Path, tmp_path: Path, subtests: pytest.Subtests) -> None:
+    name = document.relative_to(ROOT).as_posix()
+    workdir = _scratch(tmp_path)
+    if name != SETUP.document:
+        _run(SETUP, None, workdir)
+    for block in (b for b in BLOCKS if b.document == name):
+        # a subtest per block: a failing block is reported and the later ones still run
+        with subtests.test(block.id):
+            if not _names_an_address(block):
+                _run(block, None, workdir)
+                continue
+            with _served_cell(workdir) as cell:  # a fresh cell: the arm at its ready pose
+                _run(block, cell, workdir)
