@@ -24,9 +24,11 @@ lint: $(STAMP)
 	$(PY) -m mypy
 
 # Two workers: the suite is mostly waiting (sockets, subprocesses, real-time runs), and the
-# real-time tests hold up with the other worker busy beside them (they must: #12).
+# real-time tests hold up with the other worker busy beside them (they must: #12). worksteal:
+# a worker that runs dry takes half of the other's queue; tests/conftest.py puts the long tests
+# first, so the run does not end with one worker idle beside a long test.
 test: lint chromium
-	$(PY) -m pytest -n 2
+	$(PY) -m pytest -n 2 --dist worksteal
 
 # The console's browser tests drive Debian's chromium (no browser download): installed here
 # when missing and we are root (CI on a fresh machine), else they are skipped, loudly.

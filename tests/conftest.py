@@ -1,8 +1,14 @@
-"""Fixtures shared by the test modules.
+"""Fixtures shared by the test modules, and the order the tests run in.
 
 ``serve`` starts loopback servers on port 0 the way every server test needs them: in a
 background thread, always shut down after the test, and with no handler exception left
 unseen (a test that provokes one on purpose clears ``handler_errors`` after checking it).
+
+Order: ``make test`` runs two xdist workers with ``--dist worksteal`` (a worker that runs dry
+takes half of the other's queue). The long tests run first, longest first, so that none of them
+is left for the end while the other worker idles: "long" is what the last run measured (kept in
+pytest's cache), or the ``slow`` marker for a test not measured yet. The short tests keep their
+file order, so a module-scoped fixture is still set up once per worker.
 """
 
 from __future__ import annotations
@@ -53,3 +59,43 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
     }
     for reason in sorted(reasons):
         terminalreporter.write_sep("!", reason.removeprefix("Skipped: "), red=True, bold=True)
+
+
+DURATIONS_KEY = "rsf/durations"  # nodeid -> seconds (setup + call + teardown) of its last run
+LONG_S = 1.0  # a test of at least this many seconds is moved to the front
+UNMEASURED_SLOW_S = 10.0  # a slow-marked test not measured yet: long, after the measured giants
+
+
+def _durations(config: pytest.Config) -> dict[str, float]:
+    cache = getattr(config, "cache", None)  # None under -p no:cacheprovider
+    return dict(cache.get(DURATIONS_KEY, {})) if cache is not None else {}
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    measured = _durations(config)
+
+    def seconds(item: pytest.Item) -> float:
+        if item.nodeid in measured:
+            return float(measured[item.nodeid])
+        return UNMEASURED_SLOW_S if item.get_closest_marker("slow") else 0.0
+
+    long = sorted((i for i in items if seconds(i) >= LONG_S), key=seconds, reverse=True)
+    short = [i for i in items if seconds(i) < LONG_S]
+    items[:] = long + short  # the same order on every worker: xdist requires it
+
+
+_ran: dict[str, float] = {}
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    if not isinstance(report, pytest.SubtestReport):  # the test's call report holds its time
+        _ran[report.nodeid] = _ran.get(report.nodeid, 0.0) + report.duration
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    config = session.config
+    cache = getattr(config, "cache", None)
+    # the controller sees every worker's reports; a worker would write only its share
+    if cache is None or hasattr(config, "workerinput") or not _ran:
+        return
+    cache.set(DURATIONS_KEY, {**_durations(config), **_ran})

@@ -1,14 +1,17 @@
 """README.md and docs/*.md run as written (issue 19), the way cram or doctest keep docs honest.
 
-Every line of every ```sh block and every ```python block is run, in document order, in one
-scratch directory (so ``echo s3cret > token.txt`` in one block serves the later ones):
+One test per document: every line of every ```sh block and every ```python block is run, in
+document order, in the document's own scratch directory (so ``echo s3cret > token.txt`` in one
+block serves the later ones; the other documents start where the README's setup block leaves a
+user: SETUP):
 
 - a shell line runs with ``bash -c`` and ``PATH`` starting with this interpreter's directory,
   which is what ``. .venv/bin/activate`` gives a user (``python`` and the console scripts);
 - the documented addresses are the ones in ADDRESSES, replaced by those of a cell served for
   the block (``cell serve --clock real``: robot and sensor share one scene, as ``sync delay``
   needs) when the block names one; a fresh cell per block, so a move in one block does not
-  leave the arm somewhere the next block's example does not expect;
+  leave the arm somewhere the next block's example does not expect (``sync delay`` needs the
+  sensor over the seam);
 - a ``serve`` line runs for ever, so it is started with its ports overridden to 0 (appended
   options: argparse keeps the last), must come up and is then stopped with SIGINT;
 - a line whose comment says ``→ exit N`` must end with N, every other line with 0;
@@ -25,6 +28,7 @@ import signal
 import subprocess
 import sys
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -113,15 +117,18 @@ def blocks() -> list[Block]:
 
 
 BLOCKS = blocks()
+EXAMPLES = [
+    d for d in DOCUMENTS if any(b.document == d.relative_to(ROOT).as_posix() for b in BLOCKS)
+]
 
 
 # the scratch directory stands in for the clone: the checkout files the examples read
 FROM_CHECKOUT = ["spec/capture.bin"]
+# where a user who opens docs/*.md stands: the README's block that activates the venv has run
+SETUP = next(b for b in BLOCKS if ". .venv/bin/activate" in b.commands())
 
 
-@pytest.fixture(scope="module")
-def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp("readme")
+def _scratch(path: Path) -> Path:
     for name in FROM_CHECKOUT:
         (path / name).parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(ROOT / name, path / name)
@@ -142,12 +149,12 @@ class Cell:
     udp: str
 
 
-@pytest.fixture
-def cell(request: pytest.FixtureRequest, workdir: Path) -> Iterator[Cell | None]:
-    block: Block = request.param
-    if _substitute(block.text, Cell("robot:1", "sensor:2", "udp:3")) == block.text:
-        yield None
-        return
+def _names_an_address(block: Block) -> bool:
+    return _substitute(block.text, Cell("robot:1", "sensor:2", "udp:3")) != block.text
+
+
+@contextmanager
+def _served_cell(workdir: Path) -> Iterator[Cell]:
     proc = subprocess.Popen(
         [sys.executable, "-m", "cell", "serve", "--clock", "real", "--robot-port", "0",
          "--sensor-port", "0", "--udp-port", "0"],
@@ -163,12 +170,16 @@ def cell(request: pytest.FixtureRequest, workdir: Path) -> Iterator[Cell | None]
             described[key.strip()] = value.strip()
         yield Cell(described["robot"], described["sensor"], described["udp"])
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        _interrupt(proc)
+
+
+def _interrupt(proc: subprocess.Popen[str]) -> None:
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(timeout=20)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
 
 
 def _substitute(text: str, cell: Cell | None) -> str:
@@ -200,12 +211,7 @@ def _serve(command: str, workdir: Path) -> None:
             if re.search(r"listening on|serving tcp|true_delta_t_ms", line):
                 break
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        _interrupt(proc)
 
 
 def _interesting(output: str) -> str:
@@ -233,11 +239,7 @@ def test_commands_split_on_continuations_and_drop_comment_lines() -> None:
     assert block.commands() == ["python -m x --y 1   # why", "ls"]
 
 
-@pytest.mark.parametrize("cell", BLOCKS, ids=[b.id for b in BLOCKS], indirect=True)
-def test_example_runs_as_written(
-    cell: Cell | None, workdir: Path, request: pytest.FixtureRequest
-) -> None:
-    block: Block = request.node.callspec.params["cell"]
+def _run(block: Block, cell: Cell | None, workdir: Path) -> None:
     if block.language == "python":
         proc = subprocess.run(
             [sys.executable, "-c", _substitute(block.text, cell)],
@@ -262,3 +264,19 @@ def test_example_runs_as_written(
             f"{block.id}: {command}\nexit {proc.returncode}, documented {expected}\n"
             f"{_interesting(proc.stdout)}\n{proc.stderr[-3000:]}"
         )
+
+
+@pytest.mark.parametrize("document", EXAMPLES, ids=[d.name for d in EXAMPLES])
+def test_examples_run_as_written(document: Path, tmp_path: Path, subtests: pytest.Subtests) -> None:
+    name = document.relative_to(ROOT).as_posix()
+    workdir = _scratch(tmp_path)
+    if name != SETUP.document:
+        _run(SETUP, None, workdir)
+    for block in (b for b in BLOCKS if b.document == name):
+        # a subtest per block: a failing block is reported and the later ones still run
+        with subtests.test(block.id):
+            if not _names_an_address(block):
+                _run(block, None, workdir)
+                continue
+            with _served_cell(workdir) as cell:  # a fresh cell: the arm at its ready pose
+                _run(block, cell, workdir)
