@@ -16,19 +16,26 @@ import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from types import TracebackType
+from typing import Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
 
 from cell.cell import CellTiming, EmulatedCell
 from cell.options import add_timing_options, add_tool_error_options, timing_kwargs
+from cell.rtcell import CellProcess
+from cell.truth import WeldRecorder, WeldTruth
 from kinematics.transforms import invert, location_to_transform, transform_to_location
 from robotsocket.client import RobotClient
+from robotsocket.rtprocess import ChildStartError
 from sensorsocket.client import SensorClient
+from sensorsocket.scene import Scene
 from spec import cliargs
 from spec.client import FramedClient
 from spec.errors import ProtocolError
 from spec.files import write_atomically
+from spec.params import Location, Value
+from spec.registry import CommandId
 from welding.tools import Entry, Loc, Tables
 from welding.track_loop import RobotLink, TrackedWeld, TrackLink, weld_tracked
 from welding.tracking import NominalWeld, Tracker, seam_error
@@ -216,17 +223,28 @@ def run_tracking(
     if seam not in TRACK_SEAMS:
         raise ValueError(f"seam must be one of {', '.join(TRACK_SEAMS)}, got {seam!r}")
     shape, placement = TRACK_SEAMS[seam]
+    config: dict[str, Any] = {
+        "timing": timing or CellTiming(),
+        "seam": shape,
+        "workpiece_error": workpiece_error or placement,
+        "seed": seed,
+        "sensor_tool_error": sensor_tool_error,
+        "laser_tool_error": laser_tool_error,
+    }
     if clock == "real":
-        over_sockets = True  # the robot's clock runs by itself: only its servers reach it
-    cell = EmulatedCell(
-        clock=clock,
-        timing=timing or CellTiming(),
-        seam=shape,
-        workpiece_error=workpiece_error or placement,
-        seed=seed,
-        sensor_tool_error=sensor_tool_error,
-        laser_tool_error=laser_tool_error,
-    )
+        # the robot's clock runs by itself in the real-time child: only its servers reach
+        # it, and the tracker here shares no GIL with its 4 ms loop
+        try:
+            child = CellProcess(**config).start()
+        except ChildStartError as exc:
+            raise ValueError(f"the real-time cell did not start: {exc}") from None
+        try:
+            side = _ChildSide(child, sensor_tool)
+            return _track_on(side, seam, speed_mm_s, delta_t_ms, weld_mm, rate_hz, track,
+                             sensor_silent_after_mm, measure_delta_t, True)  # fmt: skip
+        finally:
+            child.close()
+    cell = EmulatedCell(clock=clock, **config)
     if sensor_tool is not None:
         cell.core.sensor2flange = location_to_transform(np.array(sensor_tool, dtype=np.float64))
     servers = over_sockets or (measure_delta_t and delta_t_ms is None)
@@ -234,7 +252,7 @@ def run_tracking(
         cell.start()
     try:
         return _track_on(
-            cell,
+            _InProcessSide(cell),
             seam,
             speed_mm_s,
             delta_t_ms,
@@ -250,8 +268,103 @@ def run_tracking(
             cell.close()
 
 
+class _InProcessSide:
+    """The tracking run's view of an in-process cell."""
+
+    def __init__(self, cell: EmulatedCell) -> None:
+        self.cell = cell
+        self.clock = cell.clock
+        self.period = cell.robot.period
+        self.laser_tool = cell.laser_tool
+        self.recorder = WeldRecorder(cell)
+
+    @property
+    def robot_address(self) -> tuple[str, int]:
+        return self.cell.robot_address
+
+    @property
+    def sensor_address(self) -> tuple[str, int]:
+        return self.cell.sensor_address
+
+    @property
+    def udp_address(self) -> tuple[str, int]:
+        return self.cell.udp_address
+
+    def true_delta_t_s(self) -> float:
+        return self.cell.true_delta_t_s()
+
+    def ready_sensor2base(self) -> npt.NDArray[np.float64]:
+        return self.cell.ready_sensor2base()
+
+    def set_delay(self, seconds: float) -> None:
+        self.cell.core.set_delay(seconds)
+
+    def direct_link(self) -> TrackLink:
+        return _DirectLink(self.cell)
+
+    def record_weld(self) -> None:
+        self.recorder.start()
+
+    def weld_truth(self) -> WeldTruth:
+        return self.recorder.truth()
+
+
+class _ChildSide:
+    """The tracking run's view of the cell in the real-time child: its servers, its facts
+    and, after the run, its record of the laser's path. ``sensor_tool``: SetSensorTool."""
+
+    def __init__(self, child: CellProcess, sensor_tool: Loc | None) -> None:
+        self.child = child
+        self.clock = "real"
+        self.period = float(child.child.facts["period"])
+        self.laser_tool: Loc = tuple(child.child.facts["laser_tool"])
+        self.robot_address = child.robot_address
+        self.sensor_address = child.sensor_address
+        self.udp_address = child.udp_address
+        self.true_delta_t_s = child.true_delta_t_s
+        self.record_weld = child.record_weld
+        self.weld_truth = child.weld_truth
+        if sensor_tool is not None:
+            self._configure(CommandId.SET_SENSOR_TOOL, Location(*sensor_tool))
+
+    def ready_sensor2base(self) -> npt.NDArray[np.float64]:
+        out: npt.NDArray[np.float64] = self.child.child.facts["ready_sensor2base"]
+        return out
+
+    def set_delay(self, seconds: float) -> None:
+        self._configure(CommandId.SET_SYNC_DELAY, seconds)
+
+    def _configure(self, command: CommandId, value: Value) -> None:
+        with FramedClient(*self.robot_address, timeout=10.0, client_name="track") as c:
+            c.take_control()
+            c.call(command, value)
+            c.release_control()
+
+    def direct_link(self) -> TrackLink:
+        raise AssertionError("the real-time child is reached through its servers only")
+
+
+class _CellSide(Protocol):
+    clock: str
+    period: float
+    laser_tool: Loc
+
+    @property
+    def robot_address(self) -> tuple[str, int]: ...
+    @property
+    def sensor_address(self) -> tuple[str, int]: ...
+    @property
+    def udp_address(self) -> tuple[str, int]: ...
+    def true_delta_t_s(self) -> float: ...
+    def ready_sensor2base(self) -> npt.NDArray[np.float64]: ...
+    def set_delay(self, seconds: float) -> None: ...
+    def direct_link(self) -> TrackLink: ...
+    def record_weld(self) -> None: ...
+    def weld_truth(self) -> WeldTruth: ...
+
+
 def _track_on(
-    cell: EmulatedCell,
+    cell: _CellSide,
     seam: str,
     speed_mm_s: float,
     delta_t_ms: float | None,
@@ -262,31 +375,23 @@ def _track_on(
     measure_delta_t: bool,
     over_sockets: bool,
 ) -> TrackingRun:
-    robot = cell.robot
-    period = robot.period
+    period = cell.period
     true_dt = cell.true_delta_t_s()
     if delta_t_ms is not None:
-        cell.core.set_delay(delta_t_ms * 1e-3)
+        cell.set_delay(delta_t_ms * 1e-3)
     elif measure_delta_t:
-        _measure_delta_t(cell)
+        _measure_delta_t(cell.robot_address, cell.sensor_address)
     else:
-        cell.core.set_delay(true_dt)
+        cell.set_delay(true_dt)
     # the emulator's truth, every cycle: true setpoints, correction applied, laser output
-    truth: list[npt.NDArray[np.float64]] = []
-    applied: list[npt.NDArray[np.float64]] = []
-    lasing: list[bool] = []
-
-    def record(t: float, q_sp: npt.NDArray[np.float64], q_m: npt.NDArray[np.float64]) -> None:
-        truth.append(q_sp)
-        applied.append(robot.alter_applied())
-        lasing.append(robot.read_io("laser")[0])
-
-    robot.cycle_hooks.append(record)
-    link: TrackLink = _DirectLink(cell)
+    cell.record_weld()
+    link: TrackLink
     if over_sockets:
         client = FramedClient(*cell.robot_address, timeout=10.0, client_name="track")
         client.take_control()
         link = RobotLink(client, cell.udp_address, period=period, real_time=cell.clock == "real")
+    else:
+        link = cell.direct_link()
     try:
         dt = link.delta_t()  # the ΔT in force (GetSyncConfig)
         laser_tool = cell.laser_tool
@@ -306,22 +411,19 @@ def _track_on(
         plan = TrackedWeld(tracker, laser_tool, look_ahead, look_ahead + weld_mm, rate_hz, track)
         outcome = weld_tracked(link, plan, sensor_silent_after_mm=sensor_silent_after_mm)
         stopped = outcome.stopped
-        laser_on_at_end = robot.read_io("laser")[0]
     finally:
         if over_sockets:
             with contextlib.suppress(Exception):
                 client.release_control()
             client.close()
-    on_cycles = [i for i, on in enumerate(lasing) if on]
-    q = np.array(truth)
-    laser_pts = (robot.model.flange2base_batch(q[on_cycles]) @ cell.laser2flange)[:, :3, 3]
-    corr = np.array(applied)[on_cycles, :3] if on_cycles else np.zeros((0, 3))
-    b2w = cell.scene.base2workpiece
-    h = cell.scene.joint.seam_height_mm
-    lat, hgt = seam_error(laser_pts, b2w, cell.scene.path.lateral, h)
-    n_lat, _ = seam_error(laser_pts - corr, b2w, cell.scene.path.lateral, h)
+    truth = cell.weld_truth()
+    laser_pts, corr, scene = truth.laser, truth.correction, truth.scene
+    b2w = scene.base2workpiece
+    h = scene.joint.seam_height_mm
+    lat, hgt = seam_error(laser_pts, b2w, scene.path.lateral, h)
+    n_lat, _ = seam_error(laser_pts - corr, b2w, scene.path.lateral, h)
     err = np.hypot(lat, hgt)
-    welded = len(on_cycles) * period * speed_mm_s
+    welded = len(laser_pts) * period * speed_mm_s
     return TrackingRun(
         seam=seam,
         speed_mm_s=speed_mm_s,
@@ -335,7 +437,7 @@ def _track_on(
         lateral_max_mm=float(np.abs(lat).max()) if len(lat) else math.nan,
         height_max_mm=float(np.abs(hgt).max()) if len(hgt) else math.nan,
         nominal_error_max_mm=float(np.abs(n_lat).max()) if len(n_lat) else math.nan,
-        laser_on_at_end=laser_on_at_end,
+        laser_on_at_end=truth.laser_on,
         clock=cell.clock,
         cycles=outcome.cycles,
         corrections=outcome.corrections,
@@ -344,7 +446,7 @@ def _track_on(
             "laser": _to_w(laser_pts, b2w),
             "nominal": _to_w(laser_pts - corr, b2w),
             "measured": _to_w(tracker.model.points(), b2w),
-            "seam": _true_seam(cell, laser_pts, b2w),
+            "seam": _true_seam(scene, laser_pts, b2w),
         },
     )
 
@@ -414,14 +516,14 @@ class _DirectLink:
         pass
 
 
-def _measure_delta_t(cell: EmulatedCell) -> None:
+def _measure_delta_t(robot: tuple[str, int], sensor: tuple[str, int]) -> None:
     """The section VI procedure through the sockets; SetSyncDelay applies the estimate. The
     arm returns to the ready pose."""
     from sync.experiment import ExperimentSettings, run_delay_experiment
 
     run_delay_experiment(
-        cell.robot_address,
-        cell.sensor_address,
+        robot,
+        sensor,
         ExperimentSettings(apply=True, duration_s=4.0),
     )
 
@@ -432,13 +534,11 @@ def _to_w(points: npt.NDArray[np.float64], b2w: npt.NDArray[np.float64]) -> npt.
 
 
 def _true_seam(
-    cell: EmulatedCell, laser_pts: npt.NDArray[np.float64], b2w: npt.NDArray[np.float64]
+    scene: Scene, laser_pts: npt.NDArray[np.float64], b2w: npt.NDArray[np.float64]
 ) -> npt.NDArray[np.float64]:
     """The true seam (N, 3) in the workpiece frame under the laser's x."""
     x = _to_w(laser_pts, b2w)[:, 0]
-    return np.column_stack(
-        [x, cell.scene.path.y(x), np.full_like(x, cell.scene.joint.seam_height_mm)]
-    )
+    return np.column_stack([x, scene.path.y(x), np.full_like(x, scene.joint.seam_height_mm)])
 
 
 # --- command line: python -m welding track --emulate ... ------------------------------------
