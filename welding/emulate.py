@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import logging
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -35,12 +36,19 @@ from spec.client import FramedClient
 from spec.errors import ProtocolError
 from spec.files import write_atomically
 from spec.params import Location, Value
+from spec.realtime import realtime_threads
 from spec.registry import CommandId
 from welding.tools import Entry, Loc, Tables
 from welding.track_loop import RobotLink, TrackedWeld, TrackLink, weld_tracked
 from welding.tracking import NominalWeld, Tracker, seam_error
 
 __all__ = ["EmulatedSession", "cell_tables", "realtime_cell"]
+
+log = logging.getLogger(__name__)
+
+#: SCHED_FIFO priority of the real-clock tracker's process: below the real-time child's
+#: command (40) and timing (50) threads, above everything else.
+TRACKER_PRIORITY = 30
 
 
 def _loc(values: object) -> Loc:
@@ -177,6 +185,7 @@ class TrackingRun:
     cycles: int = 0  # controller cycles of the move
     corrections: int = 0  # corrections sent during it: one per cycle when the loop keeps up
     start_on_grid: bool = True  # the cycle the move started on is known exactly
+    cell: str = "in-process"  # where the cell ran: in-process or the real-time child
     plot: dict[str, npt.NDArray[np.float64]] = field(default_factory=dict, repr=False)
 
     def summary(self) -> dict[str, object]:
@@ -235,13 +244,17 @@ def run_tracking(
         # the robot's clock runs by itself in the real-time child: only its servers reach
         # it, and the tracker here shares no GIL with its 4 ms loop
         try:
-            child = CellProcess(**config).start()
+            child = CellProcess(**config)
         except ChildStartError as exc:
             raise ValueError(f"the real-time cell did not start: {exc}") from None
+        # this process is the controller: its tracker and the servers it talks through
+        # real-time too (the child's timing and command threads stay above them)
         try:
-            side = _ChildSide(child, sensor_tool)
-            return _track_on(side, seam, speed_mm_s, delta_t_ms, weld_mm, rate_hz, track,
-                             sensor_silent_after_mm, measure_delta_t, True)  # fmt: skip
+            with realtime_threads(TRACKER_PRIORITY) as got:
+                log.info("tracker threads: scheduling %s", got)
+                side = _ChildSide(child.start(), sensor_tool)
+                return _track_on(side, seam, speed_mm_s, delta_t_ms, weld_mm, rate_hz, track,
+                                 sensor_silent_after_mm, measure_delta_t, True)  # fmt: skip
         finally:
             child.close()
     cell = EmulatedCell(clock=clock, **config)
@@ -442,6 +455,7 @@ def _track_on(
         cycles=outcome.cycles,
         corrections=outcome.corrections,
         start_on_grid=outcome.start_on_grid,
+        cell="real-time child" if isinstance(cell, _ChildSide) else "in-process",
         plot={
             "laser": _to_w(laser_pts, b2w),
             "nominal": _to_w(laser_pts - corr, b2w),
@@ -620,7 +634,8 @@ def cmd_track(args: argparse.Namespace) -> int:
     )
     if run.clock == "real":
         print(
-            f"real clock: {run.corrections} corrections in {run.cycles} cycles of the move"
+            f"real clock ({run.cell}): {run.corrections} corrections in {run.cycles} cycles "
+            "of the move"
             + ("" if run.start_on_grid else "; the move's start cycle was not known exactly")
         )
     return 1 if run.stopped else 0

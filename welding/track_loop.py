@@ -17,6 +17,7 @@ reset (the arm stops along its path), and the reason is returned.
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import time
 from dataclasses import dataclass
@@ -34,6 +35,8 @@ from welding.tracking import MIN_FIT_POINTS, Tracker, TrackingError
 Array = npt.NDArray[np.float64]
 
 __all__ = ["RobotLink", "TrackLink", "TrackOutcome", "TrackedWeld", "weld_tracked"]
+
+log = logging.getLogger(__name__)
 
 
 class TrackLink(Protocol):
@@ -123,6 +126,7 @@ def weld_tracked(
             link.step()
         times, locs = nominal.timed_path(period)
         t0, on_grid = link.move(times, locs, weld.laser_tool)  # the law's start, a cycle
+        log.info("tracked move queued: %d cycles", len(times))
         held = np.zeros(6)
         while link.queued():
             fetch()
@@ -150,6 +154,12 @@ def weld_tracked(
         link.reset_motion()
         laser_on = False
         stopped = str(exc) if isinstance(exc, TrackingError) else f"the robot refused: {exc}"
+    except KeyboardInterrupt:  # Ctrl-C, a stop signal: the same safe stop, then out
+        with contextlib.suppress(Exception):
+            link.set_laser(False)
+            link.reset_motion()
+            log.warning("interrupted: laser off, motion reset")
+        raise
     if laser_on:
         link.set_laser(False)
     cycles = round((link.time() - t0) / period)
