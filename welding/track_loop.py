@@ -133,8 +133,8 @@ def weld_tracked(
         t0, on_grid = link.move(times, locs, weld.laser_tool)  # the law's start, a cycle
         log.info("tracked move queued: %d cycles", len(times))
         held = np.zeros(6)
+        n = 0
         while link.queued():
-            fetch()
             t_move = link.next_cycle() - t0  # the correction applies at the next cycle
             s = float(nominal.s_at(t_move))
             if (
@@ -151,6 +151,11 @@ def weld_tracked(
             if want_on != laser_on:
                 link.set_laser(want_on)
                 laser_on = want_on
+            # after the correction, whose cycle is the deadline, and every other cycle: the
+            # points come at the trigger rate and are measured 40 mm ahead of the laser
+            if n % 2 == 0:
+                fetch()
+            n += 1
             link.step()
     except (TrackingError, RemoteError) as exc:
         # the seam is lost, or the robot refused a correction (it ends alter mode when the
