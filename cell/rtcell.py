@@ -43,6 +43,7 @@ def build_cell(config: dict[str, Any]) -> ChildParts:
         "weld_record": recorder.start,
         "weld_truth": recorder.truth,
         "true_delta_t": cell.true_delta_t_s,
+        "io_log": lambda: list(cell.robot.io_log),
         "measured_delta_t": cell.measured_delta_t,
         "next_index": lambda: cell.core.next_index,
         "jitter": cell.robot.jitter,
@@ -53,6 +54,9 @@ def build_cell(config: dict[str, Any]) -> ChildParts:
         "udp_address": cell.udp_address,
         "period": cell.robot.period,
         "laser_tool": cell.laser_tool,
+        "sensor_tool": cell.sensor_tool,
+        "workpiece_error": cell.workpiece_error,
+        "workpiece2base": cell.scene.workpiece2base,
         "ready_sensor2base": cell.ready_sensor2base(),
     }
     services = {"robot": cell.robot_service, "sensor": cell.sensor_service}
@@ -118,6 +122,12 @@ class CellProcess:
     def weld_truth(self) -> WeldTruth:
         """What the child recorded since :meth:`record_weld`: the laser's true path."""
         out: WeldTruth = self.child.query("weld_truth")
+        return out
+
+    @property
+    def io_log(self) -> list[tuple[float, str, bool]]:
+        """(robot time s, output, value) of every output change of the child's robot."""
+        out: list[tuple[float, str, bool]] = self.child.query("io_log")
         return out
 
     def true_delta_t_s(self) -> float:

@@ -56,23 +56,36 @@ def _loc(values: object) -> Loc:
     return (v[0], v[1], v[2], v[3], v[4], v[5])
 
 
-def cell_tables(cell: EmulatedCell) -> Tables:
+def cell_tables(cell: EmulatedCell | CellProcess) -> Tables:
     """The cell's tools ``laser``, ``sensor`` and its frame ``workpiece`` (where it should
     be: the cell puts it its ``workpiece_error`` off that)."""
+    if isinstance(cell, CellProcess):
+        facts = cell.child.facts
+        laser, sensor = facts["laser_tool"], facts["sensor_tool"]
+        w2b_true, placement = facts["workpiece2base"], facts["workpiece_error"]
+    else:
+        laser, sensor = cell.laser_tool, cell.sensor_tool
+        w2b_true, placement = cell.scene.workpiece2base, cell.workpiece_error
     tables = Tables({}, {})
-    tables.add(Entry("laser", "laser", cell.laser_tool, "^N_L T of the cell"))
-    tables.add(Entry("sensor", "sensor", cell.sensor_tool, "^N_S T of the cell"))
+    tables.add(Entry("laser", "laser", _loc(laser), "^N_L T of the cell"))
+    tables.add(Entry("sensor", "sensor", _loc(sensor), "^N_S T of the cell"))
     # the workpiece as the operator believes it placed: without the placement error
-    error = location_to_transform(np.array(cell.workpiece_error, dtype=np.float64))
-    w2b = _loc(transform_to_location(cell.scene.workpiece2base @ invert(error)))
+    error = location_to_transform(np.array(placement, dtype=np.float64))
+    w2b = _loc(transform_to_location(w2b_true @ invert(error)))
     tables.add(Entry("workpiece", "frame", w2b, "^B_W T of the cell's workpiece"))
     return tables
 
 
-def realtime_cell(seam: str = "straight", *, seed: int = 0) -> EmulatedCell:
-    """A started emulated cell on the real-time clock (the operator console's ``--emulate``:
-    an operator watches and jogs it at the speed a real arm moves)."""
-    return EmulatedCell(clock="real", seam=seam, seed=seed).start()
+def realtime_cell(seam: str = "straight", *, seed: int = 0) -> CellProcess:
+    """A started emulated cell on the real-time clock, its real-time part in a child process
+    (the operator console's ``--emulate``: an operator watches and jogs it at the speed a
+    real arm moves; the console's web server and status threads cannot starve its 4 ms
+    loop). Raises ValueError when the child cannot start."""
+    try:
+        cell = CellProcess(seam=seam, seed=seed)
+    except ChildStartError as exc:
+        raise ValueError(f"the real-time cell did not start: {exc}") from None
+    return cell.start()
 
 
 class EmulatedSession:
