@@ -577,7 +577,8 @@ def add_track_options(p: argparse.ArgumentParser) -> None:
         "--emulate",
         action="store_true",
         required=True,
-        help="track on an in-process emulated cell (--clock: simulated or real); required",
+        help="track on an emulated cell (--clock sim: in this process; real: its real-time "
+        "part in a child process); required",
     )
     p.add_argument("--seam", choices=tuple(TRACK_SEAMS), default="sine")
     p.add_argument("--speed", type=cliargs.number_in(1.0, 500.0), default=250.0, help="mm/s")
@@ -600,7 +601,8 @@ def add_track_options(p: argparse.ArgumentParser) -> None:
         choices=("sim", "real"),
         default="sim",
         help="sim: the cell's simulated clock (deterministic); real: its 4 ms cycle on the "
-        "wall clock, the tracker a client that keeps pace (default %(default)s)",
+        "wall clock in a real-time child process, the tracker a client that keeps pace "
+        "(default %(default)s)",
     )
     p.add_argument("--json", type=cliargs.output_file, metavar="OUT.json")
     p.add_argument("--plot", metavar="DIR", help="write track.png (needs matplotlib)")
