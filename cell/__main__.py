@@ -118,12 +118,15 @@ def cmd_serve(args: argparse.Namespace) -> int:
             raise CellError(str(exc)) from None
     else:
         cell = _cell(args).start()
-    for k, v in cell.describe().items():
-        print(f"{k:>22}: {round(v, 9) if isinstance(v, float) else v}")
-    if args.clock == "sim":
-        print("simulated clock: time advances while a client waits in WaitEndMove")
-    sys.stdout.flush()
-    serve_until_signal([], on_stop=cell.close)
+
+    def announce() -> None:
+        for k, v in cell.describe().items():
+            print(f"{k:>22}: {round(v, 9) if isinstance(v, float) else v}")
+        if args.clock == "sim":
+            print("simulated clock: time advances while a client waits in WaitEndMove")
+        sys.stdout.flush()
+
+    serve_until_signal([], on_stop=cell.close, ready=announce)
     return 0
 
 

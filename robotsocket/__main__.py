@@ -52,6 +52,10 @@ def parse_endpoint(text: str) -> tuple[str, int]:
 # --- serve ------------------------------------------------------------------------------------
 
 
+def _announce(server: FramedServer) -> None:
+    print(f"listening on {server.address[0]}:{server.address[1]}", flush=True)
+
+
 def cmd_serve(args: argparse.Namespace) -> int:
     token: str | None = args.token  # read (and refused if empty) by cliargs.token_file
     allow = tuple(args.allow or ())
@@ -90,7 +94,6 @@ def cmd_serve(args: argparse.Namespace) -> int:
         ", ".join(str(n) for n in allow) or "any",
     )
     server.start()
-    print(f"listening on {server.address[0]}:{server.address[1]}", flush=True)
 
     def on_stop() -> None:
         if endpoint is not None:
@@ -109,7 +112,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
             )
         log.info("statistics: %s", json.dumps(server.statistics()))
 
-    serve_until_signal([server], on_stop)
+    serve_until_signal([server], on_stop, ready=lambda: _announce(server))
     return 0
 
 
@@ -146,14 +149,13 @@ def _serve_child(args: argparse.Namespace, allow: tuple[Network, ...]) -> int:
         ", ".join(str(n) for n in allow) or "any",
     )
     server.start()
-    print(f"listening on {server.address[0]}:{server.address[1]}", flush=True)
 
     def on_stop() -> None:
         server.shutdown()  # a controller's work stops first, in the child [RS-7.10]
         child.close()  # the child logs its tick jitter and UDP drops
         log.info("statistics: %s", json.dumps(server.statistics()))
 
-    serve_until_signal([server], on_stop)
+    serve_until_signal([server], on_stop, ready=lambda: _announce(server))
     return 0
 
 

@@ -169,10 +169,6 @@ def cmd_serve(args: argparse.Namespace) -> int:
     host, port = server.address
     udp = f"{listener.address[0]}:{listener.address[1]}" if listener else "off"
     service.trigger_endpoint = listener.address if listener else (host, 0)
-    log.info(
-        "sensorsocket serving tcp %s:%d udp %s (joint %s, seam %s, motion %s, clock %s, seed %d)",
-        host, port, udp, args.joint, args.seam, args.motion, args.clock, args.seed,
-    )  # fmt: skip
     if listener is not None:
         listener.start()
     server.start()
@@ -183,7 +179,13 @@ def cmd_serve(args: argparse.Namespace) -> int:
             listener.stop()
         log.info("server statistics: %s", json.dumps(server.statistics()))
 
-    serve_until_signal([server], on_stop=stop)
+    def announce() -> None:
+        log.info(
+            "sensorsocket serving tcp %s:%d udp %s (joint %s, seam %s, motion %s, clock %s, "
+            "seed %d)", host, port, udp, args.joint, args.seam, args.motion, args.clock, args.seed,
+        )  # fmt: skip
+
+    serve_until_signal([server], on_stop=stop, ready=announce)
     return 0
 
 

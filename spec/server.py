@@ -868,33 +868,66 @@ def _close_quietly(sock: socket.socket) -> None:
     sock.close()
 
 
+class _StopSignal(BaseException):
+    """Raised in the main thread by the first SIGINT/SIGTERM to end the wait. A BaseException,
+    like KeyboardInterrupt: an ``except Exception`` it lands in (logging's emit) must not eat it."""
+
+
 def serve_until_signal(
-    servers: list[FramedServer], on_stop: Callable[[], None] | None = None
+    servers: list[FramedServer],
+    on_stop: Callable[[], None] | None = None,
+    ready: Callable[[], None] | None = None,
 ) -> None:
-    """Run servers (already started) until SIGINT or SIGTERM, then shut them down."""
-    stop = threading.Event()
+    """Run servers (already started) until SIGINT or SIGTERM, then shut them down. ``ready``
+    announces the server once the handlers are in place: a script that signals as soon as it
+    reads the announcement gets the clean stop, not the default handlers' death.
 
-    def _handler(signum: int, frame: FrameType | None) -> None:
-        if stop.is_set():
-            log.info("received %s again, still shutting down", signal.Signals(signum).name)
-        else:
-            log.info("received %s, shutting down", signal.Signals(signum).name)
-        stop.set()
+    The handler raises instead of setting an Event: it runs between two bytecodes of the main
+    thread, and ``Event.set()`` there deadlocks when the main thread is inside ``Event.wait()``
+    holding the same lock (a server that never stopped on SIGINT, seen once under load). For
+    the same reason a later signal is only counted, not logged, in the handler."""
+    signals = (signal.SIGINT, signal.SIGTERM)
+    again: list[int] = []
 
-    previous = {s: signal.signal(s, _handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    def _later(signum: int, frame: FrameType | None) -> None:
+        again.append(signum)  # a second Ctrl-C must not turn a clean stop into a traceback
+
+    def _first(signum: int, frame: FrameType | None) -> None:
+        for s in signals:
+            signal.signal(s, _later)
+        raise _StopSignal(signum)
+
+    # A signal may be delivered to any thread; the main thread runs the handler only when it
+    # next executes bytecode. The wakeup socket wakes it at once, with no polling.
+    wake_r, wake_w = socket.socketpair()
+    wake_w.setblocking(False)
+    previous: dict[int, Any] = {}
+    old_wakeup = signal.set_wakeup_fd(wake_w.fileno(), warn_on_full_buffer=False)
     try:
-        while not stop.wait(0.5):
-            pass
-        # The handlers stay in place during the shutdown: a second Ctrl-C must not turn a
-        # clean stop into a traceback.
+        try:
+            for sig in signals:
+                previous[sig] = signal.signal(sig, _first)
+            if ready is not None:
+                ready()
+            while True:
+                wake_r.recv(64)  # a signal's byte; its handler runs right after
+        except _StopSignal as stop:
+            log.info("received %s, shutting down", signal.Signals(stop.args[0]).name)
         if on_stop is not None:
             on_stop()
         for server in servers:
             server.shutdown()
+        if again:
+            log.info(
+                "received %s again during the shutdown: ignored", signal.Signals(again[0]).name
+            )
         log.info("stopped")
     finally:
-        for s, h in previous.items():
-            signal.signal(s, h)
+        for signum, h in previous.items():
+            signal.signal(signum, h)
+        signal.set_wakeup_fd(old_wakeup)
+        wake_r.close()
+        wake_w.close()
 
 
 __all__ = [

@@ -7,12 +7,11 @@ from __future__ import annotations
 
 import json
 import re
-import select
 import signal
 import socket
 import subprocess
 import sys
-import time
+import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -38,6 +37,21 @@ def cli(*args: str, timeout: float = 20.0) -> subprocess.CompletedProcess[str]:
     )
 
 
+def _serving_line(proc: subprocess.Popen[str]) -> str:
+    """The server's "serving tcp … udp …" line: logged once it is up and stops cleanly on a
+    signal (the start-up lines before it are skipped). A server silent for 20 s is killed."""
+    assert proc.stderr is not None
+    watchdog = threading.Timer(20.0, proc.kill)  # readline buffers: select() cannot tell
+    watchdog.start()
+    try:
+        while line := proc.stderr.readline():
+            if "serving tcp" in line:
+                return line
+    finally:
+        watchdog.cancel()
+    raise AssertionError("the server ended or stayed silent before it said it was serving")
+
+
 class Served:
     def __init__(self, proc: subprocess.Popen[str], tcp: str, udp: tuple[str, int]) -> None:
         self.proc, self.tcp, self.udp = proc, tcp, udp
@@ -55,9 +69,7 @@ def served() -> Iterator[Served]:
     )  # fmt: skip
     assert proc.stderr is not None
     try:
-        ready, _, _ = select.select([proc.stderr], [], [], 20.0)
-        assert ready, "the server printed nothing within 20 s"
-        first = proc.stderr.readline()
+        first = _serving_line(proc)
         m = re.search(r"tcp ([\d.]+):(\d+) udp ([\d.]+):(\d+)", first)
         assert m, first
         yield Served(proc, f"{m[1]}:{m[2]}", (m[3], int(m[4])))
@@ -200,11 +212,7 @@ def test_sigterm_stops_gracefully() -> None:
     )
     assert proc.stderr is not None
     try:
-        ready, _, _ = select.select([proc.stderr], [], [], 20.0)
-        assert ready
-        first = proc.stderr.readline()
-        assert "udp off" in first
-        time.sleep(0.2)
+        assert "udp off" in _serving_line(proc)
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=10)
     finally:
@@ -213,6 +221,29 @@ def test_sigterm_stops_gracefully() -> None:
             proc.wait()
     assert proc.returncode == 0
     assert "SIGTERM" in err and "stopped" in err and "Traceback" not in err
+
+
+def test_a_second_signal_during_the_shutdown_is_not_a_traceback() -> None:
+    """SIGINT then SIGTERM at once (an impatient operator): one clean stop, exit 0."""
+    proc = subprocess.Popen(
+        [PY, "-m", "sensorsocket", "serve", "--port", "0", "--udp-port", "off"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+    )
+    assert proc.stderr is not None
+    try:
+        assert "udp off" in _serving_line(proc)
+        proc.send_signal(signal.SIGINT)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    assert "SIGINT, shutting down" in err and "stopped" in err and "Traceback" not in err
 
 
 def test_allow_list_applies_to_tcp_and_udp() -> None:
@@ -228,9 +259,7 @@ def test_allow_list_applies_to_tcp_and_udp() -> None:
     )  # fmt: skip
     assert proc.stderr is not None
     try:
-        ready, _, _ = select.select([proc.stderr], [], [], 20.0)
-        assert ready, "the server printed nothing within 20 s"
-        m = re.search(r"tcp ([\d.]+):(\d+) udp ([\d.]+):(\d+)", proc.stderr.readline())
+        m = re.search(r"tcp ([\d.]+):(\d+) udp ([\d.]+):(\d+)", _serving_line(proc))
         assert m
         with socket.create_connection((m[1], int(m[2])), timeout=5.0) as tcp:
             assert tcp.recv(100) == b""  # closed before any byte is read or sent
