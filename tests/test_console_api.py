@@ -44,7 +44,9 @@ def env(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[TestClient, 
     jobs = tmp / "jobs"
     jobs.mkdir()
     J.save(demo_job(), jobs / "demo.xml")
-    console = Console(cell.robot_address, cell.sensor_address, tools=tools, jobs=jobs, token=TOKEN)
+    console = Console(
+        cell.robot_address, cell.sensor_address, tools=tools, jobs=jobs, token=TOKEN, cell=cell
+    )
     try:
         with TestClient(create_app(console)) as client:
             yield client, console, cell
@@ -302,6 +304,40 @@ def test_measurement_settings_are_checked(env: Any) -> None:
     assert r.status_code == 400 and "poses: 3 is outside 8..30" in r.json()["error"]
     r = call(client, "POST", "/api/calibrate", {"tool": "nosuch"})
     assert r.status_code == 400 and "nosuch" in r.json()["error"]
+
+
+def test_laser_tool_calibration_result_error_vs_true_and_save(env: Any) -> None:
+    client, console, cell = env
+    _power_on(client)
+    r = call(client, "POST", "/api/calibrate", {"which": "laser"})
+    assert r.status_code == 400 and "which: sensor-tool or laser-tool" in r.json()["error"]
+    console.cell = None  # a live cell: no spot detector
+    try:
+        r = call(client, "POST", "/api/calibrate", {"which": "laser-tool"})
+        assert r.status_code == 409 and "only --emulate has one" in r.json()["error"]
+    finally:
+        console.cell = cell
+    console.control.joint_move(READY_JOINTS)  # the spot detector is placed for this pose
+    assert console.control.wait_end_move(30.0)
+    body = {"which": "laser-tool", "poses": 20, "repeats": 4}
+    assert call(client, "POST", "/api/calibrate", body).status_code == 200
+    s = wait_for(client, lambda s: finished(s, "calibration"), timeout=60)
+    assert s["activity"]["state"] == "done", s["activity"]
+    assert s["activity"]["which"] == "laser-tool" and s["activity"]["measurements"] == 80
+    res = call(client, "GET", "/api/result/calibration").json()["result"]
+    assert res["calibration"] == "laser-tool" and res["kind"] == "laser"
+    assert res["nominal_tool"] == "laser" and res["true_tool"] == list(cell.true_laser_tool)
+    assert len(res["residuals_mm"]) > 0 and res["uncertainty"]["rz"] is None  # a round beam
+    assert all(0 < res["uncertainty"][c] <= 0.0167 for c in ("x", "y", "z", "rx", "ry"))
+    # the target (0.05 mm / 0.05°) against the cell's true tool
+    assert res["error_vs_true"]["position_mm"] < 0.05
+    assert res["error_vs_true"]["orientation_deg"] < 0.05
+    # save as tool, as the page does
+    entry = {"name": "laser_cal", "kind": res["kind"], "location": res["tool"], "note": "cal"}
+    assert call(client, "POST", "/api/tools", entry).status_code == 200
+    entries = call(client, "GET", "/api/tools").json()["entries"]
+    saved = [e for e in entries if e["name"] == "laser_cal"]
+    assert saved[0]["location"] == res["tool"] and saved[0]["kind"] == "laser"
 
 
 def test_estop_gets_through_while_the_control_connection_is_busy(env: Any) -> None:
