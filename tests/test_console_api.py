@@ -317,7 +317,7 @@ def test_laser_tool_calibration_result_error_vs_true_and_save(env: Any) -> None:
         assert r.status_code == 409 and "only --emulate has one" in r.json()["error"]
     finally:
         console.cell = cell
-    console.control.joint_move(READY_JOINTS)  # the spot detector is placed for this pose
+    console.control.joint_move(READY_JOINTS)  # the detector is beside its laser focus
     assert console.control.wait_end_move(30.0)
     body = {"which": "laser-tool", "poses": 20, "repeats": 4}
     assert call(client, "POST", "/api/calibrate", body).status_code == 200
