@@ -4,6 +4,9 @@ validation errors, the token kept server-side, dead-man jog, jobs, abort."""
 from __future__ import annotations
 
 import dataclasses
+import socket
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -311,6 +314,8 @@ def test_laser_tool_calibration_result_error_vs_true_and_save(env: Any) -> None:
     _power_on(client)
     r = call(client, "POST", "/api/calibrate", {"which": "laser"})
     assert r.status_code == 400 and "which: sensor-tool or laser-tool" in r.json()["error"]
+    r = call(client, "POST", "/api/calibrate", {"which": "laser-tool", "poses": 3})
+    assert r.status_code == 400 and "poses: 3 is outside 4..30" in r.json()["error"]
     console.cell = None  # a live cell: no spot detector
     try:
         r = call(client, "POST", "/api/calibrate", {"which": "laser-tool"})
@@ -368,3 +373,19 @@ def test_teaching_shows_points_and_save_as(env: Any, tmp_path: Path) -> None:
     saved = call(client, "PUT", "/api/jobs/copy.xml", {"job": job}).json()
     assert saved["saved"] and saved["ok"]
     assert J.load(console.job_path("copy.xml")).item("seam").power == 1500.0  # type: ignore[union-attr]
+
+
+def test_a_port_in_use_is_one_line_before_any_url(tmp_path: Path) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen(1)
+        port = taken.getsockname()[1]
+        command = [sys.executable, "-m", "welding", "console", "--emulate", "--port", str(port)]
+        command += ["--tools", str(tmp_path / "tools.json"), "--jobs", str(tmp_path)]
+        run = subprocess.run(command, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 3
+    assert run.stderr == (
+        f"python -m welding: error: cannot serve on 127.0.0.1:{port}: in use\n"
+    ), run.stderr
+    assert run.stdout == ""
+    assert not (tmp_path / "tools.json").exists()  # no cell was started

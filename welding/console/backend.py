@@ -121,6 +121,7 @@ class Console:
         self.emulated = emulated
         #: The emulated cell (``--emulate``): its spot detector and true tools.
         self.cell = cell
+        self._laser_runs = 0  # seeds the emulated spot detector's noise: a session repeats
         self.control = RobotClient(*robot, timeout=timeout, client_name="welding-console")
         self.poll = RobotClient(*robot, timeout=timeout, client_name="welding-console-status")
         self.stopper = RobotClient(*robot, timeout=timeout, client_name="welding-console-estop")
@@ -745,7 +746,8 @@ class Console:
             raise ConsoleError("laser-tool needs a spot detector; only --emulate has one", 409)
         if not laser and (self.sensor is None or not self.sensor_in_control):
             raise ConsoleError("the calibration needs the sensor (and its control)", 409)
-        poses = int(_num(b.get("poses", 30), "poses", 8, 30))
+        # the laser fit needs 4 poses; the sensor's first pass alone takes 8
+        poses = int(_num(b.get("poses", 30), "poses", 4 if laser else 8, 30))
         repeats = int(_num(b.get("repeats", 16), "repeats", 1, 64))
         try:
             nominal = self.tables().tool(str(b.get("tool", "laser" if laser else "sensor")))
@@ -762,7 +764,8 @@ class Console:
 
         cal: SensorToolCalibration | LaserToolCalibration
         if laser:
-            rng = np.random.default_rng()
+            rng = np.random.default_rng(np.random.SeedSequence([18, self._laser_runs]))
+            self._laser_runs += 1
 
             class WatchedDetector(EmulatedSpotDetector):
                 def measure(self) -> Any:

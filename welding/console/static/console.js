@@ -507,6 +507,7 @@ $("cal-start").onclick = async () => {
 $("cal-which").onchange = () => {
   const kind = $("cal-which").value === "laser-tool" ? "laser" : "sensor";
   $("cal-tool").value = kind;
+  $("cal-poses").min = kind === "laser" ? 4 : 8;
   $("cal-save-name").value = `${kind}_cal`;
 };
 $("cal-abort").onclick = async () => { await api("POST", "/api/abort"); say("abort sent"); };
