@@ -14,6 +14,7 @@ import logging
 from typing import Any
 
 from cell.cell import EmulatedCell
+from cell.truth import WeldRecorder, WeldTruth
 from robotsocket.rtprocess import ChildParts, ForwardedService, RealtimeProcess, RobotProcess
 from spec.server import FramedServer
 
@@ -37,7 +38,12 @@ def build_cell(config: dict[str, Any]) -> ChildParts:
 
     assert cell.listener is not None
     listener = cell.listener
+    recorder = WeldRecorder(cell)
     queries = {
+        "weld_record": recorder.start,
+        "weld_truth": recorder.truth,
+        "true_delta_t": cell.true_delta_t_s,
+        "io_log": lambda: list(cell.robot.io_log),
         "measured_delta_t": cell.measured_delta_t,
         "next_index": lambda: cell.core.next_index,
         "jitter": cell.robot.jitter,
@@ -47,9 +53,14 @@ def build_cell(config: dict[str, Any]) -> ChildParts:
         "describe": cell.describe(),
         "udp_address": cell.udp_address,
         "period": cell.robot.period,
+        "laser_tool": cell.laser_tool,
+        "sensor_tool": cell.sensor_tool,
+        "workpiece_error": cell.workpiece_error,
+        "workpiece2base": cell.scene.workpiece2base,
+        "ready_sensor2base": cell.ready_sensor2base(),
     }
     services = {"robot": cell.robot_service, "sensor": cell.sensor_service}
-    return ChildParts(cell.robot, services, cell.start, stop, queries, facts)  # type: ignore[arg-type]
+    return ChildParts(cell.robot, services, cell.start, stop, queries, facts)
 
 
 class CellProcess:
@@ -102,6 +113,26 @@ class CellProcess:
     def next_index(self) -> int:
         """The index the robot's next trigger will carry."""
         out: int = self.child.query("next_index")
+        return out
+
+    def record_weld(self) -> None:
+        """The child starts recording the laser's path (:class:`~cell.truth.WeldRecorder`)."""
+        self.child.query("weld_record")
+
+    def weld_truth(self) -> WeldTruth:
+        """What the child recorded since :meth:`record_weld`: the laser's true path."""
+        out: WeldTruth = self.child.query("weld_truth")
+        return out
+
+    @property
+    def io_log(self) -> list[tuple[float, str, bool]]:
+        """(robot time s, output, value) of every output change of the child's robot."""
+        out: list[tuple[float, str, bool]] = self.child.query("io_log")
+        return out
+
+    def true_delta_t_s(self) -> float:
+        """The cell's true ΔT (the emulator's timing), s."""
+        out: float = self.child.query("true_delta_t")
         return out
 
     def start(self) -> CellProcess:

@@ -12,14 +12,17 @@ interval, 5 ms by default: longer than a robot cycle).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import threading
+from collections.abc import Iterator
 
 __all__ = [
     "DEFAULT_RT_PRIORITY",
     "REALTIME_SWITCH_INTERVAL_S",
     "promote_current_thread",
+    "realtime_threads",
     "shorten_switch_interval",
 ]
 
@@ -35,11 +38,47 @@ a Python thread holding the GIL (measured in docs/REALTIME.md)."""
 def promote_current_thread(priority: int = DEFAULT_RT_PRIORITY) -> str:
     """Give the calling thread real-time scheduling; returns what it got, for the log:
     ``"SCHED_FIFO 50"``, ``"nice -10"`` or ``"normal (reason)"``."""
+    return _promote(threading.get_native_id(), priority)
+
+
+@contextlib.contextmanager
+def realtime_threads(priority: int) -> Iterator[str]:
+    """Every thread of this process real-time while inside (as :func:`promote_current_thread`;
+    threads they start inherit it) and the GIL switch interval short; all back as they were
+    after. For a process whose threads are all on one real-time path (a tracker and the
+    servers it talks through): a thread holding the GIL is then not preempted by other
+    processes either. Yields what the calling thread got."""
+    saved: dict[int, tuple[int, int, int]] = {}
+    for tid in _own_threads():
+        with contextlib.suppress(OSError, AttributeError):
+            param = os.sched_getparam(tid).sched_priority
+            saved[tid] = (os.sched_getscheduler(tid), param, os.getpriority(os.PRIO_PROCESS, tid))
+    got = {tid: _promote(tid, priority) for tid in _own_threads()}
+    interval = sys.getswitchinterval()
+    shorten_switch_interval()
+    try:
+        yield got.get(threading.get_native_id(), "")
+    finally:
+        sys.setswitchinterval(interval)
+        for tid in _own_threads():  # threads started meanwhile go back to normal too
+            policy, param, nice = saved.get(tid, (getattr(os, "SCHED_OTHER", 0), 0, 0))
+            with contextlib.suppress(OSError, AttributeError):  # gone, or not Linux
+                os.sched_setscheduler(tid, policy, os.sched_param(param))
+                os.setpriority(os.PRIO_PROCESS, tid, nice)
+
+
+def _own_threads() -> list[int]:
+    try:
+        return [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        return [threading.get_native_id()]
+
+
+def _promote(tid: int, priority: int) -> str:
     if priority < 1:
         return "normal (real-time priority disabled)"
     setsched = getattr(os, "sched_setscheduler", None)
     fifo = getattr(os, "SCHED_FIFO", None)
-    tid = threading.get_native_id()
     reason = "sched_setscheduler not available"
     if setsched is not None and fifo is not None and sys.platform.startswith("linux"):
         try:

@@ -279,8 +279,9 @@ def test_dry_run_with_progress_then_abort_laser_off(env: Any) -> None:
     s = wait_for(client, lambda s: finished(s, "job"))
     assert s["activity"]["state"] == "aborted" and "cancelled" in s["activity"]["message"]
     wait_for(client, lambda s: not s["moving"])
-    assert cell.robot.io_log[-1][2] is False or all(not v for _, n, v in cell.robot.io_log[-3:])
-    outputs = {n: v for _, n, v in cell.robot.io_log}
+    io_log = cell.io_log  # the real-time child's record
+    assert io_log[-1][2] is False or all(not v for _, n, v in io_log[-3:])
+    outputs = {n: v for _, n, v in io_log}
     assert outputs == {"laser": False, "crossjet": False, "gas": False}
 
 

@@ -49,3 +49,29 @@ def test_switch_interval_is_only_ever_shortened() -> None:
         assert realtime.REALTIME_SWITCH_INTERVAL_S < 0.004  # below one robot cycle
     finally:
         sys.setswitchinterval(before)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread scheduling")
+def test_realtime_threads_promotes_the_threads_and_puts_them_back() -> None:
+    def policy(tid: int) -> tuple[int, int]:
+        return os.sched_getscheduler(tid), os.getpriority(os.PRIO_PROCESS, tid)
+
+    seen: dict[str, object] = {}
+
+    def body() -> None:  # a throwaway thread, as above
+        me = threading.get_native_id()
+        seen["before"], seen["interval"] = policy(me), sys.getswitchinterval()
+        with realtime.realtime_threads(20) as got:
+            seen["got"], seen["inside"] = got, policy(me)
+            seen["interval_inside"] = sys.getswitchinterval()
+        seen["after"], seen["interval_after"] = policy(me), sys.getswitchinterval()
+
+    t = threading.Thread(target=body)
+    t.start()
+    t.join()
+    got = str(seen["got"])
+    assert got == "SCHED_FIFO 20" or got.startswith(("nice ", "normal ("))
+    if got.startswith("SCHED_FIFO"):
+        assert seen["inside"] == (os.SCHED_FIFO, seen["before"][1])  # type: ignore[index]
+    assert seen["interval_inside"] <= realtime.REALTIME_SWITCH_INTERVAL_S  # type: ignore[operator]
+    assert (seen["after"], seen["interval_after"]) == (seen["before"], seen["interval"])

@@ -3,8 +3,13 @@ emulated cell, the database commands, and the exit codes of bad input."""
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import signal
 import socket
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -227,8 +232,40 @@ def test_track_on_the_real_clock_reports_its_cycles() -> None:
     assert main(argv) in (0, 1)  # 1: the weld stopped (the loop stalled); the laser is off
     data = json.loads(Path("rt.json").read_text())
     assert data["clock"] == "real" and data["cycles"] > 0
+    assert data["cell"] == "real-time child"
     assert 0 <= data["corrections"] <= data["cycles"] + 1
     assert data["laser_on_at_end"] is False
+    assert _children(os.getpid()) == []  # the real-time child is gone
+
+
+def _children(pid: int) -> list[int]:
+    out: list[int] = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        with contextlib.suppress(OSError):
+            out += [int(c) for c in (task / "children").read_text().split()]
+    return out
+
+
+def test_track_on_the_real_clock_interrupted_leaves_nothing_behind() -> None:
+    # a real subprocess and a real SIGINT during the weld: exit 130, laser off, child gone
+    argv = ["track", "--emulate", "--clock", "real", "--true-delta-t", "--speed", "100"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "welding", "-v", *argv],
+        stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
+    )  # fmt: skip
+    assert proc.stderr is not None
+    lines: list[str] = []
+    for line in proc.stderr:
+        lines.append(line)
+        if "tracked move queued" in line:
+            break
+    children = _children(proc.pid)
+    assert len(children) == 1  # the real-time cell
+    proc.send_signal(signal.SIGINT)
+    rest = proc.stderr.read()
+    assert proc.wait(30) == 130, "".join(lines) + rest
+    assert "interrupted: laser off, motion reset" in rest
+    assert not Path(f"/proc/{children[0]}").exists()
 
 
 def test_track_with_an_unknown_sensor_tool(capsys: pytest.CaptureFixture[str]) -> None:

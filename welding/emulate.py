@@ -12,28 +12,43 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import logging
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from types import TracebackType
+from typing import Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
 
 from cell.cell import CellTiming, EmulatedCell
 from cell.options import add_timing_options, add_tool_error_options, timing_kwargs
+from cell.rtcell import CellProcess
+from cell.truth import WeldRecorder, WeldTruth
 from kinematics.transforms import invert, location_to_transform, transform_to_location
 from robotsocket.client import RobotClient
+from robotsocket.rtprocess import ChildStartError
 from sensorsocket.client import SensorClient
+from sensorsocket.scene import Scene
 from spec import cliargs
 from spec.client import FramedClient
 from spec.errors import ProtocolError
 from spec.files import write_atomically
+from spec.params import Location, Value
+from spec.realtime import realtime_threads
+from spec.registry import CommandId
 from welding.tools import Entry, Loc, Tables
 from welding.track_loop import RobotLink, TrackedWeld, TrackLink, weld_tracked
 from welding.tracking import NominalWeld, Tracker, seam_error
 
 __all__ = ["EmulatedSession", "cell_tables", "realtime_cell"]
+
+log = logging.getLogger(__name__)
+
+#: SCHED_FIFO priority of the real-clock tracker's process: below the real-time child's
+#: command (40) and timing (50) threads, above everything else.
+TRACKER_PRIORITY = 30
 
 
 def _loc(values: object) -> Loc:
@@ -41,23 +56,36 @@ def _loc(values: object) -> Loc:
     return (v[0], v[1], v[2], v[3], v[4], v[5])
 
 
-def cell_tables(cell: EmulatedCell) -> Tables:
+def cell_tables(cell: EmulatedCell | CellProcess) -> Tables:
     """The cell's tools ``laser``, ``sensor`` and its frame ``workpiece`` (where it should
     be: the cell puts it its ``workpiece_error`` off that)."""
+    if isinstance(cell, CellProcess):
+        facts = cell.child.facts
+        laser, sensor = facts["laser_tool"], facts["sensor_tool"]
+        w2b_true, placement = facts["workpiece2base"], facts["workpiece_error"]
+    else:
+        laser, sensor = cell.laser_tool, cell.sensor_tool
+        w2b_true, placement = cell.scene.workpiece2base, cell.workpiece_error
     tables = Tables({}, {})
-    tables.add(Entry("laser", "laser", cell.laser_tool, "^N_L T of the cell"))
-    tables.add(Entry("sensor", "sensor", cell.sensor_tool, "^N_S T of the cell"))
+    tables.add(Entry("laser", "laser", _loc(laser), "^N_L T of the cell"))
+    tables.add(Entry("sensor", "sensor", _loc(sensor), "^N_S T of the cell"))
     # the workpiece as the operator believes it placed: without the placement error
-    error = location_to_transform(np.array(cell.workpiece_error, dtype=np.float64))
-    w2b = _loc(transform_to_location(cell.scene.workpiece2base @ invert(error)))
+    error = location_to_transform(np.array(placement, dtype=np.float64))
+    w2b = _loc(transform_to_location(w2b_true @ invert(error)))
     tables.add(Entry("workpiece", "frame", w2b, "^B_W T of the cell's workpiece"))
     return tables
 
 
-def realtime_cell(seam: str = "straight", *, seed: int = 0) -> EmulatedCell:
-    """A started emulated cell on the real-time clock (the operator console's ``--emulate``:
-    an operator watches and jogs it at the speed a real arm moves)."""
-    return EmulatedCell(clock="real", seam=seam, seed=seed).start()
+def realtime_cell(seam: str = "straight", *, seed: int = 0) -> CellProcess:
+    """A started emulated cell on the real-time clock, its real-time part in a child process
+    (the operator console's ``--emulate``: an operator watches and jogs it at the speed a
+    real arm moves; the console's web server and status threads cannot starve its 4 ms
+    loop). Raises ValueError when the child cannot start."""
+    try:
+        cell = CellProcess(seam=seam, seed=seed)
+    except ChildStartError as exc:
+        raise ValueError(f"the real-time cell did not start: {exc}") from None
+    return cell.start()
 
 
 class EmulatedSession:
@@ -170,6 +198,7 @@ class TrackingRun:
     cycles: int = 0  # controller cycles of the move
     corrections: int = 0  # corrections sent during it: one per cycle when the loop keeps up
     start_on_grid: bool = True  # the cycle the move started on is known exactly
+    cell: str = "in-process"  # where the cell ran: in-process or the real-time child
     plot: dict[str, npt.NDArray[np.float64]] = field(default_factory=dict, repr=False)
 
     def summary(self) -> dict[str, object]:
@@ -216,17 +245,32 @@ def run_tracking(
     if seam not in TRACK_SEAMS:
         raise ValueError(f"seam must be one of {', '.join(TRACK_SEAMS)}, got {seam!r}")
     shape, placement = TRACK_SEAMS[seam]
+    config: dict[str, Any] = {
+        "timing": timing or CellTiming(),
+        "seam": shape,
+        "workpiece_error": workpiece_error or placement,
+        "seed": seed,
+        "sensor_tool_error": sensor_tool_error,
+        "laser_tool_error": laser_tool_error,
+    }
     if clock == "real":
-        over_sockets = True  # the robot's clock runs by itself: only its servers reach it
-    cell = EmulatedCell(
-        clock=clock,
-        timing=timing or CellTiming(),
-        seam=shape,
-        workpiece_error=workpiece_error or placement,
-        seed=seed,
-        sensor_tool_error=sensor_tool_error,
-        laser_tool_error=laser_tool_error,
-    )
+        # the robot's clock runs by itself in the real-time child: only its servers reach
+        # it, and the tracker here shares no GIL with its 4 ms loop
+        try:
+            child = CellProcess(**config)
+        except ChildStartError as exc:
+            raise ValueError(f"the real-time cell did not start: {exc}") from None
+        # this process is the controller: its tracker and the servers it talks through
+        # real-time too (the child's timing and command threads stay above them)
+        try:
+            with realtime_threads(TRACKER_PRIORITY) as got:
+                log.info("tracker threads: scheduling %s", got)
+                side = _ChildSide(child.start(), sensor_tool)
+                return _track_on(side, seam, speed_mm_s, delta_t_ms, weld_mm, rate_hz, track,
+                                 sensor_silent_after_mm, measure_delta_t, True)  # fmt: skip
+        finally:
+            child.close()
+    cell = EmulatedCell(clock=clock, **config)
     if sensor_tool is not None:
         cell.core.sensor2flange = location_to_transform(np.array(sensor_tool, dtype=np.float64))
     servers = over_sockets or (measure_delta_t and delta_t_ms is None)
@@ -234,7 +278,7 @@ def run_tracking(
         cell.start()
     try:
         return _track_on(
-            cell,
+            _InProcessSide(cell),
             seam,
             speed_mm_s,
             delta_t_ms,
@@ -250,8 +294,103 @@ def run_tracking(
             cell.close()
 
 
+class _InProcessSide:
+    """The tracking run's view of an in-process cell."""
+
+    def __init__(self, cell: EmulatedCell) -> None:
+        self.cell = cell
+        self.clock = cell.clock
+        self.period = cell.robot.period
+        self.laser_tool = cell.laser_tool
+        self.recorder = WeldRecorder(cell)
+
+    @property
+    def robot_address(self) -> tuple[str, int]:
+        return self.cell.robot_address
+
+    @property
+    def sensor_address(self) -> tuple[str, int]:
+        return self.cell.sensor_address
+
+    @property
+    def udp_address(self) -> tuple[str, int]:
+        return self.cell.udp_address
+
+    def true_delta_t_s(self) -> float:
+        return self.cell.true_delta_t_s()
+
+    def ready_sensor2base(self) -> npt.NDArray[np.float64]:
+        return self.cell.ready_sensor2base()
+
+    def set_delay(self, seconds: float) -> None:
+        self.cell.core.set_delay(seconds)
+
+    def direct_link(self) -> TrackLink:
+        return _DirectLink(self.cell)
+
+    def record_weld(self) -> None:
+        self.recorder.start()
+
+    def weld_truth(self) -> WeldTruth:
+        return self.recorder.truth()
+
+
+class _ChildSide:
+    """The tracking run's view of the cell in the real-time child: its servers, its facts
+    and, after the run, its record of the laser's path. ``sensor_tool``: SetSensorTool."""
+
+    def __init__(self, child: CellProcess, sensor_tool: Loc | None) -> None:
+        self.child = child
+        self.clock = "real"
+        self.period = float(child.child.facts["period"])
+        self.laser_tool: Loc = tuple(child.child.facts["laser_tool"])
+        self.robot_address = child.robot_address
+        self.sensor_address = child.sensor_address
+        self.udp_address = child.udp_address
+        self.true_delta_t_s = child.true_delta_t_s
+        self.record_weld = child.record_weld
+        self.weld_truth = child.weld_truth
+        if sensor_tool is not None:
+            self._configure(CommandId.SET_SENSOR_TOOL, Location(*sensor_tool))
+
+    def ready_sensor2base(self) -> npt.NDArray[np.float64]:
+        out: npt.NDArray[np.float64] = self.child.child.facts["ready_sensor2base"]
+        return out
+
+    def set_delay(self, seconds: float) -> None:
+        self._configure(CommandId.SET_SYNC_DELAY, seconds)
+
+    def _configure(self, command: CommandId, value: Value) -> None:
+        with FramedClient(*self.robot_address, timeout=10.0, client_name="track") as c:
+            c.take_control()
+            c.call(command, value)
+            c.release_control()
+
+    def direct_link(self) -> TrackLink:
+        raise AssertionError("the real-time child is reached through its servers only")
+
+
+class _CellSide(Protocol):
+    clock: str
+    period: float
+    laser_tool: Loc
+
+    @property
+    def robot_address(self) -> tuple[str, int]: ...
+    @property
+    def sensor_address(self) -> tuple[str, int]: ...
+    @property
+    def udp_address(self) -> tuple[str, int]: ...
+    def true_delta_t_s(self) -> float: ...
+    def ready_sensor2base(self) -> npt.NDArray[np.float64]: ...
+    def set_delay(self, seconds: float) -> None: ...
+    def direct_link(self) -> TrackLink: ...
+    def record_weld(self) -> None: ...
+    def weld_truth(self) -> WeldTruth: ...
+
+
 def _track_on(
-    cell: EmulatedCell,
+    cell: _CellSide,
     seam: str,
     speed_mm_s: float,
     delta_t_ms: float | None,
@@ -262,31 +401,23 @@ def _track_on(
     measure_delta_t: bool,
     over_sockets: bool,
 ) -> TrackingRun:
-    robot = cell.robot
-    period = robot.period
+    period = cell.period
     true_dt = cell.true_delta_t_s()
     if delta_t_ms is not None:
-        cell.core.set_delay(delta_t_ms * 1e-3)
+        cell.set_delay(delta_t_ms * 1e-3)
     elif measure_delta_t:
-        _measure_delta_t(cell)
+        _measure_delta_t(cell.robot_address, cell.sensor_address)
     else:
-        cell.core.set_delay(true_dt)
+        cell.set_delay(true_dt)
     # the emulator's truth, every cycle: true setpoints, correction applied, laser output
-    truth: list[npt.NDArray[np.float64]] = []
-    applied: list[npt.NDArray[np.float64]] = []
-    lasing: list[bool] = []
-
-    def record(t: float, q_sp: npt.NDArray[np.float64], q_m: npt.NDArray[np.float64]) -> None:
-        truth.append(q_sp)
-        applied.append(robot.alter_applied())
-        lasing.append(robot.read_io("laser")[0])
-
-    robot.cycle_hooks.append(record)
-    link: TrackLink = _DirectLink(cell)
+    cell.record_weld()
+    link: TrackLink
     if over_sockets:
         client = FramedClient(*cell.robot_address, timeout=10.0, client_name="track")
         client.take_control()
         link = RobotLink(client, cell.udp_address, period=period, real_time=cell.clock == "real")
+    else:
+        link = cell.direct_link()
     try:
         dt = link.delta_t()  # the ΔT in force (GetSyncConfig)
         laser_tool = cell.laser_tool
@@ -306,22 +437,19 @@ def _track_on(
         plan = TrackedWeld(tracker, laser_tool, look_ahead, look_ahead + weld_mm, rate_hz, track)
         outcome = weld_tracked(link, plan, sensor_silent_after_mm=sensor_silent_after_mm)
         stopped = outcome.stopped
-        laser_on_at_end = robot.read_io("laser")[0]
     finally:
         if over_sockets:
             with contextlib.suppress(Exception):
                 client.release_control()
             client.close()
-    on_cycles = [i for i, on in enumerate(lasing) if on]
-    q = np.array(truth)
-    laser_pts = (robot.model.flange2base_batch(q[on_cycles]) @ cell.laser2flange)[:, :3, 3]
-    corr = np.array(applied)[on_cycles, :3] if on_cycles else np.zeros((0, 3))
-    b2w = cell.scene.base2workpiece
-    h = cell.scene.joint.seam_height_mm
-    lat, hgt = seam_error(laser_pts, b2w, cell.scene.path.lateral, h)
-    n_lat, _ = seam_error(laser_pts - corr, b2w, cell.scene.path.lateral, h)
+    truth = cell.weld_truth()
+    laser_pts, corr, scene = truth.laser, truth.correction, truth.scene
+    b2w = scene.base2workpiece
+    h = scene.joint.seam_height_mm
+    lat, hgt = seam_error(laser_pts, b2w, scene.path.lateral, h)
+    n_lat, _ = seam_error(laser_pts - corr, b2w, scene.path.lateral, h)
     err = np.hypot(lat, hgt)
-    welded = len(on_cycles) * period * speed_mm_s
+    welded = len(laser_pts) * period * speed_mm_s
     return TrackingRun(
         seam=seam,
         speed_mm_s=speed_mm_s,
@@ -335,16 +463,17 @@ def _track_on(
         lateral_max_mm=float(np.abs(lat).max()) if len(lat) else math.nan,
         height_max_mm=float(np.abs(hgt).max()) if len(hgt) else math.nan,
         nominal_error_max_mm=float(np.abs(n_lat).max()) if len(n_lat) else math.nan,
-        laser_on_at_end=laser_on_at_end,
+        laser_on_at_end=truth.laser_on,
         clock=cell.clock,
         cycles=outcome.cycles,
         corrections=outcome.corrections,
         start_on_grid=outcome.start_on_grid,
+        cell="real-time child" if isinstance(cell, _ChildSide) else "in-process",
         plot={
             "laser": _to_w(laser_pts, b2w),
             "nominal": _to_w(laser_pts - corr, b2w),
             "measured": _to_w(tracker.model.points(), b2w),
-            "seam": _true_seam(cell, laser_pts, b2w),
+            "seam": _true_seam(scene, laser_pts, b2w),
         },
     )
 
@@ -414,14 +543,14 @@ class _DirectLink:
         pass
 
 
-def _measure_delta_t(cell: EmulatedCell) -> None:
+def _measure_delta_t(robot: tuple[str, int], sensor: tuple[str, int]) -> None:
     """The section VI procedure through the sockets; SetSyncDelay applies the estimate. The
     arm returns to the ready pose."""
     from sync.experiment import ExperimentSettings, run_delay_experiment
 
     run_delay_experiment(
-        cell.robot_address,
-        cell.sensor_address,
+        robot,
+        sensor,
         ExperimentSettings(apply=True, duration_s=4.0),
     )
 
@@ -432,13 +561,11 @@ def _to_w(points: npt.NDArray[np.float64], b2w: npt.NDArray[np.float64]) -> npt.
 
 
 def _true_seam(
-    cell: EmulatedCell, laser_pts: npt.NDArray[np.float64], b2w: npt.NDArray[np.float64]
+    scene: Scene, laser_pts: npt.NDArray[np.float64], b2w: npt.NDArray[np.float64]
 ) -> npt.NDArray[np.float64]:
     """The true seam (N, 3) in the workpiece frame under the laser's x."""
     x = _to_w(laser_pts, b2w)[:, 0]
-    return np.column_stack(
-        [x, cell.scene.path.y(x), np.full_like(x, cell.scene.joint.seam_height_mm)]
-    )
+    return np.column_stack([x, scene.path.y(x), np.full_like(x, scene.joint.seam_height_mm)])
 
 
 # --- command line: python -m welding track --emulate ... ------------------------------------
@@ -450,7 +577,8 @@ def add_track_options(p: argparse.ArgumentParser) -> None:
         "--emulate",
         action="store_true",
         required=True,
-        help="track on an in-process emulated cell (--clock: simulated or real); required",
+        help="track on an emulated cell (--clock sim: in this process; real: its real-time "
+        "part in a child process); required",
     )
     p.add_argument("--seam", choices=tuple(TRACK_SEAMS), default="sine")
     p.add_argument("--speed", type=cliargs.number_in(1.0, 500.0), default=250.0, help="mm/s")
@@ -473,7 +601,8 @@ def add_track_options(p: argparse.ArgumentParser) -> None:
         choices=("sim", "real"),
         default="sim",
         help="sim: the cell's simulated clock (deterministic); real: its 4 ms cycle on the "
-        "wall clock, the tracker a client that keeps pace (default %(default)s)",
+        "wall clock in a real-time child process, the tracker a client that keeps pace "
+        "(default %(default)s)",
     )
     p.add_argument("--json", type=cliargs.output_file, metavar="OUT.json")
     p.add_argument("--plot", metavar="DIR", help="write track.png (needs matplotlib)")
@@ -520,7 +649,8 @@ def cmd_track(args: argparse.Namespace) -> int:
     )
     if run.clock == "real":
         print(
-            f"real clock: {run.corrections} corrections in {run.cycles} cycles of the move"
+            f"real clock ({run.cell}): {run.corrections} corrections in {run.cycles} cycles "
+            "of the move"
             + ("" if run.start_on_grid else "; the move's start cycle was not known exactly")
         )
     return 1 if run.stopped else 0

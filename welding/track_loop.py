@@ -17,6 +17,7 @@ reset (the arm stops along its path), and the reason is returned.
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import time
 from dataclasses import dataclass
@@ -34,6 +35,13 @@ from welding.tracking import MIN_FIT_POINTS, Tracker, TrackingError
 Array = npt.NDArray[np.float64]
 
 __all__ = ["RobotLink", "TrackLink", "TrackOutcome", "TrackedWeld", "weld_tracked"]
+
+log = logging.getLogger(__name__)
+
+#: The stand before a real-clock tracked path (s, a whole number of 4 ms cycles): long
+#: enough for the path to reach the robot and be planned meanwhile (about 15 ms for 1000
+#: samples here), short against the 0.1 s alter timeout the loop pauses for.
+HOLD_S = 0.048
 
 
 class TrackLink(Protocol):
@@ -123,9 +131,10 @@ def weld_tracked(
             link.step()
         times, locs = nominal.timed_path(period)
         t0, on_grid = link.move(times, locs, weld.laser_tool)  # the law's start, a cycle
+        log.info("tracked move queued: %d cycles", len(times))
         held = np.zeros(6)
+        n = 0
         while link.queued():
-            fetch()
             t_move = link.next_cycle() - t0  # the correction applies at the next cycle
             s = float(nominal.s_at(t_move))
             if (
@@ -137,11 +146,16 @@ def weld_tracked(
                 held = tracker.correction(t_move) if track else np.zeros(6)
             # past the weld's end the seam no longer matters: the last correction is held
             link.alter(held)
-            corrections += 1
+            corrections += t_move > 0.0  # the stand before a real-clock move is no cycle of it
             want_on = weld.laser and weld.laser_from_mm <= s <= weld.laser_to_mm
             if want_on != laser_on:
                 link.set_laser(want_on)
                 laser_on = want_on
+            # after the correction, whose cycle is the deadline, and every other cycle: the
+            # points come at the trigger rate and are measured 40 mm ahead of the laser
+            if n % 2 == 0:
+                fetch()
+            n += 1
             link.step()
     except (TrackingError, RemoteError) as exc:
         # the seam is lost, or the robot refused a correction (it ends alter mode when the
@@ -150,6 +164,12 @@ def weld_tracked(
         link.reset_motion()
         laser_on = False
         stopped = str(exc) if isinstance(exc, TrackingError) else f"the robot refused: {exc}"
+    except KeyboardInterrupt:  # Ctrl-C, a stop signal: the same safe stop, then out
+        with contextlib.suppress(Exception):
+            link.set_laser(False)
+            link.reset_motion()
+            log.warning("interrupted: laser off, motion reset")
+        raise
     if laser_on:
         link.set_laser(False)
     cycles = round((link.time() - t0) / period)
@@ -252,12 +272,27 @@ class RobotLink:
 
     def move(self, times: Array, locs: Array, tool: Loc) -> tuple[float, bool]:
         """Queue the timed path; (the robot time its law starts at, whether that is
-        certain). The robot starts a queued move's law at the cycle during which it queued
-        it; on the real clock that is the cycle the request was sent in, certain when the
-        reply came within it (a long path takes the robot longer to plan)."""
-        if self.real_time:
-            self.step()  # sent just after a cycle starts: the robot queues it in that cycle
+        certain). The robot starts a queued move's law at the cycle during which it takes
+        it, and a long path takes it longer than a cycle to receive and plan. So on the real
+        clock a short stand at the start (two samples: received and planned within the cycle
+        it is sent in, sent just after a cycle starts) goes first, and the path follows it
+        from the cycle the stand ends on: certain when the stand's reply came within its
+        cycle and the path was queued before the stand ended."""
+        if not self.real_time:
+            self._send_path(times, locs, tool)
+            return self.time(), True  # the simulated clock did not move meanwhile
+        self.step()
         before = self.time()
+        self._send_path(np.array([0.0, HOLD_S]), np.array([locs[0], locs[0]]), tool)
+        k = self._cycle_of(before)
+        certain = k == self._cycle_of(self.time())
+        t0 = k * self.period + HOLD_S
+        self._send_path(times, locs, tool)
+        certain = certain and self.time() < t0 - self.period
+        self._end = t0 + float(times[-1])
+        return t0, certain
+
+    def _send_path(self, times: Array, locs: Array, tool: Loc) -> None:
         self._call(
             CommandId.TOOL_MOVE_TRAJECTORY,
             FloatArray(times.tolist()),
@@ -265,12 +300,6 @@ class RobotLink:
             Location(*tool),
             IDENTITY_LOCATION,
         )
-        if not self.real_time:
-            return before, True  # the simulated clock did not move meanwhile
-        after = self.time()
-        k = self._cycle_of(before)
-        self._end = k * self.period + float(times[-1])
-        return k * self.period, k == self._cycle_of(after)
 
     def queued(self) -> int:
         if self.real_time and self.time() < self._end:

@@ -1,7 +1,8 @@
 """``python -m welding console``: the operator console in the browser.
 
-``--emulate`` starts an emulated cell on the real-time clock in this process (its robot and
-sensor servers on free loopback ports) and connects to it as it would to a real cell;
+``--emulate`` starts an emulated cell on the real-time clock (its real-time part in a child
+process, docs/REALTIME.md; its robot and sensor servers on free loopback ports here) and
+connects to it as it would to a real cell;
 ``--robot HOST:PORT [--sensor HOST:PORT] [--token-file PATH]`` connects to a real one. The
 console binds to 127.0.0.1:8024 unless ``--host``/``--port`` say otherwise.
 """
