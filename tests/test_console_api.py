@@ -4,6 +4,9 @@ validation errors, the token kept server-side, dead-man jog, jobs, abort."""
 from __future__ import annotations
 
 import dataclasses
+import socket
+import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -16,7 +19,7 @@ pytest.importorskip("httpx2", reason="the console extra is not installed")
 
 from starlette.testclient import TestClient
 
-from cell.cell import READY_JOINTS
+from cell.cell import READY_JOINTS, EmulatedCell
 from welding import job as J
 from welding.cli import merge_cell_tools
 from welding.console.app import create_app
@@ -44,7 +47,9 @@ def env(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[TestClient, 
     jobs = tmp / "jobs"
     jobs.mkdir()
     J.save(demo_job(), jobs / "demo.xml")
-    console = Console(cell.robot_address, cell.sensor_address, tools=tools, jobs=jobs, token=TOKEN)
+    console = Console(
+        cell.robot_address, cell.sensor_address, tools=tools, jobs=jobs, token=TOKEN, cell=cell
+    )
     try:
         with TestClient(create_app(console)) as client:
             yield client, console, cell
@@ -305,6 +310,60 @@ def test_measurement_settings_are_checked(env: Any) -> None:
     assert r.status_code == 400 and "nosuch" in r.json()["error"]
 
 
+def test_laser_tool_calibration_refusals(env: Any) -> None:
+    client, console, cell = env
+    _power_on(client)
+    r = call(client, "POST", "/api/calibrate", {"which": "laser"})
+    assert r.status_code == 400 and "which: sensor-tool or laser-tool" in r.json()["error"]
+    # the --emulate cell's real-time part runs in a child: no detector in this process
+    r = call(client, "POST", "/api/calibrate", {"which": "laser-tool"})
+    assert r.status_code == 409 and "not its real-time child" in r.json()["error"]
+    console.cell = None  # a live cell: no spot detector
+    try:
+        r = call(client, "POST", "/api/calibrate", {"which": "laser-tool"})
+        assert r.status_code == 409 and "only --emulate has one" in r.json()["error"]
+    finally:
+        console.cell = cell
+
+
+def test_laser_tool_calibration_result_error_vs_true_and_save(tmp_path: Path) -> None:
+    cell = EmulatedCell(clock="real", seam="straight").start()  # in this process
+    tools = tmp_path / "tools.json"
+    merge_cell_tools(str(tools), cell_tables(cell))
+    console = Console(
+        cell.robot_address, cell.sensor_address, tools=tools, jobs=tmp_path, cell=cell
+    )
+    try:
+        with TestClient(create_app(console)) as client:
+            _power_on(client)
+            r = call(client, "POST", "/api/calibrate", {"which": "laser-tool", "poses": 3})
+            assert r.status_code == 400 and "poses: 3 is outside 4..30" in r.json()["error"]
+            body = {"which": "laser-tool", "poses": 20, "repeats": 4}
+            assert call(client, "POST", "/api/calibrate", body).status_code == 200
+            s = wait_for(client, lambda s: finished(s, "calibration"), timeout=60)
+            assert s["activity"]["state"] == "done", s["activity"]
+            assert s["activity"]["which"] == "laser-tool"
+            assert s["activity"]["measurements"] == 80
+            res = call(client, "GET", "/api/result/calibration").json()["result"]
+            assert res["calibration"] == "laser-tool" and res["kind"] == "laser"
+            assert res["nominal_tool"] == "laser"
+            assert res["true_tool"] == list(cell.true_laser_tool)
+            assert len(res["residuals_mm"]) > 0 and res["uncertainty"]["rz"] is None  # round
+            assert all(0 < res["uncertainty"][c] <= 0.0167 for c in ("x", "y", "z", "rx", "ry"))
+            # the target (0.05 mm / 0.05°) against the cell's true tool
+            assert res["error_vs_true"]["position_mm"] < 0.05
+            assert res["error_vs_true"]["orientation_deg"] < 0.05
+            # save as tool, as the page does
+            entry = {"name": "laser_cal", "kind": res["kind"], "location": res["tool"]}
+            assert call(client, "POST", "/api/tools", entry).status_code == 200
+            entries = call(client, "GET", "/api/tools").json()["entries"]
+            saved = [e for e in entries if e["name"] == "laser_cal"]
+            assert saved[0]["location"] == res["tool"] and saved[0]["kind"] == "laser"
+    finally:
+        console.close()
+        cell.close()
+
+
 def test_estop_gets_through_while_the_control_connection_is_busy(env: Any) -> None:
     client, console, _ = env
     _power_on(client)
@@ -333,3 +392,19 @@ def test_teaching_shows_points_and_save_as(env: Any, tmp_path: Path) -> None:
     saved = call(client, "PUT", "/api/jobs/copy.xml", {"job": job}).json()
     assert saved["saved"] and saved["ok"]
     assert J.load(console.job_path("copy.xml")).item("seam").power == 1500.0  # type: ignore[union-attr]
+
+
+def test_a_port_in_use_is_one_line_before_any_url(tmp_path: Path) -> None:
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen(1)
+        port = taken.getsockname()[1]
+        command = [sys.executable, "-m", "welding", "console", "--emulate", "--port", str(port)]
+        command += ["--tools", str(tmp_path / "tools.json"), "--jobs", str(tmp_path)]
+        run = subprocess.run(command, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 3
+    assert run.stderr == (
+        f"python -m welding: error: cannot serve on 127.0.0.1:{port}: in use\n"
+    ), run.stderr
+    assert run.stdout == ""
+    assert not (tmp_path / "tools.json").exists()  # no cell was started

@@ -43,7 +43,7 @@ from welding.calibration import (
 )
 from welding.tools import Entry, ToolDB
 
-__all__ = ["NoisySeams", "add_parser", "cmd_calibrate"]
+__all__ = ["NoisySeams", "add_parser", "cmd_calibrate", "result_json"]
 
 
 class NoisySeams:
@@ -129,15 +129,25 @@ def _laser(args: argparse.Namespace, open_cell: Any) -> int:
     return _report(args, est, emulated.true_laser_tool, nominal.name, beam_only=True)
 
 
-def _report(
-    args: argparse.Namespace, est: ToolEstimate, truth: Any, nominal_name: str, *, beam_only: bool
-) -> int:
-    data: dict[str, Any] = {"calibration": args.which, "nominal_tool": nominal_name}
+def result_json(
+    which: str, est: ToolEstimate, truth: Any, nominal_name: str, *, beam_only: bool
+) -> dict[str, Any]:
+    """A calibration's result as the CLI's ``--json`` and the console show it: the estimate
+    with its 1σ and residuals, the limits, and against ``truth`` (the emulated cell's true
+    tool, or None) its error."""
+    data: dict[str, Any] = {"calibration": which, "nominal_tool": nominal_name}
     data.update(est.to_json())
     data["limits"] = dataclasses.asdict(Limits())
     if truth is not None:
         data["true_tool"] = list(truth)
         data["error_vs_true"] = error_vs_true(est.tool, truth, beam_only=beam_only)
+    return data
+
+
+def _report(
+    args: argparse.Namespace, est: ToolEstimate, truth: Any, nominal_name: str, *, beam_only: bool
+) -> int:
+    data = result_json(args.which, est, truth, nominal_name, beam_only=beam_only)
     if args.save:
         kind = "sensor" if args.which == "sensor-tool" else "laser"
         stamp = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")

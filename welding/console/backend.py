@@ -112,12 +112,16 @@ class Console:
         token: str = "",
         timeout: float = 10.0,
         emulated: bool = False,
+        cell: Any = None,
     ) -> None:
         self.robot_address = robot
         self.token = token
         self.tools = ToolDB(tools)
         self.jobs_dir = Path(jobs)
         self.emulated = emulated
+        #: The emulated cell (``--emulate``): its spot detector and true tools.
+        self.cell = cell
+        self._laser_runs = 0  # seeds the emulated spot detector's noise: a session repeats
         self.control = RobotClient(*robot, timeout=timeout, client_name="welding-console")
         self.poll = RobotClient(*robot, timeout=timeout, client_name="welding-console-status")
         self.stopper = RobotClient(*robot, timeout=timeout, client_name="welding-console-estop")
@@ -717,49 +721,94 @@ class Console:
 
         self._start(act, work)
 
-    # --- sensor tool calibration --------------------------------------------------------------
+    # --- tool calibrations ---------------------------------------------------------------------
 
     def calibrate(self, body: Any) -> None:
-        """The sensor tool calibration (:class:`~welding.calibration.SensorToolCalibration`)
-        from where the arm is, the sensor over a straight seam; the estimate with its 1σ."""
-        from welding.calibration import CalibrationError, SensorToolCalibration
+        """A tool calibration from where the arm is (``which``: ``sensor-tool``, the sensor
+        over a straight seam, or ``laser-tool``, the emulated cell's spot detector): the
+        estimate with its 1σ, the residuals and, on the emulated cell, its error vs the
+        true tool."""
+        from cell.cell import EmulatedCell
+        from welding.calibrate_cli import result_json
+        from welding.calibration import (
+            CalibrationError,
+            EmulatedSpotDetector,
+            LaserToolCalibration,
+            SensorToolCalibration,
+        )
 
         self._need_control()
-        if self.sensor is None or not self.sensor_in_control:
-            raise ConsoleError("the calibration needs the sensor (and its control)", 409)
         b = body if isinstance(body, dict) else {}
-        poses = int(_num(b.get("poses", 30), "poses", 8, 30))
+        which = b.get("which", "sensor-tool")
+        if which not in ("sensor-tool", "laser-tool"):
+            raise ConsoleError("which: sensor-tool or laser-tool")
+        laser = which == "laser-tool"
+        # the emulated detector and the true tools need the cell's robot in this process
+        in_process = isinstance(self.cell, EmulatedCell)
+        if laser and self.cell is None:
+            raise ConsoleError("laser-tool needs a spot detector; only --emulate has one", 409)
+        if laser and not in_process:
+            raise ConsoleError(
+                "laser-tool: the emulated spot detector needs the cell in the console's process,"
+                " not its real-time child: use welding calibrate laser-tool --emulate",
+                409,
+            )
+        if not laser and (self.sensor is None or not self.sensor_in_control):
+            raise ConsoleError("the calibration needs the sensor (and its control)", 409)
+        # the laser fit needs 4 poses; the sensor's first pass alone takes 8
+        poses = int(_num(b.get("poses", 30), "poses", 4 if laser else 8, 30))
         repeats = int(_num(b.get("repeats", 16), "repeats", 1, 64))
-        name = str(b.get("tool", "sensor"))
         try:
-            nominal = self.tables().tool(name)
+            nominal = self.tables().tool(str(b.get("tool", "laser" if laser else "sensor")))
         except ToolDBError as exc:
             raise ConsoleError(str(exc)) from None
-        act = Activity("calibration", detail={"measurements": 0})
+        act = Activity("calibration", detail={"measurements": 0, "which": which})
         cancelled = threading.Event()
-        sensor = self.sensor
 
-        class Watched:
-            """The sensor, counting acquisitions for the page and stopping on abort."""
+        def count() -> None:
+            """Each reading: counted for the page; the run stops here on abort."""
+            if cancelled.is_set():
+                raise CalibrationError("cancelled by the operator")
+            act.detail["measurements"] += 1
 
-            def acquire(self) -> int:
-                if cancelled.is_set():
-                    raise CalibrationError("cancelled by the operator")
-                act.detail["measurements"] += 1
-                return sensor.acquire()
+        cal: SensorToolCalibration | LaserToolCalibration
+        if laser:
+            rng = np.random.default_rng(np.random.SeedSequence([18, self._laser_runs]))
+            self._laser_runs += 1
 
-            def get_data(self) -> Any:
-                return sensor.get_data()
+            class WatchedDetector(EmulatedSpotDetector):
+                def measure(self) -> Any:
+                    count()
+                    return super().measure()
 
-        cal = SensorToolCalibration(
-            self.control, Watched(), nominal.location, poses=poses, repeats=repeats
-        )
+            truth = self.cell.true_laser_tool
+            detector = WatchedDetector(self.cell, rng)
+            cal = LaserToolCalibration(
+                self.control, detector, nominal.location, poses=poses, repeats=repeats
+            )
+        else:
+            sensor = self._need_sensor()
+
+            class WatchedSensor:
+                def acquire(self) -> int:
+                    count()
+                    return sensor.acquire()
+
+                def get_data(self) -> Any:
+                    return sensor.get_data()
+
+            truth = self.cell.true_sensor_tool if in_process else None
+            cal = SensorToolCalibration(
+                self.control, WatchedSensor(), nominal.location, poses=poses, repeats=repeats
+            )
         act.cancel = cancelled.set
 
         def work() -> None:
             try:
                 est = cal.run()
-                self.results["calibration"] = est.to_json() | {"nominal_tool": nominal.name}
+                self.results["calibration"] = result_json(
+                    which, est, truth, nominal.name, beam_only=laser
+                )
                 act.state, act.message = "done", f"residual rms {est.residual_rms_mm * 1e3:.1f} µm"
             except Exception as exc:  # reported to the operator, never a dead thread
                 act.state = "aborted" if cancelled.is_set() else "failed"

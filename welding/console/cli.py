@@ -10,7 +10,9 @@ console binds to 127.0.0.1:8024 unless ``--host``/``--port`` say otherwise.
 from __future__ import annotations
 
 import argparse
+import errno
 import logging
+import socket
 import sys
 from pathlib import Path
 from typing import Any
@@ -88,6 +90,8 @@ def cmd_console(args: argparse.Namespace) -> int:
         return 2
     from welding.cli import CliError, merge_cell_tools
 
+    # the port first: a console that cannot serve says so before it starts a cell or a URL
+    listener = _listen(args.host, args.port, CliError)
     cell = None
     if args.emulate:
         from welding.emulate import cell_tables, realtime_cell
@@ -111,22 +115,43 @@ def cmd_console(args: argparse.Namespace) -> int:
                 token=args.token_file or "",
                 timeout=args.timeout,
                 emulated=args.emulate,
+                cell=cell,
             )
         except OSError as exc:
             raise CliError(f"robot or sensor unreachable: {exc}", 3) from None
         try:
-            print(f"console: http://{args.host}:{args.port}/", file=sys.stderr, flush=True)
-            uvicorn.run(
+            port = listener.getsockname()[1]  # the one bound (--port 0: a free one)
+            print(f"console: http://{args.host}:{port}/", file=sys.stderr, flush=True)
+            config = uvicorn.Config(
                 create_app(console),
-                host=args.host,
-                port=args.port,
                 log_level="warning",
                 ws_ping_interval=5.0,
                 ws_ping_timeout=5.0,
             )
+            uvicorn.Server(config).run(sockets=[listener])
         finally:
             console.close()
     finally:
+        listener.close()
         if cell is not None:
             cell.close()
     return 0
+
+
+def _listen(host: str, port: int, error: Any) -> socket.socket:
+    """A listening TCP socket on host:port; ``error`` (one line, exit 3) when it cannot be."""
+    try:
+        info = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except (OSError, UnicodeError) as exc:
+        raise error(f"cannot serve on {host}:{port}: {exc}", 3) from None
+    family, kind, proto, _, address = info[0]
+    sock = socket.socket(family, kind, proto)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind(address)
+        sock.listen(128)
+    except OSError as exc:
+        sock.close()
+        why = "in use" if exc.errno == errno.EADDRINUSE else exc.strerror or str(exc)
+        raise error(f"cannot serve on {host}:{port}: {why}", 3) from None
+    return sock

@@ -440,10 +440,11 @@ function showActivity(a) {
       $("job-items").querySelectorAll("tr[data-item]").forEach((tr) => tr.classList.toggle("current", tr.dataset.item === current));
     }
   } else if (a.kind === "calibration") {
-    $("cal-info").textContent = `${a.measurements} measurements, ${a.state}${a.message ? ": " + a.message : ""}`;
+    $("cal-info").textContent = `${a.which}: ${a.measurements} measurements, ${a.state}${a.message ? ": " + a.message : ""}`;
     $("cal-info").dataset.state = a.state;
-    if (a.state === "done" && $("cal-info").dataset.shown !== a.message) {
-      $("cal-info").dataset.shown = a.message;
+    const shown = `${a.which} ${a.message}`;
+    if (a.state === "done" && $("cal-info").dataset.shown !== shown) {
+      $("cal-info").dataset.shown = shown;
       loadCalibration();
     }
   } else if (a.kind === "track") {
@@ -490,15 +491,24 @@ async function loadCalibration() {
   const row = (label, vals, digits) => `<tr><th>${label}</th>${vals.map((v) => `<td>${v === null ? "–" : v.toFixed(digits)}</td>`).join("")}</tr>`;
   $("cal-result").innerHTML = head + row(`nominal (${result.nominal_tool})`, result.nominal, 3) +
     row("estimate", result.tool, 4) + row("± 1σ", names.map((n) => result.uncertainty[n]), 4) +
+    (result.error_vs_true ? `<tr><th>error vs true tool</th><td colspan="6">${result.error_vs_true.position_mm.toFixed(4)} mm, ${result.error_vs_true.orientation_deg.toFixed(4)}°</td></tr>` : "") +
     `<tr><th>residual</th><td colspan="6">rms ${(result.residual_rms_mm * 1e3).toFixed(1)} µm, max ${(result.residual_max_mm * 1e3).toFixed(1)} µm, ${result.poses} poses, ${result.measurements} measurements</td></tr>`;
   drawXY($("cal-plot"), [{ pts: result.residuals_mm.map((r, i) => [i, r]), color: "#1565c0" }], "measurement", "residual (mm)");
 }
 $("cal-start").onclick = async () => {
-  if (!(await confirmAction("Calibrate the sensor tool? The arm moves to poses around the seam."))) return;
+  const which = $("cal-which").value;
+  const where = which === "laser-tool" ? "over the spot detector" : "around the seam";
+  if (!(await confirmAction(`Calibrate the ${which.replace("-", " ")}? The arm moves to poses ${where}.`))) return;
   await api("POST", "/api/calibrate", {
-    tool: $("cal-tool").value, poses: Number($("cal-poses").value), repeats: Number($("cal-repeats").value),
+    which, tool: $("cal-tool").value, poses: Number($("cal-poses").value), repeats: Number($("cal-repeats").value),
   });
   say("calibration started");
+};
+$("cal-which").onchange = () => {
+  const kind = $("cal-which").value === "laser-tool" ? "laser" : "sensor";
+  $("cal-tool").value = kind;
+  $("cal-poses").min = kind === "laser" ? 4 : 8;
+  $("cal-save-name").value = `${kind}_cal`;
 };
 $("cal-abort").onclick = async () => { await api("POST", "/api/abort"); say("abort sent"); };
 $("cal-save").onclick = async () => {
@@ -509,7 +519,7 @@ $("cal-save").onclick = async () => {
   if (tools.entries.some((e) => e.name === name)) {
     await api("PUT", `/api/tools/${encodeURIComponent(name)}`, { location: calibrated.tool, note });
   } else {
-    await api("POST", "/api/tools", { name, kind: "sensor", location: calibrated.tool, note });
+    await api("POST", "/api/tools", { name, kind: calibrated.kind, location: calibrated.tool, note });
   }
   say(`${name} saved in the tool database`);
 };
