@@ -244,6 +244,18 @@ class EmulatedCell:
         w = w @ _error_transform(self.workpiece_error, "workpiece")
         return Scene(joint, paths[self.seam], w)
 
+    def flange2base_now(self) -> FloatArray:
+        """^B_N T of the arm's latest setpoint (4, 4) mm: where it truly is when at rest."""
+        out: FloatArray = self.robot.model.flange2base(self.robot.setpoint())
+        return out
+
+    def ready_flange2base(self) -> FloatArray:
+        """^B_N T at the ready joints (4, 4) mm."""
+        out: FloatArray = self.robot.model.flange2base(
+            np.asarray(self.ready_joints, dtype=np.float64)
+        )
+        return out
+
     def ready_sensor2base(self) -> FloatArray:
         """^B_S T at the ready joints (4, 4) mm."""
         q = np.asarray(self.ready_joints, dtype=np.float64)

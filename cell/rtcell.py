@@ -13,8 +13,11 @@ from __future__ import annotations
 import logging
 from typing import Any
 
+import numpy as np
+
 from cell.cell import EmulatedCell
 from cell.truth import WeldRecorder, WeldTruth
+from kinematics.robot import get_model
 from robotsocket.rtprocess import ChildParts, ForwardedService, RealtimeProcess, RobotProcess
 from spec.server import FramedServer
 
@@ -58,6 +61,11 @@ def build_cell(config: dict[str, Any]) -> ChildParts:
         "workpiece_error": cell.workpiece_error,
         "workpiece2base": cell.scene.workpiece2base,
         "ready_sensor2base": cell.ready_sensor2base(),
+        "ready_flange2base": cell.ready_flange2base(),
+        "model": cell.model,
+        "laser2flange": cell.laser2flange,
+        "true_laser_tool": cell.true_laser_tool,
+        "true_sensor_tool": cell.true_sensor_tool,
     }
     services = {"robot": cell.robot_service, "sensor": cell.sensor_service}
     return ChildParts(cell.robot, services, cell.start, stop, queries, facts)
@@ -88,6 +96,7 @@ class CellProcess:
             self.child.close()
             raise
         self.udp_address: tuple[str, int] = tuple(self.child.facts["udp_address"])
+        self._model = get_model(self.child.facts["model"])
 
     @property
     def robot_address(self) -> tuple[str, int]:
@@ -129,6 +138,34 @@ class CellProcess:
         """(robot time s, output, value) of every output change of the child's robot."""
         out: list[tuple[float, str, bool]] = self.child.query("io_log")
         return out
+
+    # --- the truth the emulated spot detector and the error-vs-true figures need ----------------
+
+    @property
+    def laser_tool(self) -> Any:
+        """The nominal laser tool the cell was built with (mm, deg)."""
+        return self.child.facts["laser_tool"]
+
+    @property
+    def laser2flange(self) -> Any:
+        """The laser's true ^N_L T (4, 4) mm."""
+        return self.child.facts["laser2flange"]
+
+    @property
+    def true_laser_tool(self) -> Any:
+        return self.child.facts["true_laser_tool"]
+
+    @property
+    def true_sensor_tool(self) -> Any:
+        return self.child.facts["true_sensor_tool"]
+
+    def ready_flange2base(self) -> Any:
+        return self.child.facts["ready_flange2base"]
+
+    def flange2base_now(self) -> Any:
+        """^B_N T of the arm's latest setpoint, from the shared state (no round trip)."""
+        q = np.array(self.child.state.read().setpoint, dtype=np.float64)
+        return self._model.flange2base(q)
 
     def true_delta_t_s(self) -> float:
         """The cell's true ΔT (the emulator's timing), s."""

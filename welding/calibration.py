@@ -732,8 +732,7 @@ class EmulatedSpotDetector:
         self.sigma_centre_mm = sigma_centre_mm
         self.sigma_radius_mm = sigma_radius_mm
         self._rng = rng
-        q = np.asarray(cell.ready_joints, dtype=np.float64)
-        laser = cell.robot.model.flange2base(q) @ location_to_transform(cell.laser_tool)
+        laser = cell.ready_flange2base() @ location_to_transform(cell.laser_tool)
         plate = np.eye(4)
         plate[:3, :3] = laser[:3, :3] @ np.diag([1.0, -1.0, -1.0])  # z_D against the beam
         plate[:3, 3] = laser[:3, 3] + 8.0 * laser[:3, 2] + np.array([0.0, -100.0, 0.0])
@@ -741,7 +740,7 @@ class EmulatedSpotDetector:
 
     def measure(self) -> SpotMeasurement:
         # the arm's true pose: its latest setpoint (the reading is taken at rest)
-        flange = self.cell.robot.model.flange2base(self.cell.robot.setpoint())
+        flange = self.cell.flange2base_now()
         xy, s = spot_on_plate(flange @ self.cell.laser2flange, self.plate2base)
         nx, ny, nr = self._rng.normal(0.0, 1.0, 3)
         return SpotMeasurement(

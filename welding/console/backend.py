@@ -728,7 +728,6 @@ class Console:
         over a straight seam, or ``laser-tool``, the emulated cell's spot detector): the
         estimate with its 1σ, the residuals and, on the emulated cell, its error vs the
         true tool."""
-        from cell.cell import EmulatedCell
         from welding.calibrate_cli import result_json
         from welding.calibration import (
             CalibrationError,
@@ -743,16 +742,8 @@ class Console:
         if which not in ("sensor-tool", "laser-tool"):
             raise ConsoleError("which: sensor-tool or laser-tool")
         laser = which == "laser-tool"
-        # the emulated detector and the true tools need the cell's robot in this process
-        in_process = isinstance(self.cell, EmulatedCell)
         if laser and self.cell is None:
             raise ConsoleError("laser-tool needs a spot detector; only --emulate has one", 409)
-        if laser and not in_process:
-            raise ConsoleError(
-                "laser-tool: the emulated spot detector needs the cell in the console's process,"
-                " not its real-time child: use welding calibrate laser-tool --emulate",
-                409,
-            )
         if not laser and (self.sensor is None or not self.sensor_in_control):
             raise ConsoleError("the calibration needs the sensor (and its control)", 409)
         # the laser fit needs 4 poses; the sensor's first pass alone takes 8
@@ -797,7 +788,7 @@ class Console:
                 def get_data(self) -> Any:
                     return sensor.get_data()
 
-            truth = self.cell.true_sensor_tool if in_process else None
+            truth = self.cell.true_sensor_tool if self.cell is not None else None
             cal = SensorToolCalibration(
                 self.control, WatchedSensor(), nominal.location, poses=poses, repeats=repeats
             )
