@@ -59,6 +59,9 @@ from spec.wire import PacketKind
 
 log = logging.getLogger(__name__)
 
+# How long TakeControl waits for a lost controller's controlled stop before it says BUSY.
+CONTROL_STOP_WAIT_S = 5.0
+
 
 @dataclass(frozen=True)
 class ServerPolicy:
@@ -333,6 +336,7 @@ class FramedServer:
         self._control = threading.Condition()
         self._watchdog_thread: threading.Thread | None = None
         self.control_holder: Session | None = None
+        self.stopping_for: Session | None = None  # the controlled stop of a lost controller
         self._auth = AuthBackoff()  # failed TakeControl attempts per address [RS-7.20]
         self.handler_errors: list[BaseException] = []
         register(self)
@@ -623,10 +627,22 @@ class FramedServer:
             if holder is None or (session is not None and holder is not session):
                 return
             self.control_holder = None
+            self.stopping_for = holder
             holder.control_lost = why
             self._control.notify_all()
         log.warning("session %d lost control (%s): controlled stop", holder.id, why)
-        self._guard(self.service.on_control_lost, holder)
+        try:
+            self._guard(self.service.on_control_lost, holder)
+        finally:
+            with self._control:
+                self.stopping_for = None
+                self._control.notify_all()
+
+    @property
+    def control_free(self) -> bool:
+        """Nobody holds control and no controlled stop is still running: TakeControl gets it."""
+        with self._control:
+            return self.control_holder is None and self.stopping_for is None
 
     def _watch_control(self) -> None:
         """[RS-7.13] A controller that shows no life for its watchdog period loses control.
@@ -797,6 +813,10 @@ class FramedServer:
                 ErrorCode.OUT_OF_RANGE,
             )
         with self._control:
+            # A new controller starts after the lost one's controlled stop (laser off first),
+            # never in the middle of it [RS-7.10].
+            if not self._control.wait_for(lambda: self.stopping_for is None, CONTROL_STOP_WAIT_S):
+                raise ProtocolError("a controlled stop is still running", ErrorCode.BUSY)
             holder = self.control_holder
             if holder is not None and holder is not session:
                 raise ProtocolError(

@@ -303,7 +303,7 @@ def test_a_streamed_trajectory_stops_when_its_controller_dies_or_freezes(
         assert cell.wait_until(cell.moving)
         y0 = cell.robot.here()[1]
         proc.send_signal(sig)
-        assert cell.wait_until(lambda: not cell.moving() and cell.server.control_holder is None)
+        assert cell.wait_until(lambda: not cell.moving() and cell.server.control_free)
         assert cell.robot.read_io("laser") == (False, True)
         assert abs(cell.robot.here()[1] - y0) < 50.0  # stopped, far short of the 100 mm path
         assert cell.robot.status().queue == 0
@@ -316,6 +316,6 @@ def test_an_idle_controller_that_dies_or_freezes_leaves_the_outputs_off(
     with controller(cell, IDLE, "idle") as proc:
         assert cell.robot.read_io("laser") == (True, True)
         proc.send_signal(sig)
-        assert cell.wait_until(lambda: cell.server.control_holder is None)
+        assert cell.wait_until(lambda: cell.server.control_free)
         assert cell.robot.read_io("laser") == (False, True)
         assert cell.robot.read_io("gas") == (False, True)

@@ -155,6 +155,41 @@ def test_losing_the_controlling_connection_calls_the_service_hook(server: Framed
     assert server.control_holder is None
 
 
+class SlowStopRobot(EchoRobot):
+    """A controlled stop that lasts until the test lets it end."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.stop_started = threading.Event()
+        self.stop_may_end = threading.Event()
+
+    def on_control_lost(self, session: Session) -> None:
+        self.stop_started.set()
+        self.stop_may_end.wait(10.0)
+        super().on_control_lost(session)
+
+
+def test_a_new_controller_waits_for_the_lost_ones_controlled_stop() -> None:
+    """[RS-7.10] control is not free while the lost controller's stop runs: TakeControl of
+    another client is answered only after it, and the status says so meanwhile."""
+    service = SlowStopRobot()
+    with FramedServer(service) as srv:
+        a = FramedClient(*srv.address)
+        a.take_control()
+        a.close()
+        assert service.stop_started.wait(5.0)
+        assert srv.control_holder is None and not srv.control_free
+        took = threading.Event()
+        with FramedClient(*srv.address) as b:
+            t = threading.Thread(target=lambda: (b.take_control(), took.set()))
+            t.start()
+            assert not took.wait(0.3)  # a wait with a timeout: it must not happen at all
+            service.stop_may_end.set()
+            assert took.wait(5.0)
+            t.join()
+            assert srv.control_free is False and service.lost_control
+
+
 def test_token_protects_control() -> None:
     srv = FramedServer(EchoRobot(), policy=ServerPolicy(token="s3cret")).start()
     try:
