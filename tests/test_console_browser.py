@@ -90,6 +90,10 @@ def _joints(page: Page) -> list[float]:
     return [float(q) for q in status["joints"]]
 
 
+def _api(page: Page, path: str) -> Any:
+    return page.evaluate(f"fetch('/api/{path}').then(r => r.json())")
+
+
 def _confirm(page: Page) -> None:
     page.locator("#confirm-yes").click()
 
@@ -199,7 +203,12 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             # sensor view: the live stripe image and profile
             page.locator("nav a[data-page=sensor]").click()
             expect(page.locator("#sensor-index")).to_have_text(re.compile(r"#\d+"))
-            expect(page.locator("#sensor-seam")).to_contain_text("seam (S frame)")
+            try:
+                expect(page.locator("#sensor-seam")).to_contain_text("seam (S frame)")
+            except AssertionError as exc:  # seen once under a full run's load: say where
+                raise AssertionError(
+                    f"{exc}\nstatus {_api(page, 'status')}\nsensor {_api(page, 'sensor/settings')}"
+                ) from None
             _shot(page, "sensor")
 
             # teaching: points appear in the top view

@@ -863,9 +863,9 @@ class Console:
         its image as PNG bytes, the stripe profile and the seam point."""
         s = self._need_sensor()
         act = self.activity
-        if self.sensor_in_control and (act is None or act.state != "running"):
-            s.acquire()
         try:
+            if self.sensor_in_control and (act is None or act.state != "running"):
+                s.acquire()  # a lost lease (NOT_IN_CONTROL) is shown, not a server error
             index, image = s.get_image()
             _, profile = s.get_profile()
             data = s.get_data()
