@@ -18,6 +18,7 @@ pytest.importorskip("starlette", reason="the console extra is not installed")
 pytest.importorskip("httpx2", reason="the console extra is not installed")
 
 from starlette.testclient import TestClient
+from starlette.websockets import WebSocketDisconnect
 
 from cell.cell import READY_JOINTS
 from welding import job as J
@@ -118,6 +119,28 @@ def test_status_stream_updates_and_refusals_before_control(env: Any) -> None:
         assert "take control" in next_error(ws)["message"]
     r = call(client, "POST", "/api/power", {"on": True})
     assert r.status_code == 409 and "take control" in r.json()["error"]
+
+
+def test_status_stream_that_fails_is_closed_not_left_hanging(
+    env: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A status stream whose server side fails closes with 1011: a client must never wait
+    forever on a socket nobody serves (this once hung the suite)."""
+    client, console, _ = env
+    with client.websocket_connect("/ws") as ws:
+        assert ws.receive_json()["type"] == "status"
+
+        def broken() -> dict[str, Any]:
+            raise ValueError("status reading broke")
+
+        monkeypatch.setattr(console, "snapshot", broken)
+        with pytest.raises(WebSocketDisconnect) as closed:
+            while True:
+                ws.receive_json()
+        assert closed.value.code == 1011
+    monkeypatch.undo()
+    with client.websocket_connect("/ws") as ws:  # the next client is served again
+        assert ws.receive_json()["type"] == "status"
 
 
 @pytest.mark.parametrize(

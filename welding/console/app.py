@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import base64
+import contextlib
 import itertools
 import json
 import logging
@@ -142,11 +143,17 @@ def create_app(console: Console) -> Starlette:
                 t.cancel()
             # dead-man: a lost browser stops its jog
             await run_in_threadpool(console.forget, client_id)
+        ended_by_client = False
         for t in tasks:
             if t.done() and not t.cancelled():
                 exc = t.exception()
+                ended_by_client |= isinstance(exc, WebSocketDisconnect)
                 if exc is not None and not isinstance(exc, WebSocketDisconnect | RuntimeError):
-                    log.warning("status websocket: %r", exc)
+                    log.warning("status websocket ended: %r", exc, exc_info=exc)
+        if not ended_by_client:
+            # the stream ended on our side: close it, so no client waits on it forever
+            with contextlib.suppress(Exception):
+                await ws.close(code=1011)
 
     def move(r: Request, b: Any) -> None:
         console.move_to(text(b, "job"), text(b, "name"), bool(b.get("linear", False)))
