@@ -20,13 +20,11 @@ import logging
 import sys
 import time
 from collections.abc import Sequence
+from typing import Any
 
 from kinematics.errors import KinematicsError
 from robotsocket.client import RobotClient
-from robotsocket.emulator import RobotEmulator
-from robotsocket.rtprocess import ChildStartError, RealtimeProcess, RobotProcess
-from robotsocket.service import RobotService
-from robotsocket.sync_service import attach_udp_sync
+from robotsocket.rtprocess import ChildStartError, RealtimeProcess, RobotProcess, build_robot
 from spec import callcli, cliargs
 from spec.auth import Network
 from spec.client import ClientTimeout, ConnectionClosed
@@ -56,38 +54,41 @@ def _announce(server: FramedServer) -> None:
     print(f"listening on {server.address[0]}:{server.address[1]}", flush=True)
 
 
+def _robot_config(args: argparse.Namespace, allow: tuple[Network, ...]) -> dict[str, Any]:
+    return {
+        "model": args.model,
+        "clock": args.clock,
+        "encoder_latency_s": args.encoder_latency_ms / 1000.0,
+        "host": args.host,
+        "udp_port": args.udp_port,
+        "allow": allow,
+        "data_from_any": args.data_from_any,
+    }
+
+
 def cmd_serve(args: argparse.Namespace) -> int:
     token: str | None = args.token  # read (and refused if empty) by cliargs.token_file
     allow = tuple(args.allow or ())
     if args.clock == "real" and not args.in_process:
         return _serve_child(args, allow)
     try:
-        robot = RobotEmulator(
-            args.model, clock=args.clock, encoder_latency=args.encoder_latency_ms / 1000.0
-        )
-    except (ValueError, KinematicsError) as exc:
+        # The synchronisation commands (0x3001-0x3009) and their UDP endpoint are registered
+        # before the server reads the service's command list.
+        parts = build_robot(_robot_config(args, allow))
+    except (ValueError, KinematicsError, ChildStartError) as exc:
         raise CliError(str(exc)) from None
     policy = ServerPolicy(
         max_clients=args.max_clients, allow=allow, token=token, watchdog=args.watchdog
     )
-    service = RobotService(robot)
     try:
-        # The synchronisation commands (0x3001-0x3009) and their UDP endpoint, registered
-        # before the server reads the service's command list.
-        endpoint = None
-        if args.udp_port is not None:
-            _, endpoint = attach_udp_sync(service, robot, host=args.host, port=args.udp_port)
-            endpoint.allow = allow  # [RS-7.7] the UDP port honours --allow too
-            endpoint.sensor_only = not args.data_from_any  # [SY-3.7]
-        server = FramedServer(service, args.host, args.port, policy)
+        server = FramedServer(parts.services["robot"], args.host, args.port, policy)
     except OSError as exc:
+        parts.stop()
         raise CliError(f"cannot listen on {args.host}:{args.port}: {exc.strerror}") from None
-    robot.start()
-    if endpoint is not None:
-        endpoint.start()
+    parts.start()
     log.info(
         "robot %s emulator, %s clock, encoder latency %.1f ms, control token %s, allow %s",
-        robot.model.name,
+        parts.robot.model.name,
         "real-time" if args.clock == "real" else "simulated (advances in WaitEndMove)",
         args.encoder_latency_ms,
         "required" if token else "not required",
@@ -96,20 +97,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     server.start()
 
     def on_stop() -> None:
-        if endpoint is not None:
-            if endpoint.dropped:
-                log.info("udp datagrams dropped: %s", dict(endpoint.dropped))
-            endpoint.stop()
-        robot.close()
-        j = robot.jitter()
-        if j["count"]:
-            log.info(
-                "tick jitter: p50 %.3f ms, p99 %.3f ms, max %.3f ms over %d ticks",
-                j["p50"] * 1e3,
-                j["p99"] * 1e3,
-                j["max"] * 1e3,
-                int(j["count"]),
-            )
+        parts.stop()  # logs UDP drops and the tick jitter
         log.info("statistics: %s", json.dumps(server.statistics()))
 
     serve_until_signal([server], on_stop, ready=lambda: _announce(server))
@@ -119,16 +107,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
 def _serve_child(args: argparse.Namespace, allow: tuple[Network, ...]) -> int:
     """The real clock's default: the 4 ms loop and the UDP endpoint in a real-time child
     process, the TCP server here (docs/REALTIME.md)."""
-    config = {
-        "model": args.model,
-        "encoder_latency_s": args.encoder_latency_ms / 1000.0,
-        "host": args.host,
-        "udp_port": args.udp_port,
-        "allow": allow,
-        "data_from_any": args.data_from_any,
-    }
     try:
-        child = RealtimeProcess("robotsocket.rtprocess:build_robot", config)
+        child = RealtimeProcess("robotsocket.rtprocess:build_robot", _robot_config(args, allow))
     except ChildStartError as exc:
         raise CliError(str(exc)) from None
     policy = ServerPolicy(

@@ -110,10 +110,13 @@ class ChildParts:
 
 
 def build_robot(config: dict[str, Any]) -> ChildParts:
-    """The child of ``python -m robotsocket serve --clock real``: the emulator, its service
-    and the UDP synchronisation endpoint."""
+    """The emulator, its service and the UDP synchronisation endpoint of
+    ``python -m robotsocket serve``: the real-time child's parts, and the same parts run
+    in-process (simulated clock, ``--in-process``). ``config["clock"]`` defaults to real."""
     robot = RobotEmulator(
-        config["model"], clock="real", encoder_latency=config["encoder_latency_s"]
+        config["model"],
+        clock=config.get("clock", "real"),
+        encoder_latency=config["encoder_latency_s"],
     )
     service = RobotService(robot)
     endpoint = None
