@@ -268,9 +268,9 @@ class FramedClient:
         if reply.kind is not _REPLY:
             self.close()
             raise PeerError(f"expected a REPLY packet, got {reply.kind.name}")
-        spec = BY_ID.get(command)
-        if spec is not None:
-            check_params(spec.reply, reply.params, f"{spec.name} reply", allow_extra=True)
+        expected = _REPLY_PARAMS.get(command)
+        if expected is not None:
+            check_params(expected[0], reply.params, expected[1], allow_extra=True)
         return reply.params
 
     def _remote_error(self, code: int, message: str, command: int, request_id: int) -> RemoteError:
@@ -372,6 +372,8 @@ class FramedClient:
 _REQUEST, _EVENT, _ERROR = PacketKind.REQUEST, PacketKind.EVENT, PacketKind.ERROR
 _REPLY = PacketKind.REPLY
 _EMERGENCY_STOP = int(CommandId.EMERGENCY_STOP)
+#: Each command's reply parameters and its name in messages, built once (not per reply).
+_REPLY_PARAMS = {int(cid): (spec.reply, f"{spec.name} reply") for cid, spec in BY_ID.items()}
 
 
 def wait_end_move(client: FramedClient, timeout: float) -> bool:

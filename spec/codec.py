@@ -86,9 +86,7 @@ def encode_packet_parts(
     if length > max_payload:
         raise UsageError(f"payload of {length} bytes exceeds the maximum of {max_payload}")
     flags = 0 if crc else wire.FLAG_NO_CRC
-    header = _HEADER_PACK(
-        wire.MAGIC, wire.VERSION_MAJOR, minor, kind, flags, command, request_id, length
-    )
+    header = _HEADER_PACK(_MAGIC, _MAJOR, minor, kind, flags, command, request_id, length)
     if length < CACHED_MIN:
         body = header + b"".join(parts)
         return [body + (_TRAILER_PACK(zlib.crc32(body)) if crc else _NO_CRC_TRAILER)]
@@ -289,15 +287,15 @@ class FrameDecoder:
         if self._frame is not None:
             return self._large_frame_event()
         size = self._size
-        if size < wire.HEADER_SIZE:
+        if size < _HEADER_SIZE:
             if size >= 2:
                 self._check_magic(self._contiguous(2), self._offset)
             return None
         data, off = self._chunks[0], self._offset
-        if len(data) - off < wire.HEADER_SIZE:
-            data, off = self._contiguous(wire.HEADER_SIZE), 0
+        if len(data) - off < _HEADER_SIZE:
+            data, off = self._contiguous(_HEADER_SIZE), 0
         header = _HEADER_UNPACK(data, off)
-        if header[0] != wire.MAGIC:
+        if header[0] != _MAGIC:
             self._check_magic(data, off)
         length = header[7]
         if length > self.max_payload:
@@ -307,7 +305,7 @@ class FrameDecoder:
                     f"payload length {length} exceeds the maximum {self.max_payload}"
                 ),
             )
-        end = wire.FRAME_OVERHEAD + length
+        end = _FRAME_OVERHEAD + length
         if size < end:
             return None
         if len(data) - off < end:
@@ -385,6 +383,11 @@ def _decode_frame(
 
 _HEADER_UNPACK = wire.HEADER.unpack_from
 _TRAILER_UNPACK = wire.TRAILER.unpack_from
+# Module constants: read on every frame, a global is cheaper than a module attribute.
+_MAGIC = wire.MAGIC
+_HEADER_SIZE = wire.HEADER_SIZE
+_FRAME_OVERHEAD = wire.FRAME_OVERHEAD
+_MAJOR = wire.VERSION_MAJOR
 
 
 def decode_packet(data: bytes, max_payload: int = wire.MAX_PAYLOAD) -> Packet:

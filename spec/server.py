@@ -579,15 +579,22 @@ class FramedServer:
                 frame_start = last_byte
 
     def _route(self, session: Session, event: Packet | Rejected) -> None:
-        """Answer now on the reader, or queue on the session's worker [RS-7.12]."""
-        if type(event) is Packet and event.command in self._urgent:
-            self._answer(session, event)  # may overtake the pending replies
-        elif session.busy or (type(event) is Packet and event.command in self._blocking):
-            if session._worker is None:
-                session._worker = _Worker(self, session)
-            session._worker.submit(event)
-        else:
-            self._answer(session, event)
+        """Answer now on the reader, or queue on the session's worker [RS-7.12]. Only a
+        request that may block, or one behind it, crosses to the worker: every other one is
+        answered by the thread that read it, with no thread hand-off on the way."""
+        worker = session._worker
+        busy = worker is not None and worker.pending > 0
+        if isinstance(event, Packet):
+            command = event.command
+            if command in self._urgent or not (busy or command in self._blocking):
+                self._dispatch(session, event)  # an urgent one may overtake pending replies
+                return
+        elif not busy:
+            self._reject(session, event)
+            return
+        if worker is None:
+            worker = session._worker = _Worker(self, session)
+        worker.submit(event)
 
     def _answer(self, session: Session, event: Packet | Rejected) -> None:
         if isinstance(event, Rejected):
@@ -707,14 +714,15 @@ class FramedServer:
             return
         reply = Packet(_REPLY, packet.command, packet.request_id, params)
         try:
-            parts = encode_packet_parts(reply, wire.MAX_PAYLOAD, crc=crc)
+            parts = encode_packet_parts(reply, _MAX_PAYLOAD, crc=crc)
         except ProtocolError as exc:  # reply too large to encode: a server-side bug
             self.handler_errors.append(exc)
             self._send_error(
                 session, packet.command, packet.request_id, ErrorCode.INTERNAL_ERROR, str(exc)
             )
             return
-        self._count("replies")  # before sending, so statistics() never lags a received reply
+        with self._lock:  # before sending, so statistics() never lags a received reply
+            self._stats["replies"] += 1
         session.send_parts(parts)
 
     def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
@@ -848,6 +856,7 @@ class FramedServer:
 
 
 _REPLY = PacketKind.REPLY  # an enum attribute look-up is slow in Python 3.11
+_MAX_PAYLOAD = wire.MAX_PAYLOAD
 
 _Handler = Callable[[FramedServer, Session, tuple[Value, ...]], tuple[Value, ...]]
 _COMMON: dict[int, _Handler] = {

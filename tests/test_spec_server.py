@@ -525,6 +525,52 @@ def test_stopping_request_overtakes_a_pending_wait_others_stay_in_order(
     assert replies[1].params == (True,)
 
 
+class ThreadNotingRobot(EchoRobot):
+    """EchoRobot that notes which thread executes each request."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.threads: list[tuple[int, str]] = []
+
+    def handle(
+        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
+        self.threads.append((int(spec.id), threading.current_thread().name))
+        return super().handle(session, spec, params)
+
+
+def test_requests_that_cannot_block_are_answered_by_the_thread_that_read_them(
+    serve: Serve,
+) -> None:
+    """[RS-7.12] Herej crosses to no other thread (no hand-off, no extra wake-up per request):
+    only WaitEndMove and what queues behind it run on the session's worker, EmergencyStop
+    still overtakes, and once the worker is idle the next Herej is the reader's again."""
+    service = ThreadNotingRobot()
+    server = serve(service, ServerPolicy(max_clients=4))
+    with raw_conn(server) as s:
+        s.sendall(encode_packet(request(CommandId.HEREJ, 1)))
+        read_packets(s, 1)
+        s.sendall(
+            encode_packet(request(CommandId.WAIT_END_MOVE, 2, 30.0))
+            + encode_packet(request(CommandId.HEREJ, 3))
+            + encode_packet(request(CommandId.EMERGENCY_STOP, 4))
+        )
+        assert [p.request_id for p in read_packets(s, 3)] == [4, 2, 3]
+        # the worker counts a request as pending until just after its reply went out
+        deadline = time.monotonic() + 5
+        while any(x.busy for x in server._sessions) and time.monotonic() < deadline:
+            time.sleep(0.001)
+        s.sendall(encode_packet(request(CommandId.HEREJ, 5)))
+        read_packets(s, 1)
+
+    def on_worker(command: int) -> list[bool]:
+        return [name.endswith("-worker") for c, name in service.threads if c == command]
+
+    assert on_worker(CommandId.HEREJ) == [False, True, False]
+    assert on_worker(CommandId.WAIT_END_MOVE) == [True]
+    assert on_worker(CommandId.EMERGENCY_STOP) == [False]
+
+
 def test_a_close_is_seen_while_a_request_is_pending(server: FramedServer) -> None:
     service = server.service
     assert isinstance(service, EchoRobot)
