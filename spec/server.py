@@ -540,23 +540,30 @@ class FramedServer:
         # Received bytes land in one reused buffer; the decoder borrows them (no copy).
         scratch = bytearray(65536)
         view = memoryview(scratch)
+        # After bytes arrived no deadline can be due (each runs from the last byte or from a
+        # frame that is still running), except the reserved connection's: the others are
+        # looked at on the ticks without data, off the request path.
+        look = True
         while not self._shutdown.is_set() and not session.closed:
-            now = time.monotonic()
-            deadline, why = self._deadline(session, decoder.in_frame, frame_start, last_byte)
-            if now >= deadline:
-                if why:
-                    self._count("timeouts")
-                    self._send_error(session, 0, 0, ErrorCode.TIMEOUT, f"timeout: {why}")
-                return
-            if not ticking:
-                sock.settimeout(min(deadline - now, 1.0))
+            if look or session.reserved or not ticking:
+                now = time.monotonic()
+                deadline, why = self._deadline(session, decoder.in_frame, frame_start, last_byte)
+                if now >= deadline:
+                    if why:
+                        self._count("timeouts")
+                        self._send_error(session, 0, 0, ErrorCode.TIMEOUT, f"timeout: {why}")
+                    return
+                if not ticking:
+                    sock.settimeout(min(deadline - now, 1.0))
             decoder.keep()  # the scratch buffer is about to be written again
             try:
                 n = sock.recv_into(scratch)
             except (TimeoutError, BlockingIOError):
-                continue  # a tick without data: check the deadlines again
+                look = True  # a tick without data: check the deadlines again
+                continue
             if not n:
                 return
+            look = False
             with self._lock:
                 self._stats["bytes_in"] += n
             last_byte = time.monotonic()

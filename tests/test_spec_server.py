@@ -318,6 +318,44 @@ def test_a_slow_frame_that_keeps_arriving_is_not_cut_off(server: FramedServer) -
     assert reply.kind is PacketKind.REPLY and reply.request_id == 7
 
 
+def test_idle_timeout_closes_a_silent_connection_not_a_busy_one(serve: Serve) -> None:
+    """[RS-7.6] requests 0.1 s apart keep a connection with a 0.4 s idle timeout open for
+    three times that; once it falls silent it gets TIMEOUT and is closed."""
+    server = serve(EchoRobot(), ServerPolicy(max_clients=4, idle_timeout=0.4))
+    with raw_conn(server) as s:
+        for i in range(12):
+            s.sendall(encode_packet(request(CommandId.HEREJ, i + 1)))
+            (reply,) = read_packets(s, 1)
+            assert reply.kind is PacketKind.REPLY and reply.request_id == i + 1
+            time.sleep(0.1)
+        (err,) = read_packets(s, 1)
+        assert err.error is not None and err.error[0] == ErrorCode.TIMEOUT
+        assert "idle" in err.error[1] and s.recv(10) == b""
+
+
+def test_a_reserved_connection_is_closed_after_its_grace_even_while_sending(
+    serve: Serve,
+) -> None:
+    """[RS-7.14] the reserved connection's deadline runs from its opening, not from its
+    last byte: requests do not keep it open."""
+    server = serve(EchoRobot(), ServerPolicy(max_clients=1, reserved_grace=0.3))
+    with FramedClient(*server.address) as first:
+        first.ping()
+        with raw_conn(server) as s:
+            (busy,) = read_packets(s, 1)
+            assert busy.error is not None and busy.error[0] == ErrorCode.BUSY
+            deadline = time.monotonic() + 5
+            closed = False
+            while not closed and time.monotonic() < deadline:
+                try:
+                    s.sendall(encode_packet(request(CommandId.HEREJ, 1)))
+                    closed = not read_packets(s, 1)  # BUSY per request, nothing once closed
+                except OSError:
+                    closed = True
+                time.sleep(0.02)
+            assert closed
+
+
 def test_client_over_the_limit_gets_busy(server: FramedServer) -> None:
     clients = [FramedClient(*server.address) for _ in range(4)]
     try:
