@@ -49,6 +49,7 @@ from spec.codec import (
     Rejected,
     encode_packet_parts,
     error_packet,
+    packet_of,
 )
 from spec.errors import ErrorCode, PeerError, ProtocolError
 from spec.params import IntArray, Value
@@ -719,7 +720,7 @@ class FramedServer:
                 session, packet.command, packet.request_id, ErrorCode.INTERNAL_ERROR, message
             )
             return
-        reply = Packet(_REPLY, packet.command, packet.request_id, params)
+        reply = packet_of((_REPLY, packet.command, packet.request_id, params, _MINOR))
         try:
             parts = encode_packet_parts(reply, _MAX_PAYLOAD, crc=crc)
         except ProtocolError as exc:  # reply too large to encode: a server-side bug
@@ -746,7 +747,8 @@ class FramedServer:
                 f"client limit reached: only EmergencyStop is served here, not {spec.name}",
                 ErrorCode.BUSY,
             )
-        check_params(spec.params, packet.params, spec.name)
+        if packet.params or spec.params:  # nothing to check for Herej, RobotStatus, ...
+            check_params(spec.params, packet.params, spec.name)
         if spec.needs_control and not session.in_control:
             # [RS-7.4] commands that move or switch anything need control.
             if session.control_lost is not None:
@@ -864,6 +866,7 @@ class FramedServer:
 
 _REPLY = PacketKind.REPLY  # an enum attribute look-up is slow in Python 3.11
 _MAX_PAYLOAD = wire.MAX_PAYLOAD
+_MINOR = wire.VERSION_MINOR
 
 _Handler = Callable[[FramedServer, Session, tuple[Value, ...]], tuple[Value, ...]]
 _COMMON: dict[int, _Handler] = {
