@@ -19,7 +19,9 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from types import ModuleType
 
-_ADDRESS = re.compile(r"(?:listening on|tcp|endpoint) (\d+\.\d+\.\d+\.\d+):(\d+)")
+# The port ends where the digits end: a server's stdout and stderr share the pipe, and its
+# log line can land right behind the announced port (seen: "...:455392026-11-27 ...").
+_ADDRESS = re.compile(r"(?:listening on|tcp|endpoint) (\d+\.\d+\.\d+\.\d+):(\d{1,5})(?!\d)")
 _START_TIMEOUT_S = 30.0
 
 

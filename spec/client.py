@@ -17,7 +17,7 @@ import time
 from types import TracebackType
 
 from spec import wire
-from spec.codec import FrameDecoder, Packet, encode_packet, request
+from spec.codec import FrameDecoder, Packet, encode_packet, packet_of, request
 from spec.errors import ErrorCode, PeerError, ProtocolError, RemoteError
 from spec.params import IntArray, Value
 from spec.registry import BY_ID, CommandId, check_params
@@ -161,7 +161,7 @@ class FramedClient:
                     raise ConnectionClosed("not connected")
                 self.connect()
             request_id = self._new_request_id()
-            data = encode_packet(Packet(_REQUEST, command, request_id, params))
+            data = encode_packet(packet_of((_REQUEST, command, request_id, params, _MINOR)))
             # Marked abandoned until its reply is read: an interruption anywhere from here on
             # (Ctrl-C between the send and the wait too) leaves its late reply to be dropped.
             self._abandoned.add(request_id)
@@ -268,9 +268,9 @@ class FramedClient:
         if reply.kind is not _REPLY:
             self.close()
             raise PeerError(f"expected a REPLY packet, got {reply.kind.name}")
-        spec = BY_ID.get(command)
-        if spec is not None:
-            check_params(spec.reply, reply.params, f"{spec.name} reply", allow_extra=True)
+        expected = _REPLY_PARAMS.get(command)
+        if expected is not None:
+            check_params(expected[0], reply.params, expected[1], allow_extra=True)
         return reply.params
 
     def _remote_error(self, code: int, message: str, command: int, request_id: int) -> RemoteError:
@@ -371,7 +371,10 @@ class FramedClient:
 # read on every call.
 _REQUEST, _EVENT, _ERROR = PacketKind.REQUEST, PacketKind.EVENT, PacketKind.ERROR
 _REPLY = PacketKind.REPLY
+_MINOR = wire.VERSION_MINOR
 _EMERGENCY_STOP = int(CommandId.EMERGENCY_STOP)
+#: Each command's reply parameters and its name in messages, built once (not per reply).
+_REPLY_PARAMS = {int(cid): (spec.reply, f"{spec.name} reply") for cid, spec in BY_ID.items()}
 
 
 def wait_end_move(client: FramedClient, timeout: float) -> bool:

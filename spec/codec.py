@@ -12,11 +12,13 @@ receiver answers with an error packet and goes on with the next frame) and *fata
 
 from __future__ import annotations
 
+import functools
+import struct
 import zlib
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import NamedTuple, NoReturn
+from typing import NamedTuple, NoReturn, cast
 
 from spec import wire
 from spec.crc import CACHED_MIN, crc32_parts
@@ -53,6 +55,14 @@ class Packet(NamedTuple):
         return int(code), text
 
 
+#: ``Packet`` from its five fields in a tuple, without the named tuple's generated
+#: ``__new__`` (a Python frame per packet): for the paths that build one per frame.
+packet_of = cast(
+    "Callable[[tuple[PacketKind, int, int, tuple[Value, ...], int]], Packet]",
+    functools.partial(tuple.__new__, Packet),
+)
+
+
 def request(command: int, request_id: int, *params: Value) -> Packet:
     return Packet(PacketKind.REQUEST, command, request_id, tuple(params))
 
@@ -77,18 +87,19 @@ def encode_packet_parts(
     ``crc=False`` sends the frame with the NO_CRC flag and a zero trailer, on a connection
     where the client turned CRCs off (SetFrameCrc, [RS-3.16])."""
     kind, command, request_id, params, minor = packet
-    if not 0 <= command <= 0xFFFF:
-        raise UsageError(f"command ID {command} does not fit in 16 bits")
-    if not 0 <= request_id <= 0xFFFFFFFF:
-        raise UsageError(f"request ID {request_id} does not fit in 32 bits")
     parts = encode_params_parts(params)
     length = sum(map(len, parts))
     if length > max_payload:
         raise UsageError(f"payload of {length} bytes exceeds the maximum of {max_payload}")
     flags = 0 if crc else wire.FLAG_NO_CRC
-    header = _HEADER_PACK(
-        wire.MAGIC, wire.VERSION_MAJOR, minor, kind, flags, command, request_id, length
-    )
+    try:
+        header = _HEADER_PACK(_MAGIC, _MAJOR, minor, kind, flags, command, request_id, length)
+    except struct.error:  # the field ranges are checked here, off the path of a good packet
+        if not 0 <= command <= 0xFFFF:
+            raise UsageError(f"command ID {command} does not fit in 16 bits") from None
+        if not 0 <= request_id <= 0xFFFFFFFF:
+            raise UsageError(f"request ID {request_id} does not fit in 32 bits") from None
+        raise
     if length < CACHED_MIN:
         body = header + b"".join(parts)
         return [body + (_TRAILER_PACK(zlib.crc32(body)) if crc else _NO_CRC_TRAILER)]
@@ -289,15 +300,15 @@ class FrameDecoder:
         if self._frame is not None:
             return self._large_frame_event()
         size = self._size
-        if size < wire.HEADER_SIZE:
+        if size < _HEADER_SIZE:
             if size >= 2:
                 self._check_magic(self._contiguous(2), self._offset)
             return None
         data, off = self._chunks[0], self._offset
-        if len(data) - off < wire.HEADER_SIZE:
-            data, off = self._contiguous(wire.HEADER_SIZE), 0
+        if len(data) - off < _HEADER_SIZE:
+            data, off = self._contiguous(_HEADER_SIZE), 0
         header = _HEADER_UNPACK(data, off)
-        if header[0] != wire.MAGIC:
+        if header[0] != _MAGIC:
             self._check_magic(data, off)
         length = header[7]
         if length > self.max_payload:
@@ -307,7 +318,7 @@ class FrameDecoder:
                     f"payload length {length} exceeds the maximum {self.max_payload}"
                 ),
             )
-        end = wire.FRAME_OVERHEAD + length
+        end = _FRAME_OVERHEAD + length
         if size < end:
             return None
         if len(data) - off < end:
@@ -362,13 +373,13 @@ def _decode_frame(
     """Check and decode one delimited frame; ``header`` is its unpacked :data:`wire.HEADER`
     (a plain tuple or a :class:`Header`)."""
     _, major, minor, kind_byte, flags, command, request_id, length = header
-    payload_end = wire.HEADER_SIZE + length
+    payload_end = _HEADER_SIZE + length
     no_crc = accept_no_crc and flags == wire.FLAG_NO_CRC
     if not no_crc:
         (crc,) = _TRAILER_UNPACK(frame, payload_end)
         if zlib.crc32(frame[:payload_end]) != crc:
             raise BadCrcError(f"CRC-32 mismatch (frame says {crc:08x})")
-    if major != wire.VERSION_MAJOR:
+    if major != _MAJOR:
         raise VersionError(
             f"protocol version {major}.{minor} not supported; this peer speaks {wire.VERSION}"
         )
@@ -379,12 +390,17 @@ def _decode_frame(
         raise FrameError(f"packet kind {kind.name} not accepted here")
     if flags and not no_crc:
         raise FrameError(f"reserved flags must be 0, got 0x{flags:02x}")
-    params = decode_params(frame[wire.HEADER_SIZE : payload_end])
-    return Packet(kind, command, request_id, params, minor)
+    params = decode_params(frame[_HEADER_SIZE:payload_end])
+    return packet_of((kind, command, request_id, params, minor))
 
 
 _HEADER_UNPACK = wire.HEADER.unpack_from
 _TRAILER_UNPACK = wire.TRAILER.unpack_from
+# Module constants: read on every frame, a global is cheaper than a module attribute.
+_MAGIC = wire.MAGIC
+_HEADER_SIZE = wire.HEADER_SIZE
+_FRAME_OVERHEAD = wire.FRAME_OVERHEAD
+_MAJOR = wire.VERSION_MAJOR
 
 
 def decode_packet(data: bytes, max_payload: int = wire.MAX_PAYLOAD) -> Packet:
@@ -422,6 +438,7 @@ __all__ = [
     "encode_packet",
     "encode_packet_parts",
     "error_packet",
+    "packet_of",
     "reply_to",
     "request",
 ]

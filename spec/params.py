@@ -261,9 +261,10 @@ def encode_params_parts(params: tuple[Value, ...] | list[Value]) -> list[bytes]:
     """The encoded parameter list as chunks, so a frame is joined with one copy."""
     if len(params) > 0xFFFF:
         raise UsageError("at most 65535 parameters")
-    parts: list[bytes] = [wire.PARAM_COUNT.pack(len(params))]
+    parts: list[bytes] = [_COUNT_PACK(len(params))]
     for value in params:
-        parts.extend(_encode_value(value))
+        encoder = _ENCODERS.get(type(value))
+        parts.extend(_encode_value(value) if encoder is None else encoder(value))
     return parts
 
 
@@ -346,6 +347,7 @@ def _enc_image(value: Image) -> tuple[bytes, ...]:
 
 
 _TAG = {t: wire.TAG.pack(t) for t in ParamType}  # the one-byte tag of each type
+_COUNT_PACK = wire.PARAM_COUNT.pack
 _TAG_BYTES = _TAG[ParamType.BYTES]
 _TAG_FLOAT = _TAG[ParamType.FLOAT]
 _TAG_FLOAT_ARRAY = _TAG[ParamType.FLOAT_ARRAY]
@@ -390,16 +392,19 @@ _PT_LOCATION = ParamType.LOCATION
 _PT_MATRIX = ParamType.MATRIX
 _PT_STRING = ParamType.STRING
 _PT_TRANSFORM = ParamType.TRANSFORM
+_COUNT_UNPACK = wire.PARAM_COUNT.unpack_from
+_MAX_JOINTS = wire.MAX_JOINTS
+_isfinite = math.isfinite
 
 
 def decode_params(payload: bytes | memoryview) -> tuple[Value, ...]:
     """Decode a whole payload into its parameter list [RS-4.1]; raise :class:`ParameterError`."""
-    buf = memoryview(payload)
+    buf = payload if type(payload) is memoryview else memoryview(payload)
     end = len(buf)
-    if end < wire.PARAM_COUNT.size:
+    if end < 2:
         raise ParameterError("payload shorter than the 2-byte parameter count")
-    (count,) = wire.PARAM_COUNT.unpack_from(buf, 0)
-    pos = wire.PARAM_COUNT.size
+    (count,) = _COUNT_UNPACK(buf, 0)
+    pos = 2
     values: list[Value] = []
     for index in range(count):
         if pos >= end:
@@ -491,14 +496,22 @@ def _dec_int_array(buf: memoryview, pos: int, index: int) -> _Decoded:
 
 
 def _dec_joints(buf: memoryview, pos: int, index: int) -> _Decoded:
-    _need(buf, pos, 1, index, _PT_JOINTS)
+    # The checks of _need and _finite written out: this decodes every Herej reply.
+    size = len(buf)
+    if pos >= size:
+        raise ParameterError(f"parameter {index} (JOINTS) truncated")
     n = buf[pos]
-    if not 1 <= n <= wire.MAX_JOINTS:
+    if not 1 <= n <= _MAX_JOINTS:
         raise ParameterError(f"parameter {index}: JOINTS count {n} not in 1..16")
-    _need(buf, pos + 1, 8 * n, index, _PT_JOINTS)
+    end = pos + 1 + 8 * n
+    if end > size:
+        raise ParameterError(f"parameter {index} (JOINTS) truncated")
     joints = _f64s(n).unpack_from(buf, pos + 1)
-    _finite(joints, index, _PT_JOINTS)
-    return _trusted_values(Joints, joints), pos + 1 + 8 * n
+    if not all(map(_isfinite, joints)):
+        raise ParameterError(f"parameter {index} (JOINTS) must be finite")
+    obj = object.__new__(Joints)
+    object.__setattr__(obj, "values", joints)
+    return obj, end
 
 
 def _dec_location(buf: memoryview, pos: int, index: int) -> _Decoded:

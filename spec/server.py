@@ -49,6 +49,7 @@ from spec.codec import (
     Rejected,
     encode_packet_parts,
     error_packet,
+    packet_of,
 )
 from spec.errors import ErrorCode, PeerError, ProtocolError
 from spec.params import IntArray, Value
@@ -540,23 +541,30 @@ class FramedServer:
         # Received bytes land in one reused buffer; the decoder borrows them (no copy).
         scratch = bytearray(65536)
         view = memoryview(scratch)
+        # After bytes arrived no deadline can be due (each runs from the last byte or from a
+        # frame that is still running), except the reserved connection's: the others are
+        # looked at on the ticks without data, off the request path.
+        look = True
         while not self._shutdown.is_set() and not session.closed:
-            now = time.monotonic()
-            deadline, why = self._deadline(session, decoder.in_frame, frame_start, last_byte)
-            if now >= deadline:
-                if why:
-                    self._count("timeouts")
-                    self._send_error(session, 0, 0, ErrorCode.TIMEOUT, f"timeout: {why}")
-                return
-            if not ticking:
-                sock.settimeout(min(deadline - now, 1.0))
+            if look or session.reserved or not ticking:
+                now = time.monotonic()
+                deadline, why = self._deadline(session, decoder.in_frame, frame_start, last_byte)
+                if now >= deadline:
+                    if why:
+                        self._count("timeouts")
+                        self._send_error(session, 0, 0, ErrorCode.TIMEOUT, f"timeout: {why}")
+                    return
+                if not ticking:
+                    sock.settimeout(min(deadline - now, 1.0))
             decoder.keep()  # the scratch buffer is about to be written again
             try:
                 n = sock.recv_into(scratch)
             except (TimeoutError, BlockingIOError):
-                continue  # a tick without data: check the deadlines again
+                look = True  # a tick without data: check the deadlines again
+                continue
             if not n:
                 return
+            look = False
             with self._lock:
                 self._stats["bytes_in"] += n
             last_byte = time.monotonic()
@@ -579,15 +587,22 @@ class FramedServer:
                 frame_start = last_byte
 
     def _route(self, session: Session, event: Packet | Rejected) -> None:
-        """Answer now on the reader, or queue on the session's worker [RS-7.12]."""
-        if type(event) is Packet and event.command in self._urgent:
-            self._answer(session, event)  # may overtake the pending replies
-        elif session.busy or (type(event) is Packet and event.command in self._blocking):
-            if session._worker is None:
-                session._worker = _Worker(self, session)
-            session._worker.submit(event)
-        else:
-            self._answer(session, event)
+        """Answer now on the reader, or queue on the session's worker [RS-7.12]. Only a
+        request that may block, or one behind it, crosses to the worker: every other one is
+        answered by the thread that read it, with no thread hand-off on the way."""
+        worker = session._worker
+        busy = worker is not None and worker.pending > 0
+        if isinstance(event, Packet):
+            command = event.command
+            if command in self._urgent or not (busy or command in self._blocking):
+                self._dispatch(session, event)  # an urgent one may overtake pending replies
+                return
+        elif not busy:
+            self._reject(session, event)
+            return
+        if worker is None:
+            worker = session._worker = _Worker(self, session)
+        worker.submit(event)
 
     def _answer(self, session: Session, event: Packet | Rejected) -> None:
         if isinstance(event, Rejected):
@@ -705,16 +720,17 @@ class FramedServer:
                 session, packet.command, packet.request_id, ErrorCode.INTERNAL_ERROR, message
             )
             return
-        reply = Packet(_REPLY, packet.command, packet.request_id, params)
+        reply = packet_of((_REPLY, packet.command, packet.request_id, params, _MINOR))
         try:
-            parts = encode_packet_parts(reply, wire.MAX_PAYLOAD, crc=crc)
+            parts = encode_packet_parts(reply, _MAX_PAYLOAD, crc=crc)
         except ProtocolError as exc:  # reply too large to encode: a server-side bug
             self.handler_errors.append(exc)
             self._send_error(
                 session, packet.command, packet.request_id, ErrorCode.INTERNAL_ERROR, str(exc)
             )
             return
-        self._count("replies")  # before sending, so statistics() never lags a received reply
+        with self._lock:  # before sending, so statistics() never lags a received reply
+            self._stats["replies"] += 1
         session.send_parts(parts)
 
     def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
@@ -731,7 +747,8 @@ class FramedServer:
                 f"client limit reached: only EmergencyStop is served here, not {spec.name}",
                 ErrorCode.BUSY,
             )
-        check_params(spec.params, packet.params, spec.name)
+        if packet.params or spec.params:  # nothing to check for Herej, RobotStatus, ...
+            check_params(spec.params, packet.params, spec.name)
         if spec.needs_control and not session.in_control:
             # [RS-7.4] commands that move or switch anything need control.
             if session.control_lost is not None:
@@ -848,6 +865,8 @@ class FramedServer:
 
 
 _REPLY = PacketKind.REPLY  # an enum attribute look-up is slow in Python 3.11
+_MAX_PAYLOAD = wire.MAX_PAYLOAD
+_MINOR = wire.VERSION_MINOR
 
 _Handler = Callable[[FramedServer, Session, tuple[Value, ...]], tuple[Value, ...]]
 _COMMON: dict[int, _Handler] = {

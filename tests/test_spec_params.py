@@ -177,3 +177,34 @@ def test_borrowed_feed_matches_copied_feed(lists: list[list[Value]], data: st.Da
         copied.feed(piece)
         want.extend(copied.events())
     assert got == want == packets
+
+
+@pytest.mark.parametrize(
+    ("command", "request_id", "field"),
+    [
+        (0x10000, 1, "command ID"),
+        (-1, 1, "command ID"),
+        (1, 1 << 32, "request ID"),
+        (1, -1, "request ID"),
+    ],
+)
+def test_a_header_field_out_of_range_is_a_usage_error_naming_it(
+    command: int, request_id: int, field: str
+) -> None:
+    with pytest.raises(UsageError, match=field):
+        encode_packet(Packet(PacketKind.REQUEST, command, request_id, ()))
+
+
+@pytest.mark.parametrize(
+    ("payload", "message"),
+    [
+        (b"\x00\x01\x08", "parameter 0 (JOINTS) truncated"),
+        (b"\x00\x01\x08\x00", "JOINTS count 0 not in 1..16"),
+        (b"\x00\x01\x08\x11" + bytes(8 * 17), "JOINTS count 17 not in 1..16"),
+        (b"\x00\x01\x08\x02" + bytes(15), "parameter 0 (JOINTS) truncated"),
+        (b"\x00\x01\x08\x01\x7f\xf8" + bytes(6), "parameter 0 (JOINTS) must be finite"),
+    ],
+)
+def test_bad_joints_are_refused_with_what_is_wrong(payload: bytes, message: str) -> None:
+    with pytest.raises(ParameterError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        decode_params(payload)

@@ -318,6 +318,44 @@ def test_a_slow_frame_that_keeps_arriving_is_not_cut_off(server: FramedServer) -
     assert reply.kind is PacketKind.REPLY and reply.request_id == 7
 
 
+def test_idle_timeout_closes_a_silent_connection_not_a_busy_one(serve: Serve) -> None:
+    """[RS-7.6] requests 0.1 s apart keep a connection with a 0.4 s idle timeout open for
+    three times that; once it falls silent it gets TIMEOUT and is closed."""
+    server = serve(EchoRobot(), ServerPolicy(max_clients=4, idle_timeout=0.4))
+    with raw_conn(server) as s:
+        for i in range(12):
+            s.sendall(encode_packet(request(CommandId.HEREJ, i + 1)))
+            (reply,) = read_packets(s, 1)
+            assert reply.kind is PacketKind.REPLY and reply.request_id == i + 1
+            time.sleep(0.1)
+        (err,) = read_packets(s, 1)
+        assert err.error is not None and err.error[0] == ErrorCode.TIMEOUT
+        assert "idle" in err.error[1] and s.recv(10) == b""
+
+
+def test_a_reserved_connection_is_closed_after_its_grace_even_while_sending(
+    serve: Serve,
+) -> None:
+    """[RS-7.14] the reserved connection's deadline runs from its opening, not from its
+    last byte: requests do not keep it open."""
+    server = serve(EchoRobot(), ServerPolicy(max_clients=1, reserved_grace=0.3))
+    with FramedClient(*server.address) as first:
+        first.ping()
+        with raw_conn(server) as s:
+            (busy,) = read_packets(s, 1)
+            assert busy.error is not None and busy.error[0] == ErrorCode.BUSY
+            deadline = time.monotonic() + 5
+            closed = False
+            while not closed and time.monotonic() < deadline:
+                try:
+                    s.sendall(encode_packet(request(CommandId.HEREJ, 1)))
+                    closed = not read_packets(s, 1)  # BUSY per request, nothing once closed
+                except OSError:
+                    closed = True
+                time.sleep(0.02)
+            assert closed
+
+
 def test_client_over_the_limit_gets_busy(server: FramedServer) -> None:
     clients = [FramedClient(*server.address) for _ in range(4)]
     try:
@@ -523,6 +561,52 @@ def test_stopping_request_overtakes_a_pending_wait_others_stay_in_order(
         replies = read_packets(s, 3)
     assert [p.request_id for p in replies] == [3, 1, 2]
     assert replies[1].params == (True,)
+
+
+class ThreadNotingRobot(EchoRobot):
+    """EchoRobot that notes which thread executes each request."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.threads: list[tuple[int, str]] = []
+
+    def handle(
+        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
+        self.threads.append((int(spec.id), threading.current_thread().name))
+        return super().handle(session, spec, params)
+
+
+def test_requests_that_cannot_block_are_answered_by_the_thread_that_read_them(
+    serve: Serve,
+) -> None:
+    """[RS-7.12] Herej crosses to no other thread (no hand-off, no extra wake-up per request):
+    only WaitEndMove and what queues behind it run on the session's worker, EmergencyStop
+    still overtakes, and once the worker is idle the next Herej is the reader's again."""
+    service = ThreadNotingRobot()
+    server = serve(service, ServerPolicy(max_clients=4))
+    with raw_conn(server) as s:
+        s.sendall(encode_packet(request(CommandId.HEREJ, 1)))
+        read_packets(s, 1)
+        s.sendall(
+            encode_packet(request(CommandId.WAIT_END_MOVE, 2, 30.0))
+            + encode_packet(request(CommandId.HEREJ, 3))
+            + encode_packet(request(CommandId.EMERGENCY_STOP, 4))
+        )
+        assert [p.request_id for p in read_packets(s, 3)] == [4, 2, 3]
+        # the worker counts a request as pending until just after its reply went out
+        deadline = time.monotonic() + 5
+        while any(x.busy for x in server._sessions) and time.monotonic() < deadline:
+            time.sleep(0.001)
+        s.sendall(encode_packet(request(CommandId.HEREJ, 5)))
+        read_packets(s, 1)
+
+    def on_worker(command: int) -> list[bool]:
+        return [name.endswith("-worker") for c, name in service.threads if c == command]
+
+    assert on_worker(CommandId.HEREJ) == [False, True, False]
+    assert on_worker(CommandId.WAIT_END_MOVE) == [True]
+    assert on_worker(CommandId.EMERGENCY_STOP) == [False]
 
 
 def test_a_close_is_seen_while_a_request_is_pending(server: FramedServer) -> None:
