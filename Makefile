@@ -12,7 +12,7 @@ $(STAMP): pyproject.toml Makefile
 	$(PY) -m pip install --quiet --upgrade pip
 	# PYTHONWARNINGS: setuptools warns on every editable install that the checkout's folders
 	# share the packages' names, which is this layout by design; the warning tells a user nothing.
-	PYTHONWARNINGS=ignore $(PY) -m pip install --quiet -e '.[test,plot,xsd,console]'
+	PYTHONWARNINGS=ignore $(PY) -m pip install --quiet -e '.[test,plot,xsd,console,fast]'
 	touch $(STAMP)
 
 demo: $(STAMP)
@@ -41,7 +41,7 @@ chromium:
 
 # The peer libraries of the benchmarks only here: `make test` must not need them.
 $(VENV)/.installed-bench: $(STAMP)
-	PYTHONWARNINGS=ignore $(PY) -m pip install --quiet -e '.[test,plot,xsd,console,bench]'
+	PYTHONWARNINGS=ignore $(PY) -m pip install --quiet -e '.[test,plot,xsd,console,fast,bench]'
 	touch $@
 
 bench: $(VENV)/.installed-bench

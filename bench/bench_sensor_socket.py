@@ -6,7 +6,6 @@ from __future__ import annotations
 import socket
 import threading
 import time
-import zlib
 
 import numpy as np
 
@@ -18,6 +17,7 @@ from sensorsocket.sensor import Reading, Sensor, make_scene
 from sensorsocket.service import SensorService
 from sensorsocket.timing import TimingModel
 from sensorsocket.udp import TriggerHandler, TriggerListener
+from spec.crc import crc32
 from spec.datagrams import SensorData, Trigger, decode_datagram, encode_trigger
 from spec.server import FramedServer
 from spec.wire import SensorStatus
@@ -88,7 +88,8 @@ def _get_image_throughput(address: tuple[str, int], *, frame_crc: bool) -> float
 
 def _bare_tcp_throughput(size: int, *, crc: bool = False) -> float:
     """Request one byte, receive ``size`` bytes: the same exchange without the protocol.
-    ``crc``: add the CRC-32 both ends of a framed exchange must compute (context figure)."""
+    ``crc``: add the CRC-32 both ends of a framed exchange must compute, by the implementation
+    the codec uses (context figure)."""
     payload = bytes(size)
     listener = socket.create_server(("127.0.0.1", 0))
     listener.settimeout(10.0)
@@ -100,7 +101,7 @@ def _bare_tcp_throughput(size: int, *, crc: bool = False) -> float:
         with conn:
             while conn.recv(1):
                 if crc:
-                    zlib.crc32(payload)
+                    crc32(payload)
                 conn.sendall(payload)
 
     thread = threading.Thread(target=serve, daemon=True)
@@ -119,7 +120,7 @@ def _bare_tcp_throughput(size: int, *, crc: bool = False) -> float:
                 raise ConnectionError("bare server closed")
             got += n
         if crc:
-            zlib.crc32(buf)
+            crc32(buf)
 
     try:
         for _ in range(10):

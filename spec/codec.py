@@ -14,14 +14,13 @@ from __future__ import annotations
 
 import functools
 import struct
-import zlib
 from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import NamedTuple, NoReturn, cast
 
 from spec import wire
-from spec.crc import CACHED_MIN, crc32_parts
+from spec.crc import CACHED_MIN, crc32, crc32_parts
 from spec.errors import (
     BadCrcError,
     ErrorCode,
@@ -102,7 +101,7 @@ def encode_packet_parts(
         raise
     if length < CACHED_MIN:
         body = header + b"".join(parts)
-        return [body + (_TRAILER_PACK(zlib.crc32(body)) if crc else _NO_CRC_TRAILER)]
+        return [body + (_TRAILER_PACK(crc32(body)) if crc else _NO_CRC_TRAILER)]
     parts.insert(0, header)
     # An image sent again is not scanned again: its CRC comes from the cache (spec.crc).
     parts.append(_TRAILER_PACK(crc32_parts(parts)) if crc else _NO_CRC_TRAILER)
@@ -377,7 +376,7 @@ def _decode_frame(
     no_crc = accept_no_crc and flags == wire.FLAG_NO_CRC
     if not no_crc:
         (crc,) = _TRAILER_UNPACK(frame, payload_end)
-        if zlib.crc32(frame[:payload_end]) != crc:
+        if crc32(frame[:payload_end]) != crc:
             raise BadCrcError(f"CRC-32 mismatch (frame says {crc:08x})")
     if major != _MAJOR:
         raise VersionError(

@@ -5,12 +5,34 @@ CRC over its 128 KiB every time. :func:`crc32_combine` joins the CRC of the head
 with the CRC of the pixel bytes, computed once per image (:func:`cached_crc32`), the way
 zlib's ``crc32_combine`` does: crc(A + B) = crc(A) * x^(8 len B) mod P  xor  crc(B).
 Stdlib has no binding for it; the polynomial arithmetic below is zlib's, on 32-bit ints.
+
+:func:`crc32` is the same function as :func:`zlib.crc32`, from zlib-ng when the optional
+``fast`` extra is installed: its carry-less-multiply folding checks a 128 KiB image in ~3 µs
+where the system zlib (1.2.13, byte tables) takes ~70 µs, more than a whole pyzmq round trip
+of the same array. Without it, zlib.crc32 does the work: the code is stdlib-only.
 """
 
 from __future__ import annotations
 
 import functools
 import zlib
+from collections.abc import Callable
+
+
+def _select_crc32(fast: bool = True) -> tuple[Callable[..., int], str]:
+    """The CRC-32 function and its name: zlib-ng's when ``fast`` and importable, else zlib's."""
+    if fast:
+        try:
+            from zlib_ng import zlib_ng  # the optional `fast` extra
+        except ImportError:
+            pass
+        else:
+            return zlib_ng.crc32, "zlib-ng"
+    return zlib.crc32, "zlib"
+
+
+#: zlib.crc32(data, value=0) by the fastest implementation installed; and its name.
+crc32, CRC32_IMPLEMENTATION = _select_crc32()
 
 _POLY = 0xEDB88320  # reflected CRC-32 polynomial
 
@@ -89,7 +111,7 @@ def cached_crc32(data: bytes) -> int:
     entry = _cache.get(id(data))
     if entry is not None and entry[0] is data:
         return entry[1]
-    crc = zlib.crc32(data)
+    crc = crc32(data)
     if len(_cache) >= _CACHE_SIZE:
         _cache.pop(next(iter(_cache)))
     _cache[id(data)] = (data, crc)
@@ -103,13 +125,15 @@ def crc32_parts(parts: list[bytes]) -> int:
         if len(part) >= CACHED_MIN and type(part) is bytes:
             crc = crc32_combine(crc, cached_crc32(part), len(part))
         else:
-            crc = zlib.crc32(part, crc)
+            crc = crc32(part, crc)
     return crc
 
 
 __all__ = [
     "CACHED_MIN",
+    "CRC32_IMPLEMENTATION",
     "cached_crc32",
+    "crc32",
     "crc32_combine",
     "crc32_combine_reference",
     "crc32_parts",

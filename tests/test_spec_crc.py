@@ -4,19 +4,89 @@ from __future__ import annotations
 
 import zlib
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from spec.codec import Packet, decode_packet, encode_packet_parts, reply_to, request
+from spec import wire
+from spec.codec import (
+    FrameDecoder,
+    Packet,
+    Rejected,
+    decode_packet,
+    encode_packet,
+    encode_packet_parts,
+    reply_to,
+    request,
+)
 from spec.crc import (
     CACHED_MIN,
+    CRC32_IMPLEMENTATION,
+    _select_crc32,
     cached_crc32,
+    crc32,
     crc32_combine,
     crc32_combine_reference,
     crc32_parts,
 )
+from spec.errors import BadCrcError, ErrorCode
 from spec.params import Image
 from spec.wire import TRAILER
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.binary(max_size=5000), st.integers(0, 0xFFFFFFFF), st.integers(0, 64))
+def test_the_selected_crc32_is_zlibs(data: bytes, start: int, skip: int) -> None:
+    """Whichever implementation was picked (zlib-ng with the `fast` extra), it is zlib.crc32:
+    on bytes, on views into a receive buffer, continued from any running value."""
+    view = memoryview(bytearray(data))[skip:]
+    assert crc32(data) == zlib.crc32(data)
+    assert crc32(view, start) == zlib.crc32(view, start)
+
+
+def test_the_fast_crc32_is_used_when_installed_and_zlib_otherwise() -> None:
+    assert _select_crc32(fast=False) == (zlib.crc32, "zlib")
+    try:
+        import zlib_ng  # noqa: F401
+    except ImportError:
+        assert CRC32_IMPLEMENTATION == "zlib"
+    else:
+        assert CRC32_IMPLEMENTATION == "zlib-ng"
+    image = bytes(range(256)) * 512  # 128 KiB, the size that made it worth it
+    assert crc32(image) == zlib.crc32(image)
+
+
+def _image_frame(request_id: int = 5) -> bytes:
+    image = Image(512, 256, bytes(range(251)) * 522 + bytes(50))
+    return encode_packet(reply_to(request(0x2003, request_id), 3, image))
+
+
+# Not the magic or the length field: those lose the frame boundary, a different error.
+@pytest.mark.parametrize("where", [3, 8, 17, 40, 70_000, 131_000, -5, -1])
+@pytest.mark.parametrize("in_place", [False, True])
+def test_a_flipped_byte_in_an_image_frame_is_a_bad_crc(where: int, in_place: bool) -> None:
+    """[RS-3.6] one changed bit anywhere in a 128 KiB frame (header, pixels, trailer) is
+    caught, whether the frame comes through feed() or is received in place."""
+    frame = bytearray(_image_frame())
+    frame[where] ^= 0x10
+    decoder = FrameDecoder(max_payload=wire.MAX_PAYLOAD)
+    if in_place:
+        decoder.feed(frame[:100])
+        pos = 100
+        while (view := decoder.get_buffer()) is not None:
+            n = min(len(view), 50_000)
+            view[:n] = frame[pos : pos + n]
+            decoder.buffer_updated(n)
+            pos += n
+    else:
+        decoder.feed(bytes(frame))
+    (event,) = decoder.events()
+    assert isinstance(event, Rejected) and event.code == ErrorCode.BAD_CRC
+    with pytest.raises(BadCrcError):
+        decode_packet(bytes(frame))
+    good = FrameDecoder(max_payload=wire.MAX_PAYLOAD)
+    good.feed(_image_frame())
+    assert isinstance(next(good.events()), Packet)
 
 
 @settings(max_examples=200, deadline=None)
