@@ -187,14 +187,14 @@ def test_scalar_ik_equals_the_batch_core_branch_by_branch(name: str, with_near: 
         batch = m.ik_batch(T[None], near=ref)
         branches = m._ik_one(T.tolist(), ref)
         assert len(branches) == len(CONFIGS)
-        for k, b in enumerate(branches):
-            assert b.reachable == bool(batch.reachable[0, k])
-            assert b.singular == tuple(bool(f) for f in batch.singular[0, k])
-            if b.joints_deg is None:
+        for k, (joints, reachable, singular) in enumerate(branches):
+            assert reachable == bool(batch.reachable[0, k])
+            assert singular == tuple(bool(f) for f in batch.singular[0, k])
+            if joints is None:
                 assert not batch.valid[0, k]
             else:
                 assert batch.valid[0, k]
-                np.testing.assert_allclose(b.joints_deg, batch.joints_deg[0, k], atol=1e-9)
+                np.testing.assert_allclose(joints, batch.joints_deg[0, k], atol=1e-9)
 
 
 @SETTINGS
