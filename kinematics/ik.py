@@ -5,6 +5,7 @@ for one pose or vectorised over N poses."""
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
@@ -75,23 +76,19 @@ class _Ops(NamedTuple):
     cos: Callable[[Any], Any]
     hypot: Callable[[Any, Any], Any]
     maximum: Callable[[Any, Any], Any]
-    clip: Callable[[Any, Any, Any], Any]
+    minimum: Callable[[Any, Any], Any]
     where: Callable[[Any, Any, Any], Any]
     any: Callable[[Any], Any]
-
-
-def _clip_one(x: float, lo: float, hi: float) -> float:
-    return min(max(x, lo), hi)
 
 
 def _where_one(cond: bool, a: float, b: float) -> float:
     return a if cond else b
 
 
-_MATH = _Ops(
-    math.sqrt, math.atan2, math.sin, math.cos, math.hypot, max, _clip_one, _where_one, bool
+_MATH = _Ops(math.sqrt, math.atan2, math.sin, math.cos, math.hypot, max, min, _where_one, bool)
+_NUMPY = _Ops(
+    np.sqrt, np.arctan2, np.sin, np.cos, np.hypot, np.maximum, np.minimum, np.where, np.any
 )
-_NUMPY = _Ops(np.sqrt, np.arctan2, np.sin, np.cos, np.hypot, np.maximum, np.clip, np.where, np.any)
 
 #: Branch signs (+ first, as in ``CONFIGS``) for the batch: shoulder, elbow and wrist on the
 #: leading axes -2, -3, -4 in front of the pose axis.
@@ -147,7 +144,7 @@ def _shoulder(
     x = r - g.a1
     c3 = (x * x + wz * wz - a2 * a2 - d4 * d4) / (2.0 * a2 * d4)
     reach = reach_sh & (abs(c3) <= 1.0 + 1e-12)
-    c3 = xp.clip(c3, -1.0, 1.0)
+    c3 = xp.maximum(xp.minimum(c3, 1.0), -1.0)
     s3abs = xp.sqrt(1.0 - c3 * c3)
     s1, c1 = xp.sin(t1), xp.cos(t1)
     r0, r1 = T[0], T[1]
@@ -199,13 +196,16 @@ def _wrist(elbow: tuple[Any, ...], sign: Any, pref4: Any, xp: _Ops) -> tuple[Any
 
 
 _ZERO6 = (0.0,) * 6
+_PACK6 = struct.Struct("=6d").pack
+#: Degrees per radian: x * _DEG is math.degrees(x) and np.degrees(x), bit for bit.
+_DEG = 180.0 / math.pi
 _FREE = ConfigRequest()
 
 
 #: One IK branch of one pose: joints (degrees, None when unreachable or outside the limits),
-#: reachable (limits ignored), singular flags (wrist, elbow, shoulder). A plain tuple: eight
-#: are built per ik() call.
-_Branch = tuple[list[float] | None, bool, tuple[bool, bool, bool]]
+#: reachable (limits ignored), singular flags (wrist, elbow, shoulder; None without joints).
+#: A plain tuple: eight are built per ik() call.
+_Branch = tuple[list[float] | None, bool, tuple[bool, bool, bool] | None]
 
 
 #: Two turns of a joint tie when they lie 180° either side of the target; numpy's (SIMD)
@@ -229,13 +229,16 @@ def _turn_cost(cand: Any, target: Any) -> Any:
 def _pick_turn_one(q: float, bounds: tuple[float, float, bool], target: float) -> float | None:
     """Scalar :meth:`IkMixin._pick_turn`: q + 360k (k in 0, -1, 1) inside ``bounds``
     (lo, hi, only the base turn fits) with the least :func:`_turn_cost`, else None."""
-    # atan2's angles mostly are their own base turn: skip the rounding then
-    base = q if -180.0 < q < 180.0 else _base_turn(q)
     lo, hi, single = bounds
     if single:
+        if lo <= q <= hi:
+            return q  # inside (-180, 180): its own base turn
+        base = _base_turn(q)
         return base if lo <= base <= hi else None
-    best = None
-    for cand in (base, base - 360.0, base + 360.0):
+    # atan2's angles mostly are their own base turn: skip the rounding then
+    base = q if -180.0 < q < 180.0 else _base_turn(q)
+    best = base if lo <= base <= hi else None
+    for cand in (base - 360.0, base + 360.0):
         if lo <= cand <= hi and (
             best is None or _turn_cost(cand, target) < _turn_cost(best, target)
         ):
@@ -246,17 +249,19 @@ def _pick_turn_one(q: float, bounds: tuple[float, float, bool], target: float) -
 def _one_transform(T: Any) -> list[list[float]]:
     """One flange2base (4, 4) as rows of Python floats, checked as ``check_transform`` does
     (the batch check costs more than the single IK itself)."""
-    arr = check_transform(T, name="flange2base") if not _plain_4x4(T) else T
+    # a plain float64 (4, 4) (dtype compared by identity: == costs a conversion) is checked
+    # here, anything else by check_transform
+    if type(T) is np.ndarray and T.dtype is _F64 and T.shape == (4, 4):
+        rows: list[list[float]] = T.tolist()
+        _check_rigid_rows(rows)
+        return rows
+    arr = check_transform(T, name="flange2base")
     if arr.ndim != 2:
         raise KinematicsError("ik: expected one (4, 4) flange2base; use ik_batch for N")
-    rows: list[list[float]] = arr.tolist()
-    if arr is T:
-        _check_rigid_rows(rows)
-    return rows
+    return arr.tolist()  # type: ignore[no-any-return]
 
 
-def _plain_4x4(T: Any) -> bool:
-    return isinstance(T, np.ndarray) and T.dtype == np.float64 and T.shape == (4, 4)
+_F64 = np.dtype(np.float64)
 
 
 def _check_rigid_rows(rows: list[list[float]]) -> None:
@@ -394,7 +399,8 @@ class IkMixin(ConfigMixin):
             if q is None:
                 continue
             names: tuple[str, ...] = ()
-            if singular[0] or singular[1] or singular[2]:  # branches coincide only there
+            # branches coincide only at a singularity (flags come with the joints)
+            if singular is not None and (singular[0] or singular[1] or singular[2]):
                 if any(max(abs(u - v) for u, v in zip(q, k[0], strict=True)) <= 1e-9 for k in kept):
                     continue  # the same joints twice
                 names = tuple(nm for nm, f in zip(SINGULARITY_NAMES, singular, strict=True) if f)
@@ -416,50 +422,48 @@ class IkMixin(ConfigMixin):
                 key=lambda k: (k[0][0] - r0) ** 2 + (k[0][1] - r1) ** 2 + (k[0][2] - r2) ** 2
                 + (k[0][3] - r3) ** 2 + (k[0][4] - r4) ** 2 + (k[0][5] - r5) ** 2
             )  # fmt: skip
-        # one read-only array, a row per solution: one numpy call, not one per solution
-        joints = np.array([q for q, _, _ in kept])
-        joints.flags.writeable = False
-        return [IkSolution(j, cfg, names) for j, (_, cfg, names) in zip(joints, kept, strict=True)]
+        # read-only arrays over bytes: cheaper than np.array of a list plus the flag
+        return [IkSolution(np.frombuffer(_PACK6(*q)), cfg, names) for q, cfg, names in kept]
 
     def _ik_one(self, T: list[list[float]], ref: list[float] | None) -> list[_Branch]:
         """The 8 branches of one pose (``CONFIGS`` order), in Python floats: the batch's
         closed form over ``math``, looping over the branches (numpy's per-call overhead on
         (1, 8) arrays costs ten times the arithmetic; ToolMoveJ, jogging and the console
-        pay it per pose). The wrist is solved only for arms inside the limits."""
+        pay it per pose). Each step runs only while the joints so far are inside the limits."""
         g, xp = self._ik_geometry, _MATH
         off = self.joint_offsets_deg
-        bounds = self._turn_bounds
-        pick, degrees = _pick_turn_one, math.degrees
-        target = ref if ref is not None else _ZERO6
-        pref1 = None if ref is None else math.radians(ref[0] + off[0])
-        pref4 = 0.0 if ref is None else math.radians(ref[3] + off[3])
+        b1, b2, b3, b4, b5, b6 = self._turn_bounds
+        r1, r2, r3, r4, r5, r6 = ref if ref is not None else _ZERO6
+        pick, deg = _pick_turn_one, _DEG
+        pref1 = None if ref is None else math.radians(r1 + off[0])
+        pref4 = 0.0 if ref is None else math.radians(r4 + off[3])
         centre = _wrist_centre(g, T, xp)
         out: list[_Branch] = []
         for s in (1.0, -1.0):
             t1, reach, s3abs, sing_sh, sh = _shoulder(g, T, centre, s, pref1, xp)
             # joint 1 is shared by the four branches of this shoulder: its turn picked once
-            q1 = pick(degrees(t1) - off[0], bounds[0], target[0]) if reach else None
+            q1 = pick(t1 * deg - off[0], b1, r1) if reach else None
+            if q1 is None:
+                out += ((None, reach, None),) * 4
+                continue
             for e in (1.0, -1.0):
                 t2, t3, s5abs, el = _elbow(g, T, sh, e, xp)
-                sing = (s5abs < SINGULAR_TOL, s3abs < SINGULAR_TOL, sing_sh)
                 # joints 2-3 are shared by both wrist branches: their turns picked once
-                q2 = q3 = None
-                if q1 is not None:
-                    q2 = pick(degrees(t2) - off[1], bounds[1], target[1])
-                    if q2 is not None:
-                        q3 = pick(degrees(t3) - off[2], bounds[2], target[2])
-                if q1 is None or q2 is None or q3 is None:
-                    out += ((None, reach, sing), (None, reach, sing))
+                q2 = pick(t2 * deg - off[1], b2, r2)
+                q3 = None if q2 is None else pick(t3 * deg - off[2], b3, r3)
+                if q2 is None or q3 is None:
+                    out += ((None, reach, None), (None, reach, None))
                     continue
+                sing = (s5abs < SINGULAR_TOL, s3abs < SINGULAR_TOL, sing_sh)
                 for w in (1.0, -1.0):
                     t4, t5, t6 = _wrist(el, w, pref4, xp)
-                    q: list[float] | None = None
-                    q4 = pick(degrees(t4) - off[3], bounds[3], target[3])
-                    q5 = pick(degrees(t5) - off[4], bounds[4], target[4])
-                    q6 = pick(degrees(t6) - off[5], bounds[5], target[5])
-                    if q4 is not None and q5 is not None and q6 is not None:
-                        q = [q1, q2, q3, q4, q5, q6]
-                    out.append((q, reach, sing))
+                    q4 = pick(t4 * deg - off[3], b4, r4)
+                    q5 = pick(t5 * deg - off[4], b5, r5)
+                    q6 = pick(t6 * deg - off[5], b6, r6)
+                    if q4 is None or q5 is None or q6 is None:
+                        out.append((None, reach, None))
+                    else:
+                        out.append(([q1, q2, q3, q4, q5, q6], reach, sing))
         return out
 
     @cached_property
