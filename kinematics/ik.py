@@ -29,13 +29,24 @@ from kinematics.transforms import RIGID_TOL, Array, check_transform
 _DEGENERATE = 1e-12
 
 
-@dataclass(frozen=True, eq=False)
-class IkSolution:
-    """One IK solution: VAL3 joints (6,) in degrees, its configuration, any singularities."""
+class IkSolution(NamedTuple):
+    """One IK solution: VAL3 joints (6,) in degrees (read-only), its configuration, any
+    singularities. A named tuple: up to eight are built per ik() call, and a frozen
+    dataclass costs three times as much to build."""
 
     joints_deg: Array
     config: Config
     singularities: tuple[str, ...] = ()
+
+    # compared and hashed by identity, as before (a tuple's == would compare the arrays)
+    def __eq__(self, other: object) -> bool:
+        return self is other
+
+    def __ne__(self, other: object) -> bool:
+        return self is not other
+
+    def __hash__(self) -> int:
+        return id(self)
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -384,7 +395,7 @@ class IkMixin(ConfigMixin):
         rows = _one_transform(flange2base_T)
         ref = None if near is None else vector6(near, "near")
         request = None if config is None else ConfigRequest.parse(config)
-        if request == _FREE:
+        if request is not None and request == _FREE:
             request = None
         same_as = None if ref is None or request is None else self.config_of(ref)
         kept: list[tuple[list[float], Config, tuple[str, ...]]] = []
@@ -431,35 +442,43 @@ class IkMixin(ConfigMixin):
         (1, 8) arrays costs ten times the arithmetic; ToolMoveJ, jogging and the console
         pay it per pose). Each step runs only while the joints so far are inside the limits."""
         g, xp = self._ik_geometry, _MATH
-        off = self.joint_offsets_deg
+        off1, off2, off3, off4, off5, off6 = self.joint_offsets_deg
         b1, b2, b3, b4, b5, b6 = self._turn_bounds
+        (l1, h1), (l2, h2), (l3, h3), (l4, h4), (l5, h5), (l6, h6) = self._own_turn
         r1, r2, r3, r4, r5, r6 = ref if ref is not None else _ZERO6
         pick, deg = _pick_turn_one, _DEG
-        pref1 = None if ref is None else math.radians(r1 + off[0])
-        pref4 = 0.0 if ref is None else math.radians(r4 + off[3])
+        pref1 = None if ref is None else math.radians(r1 + off1)
+        pref4 = 0.0 if ref is None else math.radians(r4 + off4)
         centre = _wrist_centre(g, T, xp)
         out: list[_Branch] = []
+        # Each joint: v if it lies where it is its own pick (_own_turn), else the full pick.
         for s in (1.0, -1.0):
             t1, reach, s3abs, sing_sh, sh = _shoulder(g, T, centre, s, pref1, xp)
             # joint 1 is shared by the four branches of this shoulder: its turn picked once
-            q1 = pick(t1 * deg - off[0], b1, r1) if reach else None
+            v = t1 * deg - off1
+            q1 = (v if l1 < v < h1 else pick(v, b1, r1)) if reach else None
             if q1 is None:
                 out += ((None, reach, None),) * 4
                 continue
             for e in (1.0, -1.0):
                 t2, t3, s5abs, el = _elbow(g, T, sh, e, xp)
                 # joints 2-3 are shared by both wrist branches: their turns picked once
-                q2 = pick(t2 * deg - off[1], b2, r2)
-                q3 = None if q2 is None else pick(t3 * deg - off[2], b3, r3)
+                v = t2 * deg - off2
+                q2 = v if l2 < v < h2 else pick(v, b2, r2)
+                v = t3 * deg - off3
+                q3 = v if l3 < v < h3 else pick(v, b3, r3)
                 if q2 is None or q3 is None:
                     out += ((None, reach, None), (None, reach, None))
                     continue
                 sing = (s5abs < SINGULAR_TOL, s3abs < SINGULAR_TOL, sing_sh)
                 for w in (1.0, -1.0):
                     t4, t5, t6 = _wrist(el, w, pref4, xp)
-                    q4 = pick(t4 * deg - off[3], b4, r4)
-                    q5 = pick(t5 * deg - off[4], b5, r5)
-                    q6 = pick(t6 * deg - off[5], b6, r6)
+                    v = t4 * deg - off4
+                    q4 = v if l4 < v < h4 else pick(v, b4, r4)
+                    v = t5 * deg - off5
+                    q5 = v if l5 < v < h5 else pick(v, b5, r5)
+                    v = t6 * deg - off6
+                    q6 = v if l6 < v < h6 else pick(v, b6, r6)
                     if q4 is None or q5 is None or q6 is None:
                         out.append((None, reach, None))
                     else:
@@ -489,6 +508,16 @@ class IkMixin(ConfigMixin):
             lo, hi = lo - LIMIT_SLACK_DEG, hi + LIMIT_SLACK_DEG
             out.append((lo, hi, lo > -180.0 and hi < 180.0))
         return tuple(out)
+
+    @cached_property
+    def _own_turn(self) -> tuple[tuple[float, float], ...]:
+        """Per joint: the open interval (degrees) where a value is its own turn pick, the
+        only one of q, q ± 360 inside the limits, in (-180, 180): the scalar IK's shortcut
+        around :func:`_pick_turn_one`."""
+        return tuple(
+            (max(lo, hi - 360.0, -180.0), min(hi, lo + 360.0, 180.0))
+            for lo, hi, _ in self._turn_bounds
+        )
 
     def _why_unreachable(self, T: list[list[float]]) -> str:
         g = self._ik_geometry
