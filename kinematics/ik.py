@@ -122,7 +122,7 @@ class _Geometry(NamedTuple):
     shoulder_tol: float  # |r| below this: shoulder singularity
 
 
-# The closed form in four steps, each for one branch sign: T is the flange2base indexed
+# The closed form in five steps, each for one branch sign: T is the flange2base indexed
 # T[row][col] (rows of floats, or a (4, 4, N) view); xp the operations. Each step returns
 # what the caller reads first, then what the next step needs.
 
@@ -131,48 +131,54 @@ def _wrist_centre(g: _Geometry, T: Any, xp: _Ops) -> tuple[Any, Any, Any, Any, A
     """(root, φ, wz, reachable by the shoulder, |w_xy|²): the wrist centre w has
     |w_xy|² = root² + d², azimuth φ, height wz above axis 2."""
     r0, r1, r2 = T[0], T[1], T[2]
-    d6, d = g.d6, g.d
+    _, d, _, _, d6, tol, _ = g
     wx, wy, wz = r0[3] - d6 * r0[2], r1[3] - d6 * r1[2], r2[3] - d6 * r2[2]
     rho2 = wx * wx + wy * wy
     disc = rho2 - d * d
-    reach = disc >= -2.0 * g.len_tol * max(abs(d), 1.0)
+    reach = disc >= -2.0 * tol * max(abs(d), 1.0)
     return xp.sqrt(xp.maximum(disc, 0.0)), xp.atan2(wy, wx), wz, reach, rho2
 
 
 def _shoulder(
-    g: _Geometry, T: Any, centre: tuple[Any, ...], sign: Any, pref1: Any, xp: _Ops
-) -> tuple[Any, Any, Any, Any, tuple[Any, ...]]:
-    """Shoulder branch ``sign`` (+1 righty, -1 lefty) -> (θ1, reachable, |sin θ3|, shoulder
-    singular, carry). ``pref1``: θ1 (radians) where the wrist centre is on axis 1, or None
-    to keep the formula's value there."""
+    g: _Geometry, centre: tuple[Any, ...], sign: Any, pref1: Any, xp: _Ops
+) -> tuple[Any, Any, Any, tuple[Any, ...]]:
+    """Shoulder branch ``sign`` (+1 righty, -1 lefty) -> (θ1, reachable, shoulder singular,
+    carry). ``pref1``: θ1 (radians) where the wrist centre is on axis 1, or None to keep the
+    formula's value there."""
     root, phi, wz, reach_sh, rho2 = centre
-    a2, d4 = g.a2, g.d4
+    a1, d, a2, d4, _, tol, shoulder_tol = g
     r = sign * root
-    t1 = phi - xp.atan2(g.d, r)
+    t1 = phi - xp.atan2(d, r)
     if pref1 is not None:
         # Wrist centre on axis 1 (no lateral offset): θ1 is free, keep the current one.
-        t1 = xp.where(rho2 < g.len_tol * g.len_tol, pref1, t1)
-    x = r - g.a1
+        t1 = xp.where(rho2 < tol * tol, pref1, t1)
+    x = r - a1
     c3 = (x * x + wz * wz - a2 * a2 - d4 * d4) / (2.0 * a2 * d4)
     reach = reach_sh & (abs(c3) <= 1.0 + 1e-12)
+    return t1, reach, abs(r) < shoulder_tol, (t1, x, wz, c3)
+
+
+def _arm_plane(T: Any, shoulder: tuple[Any, ...], xp: _Ops) -> tuple[Any, tuple[Any, ...]]:
+    """A shoulder's carry -> (|sin θ3|, carry): the elbow angle's cosine and the flange
+    orientation A = Rz(θ1)ᵀ·R in the arm's plane, shared by both elbows."""
+    t1, x, wz, c3 = shoulder
     c3 = xp.maximum(xp.minimum(c3, 1.0), -1.0)
     s3abs = xp.sqrt(1.0 - c3 * c3)
     s1, c1 = xp.sin(t1), xp.cos(t1)
     r0, r1 = T[0], T[1]
-    # A = Rz(θ1)ᵀ·R: rows 0 and 1 (row 2 is R's)
+    # A: rows 0 and 1 (row 2 is R's)
     a00, a01, a02 = c1 * r0[0] + s1 * r1[0], c1 * r0[1] + s1 * r1[1], c1 * r0[2] + s1 * r1[2]
     a10, a12 = -s1 * r0[0] + c1 * r1[0], -s1 * r0[2] + c1 * r1[2]
-    carry = (c3, s3abs, xp.atan2(x, wz), a00, a01, a02, a10, a12)
-    return t1, reach, s3abs, abs(r) < g.shoulder_tol, carry
+    return s3abs, (c3, s3abs, xp.atan2(x, wz), a00, a01, a02, a10, a12)
 
 
 def _elbow(
-    g: _Geometry, T: Any, shoulder: tuple[Any, ...], sign: Any, xp: _Ops
+    g: _Geometry, T: Any, arm: tuple[Any, ...], sign: Any, xp: _Ops
 ) -> tuple[Any, Any, Any, tuple[Any, ...]]:
-    """Elbow branch ``sign`` (+1 epositive) of a shoulder's carry -> (θ2 in [-π, π), θ3,
+    """Elbow branch ``sign`` (+1 epositive) of an arm plane's carry -> (θ2 in [-π, π), θ3,
     |sin θ5|, carry)."""
-    c3, s3abs, psi, a00, a01, a02, a10, a12 = shoulder
-    a2, d4 = g.a2, g.d4
+    c3, s3abs, psi, a00, a01, a02, a10, a12 = arm
+    _, _, a2, d4, _, _, _ = g
     s3 = sign * s3abs
     t3 = xp.atan2(s3, c3)
     t2 = psi - xp.atan2(d4 * s3, a2 + d4 * c3)
@@ -362,8 +368,9 @@ class IkMixin(ConfigMixin):
             pref1 = np.radians(ref[:, 0] + self._offsets[0])
             pref4 = np.radians(ref[:, 3] + self._offsets[3])
         centre = _wrist_centre(g, Tv, xp)
-        t1, reach, s3abs, sing_sh, sh = _shoulder(g, Tv, centre, _SIGNS[0], pref1, xp)  # (2, N)
-        t2, t3, s5abs, el = _elbow(g, Tv, sh, _SIGNS[1], xp)  # (2, 2, N)
+        t1, reach, sing_sh, sh = _shoulder(g, centre, _SIGNS[0], pref1, xp)  # (2, N)
+        s3abs, arm = _arm_plane(Tv, sh, xp)
+        t2, t3, s5abs, el = _elbow(g, Tv, arm, _SIGNS[1], xp)  # (2, 2, N)
         t4, t5, t6 = _wrist(el, _SIGNS[2], pref4, xp)  # (2, 2, 2, N)
         # axes (wrist, elbow, shoulder, pose) -> (pose, shoulder, elbow, wrist): CONFIGS order
         order = (4, 3, 2, 1, 0)
@@ -453,15 +460,16 @@ class IkMixin(ConfigMixin):
         out: list[_Branch] = []
         # Each joint: v if it lies where it is its own pick (_own_turn), else the full pick.
         for s in (1.0, -1.0):
-            t1, reach, s3abs, sing_sh, sh = _shoulder(g, T, centre, s, pref1, xp)
+            t1, reach, sing_sh, sh = _shoulder(g, centre, s, pref1, xp)
             # joint 1 is shared by the four branches of this shoulder: its turn picked once
             v = t1 * deg - off1
             q1 = (v if l1 < v < h1 else pick(v, b1, r1)) if reach else None
             if q1 is None:
                 out += ((None, reach, None),) * 4
                 continue
+            s3abs, arm = _arm_plane(T, sh, xp)
             for e in (1.0, -1.0):
-                t2, t3, s5abs, el = _elbow(g, T, sh, e, xp)
+                t2, t3, s5abs, el = _elbow(g, T, arm, e, xp)
                 # joints 2-3 are shared by both wrist branches: their turns picked once
                 v = t2 * deg - off2
                 q2 = v if l2 < v < h2 else pick(v, b2, r2)
