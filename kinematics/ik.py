@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any, NamedTuple
@@ -213,6 +213,8 @@ def _wrist(elbow: tuple[Any, ...], sign: Any, pref4: Any, xp: _Ops) -> tuple[Any
 
 
 _ZERO6 = (0.0,) * 6
+#: A turn this close to 180° from the target is left to the full pick (ties, round-off).
+_OWN_MARGIN = 180.0 - 1e-6
 _PACK6 = struct.Struct("=6d").pack
 #: Degrees per radian: x * _DEG is math.degrees(x) and np.degrees(x), bit for bit.
 _DEG = 180.0 / math.pi
@@ -434,7 +436,7 @@ class IkMixin(ConfigMixin):
             if not any_config:
                 raise UnreachableError(f"{self.name}: no solution{what}")
             raise JointLimitError(f"{self.name}: every solution{what} violates a joint limit")
-        if ref is not None:
+        if ref is not None and len(kept) > 1:
             r0, r1, r2, r3, r4, r5 = ref
             kept.sort(
                 key=lambda k: (k[0][0] - r0) ** 2 + (k[0][1] - r1) ** 2 + (k[0][2] - r2) ** 2
@@ -451,8 +453,9 @@ class IkMixin(ConfigMixin):
         g, xp = self._ik_geometry, _MATH
         off1, off2, off3, off4, off5, off6 = self.joint_offsets_deg
         b1, b2, b3, b4, b5, b6 = self._turn_bounds
-        (l1, h1), (l2, h2), (l3, h3), (l4, h4), (l5, h5), (l6, h6) = self._own_turn
-        r1, r2, r3, r4, r5, r6 = ref if ref is not None else _ZERO6
+        target = ref if ref is not None else _ZERO6
+        r1, r2, r3, r4, r5, r6 = target
+        (l1, h1), (l2, h2), (l3, h3), (l4, h4), (l5, h5), (l6, h6) = self._own_turn(target)
         pick, deg = _pick_turn_one, _DEG
         pref1 = None if ref is None else math.radians(r1 + off1)
         pref4 = 0.0 if ref is None else math.radians(r4 + off4)
@@ -517,15 +520,33 @@ class IkMixin(ConfigMixin):
             out.append((lo, hi, lo > -180.0 and hi < 180.0))
         return tuple(out)
 
+    def _own_turn(self, target: Sequence[float]) -> Sequence[tuple[float, float]]:
+        """Per joint: an open interval (degrees) where a value is its own turn pick (what
+        :func:`_pick_turn_one` returns): inside the limits and (-180, 180), every other turn
+        outside the limits (a single-turn joint) or over 180° from ``target`` (6,)."""
+        if target is _ZERO6:
+            return self._own_turn_at_zero
+        out = list(self._own_turn_at_zero)
+        for j, lo, hi in self._multi_turn:
+            t = target[j]
+            out[j] = (max(lo, t - _OWN_MARGIN), min(hi, t + _OWN_MARGIN))
+        return out
+
     @cached_property
-    def _own_turn(self) -> tuple[tuple[float, float], ...]:
-        """Per joint: the open interval (degrees) where a value is its own turn pick, the
-        only one of q, q ± 360 inside the limits, in (-180, 180): the scalar IK's shortcut
-        around :func:`_pick_turn_one`."""
+    def _multi_turn(self) -> tuple[tuple[int, float, float], ...]:
+        """The joints whose limits hold more than one turn: index, limits cut to (-180, 180)."""
         return tuple(
-            (max(lo, hi - 360.0, -180.0), min(hi, lo + 360.0, 180.0))
-            for lo, hi, _ in self._turn_bounds
+            (j, max(lo, -180.0), min(hi, 180.0))
+            for j, (lo, hi, single) in enumerate(self._turn_bounds)
+            if not single
         )
+
+    @cached_property
+    def _own_turn_at_zero(self) -> tuple[tuple[float, float], ...]:
+        out = [(lo, hi) for lo, hi, _ in self._turn_bounds]
+        for j, lo, hi in self._multi_turn:
+            out[j] = (max(lo, -_OWN_MARGIN), min(hi, _OWN_MARGIN))
+        return tuple(out)
 
     def _why_unreachable(self, T: list[list[float]]) -> str:
         g = self._ik_geometry
