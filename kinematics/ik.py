@@ -281,6 +281,7 @@ def _one_transform(T: Any) -> list[list[float]]:
 
 
 _F64 = np.dtype(np.float64)
+_LAST_ROW = [0.0, 0.0, 0.0, 1.0]  # compared first: the exact row is the common case
 
 
 def _check_rigid_rows(rows: list[list[float]]) -> None:
@@ -293,7 +294,9 @@ def _check_rigid_rows(rows: list[list[float]]) -> None:
     ):
         raise KinematicsError(f"{name}: contains NaN or infinity")
     tol = RIGID_TOL
-    if abs(r3[0]) > tol or abs(r3[1]) > tol or abs(r3[2]) > tol or abs(r3[3] - 1.0) > tol:
+    if r3 != _LAST_ROW and (
+        abs(r3[0]) > tol or abs(r3[1]) > tol or abs(r3[2]) > tol or abs(r3[3] - 1.0) > tol
+    ):
         raise KinematicsError(f"{name}: last row must be (0, 0, 0, 1)")
     a, b, c, _ = r0
     d, e, f, _ = r1
