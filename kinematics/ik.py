@@ -71,11 +71,6 @@ class IkBatch:
     singular: BoolArray
 
 
-def _wrap_pi(a: Any) -> Any:
-    """An angle (radians) into [-π, π); floats and arrays alike."""
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
-
-
 class _Ops(NamedTuple):
     """What the closed form calls, for Python floats (``_MATH``, one pose, a loop over the
     branches) or numpy arrays (``_NUMPY``, N poses, the branches broadcast on leading axes):
@@ -190,7 +185,7 @@ def _elbow(
     m20, m21, m22 = s23 * a00 + c23 * r2[0], s23 * a01 + c23 * r2[1], s23 * a02 + c23 * r2[2]
     s5abs = xp.hypot(m02, a12)
     carry = (s5abs, xp.atan2(s5abs, m22), m00, m02, a10, a12, m20, m21, m22)
-    return _wrap_pi(t2), t3, s5abs, carry
+    return (t2 + math.pi) % (2.0 * math.pi) - math.pi, t3, s5abs, carry  # θ2 in [-π, π)
 
 
 def _wrist(elbow: tuple[Any, ...], sign: Any, pref4: Any, xp: _Ops) -> tuple[Any, Any, Any]:
@@ -252,7 +247,7 @@ def _pick_turn_one(q: float, bounds: tuple[float, float, bool], target: float) -
     if single:
         if lo <= q <= hi:
             return q  # inside (-180, 180): its own base turn
-        base = _base_turn(q)
+        base = q if -180.0 < q < 180.0 else _base_turn(q)
         return base if lo <= base <= hi else None
     # atan2's angles mostly are their own base turn: skip the rounding then
     base = q if -180.0 < q < 180.0 else _base_turn(q)
@@ -445,8 +440,10 @@ class IkMixin(ConfigMixin):
                 key=lambda k: (k[0][0] - r0) ** 2 + (k[0][1] - r1) ** 2 + (k[0][2] - r2) ** 2
                 + (k[0][3] - r3) ** 2 + (k[0][4] - r4) ** 2 + (k[0][5] - r5) ** 2
             )  # fmt: skip
-        # read-only arrays over bytes: cheaper than np.array of a list plus the flag
-        return [IkSolution(np.frombuffer(_PACK6(*q)), cfg, names) for q, cfg, names in kept]
+        # read-only arrays over bytes: cheaper than np.array of a list plus the flag; the
+        # tuples built as the named tuple's own __new__ does, without its Python frame
+        new, frombuffer = tuple.__new__, np.frombuffer
+        return [new(IkSolution, (frombuffer(_PACK6(*q)), cfg, names)) for q, cfg, names in kept]
 
     def _ik_one(self, T: list[list[float]], ref: list[float] | None) -> list[_Branch]:
         """The 8 branches of one pose (``CONFIGS`` order), in Python floats: the batch's
