@@ -418,7 +418,7 @@ class IkMixin(ConfigMixin):
                 continue
             names: tuple[str, ...] = ()
             # branches coincide only at a singularity (flags come with the joints)
-            if singular is not None and (singular[0] or singular[1] or singular[2]):
+            if singular is not None and True in singular:
                 if any(max(abs(u - v) for u, v in zip(q, k[0], strict=True)) <= 1e-9 for k in kept):
                     continue  # the same joints twice
                 names = tuple(nm for nm, f in zip(SINGULARITY_NAMES, singular, strict=True) if f)
