@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from itertools import pairwise
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -187,14 +189,14 @@ def test_scalar_ik_equals_the_batch_core_branch_by_branch(name: str, with_near: 
         batch = m.ik_batch(T[None], near=ref)
         branches = m._ik_one(T.tolist(), ref)
         assert len(branches) == len(CONFIGS)
-        for k, b in enumerate(branches):
-            assert b.reachable == bool(batch.reachable[0, k])
-            assert b.singular == tuple(bool(f) for f in batch.singular[0, k])
-            if b.joints_deg is None:
-                assert not batch.valid[0, k]
+        for k, (joints, reachable, singular) in enumerate(branches):
+            assert reachable == bool(batch.reachable[0, k])
+            if joints is None:
+                assert not batch.valid[0, k] and singular is None
             else:
                 assert batch.valid[0, k]
-                np.testing.assert_allclose(b.joints_deg, batch.joints_deg[0, k], atol=1e-9)
+                assert singular == tuple(bool(f) for f in batch.singular[0, k])
+                np.testing.assert_allclose(joints, batch.joints_deg[0, k], atol=1e-9)
 
 
 @SETTINGS
@@ -253,3 +255,89 @@ def test_a_turn_tie_at_180_goes_above_the_target_in_both_paths(ulps: int) -> Non
     batch = m._pick_turn(qb, np.full((1, 6), target))[0, 0, 3]
     assert one == batch
     assert one is not None and abs(one - (target + 180.0)) < 1e-9
+
+
+def _on_shoulder_singularity(name: str, q: list[float]) -> list[float] | None:
+    """q with joint 2 turned so that the wrist centre lies on the shoulder singularity
+    (r = 0), or None when that joint 2 is outside its limits."""
+    m = get_model(name)
+    off = m.joint_offsets_deg
+    t3 = np.radians(q[2] + off[2])
+    a2, d4 = m.upper_arm_mm, m.forearm_mm
+    amp = np.hypot(a2 + d4 * np.cos(t3), d4 * np.sin(t3))
+    if abs(m.shoulder_offset_mm) > amp:
+        return None
+    beta = np.arctan2(d4 * np.sin(t3), a2 + d4 * np.cos(t3))
+    q2 = float(np.degrees(np.arcsin(-m.shoulder_offset_mm / amp) - beta)) - off[1]
+    lo, hi = m.limits[1]
+    return [q[0], q2, *q[2:]] if lo <= q2 <= hi else None
+
+
+@pytest.mark.parametrize("name", MODELS)
+@SETTINGS
+@given(
+    data=st.data(),
+    special=st.sampled_from(["plain", "wrist", "elbow", "shoulder"]),
+    start=st.sampled_from(["none", "q", "tie", "offset"]),
+)
+def test_single_ik_equals_the_batch_ik_on_random_poses(
+    name: str, data: st.DataObject, special: str, start: str
+) -> None:
+    """ik() (math, inline turn picks) against the batch (numpy, the plain pick) as reference:
+    the same errors, the same solutions with the same turns, in the same order, on random
+    reachable poses, at the wrist, elbow and shoulder singularities, and with a start whose
+    wrist joints lie 180° from the pose's (the turn ties)."""
+    m = get_model(name)
+    q = data.draw(_joints(name))
+    if special == "wrist":
+        q[4] = -m.joint_offsets_deg[4]
+    elif special == "elbow":
+        q[2] = -m.joint_offsets_deg[2]
+    elif special == "shoulder":
+        moved = _on_shoulder_singularity(name, q)
+        if moved is not None:
+            q = moved
+    ref: list[float] | None = None
+    if start == "q":
+        ref = list(q)
+    elif start == "tie":
+        ref = [q[0], q[1], q[2], q[3] - 180.0, q[4], q[5] + 180.0]
+    elif start == "offset":
+        ref = [v + data.draw(st.floats(-30.0, 30.0)) for v in q]
+    T = m.flange2base(q)
+    batch = m.ik_batch(T[None], near=ref)
+    try:
+        sols = m.ik(T, near=ref)
+    except UnreachableError:
+        assert not batch.reachable.any()
+        return
+    except JointLimitError:
+        assert batch.reachable.any() and not batch.valid.any()
+        return
+    # the reference: valid branches in CONFIGS order, a duplicate at a singularity once,
+    # sorted by distance to the start
+    expected: list[tuple[np.ndarray, object]] = []
+    for k, cfg in enumerate(CONFIGS):
+        joints = batch.joints_deg[0, k]
+        if batch.valid[0, k] and not any(np.max(np.abs(joints - e)) <= 1e-9 for e, _ in expected):
+            expected.append((joints, cfg))
+    assert len(sols) == len(expected) == len({s.config for s in sols})
+    got = {s.config: s for s in sols}
+    for joints, cfg in expected:
+        sol = got[cfg]
+        if "wrist" in sol.singularities:
+            # θ4 and θ6 alone are ill-conditioned there (libm's and numpy's atan2 part ways,
+            # as before this path was shared): the same arm and θ4 + θ6 (θ5 ≈ 0); both
+            # paths reach the pose only to ~1e-5 there (the closed form's conditioning)
+            arm = [0, 1, 2, 4]
+            np.testing.assert_allclose(sol.joints_deg[arm], joints[arm], rtol=0, atol=1e-9)
+            turn = (sol.joints_deg[3] + sol.joints_deg[5] - joints[3] - joints[5]) % 360.0
+            assert min(turn, 360.0 - turn) < 1e-2
+        else:
+            np.testing.assert_allclose(sol.joints_deg, joints, rtol=0, atol=1e-9)
+    if ref is not None:
+        dist = [float(np.sum((s.joints_deg - ref) ** 2)) for s in sols]
+        assert all(a <= b + 1e-6 for a, b in pairwise(dist))
+    else:
+        order = [cfg for _, cfg in expected]
+        assert [s.config for s in sols] == order
