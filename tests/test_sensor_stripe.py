@@ -51,12 +51,23 @@ def _naive_stripe(
 
 def _naive_smooth(rows: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """The documented cross-column step in a plain loop: [1, 2, 3, 2, 1]/9 of the five centres
-    where all five are valid and the three second differences about the column are small."""
+    where all five are valid and the three second differences about the column are small,
+    else [1, 2, 1]/4 of the three where those are valid and the column's own is small."""
     out = rows.copy()
-    for i in range(2, len(rows) - 2):
-        bends = [rows[j - 1] - 2.0 * rows[j] + rows[j + 1] for j in (i - 1, i, i + 1)]
-        if valid[i - 2 : i + 3].all() and all(abs(b) <= MAX_BEND_PX for b in bends):
+    n = len(rows)
+
+    def bend(j: int) -> float:
+        return float(rows[j - 1] - 2.0 * rows[j] + rows[j + 1])
+
+    for i in range(1, n - 1):
+        if (
+            2 <= i < n - 2
+            and valid[i - 2 : i + 3].all()
+            and all(abs(bend(j)) <= MAX_BEND_PX for j in (i - 1, i, i + 1))
+        ):
             out[i] = float(np.dot([1.0, 2.0, 3.0, 2.0, 1.0], rows[i - 2 : i + 3])) / 9.0
+        elif valid[i - 1 : i + 2].all() and abs(bend(i)) <= MAX_BEND_PX:
+            out[i] = float(np.dot([1.0, 2.0, 1.0], rows[i - 1 : i + 2])) / 4.0
     return out
 
 
