@@ -114,8 +114,8 @@ class Detection:
 
 @dataclass(frozen=True)
 class _Centred:
-    """A profile's points as rows [1, y, z, y², yz, z²] (n, 6) of y - cy and z - cz (mm),
-    and its centre (cy, cz)."""
+    """A profile's points as columns [1, y, z, y², yz, z²] (6, n) of y - cy and z - cz
+    (mm), ones (n,), and its centre (cy, cz)."""
 
     w: FloatArray
     ones: FloatArray
@@ -233,9 +233,13 @@ class SeamDetector:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         norm = math.hypot(1.0, slope)
         cy, sy = 1.0 / norm, slope / norm
-        t = np.array(
-            [[1.0, 0.0, 0.0, 0.0], [0.0, cy, -sy, y], [0.0, sy, cy, z], [0.0, 0.0, 0.0, 1.0]]
-        )
+        # item by item into a copy of the identity: half the cost of np.array(nested lists)
+        t = _EYE4.copy()
+        t[1, 1] = t[2, 2] = cy
+        t[1, 2] = -sy
+        t[2, 1] = sy
+        t[1, 3] = y
+        t[2, 3] = z
         return Detection(
             status=SeamStatus.FOUND,
             seam2sensor=t,
@@ -482,18 +486,17 @@ def _not_isolated_outliers(z: FloatArray, tol: float) -> NDArray[np.bool_]:
 def _centred(y: FloatArray, z: FloatArray) -> _Centred:
     """The points of a profile for :func:`_robust_line`, centred on the end points'
     midpoint (cy, cz) so that the closed-form moment sums lose no precision, with their
-    moment products: built once per frame, the sums of any fit's points are then one
-    column sum of a slice or subset of rows (a BLAS product per fit copies its operands
-    and costs several times more)."""
+    moment products; built once per frame, a fit's sums are then one matrix-vector
+    product with a slice or subset of columns."""
     cy = 0.5 * (float(y[0]) + float(y[-1]))
     cz = 0.5 * (float(z[0]) + float(z[-1]))
-    w = np.empty((y.size, 6))
-    w[:, 0] = 1.0
-    dy = np.subtract(y, cy, out=w[:, 1])
-    dz = np.subtract(z, cz, out=w[:, 2])
-    np.multiply(dy, dy, out=w[:, 3])
-    np.multiply(dy, dz, out=w[:, 4])
-    np.multiply(dz, dz, out=w[:, 5])
+    w = np.empty((6, y.size))
+    w[0] = 1.0
+    dy = np.subtract(y, cy, out=w[1])
+    dz = np.subtract(z, cz, out=w[2])
+    np.multiply(dy, dy, out=w[3])
+    np.multiply(dy, dz, out=w[4])
+    np.multiply(dz, dz, out=w[5])
     return _Centred(w, np.ones(y.size), cy, cz)
 
 
@@ -501,14 +504,14 @@ def _robust_line(
     p: _Centred, columns: slice | NDArray[np.bool_], iterations: int = 2
 ) -> _Line | None:
     """Least-squares line z = a + b·y through the ``columns`` of profile ``p``, refitted
-    without points beyond 3.5 robust sigma. A fit's moment sums are one product of a
-    weight vector (ones, or the points kept) with the moment rows: BLAS on C-contiguous
-    rows, no copy."""
-    w = p.w[columns] if isinstance(columns, slice) else p.w.compress(columns, axis=0)
-    n = w.shape[0]
+    without points beyond 3.5 robust sigma. A fit's moment sums are one product of the
+    moment rows with a weight vector (ones, or the points kept); a (3, n) point matrix
+    times its transpose made BLAS copy both operands, at more than the product's cost."""
+    w = p.w[:, columns] if isinstance(columns, slice) else p.w.compress(columns, axis=1)
+    n = w.shape[1]
     if n < 3:
         return None
-    sums = p.ones[:n].dot(w)
+    sums = w.dot(p.ones[:n])
     keep: NDArray[np.bool_] | None = None
     a = b = rms = 0.0
     for it in range(iterations + 1):
@@ -525,7 +528,7 @@ def _robust_line(
         a = mz - b * my
         rms = math.sqrt(max(szz - sz * mz - b * syz_c, 0.0) / n)
         if it < iterations:
-            res = np.abs(w.dot(np.array([-a, -b, 1.0, 0.0, 0.0, 0.0])))
+            res = np.abs(np.array([-a, -b, 1.0, 0.0, 0.0, 0.0]).dot(w))
             fitted = res.copy() if keep is None else res[keep]
             sigma = MAD_TO_SIGMA * median_of_copy(fitted)  # sorts ``fitted``
             limit = max(_OUTLIER_SIGMAS * sigma, _MIN_OUTLIER_MM)
@@ -538,5 +541,5 @@ def _robust_line(
             if keep is not None and not (new_keep ^ keep).any():
                 break
             keep = new_keep
-            sums = keep.astype(np.float64).dot(w)
+            sums = w.dot(keep.astype(np.float64))
     return _Line(a=a + p.cz - b * p.cy, b=b, rms=rms, n=n)
