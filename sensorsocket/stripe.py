@@ -140,21 +140,25 @@ class StripeFinder:
         windows = np.ndarray(
             (flat.size - w + 1, w), flat.dtype, flat, 0, (flat.itemsize, flat.itemsize)
         )
+        moments = np.empty((3, n), dtype=np.float32)
+        mass = moments[0]
+        positive = np.empty(n, dtype=bool)
+        rows = np.empty(n, dtype=np.float32)
         # window start of a window centred on row r, clamped to the frame: c.start_of_row[r]
         start = c.start_of_row.take(peak_row)
-        moments = self._moments(windows, start, base, thr32, c.zeros)
-        rows = self._centres(moments, start, c.fill)
-        # re-centre on the first centroid (symmetric window, whole plateau): only the
-        # columns whose window moves (about one in six) need a second pass
-        start2 = c.start_of_row.take(np.rint(rows).astype(np.intp), mode="clip")
-        moved = np.flatnonzero(start2 != start)
-        if moved.size:
-            start = start2
-            moments[:, moved] = self._moments(windows, start[moved], base[moved], thr32, c.zeros)
-            rows = self._centres(moments, start, c.fill)
-        mass = moments[0]
-        positive = mass > 0.0
-        rel = rows - start.astype(np.float32)
+        for second in (False, True):
+            if second:  # re-centre on the first centroid: symmetric window, whole plateau
+                start = c.start_of_row.take(np.rint(rows).astype(np.intp), mode="clip")
+            start_f = start.astype(np.float32)
+            start += base
+            vals = windows[start].astype(np.float32)
+            vals -= thr32
+            np.maximum(vals, c.zeros, out=vals)  # an array operand takes the SIMD loop
+            np.matmul(self._win_moments, vals.T, out=moments)
+            np.greater(mass, 0.0, out=positive)
+            rel = c.fill.copy()  # h where a window has no light: rows = window centre
+            np.divide(moments[1], mass, out=rel, where=positive)
+            np.add(rel, start_f, out=rows)
         spread = np.full(n, np.inf, dtype=np.float32)
         np.divide(moments[2], mass, out=spread, where=positive)
         spread -= rel * rel
@@ -172,33 +176,6 @@ class StripeFinder:
             noise=noise,
             threshold=threshold,
         )
-
-    def _moments(
-        self,
-        windows: NDArray[np.generic],
-        start: NDArray[np.intp],
-        base: NDArray[np.intp],
-        thr32: np.float32,
-        zeros: NDArray[np.float32],
-    ) -> NDArray[np.float32]:
-        """Mass, first and second moment (3, k) of the thresholded light in the windows of
-        k columns (offsets ``base``, window rows from ``start``)."""
-        vals = windows[start + base].astype(np.float32)
-        vals -= thr32
-        np.maximum(vals, zeros[: vals.shape[0]], out=vals)  # an array operand: SIMD loop
-        out: NDArray[np.float32] = self._win_moments @ vals.T
-        return out
-
-    @staticmethod
-    def _centres(
-        moments: NDArray[np.float32], start: NDArray[np.intp], fill: NDArray[np.float32]
-    ) -> NDArray[np.float32]:
-        """Centroid rows (k,) of windows from ``start``; the window centre where no light."""
-        mass = moments[0]
-        rel = fill.copy()  # h where a window has no light: rows = window centre
-        np.divide(moments[1], mass, out=rel, where=mass > 0.0)
-        rel += start
-        return rel
 
     def mass_at(
         self,
