@@ -114,9 +114,11 @@ class Detection:
 
 @dataclass(frozen=True)
 class _Centred:
-    """A profile as rows [1, y - cy, z - cz] (3, n), mm, and its centre (cy, cz)."""
+    """A profile's points as columns [1, y, z, y², yz, z²] (6, n) of y - cy and z - cz
+    (mm), ones (n,), and its centre (cy, cz)."""
 
-    q: FloatArray
+    w: FloatArray
+    ones: FloatArray
     cy: float
     cz: float
 
@@ -231,9 +233,13 @@ class SeamDetector:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         norm = math.hypot(1.0, slope)
         cy, sy = 1.0 / norm, slope / norm
-        t = np.array(
-            [[1.0, 0.0, 0.0, 0.0], [0.0, cy, -sy, y], [0.0, sy, cy, z], [0.0, 0.0, 0.0, 1.0]]
-        )
+        # item by item into a copy of the identity: half the cost of np.array(nested lists)
+        t = _EYE4.copy()
+        t[1, 1] = t[2, 2] = cy
+        t[1, 2] = -sy
+        t[2, 1] = sy
+        t[1, 3] = y
+        t[2, 3] = z
         return Detection(
             status=SeamStatus.FOUND,
             seam2sensor=t,
@@ -478,36 +484,41 @@ def _not_isolated_outliers(z: FloatArray, tol: float) -> NDArray[np.bool_]:
 
 
 def _centred(y: FloatArray, z: FloatArray) -> _Centred:
-    """Rows [1, y - cy, z - cz] (3, n) of a profile for :func:`_robust_line`, centred on
-    the end points' midpoint (cy, cz) so that the closed-form moment sums lose no
-    precision; built once per frame, each fit takes a slice or a subset of columns."""
+    """The points of a profile for :func:`_robust_line`, centred on the end points'
+    midpoint (cy, cz) so that the closed-form moment sums lose no precision, with their
+    moment products; built once per frame, a fit's sums are then one matrix-vector
+    product with a slice or subset of columns."""
     cy = 0.5 * (float(y[0]) + float(y[-1]))
     cz = 0.5 * (float(z[0]) + float(z[-1]))
-    q = np.empty((3, y.size))
-    q[0] = 1.0
-    np.subtract(y, cy, out=q[1])
-    np.subtract(z, cz, out=q[2])
-    return _Centred(q, cy, cz)
+    w = np.empty((6, y.size))
+    w[0] = 1.0
+    dy = np.subtract(y, cy, out=w[1])
+    dz = np.subtract(z, cz, out=w[2])
+    np.multiply(dy, dy, out=w[3])
+    np.multiply(dy, dz, out=w[4])
+    np.multiply(dz, dz, out=w[5])
+    return _Centred(w, np.ones(y.size), cy, cz)
 
 
 def _robust_line(
     p: _Centred, columns: slice | NDArray[np.bool_], iterations: int = 2
 ) -> _Line | None:
     """Least-squares line z = a + b·y through the ``columns`` of profile ``p``, refitted
-    without points beyond 3.5 robust sigma. Each fit is one moment product (3, 3)."""
-    q = p.q[:, columns] if isinstance(columns, slice) else p.q.compress(columns, axis=1)
-    n = q.shape[1]
+    without points beyond 3.5 robust sigma. A fit's moment sums are one product of the
+    moment rows with a weight vector (ones, or the points kept); a (3, n) point matrix
+    times its transpose made BLAS copy both operands, at more than the product's cost."""
+    w = p.w[:, columns] if isinstance(columns, slice) else p.w.compress(columns, axis=1)
+    n = w.shape[1]
     if n < 3:
         return None
-    qk = q
+    sums = w.dot(p.ones[:n])
     keep: NDArray[np.bool_] | None = None
     a = b = rms = 0.0
     for it in range(iterations + 1):
-        n = qk.shape[1]
+        count, sy, sz, syy, syz, szz = sums.tolist()
+        n = int(count)
         if n < 3:
             return None
-        # ndarray.dot: the same BLAS product as @ with less per-call overhead
-        (_, sy, sz), (_, syy, syz), (_, _, szz) = qk.dot(qk.T).tolist()
         my, mz = sy / n, sz / n
         syy_c = syy - sy * my
         if syy_c <= 1e-12 or syy_c <= 1e-10 * syy:  # all points at one y (to rounding)
@@ -517,7 +528,7 @@ def _robust_line(
         a = mz - b * my
         rms = math.sqrt(max(szz - sz * mz - b * syz_c, 0.0) / n)
         if it < iterations:
-            res = np.abs(np.array([-a, -b, 1.0]).dot(q))
+            res = np.abs(np.array([-a, -b, 1.0, 0.0, 0.0, 0.0]).dot(w))
             fitted = res.copy() if keep is None else res[keep]
             sigma = MAD_TO_SIGMA * median_of_copy(fitted)  # sorts ``fitted``
             limit = max(_OUTLIER_SIGMAS * sigma, _MIN_OUTLIER_MM)
@@ -530,5 +541,5 @@ def _robust_line(
             if keep is not None and not (new_keep ^ keep).any():
                 break
             keep = new_keep
-            qk = q.compress(keep, axis=1)
+            sums = w.dot(keep.astype(np.float64))
     return _Line(a=a + p.cz - b * p.cy, b=b, rms=rms, n=n)

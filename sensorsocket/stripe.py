@@ -9,8 +9,9 @@ Last, each valid column whose two neighbours on either side are valid and in lin
 (second differences at most ``MAX_BEND_PX``) takes the [1, 2, 3, 2, 1]/9 average of the five
 centres: the noise of one column's centroid is pixel noise (read, shot, speckle) independent
 between columns, so averaging along a straight piece of stripe halves it without bias (a
-symmetric kernel on a line), as a blur across columns does before a centre of gravity;
-edges, steps and corners keep their own centre.
+symmetric kernel on a line), as a blur across columns does before a centre of gravity.
+Next to an end, a gap or a corner, a column whose own neighbours are valid and in line takes
+the [1, 2, 1]/4 average of three; the last column before an end or a corner keeps its own.
 Frames are in readout layout ``(columns, rows)``, see :mod:`sensorsocket.camera`; the seam
 stages are in :mod:`sensorsocket.detector`.
 """
@@ -230,8 +231,10 @@ class StripeFinder:
 def smooth_straight(rows: NDArray[np.float32], valid: NDArray[np.bool_]) -> None:
     """[1, 2, 3, 2, 1]/9 across columns, in place, where a column and its two neighbours on
     either side are valid and the three second differences about it are at most
-    ``MAX_BEND_PX`` (rows (n,), n >= 5). Written as rows + (b[-1] + 4·b[0] + b[1])/9 on the
-    second differences b, the same weights."""
+    ``MAX_BEND_PX``; else [1, 2, 1]/4 where the column and its two next neighbours are
+    valid and its own second difference is at most that (next to ends, gaps and corners);
+    rows (n,), n >= 5. Written as rows + (b[-1] + 4·b[0] + b[1])/9 and rows + b[0]/4 on
+    the second differences b, the same weights."""
     bend = rows[:-2] + rows[2:]
     bend -= 2.0 * rows[1:-1]  # bend[k]: second difference at column k + 1
     straight = np.abs(bend) <= np.float32(MAX_BEND_PX)
@@ -245,6 +248,11 @@ def smooth_straight(rows: NDArray[np.float32], valid: NDArray[np.bool_]) -> None
     step += bend[2:]
     step *= np.float32(1.0 / 9.0)
     step *= ok
+    # the three-column average where the five-column one does not apply
+    straight[1:-1] &= ~ok
+    bend *= np.float32(0.25)
+    bend *= straight
+    rows[1:-1] += bend
     rows[2:-2] += step
 
 

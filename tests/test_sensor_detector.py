@@ -234,3 +234,56 @@ def test_line_rows_equal_the_calibration_per_column(u0: int, n: int, a: float, b
     exact = det.camera.line_row(u, np.full(u.size, a), np.full(u.size, b))
     np.testing.assert_allclose(rows, exact, rtol=0.0, atol=1e-9)
     assert det._line_rows([], _Line(a=a, b=b, rms=0.0, n=10)) == []
+
+
+def _plain_robust_line(
+    y: np.ndarray, z: np.ndarray, iterations: int = 2
+) -> tuple[float, float, float, int]:
+    """The documented robust fit in plain numpy: polyfit, drop points beyond 3.5 robust
+    sigma (at least 10 µm) of the residuals of the points fitted, refit, until the kept set
+    repeats; returns (a, b, rms, points in the last fit)."""
+    keep = np.ones(y.size, dtype=bool)
+    a = b = rms = 0.0
+    for it in range(iterations + 1):
+        b, a = np.polyfit(y[keep], z[keep], 1)
+        rms = float(np.sqrt(np.mean((z[keep] - a - b * y[keep]) ** 2)))
+        if it == iterations:
+            break
+        res = np.abs(z - a - b * y)
+        limit = max(3.5 * 1.4826 * float(np.median(res[keep])), 0.01)
+        new_keep = res <= limit
+        if (new_keep == keep).all():
+            break
+        keep = new_keep
+    return float(a), float(b), rms, int(keep.sum())
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(20, 400),
+    slope=st.floats(-0.5, 0.5),
+    noise=st.floats(0.002, 0.05),
+    outliers=st.floats(0.0, 0.2),
+    subset=st.booleans(),
+)
+def test_robust_line_equals_a_plain_fit(
+    seed: int, n: int, slope: float, noise: float, outliers: float, subset: bool
+) -> None:
+    """The fits from moment rows (one matrix-vector product per fit) against polyfit on the
+    same points, for a slice of the profile or a subset given as a mask."""
+    from sensorsocket.detector import _centred, _robust_line
+
+    rng = np.random.default_rng(seed)
+    y = np.sort(rng.uniform(-8.0, 8.0, n))
+    z = 1.5 + slope * y + rng.normal(0.0, noise, n)
+    bad = rng.random(n) < outliers
+    z[bad] += rng.choice([-1.0, 1.0], int(bad.sum())) * rng.uniform(0.3, 2.0, int(bad.sum()))
+    mask = rng.random(n) < 0.7 if subset else np.ones(n, dtype=bool)
+    line = _robust_line(_centred(y, z), mask if subset else slice(None))
+    a, b, rms, kept = _plain_robust_line(y[mask], z[mask])
+    assert line is not None
+    assert line.n == kept
+    assert line.a == pytest.approx(a, abs=1e-9)
+    assert line.b == pytest.approx(b, abs=1e-9)
+    assert line.rms == pytest.approx(rms, abs=1e-9)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from sensorsocket.camera import StripeRenderer
 from sensorsocket.detector import DetectorConfig
@@ -25,13 +27,14 @@ def _frame(joint: Joint, seed: int = 1, **kw: float) -> np.ndarray:
     return frame
 
 
-def _naive_stripe(frame: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray]:
+def _naive_stripe(
+    frame: np.ndarray, h: int, thr: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Two-pass windowed centroid per column in plain Python loops (the documented method),
-    given the threshold the detector estimated; returns (rows, mass)."""
-    thr = _finder(h).stripe(frame).threshold  # background/noise estimate: checked separately
+    given the threshold the detector estimated; returns (rows, mass, spread (px²))."""
     n, nrows = frame.shape
     w = 2 * h + 1
-    rows, mass = np.zeros(n), np.zeros(n)
+    rows, mass, spread = np.zeros(n), np.zeros(n), np.full(n, np.inf)
     for col in range(n):
         values = frame[col].astype(np.float64)
         start = min(max(int(np.argmax(values)) - h, 0), nrows - w)
@@ -40,18 +43,31 @@ def _naive_stripe(frame: np.ndarray, h: int) -> tuple[np.ndarray, np.ndarray]:
             m = win.sum()
             rel = (win @ np.arange(w)) / m if m > 0 else float(h)
             rows[col], mass[col] = start + rel, m
+            if m > 0:
+                spread[col] = (win @ np.arange(w) ** 2) / m - rel * rel
             start = min(max(int(np.rint(start + rel)) - h, 0), nrows - w)
-    return rows, mass
+    return rows, mass, spread
 
 
 def _naive_smooth(rows: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """The documented cross-column step in a plain loop: [1, 2, 3, 2, 1]/9 of the five centres
-    where all five are valid and the three second differences about the column are small."""
+    where all five are valid and the three second differences about the column are small,
+    else [1, 2, 1]/4 of the three where those are valid and the column's own is small."""
     out = rows.copy()
-    for i in range(2, len(rows) - 2):
-        bends = [rows[j - 1] - 2.0 * rows[j] + rows[j + 1] for j in (i - 1, i, i + 1)]
-        if valid[i - 2 : i + 3].all() and all(abs(b) <= MAX_BEND_PX for b in bends):
+    n = len(rows)
+
+    def bend(j: int) -> float:
+        return float(rows[j - 1] - 2.0 * rows[j] + rows[j + 1])
+
+    for i in range(1, n - 1):
+        if (
+            2 <= i < n - 2
+            and valid[i - 2 : i + 3].all()
+            and all(abs(bend(j)) <= MAX_BEND_PX for j in (i - 1, i, i + 1))
+        ):
             out[i] = float(np.dot([1.0, 2.0, 3.0, 2.0, 1.0], rows[i - 2 : i + 3])) / 9.0
+        elif valid[i - 1 : i + 2].all() and abs(bend(i)) <= MAX_BEND_PX:
+            out[i] = float(np.dot([1.0, 2.0, 1.0], rows[i - 1 : i + 2])) / 4.0
     return out
 
 
@@ -59,7 +75,8 @@ def _naive_smooth(rows: np.ndarray, valid: np.ndarray) -> np.ndarray:
 def test_stripe_matches_a_per_column_loop(h: int) -> None:
     frame = _frame(Joint.lap(1.0), seed=21, seam_y_mm=1.3)[:200]
     stripe = _finder(h).stripe(frame)
-    rows, mass = _naive_stripe(frame, h)
+    # background/noise estimate: checked below
+    rows, mass, _ = _naive_stripe(frame, h, stripe.threshold)
     # background = median of the pixels at h+3 rows above and below each peak
     peak = frame.argmax(axis=1)
     ring = np.concatenate(
@@ -115,3 +132,47 @@ def test_stripe_centres_within_0_03_px_of_the_renderer_truth() -> None:
     e = np.concatenate(err)
     assert float(np.sqrt(np.mean(e * e))) <= 0.03
     assert float(np.max(np.abs(e))) < 0.2
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    h=st.integers(2, 8),
+    n=st.integers(5, 60),
+    extra_rows=st.integers(0, 40),
+    saturate=st.booleans(),
+)
+def test_stripe_matches_the_per_column_loop_on_random_frames(
+    seed: int, h: int, n: int, extra_rows: int, saturate: bool
+) -> None:
+    """Any frame shape and content: a wavy stripe of varying brightness and width, dark and
+    clipped columns, noise; the vectorised finder (first pass for all columns, second pass
+    only where the window moves, cross-column step) equals the plain loop."""
+    rng = np.random.default_rng(seed)
+    nrows = 2 * h + 1 + extra_rows
+    centre = rng.uniform(-2, nrows + 1) + np.cumsum(rng.normal(0, 0.7, n))
+    sigma = rng.uniform(0.6, 3.0, n)
+    peak = rng.uniform(0, 400 if saturate else 200, n) * (rng.random(n) > 0.1)
+    r = np.arange(nrows)
+    light = peak[:, None] * np.exp(-0.5 * ((r[None, :] - centre[:, None]) / sigma[:, None]) ** 2)
+    frame = np.clip(np.rint(light + rng.normal(8, 2, (n, nrows))), 0, 255).astype(np.uint8)
+    finder = _finder(h)
+    stripe = finder.stripe(frame)
+    rows, mass, spread = _naive_stripe(frame, h, stripe.threshold)
+    np.testing.assert_allclose(stripe.mass, mass, rtol=1e-4, atol=1e-3)
+    top = frame.max(axis=1).astype(np.float64)
+    contrast = max(finder.min_contrast_dn, 6.0 * stripe.noise)
+    valid = (top >= stripe.background + contrast) & (mass > 0)
+    valid &= spread <= finder.max_width_px**2
+    # float32 against float64: a spread within rounding of the bound may go either way
+    unsure = np.abs(spread - finder.max_width_px**2) < 1e-3
+    np.testing.assert_array_equal(stripe.valid[~unsure], valid[~unsure])
+    want = _naive_smooth(rows, stripe.valid)
+    # a second difference within rounding of the bend limit may go either way, too
+    bend = np.abs(rows[:-2] - 2 * rows[1:-1] + rows[2:])
+    edge = np.flatnonzero(np.abs(bend - MAX_BEND_PX) < 1e-3) + 1
+    sure = np.ones(n, dtype=bool)
+    for k in edge:
+        sure[max(k - 2, 0) : k + 3] = False
+    lit = mass > 0
+    np.testing.assert_allclose(stripe.rows[lit & sure], want[lit & sure], atol=1e-3)
