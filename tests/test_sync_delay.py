@@ -24,7 +24,6 @@ from sync.delay import (
     SineExperiment,
     Verdict,
     _interp_sorted,
-    _mse_curve,
     _mse_curve_masked,
     assess_run,
     estimate_delay,
@@ -34,6 +33,7 @@ from sync.delay import (
     upsample,
     window_delays,
 )
+from sync.mse_curve import mse_curve
 
 TOL_S = 0.06e-3
 
@@ -339,7 +339,7 @@ def test_mse_curve_equals_the_definition(
     jr, yr = upsample(t_r, y_r, step)
     js, ys = upsample(t_s, y_s, step)
     shifts = np.arange(m_lo, m_lo + span + 1, dtype=np.int64)
-    mse, overlap = _mse_curve(jr, len(yr), js, ys, shifts, (t_r, y_r, step))
+    mse, overlap = mse_curve((t_s, y_s), (t_r, y_r), shifts, step)
     # the plain per-shift mean (the path of runs with lost data), every point kept
     ref, ref_overlap = _mse_curve_masked(jr, yr, js, ys, shifts, np.ones(len(ys)))
     np.testing.assert_array_equal(overlap, ref_overlap)
