@@ -208,6 +208,21 @@ def _mse_curve_masked(
     return mse, overlap
 
 
+def _parabola(y: list[float]) -> tuple[float, float]:
+    """Least-squares a·x² + b·x + c through y at x = -h .. h (grid steps from the minimum, so
+    the sums stay well scaled); returns (a, b). Odd powers of x sum to zero, which leaves
+    b = Σxy / Σx² and two normal equations for a and c."""
+    h = len(y) // 2
+    xs = range(-h, h + 1)
+    n = len(y)
+    s2 = sum(x * x for x in xs)
+    s4 = sum(x**4 for x in xs)
+    sy = math.fsum(y)
+    sxy = math.fsum(x * v for x, v in zip(xs, y, strict=True))
+    sx2y = math.fsum(x * x * v for x, v in zip(xs, y, strict=True))
+    return (n * sx2y - s2 * sy) / (n * s4 - s2 * s2), sxy / s2
+
+
 def estimate_delay(
     t_robot: ArrayLike,
     y_robot: ArrayLike,
@@ -281,11 +296,9 @@ def estimate_delay(
         if require_interior:
             raise NoInteriorMinimumError(est)
         return est
-    # Fit in grid-step units centred on the minimum, so the normal equations stay well scaled.
-    x = np.arange(-h, h + 1, dtype=np.float64)
-    a, b, _ = np.polyfit(x, mse[i - h : i + h + 1], 2)
+    a, b = _parabola(mse[i - h : i + h + 1].tolist())
     # Flat or concave around the grid minimum: keep the grid value.
-    vertex = float(np.clip(-b / (2.0 * a), -h, h)) if a > 0 else 0.0
+    vertex = min(max(-b / (2.0 * a), -h), h) if a > 0 else 0.0
     return DelayEstimate(
         delta_t_s=float((shifts[i] + vertex) * grid_step_s),
         shifts_s=shifts_s,

@@ -17,7 +17,7 @@ so only pairs of knots matter. Pairs whose lag q - p falls inside the searched r
 five robot knots per sensor knot for 20 ms: ~12k pairs, not 5M products of grid points) are
 summed per lag and spread by K; the pairs below the range add the same cubic in m to every
 shift, whose four coefficients are tail sums of the sensor signal at each robot knot
-(:func:`_outer_cubic`). Every sum is over a signal's own values and pieces, so the rounding is
+(:func:`_cross`). Every sum is over a signal's own values and pieces, so the rounding is
 that of the direct sums; there is no difference of large prefix sums.
 """
 
@@ -49,16 +49,19 @@ def grid_span(t: NDArray[np.float64], grid_step_s: float) -> tuple[int, int]:
 @dataclass(frozen=True)
 class _Pieces:
     """A signal on the grid points [lo, hi), zero outside, as the knots of h (module
-    docstring). Knot k sits at ``x[k]`` (grid steps, increasing); piece k holds the grid
-    points e[k] .. e[k + 1] - 1 (none when two knots share a grid interval), where
-    h = ``start[k] + slope[k]·(j - e[k])``."""
+    docstring). Knot k sits at ``x[k]`` (grid steps, increasing); piece k holds the ``n[k]``
+    grid points e[k] .. e[k + 1] - 1 (none when two knots share a grid interval), where
+    h = ``start[k] + slope[k]·(j - e[k])``. Grid positions are whole floats."""
 
     lo: int
     hi: int
     x: NDArray[np.float64]  # (K,)
-    e: NDArray[np.int64]  # (K,) ceil(x)
+    e: NDArray[np.float64]  # (K,) ceil(x)
     start: NDArray[np.float64]  # (K - 1,)
     slope: NDArray[np.float64]  # (K - 1,)
+    n: NDArray[np.float64]  # (K - 1,)
+    s1: NDArray[np.float64]  # (K - 1,) Σ w over w = 0 .. n - 1
+    s2: NDArray[np.float64]  # (K - 1,) Σ w²
     bend: NDArray[np.float64]  # (K,) slope change at each knot (slope 0 outside)
     squares: NDArray[np.float64]  # (K,) Σ h(j)² over the grid points before e[k]
 
@@ -67,162 +70,184 @@ def _pieces(t: NDArray[np.float64], y: NDArray[np.float64], grid_step_s: float) 
     lo, hi = grid_span(t, grid_step_s)
     x = t / grid_step_s
     near = np.rint(x)
-    x = np.where(np.abs(x - near) < GRID_SNAP, near, x)
-    # samples strictly inside (lo, hi - 1); two that snapped onto one grid point count once
-    inner = (x > lo) & (x < hi - 1)
-    inner[1:] &= x[1:] > x[:-1]
+    np.copyto(x, near, where=np.abs(x - near) < GRID_SNAP)
     ends = np.interp(np.array([lo, hi - 1], dtype=np.float64) * grid_step_s, t, y)
     if hi - lo == 1:
         xs = np.array([lo - 1.0, lo, lo + 1.0])
         hs = np.array([0.0, ends[0], 0.0])
     else:
+        # samples strictly inside (lo, hi - 1); two that snapped onto one grid point count once
+        inner = (x > lo) & (x < hi - 1)
+        inner[1:] &= x[1:] > x[:-1]
         xs = np.concatenate([[lo - 1.0, lo], x[inner], [hi - 1.0, hi]])
         hs = np.concatenate([[0.0], ends[:1], y[inner], ends[1:], [0.0]])
-    slope = np.diff(hs) / np.diff(xs)
-    e = np.ceil(xs).astype(np.int64)
+    slope = (hs[1:] - hs[:-1]) / (xs[1:] - xs[:-1])
+    e = np.ceil(xs)
     start = hs[:-1] + slope * (e[:-1] - xs[:-1])
+    n = e[1:] - e[:-1]
+    s1 = n * (n - 1.0) / 2.0
+    s2 = s1 * (2.0 * n - 1.0) / 3.0
     squares = np.empty(xs.shape[0])
     squares[0] = 0.0
-    np.cumsum(_square_sums(np.diff(e), start, slope), out=squares[1:])
-    bend = np.diff(slope, prepend=0.0, append=0.0)
-    return _Pieces(lo, hi, xs, e, start, slope, bend, squares)
+    np.cumsum(_square_sums(n, s1, s2, start, slope), out=squares[1:])
+    bend = np.empty(xs.shape[0])
+    bend[0] = slope[0]
+    np.subtract(slope[1:], slope[:-1], out=bend[1:-1])
+    bend[-1] = -slope[-1]
+    return _Pieces(lo, hi, xs, e, start, slope, n, s1, s2, bend, squares)
 
 
 def _square_sums(
-    n: NDArray[np.int64], c: NDArray[np.float64], b: NDArray[np.float64]
+    n: NDArray[np.float64],
+    s1: NDArray[np.float64],
+    s2: NDArray[np.float64],
+    c: NDArray[np.float64],
+    b: NDArray[np.float64],
 ) -> NDArray[np.float64]:
-    """Σ_{w=0}^{n-1} (c + b·w)², elementwise."""
-    nf = n.astype(np.float64)
-    s1 = nf * (nf - 1.0) / 2.0
-    s2 = s1 * (2.0 * nf - 1.0) / 3.0
-    out: NDArray[np.float64] = nf * c * c + 2.0 * c * b * s1 + b * b * s2
+    """Σ_{w=0}^{n-1} (c + b·w)² from the power sums s1 = Σ w and s2 = Σ w², elementwise."""
+    out: NDArray[np.float64] = (n * c + 2.0 * b * s1) * c + b * b * s2
     return out
 
 
-def _piece_at(p: _Pieces, j: NDArray[np.int64]) -> NDArray[np.int64]:
+def _piece_at(p: _Pieces, j: NDArray[np.float64]) -> NDArray[np.int64]:
     """The piece holding each grid point j in [lo - 1, hi] (the last piece for hi)."""
     i: NDArray[np.int64] = np.searchsorted(p.e, j, side="right") - 1
     np.minimum(i, p.start.shape[0] - 1, out=i)
     return i
 
 
-def _square_prefix(p: _Pieces, j: NDArray[np.int64]) -> NDArray[np.float64]:
+def _square_prefix(p: _Pieces, j: NDArray[np.float64]) -> NDArray[np.float64]:
     """Σ g[v]² over v < j, for j in [lo, hi]."""
     i = _piece_at(p, j)
-    out: NDArray[np.float64] = p.squares.take(i) + _square_sums(
-        j - p.e.take(i), p.start.take(i), p.slope.take(i)
-    )
+    w = j - p.e.take(i)
+    s1 = w * (w - 1.0) / 2.0
+    s2 = s1 * (2.0 * w - 1.0) / 3.0
+    out = _square_sums(w, s1, s2, p.start.take(i), p.slope.take(i))
+    out += p.squares.take(i)
     return out
 
 
-def _spikes(p: _Pieces) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-    """Where the second difference of g is not zero, and its values there: two per knot at
-    most (one for a knot on the grid)."""
+def _spikes(p: _Pieces) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Where the second difference of g is not zero, and its values there: (1 - frac)·bend
+    on floor(x) of every knot, frac·bend on the next point for a knot off the grid."""
     floor = np.floor(p.x)
     frac = p.x - floor
-    at = np.concatenate([floor, floor + 1.0]).astype(np.int64)
-    value = np.concatenate([p.bend * (1.0 - frac), p.bend * frac])
-    keep = value != 0.0
-    return at[keep], value[keep]
+    bend = p.bend
+    off = np.flatnonzero(frac)
+    at = np.concatenate([floor, floor.take(off) + 1.0])
+    value = np.concatenate([bend * (1.0 - frac), bend.take(off) * frac.take(off)])
+    return at, value
 
 
-def _outer_cubic(
-    s: _Pieces, q: NDArray[np.int64], wq: NDArray[np.float64], first: int
-) -> NDArray[np.float64]:
-    """(Ψ0, Ψ1, Ψ2, Ψ3): the pairs of spikes with lag q - p < ``first`` add
-    Σ_k binom(m - first + 1, k)·Ψ(3 - k) to C(m) for every m >= first.
-
-    Ψk = Σ_q wq·σk(q - first) with σk(X) = Σ_{p > X} d_s[p]·binom(p - X, k): σ1 is g_s[X],
-    σ0 = g_s[X] - g_s[X + 1], and σ2, σ3 follow from the tail sums of g_s from X,
-    M(X) = Σ_{j >= X} g_s[j] and T(X) = Σ_{j >= X} g_s[j]·(j - X): σ2 = M - g, σ3 = T - M + g.
-    """
-    n = np.diff(s.e)
-    nf = n.astype(np.float64)
-    s1 = nf * (nf - 1.0) / 2.0
-    s2 = s1 * (2.0 * nf - 1.0) / 3.0
-    whole0 = nf * s.start + s.slope * s1  # Σ g over each piece
-    whole1 = s.start * s1 + s.slope * s2  # Σ g·(j - e) over each piece
-    # tail sums from each knot (0 from the last); positions relative to lo keep them small
-    e_rel = (s.e - s.lo).astype(np.float64)
-    tail0 = np.zeros(s.e.shape[0])
-    tail0[:-1] = np.cumsum(whole0[::-1])[::-1]
-    tail1 = np.zeros(s.e.shape[0])
-    tail1[:-1] = np.cumsum((whole1 + e_rel[:-1] * whole0)[::-1])[::-1]
-    tail1 -= e_rel * tail0
-    # g at each knot's grid point e[k], read from the last piece starting there
-    last = np.where(np.append(s.e[1:] != s.e[:-1], True), np.arange(s.e.shape[0]), s.e.shape[0])
-    last = np.minimum.accumulate(last[::-1])[::-1]
-    g_at_e = np.append(s.start, 0.0).take(last)
-
-    x = q - first
-    xc = np.clip(x, s.e[0], s.e[-1])  # g is 0 outside: below, M is constant, T linear
-    i = _piece_at(s, xc)
-    w0 = xc - s.e.take(i)
-    left = n.take(i) - w0  # grid points from xc to the end of its piece
-    b = s.slope.take(i)
-    g = s.start.take(i) + b * w0
-    lf = left.astype(np.float64)
-    l1 = lf * (lf - 1.0) / 2.0
-    l2 = l1 * (2.0 * lf - 1.0) / 3.0
-    m0_next = tail0.take(i + 1)
-    tail_m = g * lf + b * l1 + m0_next
-    tail_t = g * l1 + b * l2 + tail1.take(i + 1) + lf * m0_next + (xc - x) * tail_m
-    g_next = np.where((left > 1) & (x == xc), g + b, 0.0)
-    g_next = np.where((left == 1) & (x == xc), g_at_e.take(i + 1), g_next)
-    sigma = np.stack([g - g_next, g, tail_m - g, tail_t - tail_m + g])
-    out: NDArray[np.float64] = np.add.reduce(sigma * wq, axis=1)
-    return out
-
-
-def _lag_sums(
-    s: _Pieces, q: NDArray[np.int64], wq: NDArray[np.float64], first: int, count: int
-) -> NDArray[np.float64]:
-    """F(l) = Σ d_s[p]·d_r[q] over the spike pairs with q - p = l, for l = first ..
-    first + count - 1. Each sensor knot's two spikes are handled together: the one on
-    floor(x) has lag q - floor(x), the other one less."""
-    floor = np.floor(s.x)
-    frac = s.x - floor
-    lo = np.searchsorted(floor, q - (first + count), side="left")
-    hi = np.searchsorted(floor, q - first, side="right")
-    width = int(np.max(hi - lo, initial=0))
-    if width == 0:
-        return np.zeros(count)
-    # the knots of each robot spike's window as one row: rows of a sliding view, padded with
-    # knots far to the right (weight 0) so every window fits
-    k = s.x.shape[0]
-    table = np.zeros((k + width, 3))
-    table[:k, 0] = floor
-    table[k:, 0] = float(np.max(q)) - first + 1.0  # beyond every window
-    table[:k, 1] = s.bend * (1.0 - frac)
-    table[:k, 2] = s.bend * frac
-    rows = np.lib.stride_tricks.sliding_window_view(table, (width, 3))[lo, 0]
-    lag = q[:, None] - rows[:, :, 0] - first  # of the spike on floor(x)
-    use = (lag >= 0.0) & (lag <= count)
-    at = np.where(use, lag, 0.0).astype(np.int64).ravel()
-    w = np.where(use, wq[:, None], 0.0)
-    on_floor = np.bincount(at, weights=(w * rows[:, :, 1]).ravel(), minlength=count + 1)
-    after = np.bincount(at, weights=(w * rows[:, :, 2]).ravel(), minlength=count + 1)
-    out: NDArray[np.float64] = np.add(on_floor[:count], after[1:], dtype=np.float64)
-    return out
+def _tails(s: _Pieces) -> NDArray[np.float64]:
+    """Per piece k (columns): e, n, start, slope, and at the next knot the tail sums
+    M = Σ_{j >= e} g[j] and T = Σ_{j >= e} g[j]·(j - e) and g itself."""
+    whole0 = s.n * s.start + s.slope * s.s1  # Σ g over each piece
+    whole1 = s.start * s.s1 + s.slope * s.s2  # Σ g·(j - e) over each piece
+    k = s.e.shape[0]
+    table = np.empty((7, k - 1))
+    table[0] = s.e[:-1]
+    table[1] = s.n
+    table[2] = s.start
+    table[3] = s.slope
+    # suffix sums from knot k + 1 on (0 from the last); positions relative to lo keep them small
+    e_rel = s.e[:-1] - s.lo
+    tail0 = np.cumsum(whole0[::-1])[::-1]
+    tail1 = np.cumsum((whole1 + e_rel * whole0)[::-1])[::-1] - e_rel * tail0
+    table[4, :-1] = tail0[1:]
+    table[5, :-1] = tail1[1:]
+    table[4:6, -1] = 0.0
+    # g at the next knot's grid point, read from the last piece that starts there
+    same = s.e[1:] == s.e[:-1]
+    last = np.arange(k)
+    if same.any():
+        last = np.where(np.append(same, False), k, last)
+        last = np.minimum.accumulate(last[::-1])[::-1]
+    table[6] = np.append(s.start, 0.0).take(last[1:])
+    return table
 
 
 def _cross(s: _Pieces, r: _Pieces, shifts: NDArray[np.int64]) -> NDArray[np.float64]:
     """C(m) = Σ_j g_s[j]·g_r[j + m] for the consecutive shifts m."""
     q, wq = _spikes(r)
     first = int(shifts[0])
-    psi = _outer_cubic(s, q, wq, first)
-    d = np.arange(1, shifts.shape[0] + 1, dtype=np.float64)  # m - first + 1
-    # Σ_k binom(d, k)·Ψ(3 - k), by Horner
-    c: NDArray[np.float64] = psi[1] + (d - 2.0) / 3.0 * psi[0]
-    c = psi[3] + d * (psi[2] + (d - 1.0) / 2.0 * c)
-    if shifts.shape[0] > 2:
-        # pairs at lags first .. last - 2 reach C(m) for m >= lag + 2 with weights
-        # K(m - lag) = 1, 4, 10, 20, ...: four running sums
-        f = _lag_sums(s, q, wq, first, shifts.shape[0] - 2)
-        for _ in range(4):
-            f = np.cumsum(f)
-        c[2:] += f
+    count = shifts.shape[0] - 2  # lags first .. first + count - 1 reach the curve
+    x = q - first
+    # The pairs with lag q - p < first (p > x): tail sums of g_s from x (module docstring).
+    # Ψk = Σ_q wq·σk(x) with σk(x) = Σ_{p > x} d_s[p]·binom(p - x, k): σ1 = g_s[x],
+    # σ0 = g_s[x] - g_s[x + 1], σ2 = M - g, σ3 = T - M + g for M = Σ_{j >= x} g_s[j] and
+    # T = Σ_{j >= x} g_s[j]·(j - x). Below the span M is constant and T linear, above both 0.
+    xc = np.clip(x, s.e[0], s.e[-1])
+    i = _piece_at(s, xc)
+    e, n, start, b, tail0, tail1, g_e = _tails(s).take(i, axis=1)
+    w0 = xc - e
+    left = n - w0  # grid points from xc to the end of its piece
+    g = start + b * w0
+    l1 = left * (left - 1.0) / 2.0
+    l2 = l1 * (2.0 * left - 1.0) / 3.0
+    sums = np.empty((4, x.shape[0]))
+    sums[0] = g
+    sums[1] = np.where(left > 1.0, g + b, g_e)
+    sums[1] *= x == xc
+    sums[2] = g * left + b * l1 + tail0
+    sums[3] = g * l1 + b * l2 + tail1 + left * tail0 + (xc - x) * sums[2]
+    g_sum, next_sum, m_sum, t_sum = np.add.reduce(sums * wq, axis=1)
+    psi0, psi1, psi2, psi3 = g_sum - next_sum, g_sum, m_sum - g_sum, t_sum - m_sum + g_sum
+    # C(m) gets Σ_k binom(d, k)·Ψ(3 - k) with d = m - first + 1, by Horner
+    d = np.arange(1.0, shifts.shape[0] + 1.0)
+    c: NDArray[np.float64] = psi1 + (d - 2.0) / 3.0 * psi0
+    c = psi3 + d * (psi2 + (d - 1.0) / 2.0 * c)
+    if count > 0:
+        c[2:] += _window_sums(s, x, wq, i, count)
     return c
+
+
+def _window_sums(
+    s: _Pieces, x: NDArray[np.float64], wq: NDArray[np.float64], i: NDArray[np.int64], count: int
+) -> NDArray[np.float64]:
+    """The pairs with lag q - p = l in first .. first + count - 1, summed per lag as F(l), reach
+    C(m) with weight K(m - l) = 1, 4, 10, 20, ... from m = l + 2 on: four running sums of F.
+
+    A sensor knot's two spikes are taken together: the one on floor(x_k) has lag q - floor,
+    the other one less. Per robot spike (x = q - first) the knots wanted have floor in
+    [x - count, x]: they end at most ``longest`` (knots in one grid interval) after the piece
+    ``i`` of x and start at most ``most`` (knots with e in any count + 1 grid points) before
+    its end. The window of each spike takes that many knots; the ones outside the lag range
+    land in two end bins that are dropped."""
+    e = s.e
+    k = e.shape[0]
+    runs = np.flatnonzero(e[1:] != e[:-1])
+    longest = int(np.max(np.diff(runs, prepend=-1, append=k - 1)))
+    most = min(k, int(count * (k - 1) / max(e[-1] - e[0], 1.0)) + 1)
+    while most < k and not np.min(e[most:] - e[:-most]) > count:
+        most += max(1, most // 2)
+    width = most + longest
+    floor = np.floor(s.x)
+    frac = s.x - floor
+    # knot columns padded with knots of weight 0 beyond every window
+    at_knot = np.full(k + width, int(np.max(x)) + 2, dtype=np.intp)
+    at_knot[:k] = floor
+    on_floor = np.zeros(k + width)
+    np.multiply(s.bend, 1.0 - frac, out=on_floor[:k])
+    after = np.zeros(k + width)
+    np.multiply(s.bend, frac, out=after[:k])
+    # window o of every robot spike, flat and offset-major: one knot per robot spike per row
+    start = np.maximum(i + 1 - most, 0)
+    knot = np.empty((width, start.shape[0]), dtype=np.intp)
+    for o in range(width):
+        np.add(start, o, out=knot[o])
+    knot = knot.ravel()
+    # bin = lag - first + 1 = (x + 1) - floor; lags outside the range land in the end bins
+    bins = np.tile((x + 1.0).astype(np.intp), width)
+    bins -= at_knot.take(knot)
+    np.clip(bins, 0, count + 2, out=bins)
+    w = np.tile(wq, width)
+    on_floor = np.bincount(bins, weights=on_floor.take(knot) * w, minlength=count + 3)
+    after = np.bincount(bins, weights=after.take(knot) * w, minlength=count + 3)
+    f: NDArray[np.float64] = np.add(on_floor[1 : count + 1], after[2 : count + 2], dtype=np.float64)
+    for _ in range(4):
+        np.cumsum(f, out=f)
+    return f
 
 
 def mse_curve(
@@ -244,8 +269,11 @@ def mse_curve(
     lo = np.maximum(s.lo, r.lo - shifts)
     hi = np.maximum(np.minimum(s.hi, r.hi - shifts), lo)
     overlap = hi - lo
-    sq_s = _square_prefix(s, hi) - _square_prefix(s, lo)
-    sq_r = _square_prefix(r, hi + shifts) - _square_prefix(r, lo + shifts)
+    ends = np.concatenate([hi, lo]).astype(np.float64)
+    sq = _square_prefix(s, ends)
+    sq_s = sq[: shifts.shape[0]] - sq[shifts.shape[0] :]
+    sq = _square_prefix(r, ends + np.concatenate([shifts, shifts]))
+    sq_r = sq[: shifts.shape[0]] - sq[shifts.shape[0] :]
     cross = _cross(s, r, shifts)
     mse = np.full(shifts.shape[0], np.inf)
     ok = overlap >= 2

@@ -25,6 +25,7 @@ from sync.delay import (
     Verdict,
     _interp_sorted,
     _mse_curve_masked,
+    _parabola,
     assess_run,
     estimate_delay,
     residual_after_sync,
@@ -369,3 +370,18 @@ def test_grid_interpolation_is_np_interp_bit_for_bit(
         x = np.concatenate([x, xp])
     x.sort()
     np.testing.assert_array_equal(_interp_sorted(x, xp, fp), np.interp(x, xp, fp))
+
+
+@settings(max_examples=100, deadline=None, derandomize=True)
+@given(
+    h=st.integers(1, 5),
+    y=st.lists(st.floats(-1e3, 1e3), min_size=11, max_size=11),
+)
+def test_parabola_is_the_least_squares_fit(h: int, y: list[float]) -> None:
+    """The closed-form fit through the minimum and its neighbours is np.polyfit's."""
+    ys = y[: 2 * h + 1]
+    a, b = _parabola(ys)
+    ref_a, ref_b, _ = np.polyfit(np.arange(-h, h + 1, dtype=np.float64), ys, 2)
+    scale = 1.0 + max(abs(v) for v in ys)
+    assert a == pytest.approx(ref_a, rel=1e-9, abs=1e-9 * scale)
+    assert b == pytest.approx(ref_b, rel=1e-9, abs=1e-9 * scale)
