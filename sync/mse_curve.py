@@ -216,9 +216,12 @@ def _window_sums(
     land in two end bins that are dropped."""
     e = s.e
     k = e.shape[0]
-    runs = np.flatnonzero(e[1:] != e[:-1])
-    longest = int(np.max(np.diff(runs, prepend=-1, append=k - 1)))
-    most = min(k, int(count * (k - 1) / max(e[-1] - e[0], 1.0)) + 1)
+    longest = 1
+    if np.any(e[1:] == e[:-1]):
+        runs = np.flatnonzero(e[1:] != e[:-1])
+        longest = int(np.max(np.diff(runs, prepend=-1, append=k - 1)))
+    # a guess from the mean spacing, plus the two knots one grid step apart at either end
+    most = min(k, int(count * (k - 1) / max(e[-1] - e[0], 1.0)) + 3)
     while most < k and not np.min(e[most:] - e[:-most]) > count:
         most += max(1, most // 2)
     width = most + longest
