@@ -17,8 +17,10 @@ so only pairs of knots matter. Pairs whose lag q - p falls inside the searched r
 five robot knots per sensor knot for 20 ms: ~12k pairs, not 5M products of grid points) are
 summed per lag and spread by K; the pairs below the range add the same cubic in m to every
 shift, whose four coefficients are tail sums of the sensor signal at each robot knot
-(:func:`_cross`). Every sum is over a signal's own values and pieces, so the rounding is
-that of the direct sums; there is no difference of large prefix sums.
+(:func:`_cross`). The one sum that grows with the run (T, position-weighted) only sets the
+cubic's constant term, the same for every shift, so the curve's shape near its minimum keeps
+the rounding of the direct sums: seed 1 of the bench gives ΔT 1e-13 s from the grid-point
+form.
 """
 
 from __future__ import annotations
