@@ -32,6 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from sync.mse_curve import grid_span, mse_curve
+
 __all__ = [
     "DEFAULT_GRID_STEP_S",
     "DelayEstimate",
@@ -148,13 +150,10 @@ def _interp_sorted(
 
 def _grid_span(t: NDArray[np.float64], grid_step_s: float) -> tuple[int, int]:
     """First grid index inside the span of the times ``t``, and one past the last."""
-    if not (math.isfinite(grid_step_s) and grid_step_s > 0):
-        raise DelayEstimateError(f"grid step must be positive, got {grid_step_s}")
-    j0 = math.ceil(t[0] / grid_step_s - 1e-9)
-    j1 = math.floor(t[-1] / grid_step_s + 1e-9)
-    if j1 < j0:
-        raise DelayEstimateError("signal span is shorter than one grid step")
-    return j0, j1 + 1
+    try:
+        return grid_span(t, grid_step_s)
+    except ValueError as exc:
+        raise DelayEstimateError(str(exc)) from None
 
 
 def _gap_mask(
@@ -173,156 +172,6 @@ def _gap_mask(
     return out
 
 
-def _mse_curve(
-    jr: int,
-    lr: int,
-    js: int,
-    ys: NDArray[np.float64],
-    shifts: NDArray[np.int64],
-    robot: tuple[NDArray[np.float64], NDArray[np.float64], float],
-) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-    """mean_j (ys[j] - yr[j + m])^2 over the overlap, per shift m (grid steps, stepping by 1).
-
-    ``ys`` is the sensor signal upsampled from grid index js on; yr is the robot signal
-    ``robot`` = (times, values, grid step) linearly interpolated at the lr grid points from jr
-    on, as :func:`upsample` gives it, but never built: yr is linear between robot samples.
-    Expanded as (Σ ys² + Σ yr² - 2 Σ ys·yr) / n: Σ ys² is a prefix sum, Σ yr² closed forms
-    per piece; over a piece a + b·v the sum of ys·yr is a·ΔP0 + b·ΔP1 for the prefix sums
-    P0 of ys and P1 of u·ys, so a shift costs two look-ups per robot sample (250 Hz), not
-    one product per grid point (5 kHz).
-    """
-    t_k, y_k, step = robot
-    ls = ys.shape[0]
-    # A common offset leaves every difference, hence the MSE, unchanged; centred, the sums
-    # below stay small and the expansion keeps its digits.
-    mean = float(np.add.reduce(y_k)) / y_k.shape[0]
-    ys = ys - mean
-    y_k = y_k - mean
-    # overlap of ys[u] (u = j - js) and yr[v] (v = j + m - jr), in ys's index u
-    lo = np.clip(jr - shifts - js, 0, ls)
-    hi = np.clip(jr + lr - shifts - js, 0, ls)
-    overlap = np.maximum(hi - lo, 0)
-    u = np.arange(ls, dtype=np.float64)
-    p0 = _prefix(ys)
-    p1 = _prefix(u * ys)
-    # robot pieces in yr's index v: piece i covers v in [e_i, e_{i+1}), yr = a_i + b_i·v
-    v_k = t_k / step - jr
-    e = np.clip(np.ceil(v_k - 1e-9).astype(np.int64), 0, lr)
-    e[-1] = lr
-    b = np.diff(y_k) / np.diff(v_k)
-    a = y_k[:-1] - b * v_k[:-1]
-    # Σ_v ys[v - M]·(a + b·v) over a piece = (a + b·M)·ΔP0 + b·ΔP1 at u = v - M, M = m + js - jr;
-    # summed by knot: a piece's start subtracts what the previous piece's end adds
-    da = np.concatenate([[-a[0]], a[:-1] - a[1:], [a[-1]]])
-    db = np.concatenate([[-b[0]], b[:-1] - b[1:], [b[-1]]])
-    shift_u = shifts + (js - jr)
-    cross = _knot_sums(p0, p1, e, shift_u, da, db)
-    sq_s = _range_sums(ys * ys, lo, hi)
-    start = a + b * e[:-1]  # yr at each piece's first grid point
-    whole = np.concatenate([[0.0], np.cumsum(_square_sums(start, b, np.diff(e)))])
-    v_lo = np.clip(lo + shift_u, 0, lr)
-    v_hi = np.clip(hi + shift_u, 0, lr)
-    sq_r = _piece_prefix(whole, start, b, e, v_hi) - _piece_prefix(whole, start, b, e, v_lo)
-    mse = np.full(shifts.shape[0], np.inf)
-    ok = overlap >= 2
-    mse[ok] = (sq_s[ok] + sq_r[ok] - 2.0 * cross[ok]) / overlap[ok]
-    return mse, np.where(ok, overlap, 0).astype(np.int64)
-
-
-def _square_sums(
-    c: NDArray[np.float64], b: NDArray[np.float64], n: NDArray[np.int64]
-) -> NDArray[np.float64]:
-    """Σ_{w=0}^{n-1} (c + b·w)², elementwise."""
-    nf = n.astype(np.float64)
-    s1 = nf * (nf - 1.0) / 2.0
-    s2 = (nf - 1.0) * nf * (2.0 * nf - 1.0) / 6.0
-    out: NDArray[np.float64] = nf * c * c + 2.0 * c * b * s1 + b * b * s2
-    return out
-
-
-def _piece_prefix(
-    whole: NDArray[np.float64],
-    start: NDArray[np.float64],
-    b: NDArray[np.float64],
-    e: NDArray[np.int64],
-    x: NDArray[np.int64],
-) -> NDArray[np.float64]:
-    """Σ_{v<x} yr(v)² for yr = start_i + b_i·(v - e_i) on piece i; ``whole`` (K + 1,) holds
-    the sums over the pieces before each one."""
-    i = np.clip(np.searchsorted(e, x, side="right") - 1, 0, b.shape[0] - 1)
-    return whole.take(i) + _square_sums(start.take(i), b.take(i), x - e.take(i))
-
-
-#: Knots per block of :func:`_knot_sums`: a block's rows (block x shifts floats) stay below
-#: malloc's mmap threshold, so no block pays fresh zero pages (measured: 10x the arithmetic).
-_KNOT_BLOCK = 128
-
-
-def _knot_sums(
-    p0: NDArray[np.float64],
-    p1: NDArray[np.float64],
-    e: NDArray[np.int64],
-    shift_u: NDArray[np.int64],
-    da: NDArray[np.float64],
-    db: NDArray[np.float64],
-) -> NDArray[np.float64]:
-    """Σ_k (da_k + M·db_k)·P0[e_k - M] + db_k·P1[e_k - M] for every M in ``shift_u`` (which
-    steps by one), the prefix sums read clamped to their ends. For one knot the values over
-    all shifts are a run of P backwards: one slice of a padded copy, not S look-ups."""
-    n = shift_u.shape[0]
-    first = e - shift_u[-1]  # index read for the largest shift: each run starts there
-    # Runs that would leave P (the first and last few knots) are read clamped, one look-up
-    # each; the rest are rows of a sliding-window view of P, copied in blocks.
-    inside = (first >= 0) & (first + n <= p0.shape[0])
-    edge = np.flatnonzero(~inside)
-    edge_at = first[edge, None] + np.arange(n)
-    mid = np.flatnonzero(inside)
-    acc0 = np.zeros(n)
-    acc_m = np.zeros(n)
-    acc1 = np.zeros(n)
-    for p, pairs in ((p0, ((da, acc0), (db, acc_m))), (p1, ((db, acc1),))):
-        rows = p.take(edge_at, mode="clip")
-        for coef, acc in pairs:
-            acc += coef[edge] @ rows
-        runs = np.lib.stride_tricks.sliding_window_view(p, n)
-        for lo in range(0, mid.shape[0], _KNOT_BLOCK):
-            block = mid[lo : lo + _KNOT_BLOCK]
-            rows = runs[first[block]]
-            for coef, acc in pairs:
-                acc += coef[block] @ rows
-    # the runs go from the largest shift to the smallest
-    out: NDArray[np.float64] = (acc0 + acc1)[::-1] + shift_u * acc_m[::-1]
-    return out
-
-
-def _range_sums(
-    x: NDArray[np.float64], lo: NDArray[np.int64], hi: NDArray[np.int64]
-) -> NDArray[np.float64]:
-    """Σ x[lo:hi] per pair (lo <= hi). One pair per shift: the starts lie in one short run
-    and the ends in another, so only those runs get prefix sums and the stretch between
-    them one plain sum, not a prefix sum over all of x."""
-    a0, a1 = int(lo.min()), int(lo.max())
-    b0, b1 = int(hi.min()), int(hi.max())
-    if a1 > b0:  # the runs overlap (a short signal): one prefix sum over all of it
-        q = _prefix(x)
-        out: NDArray[np.float64] = q.take(hi) - q.take(lo)
-        return out
-    head = _prefix(x[a0:a1])
-    tail = _prefix(x[b0:b1])
-    out = head[-1] - head.take(lo - a0)
-    out += float(np.add.reduce(x[a1:b0]))
-    out += tail.take(hi - b0)
-    return out
-
-
-def _prefix(x: NDArray[np.float64]) -> NDArray[np.float64]:
-    """[0, x0, x0 + x1, ...]: the sum of x[lo:hi] is out[hi] - out[lo]."""
-    out = np.empty(x.shape[0] + 1)  # not zeros: a fresh 400 kB zeroed block costs a memset
-    out[0] = 0.0
-    np.cumsum(x, out=out[1:])
-    return out
-
-
 def _mse_curve_masked(
     jr: int,
     yr: NDArray[np.float64],
@@ -331,9 +180,9 @@ def _mse_curve_masked(
     shifts: NDArray[np.int64],
     mask: NDArray[np.float64] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-    """:func:`_mse_curve` over the sensor grid points a ``mask`` keeps (1.0 / 0.0 per point),
-    by the plain per-shift sum on the upsampled robot signal ``yr`` (from grid index jr): the
-    run with lost data, and the reference the closed form is tested against."""
+    """The MSE curve over the sensor grid points a ``mask`` keeps (1.0 / 0.0 per point), by
+    the plain per-shift sum on the upsampled robot signal ``yr`` (from grid index jr): the
+    run with lost data, and the reference :func:`sync.mse_curve.mse_curve` is tested against."""
     mse = np.full(shifts.shape[0], np.inf)
     overlap = np.zeros(shifts.shape[0], dtype=np.int64)
     r_end = jr + yr.shape[0]
@@ -357,6 +206,21 @@ def _mse_curve_masked(
         mse[n] = float(np.add.reduce(np.multiply(e, e, out=e))) / count
         overlap[n] = count
     return mse, overlap
+
+
+def _parabola(y: list[float]) -> tuple[float, float]:
+    """Least-squares a·x² + b·x + c through y at x = -h .. h (grid steps from the minimum, so
+    the sums stay well scaled); returns (a, b). Odd powers of x sum to zero, which leaves
+    b = Σxy / Σx² and two normal equations for a and c."""
+    h = len(y) // 2
+    xs = range(-h, h + 1)
+    n = len(y)
+    s2 = sum(x * x for x in xs)
+    s4 = sum(x**4 for x in xs)
+    sy = math.fsum(y)
+    sxy = math.fsum(x * v for x, v in zip(xs, y, strict=True))
+    sx2y = math.fsum(x * x * v for x, v in zip(xs, y, strict=True))
+    return (n * sx2y - s2 * sy) / (n * s4 - s2 * s2), sxy / s2
 
 
 def estimate_delay(
@@ -402,17 +266,17 @@ def estimate_delay(
     m_hi = round(search_max_s / grid_step_s)
     if m_hi - m_lo < 2 * fit_half_width:
         raise DelayEstimateError("search range must span at least 2 * fit_half_width grid steps")
-    # the robot signal is used through its linear pieces: only its grid span is needed
-    jr, r_end = _grid_span(tr, grid_step_s)
-    js, ys = upsample(ts, ys_in, grid_step_s)
+    _grid_span(tr, grid_step_s)
+    js, s_end = _grid_span(ts, grid_step_s)
     shifts = np.arange(m_lo, m_hi + 1, dtype=np.int64)
     shifts_s = shifts.astype(np.float64) * grid_step_s
-    mask = _gap_mask(ts, js, ys.size, grid_step_s)
+    mask = _gap_mask(ts, js, s_end - js, grid_step_s)
     if mask is None:
-        mse, overlap = _mse_curve(jr, r_end - jr, js, ys, shifts, (tr, yr_in, grid_step_s))
+        mse, overlap = mse_curve((ts, ys_in), (tr, yr_in), shifts, grid_step_s)
     else:
         # lost data: the grid points inside its gaps are left out, shift by shift
         jr, yr = upsample(tr, yr_in, grid_step_s)
+        js, ys = upsample(ts, ys_in, grid_step_s)
         mse, overlap = _mse_curve_masked(jr, yr, js, ys, shifts, mask)
     if not np.all(np.isfinite(mse)):
         raise DelayEstimateError("robot and sensor signals do not overlap for every searched delay")
@@ -432,11 +296,9 @@ def estimate_delay(
         if require_interior:
             raise NoInteriorMinimumError(est)
         return est
-    # Fit in grid-step units centred on the minimum, so the normal equations stay well scaled.
-    x = np.arange(-h, h + 1, dtype=np.float64)
-    a, b, _ = np.polyfit(x, mse[i - h : i + h + 1], 2)
+    a, b = _parabola(mse[i - h : i + h + 1].tolist())
     # Flat or concave around the grid minimum: keep the grid value.
-    vertex = float(np.clip(-b / (2.0 * a), -h, h)) if a > 0 else 0.0
+    vertex = min(max(-b / (2.0 * a), -h), h) if a > 0 else 0.0
     return DelayEstimate(
         delta_t_s=float((shifts[i] + vertex) * grid_step_s),
         shifts_s=shifts_s,
