@@ -194,32 +194,42 @@ def _sensor_tour(sensor: FramedClient, out: Path) -> None:
 
 
 def _conformance(cell: EmulatedCell) -> bool:
-    """Run the harness against the cell's three endpoints; True when all are conformant."""
+    """Run the harness against the cell's three endpoints; True when all are conformant.
+
+    The robot's run (about 17 s, mostly waiting: its frame-timeout case and real moves)
+    overlaps the sensor's, which has its own endpoint and control; the sync run, whose
+    deadlines are tens of ms, runs alone after both. The verdicts print in a fixed order."""
     if importlib.util.find_spec("conformance.cli") is None:
         print("  harness not installed, skipped")
         return True
-    endpoints: tuple[tuple[str, str, tuple[str, int], list[str]], ...] = (
-        ("robot", "RobotSocket, motion allowed", cell.robot_address, ["--allow-motion"]),
-        ("sensor", "SensorSocket", cell.sensor_address, []),
-        ("sync", "UDP trigger listener", cell.udp_address, []),
-    )
-    ok = True
-    for service, what, (host, port), extra in endpoints:
-        cmd = [sys.executable, "-m", "conformance", service, f"{host}:{port}", "-q", *extra]
-        try:
-            done = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
-        except subprocess.TimeoutExpired:
-            print(f"  {service:<7} timed out")
-            ok = False
-            continue
-        total = (done.stdout.strip().splitlines() or [""])[-1]
-        counts = total.removeprefix("total: ").split("  (")[0]
-        verdict = (
-            "conformant" if done.returncode == 0 else f"NOT conformant (exit {done.returncode})"
-        )
-        print(f"  {service:<7} {verdict}: {counts} ({what})")
-        ok = ok and done.returncode == 0
-    return ok
+    robot = _harness("robot", cell.robot_address, "--allow-motion")
+    sensor = _harness("sensor", cell.sensor_address)
+    ok = _verdict(robot, "robot", "RobotSocket, motion allowed")
+    ok = _verdict(sensor, "sensor", "SensorSocket") and ok
+    sync = _harness("sync", cell.udp_address)
+    return _verdict(sync, "sync", "UDP trigger listener") and ok
+
+
+def _harness(service: str, address: tuple[str, int], *extra: str) -> subprocess.Popen[str]:
+    host, port = address
+    cmd = [sys.executable, "-m", "conformance", service, f"{host}:{port}", "-q", *extra]
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _verdict(proc: subprocess.Popen[str], service: str, what: str) -> bool:
+    """Wait for one harness run (at most 120 s) and print its verdict line."""
+    try:
+        stdout, _ = proc.communicate(timeout=120)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        print(f"  {service:<7} timed out")
+        return False
+    total = (stdout.strip().splitlines() or [""])[-1]
+    counts = total.removeprefix("total: ").split("  (")[0]
+    verdict = "conformant" if proc.returncode == 0 else f"NOT conformant (exit {proc.returncode})"
+    print(f"  {service:<7} {verdict}: {counts} ({what})")
+    return proc.returncode == 0
 
 
 def _experiment(cell: EmulatedCell, args: argparse.Namespace, out: Path) -> bool:

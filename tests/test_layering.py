@@ -23,8 +23,9 @@ STDLIB_ONLY = {"spec", "conformance"}
 # Command-line entry points sit on top of everything and may start the emulated cell.
 ENTRY_POINT_EXTRA = {"sync": {"cell", "robotsocket", "sensorsocket"}}
 # welding reaches robot and sensor only through the clients; only its --emulate paths
-# (this module, imported lazily) build the emulated cell.
-EMULATE_MODULES = {"welding": ("emulate.py", {"cell"})}
+# (emulate.py, imported lazily) build the emulated cell, and the options of `welding track`
+# (track_options.py, on every parser) take the cell's timing options.
+EMULATE_MODULES = {"welding": (("emulate.py", "track_options.py"), {"cell"})}
 
 
 def imports(path: Path) -> list[tuple[str, bool]]:
@@ -50,7 +51,7 @@ def test_packages_import_only_downward() -> None:
     for package, allowed in ALLOWED.items():
         for path in (ROOT / package).rglob("*.py"):
             extra = ENTRY_POINT_EXTRA.get(package, set()) if path.name == "__main__.py" else set()
-            if package in EMULATE_MODULES and path.name == EMULATE_MODULES[package][0]:
+            if package in EMULATE_MODULES and path.name in EMULATE_MODULES[package][0]:
                 extra = EMULATE_MODULES[package][1]
             for module, nested in imports(path):
                 if module not in PROJECT or module == package:

@@ -11,9 +11,11 @@ user: SETUP):
   the block (``cell serve --clock real``: robot and sensor share one scene, as ``sync delay``
   needs) when the block names one; a fresh cell per block, so a move in one block does not
   leave the arm somewhere the next block's example does not expect (``sync delay`` needs the
-  sensor over the seam);
+  sensor over the seam); the next block's cell starts while a block runs, and a used cell's
+  shutdown is waited for at the end (:class:`Cells`);
 - a ``serve`` line runs for ever, so it is started with its ports overridden to 0 (appended
-  options: argparse keeps the last), must come up and is then stopped with SIGINT;
+  options: argparse keeps the last), must come up and is then stopped with SIGINT; it comes
+  up while the block's later lines run and is checked when the block ends;
 - a line whose comment says ``→ exit N`` must end with N, every other line with 0;
 - SKIPPED lists the lines not run, each with the reason; FROM_CHECKOUT the checkout files copied
   into the scratch directory (the examples run from the clone's root).
@@ -28,7 +30,7 @@ import signal
 import subprocess
 import sys
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -153,28 +155,70 @@ def _names_an_address(block: Block) -> bool:
     return _substitute(block.text, Cell("robot:1", "sensor:2", "udp:3")) != block.text
 
 
-@contextmanager
-def _served_cell(workdir: Path) -> Iterator[Cell]:
-    proc = subprocess.Popen(
+def _start_cell(workdir: Path) -> subprocess.Popen[str]:
+    return subprocess.Popen(
         [sys.executable, "-m", "cell", "serve", "--clock", "real", "--robot-port", "0",
          "--sensor-port", "0", "--udp-port", "0"],
         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=_env(), cwd=workdir,
     )  # fmt: skip
-    try:
-        assert proc.stdout is not None
-        described: dict[str, str] = {}
-        while "true_delta_t_ms" not in described:
-            line = proc.stdout.readline()
-            assert line, "cell serve ended before describing the cell"
-            key, _, value = line.partition(":")
-            described[key.strip()] = value.strip()
-        yield Cell(described["robot"], described["sensor"], described["udp"])
-    finally:
-        _interrupt(proc)
+
+
+def _described(proc: subprocess.Popen[str]) -> Cell:
+    assert proc.stdout is not None
+    described: dict[str, str] = {}
+    while "true_delta_t_ms" not in described:
+        line = proc.stdout.readline()
+        assert line, "cell serve ended before describing the cell"
+        key, _, value = line.partition(":")
+        described[key.strip()] = value.strip()
+    return Cell(described["robot"], described["sensor"], described["udp"])
+
+
+class Cells:
+    """The served cells of one document: a fresh cell for each block that names an address.
+
+    :meth:`prefetch` starts the next block's cell while the current block runs, and a used
+    cell is stopped (SIGINT) when its block ends but waited for only in :meth:`close`: the
+    blocks do not wait for a cell's start-up (about 1 s) or its shutdown. Each cell still
+    serves one block only, so a move in one block does not leave the arm somewhere the next
+    block's example does not expect.
+    """
+
+    def __init__(self, workdir: Path) -> None:
+        self.workdir = workdir
+        self.next: subprocess.Popen[str] | None = None
+        self.stopping: list[subprocess.Popen[str]] = []
+
+    def prefetch(self) -> None:
+        if self.next is None:
+            self.next = _start_cell(self.workdir)
+
+    @contextmanager
+    def take(self) -> Iterator[Cell]:
+        self.prefetch()
+        proc, self.next = self.next, None
+        assert proc is not None
+        try:
+            yield _described(proc)
+        finally:
+            proc.send_signal(signal.SIGINT)
+            self.stopping.append(proc)
+
+    def close(self) -> None:
+        if self.next is not None:
+            self.next.send_signal(signal.SIGINT)
+            self.stopping.append(self.next)
+            self.next = None
+        for proc in self.stopping:
+            _wait_or_kill(proc)
 
 
 def _interrupt(proc: subprocess.Popen[str]) -> None:
     proc.send_signal(signal.SIGINT)
+    _wait_or_kill(proc)
+
+
+def _wait_or_kill(proc: subprocess.Popen[str]) -> None:
     try:
         proc.wait(timeout=20)
     except subprocess.TimeoutExpired:
@@ -194,13 +238,17 @@ def _substitute(text: str, cell: Cell | None) -> str:
     return text
 
 
-def _serve(command: str, workdir: Path) -> None:
-    """A serve line must come up (it names its address) and stop on SIGINT."""
+def _serve(command: str, workdir: Path) -> subprocess.Popen[str]:
+    """Start a serve line; :func:`_check_served` then says whether it came up."""
     tool = next(name for name in PORTS_TO_ZERO if re.search(rf"\b{name} serve\b", command))
-    proc = subprocess.Popen(
+    return subprocess.Popen(
         ["bash", "-c", "exec " + command.split("#")[0] + PORTS_TO_ZERO[tool]],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=_env(), cwd=workdir,
     )  # fmt: skip
+
+
+def _check_served(command: str, proc: subprocess.Popen[str]) -> None:
+    """A serve line must come up (it names its address) and stop on SIGINT."""
     seen: list[str] = []
     try:
         assert proc.stdout is not None
@@ -247,23 +295,38 @@ def _run(block: Block, cell: Cell | None, workdir: Path) -> None:
         )  # fmt: skip
         assert proc.returncode == 0, f"{block.id}\n{proc.stdout}\n{proc.stderr}"
         return
-    for command in block.commands():
-        if command in SKIPPED or command.split("#")[0].strip() in SKIPPED:
-            continue
-        command = _substitute(command, cell)
-        if SERVE.search(command):
-            _serve(command, workdir)
-            continue
-        m = EXPECTED_EXIT.search(command)
-        expected = int(m.group(1)) if m else 0
-        proc = subprocess.run(
-            ["bash", "-c", command],
-            capture_output=True, text=True, env=_env(), cwd=workdir, timeout=TIMEOUT_S,
-        )  # fmt: skip
-        assert proc.returncode == expected, (
-            f"{block.id}: {command}\nexit {proc.returncode}, documented {expected}\n"
-            f"{_interesting(proc.stdout)}\n{proc.stderr[-3000:]}"
-        )
+    # a serve line's server comes up while the block's later lines run; checked at the end
+    serving: list[tuple[str, subprocess.Popen[str]]] = []
+    try:
+        for command in block.commands():
+            if command in SKIPPED or command.split("#")[0].strip() in SKIPPED:
+                continue
+            command = _substitute(command, cell)
+            if SERVE.search(command):
+                serving.append((command, _serve(command, workdir)))
+                continue
+            m = EXPECTED_EXIT.search(command)
+            expected = int(m.group(1)) if m else 0
+            proc = subprocess.run(
+                ["bash", "-c", command],
+                capture_output=True, text=True, env=_env(), cwd=workdir, timeout=TIMEOUT_S,
+            )  # fmt: skip
+            assert proc.returncode == expected, (
+                f"{block.id}: {command}\nexit {proc.returncode}, documented {expected}\n"
+                f"{_interesting(proc.stdout)}\n{proc.stderr[-3000:]}"
+            )
+    finally:
+        _check_all_served(serving)
+
+
+def _check_all_served(serving: list[tuple[str, subprocess.Popen[str]]]) -> None:
+    """Every server checked and stopped, even when an earlier one failed its check."""
+    if serving:
+        command, server = serving[0]
+        try:
+            _check_served(command, server)
+        finally:
+            _check_all_served(serving[1:])
 
 
 @pytest.mark.parametrize("document", EXAMPLES, ids=[d.name for d in EXAMPLES])
@@ -272,11 +335,17 @@ def test_examples_run_as_written(document: Path, tmp_path: Path, subtests: pytes
     workdir = _scratch(tmp_path)
     if name != SETUP.document:
         _run(SETUP, None, workdir)
-    for block in (b for b in BLOCKS if b.document == name):
-        # a subtest per block: a failing block is reported and the later ones still run
-        with subtests.test(block.id):
-            if not _names_an_address(block):
-                _run(block, None, workdir)
-                continue
-            with _served_cell(workdir) as cell:  # a fresh cell: the arm at its ready pose
-                _run(block, cell, workdir)
+    mine = [b for b in BLOCKS if b.document == name]
+    cells = Cells(workdir)
+    try:
+        for block, following in zip(mine, [*mine[1:], None], strict=True):
+            # a subtest per block: a failing block is reported and the later ones still run
+            with subtests.test(block.id):
+                named = _names_an_address(block)
+                # a fresh cell per block: the arm at its ready pose
+                with cells.take() if named else nullcontext() as cell:
+                    if following is not None and _names_an_address(following):
+                        cells.prefetch()
+                    _run(block, cell, workdir)
+    finally:
+        cells.close()

@@ -50,6 +50,7 @@ from welding.console import cli as console_cli
 from welding.process import JobAborted, JobRunner, PlanError, Progress, plan, steps_summary
 from welding.teach import SeamTeacher, TeachError, record_here, seam_path
 from welding.tools import TOOL_KINDS, Entry, Tables, ToolDB, ToolDBError, check_location
+from welding.track_options import add_track_options
 
 __all__ = ["main"]
 
@@ -280,8 +281,6 @@ def _parser() -> argparse.ArgumentParser:
 
     calibrate_cli.add_parser(sub, _add_cell_options)
     console_cli.add_parser(sub, _endpoint, _add_tools_option)
-
-    from welding.emulate import add_track_options  # the emulated cell's path
 
     p = sub.add_parser("track", help="real-time seam tracking on the emulated cell")
     add_track_options(p)

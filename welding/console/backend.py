@@ -819,7 +819,8 @@ class Console:
         live cell is the ``welding track`` path's job once it has one)."""
         if not self.emulated:
             raise ConsoleError("the tracked weld runs on the emulated cell only (--emulate)", 409)
-        from welding.emulate import TRACK_SEAMS, run_tracking
+        from welding.emulate import run_tracking
+        from welding.track_options import TRACK_SEAMS
 
         b = body if isinstance(body, dict) else {}
         seam = b.get("seam", "sine")

@@ -1,0 +1,68 @@
+"""The options of ``python -m welding track`` and the seams it tracks, apart from
+:mod:`welding.emulate`: building the parser of every ``python -m welding`` command needs them,
+and importing the emulated cell (about 0.35 s) only the commands that run one."""
+
+from __future__ import annotations
+
+import argparse
+
+from cell.options import add_timing_options, add_tool_error_options
+from spec import cliargs
+from welding.tools import Loc
+
+__all__ = ["TRACK_SEAMS", "add_track_options"]
+
+#: Seams of the tracking benchmark: the cell's seam shape and the workpiece placement error
+#: (location in the workpiece frame, mm, deg) that puts it off the nominal path.
+TRACK_SEAMS: dict[str, tuple[str, Loc]] = {
+    "straight": ("straight", (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)),
+    "offset": ("straight", (0.0, 5.0, 0.0, 0.0, 0.0, 0.0)),
+    "sine": ("sine", (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)),
+    # R = 32 mm arcs (the paper's sine radius) turning 15 deg: a 4.9 mm jog off the path
+    "arc": ("jog", (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)),
+}
+
+
+def add_track_options(p: argparse.ArgumentParser) -> None:
+    """Options of ``python -m welding track`` (the cell's timing options included)."""
+    p.add_argument(
+        "--emulate",
+        action="store_true",
+        required=True,
+        help="track on an emulated cell (--clock sim: in this process; real: its real-time "
+        "part in a child process); required",
+    )
+    p.add_argument("--seam", choices=tuple(TRACK_SEAMS), default="sine")
+    p.add_argument("--speed", type=cliargs.number_in(1.0, 500.0), default=250.0, help="mm/s")
+    p.add_argument(
+        "--delta-t-ms",
+        type=cliargs.number_in(-100.0, 100.0),
+        help="override the ΔT in force (default: measured first, section VI procedure)",
+    )
+    p.add_argument(
+        "--true-delta-t",
+        action="store_true",
+        help="skip the measurement: the cell's true ΔT is set in force",
+    )
+    p.add_argument("--length", type=cliargs.number_in(10.0, 200.0), default=200.0, help="mm")
+    p.add_argument("--rate", type=cliargs.number_in(10.0, 1000.0), default=200.0, help="Hz")
+    p.add_argument("--untracked", action="store_true", help="weld the nominal path (baseline)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--clock",
+        choices=("sim", "real"),
+        default="sim",
+        help="sim: the cell's simulated clock (deterministic); real: its 4 ms cycle on the "
+        "wall clock in a real-time child process, the tracker a client that keeps pace "
+        "(default %(default)s)",
+    )
+    p.add_argument("--json", type=cliargs.output_file, metavar="OUT.json")
+    p.add_argument("--plot", metavar="DIR", help="write track.png (needs matplotlib)")
+    p.add_argument(
+        "--sensor-tool",
+        metavar="NAME",
+        help="the sensor tool the robot computes seam points with, from the tool database "
+        "(e.g. one `calibrate sensor-tool --save NAME` wrote; default: the cell's nominal)",
+    )
+    add_timing_options(p)
+    add_tool_error_options(p)
