@@ -17,6 +17,7 @@ the arm decelerates on its path and the queue is dropped).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import re
@@ -574,25 +575,46 @@ class Console:
         act.cancel = cancel
 
         def work() -> None:
+            runner.run(job)
+            act.state, act.message = "done", "done"
+
+        self._start(act, work, cancelled, aborts=(JobAborted,))
+
+    def _start(
+        self,
+        act: Activity,
+        work: Callable[[], None],
+        cancelled: threading.Event | None = None,
+        *,
+        expected: tuple[type[Exception], ...] = (),
+        aborts: tuple[type[Exception], ...] = (),
+        stop_arm: bool = False,
+    ) -> None:
+        """Run ``work`` as the one activity, in its own thread. Whatever it raises is the
+        activity's message, never a dead thread: "aborted" when the operator cancelled it or
+        it raised one of ``aborts``, else "failed" (logged with its traceback unless it is one
+        of the ``expected`` refusals). ``stop_arm``: a motion left behind is reset."""
+
+        def run() -> None:
             try:
-                runner.run(job)
-                act.state, act.message = "done", "done"
-            except JobAborted as exc:
-                act.state, act.message = "aborted", str(exc)
-            except Exception as exc:  # reported to the operator, never a dead thread
-                act.state, act.message = "failed", str(exc)
-                log.exception("job run")
+                work()
+            except Exception as exc:
+                was_cancelled = cancelled is not None and cancelled.is_set()
+                act.message = str(exc)
+                act.state = "aborted" if was_cancelled or isinstance(exc, aborts) else "failed"
+                if act.state == "failed" and not isinstance(exc, expected):
+                    log.exception("console %s", act.kind)
+                if stop_arm:
+                    with contextlib.suppress(OSError, ProtocolError, RemoteError):
+                        self.control.reset_motion()
 
-        self._start(act, work)
-
-    def _start(self, act: Activity, work: Callable[[], None]) -> None:
         with self._lock:
             if self.activity is not None and self.activity.state == "running":
                 raise ConsoleError(f"a {self.activity.kind} is running: abort it first", 409)
             if self._jog is not None:
                 raise ConsoleError("a jog is running", 409)
             self.activity = act
-        threading.Thread(target=work, name=f"console-{act.kind}", daemon=True).start()
+        threading.Thread(target=run, name=f"console-{act.kind}", daemon=True).start()
 
     def abort(self) -> None:
         act = self.activity
@@ -654,22 +676,13 @@ class Console:
         act.cancel = cancel
 
         def work() -> None:
-            try:
-                result = teacher.teach()
-                act.detail["points"] = [
-                    [round(float(v), 3) for v in q.position] for q in result.points
-                ]
-                act.detail["count"] = len(result.points)
-                act.detail["length_mm"] = round(result.length_mm, 3)
-                act.state, act.message = "done", result.stop_reason
-            except TeachError as exc:
-                act.state = "aborted" if cancelled.is_set() else "failed"
-                act.message = str(exc)
-            except Exception as exc:  # reported to the operator, never a dead thread
-                act.state, act.message = "failed", str(exc)
-                log.exception("teaching")
+            result = teacher.teach()
+            act.detail["points"] = [[round(float(v), 3) for v in q.position] for q in result.points]
+            act.detail["count"] = len(result.points)
+            act.detail["length_mm"] = round(result.length_mm, 3)
+            act.state, act.message = "done", result.stop_reason
 
-        self._start(act, work)
+        self._start(act, work, cancelled, expected=(TeachError,))
 
     # --- ΔT (section VI) ---------------------------------------------------------------------
 
@@ -701,25 +714,15 @@ class Console:
         act.cancel = cancelled.set
 
         def work() -> None:
-            try:
-                data = record_sine(self.control, sensor, settings, progress)
-                result = result_json(analyse(data, settings))
-                self.results["delta_t"] = result
-                act.detail.update(
-                    fraction=1.0,
-                    delta_t_ms=result["delta_t_ms"],
-                    trusted=result["trusted"],
-                )
-                act.state, act.message = "done", "; ".join(result["reasons"])
-            except Exception as exc:  # reported to the operator, never a dead thread
-                act.state = "aborted" if cancelled.is_set() else "failed"
-                act.message = str(exc)
-                try:
-                    self.control.reset_motion()
-                except (OSError, ProtocolError, RemoteError):
-                    pass
+            data = record_sine(self.control, sensor, settings, progress)
+            result = result_json(analyse(data, settings))
+            self.results["delta_t"] = result
+            act.detail.update(
+                fraction=1.0, delta_t_ms=result["delta_t_ms"], trusted=result["trusted"]
+            )
+            act.state, act.message = "done", "; ".join(result["reasons"])
 
-        self._start(act, work)
+        self._start(act, work, cancelled, expected=(ExperimentError,), stop_arm=True)
 
     # --- tool calibrations ---------------------------------------------------------------------
 
@@ -795,21 +798,13 @@ class Console:
         act.cancel = cancelled.set
 
         def work() -> None:
-            try:
-                est = cal.run()
-                self.results["calibration"] = result_json(
-                    which, est, truth, nominal.name, beam_only=laser
-                )
-                act.state, act.message = "done", f"residual rms {est.residual_rms_mm * 1e3:.1f} µm"
-            except Exception as exc:  # reported to the operator, never a dead thread
-                act.state = "aborted" if cancelled.is_set() else "failed"
-                act.message = str(exc)
-                try:
-                    self.control.reset_motion()
-                except (OSError, ProtocolError, RemoteError):
-                    pass
+            est = cal.run()
+            self.results["calibration"] = result_json(
+                which, est, truth, nominal.name, beam_only=laser
+            )
+            act.state, act.message = "done", f"residual rms {est.residual_rms_mm * 1e3:.1f} µm"
 
-        self._start(act, work)
+        self._start(act, work, cancelled, expected=(CalibrationError,), stop_arm=True)
 
     # --- tracked weld (emulated cell only) ----------------------------------------------------
 
@@ -833,22 +828,18 @@ class Console:
         act = Activity("track", detail={"seam": seam, "speed": speed})
 
         def work() -> None:
-            try:
-                run = run_tracking(str(seam), speed, track=tracked)
-                laser, true = run.plot["laser"], run.plot["seam"]
-                self.results["track"] = run.summary() | {
-                    "top": {k: np.round(v[:, :2], 4).tolist() for k, v in run.plot.items()},
-                    "error_um": np.round(
-                        np.column_stack([laser[:, 0], (laser[:, 1] - true[:, 1]) * 1e3]), 3
-                    ).tolist(),
-                }
-                act.state = "done"
-                act.message = f"max {run.tracking_error_max_mm * 1e3:.1f} µm" + (
-                    f"; STOPPED: {run.stopped}" if run.stopped else ""
-                )
-            except Exception as exc:  # reported to the operator, never a dead thread
-                act.state, act.message = "failed", str(exc)
-                log.exception("tracked weld")
+            run = run_tracking(str(seam), speed, track=tracked)
+            laser, true = run.plot["laser"], run.plot["seam"]
+            self.results["track"] = run.summary() | {
+                "top": {k: np.round(v[:, :2], 4).tolist() for k, v in run.plot.items()},
+                "error_um": np.round(
+                    np.column_stack([laser[:, 0], (laser[:, 1] - true[:, 1]) * 1e3]), 3
+                ).tolist(),
+            }
+            act.state = "done"
+            act.message = f"max {run.tracking_error_max_mm * 1e3:.1f} µm" + (
+                f"; STOPPED: {run.stopped}" if run.stopped else ""
+            )
 
         self._start(act, work)
 
