@@ -202,7 +202,8 @@ def test_unreachable_server_exit_3() -> None:
     assert r.returncode == 3 and len(r.stderr.strip().splitlines()) == 1
 
 
-def test_sigterm_stops_gracefully() -> None:
+def _stop_with(signals: tuple[signal.Signals, ...], timeout: float) -> tuple[int, str]:
+    """Start a sensor server, send it ``signals`` once it serves: its exit code and stderr."""
     proc = subprocess.Popen(
         [PY, "-m", "sensorsocket", "serve", "--port", "0", "--udp-port", "off"],
         stdout=subprocess.DEVNULL,
@@ -213,36 +214,26 @@ def test_sigterm_stops_gracefully() -> None:
     assert proc.stderr is not None
     try:
         assert "udp off" in _serving_line(proc)
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=10)
+        for sig in signals:
+            proc.send_signal(sig)
+        _, err = proc.communicate(timeout=timeout)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    assert proc.returncode == 0
+    return proc.returncode, err
+
+
+def test_sigterm_stops_gracefully() -> None:
+    code, err = _stop_with((signal.SIGTERM,), timeout=10)
+    assert code == 0
     assert "SIGTERM" in err and "stopped" in err and "Traceback" not in err
 
 
 def test_a_second_signal_during_the_shutdown_is_not_a_traceback() -> None:
     """SIGINT then SIGTERM at once (an impatient operator): one clean stop, exit 0."""
-    proc = subprocess.Popen(
-        [PY, "-m", "sensorsocket", "serve", "--port", "0", "--udp-port", "off"],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        text=True,
-        cwd=ROOT,
-    )
-    assert proc.stderr is not None
-    try:
-        assert "udp off" in _serving_line(proc)
-        proc.send_signal(signal.SIGINT)
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=20)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    assert proc.returncode == 0, err
+    code, err = _stop_with((signal.SIGINT, signal.SIGTERM), timeout=20)
+    assert code == 0, err
     assert "SIGINT, shutting down" in err and "stopped" in err and "Traceback" not in err
 
 
