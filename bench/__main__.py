@@ -1,6 +1,9 @@
 """Run every benchmark module and write the results as one JSON list.
 
 Usage: ``python -m bench [-o bench-results/results.json] [--only AREA ...]``
+
+Beside the results goes ``run.json``: when, which commit, on what machine and beside what load
+they were measured (``bench.run_info``); ``python -m bench.table`` prints both as Markdown.
 """
 
 from __future__ import annotations
@@ -13,7 +16,7 @@ import sys
 from pathlib import Path
 
 import bench
-from bench.common import Result
+from bench import run_info
 from spec import cliargs
 from spec.files import write_atomically
 
@@ -29,17 +32,20 @@ def _modules(only: list[str]) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = cliargs.Parser(prog="python -m bench", description=__doc__)
-    parser.add_argument("-o", "--output", type=Path, default=Path("bench-results/results.json"))
+    parser.add_argument(
+        "-o", "--output", type=cliargs.output_file, default="bench-results/results.json"
+    )
     parser.add_argument("--only", nargs="*", default=[], help="areas to run, e.g. spec kinematics")
     args = parser.parse_args(argv)
     # The servers under test log warnings on purpose (e-stops, lost controllers) when the
     # conformance benchmark drives them; they are not results.
     logging.basicConfig(level=logging.ERROR)
-    results: list[Result] = []
+    results: list[dict[str, object]] = []
     names = _modules(args.only)
     if not names:
         print("bench: nothing selected", file=sys.stderr)
         return 5
+    started, load_start = run_info.utc_now(), run_info.load_average()
     for name in names:
         print(f"== {name}", file=sys.stderr, flush=True)
         module = importlib.import_module(f"bench.{name}")
@@ -50,10 +56,12 @@ def main(argv: list[str] | None = None) -> int:
                 file=sys.stderr,
                 flush=True,
             )
-            results.append(r)
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    write_atomically(args.output, json.dumps(results, indent=2) + "\n")
-    print(f"wrote {len(results)} results to {args.output}", file=sys.stderr)
+            results.append({**r, "area": name})
+    output = Path(args.output)
+    write_atomically(output, json.dumps(results, indent=2) + "\n")
+    info = run_info.collect(started, load_start)
+    write_atomically(output.with_name("run.json"), json.dumps(info, indent=2) + "\n")
+    print(f"wrote {len(results)} results and {output.name} to {output.parent}", file=sys.stderr)
     return 0
 
 

@@ -1,0 +1,127 @@
+"""Print the results of one ``make bench`` run as Markdown tables, or put them into a document.
+
+Usage: ``python -m bench.table [RESULTS] [--into README.md]``
+
+RESULTS is ``bench-results/results.json`` by default; the run record ``run.json`` beside it
+(date, commit, machine, load, library versions) becomes the line above the tables. With
+``--into``, the text between the document's ``<!-- bench-table:start -->`` and
+``<!-- bench-table:end -->`` lines is replaced (atomically), so the README's table is always
+one run's output and never a hand-merged mix of runs.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+from spec import cliargs
+from spec.files import write_atomically
+
+START = "<!-- bench-table:start -->"
+END = "<!-- bench-table:end -->"
+
+
+def number(value: float) -> str:
+    """A figure with the digits a benchmark on a shared machine can vouch for (3-4)."""
+    magnitude = abs(value)
+    if magnitude >= 10_000:
+        return f"{value:,.0f}"
+    if magnitude >= 100:
+        return f"{value:.0f}"
+    if magnitude >= 1:
+        return f"{value:.3g}"
+    return f"{value:.3g}" if magnitude >= 1e-3 or value == 0 else f"{value:.2e}"
+
+
+def _cell(text: str) -> str:
+    return text.replace("|", "\\|")
+
+
+def describe_run(info: Mapping[str, Any]) -> str:
+    """One paragraph: when, which commit, on what, beside what load, with which libraries."""
+    load_start = "/".join(f"{x:g}" for x in info.get("load_average_start", []))
+    load_end = "/".join(f"{x:g}" for x in info.get("load_average_end", []))
+    packages = ", ".join(f"{k} {v}" for k, v in info.get("packages", {}).items())
+    return (
+        f"One `make bench` run, {info['started']} to {info['finished'].split(' ', 1)[1]},"
+        f" commit {info['commit']}, on {info['cpu']} ({info['cpus']} CPUs),"
+        f" load average (1/5/15 min) {load_start} at the start and {load_end} at the end;"
+        f" Python {info['python']}, {info['platform']}, CRC-32 by {info['crc32']};"
+        f" {packages}."
+    )
+
+
+def tables(results: Iterable[Mapping[str, Any]]) -> str:
+    """A table per benchmark area: figure, ours, the baseline of the same run, the ratio."""
+    areas: dict[str, list[Mapping[str, Any]]] = {}
+    for r in results:
+        areas.setdefault(str(r.get("area", "bench")), []).append(r)
+    out: list[str] = []
+    for area, rows in areas.items():
+        out += [
+            f"`{area}`:",
+            "",
+            "| figure (function measured) | ours | baseline in the same run | ours / baseline |",
+            "|---|---|---|---|",
+        ]
+        for r in rows:
+            unit = r["unit"]
+            out.append(
+                f"| {_cell(r['name'])} | {number(r['value'])} {unit}"
+                f" | {_cell(r['baseline_name'])}: {number(r['baseline'])} {unit}"
+                f" | {r['ratio']:.3g} |"
+            )
+        out.append("")
+    return "\n".join(out)
+
+
+def render(results_path: Path) -> str:
+    results = json.loads(results_path.read_text())
+    if not isinstance(results, list) or not results:
+        raise ValueError(f"{results_path} holds no benchmark results")
+    run_path = results_path.with_name("run.json")
+    head = (
+        describe_run(json.loads(run_path.read_text()))
+        if run_path.exists()
+        else f"(no {run_path.name} beside {results_path.name}: date and machine unknown)"
+    )
+    return f"{head}\n\n{tables(results)}"
+
+
+def put_into(document: str, text: str) -> str:
+    """``document`` with the lines between its table markers replaced by ``text``."""
+    lines = document.splitlines(keepends=True)
+    try:
+        start = next(i for i, line in enumerate(lines) if line.strip() == START)
+        end = next(i for i, line in enumerate(lines) if line.strip() == END and i > start)
+    except StopIteration:
+        raise ValueError(f"no {START} ... {END} lines to put the tables between") from None
+    return "".join(lines[: start + 1]) + "\n" + text.rstrip("\n") + "\n\n" + "".join(lines[end:])
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = cliargs.Parser(prog="python -m bench.table", description=__doc__)
+    parser.add_argument("results", nargs="?", type=Path, default=Path("bench-results/results.json"))
+    parser.add_argument("--into", type=Path, help="document whose table section to replace")
+    args = parser.parse_args(argv)
+    try:
+        text = render(args.results)
+        if args.into is None:
+            sys.stdout.write(text)
+            return 0
+        write_atomically(args.into, put_into(args.into.read_text(), text))
+    except (OSError, ValueError) as exc:  # JSONDecodeError is a ValueError
+        print(f"bench.table: {exc}", file=sys.stderr)
+        return 1
+    except KeyError as exc:
+        print(f"bench.table: {args.results}: a result lacks the field {exc}", file=sys.stderr)
+        return 1
+    print(f"bench.table: wrote the tables of {args.results} into {args.into}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(cliargs.run_cli(main))

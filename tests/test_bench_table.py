@@ -1,0 +1,89 @@
+"""`python -m bench.table` turns one run's results into the README's tables (bench/table.py)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from bench import run_info
+from bench.common import result
+from bench.table import END, START, number, put_into, render
+
+
+def _run(tmp_path: Path) -> Path:
+    results = [
+        {**result("robotsocket Herej p50 (RobotClient.herej)", 61.2e-0, "µs", "pyModbusTCP", 55.0),
+         "area": "bench_peers_net"},
+        {**result("sensor.detect() butt", 3125.4, "frames/s", "memory read", 165000.0),
+         "area": "bench_sensor"},
+    ]  # fmt: skip
+    path = tmp_path / "results.json"
+    path.write_text(json.dumps(results))
+    info = run_info.collect("2026-11-27 10:20 UTC", [0.5, 0.7, 1.0])
+    (tmp_path / "run.json").write_text(json.dumps(info))
+    return path
+
+
+def test_each_figure_stands_beside_its_baseline_under_the_run_that_measured_it(
+    tmp_path: Path,
+) -> None:
+    text = render(_run(tmp_path))
+    head = text.splitlines()[0]
+    assert head.startswith("One `make bench` run, 2026-11-27 10:20 UTC to ")
+    assert run_info.cpu_model() in head and "load average (1/5/15 min) 0.5/0.7/1 " in head
+    assert (
+        "| robotsocket Herej p50 (RobotClient.herej) | 61.2 µs | pyModbusTCP: 55 µs | 1.11 |"
+        in text
+    )
+    assert (
+        "| sensor.detect() butt | 3125 frames/s | memory read: 165,000 frames/s | 0.0189 |" in text
+    )
+    assert text.index("`bench_peers_net`:") < text.index("`bench_sensor`:")
+
+
+def test_numbers_keep_the_digits_a_shared_machine_vouches_for() -> None:
+    assert [number(v) for v in (1_706_543.2, 3125.4, 61.23, 7.266, 0.02079, 2e-5)] == [
+        "1,706,543",
+        "3125",
+        "61.2",
+        "7.27",
+        "0.0208",
+        "2.00e-05",
+    ]
+
+
+def test_only_the_marked_section_of_a_document_is_replaced() -> None:
+    doc = f"# Title\n\ntext before\n{START}\nold table\n{END}\ntext after\n"
+    once = put_into(doc, "new table\n")
+    assert once == f"# Title\n\ntext before\n{START}\n\nnew table\n\n{END}\ntext after\n"
+    assert put_into(once, "new table\n") == once  # a second run changes nothing
+    with pytest.raises(ValueError, match="bench-table:start"):
+        put_into("# no markers\n", "table")
+
+
+def _cli(*args: str | Path) -> subprocess.CompletedProcess[str]:
+    command = [sys.executable, "-m", "bench.table", *map(str, args)]
+    return subprocess.run(command, capture_output=True, text=True, timeout=60)
+
+
+def test_cli_writes_into_the_document_and_refuses_what_it_cannot_use(tmp_path: Path) -> None:
+    results = _run(tmp_path)
+    readme = tmp_path / "README.md"
+    readme.write_text(f"intro\n{START}\n{END}\n")
+    done = _cli(results, "--into", readme)
+    assert done.returncode == 0, done.stderr
+    assert "| sensor.detect() butt |" in readme.read_text()
+
+    plain = tmp_path / "plain.md"
+    plain.write_text("no markers here\n")
+    refused = _cli(results, "--into", plain)
+    assert refused.returncode == 1 and "Traceback" not in refused.stderr
+    assert "bench-table:start" in refused.stderr and plain.read_text() == "no markers here\n"
+
+    missing = _cli(tmp_path / "nothing.json")
+    assert missing.returncode == 1 and "nothing.json" in missing.stderr
+    assert len(missing.stderr.splitlines()) == 1
