@@ -36,6 +36,11 @@ def number(value: float) -> str:
     return f"{value:.3g}" if magnitude >= 1e-3 or value == 0 else f"{value:.2e}"
 
 
+def ratio(value: float, baseline: float) -> str:
+    """ours / baseline; a dash where the baseline is zero (e.g. 0 datagrams lost)."""
+    return f"{value / baseline:.3g}" if baseline else "—"
+
+
 def _cell(text: str) -> str:
     return text.replace("|", "\\|")
 
@@ -72,7 +77,7 @@ def tables(results: Iterable[Mapping[str, Any]]) -> str:
             out.append(
                 f"| {_cell(r['name'])} | {number(r['value'])} {unit}"
                 f" | {_cell(r['baseline_name'])}: {number(r['baseline'])} {unit}"
-                f" | {r['ratio']:.3g} |"
+                f" | {ratio(r['value'], r['baseline'])} |"
             )
         out.append("")
     return "\n".join(out)

@@ -11,7 +11,7 @@ import pytest
 
 from bench import run_info
 from bench.common import result
-from bench.table import END, START, number, put_into, render
+from bench.table import END, START, number, put_into, ratio, render
 
 
 def _run(tmp_path: Path) -> Path:
@@ -54,6 +54,10 @@ def test_numbers_keep_the_digits_a_shared_machine_vouches_for() -> None:
         "0.0208",
         "2.00e-05",
     ]
+
+
+def test_a_zero_baseline_gives_a_dash_not_infinity() -> None:
+    assert (ratio(0.0, 0.0), ratio(3.0, 0.0), ratio(3.0, 2.0)) == ("—", "—", "1.5")
 
 
 def test_only_the_marked_section_of_a_document_is_replaced() -> None:
