@@ -52,17 +52,31 @@ def run() -> list[Result]:
     npass = time_per_call(numpy_pass, min_time=0.3, repeat=3)
     return [
         result(
-            "cell ΔT experiment 10 s (sim) wall", wall, "s", "simulated duration", settings.total_s
+            "ΔT experiment 10 s, simulated cell, wall (sync.experiment.run_delay_experiment)",
+            wall,
+            "s",
+            "simulated duration",
+            settings.total_s,
         ),
         result(
-            "cell chain per frame",
+            "cell chain per frame: trigger, render, detect, match (same run)",
             wall / max(frames, 1) * 1e3,
             "ms",
             "camera acquire+detect alone",
             per_frame_camera * 1e3,
         ),
         result(
-            "estimator on cell data", est_time * 1e3, "ms", "bare estimator, synthetic", bare * 1e3
+            "ΔT analysis of the cell's data (sync.experiment.analyse)",
+            est_time * 1e3,
+            "ms",
+            "bare estimator, synthetic",
+            bare * 1e3,
         ),
-        result("estimator on cell data ", est_time * 1e3, "ms", "numpy upsample pass", npass * 1e3),
+        result(
+            "ΔT analysis of the cell's data (sync.experiment.analyse) ",
+            est_time * 1e3,
+            "ms",
+            "numpy upsample pass",
+            npass * 1e3,
+        ),
     ]

@@ -112,14 +112,22 @@ def run() -> list[Result]:
     assert np.allclose(m.flange2base(q), textbook_dgm(m, q), atol=1e-9)
     ours = time_per_call(lambda: m.flange2base(q))
     base = time_per_call(lambda: textbook_dgm(m, q))
-    out = [result("kinematics.dgm_single", ours * 1e6, "µs", "six 4x4 numpy matmuls", base * 1e6)]
+    out = [
+        result(
+            "DGM single pose RX90B (Robot.flange2base)",
+            ours * 1e6,
+            "µs",
+            "six 4x4 numpy matmuls",
+            base * 1e6,
+        )
+    ]
 
     n = 200_000
     Q = rng.uniform(m.limits[:, 0], m.limits[:, 1], (n, 6))
     assert np.allclose(m.flange2base_batch(Q[:1000]), textbook_dgm_batch(m, Q[:1000]), atol=1e-9)
     out.append(
         result(
-            "kinematics.dgm_batch",
+            "DGM batch 200k RX90B (Robot.flange2base_batch)",
             _rate(lambda: m.flange2base_batch(Q), n),
             "configs/s",
             "batched 4x4 matmul chain",
@@ -132,7 +140,7 @@ def run() -> list[Result]:
     loop_n = 300
     out.append(
         result(
-            "kinematics.ik_batch",
+            "IK batch 100k, all solutions (Robot.ik_batch)",
             _rate(lambda: m.ik_batch(T), n_ik),
             "poses/s",
             "loop of single ik()",

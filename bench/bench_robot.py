@@ -129,7 +129,7 @@ def run() -> list[Result]:
     for p in (50, 99):
         results.append(
             result(
-                f"robot herej round trip p{p} ({where})",
+                f"Herej round trip p{p}, in process (RobotClient.herej; {where})",
                 percentile(rtt, p) * 1e6,
                 "us",
                 f"bare TCP echo ({len(req)} B / {rep_size} B) p{p}",
@@ -140,7 +140,7 @@ def run() -> list[Result]:
         rtt, base = _herej_rtt(req, rep_size)
         results.append(
             result(
-                "robot herej round trip p50 (unpinned, context)",
+                "Herej round trip p50, in process (RobotClient.herej; unpinned, context)",
                 percentile(rtt, 50) * 1e6,
                 "us",
                 f"bare TCP echo ({len(req)} B / {rep_size} B) p50",
@@ -153,7 +153,7 @@ def run() -> list[Result]:
             rate = _throughput(srv.address, n)
             results.append(
                 result(
-                    f"robot herej requests/s, {n} clients",
+                    f"Herej requests/s, {n} clients, in process (RobotClient.herej)",
                     rate,
                     "req/s",
                     "bare TCP echo, 1 client",
@@ -185,7 +185,7 @@ def run() -> list[Result]:
         per = (time.perf_counter() - t0) / n
         results.append(
             result(
-                f"trajectory {kind} move cost per 4 ms cycle",
+                f"trajectory {kind} move, cost per 4 ms cycle (TrajectoryGenerator.step)",
                 per * 1e3,
                 "ms",
                 "one DGM flange2base call",
@@ -199,12 +199,20 @@ def run() -> list[Result]:
     j = robot.jitter()
     results.append(
         result(
-            "real-time tick lateness p99", j["p99"] * 1e3, "ms", "cycle period T_r", PERIOD * 1e3
+            "4 ms tick lateness p99, real clock, idle (RobotEmulator)",
+            j["p99"] * 1e3,
+            "ms",
+            "cycle period T_r",
+            PERIOD * 1e3,
         )
     )
     results.append(
         result(
-            "real-time tick lateness p50", j["p50"] * 1e3, "ms", "cycle period T_r", PERIOD * 1e3
+            "4 ms tick lateness p50, real clock, idle (RobotEmulator)",
+            j["p50"] * 1e3,
+            "ms",
+            "cycle period T_r",
+            PERIOD * 1e3,
         )
     )
     return results

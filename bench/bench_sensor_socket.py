@@ -281,7 +281,7 @@ def run() -> list[Result]:
     ours, no_crc, bare, bare_crc = (
         percentile(rounds[k], 50) for k in ("crc", "no_crc", "bare", "bare_crc")
     )
-    name = "GetImage 512x256 MONO8 throughput, loopback"
+    name = "GetImage 512x256 MONO8 throughput, in process, loopback (SensorClient.get_image_raw)"
     results.append(result(name, ours, "MB/s", "bare TCP", bare))
     results.append(result(name, ours, "MB/s", "bare TCP + CRC-32 at both ends", bare_crc))
     results.append(result(f"{name}, frame CRC off", no_crc, "MB/s", "bare TCP", bare))

@@ -26,7 +26,8 @@ def run() -> list[Result]:
     t_struct = time_per_call(bare_struct)
     out.append(
         result(
-            "spec.small_packet_encode_decode", t_small * 1e6, "us",
+            "small packet encode + decode (spec.codec encode_packet/decode_packet)",
+            t_small * 1e6, "us",
             "struct header pack+unpack", t_struct * 1e6,
         )
     )  # fmt: skip
@@ -40,7 +41,8 @@ def run() -> list[Result]:
 
     out.append(
         result(
-            "spec.small_packet_stream_decode", time_per_call(stream_decode) * 1e6, "us",
+            "small packet from a byte stream (spec.codec.FrameDecoder)",
+            time_per_call(stream_decode) * 1e6, "us",
             "struct header pack+unpack", t_struct * 1e6,
         )
     )  # fmt: skip
@@ -61,7 +63,7 @@ def run() -> list[Result]:
     t_copy = time_per_call(copy)
     out.append(
         result(
-            "spec.image_encode_decode_throughput", size / t_image / 1e9, "GB/s",
+            "512x256 image packet encode + decode (spec.codec)", size / t_image / 1e9, "GB/s",
             "bytes copy of the same size", size / t_copy / 1e9,
         )
     )  # fmt: skip

@@ -71,7 +71,7 @@ def _seam_batch(results: list[Result]) -> None:
     t_mm = time_per_call(matmul, min_time=0.5, repeat=3)
     results.append(
         result(
-            f"seam points/s, batch 100k (eq.5 + {name} + eq.2)",
+            f"seam points, batch 100k: eq. 5 + {name} + eq. 2 (sync.seam_chain.seam2base)",
             m / t_rec,
             "points/s",
             "numpy matmul of 100k 4x4 pairs",
@@ -105,7 +105,7 @@ def _matcher_stream(results: list[Result]) -> None:
     t_interp = time_per_call(single_interp, min_time=1.0, repeat=3)
     results.append(
         result(
-            "matcher streaming: trigger+data+poll per index",
+            "matcher: trigger + data + poll per index (sync.matcher.SyncMatcher)",
             n / t_stream,
             "indices/s",
             "one interpolate_joints call per index",
@@ -128,7 +128,7 @@ def _estimator(results: list[Result]) -> None:
     t_interp = time_per_call(interp, min_time=0.5, repeat=3)
     results.append(
         result(
-            "ΔT estimator, 10 s experiment, 0..20 ms",
+            "ΔT estimate, 10 s synthetic experiment, lags 0..20 ms (sync.delay.estimate_delay)",
             t_est * 1e3,
             "ms",
             "one np.interp onto the 5 kHz grid",
