@@ -117,8 +117,10 @@ class SensorClient(FramedClient):
     def get_image_raw(self, region: tuple[int, ...] | None = None) -> tuple[int, Image]:
         """(index, IMAGE) of the latest frame; ``region`` = (column, row, width, height),
         trailing values optional (the rest of the sensor)."""
-        params: tuple[int, ...] = () if region is None else tuple(int(x) for x in region)
-        v = self.call(CommandId.GET_IMAGE, *params)
+        if region is None:
+            v = self.call(_GET_IMAGE)
+        else:
+            v = self.call(_GET_IMAGE, *(int(x) for x in region))
         image = v[1]
         if not isinstance(image, Image):
             raise PeerError("GetImage: expected an IMAGE")
@@ -164,6 +166,9 @@ class SensorClient(FramedClient):
         if not isinstance(host, str):
             raise PeerError("GetTriggerEndpoint: host must be a STRING")
         return host, _i(v[1])
+
+
+_GET_IMAGE = int(CommandId.GET_IMAGE)  # an enum attribute look-up is slow in Python 3.11
 
 
 __all__ = ["SeamData", "SensorClient", "SensorState", "Settings", "image_to_array"]

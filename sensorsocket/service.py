@@ -18,6 +18,7 @@ import math
 import numpy as np
 
 from sensorsocket.sensor import Reading, Sensor, SensorError
+from spec.codec import PreparedParams, prepare_params
 from spec.errors import ErrorCode, ProtocolError
 from spec.params import Image, Location, Matrix, Value
 from spec.registry import CommandId
@@ -46,9 +47,9 @@ class SensorService(HandlerService):
         self.sensor = sensor
         self.identity = identity
         self.trigger_endpoint = trigger_endpoint
-        # The row-major full frame of the latest reading: transposing 128 KiB costs ~70 µs,
-        # so it is done once per frame, not once per GetImage.
-        self._full_image: tuple[Reading, Image] | None = None
+        # The full-frame reply of the latest reading: transposing 128 KiB costs ~70 µs and
+        # its CRC a pass over it, so both are done once per frame, not once per GetImage.
+        self._full_reply: tuple[Reading, PreparedParams] | None = None
         for command, handler in {
             CommandId.SENSOR_STATUS: self._status,
             CommandId.GET_DATA: self._get_data,
@@ -113,6 +114,8 @@ class SensorService(HandlerService):
 
     def _get_image(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
         r = self._latest()
+        if not params:
+            return self._full(r)
         width, height = self.sensor.width, self.sensor.height
         ints = [int(p) for p in params if isinstance(p, int)]
         column = ints[0] if len(ints) > 0 else 0
@@ -130,20 +133,22 @@ class SensorService(HandlerService):
                 ErrorCode.OUT_OF_RANGE,
             )
         if (column, row, w, h) == (0, 0, width, height):
-            return (r.index, self._full(r))
+            return self._full(r)
         # [SS-5.3] the frame is (columns, rows) in readout order; rows go on the wire.
         pixels = r.frame[column : column + w, row : row + h].T.tobytes()
         image = Image(w, h, pixels, PixelFormat.MONO8, PixelOrder.ROW_MAJOR)
         return (r.index, image)
 
-    def _full(self, r: Reading) -> Image:
-        cached = self._full_image
+    def _full(self, r: Reading) -> PreparedParams:
+        """The reply (index, whole frame) of reading ``r``, encoded once for every GetImage."""
+        cached = self._full_reply
         if cached is not None and cached[0] is r:
             return cached[1]
         pixels = np.ascontiguousarray(r.frame.T).tobytes()
         image = Image(r.frame.shape[0], r.frame.shape[1], pixels)  # MONO8, ROW_MAJOR
-        self._full_image = (r, image)
-        return image
+        reply = prepare_params((r.index, image))
+        self._full_reply = (r, reply)
+        return reply
 
     def _get_profile(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
         r = self._latest()

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import NamedTuple, NoReturn, cast
 
 from spec import wire
-from spec.crc import CACHED_MIN, crc32, crc32_parts
+from spec.crc import crc32, crc32_combine
 from spec.errors import (
     BadCrcError,
     ErrorCode,
@@ -76,18 +76,60 @@ def error_packet(command: int, request_id: int, code: ErrorCode | int, message: 
     return Packet(PacketKind.ERROR, command, request_id, (int(code), message))
 
 
+class PreparedParams(tuple[Value, ...]):
+    """A parameter list encoded once, for a reply that is sent again unchanged: GetImage
+    between two acquisitions sends the same 128 KiB frame, so its payload pieces and their
+    CRC-32 are made once (:func:`prepare_params`) and each frame that carries them adds only
+    its header and the CRC of that header combined with the payload's [RS-3.6]. It is a
+    tuple of the values, so it reads as the parameter list it is everywhere else."""
+
+    #: (payload pieces, payload length, CRC-32 of the payload).
+    encoded: tuple[tuple[bytes, ...], int, int]
+
+
+def prepare_params(params: tuple[Value, ...]) -> PreparedParams:
+    """Encode ``params`` once for many frames; the values are immutable, so the encoding
+    stays theirs. Small pieces are joined, large ones (pixels) kept as they are, not copied."""
+    pieces: list[bytes] = []
+    small: list[bytes] = []
+    for part in encode_params_parts(params):
+        if len(part) < _ONE_PIECE_MAX:
+            small.append(part)
+            continue
+        if small:
+            pieces.append(b"".join(small))
+            small = []
+        pieces.append(part)
+    if small:
+        pieces.append(b"".join(small))
+    length = sum(map(len, pieces))
+    if length > wire.MAX_PAYLOAD:
+        raise UsageError(f"payload of {length} bytes exceeds the maximum of {wire.MAX_PAYLOAD}")
+    payload_crc = 0
+    for piece in pieces:
+        payload_crc = crc32(piece, payload_crc)
+    prepared = PreparedParams(params)
+    prepared.encoded = (tuple(pieces), length, payload_crc)
+    return prepared
+
+
 def encode_packet_parts(
     packet: Packet, max_payload: int = wire.MAX_PAYLOAD, *, crc: bool = True
 ) -> list[bytes]:
     """One frame as a list of byte strings, so a large payload (an image) is never copied to
-    build the frame: send it with ``sendmsg``. A small frame (no part of
-    :data:`spec.crc.CACHED_MIN` bytes) comes as one piece, ready for ``sendall``.
+    build the frame: send it with ``sendmsg``. A small frame (under ``_ONE_PIECE_MAX``
+    bytes of payload) comes as one piece, ready for ``sendall``.
 
     ``crc=False`` sends the frame with the NO_CRC flag and a zero trailer, on a connection
     where the client turned CRCs off (SetFrameCrc, [RS-3.16])."""
     kind, command, request_id, params, minor = packet
-    parts = encode_params_parts(params)
-    length = sum(map(len, parts))
+    prepared = type(params) is PreparedParams
+    if prepared:
+        pieces, length, payload_crc = cast(PreparedParams, params).encoded
+        parts = list(pieces)
+    else:
+        parts = encode_params_parts(params)
+        length = sum(map(len, parts))
     if length > max_payload:
         raise UsageError(f"payload of {length} bytes exceeds the maximum of {max_payload}")
     flags = 0 if crc else wire.FLAG_NO_CRC
@@ -99,15 +141,26 @@ def encode_packet_parts(
         if not 0 <= request_id <= 0xFFFFFFFF:
             raise UsageError(f"request ID {request_id} does not fit in 32 bits") from None
         raise
-    if length < CACHED_MIN:
+    if prepared:
+        # The payload's CRC was computed once: only the 16 header bytes are scanned here.
+        trailer = _TRAILER_PACK(crc32_combine(crc32(header), payload_crc, length))
+        return [header, *parts, trailer if crc else _NO_CRC_TRAILER]
+    if length < _ONE_PIECE_MAX:
         body = header + b"".join(parts)
         return [body + (_TRAILER_PACK(crc32(body)) if crc else _NO_CRC_TRAILER)]
     parts.insert(0, header)
-    # An image sent again is not scanned again: its CRC comes from the cache (spec.crc).
-    parts.append(_TRAILER_PACK(crc32_parts(parts)) if crc else _NO_CRC_TRAILER)
+    if crc:
+        frame_crc = 0
+        for part in parts:
+            frame_crc = crc32(part, frame_crc)
+        parts.append(_TRAILER_PACK(frame_crc))
+    else:
+        parts.append(_NO_CRC_TRAILER)
     return parts
 
 
+#: A payload shorter than this is encoded as one piece; longer ones keep their large parts.
+_ONE_PIECE_MAX = 16 * 1024
 _HEADER_PACK = wire.HEADER.pack
 _TRAILER_PACK = wire.TRAILER.pack
 _NO_CRC_TRAILER = wire.TRAILER.pack(0)
@@ -431,6 +484,7 @@ __all__ = [
     "FrameDecoder",
     "Header",
     "Packet",
+    "PreparedParams",
     "ProtocolError",
     "Rejected",
     "decode_packet",
@@ -438,6 +492,7 @@ __all__ = [
     "encode_packet_parts",
     "error_packet",
     "packet_of",
+    "prepare_params",
     "reply_to",
     "request",
 ]

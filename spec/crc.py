@@ -2,8 +2,8 @@
 
 A server that sends the same image again (GetImage between two acquisitions) would run the
 CRC over its 128 KiB every time. :func:`crc32_combine` joins the CRC of the header bytes
-with the CRC of the pixel bytes, computed once per image (:func:`cached_crc32`), the way
-zlib's ``crc32_combine`` does: crc(A + B) = crc(A) * x^(8 len B) mod P  xor  crc(B).
+with the CRC of the payload, computed once per image (:func:`spec.codec.prepare_params`),
+the way zlib's ``crc32_combine`` does: crc(A + B) = crc(A) * x^(8 len B) mod P  xor  crc(B).
 Stdlib has no binding for it; the polynomial arithmetic below is zlib's, on 32-bit ints.
 
 :func:`crc32` is the same function as :func:`zlib.crc32`, from zlib-ng when the optional
@@ -97,44 +97,9 @@ def crc32_combine_reference(crc1: int, crc2: int, length2: int) -> int:
     return _multmodp(_x2nmodp(length2), crc1) ^ crc2
 
 
-#: Parts at least this long get their CRC from the cache; shorter ones are cheaper to scan.
-CACHED_MIN = 16 * 1024
-
-# The last few large immutable parts and their CRCs, by identity. The entry holds the object
-# itself, so its id cannot be reused while it is cached.
-_cache: dict[int, tuple[bytes, int]] = {}
-_CACHE_SIZE = 4
-
-
-def cached_crc32(data: bytes) -> int:
-    """zlib.crc32(data), computed once per bytes object (bytes never change)."""
-    entry = _cache.get(id(data))
-    if entry is not None and entry[0] is data:
-        return entry[1]
-    crc = crc32(data)
-    if len(_cache) >= _CACHE_SIZE:
-        _cache.pop(next(iter(_cache)))
-    _cache[id(data)] = (data, crc)
-    return crc
-
-
-def crc32_parts(parts: list[bytes]) -> int:
-    """zlib.crc32 of the concatenated parts; large ``bytes`` parts from the cache."""
-    crc = 0
-    for part in parts:
-        if len(part) >= CACHED_MIN and type(part) is bytes:
-            crc = crc32_combine(crc, cached_crc32(part), len(part))
-        else:
-            crc = crc32(part, crc)
-    return crc
-
-
 __all__ = [
-    "CACHED_MIN",
     "CRC32_IMPLEMENTATION",
-    "cached_crc32",
     "crc32",
     "crc32_combine",
     "crc32_combine_reference",
-    "crc32_parts",
 ]

@@ -542,26 +542,38 @@ def _dec_matrix(buf: memoryview, pos: int, index: int) -> _Decoded:
 
 
 def _dec_image(buf: memoryview, pos: int, index: int) -> _Decoded:
-    _need(buf, pos, wire.IMAGE_HEADER.size, index, _PT_IMAGE)
-    width, height, fmt, order, n = wire.IMAGE_HEADER.unpack_from(buf, pos)
-    pos += wire.IMAGE_HEADER.size
+    # The checks of _need and the fields of _trusted written out: a GetImage reply decodes
+    # one per frame, and this is the client's Python per image besides the copy.
+    start = pos + _IMAGE_META_SIZE
+    if start > len(buf):
+        raise ParameterError(f"parameter {index} (IMAGE) truncated")
+    width, height, fmt, order, n = _IMAGE_META_UNPACK(buf, pos)
     pixel_format, pixel_order = _PIXEL_FORMATS.get(fmt), _PIXEL_ORDERS.get(order)
     if pixel_format is None or pixel_order is None:
         msg = f"parameter {index}: unknown image format {fmt} / order {order}"
         raise ParameterError(msg)
-    if n != width * height * wire.BYTES_PER_PIXEL[pixel_format]:
+    if n != width * height * pixel_format[1]:
         raise ParameterError(f"parameter {index}: IMAGE length {n} != width*height*bpp")
-    _need(buf, pos, n, index, _PT_IMAGE)
-    data = bytes(buf[pos : pos + n])
-    image = _trusted(
-        Image, width=width, height=height, data=data, format=pixel_format, order=pixel_order
-    )
-    return image, pos + n
+    end = start + n
+    if end > len(buf):
+        raise ParameterError(f"parameter {index} (IMAGE) truncated")
+    image = _new(Image)
+    _set(image, "width", width)
+    _set(image, "height", height)
+    _set(image, "data", bytes(buf[start:end]))  # the one copy: Image.data owns its bytes
+    _set(image, "format", pixel_format[0])
+    _set(image, "order", pixel_order)
+    return image, end
 
 
-# Look-ups by value without calling the enum class (slow in Python 3.11).
-_PIXEL_FORMATS = {int(f): f for f in PixelFormat}
+# Look-ups by value without calling the enum class (slow in Python 3.11): the format with
+# its bytes per pixel, so no enum member is hashed per image.
+_PIXEL_FORMATS = {int(f): (f, wire.BYTES_PER_PIXEL[f]) for f in PixelFormat}
 _PIXEL_ORDERS = {int(o): o for o in PixelOrder}
+_IMAGE_META_UNPACK = wire.IMAGE_HEADER.unpack_from
+_IMAGE_META_SIZE = wire.IMAGE_HEADER.size
+_new = object.__new__
+_set = object.__setattr__
 
 _DECODERS: dict[int, Callable[[memoryview, int, int], _Decoded]] = {
     ParamType.INT: _dec_int,

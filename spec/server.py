@@ -173,7 +173,7 @@ class Session:
             if size < LARGE_FRAME or not hasattr(self.sock, "sendmsg"):
                 self.sock.sendall(parts[0] if len(parts) == 1 else b"".join(parts))
             else:
-                _sendmsg_all(self.sock, parts)
+                _sendmsg_all(self.sock, parts, size)
 
     def __repr__(self) -> str:
         return f"<Session {self.id} {self.peer[0]}:{self.peer[1]}>"
@@ -879,16 +879,22 @@ _COMMON: dict[int, _Handler] = {
 }
 
 
-def _sendmsg_all(sock: socket.socket, parts: list[bytes]) -> None:
-    """``sendall`` for a list of buffers: ``sendmsg`` until every byte is out."""
+def _sendmsg_all(sock: socket.socket, parts: list[bytes], size: int) -> None:
+    """``sendall`` for a list of buffers (``size`` bytes in all): ``sendmsg`` until every
+    byte is out. A blocking socket takes them in one call; views only for what is left."""
+    sent = sock.sendmsg(parts)
+    if sent == size:
+        return
     views = [memoryview(p) for p in parts if p]
-    while views:
-        sent = sock.sendmsg(views)
+    while True:
         while views and sent >= len(views[0]):
             sent -= len(views[0])
             views.pop(0)
+        if not views:
+            return
         if sent:
             views[0] = views[0][sent:]
+        sent = sock.sendmsg(views)
 
 
 def _unread(sock: socket.socket) -> bool:

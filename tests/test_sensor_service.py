@@ -171,6 +171,9 @@ def test_get_image_bytes_equal_the_rendered_frame(rig: Rig, client: SensorClient
         assert (raw.width, raw.height, raw.order) == (512, 256, PixelOrder.ROW_MAJOR)
         # [SS-5.3] row-major on the wire: the transpose of the (columns, rows) readout frame
         assert raw.data == np.ascontiguousarray(reading.frame.T).tobytes()
+        # Sent again from the reply encoded once per reading; the whole region is that reply.
+        assert client.get_image_raw() == (index, raw)
+        assert client.get_image_raw((0, 0, 512, 256)) == (index, raw)
         _, image = client.get_image()
         assert image.shape == (256, 512) and np.array_equal(image, reading.frame.T)
         assert image.max() > 100  # the stripe is there

@@ -1,4 +1,5 @@
-"""The CRC combine and cache (spec/crc.py) against plain zlib.crc32 over the whole bytes."""
+"""The CRC combine (spec/crc.py) and the prepared payload (spec/codec.py) against plain
+zlib.crc32 over the whole bytes and the plain encoding."""
 
 from __future__ import annotations
 
@@ -16,22 +17,21 @@ from spec.codec import (
     decode_packet,
     encode_packet,
     encode_packet_parts,
+    packet_of,
+    prepare_params,
     reply_to,
     request,
 )
 from spec.crc import (
-    CACHED_MIN,
     CRC32_IMPLEMENTATION,
     _select_crc32,
-    cached_crc32,
     crc32,
     crc32_combine,
     crc32_combine_reference,
-    crc32_parts,
 )
 from spec.errors import BadCrcError, ErrorCode
-from spec.params import Image
-from spec.wire import TRAILER
+from spec.params import Image, Value
+from spec.wire import TRAILER, PacketKind
 
 
 @settings(max_examples=200, deadline=None)
@@ -58,7 +58,10 @@ def test_the_fast_crc32_is_used_when_installed_and_zlib_otherwise() -> None:
 
 def _image_frame(request_id: int = 5) -> bytes:
     image = Image(512, 256, bytes(range(251)) * 522 + bytes(50))
-    return encode_packet(reply_to(request(0x2003, request_id), 3, image))
+    frame = encode_packet(reply_to(request(0x2003, request_id), 3, image))
+    # The server sends a full frame from its prepared payload: the same bytes.
+    assert _frame(prepare_params((3, image)), request_id) == frame
+    return frame
 
 
 # Not the magic or the length field: those lose the frame boundary, a different error.
@@ -103,32 +106,43 @@ def test_table_combine_matches_zlibs_bitwise_algorithm(c1: int, c2: int, n: int)
     assert crc32_combine(c1, c2, n) == crc32_combine_reference(c1, c2, n)
 
 
-@settings(max_examples=50, deadline=None)
-@given(st.lists(st.binary(max_size=64), max_size=4), st.binary(min_size=1, max_size=64))
-def test_parts_with_a_large_part_match_zlib(small: list[bytes], seed: bytes) -> None:
-    big = (seed * (CACHED_MIN // len(seed) + 1))[: CACHED_MIN + len(seed)]
-    parts = [*small, big, *small, big]
-    assert crc32_parts(parts) == zlib.crc32(b"".join(parts))
-    assert crc32_parts(parts) == zlib.crc32(b"".join(parts))  # now from the cache
+def _frame(params: tuple[Value, ...], request_id: int, crc: bool = True) -> bytes:
+    packet = packet_of((PacketKind.REPLY, 0x2003, request_id, params, wire.VERSION_MINOR))
+    return b"".join(encode_packet_parts(packet, crc=crc))
 
 
-def test_the_cache_follows_the_object_not_a_stale_entry() -> None:
-    for fill in range(10):  # more objects than the cache holds, freed and reallocated
-        data = bytes([fill]) * (CACHED_MIN + 7)
-        assert cached_crc32(data) == zlib.crc32(data)
-    mutable = bytearray(CACHED_MIN)
-    first = crc32_parts([mutable])
-    mutable[0] = 1  # a bytearray can change: never cached
-    assert crc32_parts([mutable]) != first == zlib.crc32(bytes(CACHED_MIN))
+_values = st.one_of(
+    st.integers(-(1 << 63), (1 << 63) - 1),
+    st.booleans(),
+    st.binary(max_size=64),
+    st.binary(min_size=16 * 1024, max_size=20 * 1024),  # a large part, kept as it is
+    st.text(max_size=20),
+)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(_values, max_size=5), st.integers(1, 0xFFFFFFFF), st.booleans())
+def test_a_prepared_payload_encodes_as_the_plain_one(
+    values: list[Value], request_id: int, crc: bool
+) -> None:
+    """The fast path (payload and its CRC made once) against the plain encoding, byte for
+    byte, with the CRC on and off."""
+    params = tuple(values)
+    prepared = prepare_params(params)
+    assert prepared == params
+    for rid in (request_id, request_id % 7 + 1):  # the same prepared payload, new headers
+        assert _frame(prepared, rid, crc) == _frame(params, rid, crc)
 
 
 def test_a_resent_image_frame_carries_the_crc_of_its_bytes() -> None:
     image = Image(512, 256, bytes(range(256)) * 512)
-    for request_id in (1, 2, 3):  # same image object, new header each time
-        reply = reply_to(request(0x2003, request_id), request_id, image)
+    prepared = prepare_params((7, image))
+    for request_id in (1, 2, 3):  # same payload, new header each time
+        reply = packet_of((PacketKind.REPLY, 0x2003, request_id, prepared, wire.VERSION_MINOR))
         parts = encode_packet_parts(reply)
+        assert parts[2] is image.data  # the pixels go out as they are, not copied
         frame = b"".join(parts)
         (crc,) = TRAILER.unpack_from(frame, len(frame) - 4)
         assert crc == zlib.crc32(frame[:-4])
         packet = decode_packet(frame)
-        assert isinstance(packet, Packet) and packet.params == (request_id, image)
+        assert isinstance(packet, Packet) and packet.params == (7, image)

@@ -17,7 +17,15 @@ from spec.codec import FrameDecoder, Packet, encode_packet, request
 from spec.errors import ErrorCode, ProtocolError, RemoteError
 from spec.params import Joints, Value
 from spec.registry import CommandId, CommandSpec
-from spec.server import FramedServer, Identity, ServerPolicy, Service, Session, parse_networks
+from spec.server import (
+    FramedServer,
+    Identity,
+    ServerPolicy,
+    Service,
+    Session,
+    _sendmsg_all,
+    parse_networks,
+)
 from spec.wire import PacketKind
 
 if TYPE_CHECKING:
@@ -721,3 +729,32 @@ def test_an_interrupt_right_after_the_send_leaves_no_stale_reply(server: FramedS
             client.call(CommandId.WAIT_END_MOVE, 5.0)
         (joints,) = client.call(CommandId.HEREJ)
         assert joints == Joints([1, 2, 3, 4, 5, 6])
+
+
+class _ShortSends:
+    """A socket stand-in whose sendmsg takes at most ``limit`` bytes a call (as a blocking
+    send cut short by a timeout or a signal does), recording what went out."""
+
+    def __init__(self, limit: int) -> None:
+        self.limit = limit
+        self.out = bytearray()
+        self.calls = 0
+
+    def sendmsg(self, buffers: list[bytes | memoryview]) -> int:
+        self.calls += 1
+        data = b"".join(bytes(b) for b in buffers)[: self.limit]
+        self.out += data
+        return len(data)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.binary(max_size=40), min_size=1, max_size=6), st.integers(1, 300))
+def test_sendmsg_all_sends_every_byte_once_in_order(parts: list[bytes], limit: int) -> None:
+    """A frame sent in pieces: whatever each sendmsg takes, every byte goes out exactly once,
+    and a socket that takes it all needs one call."""
+    size = sum(map(len, parts))
+    sock = _ShortSends(limit)
+    _sendmsg_all(sock, parts, size)  # type: ignore[arg-type]
+    assert sock.out == b"".join(parts)
+    if size <= limit:
+        assert sock.calls == 1
