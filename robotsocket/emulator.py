@@ -394,6 +394,11 @@ class RobotEmulator(RobotInterface):
         # waits for the GIL would stall the 4 ms tick (priority inversion).
         return np.array(self._measured)
 
+    def herej_values(self) -> list[float]:
+        self.catch_up()
+        values: list[float] = self._measured.tolist()  # no lock and no copy, as in herej
+        return values
+
     def setpoint(self) -> Array:
         """Latest commanded joints (6,) degrees."""
         self.catch_up()

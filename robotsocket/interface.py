@@ -161,6 +161,12 @@ class RobotInterface(ABC):
     def herej(self) -> Array:
         """Measured joints (6,) in degrees."""
 
+    def herej_values(self) -> list[float]:
+        """:meth:`herej` as plain floats, what the Herej reply carries: an implementation
+        that holds them anyway overrides this and spares the server's request path an array."""
+        values: list[float] = self.herej().tolist()
+        return values
+
     @abstractmethod
     def here(self, tool: Loc = IDENTITY_LOC, frame: Loc = IDENTITY_LOC) -> Loc:
         """Measured location of ``tool`` (relative to the flange) in ``frame`` (relative to

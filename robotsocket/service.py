@@ -171,7 +171,7 @@ class RobotService(HandlerService):
         return status_reply(st, code, message, session)
 
     def _herej(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        return (Joints(self.robot.herej().tolist()),)
+        return (Joints(self.robot.herej_values()),)
 
     def _here(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
         return (Location(*self.robot.here(_loc(params[0]), _loc(params[1]))),)

@@ -15,6 +15,7 @@ from robotsocket.interface import (
     MotionDesc,
     NotPoweredError,
     OutOfRangeError,
+    RobotInterface,
     UnreachableError,
 )
 
@@ -117,6 +118,21 @@ def test_measured_joints_are_delayed_setpoints() -> None:
     k = times - latency >= times[0]
     np.testing.assert_allclose(meas[k], expect[k], atol=1e-9)
     assert np.array_equal(robot.herej(), TARGET)  # settled: waited for the latency too
+
+
+def test_herej_values_are_herej_as_floats_mid_move() -> None:
+    """The Herej reply's path (no array) reports what herej() does, also with noise and
+    mid-move; herej() still hands out a copy of its own."""
+    robot = powered(noise_deg=0.01, rng=np.random.default_rng(3))
+    robot.joint_move(TARGET)
+    for _ in range(5):
+        assert not robot.wait_end_move(0.1)  # mid-move: the samples change
+        q = robot.herej()
+        values = robot.herej_values()
+        assert values == q.tolist() == RobotInterface.herej_values(robot)
+        assert all(type(v) is float for v in values)
+        q[:] = 0.0
+        assert robot.herej_values() == values
 
 
 def test_noise_needs_rng_and_is_reproducible() -> None:
