@@ -545,8 +545,12 @@ class FramedServer:
         # frame that is still running), except the reserved connection's: the others are
         # looked at on the ticks without data, off the request path.
         look = True
-        while not self._shutdown.is_set() and not session.closed:
+        while not session.closed:
             if look or session.reserved or not ticking:
+                # Off the request path too: shutdown() also closes this socket, which ends
+                # a receive that is waiting.
+                if self._shutdown.is_set():
+                    return
                 now = time.monotonic()
                 deadline, why = self._deadline(session, decoder.in_frame, frame_start, last_byte)
                 if now >= deadline:
