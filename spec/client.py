@@ -198,20 +198,20 @@ class FramedClient:
         deadline = time.monotonic() + timeout
         decoder = self._decoder
         first = True
+        event = decoder.next_event()
         while True:
-            event = decoder.next_event()
             if event is not None:
-                if isinstance(event, Packet):
-                    if event.kind is _EVENT:
-                        continue  # [RS-3.14] an event is never the reply to a request
-                    if event.request_id in self._abandoned and event.request_id != request_id:
-                        self._abandoned.discard(event.request_id)
-                        continue  # the late reply of an interrupted request
-                    if command == _EMERGENCY_STOP and _is_limit_notice(event):
-                        continue  # [RS-7.14] a reserved connection still takes EmergencyStop
-                    return event
-                self.close()
-                raise event.error
+                if not isinstance(event, Packet):
+                    self.close()
+                    raise event.error
+                if event.kind is _EVENT:
+                    pass  # [RS-3.14] an event is never the reply to a request
+                elif event.request_id in self._abandoned and event.request_id != request_id:
+                    self._abandoned.discard(event.request_id)  # late reply, interrupted request
+                elif not (command == _EMERGENCY_STOP and _is_limit_notice(event)):
+                    return event  # a reserved connection still takes EmergencyStop [RS-7.14]
+                event = decoder.next_event()
+                continue
             remaining = timeout if first else deadline - time.monotonic()
             first = False
             if remaining <= 0:
@@ -234,9 +234,10 @@ class FramedClient:
                 raise ConnectionClosed("server closed the connection")
             if view is not None:
                 decoder.buffer_updated(n)
+                event = decoder.next_event()
                 continue
             try:
-                decoder.feed(self._scratch_view[:n], borrow=True)
+                event = decoder.feed_next(self._scratch_view[:n])
             except PeerError:
                 self.close()
                 raise

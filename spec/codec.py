@@ -266,6 +266,24 @@ class FrameDecoder:
         self._chunks.append(chunk)
         self._size += len(chunk)
 
+    def feed_next(self, data: memoryview) -> Event | None:
+        """:meth:`feed` (``borrow=True``) then :meth:`next_event`, for a receive buffer's view.
+        The usual receive, exactly one whole small frame while nothing is buffered, is
+        decoded straight from ``data``, without queueing it."""
+        n = len(data)
+        if (
+            self._size == 0
+            and self._frame is None
+            and self._failed is None
+            and _HEADER_SIZE <= n < LARGE_FRAME
+        ):
+            header = _HEADER_UNPACK(data, 0)
+            length = header[7]
+            if header[0] == _MAGIC and length <= self.max_payload and _FRAME_OVERHEAD + length == n:
+                return self._decode(header, data)
+        self.feed(data, borrow=True)
+        return self.next_event()
+
     def keep(self) -> None:
         """Copy the unread bytes of borrowed views (:meth:`feed`) into bytes of our own."""
         if self._borrowed:

@@ -573,8 +573,7 @@ class FramedServer:
                 self._stats["bytes_in"] += n
             last_byte = time.monotonic()
             try:
-                decoder.feed(view[:n], borrow=True)
-                event = decoder.next_event()
+                event = decoder.feed_next(view[:n])
                 while event is not None:
                     # [RS-7.13] every frame from the controller renews its lease.
                     session.alive_at = last_byte

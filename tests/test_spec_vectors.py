@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Any
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from spec.codec import FrameDecoder, Packet, Rejected, encode_packet, request
 from spec.datagrams import SensorData, Trigger, decode_datagram, encode_datagram
@@ -124,3 +127,57 @@ def test_protocol_md_worked_examples_are_real_frames() -> None:
         hex_text = " ".join(line[:50] for line in block.strip().splitlines())
         raw = bytes.fromhex("".join(c for c in hex_text if c in "0123456789abcdef"))
         assert describe(raw)  # raises on a bad CRC or layout
+
+
+def _events_fast(chunks: list[bytes]) -> tuple[list[object], object]:
+    """The receivers' path: each chunk received into one reused buffer, then feed_next."""
+    decoder = FrameDecoder(max_payload=16 * 1024 * 1024)
+    scratch = bytearray(1 << 17)
+    events: list[object] = []
+    try:
+        for chunk in chunks:
+            decoder.keep()
+            scratch[: len(chunk)] = chunk
+            event = decoder.feed_next(memoryview(scratch)[: len(chunk)])
+            while event is not None:
+                events.append(_plain(event))
+                event = decoder.next_event()
+    except PeerError as exc:
+        return events, (exc.code, str(exc))
+    return events, None
+
+
+def _events_reference(chunks: list[bytes]) -> tuple[list[object], object]:
+    decoder = FrameDecoder(max_payload=16 * 1024 * 1024)
+    events: list[object] = []
+    try:
+        for chunk in chunks:
+            decoder.feed(chunk)
+            events.extend(_plain(e) for e in decoder.events())
+    except PeerError as exc:
+        return events, (exc.code, str(exc))
+    return events, None
+
+
+def _plain(event: Packet | Rejected) -> object:
+    """Comparable form (NaN parameters included): a packet's bytes, a rejection's reason."""
+    if isinstance(event, Packet):
+        return encode_packet(event)
+    return (event.header, event.code, str(event.error))
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    picks=st.lists(st.integers(0, len(FRAMES) - 1), min_size=1, max_size=6),
+    cuts=st.lists(st.integers(0, 4096), max_size=8),
+)
+def test_feed_next_gives_what_feed_and_next_event_give(picks: list[int], cuts: list[int]) -> None:
+    """feed_next (whole small frames decoded in place) against the plain feed + next_event,
+    for frames valid and invalid, whole, coalesced and split anywhere."""
+    data = b"".join(bytes.fromhex(FRAMES[i]["hex"]) for i in picks)
+    bounds = sorted({0, len(data), *(c % (len(data) + 1) for c in cuts)})
+    chunks = [data[a:b] for a, b in itertools.pairwise(bounds) if b > a]
+    assert _events_fast(chunks) == _events_reference(chunks)
+    # Each frame in a receive of its own: the case feed_next decodes in place.
+    alone = [bytes.fromhex(FRAMES[i]["hex"]) for i in picks]
+    assert _events_fast(alone) == _events_reference(alone)
