@@ -2,8 +2,9 @@
 
 Usage: ``python -m bench [-o bench-results/results.json] [--only AREA ...]``
 
-Beside the results goes ``run.json``: when, which commit, on what machine and beside what load
-they were measured (``bench.run_info``); ``python -m bench.table`` prints both as Markdown.
+Beside the results goes their run record (``results.run.json``): when, which commit, on what
+machine and beside what load they were measured (``bench.run_info``); ``python -m bench.table``
+prints both as Markdown, with the targets of ``bench.targets`` met or not.
 """
 
 from __future__ import annotations
@@ -60,8 +61,8 @@ def main(argv: list[str] | None = None) -> int:
     output = Path(args.output)
     write_atomically(output, json.dumps(results, indent=2) + "\n")
     info = run_info.collect(started, load_start)
-    write_atomically(output.with_name("run.json"), json.dumps(info, indent=2) + "\n")
-    print(f"wrote {len(results)} results and {output.name} to {output.parent}", file=sys.stderr)
+    write_atomically(run_info.record_path(output), json.dumps(info, indent=2) + "\n")
+    print(f"wrote {len(results)} results and their run record to {output.parent}", file=sys.stderr)
     return 0
 
 

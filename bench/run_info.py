@@ -1,4 +1,4 @@
-"""What a benchmark run ran on: the record written beside the results (``run.json``).
+"""What a benchmark run ran on: the record written beside the results (``results.run.json``).
 
 A figure means little without the machine, the load it shared the machine with and the code it
 measured, so ``python -m bench`` writes them next to ``results.json`` and ``python -m
@@ -40,6 +40,12 @@ class RunInfo(TypedDict):
     platform: str
     crc32: str
     packages: dict[str, str]
+
+
+def record_path(results: Path) -> Path:
+    """Where the run record of ``results`` goes: beside it, named after it, so two result
+    files in one directory never share (or swap) their records."""
+    return results.with_name(f"{results.stem}.run.json")
 
 
 def utc_now() -> str:

@@ -2,8 +2,9 @@
 
 Usage: ``python -m bench.table [RESULTS] [--into README.md]``
 
-RESULTS is ``bench-results/results.json`` by default; the run record ``run.json`` beside it
-(date, commit, machine, load, library versions) becomes the line above the tables. With
+RESULTS is ``bench-results/results.json`` by default; its run record ``results.run.json``
+(date, commit, machine, load, library versions) becomes the line above the tables, and the
+targets of :mod:`bench.targets` are checked against the run in the first table. With
 ``--into``, the text between the document's ``<!-- bench-table:start -->`` and
 ``<!-- bench-table:end -->`` lines is replaced (atomically), so the README's table is always
 one run's output and never a hand-merged mix of runs.
@@ -17,6 +18,8 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
+from bench.run_info import record_path
+from bench.targets import verdicts
 from spec import cliargs
 from spec.files import write_atomically
 
@@ -59,6 +62,25 @@ def describe_run(info: Mapping[str, Any]) -> str:
     )
 
 
+def targets_table(results: list[Mapping[str, Any]]) -> str:
+    """Whether the run meets each target (bench/targets.py), with the figure that decides it."""
+    out = [
+        "| target | this run (ours; ours / baseline) | met |",
+        "|---|---|---|",
+    ]
+    for target, r in verdicts(results):
+        if r is None:
+            out.append(f"| {_cell(target.goal)} | not measured in this run | — |")
+            continue
+        met = "yes" if all(c.holds(r) for c in target.checks) else "**no**"
+        shown = (
+            f"{number(r['value'])} {r['unit']}; {ratio(r['value'], r['baseline'])}"
+            f" × {r['baseline_name']}"
+        )
+        out.append(f"| {_cell(target.goal)} | {_cell(shown)} | {met} |")
+    return "\n".join(out) + "\n"
+
+
 def tables(results: Iterable[Mapping[str, Any]]) -> str:
     """A table per benchmark area: figure, ours, the baseline of the same run, the ratio."""
     areas: dict[str, list[Mapping[str, Any]]] = {}
@@ -87,13 +109,13 @@ def render(results_path: Path) -> str:
     results = json.loads(results_path.read_text())
     if not isinstance(results, list) or not results:
         raise ValueError(f"{results_path} holds no benchmark results")
-    run_path = results_path.with_name("run.json")
+    run_path = record_path(results_path)
     head = (
         describe_run(json.loads(run_path.read_text()))
         if run_path.exists()
         else f"(no {run_path.name} beside {results_path.name}: date and machine unknown)"
     )
-    return f"{head}\n\n{tables(results)}"
+    return f"{head}\n\n{targets_table(results)}\n{tables(results)}"
 
 
 def put_into(document: str, text: str) -> str:

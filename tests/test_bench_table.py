@@ -24,7 +24,7 @@ def _run(tmp_path: Path) -> Path:
     path = tmp_path / "results.json"
     path.write_text(json.dumps(results))
     info = run_info.collect("2026-11-27 10:20 UTC", [0.5, 0.7, 1.0])
-    (tmp_path / "run.json").write_text(json.dumps(info))
+    run_info.record_path(path).write_text(json.dumps(info))
     return path
 
 
@@ -91,3 +91,23 @@ def test_cli_writes_into_the_document_and_refuses_what_it_cannot_use(tmp_path: P
     missing = _cli(tmp_path / "nothing.json")
     assert missing.returncode == 1 and "nothing.json" in missing.stderr
     assert len(missing.stderr.splitlines()) == 1
+
+
+def test_targets_are_read_off_the_run_met_or_not_or_not_measured(tmp_path: Path) -> None:
+    herej = "robot herej round trip p50, client and server processes"
+    results = [
+        {**result(herej, 70.0, "us", "pyModbusTCP p50", 56.0), "area": "bench_peers_net"},
+        {**result("sensor.detect.butt", 3125.0, "frames/s", "memory read", 1e5), "area": "s"},
+    ]
+    path = tmp_path / "results.json"
+    path.write_text(json.dumps(results))
+    lines = render(path).splitlines()
+    assert (
+        "| Herej p50 across processes ≤ pyModbusTCP's | 70 us; 1.25 × pyModbusTCP p50 | **no** |"
+        in lines
+    )
+    assert (
+        "| detect() ≥ 3,000 frames/s, butt | 3125 frames/s; 0.0312 × memory read | yes |" in lines
+    )
+    assert "| ΔT estimate ≤ 1 ms | not measured in this run | — |" in lines
+    assert lines[0] == "(no results.run.json beside results.json: date and machine unknown)"

@@ -1,0 +1,102 @@
+"""The performance targets the project has set itself (issue 20), checked against one run.
+
+Each target names the result it reads (by the start of its name, and of its baseline's name
+where one figure is measured against several) and what the run must show: a bound on the value
+or on the ratio to the peer of the same run. ``python -m bench.table`` prints them above the
+tables, so whether a target is met is read off the run, never copied by hand.
+"""
+
+from __future__ import annotations
+
+import operator
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+_COMPARE = {"≤": operator.le, "≥": operator.ge}
+
+
+@dataclass(frozen=True)
+class Check:
+    of: str  # "value" or "ratio"
+    op: str  # "≤" or "≥"
+    bound: float
+
+    def holds(self, r: Mapping[str, Any]) -> bool:
+        return bool(_COMPARE[self.op](float(r[self.of]), self.bound))
+
+
+@dataclass(frozen=True)
+class Target:
+    goal: str
+    name: str  # the result's name starts with this
+    checks: tuple[Check, ...]
+    baseline: str = ""  # ... and its baseline's name with this
+
+    def find(self, results: Iterable[Mapping[str, Any]]) -> Mapping[str, Any] | None:
+        for r in results:
+            if str(r["name"]).startswith(self.name) and str(r["baseline_name"]).startswith(
+                self.baseline
+            ):
+                return r
+        return None
+
+
+def _ratio(op: str, bound: float) -> Check:
+    return Check("ratio", op, bound)
+
+
+def _value(op: str, bound: float) -> Check:
+    return Check("value", op, bound)
+
+
+_HEREJ = "robot herej"
+TARGETS: tuple[Target, ...] = (
+    Target(
+        "Herej p50 across processes ≤ pyModbusTCP's",
+        f"{_HEREJ} round trip p50, client and server processes",
+        (_ratio("≤", 1.0),),
+    ),
+    *(
+        Target(
+            f"Herej throughput, {n} client{'s' if n > 1 else ''}, ≥ pyModbusTCP's",
+            f"{_HEREJ} throughput, {n} client(s), server process",
+            (_ratio("≥", 1.0),),
+        )
+        for n in (1, 8, 64)
+    ),
+    Target(
+        "GetImage across processes, frame CRC on, ≥ pyzmq REQ/REP",
+        "GetImage 512x256 MONO8 (same frame re-sent), client and server processes, frame CRC on",
+        (_ratio("≥", 1.0),),
+    ),
+    Target(
+        "single-pose IK, all solutions, ≤ 50 µs and ahead of rtb ik_LM",
+        "kinematics.ik single pose, all solutions",
+        (_value("≤", 50.0), _ratio("≤", 1.0)),
+    ),
+    Target(
+        "stripe ≤ 0.03 px rms, at most blur + CoG's error",
+        "sensor.stripe() rms vs renderer truth",
+        (_value("≤", 0.03), _ratio("≤", 1.0)),
+        baseline="OpenCV",
+    ),
+    *(
+        Target(
+            f"stripe() ≥ 5,000 frames/s, {joint}", f"sensor.stripe.{joint}", (_value("≥", 5000),)
+        )
+        for joint in ("butt", "fillet", "lap")
+    ),
+    *(
+        Target(
+            f"detect() ≥ 3,000 frames/s, {joint}", f"sensor.detect.{joint}", (_value("≥", 3000),)
+        )
+        for joint in ("butt", "fillet", "lap")
+    ),
+    Target("ΔT estimate ≤ 1 ms", "sync.estimate_delay", (_value("≤", 1.0),)),
+)
+
+
+def verdicts(results: list[Mapping[str, Any]]) -> list[tuple[Target, Mapping[str, Any] | None]]:
+    """Each target with the result of the run that decides it (None: not measured)."""
+    return [(t, t.find(results)) for t in TARGETS]
