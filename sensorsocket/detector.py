@@ -48,6 +48,8 @@ _AMBIGUOUS_GAP_RATIO = 0.6
 _N_REF_COLUMNS = 9
 #: Robust line fits drop points beyond this many robust sigmas, but never within 10 µm.
 _OUTLIER_SIGMAS, _MIN_OUTLIER_MM = 3.5, 0.01
+# ufunc reductions called directly: ndarray.all()/.any() go through a Python wrapper
+_ALL, _ANY, _MIN = np.logical_and.reduce, np.logical_or.reduce, np.minimum.reduce
 
 
 class DetectorError(ValueError):
@@ -115,10 +117,9 @@ class Detection:
 @dataclass(frozen=True)
 class _Centred:
     """A profile's points as columns [1, y, z, y², yz, z²] (6, n) of y - cy and z - cz
-    (mm), ones (n,), and its centre (cy, cz)."""
+    (mm) and its centre (cy, cz)."""
 
     w: FloatArray
-    ones: FloatArray
     cy: float
     cz: float
 
@@ -166,13 +167,13 @@ class SeamDetector:
         if a.dtype.type is not np.uint8:
             a = to_dn(a)
         stripe = self.stripe(a, first_column)
-        cols = np.flatnonzero(stripe.valid)
+        cols = stripe.valid.nonzero()[0]
         if cols.size < cfg.min_valid_columns:
             return self._none(SeamStatus.NO_STRIPE, stripe)
         u = cols + first_column
         y, z = self.camera.plane_point(u.astype(np.float64), stripe.rows.take(cols))
         keep = _not_isolated_outliers(z, cfg.outlier_mm)
-        if not keep.all():
+        if keep is not None:
             u, y, z = u[keep], y[keep], z[keep]
         pts = np.zeros((u.size, 3))
         pts[:, 1] = y
@@ -355,7 +356,7 @@ class SeamDetector:
         y0, z0 = float(y[0]), float(z[0])
         dy, dz = float(y[-1]) - y0, float(z[-1]) - z0
         dist = np.abs(dy * (z - z0) - dz * (y - y0))
-        y_split = float(y[int(np.argmax(dist))])
+        y_split = float(y[int(dist.argmax())])
         left = right = None
         p = _centred(y, z)
         lm_prev = rm_prev = None
@@ -364,8 +365,8 @@ class SeamDetector:
             rm = y > y_split + cfg.corner_margin_mm
             # a side with the same points as before keeps its line (often, as the corner
             # moves by less than a column); both the same: the same corner
-            new_l = lm_prev is None or bool((lm ^ lm_prev).any())
-            new_r = rm_prev is None or bool((rm ^ rm_prev).any())
+            new_l = lm_prev is None or bool(_ANY(lm ^ lm_prev))
+            new_r = rm_prev is None or bool(_ANY(rm ^ rm_prev))
             if not (new_l or new_r):
                 break
             if new_l:
@@ -388,7 +389,7 @@ class SeamDetector:
             or not (y0 < y_split < float(y[-1]))
         ):
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
-        gap_to_data = float(np.hypot(y - y_split, z - z_c).min())
+        gap_to_data = float(_MIN(np.hypot(y - y_split, z - z_c)))
         if gap_to_data > cfg.max_extrapolation_mm:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         # the corner's normal bisects the plates' directions
@@ -409,8 +410,8 @@ class SeamDetector:
         pts: FloatArray,
     ) -> Detection:
         cfg = self.config
-        jumps = np.abs(np.diff(z))
-        i = int(np.argmax(jumps))
+        jumps = np.abs(z[1:] - z[:-1])
+        i = int(jumps.argmax())
         step = float(jumps[i])
         if step < cfg.min_step_mm:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
@@ -472,14 +473,18 @@ def _list_median(x: list[float]) -> float:
     return s[k] if len(s) % 2 else 0.5 * (s[k] + s[k - 1])
 
 
-def _not_isolated_outliers(z: FloatArray, tol: float) -> NDArray[np.bool_]:
-    """Mask of points within ``tol`` of the 3-point running median of z (drops glints)."""
+def _not_isolated_outliers(z: FloatArray, tol: float) -> NDArray[np.bool_] | None:
+    """Mask of points within ``tol`` of the 3-point running median of z (drops glints);
+    None when that is every point (the usual case)."""
     if z.size < 3:
-        return np.ones(z.size, dtype=bool)
+        return None
     a, b, c = z[:-2], z[1:-1], z[2:]
     med = np.maximum(np.minimum(a, b), np.minimum(np.maximum(a, b), c))
+    inner = np.abs(b - med) <= tol
+    if _ALL(inner):
+        return None
     keep = np.ones(z.size, dtype=bool)
-    keep[1:-1] = np.abs(b - med) <= tol
+    keep[1:-1] = inner
     return keep
 
 
@@ -497,7 +502,7 @@ def _centred(y: FloatArray, z: FloatArray) -> _Centred:
     np.multiply(dy, dy, out=w[3])
     np.multiply(dy, dz, out=w[4])
     np.multiply(dz, dz, out=w[5])
-    return _Centred(w, np.ones(y.size), cy, cz)
+    return _Centred(w, cy, cz)
 
 
 def _robust_line(
@@ -511,7 +516,7 @@ def _robust_line(
     n = w.shape[1]
     if n < 3:
         return None
-    sums = w.dot(p.ones[:n])
+    sums = w.dot(p.w[0, :n])  # row 0 is ones
     keep: NDArray[np.bool_] | None = None
     a = b = rms = 0.0
     for it in range(iterations + 1):
@@ -538,8 +543,8 @@ def _robust_line(
                 break
             new_keep = res <= limit
             # (in the first fit some residual is beyond the limit, or it broke off above)
-            if keep is not None and not (new_keep ^ keep).any():
+            if keep is not None and not _ANY(new_keep ^ keep):
                 break
             keep = new_keep
-            sums = w.dot(keep.astype(np.float64))
+            sums = w.dot(keep)  # as float64 ones and zeros, the same sums
     return _Line(a=a + p.cz - b * p.cy, b=b, rms=rms, n=n)
