@@ -163,6 +163,9 @@ def _gap_mask(
     ``GAP_FACTOR`` median intervals apart, 0.0 inside longer gaps (lost data: a straight line
     across a missing stretch of the sine is not a measurement); None when there is no gap."""
     dt = np.diff(times)
+    # the median is at least the shortest interval: no interval that long, no median needed
+    if float(np.max(dt)) <= GAP_FACTOR * float(np.min(dt)):
+        return None
     gap = dt > GAP_FACTOR * float(np.median(dt))
     if not np.any(gap):
         return None

@@ -204,6 +204,17 @@ def _cross(s: _Pieces, r: _Pieces, shifts: NDArray[np.int64]) -> NDArray[np.floa
     return c
 
 
+def _knots_within(e: NDArray[np.float64], count: int) -> int:
+    """The most knots whose e lie in any count + 1 consecutive grid points: the smallest m
+    with e[i + m] - e[i] > count for every i (all K knots when none is)."""
+    k = e.shape[0]
+    # e[i + m] - e[i] is m mean spacings on average, so m <= count / mean cannot do
+    m: int = min(k, int(count * (k - 1) / max(float(e[-1] - e[0]), 1.0)) + 1)
+    while m < k and not np.min(e[m:] - e[:-m]) > count:
+        m += max(1, m // 4)
+    return m
+
+
 def _window_sums(
     s: _Pieces, x: NDArray[np.float64], wq: NDArray[np.float64], i: NDArray[np.int64], count: int
 ) -> NDArray[np.float64]:
@@ -213,19 +224,16 @@ def _window_sums(
     A sensor knot's two spikes are taken together: the one on floor(x_k) has lag q - floor,
     the other one less. Per robot spike (x = q - first) the knots wanted have floor in
     [x - count, x]: they end at most ``longest`` (knots in one grid interval) after the piece
-    ``i`` of x and start at most ``most`` (knots with e in any count + 1 grid points) before
-    its end. The window of each spike takes that many knots; the ones outside the lag range
-    land in two end bins that are dropped."""
+    ``i`` of x and start at most ``most`` (:func:`_knots_within`) before its end. Each robot
+    spike is a row of that many knots; the ones outside the lag range land in two end bins
+    that are dropped."""
     e = s.e
     k = e.shape[0]
     longest = 1
     if np.any(e[1:] == e[:-1]):
         runs = np.flatnonzero(e[1:] != e[:-1])
         longest = int(np.max(np.diff(runs, prepend=-1, append=k - 1)))
-    # a guess from the mean spacing, plus the two knots one grid step apart at either end
-    most = min(k, int(count * (k - 1) / max(e[-1] - e[0], 1.0)) + 3)
-    while most < k and not np.min(e[most:] - e[:-most]) > count:
-        most += max(1, most // 2)
+    most = _knots_within(e, count)
     width = most + longest
     floor = np.floor(s.x)
     frac = s.x - floor
@@ -236,19 +244,19 @@ def _window_sums(
     np.multiply(s.bend, 1.0 - frac, out=on_floor[:k])
     after = np.zeros(k + width)
     np.multiply(s.bend, frac, out=after[:k])
-    # window o of every robot spike, flat and offset-major: one knot per robot spike per row
+    # row o: knot o of every robot spike's window (rows long, so numpy loops stay long)
     start = np.maximum(i + 1 - most, 0)
     knot = np.empty((width, start.shape[0]), dtype=np.intp)
     for o in range(width):
         np.add(start, o, out=knot[o])
-    knot = knot.ravel()
-    # bin = lag - first + 1 = (x + 1) - floor; lags outside the range land in the end bins
-    bins = np.tile((x + 1.0).astype(np.intp), width)
-    bins -= at_knot.take(knot)
-    np.clip(bins, 0, count + 2, out=bins)
-    w = np.tile(wq, width)
-    on_floor = np.bincount(bins, weights=on_floor.take(knot) * w, minlength=count + 3)
-    after = np.bincount(bins, weights=after.take(knot) * w, minlength=count + 3)
+    # bin = lag - first + 1 = (x + 1) - floor; a lag below the range gives a bin above
+    # count + 2, one above it a negative bin: read as unsigned, one minimum sends both there
+    bins = (x + 1.0).astype(np.intp) - at_knot.take(knot)
+    np.minimum(bins.view(np.uint64), count + 2, out=bins.view(np.uint64))
+    bins = bins.ravel()
+    w = wq
+    on_floor = np.bincount(bins, weights=(on_floor.take(knot) * w).ravel(), minlength=count + 3)
+    after = np.bincount(bins, weights=(after.take(knot) * w).ravel(), minlength=count + 3)
     f: NDArray[np.float64] = np.add(on_floor[1 : count + 1], after[2 : count + 2], dtype=np.float64)
     for _ in range(4):
         np.cumsum(f, out=f)
