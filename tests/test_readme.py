@@ -36,8 +36,6 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = pytest.mark.slow  # about 3 min of end-to-end runs on the shared 2-core VM
-
 ROOT = Path(__file__).resolve().parents[1]
 DOCUMENTS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 
@@ -329,6 +327,7 @@ def _check_all_served(serving: list[tuple[str, subprocess.Popen[str]]]) -> None:
             _check_all_served(serving[1:])
 
 
+@pytest.mark.slow  # about 4 min in all: the documents' end-to-end runs
 @pytest.mark.parametrize("document", EXAMPLES, ids=[d.name for d in EXAMPLES])
 def test_examples_run_as_written(document: Path, tmp_path: Path, subtests: pytest.Subtests) -> None:
     name = document.relative_to(ROOT).as_posix()
