@@ -34,7 +34,7 @@ from spec.client import FramedClient, wait_end_move
 from spec.errors import ProtocolError
 from spec.params import Image, Joints, Location
 from spec.registry import CommandId
-from spec.server import serve_until_signal
+from spec.server import ServerPolicy, serve_until_signal
 from sync.experiment import (
     ExperimentError,
     ExperimentSettings,
@@ -70,6 +70,14 @@ def _parser() -> cliargs.Parser:
                 action="store_true",
                 help="real clock: run the robot loop, UDP and sensor in this process, not in "
                 "a real-time child process (the default; docs/REALTIME.md)",
+            )
+            s.add_argument(
+                "--frame-timeout",
+                type=cliargs.number_in(0.1, 600.0),
+                default=ServerPolicy.frame_timeout,
+                metavar="S",
+                help="time a client has to finish a frame it started (s, 0.1..600, default "
+                "%(default)g as in PROTOCOL.md RS-7.5; announced in Hello)",
             )
         if name == "demo":
             s.add_argument("--out", default="out", help="directory for the frame and plots")
@@ -111,13 +119,14 @@ def _cell(args: argparse.Namespace) -> EmulatedCell:
 
 def cmd_serve(args: argparse.Namespace) -> int:
     cell: EmulatedCell | CellProcess
+    policy = ServerPolicy(frame_timeout=args.frame_timeout)
     if args.clock == "real" and not args.in_process:
         try:  # the real-time part in a child process (docs/REALTIME.md)
-            cell = CellProcess(**_cell_kwargs(args)).start()
+            cell = CellProcess(policy=policy, **_cell_kwargs(args)).start()
         except ChildStartError as exc:
             raise CellError(str(exc)) from None
     else:
-        cell = _cell(args).start()
+        cell = EmulatedCell(clock=args.clock, policy=policy, **_cell_kwargs(args)).start()
 
     def announce() -> None:
         for k, v in cell.describe().items():

@@ -52,7 +52,7 @@ from sensorsocket.sensor import Sensor
 from sensorsocket.service import SensorService
 from sensorsocket.timing import TimingModel
 from sensorsocket.udp import TriggerListener
-from spec.server import FramedServer
+from spec.server import FramedServer, ServerPolicy
 from sync.network import DelayLink
 from sync.udp import RobotSyncCore, UdpSyncEndpoint
 
@@ -125,6 +125,7 @@ class EmulatedCell:
     delta_t_s: float = 0.0
     ready_joints: Sequence[float] = READY_JOINTS
     serve: bool = True
+    policy: ServerPolicy | None = None  # the TCP servers' (None: the spec's defaults)
 
     def __post_init__(self) -> None:
         if self.clock not in ("sim", "real"):
@@ -210,8 +211,12 @@ class EmulatedCell:
         self.robot_server: FramedServer | None = None
         self.sensor_server: FramedServer | None = None
         if self.serve:
-            self.robot_server = FramedServer(self.robot_service, self.host, self.robot_port)
-            self.sensor_server = FramedServer(self.sensor_service, self.host, self.sensor_port)
+            self.robot_server = FramedServer(
+                self.robot_service, self.host, self.robot_port, self.policy
+            )
+            self.sensor_server = FramedServer(
+                self.sensor_service, self.host, self.sensor_port, self.policy
+            )
         self._started = False
 
     # --- geometry ----------------------------------------------------------------------------

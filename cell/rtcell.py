@@ -19,7 +19,7 @@ from cell.cell import EmulatedCell
 from cell.truth import WeldRecorder, WeldTruth
 from kinematics.robot import get_model
 from robotsocket.rtprocess import ChildParts, ForwardedService, RealtimeProcess, RobotProcess
-from spec.server import FramedServer
+from spec.server import FramedServer, ServerPolicy
 
 __all__ = ["CellProcess", "build_cell"]
 
@@ -83,14 +83,15 @@ class CellProcess:
         host: str = "127.0.0.1",
         robot_port: int = 0,
         sensor_port: int = 0,
+        policy: ServerPolicy | None = None,
         **cell: Any,
     ) -> None:
         config = {"cell": {"host": host, **cell}}
         self.child = RealtimeProcess("cell.rtcell:build_cell", config)
         try:
-            self.robot_server = FramedServer(RobotProcess(self.child), host, robot_port)
+            self.robot_server = FramedServer(RobotProcess(self.child), host, robot_port, policy)
             self.sensor_server = FramedServer(
-                ForwardedService(self.child, "sensor"), host, sensor_port
+                ForwardedService(self.child, "sensor"), host, sensor_port, policy
             )
         except OSError:
             self.child.close()

@@ -22,14 +22,14 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
-from kinematics.errors import KinematicsError
-from robotsocket.client import RobotClient
-from robotsocket.rtprocess import ChildStartError, RealtimeProcess, RobotProcess, build_robot
 from spec import callcli, cliargs
 from spec.auth import Network
 from spec.client import ClientTimeout, ConnectionClosed
 from spec.errors import ProtocolError, RemoteError
 from spec.server import FramedServer, ServerPolicy, serve_until_signal
+
+# The emulator, its kinematics (numpy) and the client are imported by the subcommands that use
+# them: `call` needs only the protocol, and starts in half the time without them.
 
 log = logging.getLogger("robotsocket")
 
@@ -67,6 +67,9 @@ def _robot_config(args: argparse.Namespace, allow: tuple[Network, ...]) -> dict[
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
+    from kinematics.errors import KinematicsError
+    from robotsocket.rtprocess import ChildStartError, build_robot
+
     token: str | None = args.token  # read (and refused if empty) by cliargs.token_file
     allow = tuple(args.allow or ())
     if args.clock == "real" and not args.in_process:
@@ -107,6 +110,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
 def _serve_child(args: argparse.Namespace, allow: tuple[Network, ...]) -> int:
     """The real clock's default: the 4 ms loop and the UDP endpoint in a real-time child
     process, the TCP server here (docs/REALTIME.md)."""
+    from robotsocket.rtprocess import ChildStartError, RealtimeProcess, RobotProcess
+
     try:
         child = RealtimeProcess("robotsocket.rtprocess:build_robot", _robot_config(args, allow))
     except ChildStartError as exc:
@@ -153,6 +158,8 @@ def cmd_call(args: argparse.Namespace) -> int:
 
 
 def cmd_watch(args: argparse.Namespace) -> int:
+    from robotsocket.client import RobotClient
+
     host, port = parse_endpoint(args.endpoint)
     with RobotClient(host, port, timeout=args.timeout) as client:
         n = 0

@@ -4,16 +4,20 @@
 background thread, always shut down after the test, and with no handler exception left
 unseen (a test that provokes one on purpose clears ``handler_errors`` after checking it).
 
-Order: ``make test`` runs two xdist workers with ``--dist worksteal`` (a worker that runs dry
-takes half of the other's queue). The long tests run first, longest first, so that none of them
-is left for the end while the other worker idles: "long" is what the last run measured (kept in
-pytest's cache), or the ``slow`` marker for a test not measured yet. The short tests keep their
-file order, so a module-scoped fixture is still set up once per worker.
+Order: ``make test`` runs two xdist workers with ``--dist worksteal``, which hands each worker
+one contiguous slice of the collection (the first half, the second half) and later lets a worker
+that runs dry take the back half of the other's queue. A long test must therefore start early
+and the long tests must be shared: each slice starts with its share of the long tests, dealt
+longest first to the slice with the fewest seconds so far, followed by short tests. "Long" is
+what the last run measured (kept in pytest's cache), or the ``slow`` marker for a test not
+measured yet (a clean clone, CI). The short tests keep their file order, so a module-scoped
+fixture is set up about once per worker.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
+from itertools import islice
 
 import pytest
 
@@ -81,7 +85,41 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
     long = sorted((i for i in items if seconds(i) >= LONG_S), key=seconds, reverse=True)
     short = [i for i in items if seconds(i) < LONG_S]
-    items[:] = long + short  # the same order on every worker: xdist requires it
+    # the same order on every worker: xdist requires it
+    items[:] = _slices(long, short, seconds, _workers(config))
+
+
+def _workers(config: pytest.Config) -> int:
+    """How many slices the collection is cut into: one per xdist worker (a worker cannot see
+    the scheduler, its own ``--dist`` is "no"; ``make test`` uses worksteal)."""
+    workerinput = getattr(config, "workerinput", None)
+    return 1 if workerinput is None else int(workerinput["workercount"])
+
+
+def _slices(
+    long: list[pytest.Item],
+    short: list[pytest.Item],
+    seconds: Callable[[pytest.Item], float],
+    workers: int,
+) -> list[pytest.Item]:
+    """``long`` (longest first) dealt to ``workers`` slices and the slices filled up with
+    ``short`` to the sizes worksteal cuts (``xdist.scheduler.worksteal``: slice ``j`` holds
+    ``remaining // (workers - j)`` items), so every worker starts with its share of long ones."""
+    total = len(long) + len(short)
+    sizes = []
+    for j in range(workers):
+        sizes.append((total - sum(sizes)) // (workers - j))
+    dealt: list[list[pytest.Item]] = [[] for _ in range(workers)]
+    load = [0.0] * workers
+    for item in long:
+        j = min(range(workers), key=lambda j: (load[j], j))
+        dealt[j].append(item)
+        load[j] += seconds(item)
+    out: list[pytest.Item] = []
+    rest = iter(short)
+    for size, mine in zip(sizes, dealt, strict=True):
+        out += mine + list(islice(rest, max(0, size - len(mine))))
+    return out + list(rest)
 
 
 _ran: dict[str, float] = {}

@@ -40,7 +40,7 @@ def test_serve_answers_a_robot_and_a_sensor_call_then_stops_on_sigint(
 ) -> None:
     proc = subprocess.Popen(
         [sys.executable, "-m", "cell", "serve", "--clock", "sim", "--robot-port", "0",
-         "--sensor-port", "0"],
+         "--sensor-port", "0", "--frame-timeout", "1.5"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV, cwd=ROOT,
     )  # fmt: skip
     try:
@@ -62,6 +62,9 @@ def test_serve_answers_a_robot_and_a_sensor_call_then_stops_on_sigint(
             out, err = capsys.readouterr()
             assert code == 0, err
             assert isinstance(json.loads(out), dict)
+            # both servers announce the --frame-timeout they apply
+            assert client_main(["call", endpoint, "Hello", "1", "2", "test"]) == 0
+            assert json.loads(capsys.readouterr().out)["frame_timeout"] == 1.5
         proc.send_signal(signal.SIGINT)
         proc.communicate(timeout=30)
         assert proc.returncode == 0

@@ -258,6 +258,7 @@ def problems(result: RunResult) -> dict[str, str]:
 # --- the conforming servers score 100 % ------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_minimal_robot_scores_100_percent() -> None:
     with serving(FramedServer(MiniRobot(), policy=POLICY)) as address:
         result = check("robot", address, profile="full")
@@ -270,6 +271,7 @@ def test_minimal_robot_scores_100_percent() -> None:
     assert got["timeouts.frame"] is Outcome.PASS
 
 
+@pytest.mark.slow
 def test_minimal_sensor_scores_100_percent() -> None:
     with serving(FramedServer(MiniSensor(), policy=POLICY)) as address:
         result = check("sensor", address, profile="full")

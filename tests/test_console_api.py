@@ -346,6 +346,7 @@ def test_laser_tool_calibration_refusals(env: Any) -> None:
         console.cell = cell
 
 
+@pytest.mark.slow  # about 25 s: ten real moves on the real clock
 def test_laser_tool_calibration_result_error_vs_true_and_save(env: Any) -> None:
     """On --emulate's cell, whose real-time part runs in a child process: the spot detector
     reads the arm's pose from the shared state and the true tool from the child."""

@@ -117,6 +117,7 @@ def _shot(page: Page, name: str) -> None:
     assert path.stat().st_size > 1000, f"screenshot {name} is empty"
 
 
+@pytest.mark.slow  # about 25 s: a whole operator session in the browser
 def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path) -> None:
     url, jobs = console
     with sync_playwright() as pw:

@@ -140,6 +140,7 @@ NUMERIC_OPTIONS: list[tuple[Parse, list[str], str, str]] = [
     (_argparse(sync_parser), ["curvature"], "--speed", "speed"),
     (_argparse(cell_parser), ["serve"], "--seed", "seed"),
     (_argparse(cell_parser), ["serve"], "--trigger-poll-hz", "trigger_poll_hz"),
+    (_argparse(cell_parser), ["serve"], "--frame-timeout", "frame_timeout"),
     (_argparse(cell_parser), ["demo"], "--duration", "duration"),
     (_argparse(conformance_parser), ["robot"], "--timeout-scale", "timeout_scale"),
     (_argparse(conformance_parser), ["robot"], "--fuzz", "fuzz"),

@@ -139,6 +139,7 @@ def _calibrate(session: EmulatedSession, seed: int) -> Loc:
     return est.tool
 
 
+@pytest.mark.slow  # three emulated calibrations
 @settings(
     max_examples=3, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
 )
