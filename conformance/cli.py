@@ -56,7 +56,7 @@ class UsageError(Exception):
     """A bad command line or input file (exit code 3)."""
 
 
-class _Parser(argparse.ArgumentParser):
+class _Parser(cliargs.Parser):
     def error(self, message: str) -> NoReturn:
         raise UsageError(message)
 

@@ -39,6 +39,13 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> Any:  # one line and exit 2, no usage dump
         raise _UsageError(message)
 
+    def _get_values(self, action: argparse.Action, arg_strings: list[str]) -> Any:
+        # As spec.cliargs.Parser (not imported: kinematics stands on numpy alone): Python
+        # 3.11 stores [] for ``--joints=--``; the value "--" is passed on like any other.
+        if action.option_strings and action.nargs is None and arg_strings == ["--"]:
+            return self._get_value(action, "--")
+        return super()._get_values(action, arg_strings)
+
 
 def _six(text: str, what: str) -> list[float]:
     parts = [p for p in text.replace(" ", "").split(",") if p != ""]

@@ -9,7 +9,7 @@ import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from spec.auth import Network, read_token_file
 from spec.files import prepare_output_path
@@ -172,6 +172,14 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message}\n")
+
+    def _get_values(self, action: argparse.Action, arg_strings: list[str]) -> Any:
+        # Python 3.11's argparse drops the value of ``--seed=--`` as if it ended the options
+        # and stores [] unchecked (a traceback later): the value goes through the option's
+        # type like any other instead, an error for a number and "--" for a string.
+        if action.option_strings and action.nargs is None and arg_strings == ["--"]:
+            return self._get_value(action, "--")
+        return super()._get_values(action, arg_strings)
 
 
 def output_file(text: str) -> str:

@@ -169,7 +169,7 @@ def _add_cell_options(
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = cliargs.Parser(
         prog="python -m welding",
         description="24-Laser: welding jobs, tools and frames, job processing, seam teaching.",
         epilog="Exit codes: 0 ok, 1 problems/refused/aborted, 2 usage, 3 unreachable, "
