@@ -17,7 +17,7 @@ import time
 from types import TracebackType
 
 from spec import wire
-from spec.codec import FrameDecoder, Packet, encode_packet, packet_of, request
+from spec.codec import FrameDecoder, Packet, encode_request
 from spec.errors import ErrorCode, PeerError, ProtocolError, RemoteError
 from spec.params import IntArray, Value
 from spec.registry import BY_ID, CommandId, check_params
@@ -161,7 +161,7 @@ class FramedClient:
                     raise ConnectionClosed("not connected")
                 self.connect()
             request_id = self._new_request_id()
-            data = encode_packet(packet_of((_REQUEST, command, request_id, params, _MINOR)))
+            data = encode_request(command, request_id, params)
             # Marked abandoned until its reply is read: an interruption anywhere from here on
             # (Ctrl-C between the send and the wait too) leaves its late reply to be dropped.
             self._abandoned.add(request_id)
@@ -256,6 +256,12 @@ class FramedClient:
             self._sock.settimeout(remaining)
 
     def _check_reply(self, command: int, request_id: int, reply: Packet) -> tuple[Value, ...]:
+        kind, reply_command, reply_id, params, _ = reply
+        if kind is _REPLY and reply_id == request_id and reply_command == command:
+            expected = _REPLY_PARAMS.get(command)
+            if expected is not None:
+                check_params(expected[0], params, expected[1], allow_extra=True)
+            return params
         if reply.kind is _ERROR:
             code, message = reply.error or (0, "")
             if reply.request_id in (request_id, 0):
@@ -266,13 +272,8 @@ class FramedClient:
                 f"reply does not match request: expected command 0x{command:04x} id "
                 f"{request_id}, got 0x{reply.command:04x} id {reply.request_id}"
             )
-        if reply.kind is not _REPLY:
-            self.close()
-            raise PeerError(f"expected a REPLY packet, got {reply.kind.name}")
-        expected = _REPLY_PARAMS.get(command)
-        if expected is not None:
-            check_params(expected[0], reply.params, expected[1], allow_extra=True)
-        return reply.params
+        self.close()
+        raise PeerError(f"expected a REPLY packet, got {reply.kind.name}")
 
     def _remote_error(self, code: int, message: str, command: int, request_id: int) -> RemoteError:
         """The exception an error packet raises (a service's client maps codes to its own
@@ -358,7 +359,7 @@ class FramedClient:
                     self._abandoned.add(request_id)
                     if self._sock is None:
                         return
-                    self._send(encode_packet(request(CommandId.PING, request_id, b"")))
+                    self._send(encode_request(CommandId.PING, request_id, (b"",)))
             except (OSError, ProtocolError, AssertionError):
                 return  # the connection is gone; the next request will say so
 
@@ -370,9 +371,7 @@ class FramedClient:
 
 # Enum members as constants: an enum attribute look-up is slow in Python 3.11 and these are
 # read on every call.
-_REQUEST, _EVENT, _ERROR = PacketKind.REQUEST, PacketKind.EVENT, PacketKind.ERROR
-_REPLY = PacketKind.REPLY
-_MINOR = wire.VERSION_MINOR
+_EVENT, _ERROR, _REPLY = PacketKind.EVENT, PacketKind.ERROR, PacketKind.REPLY
 _EMERGENCY_STOP = int(CommandId.EMERGENCY_STOP)
 #: Each command's reply parameters and its name in messages, built once (not per reply).
 _REPLY_PARAMS = {int(cid): (spec.reply, f"{spec.name} reply") for cid, spec in BY_ID.items()}
