@@ -304,7 +304,7 @@ class FramedClient:
         return info
 
     def ping(self, data: bytes = b"") -> bytes:
-        (echo,) = self.call(CommandId.PING, data)
+        (echo,) = self.call(_PING, data)
         assert isinstance(echo, bytes)
         return echo
 
@@ -380,7 +380,7 @@ class FramedClient:
 # Enum members as constants: an enum attribute look-up is slow in Python 3.11 and these are
 # read on every call.
 _EVENT, _ERROR, _REPLY = PacketKind.EVENT, PacketKind.ERROR, PacketKind.REPLY
-_EMERGENCY_STOP = int(CommandId.EMERGENCY_STOP)
+_EMERGENCY_STOP, _PING = int(CommandId.EMERGENCY_STOP), int(CommandId.PING)
 #: Each command's reply parameters and its name in messages, built once (not per reply).
 _REPLY_PARAMS = {int(cid): (spec.reply, f"{spec.name} reply") for cid, spec in BY_ID.items()}
 
