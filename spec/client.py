@@ -21,7 +21,7 @@ from spec import wire
 from spec.codec import FrameDecoder, Packet, encode_request
 from spec.errors import ErrorCode, PeerError, ProtocolError, RemoteError
 from spec.params import IntArray, Value
-from spec.registry import BY_ID, CommandId, check_params
+from spec.registry import BY_ID, CommandId, check_params, exact_classes
 from spec.sockopt import set_kernel_timeouts
 from spec.wire import PacketKind
 
@@ -181,7 +181,8 @@ class FramedClient:
         if kind is not _REPLY or reply_id != request_id or reply_command != command:
             self._refuse_reply(command, request_id, reply)  # raises
         expected = _REPLY_PARAMS.get(command)
-        if expected is not None:
+        # Exactly the declared classes passes check_params (its fast path, without a call).
+        if expected is not None and tuple(map(type, params)) != expected[2]:
             check_params(expected[0], params, expected[1], allow_extra=True)
         return params
 
@@ -381,8 +382,11 @@ class FramedClient:
 # read on every call.
 _EVENT, _ERROR, _REPLY = PacketKind.EVENT, PacketKind.ERROR, PacketKind.REPLY
 _EMERGENCY_STOP, _PING = int(CommandId.EMERGENCY_STOP), int(CommandId.PING)
-#: Each command's reply parameters and its name in messages, built once (not per reply).
-_REPLY_PARAMS = {int(cid): (spec.reply, f"{spec.name} reply") for cid, spec in BY_ID.items()}
+#: Each command's reply parameters, its name in messages and their exact classes, built once.
+_REPLY_PARAMS = {
+    int(cid): (spec.reply, f"{spec.name} reply", exact_classes(spec.reply))
+    for cid, spec in BY_ID.items()
+}
 
 
 def wait_end_move(client: FramedClient, timeout: float) -> bool:
