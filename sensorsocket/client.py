@@ -106,7 +106,7 @@ class SensorClient(FramedClient):
 
     def get_data(self) -> SeamData:
         """The latest measurement (paper: data = GetData())."""
-        v = self.call(CommandId.GET_DATA)
+        v = self.call(_GET_DATA)
         status = SensorStatus(_i(v[1]))
         loc = v[2]
         if not isinstance(loc, Location):
@@ -168,7 +168,8 @@ class SensorClient(FramedClient):
         return host, _i(v[1])
 
 
-_GET_IMAGE = int(CommandId.GET_IMAGE)  # an enum attribute look-up is slow in Python 3.11
+# Enum members as ints: an enum attribute look-up is slow in Python 3.11.
+_GET_IMAGE, _GET_DATA = int(CommandId.GET_IMAGE), int(CommandId.GET_DATA)
 
 
 __all__ = ["SeamData", "SensorClient", "SensorState", "Settings", "image_to_array"]

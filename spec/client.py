@@ -15,12 +15,13 @@ import socket
 import threading
 import time
 from types import TracebackType
+from typing import NoReturn
 
 from spec import wire
-from spec.codec import FrameDecoder, Packet, encode_packet, packet_of, request
+from spec.codec import FrameDecoder, Packet, encode_request
 from spec.errors import ErrorCode, PeerError, ProtocolError, RemoteError
 from spec.params import IntArray, Value
-from spec.registry import BY_ID, CommandId, check_params
+from spec.registry import BY_ID, CommandId, check_params, exact_classes
 from spec.sockopt import set_kernel_timeouts
 from spec.wire import PacketKind
 
@@ -161,7 +162,7 @@ class FramedClient:
                     raise ConnectionClosed("not connected")
                 self.connect()
             request_id = self._new_request_id()
-            data = encode_packet(packet_of((_REQUEST, command, request_id, params, _MINOR)))
+            data = encode_request(command, request_id, params)
             # Marked abandoned until its reply is read: an interruption anywhere from here on
             # (Ctrl-C between the send and the wait too) leaves its late reply to be dropped.
             self._abandoned.add(request_id)
@@ -176,7 +177,14 @@ class FramedClient:
             wait = timeout if timeout is not None else self.timeout
             reply = self._receive(wait, command, request_id)
             self._abandoned.discard(request_id)
-        return self._check_reply(command, request_id, reply)
+        kind, reply_command, reply_id, params, _ = reply
+        if kind is not _REPLY or reply_id != request_id or reply_command != command:
+            self._refuse_reply(command, request_id, reply)  # raises
+        expected = _REPLY_PARAMS.get(command)
+        # Exactly the declared classes passes check_params (its fast path, without a call).
+        if expected is not None and tuple(map(type, params)) != expected[2]:
+            check_params(expected[0], params, expected[1], allow_extra=True)
+        return params
 
     def _new_request_id(self) -> int:
         """1, 2, ... 0xFFFFFFFF, then 1 again (0 is never a request's ID)."""
@@ -194,13 +202,18 @@ class FramedClient:
             raise ClientTimeout("the server does not take the request (send timed out)") from None
 
     def _receive(self, timeout: float, command: int = -1, request_id: int = -1) -> Packet:
-        assert self._sock is not None
+        sock = self._sock
+        assert sock is not None
         deadline = time.monotonic() + timeout
         decoder = self._decoder
         first = True
-        event = decoder.next_event()
+        # Nothing buffered (the usual case between calls): straight to the socket.
+        idle = not decoder.in_frame
+        event = None if idle else decoder.next_event()
         while True:
             if event is not None:
+                if type(event) is Packet and event[2] == request_id and event[0] is not _EVENT:
+                    return event  # the awaited reply (never a limit notice: its ID is 0)
                 if not isinstance(event, Packet):
                     self.close()
                     raise event.error
@@ -217,13 +230,16 @@ class FramedClient:
             if remaining <= 0:
                 self.close()  # a late reply would be mistaken for the next one
                 raise ClientTimeout(f"no reply within {timeout:.3g} s")
-            self._arm_timeout(remaining)
+            current = self._kernel_timeout
+            if current is None or current > remaining * 1.1 + 0.01:
+                self._arm_timeout(remaining)  # else it overshoots by at most 10 % + 10 ms
             # The rest of a large frame (an image) goes straight into its own buffer.
-            view = decoder.get_buffer()
-            if view is None:
+            view = None if idle else decoder.get_buffer()
+            if view is None and not idle:
                 decoder.keep()  # the scratch buffer is about to be written again
+            idle = False
             try:
-                n = self._sock.recv_into(self._scratch if view is None else view)
+                n = sock.recv_into(self._scratch if view is None else view)
             except (TimeoutError, BlockingIOError):
                 continue
             except OSError as exc:
@@ -243,36 +259,30 @@ class FramedClient:
                 raise
 
     def _arm_timeout(self, remaining: float) -> None:
-        """Bound the next receive (and send) by about ``remaining`` seconds. A kernel timeout
-        (one system call per receive) is set again only when it is clearly longer than what
-        remains (e.g. a call with its own timeout); Python's socket timeout is the fallback."""
+        """Bound the next receive (and send) by about ``remaining`` seconds: a kernel timeout,
+        else Python's socket timeout. The caller sets it again only when the one in force is
+        clearly longer than what remains (e.g. a call with its own timeout): one system call
+        per receive otherwise."""
         assert self._sock is not None
-        current = self._kernel_timeout
-        if current is not None and current <= remaining * 1.1 + 0.01:
-            return  # overshoots the deadline by at most 10 % + 10 ms
         if set_kernel_timeouts(self._sock, remaining):
             self._kernel_timeout = remaining
         else:
             self._sock.settimeout(remaining)
 
-    def _check_reply(self, command: int, request_id: int, reply: Packet) -> tuple[Value, ...]:
+    def _refuse_reply(self, command: int, request_id: int, reply: Packet) -> NoReturn:
+        """Raise for a reply that is not this request's REPLY: the error packet's exception,
+        else :class:`PeerError`, closing the connection (its replies are out of step)."""
         if reply.kind is _ERROR:
             code, message = reply.error or (0, "")
             if reply.request_id in (request_id, 0):
                 raise self._remote_error(code, message, reply.command, reply.request_id)
+        self.close()
         if reply.request_id != request_id or reply.command != command:
-            self.close()
             raise PeerError(
                 f"reply does not match request: expected command 0x{command:04x} id "
                 f"{request_id}, got 0x{reply.command:04x} id {reply.request_id}"
             )
-        if reply.kind is not _REPLY:
-            self.close()
-            raise PeerError(f"expected a REPLY packet, got {reply.kind.name}")
-        expected = _REPLY_PARAMS.get(command)
-        if expected is not None:
-            check_params(expected[0], reply.params, expected[1], allow_extra=True)
-        return reply.params
+        raise PeerError(f"expected a REPLY packet, got {reply.kind.name}")
 
     def _remote_error(self, code: int, message: str, command: int, request_id: int) -> RemoteError:
         """The exception an error packet raises (a service's client maps codes to its own
@@ -295,7 +305,7 @@ class FramedClient:
         return info
 
     def ping(self, data: bytes = b"") -> bytes:
-        (echo,) = self.call(CommandId.PING, data)
+        (echo,) = self.call(_PING, data)
         assert isinstance(echo, bytes)
         return echo
 
@@ -358,7 +368,7 @@ class FramedClient:
                     self._abandoned.add(request_id)
                     if self._sock is None:
                         return
-                    self._send(encode_packet(request(CommandId.PING, request_id, b"")))
+                    self._send(encode_request(CommandId.PING, request_id, (b"",)))
             except (OSError, ProtocolError, AssertionError):
                 return  # the connection is gone; the next request will say so
 
@@ -370,12 +380,13 @@ class FramedClient:
 
 # Enum members as constants: an enum attribute look-up is slow in Python 3.11 and these are
 # read on every call.
-_REQUEST, _EVENT, _ERROR = PacketKind.REQUEST, PacketKind.EVENT, PacketKind.ERROR
-_REPLY = PacketKind.REPLY
-_MINOR = wire.VERSION_MINOR
-_EMERGENCY_STOP = int(CommandId.EMERGENCY_STOP)
-#: Each command's reply parameters and its name in messages, built once (not per reply).
-_REPLY_PARAMS = {int(cid): (spec.reply, f"{spec.name} reply") for cid, spec in BY_ID.items()}
+_EVENT, _ERROR, _REPLY = PacketKind.EVENT, PacketKind.ERROR, PacketKind.REPLY
+_EMERGENCY_STOP, _PING = int(CommandId.EMERGENCY_STOP), int(CommandId.PING)
+#: Each command's reply parameters, its name in messages and their exact classes, built once.
+_REPLY_PARAMS = {
+    int(cid): (spec.reply, f"{spec.name} reply", exact_classes(spec.reply))
+    for cid, spec in BY_ID.items()
+}
 
 
 def wait_end_move(client: FramedClient, timeout: float) -> bool:

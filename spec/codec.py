@@ -173,6 +173,36 @@ def encode_packet(
     return b"".join(encode_packet_parts(packet, max_payload, crc=crc))
 
 
+def encode_request(
+    command: int, request_id: int, params: tuple[Value, ...] = (), minor: int = wire.VERSION_MINOR
+) -> bytes:
+    """``encode_packet(request(command, request_id, *params))``, made for a client's every call:
+    a request without parameters (Herej, GetData, GetImage of the whole sensor) is its
+    command's header template with the request ID put in, and its CRC-32 [RS-3.6]."""
+    if params:
+        return encode_packet(packet_of((PacketKind.REQUEST, command, request_id, params, minor)))
+    try:
+        body = _EMPTY_REQUEST_PACK(_request_head(command, minor), request_id, 2, 0)
+    except struct.error:
+        raise UsageError(f"request ID {request_id} does not fit in 32 bits") from None
+    return body + _TRAILER_PACK(crc32(body))
+
+
+@functools.cache
+def _request_head(command: int, minor: int) -> bytes:
+    """The first 8 header bytes (magic to command ID) of every request of ``command``."""
+    if not 0 <= command <= 0xFFFF:
+        raise UsageError(f"command ID {command} does not fit in 16 bits")
+    header = _HEADER_PACK(_MAGIC, _MAJOR, minor, PacketKind.REQUEST, 0, command, 0, 0)
+    return header[:_REQUEST_ID_AT]
+
+
+_REQUEST_ID_AT = 8  # offset of the request ID in the header (wire.HEADER)
+#: Header template, request ID, payload length 2, parameter count 0: a request without
+#: parameters, up to its CRC.
+_EMPTY_REQUEST_PACK = struct.Struct(">8sIIH").pack
+
+
 class Header(NamedTuple):
     """The fixed 16-byte frame header, decoded without judging it."""
 
@@ -508,6 +538,7 @@ __all__ = [
     "decode_packet",
     "encode_packet",
     "encode_packet_parts",
+    "encode_request",
     "error_packet",
     "packet_of",
     "prepare_params",

@@ -695,7 +695,7 @@ def check_params(
         if len(_exact) > 1024:  # lists built on the fly (not from COMMANDS): stay bounded
             _exact.clear()
         required = sum(1 for s in specs if not s.optional and not s.repeated)
-        entry = _exact[id(specs)] = (specs, tuple(CLASS_OF[s.type] for s in specs), required)
+        entry = _exact[id(specs)] = (specs, exact_classes(specs), required)
     types = tuple(map(type, values))
     classes = entry[1]
     if types == classes or (
@@ -703,6 +703,12 @@ def check_params(
     ):
         return  # the declared parameters, or all that are required and some optional ones
     check_params_reference(specs, values, what, allow_extra=allow_extra)
+
+
+def exact_classes(specs: tuple[ParamSpec, ...]) -> tuple[type, ...]:
+    """The Python class of each declared parameter: a value list whose classes are exactly
+    these passes :func:`check_params` (its fast path, which callers may take themselves)."""
+    return tuple(CLASS_OF[s.type] for s in specs)
 
 
 # The exact classes of each parameter list seen and how many are required, by identity (the

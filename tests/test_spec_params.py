@@ -8,7 +8,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from spec.codec import FrameDecoder, Packet, decode_packet, encode_packet, request
+from spec.codec import (
+    FrameDecoder,
+    Packet,
+    decode_packet,
+    encode_packet,
+    encode_request,
+    request,
+)
 from spec.errors import ParameterError, UsageError
 from spec.params import (
     FloatArray,
@@ -193,6 +200,23 @@ def test_a_header_field_out_of_range_is_a_usage_error_naming_it(
 ) -> None:
     with pytest.raises(UsageError, match=field):
         encode_packet(Packet(PacketKind.REQUEST, command, request_id, ()))
+    with pytest.raises(UsageError, match=field):
+        encode_request(command, request_id)  # the template path says the same
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.integers(0, 0xFFFF),
+    st.integers(0, 0xFFFFFFFF),
+    st.one_of(st.just([]), st.lists(values, max_size=3)),
+    st.integers(0, 0xFF),
+)
+def test_a_client_request_is_encoded_as_encode_packet_does(
+    command: int, request_id: int, params: list[Value], minor: int
+) -> None:
+    """The request template (a client's call without parameters) is the plain encoding."""
+    packet = Packet(PacketKind.REQUEST, command, request_id, tuple(params), minor)
+    assert encode_request(command, request_id, tuple(params), minor) == encode_packet(packet)
 
 
 @pytest.mark.parametrize(
