@@ -258,15 +258,13 @@ def _window_sums(
     bins -= at_knot.take(knot)
     np.minimum(bins.view(np.uint64), np.uint64(count + 2), out=bins.view(np.uint64))
     # The widest window sets the width, but a window's first and last knot lie in it for few
-    # spikes: of those two rows only the slots that reach a lag are summed.
-    if width > 2:
-        edge = [np.flatnonzero(bins[o * n : (o + 1) * n] <= count + 1) for o in (0, width - 1)]
-        w = np.concatenate([wq] * (width - 2) + [wq.take(hit) for hit in edge])
-        at = [hit + o * n for hit, o in zip(edge, (0, width - 1), strict=True)]
-        bins = np.concatenate([bins[n:-n], *(bins.take(a) for a in at)])
-        knot = np.concatenate([knot[n:-n], *(knot.take(a) for a in at)])
-    else:
-        w = np.concatenate([wq] * width)
+    # spikes: of those two rows only the slots that reach a lag are summed. (width >= 3: the
+    # span's end knots, one step apart, put two knots in every window that holds them)
+    edge = [np.flatnonzero(bins[o * n : (o + 1) * n] <= count + 1) for o in (0, width - 1)]
+    w = np.concatenate([wq] * (width - 2) + [wq.take(hit) for hit in edge])
+    at = [hit + o * n for hit, o in zip(edge, (0, width - 1), strict=True)]
+    bins = np.concatenate([bins[n:-n], *(bins.take(a) for a in at)])
+    knot = np.concatenate([knot[n:-n], *(knot.take(a) for a in at)])
     on_floor = np.bincount(bins, weights=on_floor.take(knot) * w, minlength=count + 3)
     after = np.bincount(bins, weights=after.take(knot) * w, minlength=count + 3)
     f: NDArray[np.float64] = np.add(on_floor[1 : count + 1], after[2 : count + 2])
