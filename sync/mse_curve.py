@@ -193,7 +193,8 @@ def _cross(s: _Pieces, r: _Pieces, shifts: NDArray[np.int64]) -> NDArray[np.floa
     sums[1] *= x == xc
     sums[2] = g * left + b * l1 + tail0
     sums[3] = g * l1 + b * l2 + tail1 + left * tail0 + (xc - x) * sums[2]
-    g_sum, next_sum, m_sum, t_sum = np.add.reduce(sums * wq, axis=1)
+    # einsum: one pass, no (4, n) temporary and no BLAS threads
+    g_sum, next_sum, m_sum, t_sum = np.einsum("ij,j->i", sums, wq)
     psi0, psi1, psi2, psi3 = g_sum - next_sum, g_sum, m_sum - g_sum, t_sum - m_sum + g_sum
     # C(m) gets Σ_k binom(d, k)·Ψ(3 - k) with d = m - first + 1, by Horner
     d = np.arange(1.0, shifts.shape[0] + 1.0)
@@ -244,20 +245,29 @@ def _window_sums(
     np.multiply(s.bend, 1.0 - frac, out=on_floor[:k])
     after = np.zeros(k + width)
     np.multiply(s.bend, frac, out=after[:k])
-    # row o: knot o of every robot spike's window (rows long, so numpy loops stay long)
+    # Row o: knot o of every robot spike's window, rows laid end to end. Whole flat arrays,
+    # never a row broadcast over a 2-d one: numpy's broadcast loop costs ~10x a flat one.
     start = np.maximum(i + 1 - most, 0)
-    knot = np.empty((width, start.shape[0]), dtype=np.intp)
+    n = start.shape[0]
+    knot = np.empty(width * n, dtype=np.intp)
     for o in range(width):
-        np.add(start, o, out=knot[o])
+        np.add(start, o, out=knot[o * n : (o + 1) * n])
     # bin = lag - first + 1 = (x + 1) - floor; a lag below the range gives a bin above
     # count + 2, one above it a negative bin: read as unsigned, one minimum sends both there
-    bins = (x + 1.0).astype(np.intp) - at_knot.take(knot)
-    np.minimum(bins.view(np.uint64), count + 2, out=bins.view(np.uint64))
-    bins = bins.ravel()
-    w = wq
-    on_floor = np.bincount(bins, weights=(on_floor.take(knot) * w).ravel(), minlength=count + 3)
-    after = np.bincount(bins, weights=(after.take(knot) * w).ravel(), minlength=count + 3)
-    f: NDArray[np.float64] = np.add(on_floor[1 : count + 1], after[2 : count + 2], dtype=np.float64)
+    bins = np.concatenate([(x + 1.0).astype(np.intp)] * width)
+    bins -= at_knot.take(knot)
+    np.minimum(bins.view(np.uint64), np.uint64(count + 2), out=bins.view(np.uint64))
+    # The widest window sets the width, but a window's first and last knot lie in it for few
+    # spikes: of those two rows only the slots that reach a lag are summed. (width >= 3: the
+    # span's end knots, one step apart, put two knots in every window that holds them)
+    edge = [np.flatnonzero(bins[o * n : (o + 1) * n] <= count + 1) for o in (0, width - 1)]
+    w = np.concatenate([wq] * (width - 2) + [wq.take(hit) for hit in edge])
+    at = [hit + o * n for hit, o in zip(edge, (0, width - 1), strict=True)]
+    bins = np.concatenate([bins[n:-n], *(bins.take(a) for a in at)])
+    knot = np.concatenate([knot[n:-n], *(knot.take(a) for a in at)])
+    on_floor = np.bincount(bins, weights=on_floor.take(knot) * w, minlength=count + 3)
+    after = np.bincount(bins, weights=after.take(knot) * w, minlength=count + 3)
+    f: NDArray[np.float64] = np.add(on_floor[1 : count + 1], after[2 : count + 2])
     for _ in range(4):
         np.cumsum(f, out=f)
     return f
