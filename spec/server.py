@@ -299,7 +299,7 @@ class HandlerService(Service):
     def handle(
         self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
     ) -> tuple[Value, ...]:
-        handler = self._handlers.get(int(spec.id))
+        handler = self._handlers.get(spec.id)  # an IntEnum hashes as its int
         if handler is None:  # the shell answers unknown IDs before: only a direct call
             raise ProtocolError(f"{spec.name} not implemented", ErrorCode.UNKNOWN_COMMAND)
         try:
