@@ -526,7 +526,10 @@ def _decode_frame(
         raise FrameError(f"packet kind {kind.name} not accepted here")
     if flags and not no_crc:
         raise FrameError(f"reserved flags must be 0, got 0x{flags:02x}")
-    params = decode_params(frame[_HEADER_SIZE:payload_end])
+    if length == 2 and frame[payload_end - 1] == 0 == frame[_HEADER_SIZE]:
+        params: tuple[Value, ...] = ()  # a parameter count of 0 (Herej, GetData): no decoder
+    else:
+        params = decode_params(frame[_HEADER_SIZE:payload_end])
     return packet_of((kind, command, request_id, params, minor))
 
 
