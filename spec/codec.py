@@ -31,8 +31,8 @@ from spec.errors import (
     UsageError,
     VersionError,
 )
-from spec.params import Value, decode_params, encode_params_parts
-from spec.wire import PacketKind
+from spec.params import Joints, Value, decode_params, encode_params_parts
+from spec.wire import PacketKind, ParamType
 
 
 class Packet(NamedTuple):
@@ -201,6 +201,42 @@ _REQUEST_ID_AT = 8  # offset of the request ID in the header (wire.HEADER)
 #: Header template, request ID, payload length 2, parameter count 0: a request without
 #: parameters, up to its CRC.
 _EMPTY_REQUEST_PACK = struct.Struct(">8sIIH").pack
+
+
+def encode_reply(
+    command: int, request_id: int, params: tuple[Value, ...], crc: bool = True
+) -> list[bytes]:
+    """``encode_packet_parts(reply)``, made for a server's every reply: a reply of one
+    :class:`Joints` (Herej, the call a tracking loop makes most) is packed by one struct
+    call onto its command's header template, and its CRC-32 added [RS-3.6]."""
+    if len(params) == 1 and type(params[0]) is Joints:
+        values = params[0].values
+        try:
+            head, rest, pack = _joints_reply(command, len(values), crc)
+            body = pack(head, request_id, rest, *values)
+        except struct.error:
+            pass  # an ID out of range: the general encoder below says which
+        else:
+            return [body + (_TRAILER_PACK(crc32(body)) if crc else _NO_CRC_TRAILER)]
+    reply = packet_of((PacketKind.REPLY, command, request_id, params, wire.VERSION_MINOR))
+    return encode_packet_parts(reply, wire.MAX_PAYLOAD, crc=crc)
+
+
+@functools.cache
+def _joints_reply(command: int, n: int, crc: bool) -> tuple[bytes, bytes, Callable[..., bytes]]:
+    """The frame of a reply of ``command`` carrying one Joints of ``n`` values, up to its CRC:
+    (the header up to the request ID, the 8 bytes after it, the packer of the whole)."""
+    flags = 0 if crc else wire.FLAG_NO_CRC
+    length = 4 + 8 * n  # count, JOINTS tag, n, n float64
+    header = _HEADER_PACK(
+        _MAGIC, _MAJOR, wire.VERSION_MINOR, PacketKind.REPLY, flags, command, 0, length
+    )
+    rest = header[_REQUEST_ID_AT + 4 :] + _JOINTS_HEAD_PACK(1, ParamType.JOINTS, n)
+    pack = struct.Struct(f">{_REQUEST_ID_AT}sI8s{n}d").pack
+    return header[:_REQUEST_ID_AT], rest, pack
+
+
+_JOINTS_HEAD_PACK = struct.Struct(">HBB").pack  # parameter count, JOINTS tag, value count
 
 
 class Header(NamedTuple):
@@ -490,7 +526,10 @@ def _decode_frame(
         raise FrameError(f"packet kind {kind.name} not accepted here")
     if flags and not no_crc:
         raise FrameError(f"reserved flags must be 0, got 0x{flags:02x}")
-    params = decode_params(frame[_HEADER_SIZE:payload_end])
+    if length == 2 and frame[payload_end - 1] == 0 == frame[_HEADER_SIZE]:
+        params: tuple[Value, ...] = ()  # a parameter count of 0 (Herej, GetData): no decoder
+    else:
+        params = decode_params(frame[_HEADER_SIZE:payload_end])
     return packet_of((kind, command, request_id, params, minor))
 
 
@@ -538,6 +577,7 @@ __all__ = [
     "decode_packet",
     "encode_packet",
     "encode_packet_parts",
+    "encode_reply",
     "encode_request",
     "error_packet",
     "packet_of",

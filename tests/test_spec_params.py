@@ -13,6 +13,8 @@ from spec.codec import (
     Packet,
     decode_packet,
     encode_packet,
+    encode_packet_parts,
+    encode_reply,
     encode_request,
     request,
 )
@@ -217,6 +219,34 @@ def test_a_client_request_is_encoded_as_encode_packet_does(
     """The request template (a client's call without parameters) is the plain encoding."""
     packet = Packet(PacketKind.REQUEST, command, request_id, tuple(params), minor)
     assert encode_request(command, request_id, tuple(params), minor) == encode_packet(packet)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.integers(0, 0xFFFF),
+    st.integers(0, 0xFFFFFFFF),
+    st.one_of(
+        st.lists(finite, min_size=1, max_size=16).map(lambda v: [Joints(v)]),
+        st.lists(values, max_size=3),
+    ),
+    st.booleans(),
+)
+def test_a_server_reply_is_encoded_as_encode_packet_parts_does(
+    command: int, request_id: int, params: list[Value], crc: bool
+) -> None:
+    """The reply template (one Joints: Herej) is the plain encoding, with CRC or without."""
+    packet = Packet(PacketKind.REPLY, command, request_id, tuple(params))
+    assert encode_reply(command, request_id, tuple(params), crc) == encode_packet_parts(
+        packet, crc=crc
+    )
+
+
+@pytest.mark.parametrize(("command", "request_id"), [(0x10000, 1), (1, 1 << 32), (1, -1)])
+def test_a_reply_header_field_out_of_range_is_the_plain_usage_error(
+    command: int, request_id: int
+) -> None:
+    with pytest.raises(UsageError, match="ID"):
+        encode_reply(command, request_id, (Joints([1.0] * 6),))
 
 
 @pytest.mark.parametrize(

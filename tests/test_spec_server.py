@@ -443,6 +443,34 @@ def test_statistics_account_for_frames_and_errors(server: FramedServer) -> None:
     assert stats["connections"] == 1
 
 
+def test_statistics_count_every_request_of_concurrent_clients_exactly(serve: Serve) -> None:
+    """The per-request counters take no lock: clients on eight threads lose no count, and
+    each reply is counted when it arrives."""
+    server = serve(EchoRobot(), ServerPolicy(max_clients=8))
+    clients, calls = 8, 200
+    errors: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            with FramedClient(*server.address) as c:
+                for i in range(calls):
+                    assert c.ping(b"x" * (i % 7)) == b"x" * (i % 7)
+                    assert c.call(CommandId.HEREJ) == (Joints([1, 2, 3, 4, 5, 6]),)
+                    assert server.statistics()["replies"] >= 2 * (i + 1)
+        except BaseException as exc:
+            errors.append(exc)
+
+    threads = [threading.Thread(target=run) for _ in range(clients)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(30)
+    assert not errors
+    stats = server.statistics()
+    assert stats["frames_in"] == stats["replies"] == 2 * clients * calls
+    assert stats["bytes_in"] > 0 and stats["bytes_out"] > 0
+
+
 # --- frames without CRC (SetFrameCrc, PROTOCOL.md 3.1) and large frames received in place ----
 
 
