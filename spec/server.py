@@ -723,15 +723,15 @@ class FramedServer:
             pass
 
     def _dispatch(self, session: Session, packet: Packet) -> None:
+        hot = self._hot
+        hot.frames_in += 1  # on arrival: statistics() shows a request a handler still holds
         crc = session.crc  # the reply to SetFrameCrc goes out as before it [RS-3.16]
         try:
             params = self._execute(session, packet)
         except ProtocolError as exc:
-            self._count("frames_in")
             self._send_error(session, packet.command, packet.request_id, exc.code, exc.message)
             return
         except Exception as exc:
-            self._count("frames_in")
             self._count("handler_errors")
             self.handler_errors.append(exc)
             log.exception("handler failed on command 0x%04x", packet.command)
@@ -743,15 +743,12 @@ class FramedServer:
         try:
             parts = encode_reply(packet.command, packet.request_id, params, crc)
         except ProtocolError as exc:  # reply too large to encode: a server-side bug
-            self._count("frames_in")
             self.handler_errors.append(exc)
             self._send_error(
                 session, packet.command, packet.request_id, ErrorCode.INTERNAL_ERROR, str(exc)
             )
             return
         # Counted before sending, so statistics() never lags a received reply.
-        hot = self._hot
-        hot.frames_in += 1
         hot.replies += 1
         session.send_parts(parts)
 

@@ -443,6 +443,34 @@ def test_statistics_account_for_frames_and_errors(server: FramedServer) -> None:
     assert stats["connections"] == 1
 
 
+def test_a_request_a_handler_still_holds_is_counted_in_but_not_answered(
+    server: FramedServer,
+) -> None:
+    """frames_in counts a request on arrival: while WaitEndMove waits, it is one more than
+    the replies and errors sent (the client's lease pings are answered meanwhile)."""
+
+    def unanswered() -> int:
+        stats = server.statistics()
+        return int(stats["frames_in"] - stats["replies"] - stats["errors_sent"])
+
+    service = server.service
+    assert isinstance(service, EchoRobot)
+    with FramedClient(*server.address) as c:
+        c.take_control()
+        assert unanswered() == 0
+        waiting = threading.Thread(target=lambda: c.call(CommandId.WAIT_END_MOVE, 10.0))
+        waiting.start()
+        deadline = time.monotonic() + 5.0
+        while unanswered() == 0:
+            assert time.monotonic() < deadline, "the held request was never counted"
+            time.sleep(0.01)
+        assert unanswered() == 1
+        service.stopped.set()
+        waiting.join(5.0)
+        assert not waiting.is_alive()
+        assert unanswered() == 0
+
+
 def test_statistics_count_every_request_of_concurrent_clients_exactly(serve: Serve) -> None:
     """The per-request counters take no lock: clients on eight threads lose no count, and
     each reply is counted when it arrives."""
