@@ -72,25 +72,21 @@ def cpu_model() -> str:
 
 def git_commit() -> str:
     """The checkout's commit (with ``+changes`` when the tree differs), or "unknown"."""
-    here = Path(__file__).resolve().parent.parent
     try:
-        head = subprocess.run(
-            ["git", "-C", str(here), "rev-parse", "--short", "HEAD"],
-            capture_output=True,
-            text=True,
-            timeout=10,
-            check=True,
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "-C", str(here), "status", "--porcelain", "--untracked-files=no"],
-            capture_output=True,
-            text=True,
-            timeout=10,
-            check=True,
-        ).stdout.strip()
+        head = _git("rev-parse", "--short", "HEAD")
+        dirty = _git("status", "--porcelain", "--untracked-files=no")
     except (OSError, subprocess.SubprocessError):
         return "unknown"
     return f"{head}+changes" if dirty else head
+
+
+def _git(*args: str) -> str:
+    """What ``git ARGS`` prints in this checkout, stripped; raises if git fails."""
+    here = Path(__file__).resolve().parent.parent
+    done = subprocess.run(
+        ["git", "-C", str(here), *args], capture_output=True, text=True, timeout=10, check=True
+    )
+    return done.stdout.strip()
 
 
 def _versions() -> dict[str, str]:
