@@ -193,8 +193,15 @@ def _request_head(command: int, minor: int) -> bytes:
     """The first 8 header bytes (magic to command ID) of every request of ``command``."""
     if not 0 <= command <= 0xFFFF:
         raise UsageError(f"command ID {command} does not fit in 16 bits")
-    header = _HEADER_PACK(_MAGIC, _MAJOR, minor, PacketKind.REQUEST, 0, command, 0, 0)
-    return header[:_REQUEST_ID_AT]
+    return _frame_head(PacketKind.REQUEST, 0, command, minor)
+
+
+@functools.cache
+def _frame_head(kind: PacketKind, flags: int, command: int, minor: int) -> bytes:
+    """The header bytes before the request ID (magic to command ID), the same in every frame
+    of this kind, flags, command and version: the templates of :func:`encode_request` and
+    :func:`encode_reply`. struct.error for a command out of range."""
+    return _HEADER_PACK(_MAGIC, _MAJOR, minor, kind, flags, command, 0, 0)[:_REQUEST_ID_AT]
 
 
 _REQUEST_ID_AT = 8  # offset of the request ID in the header (wire.HEADER)
@@ -226,17 +233,17 @@ def encode_reply(
 def _joints_reply(command: int, n: int, crc: bool) -> tuple[bytes, bytes, Callable[..., bytes]]:
     """The frame of a reply of ``command`` carrying one Joints of ``n`` values, up to its CRC:
     (the header up to the request ID, the 8 bytes after it, the packer of the whole)."""
-    flags = 0 if crc else wire.FLAG_NO_CRC
-    length = 4 + 8 * n  # count, JOINTS tag, n, n float64
-    header = _HEADER_PACK(
-        _MAGIC, _MAJOR, wire.VERSION_MINOR, PacketKind.REPLY, flags, command, 0, length
+    head = _frame_head(
+        PacketKind.REPLY, 0 if crc else wire.FLAG_NO_CRC, command, wire.VERSION_MINOR
     )
-    rest = header[_REQUEST_ID_AT + 4 :] + _JOINTS_HEAD_PACK(1, ParamType.JOINTS, n)
+    length = 4 + 8 * n  # count, JOINTS tag, n, n float64
+    rest = _JOINTS_HEAD_PACK(length, 1, ParamType.JOINTS, n)
     pack = struct.Struct(f">{_REQUEST_ID_AT}sI8s{n}d").pack
-    return header[:_REQUEST_ID_AT], rest, pack
+    return head, rest, pack
 
 
-_JOINTS_HEAD_PACK = struct.Struct(">HBB").pack  # parameter count, JOINTS tag, value count
+#: After the request ID: payload length, parameter count, JOINTS tag, value count.
+_JOINTS_HEAD_PACK = struct.Struct(">IHBB").pack
 
 
 class Header(NamedTuple):
