@@ -53,7 +53,8 @@ def main(argv: list[str] | None = None) -> int:
         for r in module.run():
             print(
                 f"  {r['name']:<48} {r['value']:>14.4g} {r['unit']:<10}"
-                f" vs {r['baseline_name']} {r['baseline']:.4g}  ratio {r['ratio']:.3g}",
+                f" vs {r['baseline_name']} {r['baseline']:.4g}  ratio {r['ratio']:.3g}"
+                + (f"  CPU speed {r['machine_speed']:.0%}" if "machine_speed" in r else ""),
                 file=sys.stderr,
                 flush=True,
             )

@@ -3,7 +3,8 @@ roboticstoolbox (C extension ``ETS.eval``, C++ ``ik_LM``), the stripe stage agai
 numpy and an OpenCV (Gaussian blur 5x5) centre of gravity, with accuracy against the
 renderer's truth, and the ΔT estimate against ``scipy.signal.correlate`` at 250 Hz.
 
-Ours and the peer alternate in rounds; each figure is the best round (``time_per_call``).
+Ours and the peer alternate in rounds; each figure is the best round, timed at the machine's
+full speed (``bench.pace``), and ours carries the speed it was measured at.
 """
 
 from __future__ import annotations
@@ -15,7 +16,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from bench.common import Result, result, time_per_call
+from bench.common import Result, result
+from bench.pace import PacedTiming, time_at_full_speed
 from bench.peers import peer
 from kinematics.robot import RobotModel, get_model
 from sensorsocket.camera import StripeRenderer
@@ -27,13 +29,23 @@ from sync.delay import estimate_delay, simulate_sine_experiment
 ROUNDS = 3
 
 
-def _interleaved(ours: Callable[[], object], theirs: Callable[[], object]) -> tuple[float, float]:
-    """Best time per call (s) of each, measured in alternating rounds."""
-    a, b = math.inf, math.inf
+def _interleaved(
+    ours: Callable[[], object], theirs: Callable[[], object]
+) -> tuple[PacedTiming, PacedTiming]:
+    """Best time per call of each, measured alike in alternating rounds."""
+    a = b = PacedTiming(math.inf, 0.0)
     for _ in range(ROUNDS):
-        a = min(a, time_per_call(ours, min_time=0.1, repeat=3))
-        b = min(b, time_per_call(theirs, min_time=0.1, repeat=3))
+        a = min(a, _paced(ours), key=_seconds)
+        b = min(b, _paced(theirs), key=_seconds)
     return a, b
+
+
+def _paced(fn: Callable[[], object]) -> PacedTiming:
+    return time_at_full_speed(fn, round_time=0.033, rounds=3, budget=1.0)
+
+
+def _seconds(t: PacedTiming) -> float:
+    return t.seconds
 
 
 def _rtb_ets(rtb: Any, m: RobotModel) -> Any:
@@ -73,13 +85,31 @@ def _kinematics(results: list[Result]) -> None:
     if not np.allclose(ets.eval(theta), T_m, atol=1e-12):
         raise RuntimeError("the roboticstoolbox model is not the RX90B")
     a, b = _interleaved(lambda: m.flange2base(q), lambda: ets.eval(theta))
-    results.append(result("kinematics.fk single RX90B", a * 1e6, "µs", "rtb ETS.eval", b * 1e6))
+    results.append(
+        result(
+            "kinematics.fk single RX90B",
+            a.seconds * 1e6,
+            "µs",
+            "rtb ETS.eval",
+            b.seconds * 1e6,
+            machine_speed=a.speed,
+        )
+    )
 
     n = 100_000
     Q = np.random.default_rng(1).uniform(m.limits[:, 0], m.limits[:, 1], (n, 6))
     TH = np.radians(Q + off)
     a, b = _interleaved(lambda: m.flange2base_batch(Q), lambda: ets.eval(TH))
-    results.append(result("kinematics.fk batch 100k", n / a, "configs/s", "rtb ETS.eval(Q)", n / b))
+    results.append(
+        result(
+            "kinematics.fk batch 100k",
+            n / a.seconds,
+            "configs/s",
+            "rtb ETS.eval(Q)",
+            n / b.seconds,
+            machine_speed=a.speed,
+        )
+    )
 
     near = theta + 0.05  # a start close by, as a jog step or ToolMoveJ would give it
     sol = ets.ik_LM(T_m, q0=near, tol=1e-14)
@@ -89,10 +119,11 @@ def _kinematics(results: list[Result]) -> None:
     results.append(
         result(
             "kinematics.ik single pose, all solutions",
-            a * 1e6,
+            a.seconds * 1e6,
             "µs",
             "rtb C++ ik_LM (tol 1e-14), one solution",
-            b * 1e6,
+            b.seconds * 1e6,
+            machine_speed=a.speed,
         )
     )
 
@@ -162,7 +193,14 @@ def _stripe(results: list[Result]) -> None:
     )
     acc_ours = rms(ours)
     results.append(
-        result("sensor.stripe() 512x256 frames/s", 1 / a, "frames/s", "numpy CoG", 1 / b)
+        result(
+            "sensor.stripe() 512x256 frames/s",
+            1 / a.seconds,
+            "frames/s",
+            "numpy CoG",
+            1 / b.seconds,
+            machine_speed=a.speed,
+        )
     )
     results.append(
         result("sensor.stripe() rms vs renderer truth", acc_ours, "px", "numpy CoG", rms(numpy_cog))
@@ -182,7 +220,16 @@ def _stripe(results: list[Result]) -> None:
         lambda: _centre_of_gravity(blurred(next_frame()), thr0),
     )
     peer_name = "OpenCV GaussianBlur 5x5 + CoG"
-    results.append(result("sensor.stripe() 512x256 frames/s", 1 / a, "frames/s", peer_name, 1 / b))
+    results.append(
+        result(
+            "sensor.stripe() 512x256 frames/s",
+            1 / a.seconds,
+            "frames/s",
+            peer_name,
+            1 / b.seconds,
+            machine_speed=a.speed,
+        )
+    )
     results.append(
         result("sensor.stripe() rms vs renderer truth", acc_ours, "px", peer_name, rms(cv_cog))
     )
@@ -223,10 +270,11 @@ def _delay(results: list[Result]) -> None:
     results.append(
         result(
             "sync.estimate_delay (10 s sine, 5 kHz grid)",
-            a * 1e3,
+            a.seconds * 1e3,
             "ms",
             "scipy.signal.correlate at 250 Hz",
-            b * 1e3,
+            b.seconds * 1e3,
+            machine_speed=a.speed,
         )
     )
 

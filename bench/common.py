@@ -7,7 +7,7 @@ import statistics
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import TypedDict
+from typing import NotRequired, TypedDict
 
 
 class Result(TypedDict):
@@ -17,12 +17,22 @@ class Result(TypedDict):
     baseline_name: str
     baseline: float
     ratio: float
+    # absolute figures: the CPU's speed in the round that gave the value (bench.pace)
+    machine_speed: NotRequired[float]
 
 
-def result(name: str, value: float, unit: str, baseline_name: str, baseline: float) -> Result:
+def result(
+    name: str,
+    value: float,
+    unit: str,
+    baseline_name: str,
+    baseline: float,
+    *,
+    machine_speed: float | None = None,
+) -> Result:
     """One benchmark figure beside its baseline; ``ratio`` is value / baseline."""
     ratio = value / baseline if baseline else float("inf")
-    return Result(
+    r = Result(
         name=name,
         value=float(value),
         unit=unit,
@@ -30,6 +40,9 @@ def result(name: str, value: float, unit: str, baseline_name: str, baseline: flo
         baseline=float(baseline),
         ratio=float(ratio),
     )
+    if machine_speed is not None:
+        r["machine_speed"] = round(float(machine_speed), 3)
+    return r
 
 
 def time_per_call(fn: Callable[[], object], *, min_time: float = 0.2, repeat: int = 5) -> float:

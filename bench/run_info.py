@@ -14,7 +14,7 @@ import sys
 import time
 from importlib import metadata
 from pathlib import Path
-from typing import TypedDict
+from typing import NotRequired, TypedDict
 
 #: Libraries whose version moves the figures: ours (numpy, the CRC) and the peers'.
 _PACKAGES = (
@@ -40,6 +40,8 @@ class RunInfo(TypedDict):
     platform: str
     crc32: str
     packages: dict[str, str]
+    # the slowest CPU speed bench.pace's gauge saw, as a fraction of the fastest (1.0: steady)
+    cpu_speed_slowest: NotRequired[float]
 
 
 def record_path(results: Path) -> Path:
@@ -101,9 +103,10 @@ def _versions() -> dict[str, str]:
 
 def collect(started: str, load_start: list[float]) -> RunInfo:
     """The record of a run that began at ``started`` with load average ``load_start``."""
+    from bench.pace import GAUGE
     from spec.crc import CRC32_IMPLEMENTATION
 
-    return RunInfo(
+    info = RunInfo(
         started=started,
         finished=utc_now(),
         commit=git_commit(),
@@ -116,3 +119,6 @@ def collect(started: str, load_start: list[float]) -> RunInfo:
         crc32=CRC32_IMPLEMENTATION,
         packages=_versions(),
     )
+    slowest, _ = GAUGE.range()
+    info["cpu_speed_slowest"] = round(slowest, 3)
+    return info

@@ -1,13 +1,16 @@
 """Print the results of one ``make bench`` run as Markdown tables, or put them into a document.
 
-Usage: ``python -m bench.table [RESULTS] [--into README.md]``
+Usage: ``python -m bench.table [RESULTS] [--into README.md] [--check]``
 
 RESULTS is ``bench-results/results.json`` by default; its run record ``results.run.json``
 (date, commit, machine, load, library versions) becomes the line above the tables, and the
 targets of :mod:`bench.targets` are checked against the run in the first table. With
 ``--into``, the text between the document's ``<!-- bench-table:start -->`` and
 ``<!-- bench-table:end -->`` lines is replaced (atomically), so the README's table is always
-one run's output and never a hand-merged mix of runs.
+one run's output and never a hand-merged mix of runs. ``--check`` prints the targets table
+alone, and its exit status says whether the run meets every target: 0 yes, 4 a target is
+missed, 5 none is missed but some are undecided (missed only while the CPU ran below full
+speed) or not measured; 1 is an unreadable results file.
 """
 
 from __future__ import annotations
@@ -18,8 +21,9 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
+from bench.pace import FULL_SPEED
 from bench.run_info import record_path
-from bench.targets import verdicts
+from bench.targets import Verdict, judge, verdicts
 from spec import cliargs
 from spec.files import write_atomically
 
@@ -58,8 +62,33 @@ def describe_run(info: Mapping[str, Any]) -> str:
         f" commit {info['commit']}, on {info['cpu']} ({info['cpus']} CPUs),"
         f" load average (1/5/15 min) {load_start} at the start and {load_end} at the end;"
         f" Python {info['python']}, {info['platform']}, CRC-32 by {info['crc32']};"
-        f" {packages}."
+        f" {packages}.{_speed_range(info)}"
     )
+
+
+def _speed_range(info: Mapping[str, Any]) -> str:
+    slowest = info.get("cpu_speed_slowest")
+    if slowest is None:
+        return ""
+    return (
+        f" The CPU's speed (bench.pace's gauge) ranged from {float(slowest):.0%} to 100 % of"
+        " its fastest during the run; figures with an absolute target wait for full speed."
+    )
+
+
+_SHOWN = {
+    Verdict.MET: "yes",
+    Verdict.NOT_MET: "**no**",
+    Verdict.UNDECIDED: "undecided (CPU below full speed)",
+}
+
+
+def _speed_note(r: Mapping[str, Any]) -> str:
+    """ " (CPU at 64 % of full speed)" for a figure measured on a slowed-down machine."""
+    speed = r.get("machine_speed")
+    if speed is None or float(speed) >= FULL_SPEED:
+        return ""
+    return f" (CPU at {float(speed):.0%} of full speed)"
 
 
 def targets_table(results: list[Mapping[str, Any]]) -> str:
@@ -72,13 +101,23 @@ def targets_table(results: list[Mapping[str, Any]]) -> str:
         if r is None:
             out.append(f"| {_cell(target.goal)} | not measured in this run | — |")
             continue
-        met = "yes" if all(c.holds(r) for c in target.checks) else "**no**"
         shown = (
-            f"{number(r['value'])} {r['unit']}; {ratio(r['value'], r['baseline'])}"
-            f" × {r['baseline_name']}"
+            f"{number(r['value'])} {r['unit']}{_speed_note(r)};"
+            f" {ratio(r['value'], r['baseline'])} × {r['baseline_name']}"
         )
-        out.append(f"| {_cell(target.goal)} | {_cell(shown)} | {met} |")
+        out.append(f"| {_cell(target.goal)} | {_cell(shown)} | {_SHOWN[judge(target, r)]} |")
     return "\n".join(out) + "\n"
+
+
+EXIT_MISSED, EXIT_UNDECIDED = 4, 5
+
+
+def check_status(results: list[Mapping[str, Any]]) -> int:
+    """Exit status of ``--check``: 0 every target met, else EXIT_MISSED or EXIT_UNDECIDED."""
+    found = {judge(target, r) for target, r in verdicts(results)}
+    if Verdict.NOT_MET in found:
+        return EXIT_MISSED
+    return 0 if found == {Verdict.MET} else EXIT_UNDECIDED
 
 
 def tables(results: Iterable[Mapping[str, Any]]) -> str:
@@ -97,7 +136,7 @@ def tables(results: Iterable[Mapping[str, Any]]) -> str:
         for r in rows:
             unit = r["unit"]
             out.append(
-                f"| {_cell(r['name'])} | {number(r['value'])} {unit}"
+                f"| {_cell(r['name'])} | {number(r['value'])} {unit}{_speed_note(r)}"
                 f" | {_cell(r['baseline_name'])}: {number(r['baseline'])} {unit}"
                 f" | {ratio(r['value'], r['baseline'])} |"
             )
@@ -105,10 +144,15 @@ def tables(results: Iterable[Mapping[str, Any]]) -> str:
     return "\n".join(out)
 
 
-def render(results_path: Path) -> str:
+def load(results_path: Path) -> list[Mapping[str, Any]]:
     results = json.loads(results_path.read_text())
     if not isinstance(results, list) or not results:
         raise ValueError(f"{results_path} holds no benchmark results")
+    return results
+
+
+def render(results_path: Path) -> str:
+    results = load(results_path)
     run_path = record_path(results_path)
     head = (
         describe_run(json.loads(run_path.read_text()))
@@ -133,8 +177,17 @@ def main(argv: list[str] | None = None) -> int:
     parser = cliargs.Parser(prog="python -m bench.table", description=__doc__)
     parser.add_argument("results", nargs="?", type=Path, default=Path("bench-results/results.json"))
     parser.add_argument("--into", type=Path, help="document whose table section to replace")
+    parser.add_argument(
+        "--check", action="store_true", help="print the targets alone; exit 0 if all are met"
+    )
     args = parser.parse_args(argv)
+    if args.check and args.into is not None:
+        parser.error("--check and --into do not go together")
     try:
+        if args.check:
+            results = load(args.results)
+            sys.stdout.write(targets_table(results))
+            return check_status(results)
         text = render(args.results)
         if args.into is None:
             sys.stdout.write(text)

@@ -3,7 +3,9 @@
 Each target names the result it reads (by the start of its name, and of its baseline's name
 where one figure is measured against several) and what the run must show: a bound on the value
 or on the ratio to the peer of the same run. ``python -m bench.table`` prints them above the
-tables, so whether a target is met is read off the run, never copied by hand.
+tables, so whether a target is met is read off the run, never copied by hand. A bound on an
+absolute value missed while the CPU ran below full speed (``bench.pace``) is undecided: the
+run cannot tell whether the code or the machine missed it.
 """
 
 from __future__ import annotations
@@ -11,7 +13,10 @@ from __future__ import annotations
 import operator
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from enum import Enum
 from typing import Any
+
+from bench.pace import FULL_SPEED
 
 _COMPARE = {"≤": operator.le, "≥": operator.ge}
 
@@ -95,6 +100,27 @@ TARGETS: tuple[Target, ...] = (
     ),
     Target("ΔT estimate ≤ 1 ms", "sync.estimate_delay", (_value("≤", 1.0),)),
 )
+
+
+class Verdict(Enum):
+    MET = "met"
+    NOT_MET = "not met"
+    UNDECIDED = "undecided"
+    NOT_MEASURED = "not measured"
+
+
+def judge(target: Target, r: Mapping[str, Any] | None) -> Verdict:
+    """Whether result ``r`` meets ``target``; undecided where only an absolute bound failed
+    and the CPU ran below full speed when it was measured."""
+    if r is None:
+        return Verdict.NOT_MEASURED
+    failed = [c for c in target.checks if not c.holds(r)]
+    if not failed:
+        return Verdict.MET
+    slow = float(r.get("machine_speed", 1.0)) < FULL_SPEED
+    if slow and all(c.of == "value" for c in failed):
+        return Verdict.UNDECIDED
+    return Verdict.NOT_MET
 
 
 def verdicts(results: list[Mapping[str, Any]]) -> list[tuple[Target, Mapping[str, Any] | None]]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from collections.abc import Mapping
 from pathlib import Path
 
 import pytest
@@ -12,6 +13,7 @@ import pytest
 from bench import run_info
 from bench.common import result
 from bench.table import END, START, number, put_into, ratio, render
+from bench.targets import TARGETS, Verdict, judge
 
 
 def _run(tmp_path: Path) -> Path:
@@ -111,3 +113,51 @@ def test_targets_are_read_off_the_run_met_or_not_or_not_measured(tmp_path: Path)
     )
     assert "| ΔT estimate ≤ 1 ms | not measured in this run | — |" in lines
     assert lines[0] == "(no results.run.json beside results.json: date and machine unknown)"
+
+
+def _results_file(tmp_path: Path, *results: Mapping[str, object]) -> Path:
+    path = tmp_path / "results.json"
+    path.write_text(json.dumps([{**r, "area": "bench_sensor"} for r in results]))
+    return path
+
+
+def test_a_value_missed_on_a_slowed_machine_is_undecided_a_ratio_missed_is_not() -> None:
+    detect = next(t for t in TARGETS if t.name == "sensor.detect.butt")
+    ik = next(t for t in TARGETS if t.name.startswith("kinematics.ik"))
+    slow = {"machine_speed": 0.5}
+    assert judge(detect, result("sensor.detect.butt", 3100.0, "frames/s", "m", 1e5)) is (
+        Verdict.MET
+    )
+    missed = result("sensor.detect.butt", 2900.0, "frames/s", "m", 1e5)
+    assert judge(detect, missed) is Verdict.NOT_MET
+    assert judge(detect, {**missed, **slow}) is Verdict.UNDECIDED
+    # slower than the peer measured in the same rounds: the machine is no excuse
+    behind = result("kinematics.ik single pose, all solutions", 40.0, "µs", "rtb", 30.0)
+    assert judge(ik, {**behind, **slow}) is Verdict.NOT_MET
+    assert judge(ik, None) is Verdict.NOT_MEASURED
+
+
+def test_check_prints_the_targets_and_says_with_its_exit_status_if_all_are_met(
+    tmp_path: Path,
+) -> None:
+    # each figure just at its bound, equal to its baseline (ratio 1): every check holds
+    at_bound = [next((c.bound for c in t.checks if c.of == "value"), 1.0) for t in TARGETS]
+    fast = [result(t.name, v, "x", t.baseline, v) for t, v in zip(TARGETS, at_bound, strict=True)]
+    all_met = _cli(_results_file(tmp_path, *fast), "--check")
+    assert all_met.returncode == 0, all_met.stdout + all_met.stderr
+    assert all_met.stdout.startswith("| target |") and "**no**" not in all_met.stdout
+    assert "`bench_sensor`" not in all_met.stdout  # the targets alone
+
+    slow = [
+        {**r, "value": 10.0, "machine_speed": 0.5} if "detect" in r["name"] else r for r in fast
+    ]
+    undecided = _cli(_results_file(tmp_path, *slow), "--check")
+    assert undecided.returncode == 5
+    assert "10 x (CPU at 50% of full speed)" in undecided.stdout
+    assert "undecided (CPU below full speed)" in undecided.stdout
+
+    missed = [{**r, "value": 10.0} if "detect" in r["name"] else r for r in fast]
+    assert _cli(_results_file(tmp_path, *missed), "--check").returncode == 4
+    assert _cli(_results_file(tmp_path, *fast[:2]), "--check").returncode == 5  # not measured
+    both = _cli(_results_file(tmp_path, *fast), "--check", "--into", tmp_path / "README.md")
+    assert both.returncode == 2 and "--into" in both.stderr
