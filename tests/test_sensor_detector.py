@@ -287,3 +287,27 @@ def test_robust_line_equals_a_plain_fit(
     assert line.a == pytest.approx(a, abs=1e-9)
     assert line.b == pytest.approx(b, abs=1e-9)
     assert line.rms == pytest.approx(rms, abs=1e-9)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(st.floats(-10.0, 10.0), min_size=1, max_size=60),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.floats(0.0, 2.0),
+)
+def test_fillet_sides_as_slices_equal_the_masks(
+    ys: list[float], split: float, margin: float
+) -> None:
+    """Where the profile's y ascends, the fillet's sides are slices from two binary
+    searches: the same points as the plain masks y < split - margin and y > split + margin
+    (ties, NaN and infinite bounds included)."""
+    from sensorsocket.detector import _beside, _same
+
+    y = np.sort(np.array(ys))
+    lo, hi = split - margin, split + margin
+    left, right = _beside(y, True, lo, hi)
+    mask_l, mask_r = _beside(y, False, lo, hi)
+    assert isinstance(left, slice) and isinstance(right, slice)
+    np.testing.assert_array_equal(np.arange(y.size)[left], np.flatnonzero(mask_l))
+    np.testing.assert_array_equal(np.arange(y.size)[right], np.flatnonzero(mask_r))
+    assert _same(left, _beside(y, True, lo, hi)[0]) and _same(mask_r, y > hi)
