@@ -173,7 +173,10 @@ class SeamDetector:
             return self._none(SeamStatus.NO_STRIPE, stripe)
         u = cols + first_column if first_column else cols
         y, z = self.camera.plane_point(u, stripe.rows.take(cols))
-        keep = _not_isolated_outliers(z, cfg.outlier_mm)
+        # depth steps between neighbours: the outliers' quick test and the lap's step
+        steps = np.abs(z[1:] - z[:-1])
+        keep = _not_isolated_outliers(z, steps, cfg.outlier_mm)
+        jumps = steps if keep is None else None
         if keep is not None:
             u, y, z = u[keep], y[keep], z[keep]
         pts = np.empty((u.size, 3))  # np.zeros costs four times as much here
@@ -186,7 +189,7 @@ class SeamDetector:
             return self._butt(a, stripe, u, y, z, pts)
         if cfg.joint is JointType.FILLET:
             return self._fillet(stripe, u, y, z, pts)
-        return self._lap(a, stripe, u, y, z, pts)
+        return self._lap(a, stripe, u, y, z, pts, jumps)
 
     def _line_rows(self, cols: list[int], line: _Line) -> list[float]:
         """Rows where chip columns ``cols`` meet a profile line. The image of a line is a
@@ -409,9 +412,12 @@ class SeamDetector:
         y: FloatArray,
         z: FloatArray,
         pts: FloatArray,
+        jumps: FloatArray | None,
     ) -> Detection:
+        """Lap joint; ``jumps`` |z[k + 1] - z[k]| (n - 1,) if known (taken over)."""
         cfg = self.config
-        jumps = np.abs(z[1:] - z[:-1])
+        if jumps is None:
+            jumps = np.abs(z[1:] - z[:-1])
         i = int(jumps.argmax())
         step = jumps.item(i)
         if step < cfg.min_step_mm:
@@ -495,10 +501,17 @@ def _same(a: slice | NDArray[np.bool_], b: slice | NDArray[np.bool_]) -> bool:
     return not _COUNT(a ^ b)
 
 
-def _not_isolated_outliers(z: FloatArray, tol: float) -> NDArray[np.bool_] | None:
+def _not_isolated_outliers(
+    z: FloatArray, jumps: FloatArray, tol: float
+) -> NDArray[np.bool_] | None:
     """Mask of points within ``tol`` of the 3-point running median of z (drops glints);
-    None when that is every point (the usual case)."""
+    None when that is every point (the usual case). ``jumps``: |z[k + 1] - z[k]| (n - 1,)."""
     if z.size < 3:
+        return None
+    # a point off the median of itself and its neighbours is off both neighbours by more
+    # than tol (the median is one of them): no two such jumps in a row, no outlier
+    near = jumps <= tol
+    if _COUNT(near[:-1] | near[1:]) == near.size - 1:
         return None
     a, b, c = z[:-2], z[1:-1], z[2:]
     med = np.maximum(np.minimum(a, b), np.minimum(np.maximum(a, b), c))
@@ -515,8 +528,8 @@ def _centred(y: FloatArray, z: FloatArray) -> _Centred:
     midpoint (cy, cz) so that the closed-form moment sums lose no precision, with their
     moment products; built once per frame, a fit's sums are then one matrix-vector
     product with a slice or subset of columns."""
-    cy = 0.5 * (float(y[0]) + float(y[-1]))
-    cz = 0.5 * (float(z[0]) + float(z[-1]))
+    cy = 0.5 * (y.item(0) + y.item(-1))
+    cz = 0.5 * (z.item(0) + z.item(-1))
     w = np.empty((6, y.size))
     w[0] = 1.0
     dy = np.subtract(y, cy, out=w[1])
