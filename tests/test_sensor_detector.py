@@ -311,3 +311,30 @@ def test_fillet_sides_as_slices_equal_the_masks(
     np.testing.assert_array_equal(np.arange(y.size)[left], np.flatnonzero(mask_l))
     np.testing.assert_array_equal(np.arange(y.size)[right], np.flatnonzero(mask_r))
     assert _same(left, _beside(y, True, lo, hi)[0]) and _same(mask_r, y > hi)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(3, 80),
+    glints=st.integers(0, 4),
+    step=st.booleans(),
+    tol=st.sampled_from([0.15, 0.0, -0.1]),
+)
+def test_outlier_mask_equals_the_running_median(
+    seed: int, n: int, glints: int, step: bool, tol: float
+) -> None:
+    """The outliers' quick test (no two large neighbouring steps) and the full test give
+    the plain rule: keep a point within tol of the median of itself and its neighbours."""
+    from sensorsocket.detector import _not_isolated_outliers
+
+    rng = np.random.default_rng(seed)
+    z = 1.0 + 0.02 * np.arange(n) + rng.normal(0.0, 0.01, n)
+    if step:  # a lap's step: one large jump, no outlier
+        z[n // 2 :] += 1.0
+    z[rng.integers(0, n, glints)] += rng.uniform(-2.0, 2.0, glints)
+    med = np.median(np.stack([z[:-2], z[1:-1], z[2:]]), axis=0)
+    want = np.ones(n, dtype=bool)
+    want[1:-1] = np.abs(z[1:-1] - med) <= tol
+    got = _not_isolated_outliers(z, np.abs(np.diff(z)), tol)
+    np.testing.assert_array_equal(want, np.ones(n, dtype=bool) if got is None else got)
