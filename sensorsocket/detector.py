@@ -546,7 +546,8 @@ def _robust_line(
     without points beyond 3.5 robust sigma. A fit's moment sums are one product of the
     moment rows with a weight vector (ones, or the points kept); a (3, n) point matrix
     times its transpose made BLAS copy both operands, at more than the product's cost."""
-    w = p.w[:, columns] if isinstance(columns, slice) else p.w.compress(columns, axis=1)
+    # contiguous (a slice copied once): BLAS would copy a strided operand in every product
+    w = p.w[:, columns].copy() if isinstance(columns, slice) else p.w.compress(columns, axis=1)
     n = w.shape[1]
     if n < 3:
         return None
