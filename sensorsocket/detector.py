@@ -509,9 +509,10 @@ def _not_isolated_outliers(
     if z.size < 3:
         return None
     # a point off the median of itself and its neighbours is off both neighbours by more
-    # than tol (the median is one of them): no two such jumps in a row, no outlier
+    # than tol (the median is one of them): no two such jumps in a row, no outlier; at
+    # most one such jump (a butt or fillet profile: none, a lap: its step), none in a row
     near = jumps <= tol
-    if _COUNT(near[:-1] | near[1:]) == near.size - 1:
+    if near.size - _COUNT(near) <= 1 or _COUNT(near[:-1] | near[1:]) == near.size - 1:
         return None
     a, b, c = z[:-2], z[1:-1], z[2:]
     med = np.maximum(np.minimum(a, b), np.minimum(np.maximum(a, b), c))
