@@ -575,7 +575,7 @@ def _robust_line(
             limit = max(_OUTLIER_SIGMAS * sigma, _MIN_OUTLIER_MM)
             # the same points as in this fit: every further fit would repeat it exactly;
             # in the first fit, that is the largest residual (NaN sorts last) within limit
-            if keep is None and float(fitted[-1]) <= limit:
+            if keep is None and fitted.item(-1) <= limit:
                 break
             new_keep = res <= limit
             # (in the first fit some residual is beyond the limit, or it broke off above)
