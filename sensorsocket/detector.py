@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from enum import StrEnum
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -48,8 +49,10 @@ _AMBIGUOUS_GAP_RATIO = 0.6
 _N_REF_COLUMNS = 9
 #: Robust line fits drop points beyond this many robust sigmas, but never within 10 µm.
 _OUTLIER_SIGMAS, _MIN_OUTLIER_MM = 3.5, 0.01
-# ufunc reductions called directly: ndarray.all()/.any() go through a Python wrapper
-_ALL, _ANY, _MIN = np.logical_and.reduce, np.logical_or.reduce, np.minimum.reduce
+# a ufunc reduction called directly (ndarray.min() goes through a Python wrapper); "any" and
+# "all" of a mask as np.count_nonzero, half the cost of a logical reduction
+_MIN = np.minimum.reduce
+_COUNT = np.count_nonzero
 
 
 class DetectorError(ValueError):
@@ -114,8 +117,7 @@ class Detection:
         return self.status is SeamStatus.FOUND
 
 
-@dataclass(frozen=True)
-class _Centred:
+class _Centred(NamedTuple):
     """A profile's points as columns [1, y, z, y², yz, z²] (6, n) of y - cy and z - cz
     (mm) and its centre (cy, cz)."""
 
@@ -124,8 +126,7 @@ class _Centred:
     cz: float
 
 
-@dataclass(frozen=True)
-class _Line:
+class _Line(NamedTuple):
     """z = a + b·y fitted to n points with rms residual (mm)."""
 
     a: float
@@ -170,12 +171,16 @@ class SeamDetector:
         cols = stripe.valid.nonzero()[0]
         if cols.size < cfg.min_valid_columns:
             return self._none(SeamStatus.NO_STRIPE, stripe)
-        u = cols + first_column
-        y, z = self.camera.plane_point(u.astype(np.float64), stripe.rows.take(cols))
-        keep = _not_isolated_outliers(z, cfg.outlier_mm)
+        u = cols + first_column if first_column else cols
+        y, z = self.camera.plane_point(u, stripe.rows.take(cols))
+        # depth steps between neighbours: the outliers' quick test and the lap's step
+        steps = np.abs(z[1:] - z[:-1])
+        keep = _not_isolated_outliers(z, steps, cfg.outlier_mm)
+        jumps = steps if keep is None else None
         if keep is not None:
             u, y, z = u[keep], y[keep], z[keep]
-        pts = np.zeros((u.size, 3))
+        pts = np.empty((u.size, 3))  # np.zeros costs four times as much here
+        pts[:, 0] = 0.0
         pts[:, 1] = y
         pts[:, 2] = z
         if u.size < cfg.min_valid_columns:
@@ -184,7 +189,7 @@ class SeamDetector:
             return self._butt(a, stripe, u, y, z, pts)
         if cfg.joint is JointType.FILLET:
             return self._fillet(stripe, u, y, z, pts)
-        return self._lap(a, stripe, u, y, z, pts)
+        return self._lap(a, stripe, u, y, z, pts, jumps)
 
     def _line_rows(self, cols: list[int], line: _Line) -> list[float]:
         """Rows where chip columns ``cols`` meet a profile line. The image of a line is a
@@ -269,13 +274,14 @@ class SeamDetector:
         holes = ((u[1:] - u[:-1]) > 1).nonzero()[0]
         if holes.size == 0:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
-        widths = (y[1:] - y[:-1]).take(holes)
         # few holes in a usable profile: plain Python beats a dozen numpy calls
         n, m = u.size, cfg.min_side_points
         found = [
             (w, i)
-            for i, w in zip(holes.tolist(), widths.tolist(), strict=True)
-            if cfg.min_gap_mm <= w <= cfg.max_gap_mm and i + 1 >= m and n - i - 1 >= m
+            for i in holes.tolist()
+            if cfg.min_gap_mm <= (w := y.item(i + 1) - y.item(i)) <= cfg.max_gap_mm
+            and i + 1 >= m
+            and n - i - 1 >= m
         ]
         if not found:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
@@ -329,10 +335,7 @@ class SeamDetector:
         cols_r = list(range(u_right + 2, u_right + n_ref + 2)) + edge_r
         n_l = len(cols_l)
         rows = self._line_rows(cols_l, left) + self._line_rows(cols_r, right)
-        cols = np.array(cols_l + cols_r)
-        m = self.stripes.mass_at(
-            frame, stripe, cols, np.array(rows), self.config.half_window
-        ).tolist()
+        m = self.stripes.mass_at(frame, stripe, cols_l + cols_r, rows, self.config.half_window)
         out = []
         for side, masses, edge in ((-1, m[:n_l], edge_l), (1, m[n_l:], edge_r)):
             ref = _list_median(masses[:n_ref])
@@ -359,14 +362,15 @@ class SeamDetector:
         y_split = float(y[int(dist.argmax())])
         left = right = None
         p = _centred(y, z)
+        ascending = _COUNT(y[1:] >= y[:-1]) == y.size - 1  # the usual profile; no NaN
         lm_prev = rm_prev = None
         for _ in range(2):
-            lm = y < y_split - cfg.corner_margin_mm
-            rm = y > y_split + cfg.corner_margin_mm
+            margin = cfg.corner_margin_mm
+            lm, rm = _beside(y, ascending, y_split - margin, y_split + margin)
             # a side with the same points as before keeps its line (often, as the corner
             # moves by less than a column); both the same: the same corner
-            new_l = lm_prev is None or bool(_ANY(lm ^ lm_prev))
-            new_r = rm_prev is None or bool(_ANY(rm ^ rm_prev))
+            new_l = lm_prev is None or not _same(lm, lm_prev)
+            new_r = rm_prev is None or not _same(rm, rm_prev)
             if not (new_l or new_r):
                 break
             if new_l:
@@ -408,16 +412,20 @@ class SeamDetector:
         y: FloatArray,
         z: FloatArray,
         pts: FloatArray,
+        jumps: FloatArray | None,
     ) -> Detection:
+        """Lap joint; ``jumps`` |z[k + 1] - z[k]| (n - 1,) if known (taken over)."""
         cfg = self.config
-        jumps = np.abs(z[1:] - z[:-1])
+        if jumps is None:
+            jumps = np.abs(z[1:] - z[:-1])
         i = int(jumps.argmax())
-        step = float(jumps[i])
+        step = jumps.item(i)
         if step < cfg.min_step_mm:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         # the largest of the other jumps is the second largest of all
         if jumps.size > 1:
-            second = float(np.partition(jumps, jumps.size - 2)[-2])
+            jumps.partition(jumps.size - 2)  # in place: the method, not np.partition's copy
+            second = jumps.item(-2)
             if second >= max(cfg.min_step_mm, 0.5 * step):
                 return self._none(SeamStatus.AMBIGUOUS, stripe, pts, u)
         if i + 1 < cfg.min_side_points or u.size - i - 1 < cfg.min_side_points:
@@ -450,9 +458,7 @@ class SeamDetector:
         if not math.isfinite(sep):
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
         half = int(max(1, min(cfg.half_window, math.floor(sep / 2.0 - 0.5))))
-        m_up = self.stripes.mass_at(
-            frame, stripe, np.array(all_cols), np.array(r_up), half
-        ).tolist()
+        m_up = self.stripes.mass_at(frame, stripe, all_cols, r_up, half)
         ref = _list_median(m_up[n_cols:]) if ref_cols.size else 0.0
         if ref <= 0.0:
             return self._none(SeamStatus.NO_FEATURE, stripe, pts, u)
@@ -473,15 +479,45 @@ def _list_median(x: list[float]) -> float:
     return s[k] if len(s) % 2 else 0.5 * (s[k] + s[k - 1])
 
 
-def _not_isolated_outliers(z: FloatArray, tol: float) -> NDArray[np.bool_] | None:
+def _beside(
+    y: FloatArray, ascending: bool, lo: float, hi: float
+) -> tuple[slice | NDArray[np.bool_], slice | NDArray[np.bool_]]:
+    """The points with y < lo and those with y > hi: as slices found by two binary searches
+    where y ascends (a slice is cheaper to fit than a mask), else as masks."""
+    if not ascending:
+        return y < lo, y > hi
+    n = y.size
+    # a NaN bound, like the masks: no point
+    i = int(y.searchsorted(lo)) if lo == lo else 0
+    j = int(y.searchsorted(hi, "right")) if hi == hi else n
+    return slice(0, i), slice(j, n)
+
+
+def _same(a: slice | NDArray[np.bool_], b: slice | NDArray[np.bool_]) -> bool:
+    """Whether two selections of :func:`_beside` hold the same points."""
+    if isinstance(a, slice):
+        return a == b
+    assert not isinstance(b, slice)
+    return not _COUNT(a ^ b)
+
+
+def _not_isolated_outliers(
+    z: FloatArray, jumps: FloatArray, tol: float
+) -> NDArray[np.bool_] | None:
     """Mask of points within ``tol`` of the 3-point running median of z (drops glints);
-    None when that is every point (the usual case)."""
+    None when that is every point (the usual case). ``jumps``: |z[k + 1] - z[k]| (n - 1,)."""
     if z.size < 3:
+        return None
+    # a point off the median of itself and its neighbours is off both neighbours by more
+    # than tol (the median is one of them): no two such jumps in a row, no outlier; at
+    # most one such jump (a butt or fillet profile: none, a lap: its step), none in a row
+    near = jumps <= tol
+    if near.size - _COUNT(near) <= 1 or _COUNT(near[:-1] | near[1:]) == near.size - 1:
         return None
     a, b, c = z[:-2], z[1:-1], z[2:]
     med = np.maximum(np.minimum(a, b), np.minimum(np.maximum(a, b), c))
     inner = np.abs(b - med) <= tol
-    if _ALL(inner):
+    if _COUNT(inner) == inner.size:
         return None
     keep = np.ones(z.size, dtype=bool)
     keep[1:-1] = inner
@@ -493,14 +529,13 @@ def _centred(y: FloatArray, z: FloatArray) -> _Centred:
     midpoint (cy, cz) so that the closed-form moment sums lose no precision, with their
     moment products; built once per frame, a fit's sums are then one matrix-vector
     product with a slice or subset of columns."""
-    cy = 0.5 * (float(y[0]) + float(y[-1]))
-    cz = 0.5 * (float(z[0]) + float(z[-1]))
+    cy = 0.5 * (y.item(0) + y.item(-1))
+    cz = 0.5 * (z.item(0) + z.item(-1))
     w = np.empty((6, y.size))
     w[0] = 1.0
     dy = np.subtract(y, cy, out=w[1])
     dz = np.subtract(z, cz, out=w[2])
-    np.multiply(dy, dy, out=w[3])
-    np.multiply(dy, dz, out=w[4])
+    np.multiply(w[1:3], dy, out=w[3:5])  # y², zy in one call
     np.multiply(dz, dz, out=w[5])
     return _Centred(w, cy, cz)
 
@@ -512,7 +547,8 @@ def _robust_line(
     without points beyond 3.5 robust sigma. A fit's moment sums are one product of the
     moment rows with a weight vector (ones, or the points kept); a (3, n) point matrix
     times its transpose made BLAS copy both operands, at more than the product's cost."""
-    w = p.w[:, columns] if isinstance(columns, slice) else p.w.compress(columns, axis=1)
+    # contiguous (a slice copied once): BLAS would copy a strided operand in every product
+    w = p.w[:, columns].copy() if isinstance(columns, slice) else p.w.compress(columns, axis=1)
     n = w.shape[1]
     if n < 3:
         return None
@@ -539,11 +575,11 @@ def _robust_line(
             limit = max(_OUTLIER_SIGMAS * sigma, _MIN_OUTLIER_MM)
             # the same points as in this fit: every further fit would repeat it exactly;
             # in the first fit, that is the largest residual (NaN sorts last) within limit
-            if keep is None and float(fitted[-1]) <= limit:
+            if keep is None and fitted.item(-1) <= limit:
                 break
             new_keep = res <= limit
             # (in the first fit some residual is beyond the limit, or it broke off above)
-            if keep is not None and not _ANY(new_keep ^ keep):
+            if keep is not None and not _COUNT(new_keep ^ keep):
                 break
             keep = new_keep
             sums = w.dot(keep)  # as float64 ones and zeros, the same sums

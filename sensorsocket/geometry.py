@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TypeVar
+from typing import Any, TypeVar, overload
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -38,6 +38,9 @@ from numpy.typing import ArrayLike, NDArray
 FloatArray = NDArray[np.float64]
 # float or array: each formula is written once and runs on either
 _N = TypeVar("_N", float, FloatArray)
+# "all nonzero" as a count: ndarray.all() goes through a Python wrapper, and a count costs
+# half a logical reduction
+_COUNT = np.count_nonzero
 
 
 class CameraError(ValueError):
@@ -73,12 +76,23 @@ class CameraGeometry:
         object.__setattr__(self, "_f", self.focal_length_mm / self.pixel_pitch_mm)
         object.__setattr__(self, "_u0", (self.columns - 1) / 2.0)
         object.__setattr__(self, "_v0", (self.rows - 1) / 2.0)
+        # plane_point in closed form: the row v1 of rays parallel to the laser plane, and
+        # z = K/(v1 - v) - D/c, y = (u - u0)·(c/f)·K/(v1 - v) with K = D·f·s/c²
+        c, f, d = self._cos, self._f, self.working_distance_mm
+        object.__setattr__(self, "_v1", self._v0 + f * self._sin / c)
+        object.__setattr__(self, "_plane_k", d * self._sin / c)  # K·c/f
+        object.__setattr__(self, "_f_over_c", f / c)
+        object.__setattr__(self, "_d_over_c", d / c)
 
     _sin: float = field(init=False, repr=False, compare=False, default=0.0)
     _cos: float = field(init=False, repr=False, compare=False, default=0.0)
     _f: float = field(init=False, repr=False, compare=False, default=0.0)
     _u0: float = field(init=False, repr=False, compare=False, default=0.0)
     _v0: float = field(init=False, repr=False, compare=False, default=0.0)
+    _v1: float = field(init=False, repr=False, compare=False, default=0.0)
+    _plane_k: float = field(init=False, repr=False, compare=False, default=0.0)
+    _f_over_c: float = field(init=False, repr=False, compare=False, default=0.0)
+    _d_over_c: float = field(init=False, repr=False, compare=False, default=0.0)
 
     @property
     def focal_px(self) -> float:
@@ -107,26 +121,25 @@ class CameraGeometry:
         s, c = self._sin, self._cos
         return np.array([[0.0, 1.0, 0.0], [-c, 0.0, s], [s, 0.0, c]])
 
-    def plane_point(self, u: _N, v: _N) -> tuple[_N, _N]:
+    @overload
+    def plane_point(self, u: float, v: float) -> tuple[float, float]: ...
+    @overload
+    def plane_point(self, u: NDArray[Any], v: FloatArray) -> tuple[FloatArray, FloatArray]: ...
+    def plane_point(self, u: Any, v: Any) -> tuple[Any, Any]:
         """(y, z) in S (mm) of the laser-plane point seen at pixel (u, v) (floats or arrays
-        of one shape).
+        of one shape); NaN where the ray runs parallel to the plane.
 
         With k = (u - u0)/f and t = (v - v0)/f (f in pixels), the ray meets x_S = 0 at
-        z = t·D / (sin θ - t·cos θ) and y = k·(D + z·cos θ).
+        z = t·D / (sin θ - t·cos θ) and y = k·(D + z·cos θ); in closed form, with the
+        row v1 = v0 + f·tan θ of the rays parallel to the plane and r = (D·tan θ)/(v1 - v):
+        z = r·f/cos θ - D/cos θ and y = (u - u0)·r. One division; the profile of every
+        frame goes through here.
         """
-        s, c, d = self._sin, self._cos, self.working_distance_mm
-        # in place where the operand is our own array (a new float for floats): the profile
-        # of every frame goes through here
-        k = u - self._u0
-        k /= self._f
-        t = v - self._v0
-        t /= self._f
-        z = t * d
-        t *= c
-        z = _over(z, s - t)
-        y = z * c
-        y += d
-        y *= k
+        r = _over(self._plane_k, self._v1 - v)
+        y = u - self._u0
+        y *= r
+        z = r * self._f_over_c
+        z -= self._d_over_c
         return y, z
 
     def pixel_to_sensor(self, u: ArrayLike, v: ArrayLike) -> FloatArray:
@@ -213,13 +226,13 @@ class CameraGeometry:
         }
 
 
-def _over(num: _N, den: _N) -> _N:
+def _over(num: float | _N, den: _N) -> _N:
     """num / den, NaN where den is 0 (a ray parallel to what it should meet): plain floats
     (the detector's few points: no numpy call overhead) without ZeroDivisionError, arrays
     without a warning."""
     if isinstance(den, float):
         return num / den if den != 0.0 else math.nan
-    if den.all():  # the usual case: a plain division, no warning possible
+    if _COUNT(den) == den.size:  # the usual case: a plain division, no warning possible
         return num / den
     out: FloatArray = np.full(np.broadcast_shapes(np.shape(num), np.shape(den)), math.nan)
     np.divide(num, den, out=out, where=den != 0.0)

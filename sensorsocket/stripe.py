@@ -18,6 +18,7 @@ stages are in :mod:`sensorsocket.detector`.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -181,41 +182,59 @@ class StripeFinder:
         self,
         frame: NDArray[np.generic],
         stripe: StripeProfile,
-        columns: NDArray[np.intp],
-        rows: FloatArray,
+        columns: Sequence[int],
+        rows: Sequence[float],
         half: int,
-    ) -> FloatArray:
-        """Thresholded light in rows ``rows ± half`` of chip ``columns`` (k,) of ``frame``."""
+    ) -> list[float]:
+        """Thresholded light in rows ``round(rows) ± half`` of chip ``columns`` (k,) of
+        ``frame``; 0 for a column outside the frame or a row that is not finite, and rows
+        beyond the frame's carry none."""
+        if len(columns) == 0:
+            return []
         f = np.asarray(frame)
         ncols, nrows = f.shape[0], f.shape[1]
-        local = columns - stripe.first_column
-        ok = np.isfinite(rows)
-        ok &= local >= 0
-        ok &= local < ncols
-        every = bool(ok.all())
-        if not every:
-            if not ok.any():
-                return np.zeros(len(columns))
-            local, rows = local[ok], rows[ok]
-        offsets, ones = self._window(half)
-        idx = np.rint(rows).astype(np.intp)[:, None] + offsets
-        rows_in = np.maximum(idx, 0)  # np.clip costs more than both on small arrays
-        np.minimum(rows_in, nrows - 1, out=rows_in)
-        inside = rows_in == idx
+        # the usual case (a few columns next to a seam, windows well inside the frame):
+        # every window is one run of the flat frame, read in one gather
+        lo, hi = float(half), float(nrows - 1 - half)  # float bounds: faster compares
+        first = stripe.first_column
+        base = -first * nrows - half
+        starts = []
         if f.flags.c_contiguous:
-            rows_in += (local * nrows)[:, None]
-            vals = f.reshape(-1).take(rows_in).astype(np.float64)
+            for c, r in zip(columns, rows, strict=True):
+                if not (lo <= r <= hi and first <= c < first + ncols):  # NaN fails too
+                    break
+                starts.append(c * nrows + round(r) + base)  # round: half to even, as rint
+        if len(starts) == len(columns):
+            index = np.fromiter(starts, np.intp, len(starts))  # cheaper than a list index
+            vals = strided_runs(f.reshape(-1), 2 * half + 1)[index].astype(np.float64)
         else:
-            vals = f[local[:, None], rows_in].astype(np.float64)
+            vals = self._clipped_windows(f, stripe, columns, rows, half)
         vals -= stripe.threshold
         np.maximum(vals, 0.0, out=vals)
-        vals *= inside
-        sums: FloatArray = vals.dot(ones)
-        if every:
-            return sums
-        out = np.zeros(len(columns))
-        out[ok] = sums
-        return out
+        sums: list[float] = vals.dot(self._window(half)[1]).tolist()
+        return sums
+
+    def _clipped_windows(
+        self,
+        f: NDArray[np.generic],
+        stripe: StripeProfile,
+        columns: Sequence[int],
+        rows: Sequence[float],
+        half: int,
+    ) -> FloatArray:
+        """The (k, 2·half + 1) pixels of :meth:`mass_at`'s windows in any frame, as float64
+        below the threshold where a window leaves the frame, a column lies outside it or a
+        row is not finite (those contribute nothing)."""
+        ncols, nrows = f.shape[0], f.shape[1]
+        r = np.asarray(rows, dtype=np.float64)
+        local = np.asarray(columns, dtype=np.intp) - stripe.first_column
+        ok = np.isfinite(r) & (local >= 0) & (local < ncols)
+        offsets = self._window(half)[0]
+        idx = np.rint(np.where(ok, r, 0.0)).astype(np.intp)[:, None] + offsets
+        rows_in = np.clip(idx, 0, nrows - 1)
+        vals: FloatArray = f[np.where(ok, local, 0)[:, None], rows_in].astype(np.float64)
+        vals[(rows_in != idx) | ~ok[:, None]] = -np.inf  # below any threshold: no light
+        return vals
 
     def _window(self, half: int) -> tuple[NDArray[np.intp], FloatArray]:
         """Row offsets -half..half and ones of that length (read-only, cached per half)."""
@@ -226,6 +245,14 @@ class StripeFinder:
                 arr.setflags(write=False)
             self._windows[half] = window
         return window
+
+
+def strided_runs(flat: NDArray[np.generic], w: int) -> NDArray[np.generic]:
+    """Every run of ``w`` consecutive elements of 1-D ``flat`` (at least ``w`` long) as a
+    row of a strided view (len - w + 1, w), to read, never to write: a window of a frame
+    is then one fancy index (its flat start), no (n, w) index array to build."""
+    item = flat.itemsize
+    return np.ndarray((flat.size - w + 1, w), flat.dtype, flat, 0, (item, item))
 
 
 def smooth_straight(rows: NDArray[np.float32], valid: NDArray[np.bool_]) -> None:

@@ -287,3 +287,54 @@ def test_robust_line_equals_a_plain_fit(
     assert line.a == pytest.approx(a, abs=1e-9)
     assert line.b == pytest.approx(b, abs=1e-9)
     assert line.rms == pytest.approx(rms, abs=1e-9)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(st.floats(-10.0, 10.0), min_size=1, max_size=60),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.floats(0.0, 2.0),
+)
+def test_fillet_sides_as_slices_equal_the_masks(
+    ys: list[float], split: float, margin: float
+) -> None:
+    """Where the profile's y ascends, the fillet's sides are slices from two binary
+    searches: the same points as the plain masks y < split - margin and y > split + margin
+    (ties, NaN and infinite bounds included)."""
+    from sensorsocket.detector import _beside, _same
+
+    y = np.sort(np.array(ys))
+    lo, hi = split - margin, split + margin
+    left, right = _beside(y, True, lo, hi)
+    mask_l, mask_r = _beside(y, False, lo, hi)
+    assert isinstance(left, slice) and isinstance(right, slice)
+    np.testing.assert_array_equal(np.arange(y.size)[left], np.flatnonzero(mask_l))
+    np.testing.assert_array_equal(np.arange(y.size)[right], np.flatnonzero(mask_r))
+    assert _same(left, _beside(y, True, lo, hi)[0]) and _same(mask_r, y > hi)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(3, 80),
+    glints=st.integers(0, 4),
+    step=st.booleans(),
+    tol=st.sampled_from([0.15, 0.0, -0.1]),
+)
+def test_outlier_mask_equals_the_running_median(
+    seed: int, n: int, glints: int, step: bool, tol: float
+) -> None:
+    """The outliers' quick test (no two large neighbouring steps) and the full test give
+    the plain rule: keep a point within tol of the median of itself and its neighbours."""
+    from sensorsocket.detector import _not_isolated_outliers
+
+    rng = np.random.default_rng(seed)
+    z = 1.0 + 0.02 * np.arange(n) + rng.normal(0.0, 0.01, n)
+    if step:  # a lap's step: one large jump, no outlier
+        z[n // 2 :] += 1.0
+    z[rng.integers(0, n, glints)] += rng.uniform(-2.0, 2.0, glints)
+    med = np.median(np.stack([z[:-2], z[1:-1], z[2:]]), axis=0)
+    want = np.ones(n, dtype=bool)
+    want[1:-1] = np.abs(z[1:-1] - med) <= tol
+    got = _not_isolated_outliers(z, np.abs(np.diff(z)), tol)
+    np.testing.assert_array_equal(want, np.ones(n, dtype=bool) if got is None else got)

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from sensorsocket.geometry import CameraError, CameraGeometry
@@ -100,3 +100,53 @@ def test_no_point_where_the_ray_is_parallel() -> None:
     z = -g.working_distance_mm / math.cos(math.radians(5.0))
     assert g.working_distance_mm + z * math.cos(math.radians(5.0)) == 0.0  # exactly there
     assert math.isnan(g.plane_column(1.0, z))
+
+
+def _plane_point_two_steps(g: CameraGeometry, u: float, v: float) -> tuple[float, float]:
+    """The textbook ray-plane intersection (the docstring's first form), plain floats."""
+    s, c = (
+        math.sin(math.radians(g.triangulation_angle_deg)),
+        math.cos(math.radians(g.triangulation_angle_deg)),
+    )
+    d = g.working_distance_mm
+    k = (u - g.principal_point[0]) / g.focal_px
+    t = (v - g.principal_point[1]) / g.focal_px
+    z = t * d / (s - t * c)
+    return k * (d + z * c), z
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.floats(-0.5, 511.5),
+    st.floats(-8.5, 263.5),
+    st.sampled_from([45.0, 5.0, 30.0, 85.0]),
+    st.sampled_from([16.0, 4.0]),
+)
+def test_plane_point_closed_form_equals_the_ray_intersection(
+    u: float, v: float, angle: float, focal: float
+) -> None:
+    """plane_point's one-division closed form against the two-step intersection: within
+    1e-12 mm on the default geometry, 1e-9 relative on others (up to far beyond the
+    chip, where points lie metres away)."""
+    g = CameraGeometry(triangulation_angle_deg=angle, focal_length_mm=focal)
+    v1 = g.principal_point[1] + g.focal_px * math.tan(math.radians(angle))
+    assume(abs(v - v1) > 0.01)  # both forms lose digits right next to the parallel ray
+    y, z = g.plane_point(u, v)
+    y0, z0 = _plane_point_two_steps(g, u, v)
+    default = angle == 45.0 and focal == 16.0
+    tol = 1e-12 if default else 1e-9 * max(1.0, abs(y0), abs(z0))
+    assert abs(y - y0) <= tol and abs(z - z0) <= tol
+    ya, za = g.plane_point(np.array([float(round(u))]), np.array([v]))
+    assert (ya[0], za[0]) == g.plane_point(float(round(u)), v)
+
+
+def test_plane_point_nan_where_the_ray_is_parallel_to_the_plane() -> None:
+    """The row whose rays run parallel to the laser plane has no point: NaN, no exception
+    (floats) and no warning (arrays), as in the two-step form."""
+    g = CameraGeometry(triangulation_angle_deg=5.0, focal_length_mm=4.0)
+    v1 = g.principal_point[1] + g.focal_px * math.tan(math.radians(5.0))
+    y, z = g.plane_point(10.0, v1)
+    assert math.isnan(y) and math.isnan(z)
+    with np.errstate(all="raise"):
+        ya, za = g.plane_point(np.array([10, 20]), np.array([v1, 3.0]))
+    assert np.isnan(ya[0]) and np.isnan(za[0]) and np.isfinite(ya[1]) and np.isfinite(za[1])

@@ -94,24 +94,64 @@ def test_stripe_matches_a_per_column_loop(h: int) -> None:
     np.testing.assert_allclose(stripe.mass, mass, rtol=1e-4, atol=1e-3)
 
 
+def _pixel_mass(
+    frame: np.ndarray, first: int, threshold: float, c: int, r: float, half: int
+) -> float:
+    """mass_at of one column, pixel by pixel: the plain reference."""
+    want = 0.0
+    if first <= c < first + frame.shape[0] and np.isfinite(r):
+        centre = int(np.rint(r))
+        for v in range(centre - half, centre + half + 1):
+            if 0 <= v < frame.shape[1]:
+                want += max(float(frame[c - first, v]) - threshold, 0.0)
+    return want
+
+
 def test_mass_at_matches_pixel_sums() -> None:
     frame = _frame(Joint.butt(0.4), seed=22).copy()
     frame[100, :8] = 250  # light at the image edges, where windows are cut off
     frame[250, 250:] = 240
     finder = _finder(DetectorConfig().half_window)
     stripe = finder.stripe(frame[100:300], first_column=100)
-    cols = np.array([50, 100, 150, 250, 299, 300, 400])  # some outside columns 100..299
-    rows = np.array([120.4, 3.0, np.nan, 254.6, 128.5, 128.0, 10.0])
+    cols = [50, 100, 150, 250, 299, 300, 400]  # some outside columns 100..299
+    rows = [120.4, 3.0, np.nan, 254.6, 128.5, 128.0, 10.0]
     got = finder.mass_at(frame[100:300], stripe, cols, rows, 4)
     assert got[1] > 1000 and got[3] > 700
+    assert finder.mass_at(frame[100:300], stripe, [], [], 4) == []
     for k, (c, r) in enumerate(zip(cols, rows, strict=True)):
-        want = 0.0
-        if 100 <= c < 300 and np.isfinite(r):
-            centre = int(np.rint(r))
-            for v in range(centre - 4, centre + 5):
-                if 0 <= v < 256:
-                    want += max(float(frame[c, v]) - stripe.threshold, 0.0)
+        want = _pixel_mass(frame[100:300], 100, stripe.threshold, c, r, 4)
         assert got[k] == pytest.approx(want, abs=1e-9), (c, r)
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    half=st.integers(1, 12),
+    first=st.integers(0, 300),
+    k=st.integers(1, 30),
+    layout=st.sampled_from(["c", "fortran", "float32"]),
+)
+def test_mass_at_fast_path_equals_the_pixel_sums(
+    seed: int, half: int, first: int, k: int, layout: str
+) -> None:
+    """The one-gather path (windows inside a C-ordered frame) and the clipped path (edges,
+    outside columns, NaN rows, other layouts) against the plain pixel loop."""
+    rng = np.random.default_rng(seed)
+    frame = rng.integers(0, 256, (200, 256), dtype=np.uint8)
+    stripe = _finder(6).stripe(frame, first_column=first)
+    if layout == "fortran":
+        frame = np.asfortranarray(frame)
+    elif layout == "float32":
+        frame = frame.astype(np.float32)
+    cols = rng.integers(first - 5, first + 205, k).tolist()
+    # mostly well inside; some at the edges, and a NaN now and then
+    rows = rng.uniform(-3.0, 259.0, k) if rng.random() < 0.3 else rng.uniform(20, 230, k)
+    rows = np.round(rows * 2) / 2 if rng.random() < 0.3 else rows  # ties round to even
+    if rng.random() < 0.2:
+        rows[0] = np.nan
+    got = _finder(6).mass_at(frame, stripe, cols, rows.tolist(), half)
+    for m, c, r in zip(got, cols, rows.tolist(), strict=True):
+        assert m == pytest.approx(_pixel_mass(frame, first, stripe.threshold, c, r, half), abs=1e-9)
 
 
 def test_stripe_centres_within_0_03_px_of_the_renderer_truth() -> None:
