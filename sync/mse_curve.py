@@ -180,17 +180,18 @@ def _cross(s: _Pieces, r: _Pieces, shifts: NDArray[np.int64]) -> NDArray[np.floa
     count = shifts.shape[0] - 2  # lags first .. first + count - 1 reach the curve
     x = q - first
     # One search serves the tails and the pair windows: the robot spikes left of each sensor
-    # knot. The piece of a robot spike is then the number of knots at or left of it, less one
-    # (x whole, so e = ceil(knot) <= x exactly when the knot is); -1 and the last knot are
-    # clipped below, as for a spike outside the span.
-    below = np.searchsorted(x, s.x)
+    # knot, x < knot, i.e. x < e = ceil(knot) as x is whole (in integers: a quicker search).
+    # The piece of a robot spike is then the number of knots at or left of it, less one;
+    # -1 and the last knot are clipped below, as for a spike outside the span.
+    xi = x.astype(np.intp)
+    below = np.searchsorted(xi, s.e.astype(np.intp))
     i = np.cumsum(np.bincount(below, minlength=x.shape[0] + 1)[:-1])
     i -= 1
     # The pairs with lag q - p < first (p > x): tail sums of g_s from x (module docstring).
     # Ψk = Σ_q wq·σk(x) with σk(x) = Σ_{p > x} d_s[p]·binom(p - x, k): σ1 = g_s[x],
     # σ0 = g_s[x] - g_s[x + 1], σ2 = M - g, σ3 = T - M + g for M = Σ_{j >= x} g_s[j] and
     # T = Σ_{j >= x} g_s[j]·(j - x). Below the span M is constant and T linear, above both 0.
-    xc = np.clip(x, s.e[0], s.e[-1])
+    xc = np.minimum(np.maximum(x, s.e[0]), s.e[-1])  # np.clip costs more
     e, n, start, b, tail0, tail1, g_e = _tails(s).take(i, axis=0, mode="clip").T
     w0 = xc - e
     left = n - w0  # grid points from xc to the end of its piece
@@ -211,11 +212,11 @@ def _cross(s: _Pieces, r: _Pieces, shifts: NDArray[np.int64]) -> NDArray[np.floa
     c: NDArray[np.float64] = psi1 + (d - 2.0) / 3.0 * psi0
     c = psi3 + d * (psi2 + (d - 1.0) / 2.0 * c)
     if count > 0:
-        c[2:] += _window_sums(s, x, wq, below, count)
+        c[2:] += _window_sums(s, xi, wq, below, count)
     return c
 
 
-def _knots_within(e: NDArray[np.float64], count: int) -> int:
+def _knots_within(e: NDArray[np.float64] | NDArray[np.intp], count: int) -> int:
     """The most knots whose e lie in any count + 1 consecutive grid points: the smallest m
     with e[i + m] - e[i] > count for every i (all K knots when none is)."""
     k = e.shape[0]
@@ -228,7 +229,7 @@ def _knots_within(e: NDArray[np.float64], count: int) -> int:
 
 def _window_sums(
     s: _Pieces,
-    x: NDArray[np.float64],
+    x: NDArray[np.intp],
     wq: NDArray[np.float64],
     below: NDArray[np.intp],
     count: int,

@@ -172,6 +172,36 @@ def test_input_errors() -> None:
     assert j0 == 2 and y.tolist() == pytest.approx([1.0, 3.0, 5.0, 7.0])
 
 
+@pytest.mark.parametrize(
+    ("bad", "message"),
+    [
+        ("nan_time", "times and values must be finite"),
+        ("inf_last_time", "times and values must be finite"),
+        ("inf_value", "times and values must be finite"),
+        ("repeated_time", "times must be strictly increasing"),
+        ("one_sample", "need at least 2 samples"),
+    ],
+)
+@pytest.mark.parametrize("who", ["robot", "sensor"])
+def test_input_errors_name_the_fault(bad: str, message: str, who: str) -> None:
+    t = np.arange(100) * 4e-3
+    y = np.sin(2 * np.pi * 1.5 * t)
+    tb, yb = t.copy(), y.copy()
+    if bad == "nan_time":
+        tb[50] = np.nan
+    elif bad == "inf_last_time":
+        tb[-1] = np.inf
+    elif bad == "inf_value":
+        yb[5] = np.inf
+    elif bad == "repeated_time":
+        tb[5] = tb[4]
+    else:
+        tb, yb = tb[:1], yb[:1]
+    args = (tb, yb, t, y) if who == "robot" else (t, y, tb, yb)
+    with pytest.raises(DelayEstimateError, match=f"^{who}: {message}"):
+        estimate_delay(*args, require_interior=False)
+
+
 def test_cramer_rao_sanity() -> None:
     """Informative: the spread over seeds is near σ/(A·ω·√(N/2)) with the effective noise."""
     f, amp = 1.5, 2.0
