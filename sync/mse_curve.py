@@ -78,12 +78,24 @@ def _pieces(t: NDArray[np.float64], y: NDArray[np.float64], grid_step_s: float) 
         xs = np.array([lo - 1.0, lo, lo + 1.0])
         hs = np.array([0.0, ends[0], 0.0])
     else:
-        # samples strictly inside (lo, hi - 1); two that snapped onto one grid point count once
+        # samples strictly inside (lo, hi - 1): a slice of the sorted x
+        a = int(np.searchsorted(x, lo, "right"))
+        b = int(np.searchsorted(x, hi - 1))
+        xs = np.empty(b - a + 4)
+        hs = np.empty(b - a + 4)
+        xs[0], xs[1], xs[-2], xs[-1] = lo - 1.0, lo, hi - 1.0, hi
+        hs[0], hs[1], hs[-2], hs[-1] = 0.0, ends[0], ends[1], 0.0
+        xs[2:-2] = x[a:b]
+        hs[2:-2] = y[a:b]
+    dx = xs[1:] - xs[:-1]
+    if not dx.min() > 0:
+        # two samples snapped onto one grid point: the first one counts
         inner = (x > lo) & (x < hi - 1)
         inner[1:] &= x[1:] > x[:-1]
         xs = np.concatenate([[lo - 1.0, lo], x[inner], [hi - 1.0, hi]])
         hs = np.concatenate([[0.0], ends[:1], y[inner], ends[1:], [0.0]])
-    slope = (hs[1:] - hs[:-1]) / (xs[1:] - xs[:-1])
+        dx = xs[1:] - xs[:-1]
+    slope = (hs[1:] - hs[:-1]) / dx
     e = np.ceil(xs)
     start = hs[:-1] + slope * (e[:-1] - xs[:-1])
     n = e[1:] - e[:-1]
