@@ -101,15 +101,21 @@ class NoInteriorMinimumError(DelayEstimateError):
         self.estimate = estimate
 
 
-def _check_signal(name: str, t: NDArray[np.float64], y: NDArray[np.float64]) -> None:
+def _check_signal(name: str, t: NDArray[np.float64], y: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Raise unless times (N,) and values (N,) are finite, N >= 2, times strictly increasing;
+    return the intervals np.diff(t)."""
     if t.ndim != 1 or y.shape != t.shape:
         raise DelayEstimateError(f"{name}: expected times (N,) and values (N,), got {t.shape}")
     if t.size < 2:
         raise DelayEstimateError(f"{name}: need at least 2 samples, got {t.size}")
+    dt = np.diff(t)
+    # Increasing with finite ends means finite times (a NaN makes the minimum NaN); the
+    # element-wise checks run only to name what is wrong.
+    if dt.min() > 0 and math.isfinite(t[0]) and math.isfinite(t[-1]) and np.isfinite(y).all():
+        return dt
     if not (np.all(np.isfinite(t)) and np.all(np.isfinite(y))):
         raise DelayEstimateError(f"{name}: times and values must be finite")
-    if not np.all(np.diff(t) > 0):
-        raise DelayEstimateError(f"{name}: times must be strictly increasing")
+    raise DelayEstimateError(f"{name}: times must be strictly increasing")
 
 
 def upsample(
@@ -157,12 +163,12 @@ def _grid_span(t: NDArray[np.float64], grid_step_s: float) -> tuple[int, int]:
 
 
 def _gap_mask(
-    times: NDArray[np.float64], j0: int, n: int, grid_step_s: float
+    times: NDArray[np.float64], dt: NDArray[np.float64], j0: int, n: int, grid_step_s: float
 ) -> NDArray[np.float64] | None:
     """1.0 on the grid points t_{j0} .. t_{j0+n-1} that lie between two samples at most
     ``GAP_FACTOR`` median intervals apart, 0.0 inside longer gaps (lost data: a straight line
-    across a missing stretch of the sine is not a measurement); None when there is no gap."""
-    dt = np.diff(times)
+    across a missing stretch of the sine is not a measurement); None when there is no gap.
+    ``dt`` are the intervals np.diff(times)."""
     # the median is at least the shortest interval: no interval that long, no median needed
     if float(np.max(dt)) <= GAP_FACTOR * float(np.min(dt)):
         return None
@@ -260,7 +266,7 @@ def estimate_delay(
     ts = np.asarray(t_trigger, dtype=np.float64)
     ys_in = np.asarray(y_sensor, dtype=np.float64)
     _check_signal("robot", tr, yr_in)
-    _check_signal("sensor", ts, ys_in)
+    dt_s = _check_signal("sensor", ts, ys_in)
     if fit_half_width < 1:
         raise DelayEstimateError("fit_half_width must be >= 1")
     if not (math.isfinite(search_min_s) and math.isfinite(search_max_s)):
@@ -273,7 +279,7 @@ def estimate_delay(
     js, s_end = _grid_span(ts, grid_step_s)
     shifts = np.arange(m_lo, m_hi + 1, dtype=np.int64)
     shifts_s = shifts.astype(np.float64) * grid_step_s
-    mask = _gap_mask(ts, js, s_end - js, grid_step_s)
+    mask = _gap_mask(ts, dt_s, js, s_end - js, grid_step_s)
     if mask is None:
         mse, overlap = mse_curve((ts, ys_in), (tr, yr_in), shifts, grid_step_s)
     else:

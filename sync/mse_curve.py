@@ -78,12 +78,24 @@ def _pieces(t: NDArray[np.float64], y: NDArray[np.float64], grid_step_s: float) 
         xs = np.array([lo - 1.0, lo, lo + 1.0])
         hs = np.array([0.0, ends[0], 0.0])
     else:
-        # samples strictly inside (lo, hi - 1); two that snapped onto one grid point count once
+        # samples strictly inside (lo, hi - 1): a slice of the sorted x
+        a = int(np.searchsorted(x, lo, "right"))
+        b = int(np.searchsorted(x, hi - 1))
+        xs = np.empty(b - a + 4)
+        hs = np.empty(b - a + 4)
+        xs[0], xs[1], xs[-2], xs[-1] = lo - 1.0, lo, hi - 1.0, hi
+        hs[0], hs[1], hs[-2], hs[-1] = 0.0, ends[0], ends[1], 0.0
+        xs[2:-2] = x[a:b]
+        hs[2:-2] = y[a:b]
+    dx = xs[1:] - xs[:-1]
+    if not dx.min() > 0:
+        # two samples snapped onto one grid point: the first one counts
         inner = (x > lo) & (x < hi - 1)
         inner[1:] &= x[1:] > x[:-1]
         xs = np.concatenate([[lo - 1.0, lo], x[inner], [hi - 1.0, hi]])
         hs = np.concatenate([[0.0], ends[:1], y[inner], ends[1:], [0.0]])
-    slope = (hs[1:] - hs[:-1]) / (xs[1:] - xs[:-1])
+        dx = xs[1:] - xs[:-1]
+    slope = (hs[1:] - hs[:-1]) / dx
     e = np.ceil(xs)
     start = hs[:-1] + slope * (e[:-1] - xs[:-1])
     n = e[1:] - e[:-1]
@@ -130,42 +142,46 @@ def _square_prefix(p: _Pieces, j: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 def _spikes(p: _Pieces) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Where the second difference of g is not zero, and its values there: (1 - frac)·bend
-    on floor(x) of every knot, frac·bend on the next point for a knot off the grid."""
+    """Where the second difference of g is not zero, increasing, and its values there:
+    (1 - frac)·bend on floor(x) of every knot, frac·bend on the next point for a knot off
+    the grid (summed where two knots put a spike on one point)."""
     floor = np.floor(p.x)
     frac = p.x - floor
-    bend = p.bend
     off = np.flatnonzero(frac)
+    if off.size == 0:
+        return floor, p.bend
     at = np.concatenate([floor, floor.take(off) + 1.0])
-    value = np.concatenate([bend * (1.0 - frac), bend.take(off) * frac.take(off)])
-    return at, value
+    value = np.concatenate([p.bend * (1.0 - frac), p.bend.take(off) * frac.take(off)])
+    at, where = np.unique(at, return_inverse=True)
+    return at, np.bincount(where, weights=value).astype(np.float64, copy=False)
 
 
 def _tails(s: _Pieces) -> NDArray[np.float64]:
-    """Per piece k (columns): e, n, start, slope, and at the next knot the tail sums
-    M = Σ_{j >= e} g[j] and T = Σ_{j >= e} g[j]·(j - e) and g itself."""
+    """Per piece k (rows): e, n, start, slope, and at the next knot the tail sums
+    M = Σ_{j >= e} g[j] and T = Σ_{j >= e} g[j]·(j - e) and g itself. Rows, so that one
+    gather of whole rows picks a piece's seven values."""
     whole0 = s.n * s.start + s.slope * s.s1  # Σ g over each piece
     whole1 = s.start * s.s1 + s.slope * s.s2  # Σ g·(j - e) over each piece
     k = s.e.shape[0]
-    table = np.empty((7, k - 1))
-    table[0] = s.e[:-1]
-    table[1] = s.n
-    table[2] = s.start
-    table[3] = s.slope
+    table = np.empty((k - 1, 7))
+    table[:, 0] = s.e[:-1]
+    table[:, 1] = s.n
+    table[:, 2] = s.start
+    table[:, 3] = s.slope
     # suffix sums from knot k + 1 on (0 from the last); positions relative to lo keep them small
     e_rel = s.e[:-1] - s.lo
     tail0 = np.cumsum(whole0[::-1])[::-1]
     tail1 = np.cumsum((whole1 + e_rel * whole0)[::-1])[::-1] - e_rel * tail0
-    table[4, :-1] = tail0[1:]
-    table[5, :-1] = tail1[1:]
-    table[4:6, -1] = 0.0
+    table[:-1, 4] = tail0[1:]
+    table[:-1, 5] = tail1[1:]
     # g at the next knot's grid point, read from the last piece that starts there
+    table[:-1, 6] = s.start[1:]
+    table[-1, 4:] = 0.0
     same = s.e[1:] == s.e[:-1]
-    last = np.arange(k)
     if same.any():
-        last = np.where(np.append(same, False), k, last)
+        last = np.where(np.append(same, False), k, np.arange(k))
         last = np.minimum.accumulate(last[::-1])[::-1]
-    table[6] = np.append(s.start, 0.0).take(last[1:])
+        table[:, 6] = np.append(s.start, 0.0).take(last[1:])
     return table
 
 
@@ -175,13 +191,20 @@ def _cross(s: _Pieces, r: _Pieces, shifts: NDArray[np.int64]) -> NDArray[np.floa
     first = int(shifts[0])
     count = shifts.shape[0] - 2  # lags first .. first + count - 1 reach the curve
     x = q - first
+    # One search serves the tails and the pair windows: the robot spikes left of each sensor
+    # knot, x < knot, i.e. x < e = ceil(knot) as x is whole (in integers: a quicker search).
+    # The piece of a robot spike is then the number of knots at or left of it, less one;
+    # -1 and the last knot are clipped below, as for a spike outside the span.
+    xi = x.astype(np.intp)
+    below = np.searchsorted(xi, s.e.astype(np.intp))
+    i = np.cumsum(np.bincount(below, minlength=x.shape[0] + 1)[:-1])
+    i -= 1
     # The pairs with lag q - p < first (p > x): tail sums of g_s from x (module docstring).
     # Ψk = Σ_q wq·σk(x) with σk(x) = Σ_{p > x} d_s[p]·binom(p - x, k): σ1 = g_s[x],
     # σ0 = g_s[x] - g_s[x + 1], σ2 = M - g, σ3 = T - M + g for M = Σ_{j >= x} g_s[j] and
     # T = Σ_{j >= x} g_s[j]·(j - x). Below the span M is constant and T linear, above both 0.
-    xc = np.clip(x, s.e[0], s.e[-1])
-    i = _piece_at(s, xc)
-    e, n, start, b, tail0, tail1, g_e = _tails(s).take(i, axis=1)
+    xc = np.minimum(np.maximum(x, s.e[0]), s.e[-1])  # np.clip costs more
+    e, n, start, b, tail0, tail1, g_e = _tails(s).take(i, axis=0, mode="clip").T
     w0 = xc - e
     left = n - w0  # grid points from xc to the end of its piece
     g = start + b * w0
@@ -201,11 +224,11 @@ def _cross(s: _Pieces, r: _Pieces, shifts: NDArray[np.int64]) -> NDArray[np.floa
     c: NDArray[np.float64] = psi1 + (d - 2.0) / 3.0 * psi0
     c = psi3 + d * (psi2 + (d - 1.0) / 2.0 * c)
     if count > 0:
-        c[2:] += _window_sums(s, x, wq, i, count)
+        c[2:] += _window_sums(s, xi, wq, below, count)
     return c
 
 
-def _knots_within(e: NDArray[np.float64], count: int) -> int:
+def _knots_within(e: NDArray[np.float64] | NDArray[np.intp], count: int) -> int:
     """The most knots whose e lie in any count + 1 consecutive grid points: the smallest m
     with e[i + m] - e[i] > count for every i (all K knots when none is)."""
     k = e.shape[0]
@@ -217,57 +240,71 @@ def _knots_within(e: NDArray[np.float64], count: int) -> int:
 
 
 def _window_sums(
-    s: _Pieces, x: NDArray[np.float64], wq: NDArray[np.float64], i: NDArray[np.int64], count: int
+    s: _Pieces,
+    x: NDArray[np.intp],
+    wq: NDArray[np.float64],
+    below: NDArray[np.intp],
+    count: int,
 ) -> NDArray[np.float64]:
     """The pairs with lag q - p = l in first .. first + count - 1, summed per lag as F(l), reach
     C(m) with weight K(m - l) = 1, 4, 10, 20, ... from m = l + 2 on: four running sums of F.
 
     A sensor knot's two spikes are taken together: the one on floor(x_k) has lag q - floor,
-    the other one less. Per robot spike (x = q - first) the knots wanted have floor in
-    [x - count, x]: they end at most ``longest`` (knots in one grid interval) after the piece
-    ``i`` of x and start at most ``most`` (:func:`_knots_within`) before its end. Each robot
-    spike is a row of that many knots; the ones outside the lag range land in two end bins
-    that are dropped."""
-    e = s.e
-    k = e.shape[0]
-    longest = 1
-    if np.any(e[1:] == e[:-1]):
-        runs = np.flatnonzero(e[1:] != e[:-1])
-        longest = int(np.max(np.diff(runs, prepend=-1, append=k - 1)))
-    most = _knots_within(e, count)
-    width = most + longest
+    the other one less, so the robot spikes wanted (x = q - first, increasing, distinct) lie
+    in [floor, floor + count]: at most ``most`` (:func:`_knots_within`) of them, from the
+    first one at or right of floor, which is ``below`` (the spikes left of x_k) less one
+    when the spike before that one is on floor. Each sensor knot is a column of that many
+    robot spikes; the ones past its range land in an end bin that is dropped."""
+    k = s.x.shape[0]
+    n = x.shape[0]
+    most = _knots_within(x, count)
     floor = np.floor(s.x)
     frac = s.x - floor
-    # knot columns padded with knots of weight 0 beyond every window
-    at_knot = np.full(k + width, int(np.max(x)) + 2, dtype=np.intp)
-    at_knot[:k] = floor
-    on_floor = np.zeros(k + width)
-    np.multiply(s.bend, 1.0 - frac, out=on_floor[:k])
-    after = np.zeros(k + width)
-    np.multiply(s.bend, frac, out=after[:k])
-    # Row o: knot o of every robot spike's window, rows laid end to end. Whole flat arrays,
-    # never a row broadcast over a 2-d one: numpy's broadcast loop costs ~10x a flat one.
-    start = np.maximum(i + 1 - most, 0)
-    n = start.shape[0]
-    knot = np.empty(width * n, dtype=np.intp)
-    for o in range(width):
-        np.add(start, o, out=knot[o * n : (o + 1) * n])
-    # bin = lag - first + 1 = (x + 1) - floor; a lag below the range gives a bin above
-    # count + 2, one above it a negative bin: read as unsigned, one minimum sends both there
-    bins = np.concatenate([(x + 1.0).astype(np.intp)] * width)
-    bins -= at_knot.take(knot)
-    np.minimum(bins.view(np.uint64), np.uint64(count + 2), out=bins.view(np.uint64))
-    # The widest window sets the width, but a window's first and last knot lie in it for few
-    # spikes: of those two rows only the slots that reach a lag are summed. (width >= 3: the
-    # span's end knots, one step apart, put two knots in every window that holds them)
-    edge = [np.flatnonzero(bins[o * n : (o + 1) * n] <= count + 1) for o in (0, width - 1)]
-    w = np.concatenate([wq] * (width - 2) + [wq.take(hit) for hit in edge])
-    at = [hit + o * n for hit, o in zip(edge, (0, width - 1), strict=True)]
-    bins = np.concatenate([bins[n:-n], *(bins.take(a) for a in at)])
-    knot = np.concatenate([knot[n:-n], *(knot.take(a) for a in at)])
-    on_floor = np.bincount(bins, weights=on_floor.take(knot) * w, minlength=count + 3)
-    after = np.bincount(bins, weights=after.take(knot) * w, minlength=count + 3)
-    f: NDArray[np.float64] = np.add(on_floor[1 : count + 1], after[2 : count + 2])
+    at = floor.astype(np.intp)
+    on_floor = s.bend * (1.0 - frac)
+    after = s.bend * frac
+    # robot spikes as x + 1, after one below every window and before `most` past every one
+    pos = np.empty(n + 1 + most, dtype=np.intp)
+    pos[0] = at[0]
+    pos[1 : n + 1] = x
+    pos[1 : n + 1] += 1
+    pos[n + 1 :] = max(pos[n], at[-1]) + count + 2
+    w = np.zeros(n + 1 + most)
+    w[1 : n + 1] = wq
+    begin = below + 1  # index in pos of the first spike at or right of the floor
+    begin -= pos.take(below) == at + 1
+    # Row o: spike o of every knot's window, a gather from the padded spikes' view from o on
+    # (no index array; mode="clip" never clips, it only spares numpy a copy of `out`). Flat
+    # calls per row: numpy buffers a row broadcast over a 2-d array, at several times the
+    # cost. The widest window sets the rows, but the last one reaches a lag for few knots:
+    # of it only those slots are summed.
+    size = most * k
+    bins = np.empty(size, dtype=np.intp)
+    on = np.empty(size)
+    off = np.empty(size)
+    for o in range(most):
+        row = slice(o * k, (o + 1) * k)
+        np.take(pos[o:], begin, out=bins[row], mode="clip")
+        bins[row] -= at  # bin = lag - first + 1 = (x + 1) - floor >= 1
+        if o == most - 1:
+            hit = np.flatnonzero(bins[row] <= count + 1)
+            size = o * k + hit.shape[0]
+            row = slice(o * k, size)
+            bins[row] = bins.take(hit + o * k)
+            begin = begin.take(hit)
+            on_floor = on_floor.take(hit)
+            after = after.take(hit)
+        np.take(w[o:], begin, out=on[row], mode="clip")
+        np.multiply(on[row], after, out=off[row])
+        on[row] *= on_floor
+    bins = bins[:size]
+    # rows before the last can still pass the lags; bins far out (a long gap in the robot
+    # data) would make bincount's output long
+    if int(np.max(bins)) > 8 * (count + 2):
+        np.minimum(bins, count + 2, out=bins)
+    on = np.bincount(bins, weights=on[:size], minlength=count + 3)
+    off = np.bincount(bins, weights=off[:size], minlength=count + 3)
+    f: NDArray[np.float64] = np.add(on[1 : count + 1], off[2 : count + 2])
     for _ in range(4):
         np.cumsum(f, out=f)
     return f

@@ -172,6 +172,36 @@ def test_input_errors() -> None:
     assert j0 == 2 and y.tolist() == pytest.approx([1.0, 3.0, 5.0, 7.0])
 
 
+@pytest.mark.parametrize(
+    ("bad", "message"),
+    [
+        ("nan_time", "times and values must be finite"),
+        ("inf_last_time", "times and values must be finite"),
+        ("inf_value", "times and values must be finite"),
+        ("repeated_time", "times must be strictly increasing"),
+        ("one_sample", "need at least 2 samples"),
+    ],
+)
+@pytest.mark.parametrize("who", ["robot", "sensor"])
+def test_input_errors_name_the_fault(bad: str, message: str, who: str) -> None:
+    t = np.arange(100) * 4e-3
+    y = np.sin(2 * np.pi * 1.5 * t)
+    tb, yb = t.copy(), y.copy()
+    if bad == "nan_time":
+        tb[50] = np.nan
+    elif bad == "inf_last_time":
+        tb[-1] = np.inf
+    elif bad == "inf_value":
+        yb[5] = np.inf
+    elif bad == "repeated_time":
+        tb[5] = tb[4]
+    else:
+        tb, yb = tb[:1], yb[:1]
+    args = (tb, yb, t, y) if who == "robot" else (t, y, tb, yb)
+    with pytest.raises(DelayEstimateError, match=f"^{who}: {message}"):
+        estimate_delay(*args, require_interior=False)
+
+
 def test_cramer_rao_sanity() -> None:
     """Informative: the spread over seeds is near σ/(A·ω·√(N/2)) with the effective noise."""
     f, amp = 1.5, 2.0
@@ -368,6 +398,26 @@ def test_mse_curve_equals_the_definition(
     np.testing.assert_array_equal(np.isfinite(mse), finite)
     scale = 1.0 + offset * offset
     np.testing.assert_allclose(mse[finite], ref[finite], rtol=1e-9, atol=1e-11 * scale)
+
+
+def test_mse_curve_with_samples_that_snap_onto_one_grid_point() -> None:
+    """Two samples a hair apart on one grid point (the sensor at 5 kHz, stamped twice) count
+    once, and the curve is still the plain per-shift mean."""
+    rng = np.random.default_rng(3)
+    step = DEFAULT_GRID_STEP_S
+    t_r = np.arange(120) * 4e-3
+    y_r = np.sin(2 * np.pi * 3.0 * t_r)
+    t_s = np.sort(np.concatenate([rng.uniform(0.01, 0.45, 60), np.arange(5, 2000, 400) * step]))
+    t_s = np.insert(t_s, np.searchsorted(t_s, 805 * step) + 1, 805 * step * (1 + 1e-15))
+    assert np.min(np.diff(t_s)) < 1e-12 * step
+    y_s = np.sin(2 * np.pi * 3.0 * (t_s + 0.005))
+    shifts = np.arange(-20, 40, dtype=np.int64)
+    mse, overlap = mse_curve((t_s, y_s), (t_r, y_r), shifts, step)
+    jr, yr = upsample(t_r, y_r, step)
+    js, ys = upsample(t_s, y_s, step)
+    ref, ref_overlap = _mse_curve_masked(jr, yr, js, ys, shifts, np.ones(len(ys)))
+    np.testing.assert_array_equal(overlap, ref_overlap)
+    np.testing.assert_allclose(mse, ref, rtol=1e-9, atol=1e-12)
 
 
 @settings(max_examples=200, deadline=None, derandomize=True)
