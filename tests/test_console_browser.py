@@ -33,7 +33,7 @@ if not os.path.exists(CHROMIUM):
 pytest.importorskip("playwright", reason="the console extra is not installed")
 pytest.importorskip("starlette", reason="the console extra is not installed")
 
-from playwright.sync_api import Page, expect, sync_playwright  # noqa: E402
+from playwright.sync_api import Page, Route, expect, sync_playwright  # noqa: E402
 
 DOCS_SHOTS = Path(__file__).resolve().parent.parent / "docs" / "console"
 ARGS = [
@@ -94,7 +94,10 @@ def _api(page: Page, path: str) -> Any:
     return page.evaluate(f"fetch('/api/{path}').then(r => r.json())")
 
 
-def _confirm(page: Page) -> None:
+def _confirm(page: Page, text: str = "") -> None:
+    """Accept the confirmation dialog, after checking it names ``text``."""
+    if text:
+        expect(page.locator("#confirm-text")).to_have_text(text)
     page.locator("#confirm-yes").click()
 
 
@@ -193,11 +196,30 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
 
             # move to a named location: the stitch, where the sensor sees the seam
             page.locator("nav a[data-page=status]").click()
-            page.locator("#move-job").select_option("demo.xml")
+            # the job's locations arrive only after the operator picked one (as on a busy
+            # PC): refilling the list must keep "spot", not fall back to the first entry
+            held: list[Route] = []
+
+            def hold(route: Route) -> None:
+                held.append(route)
+
+            page.route("**/api/jobs/demo.xml", hold)
             expect(page.locator("#move-name option")).to_have_count(4)
+            page.locator("#move-job").select_option("demo.xml")
             page.locator("#move-name").select_option("spot")
+            page.wait_for_function("document.querySelector('#move-name option') !== null")
+            page.evaluate("document.querySelectorAll('#move-name option')[0].dataset.old = '1'")
+            for _ in range(500):
+                if held:
+                    break
+                page.wait_for_timeout(10)
+            for route in held:
+                route.continue_()
+            page.unroute("**/api/jobs/demo.xml")
+            expect(page.locator("#move-name option[data-old]")).to_have_count(0)  # refilled
+            expect(page.locator("#move-name")).to_have_value("spot")
             page.locator("#move-go").click()
-            _confirm(page)
+            _confirm(page, "Move the arm to spot?")
             expect(page.locator("#st-motion")).to_have_text(re.compile(r"^moving"))
             expect(page.locator("#st-motion")).to_have_text(re.compile(r"^still"))
 

@@ -188,17 +188,25 @@ function selectionChanged() {
 $("sel-tool").onchange = selectionChanged;
 $("sel-frame").onchange = selectionChanged;
 
+// Refilling a list keeps the operator's choice: a reply that arrives after the operator picked
+// a location must not turn "move to spot" into a move to the list's first entry.
+function fillKeepingChoice(select, names) {
+  const chosen = select.value;
+  select.innerHTML = names.map((n) => `<option>${n}</option>`).join("");
+  if (names.includes(chosen)) select.value = chosen;
+}
 async function loadMoveJobs() {
   const { jobs } = await api("GET", "/api/jobs");
-  $("move-job").innerHTML = jobs.map((n) => `<option>${n}</option>`).join("");
+  fillKeepingChoice($("move-job"), jobs);
   await loadMoveNames();
 }
 async function loadMoveNames() {
   const name = $("move-job").value;
   if (!name) return;
   const j = await api("GET", `/api/jobs/${encodeURIComponent(name)}`);
+  if ($("move-job").value !== name) return; // another job was chosen meanwhile: its load fills
   const items = j.job ? j.job.items.filter((i) => i.kind !== "pause") : [];
-  $("move-name").innerHTML = items.map((i) => `<option>${i.name}</option>`).join("");
+  fillKeepingChoice($("move-name"), items.map((i) => i.name));
 }
 $("move-job").onchange = loadMoveNames;
 $("move-go").onclick = async () => {
