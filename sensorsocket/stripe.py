@@ -65,7 +65,7 @@ class _ShapeConstants:
     """Read-only arrays for frames (n, rows): flat offset of each column (n,) and twice
     (n, 2); the clamped background rows above and below a peak on row r (rows, 2); the
     clamped start of the window about row r (rows,); zeros (n·w,); the phantom's moments
-    for every column (3·n,)."""
+    for every column (3, n)."""
 
     base: NDArray[np.intp]
     base2: NDArray[np.intp]
@@ -125,7 +125,7 @@ class StripeFinder:
                 ),
                 start_of_row=np.clip(r - h, 0, nrows - w),
                 zeros=np.zeros(n * w, dtype=np.float32),
-                phantom=np.repeat(self._phantom, n),
+                phantom=np.repeat(self._phantom, n).reshape(3, n),
             )
             for arr in (c.base, c.base2, c.ring_of_row, c.start_of_row, c.zeros, c.phantom):
                 arr.setflags(write=False)
@@ -147,7 +147,7 @@ class StripeFinder:
         ring = c.ring_of_row.take(peak_row, axis=0)
         ring += c.base2
         samples = flat.take(ring.reshape(-1)).astype(np.float32)
-        # window start of a window centred on row r, clamped to the frame: c.start_of_row[r]
+        # start of the window centred on row r, clamped to the frame: c.start_of_row[r]
         start = c.start_of_row.take(peak_row)
         peak_row += c.base
         peak = flat.take(peak_row)
@@ -168,27 +168,22 @@ class StripeFinder:
         # third of gathering n rows of w pixels of a 2-d view
         item = np.dtype((np.void, w * flat.itemsize))
         windows = np.ndarray((flat.size - w + 1,), item, flat, 0, (flat.itemsize,))
-        moments = np.empty((3, n), dtype=np.float32)
+        moments = self._moments(a.dtype, windows[start + c.base], thr32, c)
+        moments += c.phantom
         mass = moments[0]
-        rel = np.empty(n, dtype=np.float32)
-        rows = np.empty(n, dtype=np.float32)
-        start_f = start.astype(np.float32)
-        start += c.base
-        for weights in (self._win_centroid, self._win_moments):
-            if weights is self._win_moments:
-                # re-centre on the first centroid: symmetric window, whole plateau
-                start = c.start_of_row.take(np.rint(rows).astype(np.intp), mode="clip")
-                start_f = start.astype(np.float32)
-                start += c.base
-            vals = windows[start].view(a.dtype).astype(np.float32)
-            vals -= thr32
-            np.maximum(vals, c.zeros, out=vals)  # an array operand takes the SIMD loop
-            m = moments[: len(weights)]
-            np.matmul(weights, vals.reshape(n, w).T, out=m)
-            flat_m = moments.reshape(-1)[: m.size]
-            np.add(flat_m, c.phantom[: m.size], out=flat_m)
+        rel = np.divide(moments[1], mass)
+        rows = rel + start.astype(np.float32)
+        # re-centre on the first centroid (symmetric window, whole plateau): only the
+        # windows that move, about one in nine, change
+        centre = c.start_of_row.take(np.rint(rows).astype(np.intp))
+        moved = np.flatnonzero(centre != start)
+        if moved.size:
+            start = centre
+            sub = self._moments(a.dtype, windows[start.take(moved) + c.base.take(moved)], thr32, c)
+            sub += self._phantom[:, None]
+            moments[:, moved] = sub
             np.divide(moments[1], mass, out=rel)
-            np.add(rel, start_f, out=rows)
+            np.add(rel, start.astype(np.float32), out=rows)
         spread = np.divide(moments[2], mass)
         spread -= rel * rel
         valid &= spread <= self._max_spread
@@ -204,6 +199,22 @@ class StripeFinder:
             noise=noise,
             threshold=threshold,
         )
+
+    def _moments(
+        self,
+        dtype: np.dtype[np.generic],
+        windows: NDArray[np.void],
+        thr32: np.float32,
+        c: _ShapeConstants,
+    ) -> NDArray[np.float32]:
+        """Mass, first and second moment (3, k) of the light above the threshold in k
+        windows (items of w pixels of ``dtype``)."""
+        k, w = windows.size, self._win_moments.shape[1]
+        vals = windows.view(dtype).astype(np.float32)
+        vals -= thr32
+        np.maximum(vals, c.zeros[: k * w], out=vals)  # an array operand takes the SIMD loop
+        out: NDArray[np.float32] = self._win_moments @ vals.reshape(k, w).T
+        return out
 
     def mass_at(
         self,
@@ -263,25 +274,39 @@ def smooth_straight(rows: NDArray[np.float32], valid: NDArray[np.bool_]) -> None
     valid and its own second difference is at most that (next to ends, gaps and corners);
     rows (n,), n >= 5. Written as rows + (b[-1] + 4·b[0] + b[1])/9 and rows + b[0]/4 on
     the second differences b, the same weights."""
+    mid = rows[1:-1]
     bend = rows[:-2] + rows[2:]
-    bend -= 2.0 * rows[1:-1]  # bend[k]: second difference at column k + 1
-    straight = np.abs(bend) <= np.float32(MAX_BEND_PX)
+    bend -= mid + mid  # bend[k]: second difference at column k + 1
+    straight = np.abs(bend) <= _F32_MAX_BEND
     straight &= valid[:-2]
     straight &= valid[1:-1]
     straight &= valid[2:]
     ok = straight[:-2] & straight[1:-1]
     ok &= straight[2:]
-    step = bend[1:-1] * np.float32(4.0)
+    step = bend[1:-1] * _F32_FOUR
     step += bend[:-2]
     step += bend[2:]
-    step *= np.float32(1.0 / 9.0)
+    step *= _F32_NINTH
     step *= ok
-    # the three-column average where the five-column one does not apply
-    straight[1:-1] &= ~ok
-    bend *= np.float32(0.25)
+    # the three-column average where the five-column one does not apply: straight & ~ok
+    np.greater(straight[1:-1], ok, out=straight[1:-1])
+    bend *= _F32_QUARTER
     bend *= straight
-    rows[1:-1] += bend
+    mid += bend
     rows[2:-2] += step
+
+
+def _f32(x: float) -> NDArray[np.float32]:
+    """x as a read-only 0-d float32 array: as an operand it costs less than a scalar."""
+    out = np.array(x, dtype=np.float32)
+    out.setflags(write=False)
+    return out
+
+
+_F32_MAX_BEND = _f32(MAX_BEND_PX)
+_F32_FOUR = _f32(4.0)
+_F32_NINTH = _f32(1.0 / 9.0)
+_F32_QUARTER = _f32(0.25)
 
 
 def to_dn(a: NDArray[np.generic]) -> NDArray[np.float32]:
