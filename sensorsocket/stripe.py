@@ -18,6 +18,7 @@ stages are in :mod:`sensorsocket.detector`.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -39,6 +40,12 @@ _PEAK_SIGMAS = 6.0
 #: the rows above this (px) is an edge, step or corner, not noise (about 5 sigma of the
 #: second difference of the centroid noise), and is left alone.
 MAX_BEND_PX = 0.5
+#: A phantom light at each window's centre: a power of two, so h·_TINY / _TINY is h exactly,
+#: and far below half a float32 step of a window's mass and moments where it has light (at
+#: least one step of a threshold >= 1 DN, 2^-23), so added to them it is rounded away.
+_TINY = 2.0**-100
+#: The spread (px²) of a dark window with the phantom's second moment: beyond any bound.
+_DARK_SPREAD = 2.0**40
 
 
 @dataclass(frozen=True)
@@ -56,15 +63,17 @@ class StripeProfile:
 
 @dataclass(frozen=True)
 class _ShapeConstants:
-    """Read-only arrays for frames (n, rows): flat offset of each column (n,), the clamped
-    background rows (2, rows) and window start (rows,) for a peak or centre row, the window
-    fill h (n,), zeros (n, w)."""
+    """Read-only arrays for frames (n, rows): flat offset of each column (n,) and twice
+    (n, 2); the clamped background rows above and below a peak on row r (rows, 2); the
+    clamped start of the window about row r (rows,); zeros (n·w,); the phantom's moments
+    for every column (3, n)."""
 
     base: NDArray[np.intp]
+    base2: NDArray[np.intp]
     ring_of_row: NDArray[np.intp]
     start_of_row: NDArray[np.intp]
-    fill: NDArray[np.float32]
     zeros: NDArray[np.float32]
+    phantom: NDArray[np.float32]
 
 
 class StripeFinder:
@@ -80,8 +89,18 @@ class StripeFinder:
         self.min_contrast_dn = min_contrast_dn
         self.max_width_px = max_width_px
         win = np.arange(2 * half_window + 1, dtype=np.float32)
-        # (3, w): a window's mass, first and second moment are one matrix product
+        # (3, w): a window's mass, first and second moment are one matrix product; the
+        # first pass needs mass and first moment only
         self._win_moments = np.stack([np.ones_like(win), win, win * win])
+        self._win_centroid = self._win_moments[:2].copy()
+        # the moments of a phantom light _TINY at the window centre: a dark window's
+        # centroid is its centre and its spread _DARK_SPREAD - h²; added to the moments of
+        # light, rounded away (see _TINY)
+        self._phantom = np.array(
+            [_TINY, half_window * _TINY, _DARK_SPREAD * _TINY], dtype=np.float32
+        )
+        # a stripe wider than any window can hold is no bound: keep dark windows out
+        self._max_spread = np.float32(min(max_width_px**2, 0.5 * _DARK_SPREAD))
         self._shape_cache: dict[tuple[int, int], _ShapeConstants] = {}
         self._windows: dict[int, tuple[NDArray[np.intp], FloatArray]] = {}
 
@@ -93,19 +112,23 @@ class StripeFinder:
         if c is None:
             w = self._win_moments.shape[1]
             h = self.half_window
+            r = np.arange(nrows)
+            base = np.arange(0, n * nrows, nrows, dtype=np.intp)
             c = _ShapeConstants(
-                base=np.arange(0, n * nrows, nrows, dtype=np.intp),
+                base=base,
+                base2=np.repeat(base, 2).reshape(n, 2),
                 ring_of_row=np.stack(
                     [
-                        np.maximum(np.arange(nrows) - (h + _RING_GAP_ROWS), 0),
-                        np.minimum(np.arange(nrows) + (h + _RING_GAP_ROWS), nrows - 1),
-                    ]
+                        np.maximum(r - (h + _RING_GAP_ROWS), 0),
+                        np.minimum(r + (h + _RING_GAP_ROWS), nrows - 1),
+                    ],
+                    axis=1,
                 ),
-                start_of_row=np.clip(np.arange(nrows) - h, 0, nrows - w),
-                fill=np.full(n, h, dtype=np.float32),
-                zeros=np.zeros((n, w), dtype=np.float32),
+                start_of_row=np.clip(r - h, 0, nrows - w),
+                zeros=np.zeros(n * w, dtype=np.float32),
+                phantom=np.repeat(self._phantom, n).reshape(3, n),
             )
-            for arr in (c.base, c.ring_of_row, c.start_of_row, c.fill, c.zeros):
+            for arr in (c.base, c.base2, c.ring_of_row, c.start_of_row, c.zeros, c.phantom):
                 arr.setflags(write=False)
             self._shape_cache[key] = c
         return c
@@ -114,60 +137,60 @@ class StripeFinder:
         """Sub-pixel stripe rows of every column of ``frame`` (n, rows)."""
         a = np.ascontiguousarray(frame)
         n, nrows = a.shape
-        h = self.half_window
-        w = 2 * h + 1
+        w = 2 * self.half_window + 1
         flat = a.reshape(-1)
         c = self._shape_constants(n, nrows)
-        base = c.base
         # numpy's argmax has no SIMD loop for 8-bit integers: on int32 it is 2x faster,
         # conversion included; ties resolve to the first maximum either way
         search = a.astype(np.int32) if a.dtype.itemsize == 1 else a
         peak_row = search.argmax(axis=1)
-        peak = flat.take(peak_row + base).astype(np.float32)
-        # the rows just outside the window above and below the peak, clamped: (2, n)
-        ring = c.ring_of_row.take(peak_row, axis=1)
-        ring += base
+        # the rows just outside the window above and below the peak, clamped: (n, 2)
+        ring = c.ring_of_row.take(peak_row, axis=0)
+        ring += c.base2
         samples = flat.take(ring.reshape(-1)).astype(np.float32)
+        # start of the window centred on row r, clamped to the frame: c.start_of_row[r]
+        start = c.start_of_row.take(peak_row)
+        peak_row += c.base
+        peak = flat.take(peak_row)
         background = median_of_copy(samples)  # sorts samples: their order is not needed
         np.subtract(samples, background, out=samples)
         mad = median_of_copy(np.abs(samples, out=samples))
         noise = max(MAD_TO_SIGMA * mad, _MIN_NOISE_DN)
         # at least 1 DN above the background: its rounding alone must not count as light
         threshold = background + max(self.noise_factor * noise, 1.0)
-        contrast = max(self.min_contrast_dn, _PEAK_SIGMAS * noise)
+        bright = np.float32(background + max(self.min_contrast_dn, _PEAK_SIGMAS * noise))
+        if a.dtype == np.uint8:  # an integer reaches a bound where it reaches its ceiling
+            valid = peak >= math.ceil(bright)
+        else:
+            valid = peak.astype(np.float32) >= bright
         thr32 = np.float32(threshold)
-        # every run of w pixels of the frame as a row of a strided view: a window is one
-        # fancy index (its flat start), no (n, w) index array to build
-        windows = np.ndarray(
-            (flat.size - w + 1, w), flat.dtype, flat, 0, (flat.itemsize, flat.itemsize)
-        )
-        moments = np.empty((3, n), dtype=np.float32)
+        # every run of w pixels of the frame as one item of a strided 1-d view: a window
+        # is one fancy index (its flat start), and gathering n items of w pixels costs a
+        # third of gathering n rows of w pixels of a 2-d view
+        item = np.dtype((np.void, w * flat.itemsize))
+        windows = np.ndarray((flat.size - w + 1,), item, flat, 0, (flat.itemsize,))
+        moments = self._moments(a.dtype, windows[start + c.base], thr32, c)
+        moments += c.phantom
         mass = moments[0]
-        positive = np.empty(n, dtype=bool)
-        rows = np.empty(n, dtype=np.float32)
-        # window start of a window centred on row r, clamped to the frame: c.start_of_row[r]
-        start = c.start_of_row.take(peak_row)
-        for second in (False, True):
-            if second:  # re-centre on the first centroid: symmetric window, whole plateau
-                start = c.start_of_row.take(np.rint(rows).astype(np.intp), mode="clip")
-            start_f = start.astype(np.float32)
-            start += base
-            vals = windows[start].astype(np.float32)
-            vals -= thr32
-            np.maximum(vals, c.zeros, out=vals)  # an array operand takes the SIMD loop
-            np.matmul(self._win_moments, vals.T, out=moments)
-            np.greater(mass, 0.0, out=positive)
-            rel = c.fill.copy()  # h where a window has no light: rows = window centre
-            np.divide(moments[1], mass, out=rel, where=positive)
-            np.add(rel, start_f, out=rows)
-        spread = np.full(n, np.inf, dtype=np.float32)
-        np.divide(moments[2], mass, out=spread, where=positive)
+        rel = np.divide(moments[1], mass)
+        rows = rel + start.astype(np.float32)
+        # re-centre on the first centroid (symmetric window, whole plateau): only the
+        # windows that move, about one in nine, change
+        centre = c.start_of_row.take(np.rint(rows).astype(np.intp))
+        moved = np.flatnonzero(centre != start)
+        if moved.size:
+            start = centre
+            sub = self._moments(a.dtype, windows[start.take(moved) + c.base.take(moved)], thr32, c)
+            sub += self._phantom[:, None]
+            moments[:, moved] = sub
+            np.divide(moments[1], mass, out=rel)
+            np.add(rel, start.astype(np.float32), out=rows)
+        spread = np.divide(moments[2], mass)
         spread -= rel * rel
-        valid = peak >= background + contrast
-        valid &= positive
-        valid &= spread <= self.max_width_px**2
+        valid &= spread <= self._max_spread
         if n >= 5:
             smooth_straight(rows, valid)
+        mass -= _TINY  # the phantom: 0 in a dark window, rounded away elsewhere
         return StripeProfile(
             first_column=first_column,
             rows=rows.astype(np.float64),
@@ -177,6 +200,22 @@ class StripeFinder:
             noise=noise,
             threshold=threshold,
         )
+
+    def _moments(
+        self,
+        dtype: np.dtype[np.generic],
+        windows: NDArray[np.void],
+        thr32: np.float32,
+        c: _ShapeConstants,
+    ) -> NDArray[np.float32]:
+        """Mass, first and second moment (3, k) of the light above the threshold in k
+        windows (items of w pixels of ``dtype``)."""
+        k, w = windows.size, self._win_moments.shape[1]
+        vals = windows.view(dtype).astype(np.float32)
+        vals -= thr32
+        np.maximum(vals, c.zeros[: k * w], out=vals)  # an array operand takes the SIMD loop
+        out: NDArray[np.float32] = self._win_moments @ vals.reshape(k, w).T
+        return out
 
     def mass_at(
         self,
@@ -262,25 +301,39 @@ def smooth_straight(rows: NDArray[np.float32], valid: NDArray[np.bool_]) -> None
     valid and its own second difference is at most that (next to ends, gaps and corners);
     rows (n,), n >= 5. Written as rows + (b[-1] + 4·b[0] + b[1])/9 and rows + b[0]/4 on
     the second differences b, the same weights."""
+    mid = rows[1:-1]
     bend = rows[:-2] + rows[2:]
-    bend -= 2.0 * rows[1:-1]  # bend[k]: second difference at column k + 1
-    straight = np.abs(bend) <= np.float32(MAX_BEND_PX)
+    bend -= mid + mid  # bend[k]: second difference at column k + 1
+    straight = np.abs(bend) <= _F32_MAX_BEND
     straight &= valid[:-2]
     straight &= valid[1:-1]
     straight &= valid[2:]
     ok = straight[:-2] & straight[1:-1]
     ok &= straight[2:]
-    step = bend[1:-1] * np.float32(4.0)
+    step = bend[1:-1] * _F32_FOUR
     step += bend[:-2]
     step += bend[2:]
-    step *= np.float32(1.0 / 9.0)
+    step *= _F32_NINTH
     step *= ok
-    # the three-column average where the five-column one does not apply
-    straight[1:-1] &= ~ok
-    bend *= np.float32(0.25)
+    # the three-column average where the five-column one does not apply: straight & ~ok
+    np.greater(straight[1:-1], ok, out=straight[1:-1])
+    bend *= _F32_QUARTER
     bend *= straight
-    rows[1:-1] += bend
+    mid += bend
     rows[2:-2] += step
+
+
+def _f32(x: float) -> NDArray[np.float32]:
+    """x as a read-only 0-d float32 array: as an operand it costs less than a scalar."""
+    out = np.array(x, dtype=np.float32)
+    out.setflags(write=False)
+    return out
+
+
+_F32_MAX_BEND = _f32(MAX_BEND_PX)
+_F32_FOUR = _f32(4.0)
+_F32_NINTH = _f32(1.0 / 9.0)
+_F32_QUARTER = _f32(0.25)
 
 
 def to_dn(a: NDArray[np.generic]) -> NDArray[np.float32]:
