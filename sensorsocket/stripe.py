@@ -164,11 +164,7 @@ class StripeFinder:
         else:
             valid = peak.astype(np.float32) >= bright
         thr32 = np.float32(threshold)
-        # every run of w pixels of the frame as one item of a strided 1-d view: a window
-        # is one fancy index (its flat start), and gathering n items of w pixels costs a
-        # third of gathering n rows of w pixels of a 2-d view
-        item = np.dtype((np.void, w * flat.itemsize))
-        windows = np.ndarray((flat.size - w + 1,), item, flat, 0, (flat.itemsize,))
+        windows = strided_runs(flat, w)
         moments = self._moments(a.dtype, windows[start + c.base], thr32, c)
         moments += c.phantom
         mass = moments[0]
@@ -245,7 +241,8 @@ class StripeFinder:
                 starts.append(c * nrows + round(r) + base)  # round: half to even, as rint
         if len(starts) == len(columns):
             index = np.fromiter(starts, np.intp, len(starts))  # cheaper than a list index
-            vals = strided_runs(f.reshape(-1), 2 * half + 1)[index].astype(np.float64)
+            runs = strided_runs(f.reshape(-1), 2 * half + 1)[index]
+            vals = runs.view(f.dtype).reshape(len(starts), -1).astype(np.float64)
         else:
             vals = self._clipped_windows(f, stripe, columns, rows, half)
         vals -= stripe.threshold
@@ -286,12 +283,14 @@ class StripeFinder:
         return window
 
 
-def strided_runs(flat: NDArray[np.generic], w: int) -> NDArray[np.generic]:
-    """Every run of ``w`` consecutive elements of 1-D ``flat`` (at least ``w`` long) as a
-    row of a strided view (len - w + 1, w), to read, never to write: a window of a frame
-    is then one fancy index (its flat start), no (n, w) index array to build."""
-    item = flat.itemsize
-    return np.ndarray((flat.size - w + 1, w), flat.dtype, flat, 0, (item, item))
+def strided_runs(flat: NDArray[np.generic], w: int) -> NDArray[np.void]:
+    """Every run of ``w`` consecutive elements of 1-D ``flat`` (at least ``w`` long) as one
+    item of a strided view (len - w + 1,), to read, never to write: a window of a frame is
+    then one fancy index (its flat start), no (n, w) index array to build, and gathering k
+    items of w elements costs a third of gathering k rows of a 2-d view. ``.view(dtype)``
+    of a gather gives the elements back, k·w of them."""
+    item = np.dtype((np.void, w * flat.itemsize))
+    return np.ndarray((flat.size - w + 1,), item, flat, 0, (flat.itemsize,))
 
 
 def smooth_straight(rows: NDArray[np.float32], valid: NDArray[np.bool_]) -> None:
