@@ -71,8 +71,9 @@ def _speed_range(info: Mapping[str, Any]) -> str:
     if slowest is None:
         return ""
     return (
-        f" The CPU's speed (bench.pace's gauge) ranged from {float(slowest):.0%} to 100 % of"
-        " its fastest during the run; figures with an absolute target wait for full speed."
+        f" The CPU's speed (bench.pace's gauge) ranged from {float(slowest) * 100:.0f} %"
+        " to 100 % of its fastest during the run; figures with an absolute target wait for"
+        " full speed."
     )
 
 
@@ -88,7 +89,7 @@ def _speed_note(r: Mapping[str, Any]) -> str:
     speed = r.get("machine_speed")
     if speed is None or float(speed) >= FULL_SPEED:
         return ""
-    return f" (CPU at {float(speed):.0%} of full speed)"
+    return f" (CPU at {float(speed) * 100:.0f} % of full speed)"
 
 
 def targets_table(results: list[Mapping[str, Any]]) -> str:

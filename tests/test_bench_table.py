@@ -153,7 +153,7 @@ def test_check_prints_the_targets_and_says_with_its_exit_status_if_all_are_met(
     ]
     undecided = _cli(_results_file(tmp_path, *slow), "--check")
     assert undecided.returncode == 5
-    assert "10 x (CPU at 50% of full speed)" in undecided.stdout
+    assert "10 x (CPU at 50 % of full speed)" in undecided.stdout
     assert "undecided (CPU below full speed)" in undecided.stdout
 
     missed = [{**r, "value": 10.0} if "detect" in r["name"] else r for r in fast]
