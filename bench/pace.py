@@ -62,11 +62,9 @@ class SpeedGauge:
         """A sample time as a fraction of the best speed seen so far."""
         return self.best / t if t > 0 else 1.0
 
-    def range(self) -> tuple[float, float]:
-        """Slowest and fastest speed seen in this process (1.0 is the fastest)."""
-        if not math.isfinite(self.best):
-            return 1.0, 1.0
-        return self.best / self.worst, 1.0
+    def slowest(self) -> float:
+        """The slowest speed seen in this process (1.0 when steady or nothing measured)."""
+        return self.best / self.worst if math.isfinite(self.best) else 1.0
 
 
 #: One gauge per process: "full speed" is the fastest moment of the whole run.

@@ -119,6 +119,5 @@ def collect(started: str, load_start: list[float]) -> RunInfo:
         crc32=CRC32_IMPLEMENTATION,
         packages=_versions(),
     )
-    slowest, _ = GAUGE.range()
-    info["cpu_speed_slowest"] = round(slowest, 3)
+    info["cpu_speed_slowest"] = round(GAUGE.slowest(), 3)
     return info

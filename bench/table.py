@@ -81,6 +81,7 @@ _SHOWN = {
     Verdict.MET: "yes",
     Verdict.NOT_MET: "**no**",
     Verdict.UNDECIDED: "undecided (CPU below full speed)",
+    Verdict.NOT_MEASURED: "—",
 }
 
 
@@ -99,14 +100,15 @@ def targets_table(results: list[Mapping[str, Any]]) -> str:
         "|---|---|---|",
     ]
     for target, r in verdicts(results):
+        verdict = judge(target, r)
         if r is None:
-            out.append(f"| {_cell(target.goal)} | not measured in this run | — |")
+            out.append(f"| {_cell(target.goal)} | not measured in this run | {_SHOWN[verdict]} |")
             continue
         shown = (
             f"{number(r['value'])} {r['unit']}{_speed_note(r)};"
             f" {ratio(r['value'], r['baseline'])} × {r['baseline_name']}"
         )
-        out.append(f"| {_cell(target.goal)} | {_cell(shown)} | {_SHOWN[judge(target, r)]} |")
+        out.append(f"| {_cell(target.goal)} | {_cell(shown)} | {_SHOWN[verdict]} |")
     return "\n".join(out) + "\n"
 
 

@@ -29,8 +29,8 @@ def test_the_speed_is_the_gauge_time_against_its_best() -> None:
     for _ in range(3):
         gauge.sample()
     assert gauge.speed(2e-3) == 0.5
-    assert gauge.range() == (0.25, 1.0)
-    assert SpeedGauge().range() == (1.0, 1.0)  # nothing measured: nothing to report
+    assert gauge.slowest() == 0.25
+    assert SpeedGauge().slowest() == 1.0  # nothing measured: nothing to report
 
 
 def test_a_round_between_slow_samples_is_not_full_speed_and_rounds_go_on() -> None:
