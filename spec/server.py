@@ -979,7 +979,8 @@ def serve_until_signal(
             server.shutdown()
         if again:
             log.info(
-                "received %s again during the shutdown: ignored", signal.Signals(again[0]).name
+                "received %s during the shutdown: ignored",
+                ", ".join(signal.Signals(s).name for s in again),
             )
         log.info("stopped")
     finally:

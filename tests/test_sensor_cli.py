@@ -231,10 +231,14 @@ def test_sigterm_stops_gracefully() -> None:
 
 
 def test_a_second_signal_during_the_shutdown_is_not_a_traceback() -> None:
-    """SIGINT then SIGTERM at once (an impatient operator): one clean stop, exit 0."""
+    """SIGINT then SIGTERM at once (an impatient operator): one clean stop, exit 0.
+
+    Either may be handled first: two threads can take the two signals at the same moment,
+    and the main thread runs whichever handler is pending when it looks (seen in CI)."""
     code, err = _stop_with((signal.SIGINT, signal.SIGTERM), timeout=20)
     assert code == 0, err
-    assert "SIGINT, shutting down" in err and "stopped" in err and "Traceback" not in err
+    assert len(re.findall(r"received SIG(?:INT|TERM), shutting down", err)) == 1, err
+    assert "stopped" in err and "Traceback" not in err, err
 
 
 def test_allow_list_applies_to_tcp_and_udp() -> None:
