@@ -89,15 +89,20 @@ def finished(s: dict[str, Any], kind: str) -> bool:
     return a is not None and a["kind"] == kind and a["state"] != "running"
 
 
-def next_error(ws: Any) -> dict[str, Any]:
-    while True:
+def next_error(ws: Any, timeout: float = 10.0) -> dict[str, Any]:
+    """The next error message; status messages stream in meanwhile, so the wait is bounded."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
         msg: dict[str, Any] = ws.receive_json()
         if msg["type"] == "error":
             return msg
+    raise AssertionError(f"no error message within {timeout} s")
 
 
 def test_status_stream_updates_and_refusals_before_control(env: Any) -> None:
     client, _, _ = env
+    # the tests share one console: whichever ran before may have left it in control
+    assert call(client, "POST", "/api/control", {"take": False}).status_code == 200
     with client.websocket_connect("/ws") as ws:
         seqs = []
         for _ in range(12):
