@@ -24,7 +24,7 @@ from cell.cell import READY_JOINTS
 from welding import job as J
 from welding.cli import merge_cell_tools
 from welding.console.app import create_app
-from welding.console.backend import Console
+from welding.console.backend import DEADMAN_S, Console
 from welding.console.cli import demo_job
 from welding.emulate import cell_tables, realtime_cell
 
@@ -288,6 +288,28 @@ def test_deadman_stops_a_jog_without_hold_and_on_a_closed_socket(env: Any) -> No
         assert status(client)["jogging"]
     wait_for(client, lambda s: not s["jogging"] and not s["moving"])
     assert console.stop_jog(None, "test") is False
+
+
+def test_deadman_during_a_slow_jog_start_stops_the_move(
+    env: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A busy PC: the jog's move goes out only after the dead-man time. The dead-man must stop
+    that move, not run just before it and leave the arm going to the joint limit unwatched."""
+    client, console, _ = env
+    _power_on(client)
+    before = status(client)["joints"][0]
+    real_move = console.control.joint_move
+
+    def slow_move(q: Any) -> Any:
+        time.sleep(2 * DEADMAN_S)
+        return real_move(q)
+
+    monkeypatch.setattr(console.control, "joint_move", slow_move)
+    with client.websocket_connect("/ws") as ws:
+        ws.send_json({"type": "jog", "mode": "joint", "axis": 1, "direction": 1, "speed": 20})
+        wait_for(client, lambda s: s["moving"])  # the move went out, no "hold" follows
+        s = wait_for(client, lambda s: not s["jogging"] and not s["moving"])
+    assert 0.0 < s["joints"][0] - before < 60.0  # stopped, far from the joint limit
 
 
 def test_dry_run_with_progress_then_abort_laser_off(env: Any) -> None:

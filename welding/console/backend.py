@@ -25,6 +25,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -134,6 +135,9 @@ class Console:
         self.in_control = False
         self.sensor_in_control = False
         self._lock = threading.Lock()  # guards jog, activity, selections
+        # Held while a jog starts or stops: a stop (the dead-man's too) waits for a start to
+        # finish, so it stops what the start began, never just before the move goes out.
+        self._jog_lock = threading.RLock()
         self._jog: Jog | None = None
         self.activity: Activity | None = None
         #: The last result of each measurement ("delta_t", "calibration"), served on its own
@@ -343,38 +347,43 @@ class Console:
         pct = _num(speed, "speed", 1.0, 100.0)
         if direction not in (1, -1):
             raise ConsoleError("direction: expected 1 or -1")
-        r = self.control
-        if self._jog is not None:
-            self.stop_jog(None, "new jog")
-        desc = r.motion_desc()
-        if mode == "joint":
-            if not isinstance(axis, int) or isinstance(axis, bool) or not 1 <= axis <= 6:
-                raise ConsoleError("joint: expected 1..6")
-            limits = r.joint_limits()
-            q = [float(v) for v in r.herej()]
-            lo, hi = limits[axis - 1] + np.array([JOG_LIMIT_MARGIN_DEG, -JOG_LIMIT_MARGIN_DEG])
-            q[axis - 1] = float(hi if direction > 0 else lo)
-            r.set_motion_desc(replace(desc, joint_speed=pct, blend=0.0))
-            self._jog = Jog(client_id, time.monotonic(), desc)
-            self._guard(lambda: r.joint_move(q))
-        elif mode == "cartesian":
-            if axis not in AXES:
-                raise ConsoleError(f"axis: expected one of {', '.join(AXES)}")
-            tables = self.tables()
-            try:
-                t, f = tables.tool(tool).location, tables.frame(frame).location
-            except ToolDBError as exc:
-                raise ConsoleError(str(exc)) from None
-            loc = list(r.here(t, f))
-            i = AXES.index(axis)
-            loc[i] += direction * (JOG_REACH_MM if i < 3 else JOG_REACH_DEG)
-            r.set_motion_desc(
-                replace(desc, tool_speed=JOG_TOOL_SPEED_MM_S * pct / 100.0, blend=0.0)
-            )
-            self._jog = Jog(client_id, time.monotonic(), desc)
-            self._guard(lambda: r.tool_move_l(loc, t, f))
-        else:
-            raise ConsoleError("mode: expected 'joint' or 'cartesian'")
+        with self._jog_lock:
+            r = self.control
+            if self._jog is not None:
+                self.stop_jog(None, "new jog")
+            desc = r.motion_desc()
+            move: Callable[[], object]
+            if mode == "joint":
+                if not isinstance(axis, int) or isinstance(axis, bool) or not 1 <= axis <= 6:
+                    raise ConsoleError("joint: expected 1..6")
+                limits = r.joint_limits()
+                q = [float(v) for v in r.herej()]
+                lo, hi = limits[axis - 1] + np.array([JOG_LIMIT_MARGIN_DEG, -JOG_LIMIT_MARGIN_DEG])
+                q[axis - 1] = float(hi if direction > 0 else lo)
+                jog_desc = replace(desc, joint_speed=pct, blend=0.0)
+                move = partial(r.joint_move, q)
+            elif mode == "cartesian":
+                if axis not in AXES:
+                    raise ConsoleError(f"axis: expected one of {', '.join(AXES)}")
+                tables = self.tables()
+                try:
+                    t, f = tables.tool(tool).location, tables.frame(frame).location
+                except ToolDBError as exc:
+                    raise ConsoleError(str(exc)) from None
+                loc = list(r.here(t, f))
+                i = AXES.index(axis)
+                loc[i] += direction * (JOG_REACH_MM if i < 3 else JOG_REACH_DEG)
+                jog_desc = replace(desc, tool_speed=JOG_TOOL_SPEED_MM_S * pct / 100.0, blend=0.0)
+                move = partial(r.tool_move_l, loc, t, f)
+            else:
+                raise ConsoleError("mode: expected 'joint' or 'cartesian'")
+            r.set_motion_desc(jog_desc)
+            jog = self._jog = Jog(client_id, time.monotonic(), desc)
+            self._guard(move)
+            # The start's round trips are not the operator's: the holds sent meanwhile wait
+            # unread (a browser's messages are handled one at a time), so the dead-man counts
+            # from the moment the move was accepted.
+            jog.last_hold = time.monotonic()
 
     def _guard(self, move: Callable[[], object]) -> None:
         try:
@@ -390,24 +399,26 @@ class Console:
 
     def stop_jog(self, client_id: int | None, why: str) -> bool:
         """Stop the jog (of ``client_id``, or any with None); True when one was stopped."""
-        with self._lock:
-            jog = self._jog
-            if jog is None or (client_id is not None and jog.client_id != client_id):
-                return False
-            self._jog = None
-        log.info("jog stopped: %s", why)
-        try:
-            self.control.reset_motion()
-            self.control.set_motion_desc(jog.desc)
-        except (OSError, ProtocolError, RemoteError) as exc:
-            log.warning("jog stop: %s (the server's controlled stop takes over)", exc)
-        return True
+        with self._jog_lock:
+            with self._lock:
+                jog = self._jog
+                if jog is None or (client_id is not None and jog.client_id != client_id):
+                    return False
+                self._jog = None
+            log.info("jog stopped: %s", why)
+            try:
+                self.control.reset_motion()
+                self.control.set_motion_desc(jog.desc)
+            except (OSError, ProtocolError, RemoteError) as exc:
+                log.warning("jog stop: %s (the server's controlled stop takes over)", exc)
+            return True
 
     def _deadman_loop(self) -> None:
         while not self._stop.wait(0.05):
-            jog = self._jog
-            if jog is not None and time.monotonic() - jog.last_hold > DEADMAN_S:
-                self.stop_jog(jog.client_id, "no hold for 0.4 s (dead-man)")
+            with self._jog_lock:  # waits for a start in progress: its move is then stopped
+                jog = self._jog
+                if jog is not None and time.monotonic() - jog.last_hold > DEADMAN_S:
+                    self.stop_jog(jog.client_id, "no hold for 0.4 s (dead-man)")
 
     # --- tools and frames --------------------------------------------------------------------
 
