@@ -33,7 +33,7 @@ if not os.path.exists(CHROMIUM):
 pytest.importorskip("playwright", reason="the console extra is not installed")
 pytest.importorskip("starlette", reason="the console extra is not installed")
 
-from playwright.sync_api import Page, Route, expect, sync_playwright  # noqa: E402
+from playwright.sync_api import Page, Route, WebSocket, expect, sync_playwright  # noqa: E402
 
 DOCS_SHOTS = Path(__file__).resolve().parent.parent / "docs" / "console"
 ARGS = [
@@ -59,10 +59,14 @@ def console(tmp_path: Path) -> Iterator[tuple[str, Path]]:
     """The console on an emulated cell, as an operator starts it; (url, jobs folder)."""
     port = _free_port()
     jobs = tmp_path / "jobs"
+    # The console's log (verbose: every jog start and stop) goes to a file, printed after the
+    # test: pytest shows it when the test failed, which says what the server saw.
+    log_path = tmp_path / "console.log"
+    log_file = log_path.open("w")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "welding", "console", "--emulate", "--port", str(port),
+        [sys.executable, "-m", "welding", "-v", "console", "--emulate", "--port", str(port),
          "--tools", str(tmp_path / "tools.json"), "--jobs", str(jobs)],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        stdout=log_file, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
     try:
         deadline = time.monotonic() + 30
@@ -72,8 +76,7 @@ def console(tmp_path: Path) -> Iterator[tuple[str, Path]]:
                 break
             except OSError:
                 if proc.poll() is not None or time.monotonic() > deadline:
-                    out = proc.communicate(timeout=5)[0] if proc.poll() is not None else ""
-                    pytest.fail(f"the console did not start: {out}")
+                    pytest.fail(f"the console did not start: {log_path.read_text()}")
                 time.sleep(0.1)
         yield f"http://127.0.0.1:{port}/", jobs
     finally:
@@ -83,6 +86,8 @@ def console(tmp_path: Path) -> Iterator[tuple[str, Path]]:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+        log_file.close()
+        print("--- the console's log ---\n" + log_path.read_text(errors="replace"))
 
 
 def _joints(page: Page) -> list[float]:
@@ -92,6 +97,21 @@ def _joints(page: Page) -> list[float]:
 
 def _api(page: Page, path: str) -> Any:
     return page.evaluate(f"fetch('/api/{path}').then(r => r.json())")
+
+
+def _print_console_errors(page: Page) -> None:
+    """Print every error message the console sends on the status WebSocket (shown by pytest
+    when the test fails: e.g. why a jog was refused)."""
+
+    def watch(ws: WebSocket) -> None:
+        ws.on("framereceived", lambda payload: _print_if_error(str(payload)))
+
+    page.on("websocket", watch)
+
+
+def _print_if_error(payload: str) -> None:
+    if re.match(r'\{"type":\s*"error"', payload):
+        print("console error message:", payload)
 
 
 def _confirm(page: Page, text: str = "") -> None:
@@ -134,6 +154,7 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
         try:
             page = ctx.new_page()
             page.set_default_timeout(15_000)
+            _print_console_errors(page)
             page.goto(url + "#status")
 
             # status streams in (the robot clock advances on the page)

@@ -384,6 +384,7 @@ class Console:
             # unread (a browser's messages are handled one at a time), so the dead-man counts
             # from the moment the move was accepted.
             jog.last_hold = time.monotonic()
+        log.info("jog started: %s axis %s, direction %+d, %g %%", mode, axis, direction, pct)
 
     def _guard(self, move: Callable[[], object]) -> None:
         try:
