@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import os
 import re
-import socket
 import subprocess
 import sys
 import time
@@ -47,38 +46,29 @@ ARGS = [
 ]
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
-
-
 @pytest.fixture
 def console(tmp_path: Path) -> Iterator[tuple[str, Path]]:
     """The console on an emulated cell, as an operator starts it; (url, jobs folder)."""
-    port = _free_port()
     jobs = tmp_path / "jobs"
     # The console's log (verbose: every jog start and stop) goes to a file, printed after the
     # test: pytest shows it when the test failed, which says what the server saw.
     log_path = tmp_path / "console.log"
     log_file = log_path.open("w")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "welding", "-v", "console", "--emulate", "--port", str(port),
+        [sys.executable, "-m", "welding", "-v", "console", "--emulate", "--port", "0",
          "--tools", str(tmp_path / "tools.json"), "--jobs", str(jobs)],
         stdout=log_file, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
     try:
         deadline = time.monotonic() + 30
-        while True:
-            try:
-                socket.create_connection(("127.0.0.1", port), timeout=1).close()
-                break
-            except OSError:
-                if proc.poll() is not None or time.monotonic() > deadline:
-                    pytest.fail(f"the console did not start: {log_path.read_text()}")
-                time.sleep(0.1)
-        yield f"http://127.0.0.1:{port}/", jobs
+        while not (url := re.search(r"console: (http://\S+)", log_path.read_text())):
+            if proc.poll() is not None or time.monotonic() > deadline:
+                pytest.fail(f"the console did not start: {log_path.read_text()}")
+            time.sleep(0.1)
+        # the banner names the emulated cell's servers, for other tools to use beside it
+        banner = r"emulated cell: robot [\d.]+:\d+, sensor [\d.]+:\d+"
+        assert re.search(banner, log_path.read_text())
+        yield url[1], jobs
     finally:
         proc.terminate()
         try:

@@ -98,6 +98,12 @@ def cmd_console(args: argparse.Namespace) -> int:
 
         cell = realtime_cell(args.seam)
         robot, sensor = cell.robot_address, cell.sensor_address
+        # other tools (a status client, the conformance suite) can talk to the same cell
+        print(
+            f"emulated cell: robot {robot[0]}:{robot[1]}, sensor {sensor[0]}:{sensor[1]}",
+            file=sys.stderr,
+            flush=True,
+        )
         merge_cell_tools(args.tools, cell_tables(cell))
         jobs = Path(args.jobs)
         if not any(jobs.glob("*.xml")):
