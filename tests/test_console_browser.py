@@ -188,6 +188,13 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             _confirm(page)
             expect(page.locator("#st-power")).to_have_text("on")
 
+            # the link drops: a jog press says so (instead of nothing), and the page reconnects
+            page.evaluate("ws.close()")
+            page.locator("#jog-j1-plus").dispatch_event("pointerdown")
+            expect(page.locator("#message")).to_contain_text("the link to the console is down")
+            expect(page.locator("#link")).to_have_text("connected")
+            expect(page.locator("#st-motion")).to_have_text(re.compile(r"^still"))
+
             # jobs: edit the seam's velocity, validate, save, dry run with progress
             page.locator("nav a[data-page=jobs]").click()
             expect(page.locator("#job-file")).to_have_text("demo.xml")

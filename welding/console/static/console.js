@@ -133,7 +133,10 @@ let holdTimer = null;
 let heldButton = null;
 
 function pressJog(button, msg) {
-  if (!ws || ws.readyState !== WebSocket.OPEN) return;
+  if (!ws || ws.readyState !== WebSocket.OPEN) {
+    say("no jog: the link to the console is down (reconnecting)", "error");
+    return;
+  }
   releaseJog();
   heldButton = button;
   button.classList.add("held");
