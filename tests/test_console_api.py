@@ -7,6 +7,7 @@ import dataclasses
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -310,6 +311,34 @@ def test_deadman_during_a_slow_jog_start_stops_the_move(
         wait_for(client, lambda s: s["moving"])  # the move went out, no "hold" follows
         s = wait_for(client, lambda s: not s["jogging"] and not s["moving"])
     assert 0.0 < s["joints"][0] - before < 60.0  # stopped, far from the joint limit
+
+
+def test_a_job_cannot_start_beside_a_jog_that_is_starting(
+    env: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Two browsers: one presses a jog, the other runs a job while the jog's start is still
+    reading the robot. The job is refused ("a jog is running"): never two motions at once."""
+    client, console, _ = env
+    _power_on(client)
+    reading = threading.Event()
+    go_on = threading.Event()
+    real_limits = console.control.joint_limits
+
+    def slow_limits() -> Any:
+        reading.set()
+        go_on.wait(10)
+        return real_limits()
+
+    monkeypatch.setattr(console.control, "joint_limits", slow_limits)
+    with client.websocket_connect("/ws") as ws:
+        ws.send_json({"type": "jog", "mode": "joint", "axis": 1, "direction": 1, "speed": 5})
+        assert reading.wait(10)
+        threading.Timer(0.5, go_on.set).start()  # the start goes on after a while
+        r = call(client, "POST", "/api/jobs/demo.xml/run", {"dry_run": True})
+        assert r.status_code == 409 and "jog" in r.json()["error"], r.text
+        ws.send_json({"type": "release"})
+        s = wait_for(client, lambda s: not s["jogging"] and not s["moving"])
+        assert s["activity"] is None or s["activity"]["state"] != "running"
 
 
 def test_dry_run_with_progress_then_abort_laser_off(env: Any) -> None:

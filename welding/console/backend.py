@@ -343,11 +343,11 @@ class Console:
         """Move while held: ``mode`` "joint" (``axis`` 1..6) or "cartesian" (``axis`` x..rz
         of ``tool`` in ``frame``), ``direction`` +1/-1, ``speed`` % (1..100)."""
         self._need_control()
-        self._check_idle()
         pct = _num(speed, "speed", 1.0, 100.0)
         if direction not in (1, -1):
             raise ConsoleError("direction: expected 1 or -1")
         with self._jog_lock:
+            self._check_idle()  # under the lock: a job cannot start beside this jog
             r = self.control
             if self._jog is not None:
                 self.stop_jog(None, "new jog")
@@ -620,7 +620,7 @@ class Console:
                     with contextlib.suppress(OSError, ProtocolError, RemoteError):
                         self.control.reset_motion()
 
-        with self._lock:
+        with self._jog_lock, self._lock:  # not beside a jog that is starting
             if self.activity is not None and self.activity.state == "running":
                 raise ConsoleError(f"a {self.activity.kind} is running: abort it first", 409)
             if self._jog is not None:
