@@ -188,6 +188,20 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             _confirm(page)
             expect(page.locator("#st-power")).to_have_text("on")
 
+            # a long error or an unreachable robot does not move the jog buttons (a held
+            # pointer would leave its button: the jog would stop)
+            tops = page.evaluate(
+                """() => {
+                    const top = () => $("jog-j1-plus").getBoundingClientRect().top;
+                    const before = top();
+                    showStatus({ ...status, last_error: 7, last_message: "long ".repeat(80) });
+                    const error = top();
+                    showStatus({ ...status, connected: false, error: "gone ".repeat(80) });
+                    return [before, error, top()];
+                }"""
+            )
+            assert tops[0] == tops[1] == tops[2], tops
+
             # the link drops: a jog press says so (instead of nothing), and the page reconnects
             page.evaluate("ws.close()")
             page.locator("#jog-j1-plus").dispatch_event("pointerdown")

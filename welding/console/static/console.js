@@ -92,16 +92,17 @@ function showStatus(s) {
   while (updates.length && updates[0] < now - 1000) updates.shift();
   $("st-rate").textContent = `${updates.length} /s`;
   if (!s.connected) {
-    $("st-estop").textContent = "robot unreachable: " + (s.error || "");
+    $("st-estop").textContent = $("st-estop").title = "robot unreachable: " + (s.error || "");
     return;
   }
+  $("st-estop").title = "";
   $("st-estop").innerHTML = s.estop ? '<span class="bad">ENGAGED</span>' : '<span class="good">clear</span>';
   $("st-power").innerHTML = onoff(s.powered, "on", "off", false);
   $("st-motion").textContent = (s.moving ? "moving" : "still") + ` (queue ${s.queue})` + (s.jogging ? ", jogging" : "");
   const owners = { console: "this console", other: "another client", nobody: "nobody", lost: "LOST (lease ran out)" };
   $("st-owner").textContent = owners[s.owner] || s.owner;
   $("st-time").textContent = `${s.time.toFixed(3)} s`;
-  $("st-error").textContent = s.last_error ? `${s.last_error}: ${s.last_message}` : "–";
+  $("st-error").textContent = $("st-error").title = s.last_error ? `${s.last_error}: ${s.last_message}` : "–";
   $("joints").innerHTML = s.joints.map((q, i) => `<tr><th>J${i + 1}</th><td>${q.toFixed(3)}</td></tr>`).join("");
   const pose = s.poses[`${selection.tool}@${selection.frame}`] || s.poses["flange@world"];
   if (pose) $("pose").innerHTML = pose.map((v, i) => `<tr><th>${AXES[i]}</th><td>${v.toFixed(3)}</td></tr>`).join("");
