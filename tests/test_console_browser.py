@@ -188,8 +188,8 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             _confirm(page)
             expect(page.locator("#st-power")).to_have_text("on")
 
-            # a long error or an unreachable robot does not move the jog buttons (a held
-            # pointer would leave its button: the jog would stop)
+            # a long error, an unreachable robot or a long message does not move the jog
+            # buttons (a held pointer would leave its button: the jog would stop)
             tops = page.evaluate(
                 """() => {
                     const top = () => $("jog-j1-plus").getBoundingClientRect().top;
@@ -197,10 +197,12 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
                     showStatus({ ...status, last_error: 7, last_message: "long ".repeat(80) });
                     const error = top();
                     showStatus({ ...status, connected: false, error: "gone ".repeat(80) });
-                    return [before, error, top()];
+                    const unreachable = top();
+                    say("a long message ".repeat(40), "error");
+                    return [before, error, unreachable, top()];
                 }"""
             )
-            assert tops[0] == tops[1] == tops[2], tops
+            assert tops[0] == tops[1] == tops[2] == tops[3], tops
 
             # the link drops: a jog press says so (instead of nothing), and the page reconnects
             page.evaluate("ws.close()")

@@ -15,7 +15,7 @@ const esc = (v) => String(v).replace(/[&<>"']/g, (c) => `&#${c.charCodeAt(0)};`)
 
 function say(text, kind = "info") {
   const m = $("message");
-  m.textContent = text;
+  m.textContent = m.title = text;
   m.className = kind;
 }
 
