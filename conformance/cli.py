@@ -9,7 +9,7 @@ code  meaning
 1     a MUST requirement failed
 2     only SHOULD requirements failed, and ``--strict`` was given
 3     usage error or harness fault (a case crashed inside the harness; bad option or file)
-4     endpoint unreachable, or it stopped answering (errors and timeouts, never fails)
+4     endpoint unreachable, silent at Hello or not a frame, or it stopped answering
 5     nothing selected (no case matches the profile, globs and tags)
 ====  =====================================================================================
 """

@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import json
 import socket
+import subprocess
+import sys
+import threading
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -69,3 +73,90 @@ def test_a_tcp_port_given_to_the_sync_profile_is_named(
     _, err = capsys.readouterr()
     assert code == EXIT_USAGE
     assert "is a TCP port" in err and "UDP trigger port" in err and err.count("\n") == 1
+
+
+# --- a first-time user points the harness at the wrong thing (real subprocesses) ------------
+
+
+def run_cli(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "conformance", *args],
+        capture_output=True, text=True, timeout=timeout,
+    )  # fmt: skip
+
+
+@contextmanager
+def tcp_listener(answer: bytes | None) -> Iterator[str]:
+    """A TCP server that is no robot: it answers any bytes with ``answer`` and closes, or,
+    with None, accepts and never answers."""
+    listener = socket.create_server(("127.0.0.1", 0))
+    conns: list[socket.socket] = []
+
+    def serve() -> None:
+        while True:
+            try:
+                conn, _ = listener.accept()
+            except OSError:
+                return
+            conns.append(conn)
+            if answer is not None:
+                conn.recv(4096)
+                conn.sendall(answer)
+                conn.close()
+
+    threading.Thread(target=serve, daemon=True).start()
+    try:
+        yield f"127.0.0.1:{listener.getsockname()[1]}"
+    finally:
+        listener.close()
+        for conn in conns:
+            conn.close()
+
+
+def test_a_server_that_never_answers_is_one_line_exit_4(tmp_path: Path) -> None:
+    js = tmp_path / "r.json"
+    with tcp_listener(None) as address:
+        done = run_cli("robot", address, "--timeout-scale", "0.25", "--json", str(js))
+    assert done.returncode == EXIT_UNREACHABLE, done.stderr
+    assert done.stdout == ""
+    assert done.stderr.splitlines() == [
+        f"conformance: {address} accepted the connection but did not answer Hello within"
+        " 0.5 s: is it a robot endpoint? (a slow one: --timeout-scale)"
+    ]
+    assert json.loads(js.read_text())["reachable"] is False
+
+
+def test_a_server_of_another_protocol_is_one_line_exit_4() -> None:
+    with tcp_listener(b"HTTP/1.0 400 Bad request\r\n\r\n") as address:
+        done = run_cli("sensor", address)
+    assert done.returncode == EXIT_UNREACHABLE, done.stderr
+    assert done.stdout == ""
+    assert done.stderr.splitlines() == [
+        f"conformance: {address} answered Hello with bytes that are not a frame"
+        ' (48 54 54 50 2f 31 2e 30 20 34 30 30 "HTTP/1.0 400"): is it a sensor endpoint?'
+    ]
+
+
+def test_the_other_service_is_named_with_the_command_to_use(protected_robot: str) -> None:
+    done = run_cli("sensor", protected_robot)
+    assert done.returncode == EXIT_USAGE, done.stderr
+    assert done.stdout == ""
+    assert done.stderr.splitlines() == [
+        f"conformance: {protected_robot} is a robot endpoint (its Hello says so), not a sensor"
+        f" one: check it with `python -m conformance robot {protected_robot}`; nothing was run"
+    ]
+
+
+def test_a_closed_udp_port_and_an_unknown_host_are_one_line_exit_4() -> None:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    done = run_cli("sync", "--udp", f"127.0.0.1:{port}")  # nothing listens there now
+    assert done.returncode == EXIT_UNREACHABLE, done.stderr
+    assert done.stderr.splitlines() == [
+        f"conformance: nothing listens on UDP 127.0.0.1:{port} (port unreachable)"
+    ]
+    done = run_cli("sync", "--udp", "no-such-host.invalid:2001")
+    assert done.returncode == EXIT_UNREACHABLE, done.stderr
+    assert done.stderr.startswith("conformance: cannot resolve no-such-host.invalid: ")
+    assert done.stderr.count("\n") == 1
