@@ -206,15 +206,27 @@ def output_dir(text: str) -> str:
 
 #: Exit status of a Unix tool stopped by SIGPIPE (128 + 13).
 EXIT_BROKEN_PIPE = 141
+#: Exit status of a tool stopped by Ctrl-C (128 + SIGINT).
+EXIT_INTERRUPTED = 130
+
+
+def program_name(argv0: str) -> str:
+    """How the user started us: ``python -m conformance`` or ``rsf-conformance``."""
+    path = Path(argv0)
+    return f"python -m {path.parent.name}" if path.name == "__main__.py" else path.name
 
 
 def run_cli(main: Callable[[], int]) -> int:
     """Run a command line's ``main``. A reader that closed our standard output (``… | head``)
-    ends it quietly, as it ends a Unix tool, instead of with an error message."""
+    ends it quietly, as it ends a Unix tool, instead of with an error message; Ctrl-C that
+    ``main`` does not handle itself is one line and exit status 130, not a traceback."""
     try:
         code = main()
         sys.stdout.flush()
         return code
+    except KeyboardInterrupt:
+        print(f"{program_name(sys.argv[0])}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except BrokenPipeError:
         # Python flushes stdout again at exit: point it at /dev/null so that stays quiet.
         devnull = os.open(os.devnull, os.O_WRONLY)

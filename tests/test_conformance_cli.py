@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import signal
 import socket
 import subprocess
 import sys
@@ -78,7 +79,7 @@ def test_a_tcp_port_given_to_the_sync_profile_is_named(
 # --- a first-time user points the harness at the wrong thing (real subprocesses) ------------
 
 
-def run_cli(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
+def conformance_cli(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [sys.executable, "-m", "conformance", *args],
         capture_output=True, text=True, timeout=timeout,
@@ -116,7 +117,7 @@ def tcp_listener(answer: bytes | None) -> Iterator[str]:
 def test_a_server_that_never_answers_is_one_line_exit_4(tmp_path: Path) -> None:
     js = tmp_path / "r.json"
     with tcp_listener(None) as address:
-        done = run_cli("robot", address, "--timeout-scale", "0.25", "--json", str(js))
+        done = conformance_cli("robot", address, "--timeout-scale", "0.25", "--json", str(js))
     assert done.returncode == EXIT_UNREACHABLE, done.stderr
     assert done.stdout == ""
     assert done.stderr.splitlines() == [
@@ -128,7 +129,7 @@ def test_a_server_that_never_answers_is_one_line_exit_4(tmp_path: Path) -> None:
 
 def test_a_server_of_another_protocol_is_one_line_exit_4() -> None:
     with tcp_listener(b"HTTP/1.0 400 Bad request\r\n\r\n") as address:
-        done = run_cli("sensor", address)
+        done = conformance_cli("sensor", address)
     assert done.returncode == EXIT_UNREACHABLE, done.stderr
     assert done.stdout == ""
     assert done.stderr.splitlines() == [
@@ -138,7 +139,7 @@ def test_a_server_of_another_protocol_is_one_line_exit_4() -> None:
 
 
 def test_the_other_service_is_named_with_the_command_to_use(protected_robot: str) -> None:
-    done = run_cli("sensor", protected_robot)
+    done = conformance_cli("sensor", protected_robot)
     assert done.returncode == EXIT_USAGE, done.stderr
     assert done.stdout == ""
     assert done.stderr.splitlines() == [
@@ -151,12 +152,34 @@ def test_a_closed_udp_port_and_an_unknown_host_are_one_line_exit_4() -> None:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    done = run_cli("sync", "--udp", f"127.0.0.1:{port}")  # nothing listens there now
+    done = conformance_cli("sync", "--udp", f"127.0.0.1:{port}")  # nothing listens there now
     assert done.returncode == EXIT_UNREACHABLE, done.stderr
     assert done.stderr.splitlines() == [
         f"conformance: nothing listens on UDP 127.0.0.1:{port} (port unreachable)"
     ]
-    done = run_cli("sync", "--udp", "no-such-host.invalid:2001")
+    done = conformance_cli("sync", "--udp", "no-such-host.invalid:2001")
     assert done.returncode == EXIT_UNREACHABLE, done.stderr
     assert done.stderr.startswith("conformance: cannot resolve no-such-host.invalid: ")
     assert done.stderr.count("\n") == 1
+
+
+def test_ctrl_c_in_a_run_is_one_line_and_exit_130(protected_robot: str) -> None:
+    # As from a terminal: SIGINT raises KeyboardInterrupt (a test worker may ignore SIGINT,
+    # and a child inherits that).
+    start = (
+        "import runpy, signal; signal.signal(signal.SIGINT, signal.default_int_handler);"
+        " runpy.run_module('conformance', run_name='__main__', alter_sys=True)"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", start, "robot", protected_robot, "--token", "s3cret"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert proc.stderr is not None
+    for line in proc.stderr:
+        if line.split()[:1] == ["pass"]:  # a case has run: the run is under way
+            break
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    assert err.splitlines()[-1] == "python -m conformance: interrupted"

@@ -267,3 +267,10 @@ def test_empty_token_file_stops_every_client(argv: tuple[str, ...], empty_token:
     assert done.returncode in (2, 3)  # 3: the harness's documented usage code
     assert f"token file {empty_token} is empty" in done.stderr
     assert len(done.stderr.strip().splitlines()) == 1, done.stderr
+
+
+def test_program_name_is_how_the_user_started_the_tool() -> None:
+    assert cliargs.program_name("/x/site-packages/conformance/__main__.py") == (
+        "python -m conformance"
+    )
+    assert cliargs.program_name("/x/.venv/bin/rsf-conformance") == "rsf-conformance"
