@@ -68,8 +68,8 @@ def _parser() -> cliargs.Parser:
             s.add_argument(
                 "--in-process",
                 action="store_true",
-                help="real clock: run the robot loop, UDP and sensor in this process, not in "
-                "a real-time child process (the default; docs/REALTIME.md)",
+                help="real clock: run the robot loop, UDP and sensor in this process instead "
+                "of the real-time child process used by default (docs/REALTIME.md)",
             )
             s.add_argument(
                 "--frame-timeout",

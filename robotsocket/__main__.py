@@ -193,8 +193,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--in-process",
         action="store_true",
-        help="real clock: run the 4 ms loop in the server's process, not in a real-time "
-        "child process (the default; docs/REALTIME.md)",
+        help="real clock: run the 4 ms loop in the server's process instead of the "
+        "real-time child process used by default (docs/REALTIME.md)",
     )
     s.add_argument(
         "--allow",

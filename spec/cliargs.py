@@ -173,6 +173,11 @@ class Parser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message}\n")
 
+    def format_help(self) -> str:
+        for action in self._actions:
+            _show_default(action)
+        return super().format_help()
+
     def _get_values(self, action: argparse.Action, arg_strings: list[str]) -> Any:
         # Python 3.11's argparse drops the value of ``--seed=--`` as if it ended the options
         # and stores [] unchecked (a traceback later): the value goes through the option's
@@ -180,6 +185,23 @@ class Parser(argparse.ArgumentParser):
         if action.option_strings and action.nargs is None and arg_strings == ["--"]:
             return self._get_value(action, "--")
         return super()._get_values(action, arg_strings)
+
+
+def _show_default(action: argparse.Action) -> None:
+    """Add an option's default to its help line, unless the help already names one: a user
+    reading ``--help`` must not have to guess the port or the clock."""
+    default, text = action.default, action.help or ""
+    if not action.option_strings or text == argparse.SUPPRESS or "default" in text:
+        return
+    if default is None or isinstance(default, bool) or default in ("", argparse.SUPPRESS):
+        return
+    if isinstance(default, list | tuple):
+        if not default:
+            return
+        shown = ",".join(str(v) for v in default)
+    else:
+        shown = f"{default:g}" if isinstance(default, float) else str(default)
+    action.help = f"{text}; default {shown}" if text else f"default {shown}"
 
 
 def output_file(text: str) -> str:

@@ -274,3 +274,32 @@ def test_program_name_is_how_the_user_started_the_tool() -> None:
         "python -m conformance"
     )
     assert cliargs.program_name("/x/.venv/bin/rsf-conformance") == "rsf-conformance"
+
+
+def test_help_names_each_options_default_once() -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "cell", "serve", "--help"],
+        capture_output=True, text=True, timeout=60, check=True,
+    )  # fmt: skip
+    text = " ".join(done.stdout.split())  # argparse wraps lines to the terminal width
+    for option, default in [
+        ("--robot-port ROBOT_PORT", "4000"),
+        ("--sensor-port SENSOR_PORT", "2000"),
+        ("--udp-port UDP_PORT", "2001"),
+        ("--clock {real,sim}", "real"),
+        ("--model MODEL", "RX90B"),
+    ]:
+        assert f"{option} default {default} " in text, option
+    # a help that already names its default keeps it, once
+    assert "(ms), default 2.8 --trigger-poll-hz" in text
+    assert "--in-process default" not in text  # a flag has no default to show
+
+
+def test_a_default_is_shown_for_a_plain_help_too() -> None:
+    parser = cliargs.Parser(prog="tool")
+    parser.add_argument("--interval", type=float, default=0.5, help="seconds between lines")
+    parser.add_argument("--allow", nargs="+", default=[], help="networks")
+    text = " ".join(parser.format_help().split())
+    assert "seconds between lines; default 0.5" in text
+    assert "networks default" not in text and "networks;" not in text
+    assert text == " ".join(parser.format_help().split())  # formatting twice adds nothing
