@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -89,3 +90,26 @@ def test_demo_runs_end_to_end(tmp_path: Path) -> None:
     assert ("verdict: UNTRUSTED" in text) == (out.returncode == 3), text
     assert "EnablePower, Herej()" in text and "ΔT measured (ms)" in text and "verdict:" in text
     assert any(p.suffix == ".pgm" for p in tmp_path.iterdir())
+
+
+@pytest.mark.parametrize(
+    ("taken", "extra"),
+    [("--robot-port", []), ("--sensor-port", ["--in-process"]), ("--udp-port", [])],
+)
+def test_a_port_in_use_is_named_with_its_option(taken: str, extra: list[str]) -> None:
+    kind = socket.SOCK_DGRAM if taken == "--udp-port" else socket.SOCK_STREAM
+    with socket.socket(socket.AF_INET, kind) as busy:
+        busy.bind(("127.0.0.1", 0))
+        if kind == socket.SOCK_STREAM:
+            busy.listen()
+        port = busy.getsockname()[1]
+        ports = {"--robot-port": "0", "--sensor-port": "0", "--udp-port": "0", taken: str(port)}
+        done = subprocess.run(
+            [sys.executable, "-m", "cell", "serve", *extra,
+             *(x for option, value in ports.items() for x in (option, value))],
+            capture_output=True, text=True, timeout=60,
+        )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.splitlines()[-1].startswith("python -m cell: error: cannot bind the ")
+    assert f"to 127.0.0.1:{port} ({taken}): Address already in use" in done.stderr
+    assert "Traceback" not in done.stderr
