@@ -40,6 +40,10 @@ class CliError(Exception):
     """A user mistake on the command line: one line on stderr, exit code 2."""
 
 
+class CliUnreachable(Exception):
+    """The server cannot be reached or does not speak the protocol: one line, exit code 3."""
+
+
 def parse_endpoint(text: str) -> tuple[str, int]:
     try:
         return callcli.parse_endpoint(text, DEFAULT_PORT)
@@ -161,7 +165,11 @@ def cmd_watch(args: argparse.Namespace) -> int:
     from robotsocket.client import RobotClient
 
     host, port = parse_endpoint(args.endpoint)
-    with RobotClient(host, port, timeout=args.timeout) as client:
+    try:
+        client = RobotClient(host, port, timeout=args.timeout)
+    except (OSError, ProtocolError) as exc:
+        raise CliUnreachable(callcli.unreachable(host, port, exc)) from None
+    with client:
         n = 0
         while args.count is None or n < args.count:
             if n:
@@ -283,6 +291,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except CliError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except CliUnreachable as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return callcli.EXIT_UNREACHABLE
     except RemoteError as exc:
         print(f"error {exc.raw_code} {exc.code.name}: {exc.message}", file=sys.stderr)
         return 1

@@ -28,6 +28,7 @@ from spec.callcli import (
     ListCommands,
     main_call,
     parse_endpoint,
+    unreachable,
 )
 from spec.cliargs import run_cli
 from spec.errors import ErrorCode, ProtocolError, RemoteError
@@ -255,7 +256,7 @@ def cmd_snapshot(args: argparse.Namespace) -> int:
         print(f"error {exc.code.name} ({exc.raw_code}): {exc.message}", file=sys.stderr)
         return EXIT_REMOTE_ERROR
     except (OSError, ProtocolError) as exc:
-        print(f"{PROG} snapshot: cannot reach {host}:{port}: {exc}", file=sys.stderr)
+        print(f"{PROG} snapshot: {unreachable(host, port, exc)}", file=sys.stderr)
         return EXIT_UNREACHABLE
     if suffix == ".png":
         _write_png(out, image)

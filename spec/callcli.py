@@ -284,13 +284,21 @@ def main_call(
         print(f"error {exc.code.name} ({exc.raw_code}): {exc.message}", file=sys.stderr)
         return EXIT_REMOTE_ERROR
     except (OSError, ProtocolError) as exc:
-        print(f"error: cannot reach {host}:{port}: {exc}", file=sys.stderr)
+        print(f"error: {unreachable(host, port, exc)}", file=sys.stderr)
         return EXIT_UNREACHABLE
     print(format_reply(reply))
     if reply.get("done") is False:
         print(f"error: the move did not end within {wait:g} s (it goes on)", file=sys.stderr)
         return EXIT_REMOTE_ERROR
     return 0
+
+
+def unreachable(host: str, port: int, exc: OSError | ProtocolError) -> str:
+    """What went wrong reaching a server, in one line naming it: the client's own errors
+    (no reply, a bad frame, closed) already name the server; a socket error does not."""
+    if isinstance(exc, ProtocolError):
+        return str(exc)
+    return f"cannot reach {host}:{port}: {exc.strerror or exc}"
 
 
 def _stop_what_was_started(client: FramedClient, moved: bool) -> None:

@@ -16,6 +16,9 @@ fixture is set up about once per worker.
 
 from __future__ import annotations
 
+import contextlib
+import socket
+import threading
 from collections.abc import Callable, Iterator
 from itertools import islice
 
@@ -42,6 +45,43 @@ def serve() -> Iterator[Serve]:
         srv.shutdown()
     for srv in servers:
         assert not srv.handler_errors, srv.handler_errors
+
+
+#: ``not_a_server(answer)`` -> "127.0.0.1:PORT" of a TCP server that is no robot or sensor.
+NotAServer = Callable[[bytes | None], str]
+
+
+@pytest.fixture
+def not_a_server() -> Iterator[NotAServer]:
+    """``not_a_server(answer)`` -> the address of a TCP server that answers whatever it
+    receives with ``answer`` and closes (an HTTP server, say), or, with None, accepts and
+    never answers (a hung one): what a user points a tool at by mistake."""
+    listeners: list[socket.socket] = []
+    conns: list[socket.socket] = []
+
+    def start(answer: bytes | None) -> str:
+        listener = socket.create_server(("127.0.0.1", 0))
+        listeners.append(listener)
+
+        def serve() -> None:
+            while True:
+                try:
+                    conn, _ = listener.accept()
+                except OSError:
+                    return
+                conns.append(conn)
+                if answer is not None:
+                    with contextlib.suppress(OSError):
+                        conn.recv(4096)
+                        conn.sendall(answer)
+                        conn.close()
+
+        threading.Thread(target=serve, daemon=True).start()
+        return f"127.0.0.1:{listener.getsockname()[1]}"
+
+    yield start
+    for sock in listeners + conns:
+        sock.close()
 
 
 @pytest.fixture(autouse=True)

@@ -7,10 +7,9 @@ import signal
 import socket
 import subprocess
 import sys
-import threading
 from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 
@@ -19,6 +18,9 @@ from conformance.runner import EXIT_UNREACHABLE, EXIT_USAGE
 from robotsocket.emulator import RobotEmulator
 from robotsocket.service import RobotService
 from spec.server import FramedServer, ServerPolicy
+
+if TYPE_CHECKING:
+    from tests.conftest import NotAServer
 
 
 @pytest.fixture
@@ -86,38 +88,12 @@ def conformance_cli(*args: str, timeout: float = 60.0) -> subprocess.CompletedPr
     )  # fmt: skip
 
 
-@contextmanager
-def tcp_listener(answer: bytes | None) -> Iterator[str]:
-    """A TCP server that is no robot: it answers any bytes with ``answer`` and closes, or,
-    with None, accepts and never answers."""
-    listener = socket.create_server(("127.0.0.1", 0))
-    conns: list[socket.socket] = []
-
-    def serve() -> None:
-        while True:
-            try:
-                conn, _ = listener.accept()
-            except OSError:
-                return
-            conns.append(conn)
-            if answer is not None:
-                conn.recv(4096)
-                conn.sendall(answer)
-                conn.close()
-
-    threading.Thread(target=serve, daemon=True).start()
-    try:
-        yield f"127.0.0.1:{listener.getsockname()[1]}"
-    finally:
-        listener.close()
-        for conn in conns:
-            conn.close()
-
-
-def test_a_server_that_never_answers_is_one_line_exit_4(tmp_path: Path) -> None:
+def test_a_server_that_never_answers_is_one_line_exit_4(
+    tmp_path: Path, not_a_server: NotAServer
+) -> None:
     js = tmp_path / "r.json"
-    with tcp_listener(None) as address:
-        done = conformance_cli("robot", address, "--timeout-scale", "0.25", "--json", str(js))
+    address = not_a_server(None)
+    done = conformance_cli("robot", address, "--timeout-scale", "0.25", "--json", str(js))
     assert done.returncode == EXIT_UNREACHABLE, done.stderr
     assert done.stdout == ""
     assert done.stderr.splitlines() == [
@@ -127,9 +103,9 @@ def test_a_server_that_never_answers_is_one_line_exit_4(tmp_path: Path) -> None:
     assert json.loads(js.read_text())["reachable"] is False
 
 
-def test_a_server_of_another_protocol_is_one_line_exit_4() -> None:
-    with tcp_listener(b"HTTP/1.0 400 Bad request\r\n\r\n") as address:
-        done = conformance_cli("sensor", address)
+def test_a_server_of_another_protocol_is_one_line_exit_4(not_a_server: NotAServer) -> None:
+    address = not_a_server(b"HTTP/1.0 400 Bad request\r\n\r\n")
+    done = conformance_cli("sensor", address)
     assert done.returncode == EXIT_UNREACHABLE, done.stderr
     assert done.stdout == ""
     assert done.stderr.splitlines() == [

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -18,7 +19,7 @@ from robotsocket.service import RobotService
 from spec.server import ServerPolicy
 
 if TYPE_CHECKING:
-    from tests.conftest import Serve
+    from tests.conftest import NotAServer, Serve
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -154,3 +155,40 @@ def test_call_list_and_a_joint_log_one_row_per_line(
     log = json.loads(out)["log"]
     assert len(out.splitlines()) == len(log) + 2  # "{log: [", one line per sample, "]..."
     assert all(len(row) == 7 for row in log)
+
+
+def robot_cli(*argv: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "robotsocket", *argv],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+
+
+def test_a_server_of_another_protocol_is_named_not_unreachable(
+    not_a_server: NotAServer,
+) -> None:
+    address = not_a_server(b"HTTP/1.0 400 Bad request\r\n\r\n")
+    done = robot_cli("call", address, "herej")
+    assert done.returncode == 3, done.stderr
+    assert done.stderr.splitlines() == [
+        f"error: BAD_FRAME (1): {address} sent a bad frame: bad magic 4854, expected 5253"
+        " (not a RobotSocket or SensorSocket endpoint?)"
+    ]
+
+
+def test_a_silent_server_is_named_with_the_time_waited(not_a_server: NotAServer) -> None:
+    address = not_a_server(None)
+    done = robot_cli("call", address, "herej", "--timeout", "0.3")
+    assert done.returncode == 3, done.stderr
+    assert done.stderr.splitlines() == [
+        f"error: TIMEOUT (18): no reply from {address} within 0.3 s"
+    ]
+
+
+def test_watch_names_the_address_it_cannot_reach() -> None:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    done = robot_cli("watch", f"127.0.0.1:{port}", "--count", "1")  # nobody listens
+    assert done.returncode == 3, done.stderr
+    assert done.stderr.splitlines() == [f"error: cannot reach 127.0.0.1:{port}: Connection refused"]
