@@ -168,7 +168,16 @@ def network(text: str) -> Network:
 
 class Parser(argparse.ArgumentParser):
     """An argument parser whose errors are one line on stderr and exit status 2 (no usage
-    dump); give it to ``add_subparsers(parser_class=Parser)`` too."""
+    dump); give it to ``add_subparsers(parser_class=Parser)`` too.
+
+    Options are not taken by a prefix: ``welding track --robot X --sensor Y`` (track has
+    neither) said "ambiguous option: --sensor could match --sensor-tool, ..." instead of
+    naming the unknown options, and a script's abbreviation changes meaning when an option
+    is added."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message}\n")

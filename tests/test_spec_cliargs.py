@@ -303,3 +303,20 @@ def test_a_default_is_shown_for_a_plain_help_too() -> None:
     assert "seconds between lines; default 0.5" in text
     assert "networks default" not in text and "networks;" not in text
     assert text == " ".join(parser.format_help().split())  # formatting twice adds nothing
+
+
+def test_an_unknown_option_is_named_not_taken_for_a_prefix() -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "welding", "track", "--emulate", "--robot", "127.0.0.1:4000",
+         "--sensor", "127.0.0.1:2000"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 2
+    assert done.stderr.splitlines() == [
+        "python -m welding: error: unrecognized arguments: --robot 127.0.0.1:4000"
+        " --sensor 127.0.0.1:2000"
+    ]  # not "ambiguous option: --sensor could match --sensor-tool, ..."
+    parser = cliargs.Parser(prog="tool")
+    parser.add_argument("--duration", type=float)
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--dur", "1"])
