@@ -80,7 +80,12 @@ def _parser() -> cliargs.Parser:
                 "%(default)g as in PROTOCOL.md RS-7.5; announced in Hello)",
             )
         if name == "demo":
-            s.add_argument("--out", default="out", help="directory for the frame and plots")
+            s.add_argument(
+                "--out",
+                type=cliargs.output_dir,
+                default="out",
+                help="directory for the frame and plots (created)",
+            )
             s.add_argument(
                 "--duration",
                 type=cliargs.number_in(0.01, 3600.0),

@@ -113,3 +113,17 @@ def test_a_port_in_use_is_named_with_its_option(taken: str, extra: list[str]) ->
     assert done.stderr.splitlines()[-1].startswith("python -m cell: error: cannot bind the ")
     assert f"to 127.0.0.1:{port} ({taken}): Address already in use" in done.stderr
     assert "Traceback" not in done.stderr
+
+
+def test_demo_out_that_is_a_file_is_refused_before_the_tour(tmp_path: Path) -> None:
+    taken = tmp_path / "out"
+    taken.write_text("a file")
+    done = subprocess.run(
+        [sys.executable, "-m", "cell", "demo", "--out", str(taken)],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    assert done.stdout == ""  # before: half the tour, then "[Errno 17] File exists"
+    assert done.stderr.splitlines() == [
+        f"python -m cell demo: error: argument --out: {taken} exists and is not a directory"
+    ]
