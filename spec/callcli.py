@@ -23,7 +23,7 @@ from typing import Any
 
 from spec.client import FramedClient, wait_end_move
 from spec.codec import encode_packet, request
-from spec.errors import ProtocolError, RemoteError
+from spec.errors import ErrorCode, ProtocolError, RemoteError
 from spec.jsonform import plain
 from spec.params import FloatArray, IntArray, Joints, Location, Transform, Value
 from spec.registry import BY_ID, COMMANDS, CommandId, CommandSpec, ParamSpec
@@ -281,7 +281,10 @@ def main_call(
         print(f"interrupted{stopped}; control released", file=sys.stderr)
         return EXIT_INTERRUPTED
     except RemoteError as exc:
-        print(f"error {exc.code.name} ({exc.raw_code}): {exc.message}", file=sys.stderr)
+        hint = ""
+        if exc.code is ErrorCode.AUTH_FAILED and not token:
+            hint = " (the server wants a control token: --token-file FILE)"
+        print(f"error {exc.code.name} ({exc.raw_code}): {exc.message}{hint}", file=sys.stderr)
         return EXIT_REMOTE_ERROR
     except (OSError, ProtocolError) as exc:
         print(f"error: {unreachable(host, port, exc)}", file=sys.stderr)

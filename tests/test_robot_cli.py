@@ -192,3 +192,18 @@ def test_watch_names_the_address_it_cannot_reach() -> None:
     done = robot_cli("watch", f"127.0.0.1:{port}", "--count", "1")  # nobody listens
     assert done.returncode == 3, done.stderr
     assert done.stderr.splitlines() == [f"error: cannot reach 127.0.0.1:{port}: Connection refused"]
+
+
+def test_a_missing_token_names_the_option(serve: Serve, tmp_path: Path) -> None:
+    srv = serve(RobotService(RobotEmulator()), ServerPolicy(token="s3cret"))
+    address = "{}:{}".format(*srv.address)
+    done = robot_cli("call", address, "enablepower")
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.splitlines() == [
+        "error AUTH_FAILED (14): control token missing or wrong"
+        " (the server wants a control token: --token-file FILE)"
+    ]
+    wrong = tmp_path / "token.txt"
+    wrong.write_text("wrong\n")
+    done = robot_cli("call", address, "enablepower", "--token-file", str(wrong))
+    assert done.stderr.splitlines() == ["error AUTH_FAILED (14): control token missing or wrong"]
