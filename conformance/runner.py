@@ -125,6 +125,16 @@ def negotiate(
         )
     except (Fail, EndpointGone, Closed) as exc:
         received = b"".join(e.data for e in conn.log.entries if e.direction == "<-")
+        if not received and conn.closed:
+            # Closed before a byte came back: every case would end the same way.
+            return (
+                False,
+                None,
+                (
+                    f"{host}:{port} closed the connection without answering Hello: does it"
+                    " refuse this machine (an allow-list) or take no more clients?"
+                ),
+            )
         if received and not received.startswith(wire.MAGIC[: len(received)]):
             # Not this protocol at all (an HTTP or SSH server on that port): one line says
             # so. Frames with the right magic but broken fields still get every case.

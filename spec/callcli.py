@@ -298,9 +298,11 @@ def main_call(
 
 def unreachable(host: str, port: int, exc: OSError | ProtocolError) -> str:
     """What went wrong reaching a server, in one line naming it: the client's own errors
-    (no reply, a bad frame, closed) already name the server; a socket error does not."""
+    (no reply, a bad frame, closed) already name the server, and their wire code
+    ("INTERNAL_ERROR (19)" for a closed connection) would read as the server's; a socket
+    error does not name it."""
     if isinstance(exc, ProtocolError):
-        return str(exc)
+        return exc.message
     return f"cannot reach {host}:{port}: {exc.strerror or exc}"
 
 

@@ -159,3 +159,13 @@ def test_ctrl_c_in_a_run_is_one_line_and_exit_130(protected_robot: str) -> None:
     assert proc.returncode == 130, err
     assert "Traceback" not in err
     assert err.splitlines()[-1] == "python -m conformance: interrupted"
+
+
+def test_a_server_that_closes_at_once_is_one_line_exit_4(not_a_server: NotAServer) -> None:
+    address = not_a_server(b"")  # reads the Hello, answers nothing and closes
+    done = conformance_cli("robot", address)
+    assert done.returncode == EXIT_UNREACHABLE, done.stderr
+    assert done.stderr.splitlines() == [
+        f"conformance: {address} closed the connection without answering Hello: does it"
+        " refuse this machine (an allow-list) or take no more clients?"
+    ]

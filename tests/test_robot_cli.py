@@ -171,7 +171,7 @@ def test_a_server_of_another_protocol_is_named_not_unreachable(
     done = robot_cli("call", address, "herej")
     assert done.returncode == 3, done.stderr
     assert done.stderr.splitlines() == [
-        f"error: BAD_FRAME (1): {address} sent a bad frame: bad magic 4854, expected 5253"
+        f"error: {address} sent a bad frame: bad magic 4854, expected 5253"
         " (not a RobotSocket or SensorSocket endpoint?)"
     ]
 
@@ -180,9 +180,7 @@ def test_a_silent_server_is_named_with_the_time_waited(not_a_server: NotAServer)
     address = not_a_server(None)
     done = robot_cli("call", address, "herej", "--timeout", "0.3")
     assert done.returncode == 3, done.stderr
-    assert done.stderr.splitlines() == [
-        f"error: TIMEOUT (18): no reply from {address} within 0.3 s"
-    ]
+    assert done.stderr.splitlines() == [f"error: no reply from {address} within 0.3 s"]
 
 
 def test_watch_names_the_address_it_cannot_reach() -> None:
