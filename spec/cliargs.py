@@ -204,12 +204,10 @@ def _show_default(action: argparse.Action) -> None:
         return
     if default is None or isinstance(default, bool) or default in ("", argparse.SUPPRESS):
         return
-    if isinstance(default, list | tuple):
-        if not default:
-            return
-        shown = ",".join(str(v) for v in default)
-    else:
-        shown = f"{default:g}" if isinstance(default, float) else str(default)
+    if isinstance(default, list | tuple) and not default:
+        return
+    values = default if isinstance(default, list | tuple) else [default]
+    shown = ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in values)
     action.help = f"{text}; default {shown}" if text else f"default {shown}"
 
 

@@ -299,8 +299,10 @@ def test_a_default_is_shown_for_a_plain_help_too() -> None:
     parser = cliargs.Parser(prog="tool")
     parser.add_argument("--interval", type=float, default=0.5, help="seconds between lines")
     parser.add_argument("--allow", nargs="+", default=[], help="networks")
+    parser.add_argument("--error", default=(0.0,) * 3, help="mm")
     text = " ".join(parser.format_help().split())
     assert "seconds between lines; default 0.5" in text
+    assert "mm; default 0,0,0" in text
     assert "networks default" not in text and "networks;" not in text
     assert text == " ".join(parser.format_help().split())  # formatting twice adds nothing
 
