@@ -169,3 +169,29 @@ def test_a_server_that_closes_at_once_is_one_line_exit_4(not_a_server: NotAServe
         f"conformance: {address} closed the connection without answering Hello: does it"
         " refuse this machine (an allow-list) or take no more clients?"
     ]
+
+
+@pytest.mark.parametrize(
+    ("option", "content", "says"),
+    [
+        ("--expect", b"[1", "--expect file {path}: Expecting ',' delimiter"),
+        ("--expect", b"[1]", "--expect file {path}: expected a JSON list of case IDs"),
+        ("--expect", b"\xff\xfe", "--expect file {path}: 'utf-8' codec can't decode"),
+        ("--expect", None, "cannot read --expect file {path}: No such file or directory"),
+        (
+            "--capabilities",
+            b'{"not_offered": 5}',
+            'capability file {path}: expected {{"not_offered": [names or IDs]}}',
+        ),
+    ],
+)
+def test_a_bad_expect_or_capability_file_is_one_line_exit_3(
+    tmp_path: Path, option: str, content: bytes | None, says: str
+) -> None:
+    path = tmp_path / "given"
+    if content is not None:
+        path.write_bytes(content)
+    done = conformance_cli("robot", "127.0.0.1:1", option, str(path))
+    assert done.returncode == EXIT_USAGE, done.stderr
+    assert len(done.stderr.splitlines()) == 1 and "Traceback" not in done.stderr
+    assert done.stderr.startswith("conformance: " + says.format(path=path)), done.stderr
