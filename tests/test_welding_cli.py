@@ -272,3 +272,16 @@ def test_track_on_the_real_clock_interrupted_leaves_nothing_behind() -> None:
 def test_track_with_an_unknown_sensor_tool(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["track", "--emulate", "--sensor-tool", "nope"]) == 1
     assert "no tool named 'nope'" in capsys.readouterr().err
+
+
+def test_run_of_a_missing_job_touches_nothing(tmp_path: Path) -> None:
+    # before: the emulated cell's tools were added to ./welding-tools.json, then the error
+    done = subprocess.run(
+        [sys.executable, "-m", "welding", "job", "run", "nosuch.xml", "--emulate", "--dry-run"],
+        capture_output=True, text=True, timeout=60, cwd=tmp_path,
+    )  # fmt: skip
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.splitlines() == [
+        "python -m welding: error: cannot read nosuch.xml: No such file or directory"
+    ]
+    assert list(tmp_path.iterdir()) == []

@@ -489,6 +489,9 @@ class _ProgressBar:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    # A missing or broken file is said before the cell starts, the robot is connected or the
+    # tool database gets the emulated cell's tools; the names are checked once tables exist.
+    _load_job(args.job, None)
     with _cell(args, control=True, sensor=not args.emulate and args.sensor is not None) as cell:
         job = _load_job(args.job, cell.tables)
         emulated = cell.emulated is not None
