@@ -28,8 +28,10 @@ simulated trigger/data link (:mod:`cell.sim_link`) and the ΔT bookkeeping
 
 from __future__ import annotations
 
+import errno
 import logging
 import math
+import socket
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -73,12 +75,16 @@ _T = TypeVar("_T")
 
 
 def bound(what: str, option: str, host: str, port: int, make: Callable[[], _T]) -> _T:
-    """Bind one of the cell's ports with ``make``; a port in use or an address this machine
-    does not have is a CellError naming the port and the option that set it."""
+    """Bind one of the cell's ports with ``make``; a port in use is a CellError naming the
+    port and the option that set it, a host this machine cannot listen on names --host."""
     try:
         return make()
     except OSError as exc:
-        msg = f"cannot bind the {what} to {host}:{port} ({option}): {exc.strerror or exc}"
+        reason = exc.strerror or str(exc)
+        if isinstance(exc, socket.gaierror) or exc.errno == errno.EADDRNOTAVAIL:
+            msg = f"cannot listen on {host} (--host): {reason}"
+        else:
+            msg = f"cannot bind the {what} to {host}:{port} ({option}): {reason}"
         raise CellError(msg) from None
 
 

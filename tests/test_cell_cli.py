@@ -127,3 +127,17 @@ def test_demo_out_that_is_a_file_is_refused_before_the_tour(tmp_path: Path) -> N
     assert done.stderr.splitlines() == [
         f"python -m cell demo: error: argument --out: {taken} exists and is not a directory"
     ]
+
+
+def test_a_host_that_is_not_this_machines_names_host() -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "cell", "serve", "--host", "no-such-host.invalid",
+         "--robot-port", "0", "--sensor-port", "0", "--udp-port", "0"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    # before: "... the sensor's UDP trigger port ... (--udp-port): Name or service not known"
+    last = done.stderr.splitlines()[-1]
+    assert last.startswith(
+        "python -m cell: error: cannot listen on no-such-host.invalid (--host): "
+    )
