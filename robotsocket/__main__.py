@@ -91,7 +91,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
         server = FramedServer(parts.services["robot"], args.host, args.port, policy)
     except OSError as exc:
         parts.stop()
-        raise CliError(f"cannot listen on {args.host}:{args.port}: {exc.strerror}") from None
+        raise CliError(
+            f"cannot listen on {args.host}:{args.port} (--port): {exc.strerror}"
+        ) from None
     parts.start()
     log.info(
         "robot %s emulator, %s clock, encoder latency %.1f ms, control token %s, allow %s",
@@ -127,7 +129,9 @@ def _serve_child(args: argparse.Namespace, allow: tuple[Network, ...]) -> int:
         server = FramedServer(RobotProcess(child), args.host, args.port, policy)
     except OSError as exc:
         child.close()
-        raise CliError(f"cannot listen on {args.host}:{args.port}: {exc.strerror}") from None
+        raise CliError(
+            f"cannot listen on {args.host}:{args.port} (--port): {exc.strerror}"
+        ) from None
     log.info(
         "robot %s emulator, real-time clock in process %d, encoder latency %.1f ms, "
         "control token %s, allow %s",
