@@ -84,6 +84,30 @@ def not_a_server() -> Iterator[NotAServer]:
         sock.close()
 
 
+#: ``busy_port(udp)`` -> a port on 127.0.0.1 another socket holds until the test ends.
+BusyPort = Callable[[bool], int]
+
+
+@pytest.fixture
+def busy_port() -> Iterator[BusyPort]:
+    """``busy_port(udp)`` -> a TCP port that is listened on (or a UDP port that is bound):
+    what a tool meets when another program, or a second copy of it, has the port."""
+    held: list[socket.socket] = []
+
+    def take(udp: bool) -> int:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM if udp else socket.SOCK_STREAM)
+        held.append(sock)
+        sock.bind(("127.0.0.1", 0))
+        if not udp:
+            sock.listen()
+        port: int = sock.getsockname()[1]
+        return port
+
+    yield take
+    for sock in held:
+        sock.close()
+
+
 @pytest.fixture(autouse=True)
 def _shell_errors_are_fatal() -> Iterator[None]:
     """Any exception a socket shell's loop caught and survived during a test fails it (a

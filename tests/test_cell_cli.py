@@ -5,16 +5,19 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 
 from cell.__main__ import main
 from robotsocket.__main__ import main as robot_main
 from sensorsocket.__main__ import main as sensor_main
+
+if TYPE_CHECKING:
+    from tests.conftest import BusyPort
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = dict(os.environ, PYTHONPATH=str(ROOT))
@@ -96,19 +99,16 @@ def test_demo_runs_end_to_end(tmp_path: Path) -> None:
     ("taken", "extra"),
     [("--robot-port", []), ("--sensor-port", ["--in-process"]), ("--udp-port", [])],
 )
-def test_a_port_in_use_is_named_with_its_option(taken: str, extra: list[str]) -> None:
-    kind = socket.SOCK_DGRAM if taken == "--udp-port" else socket.SOCK_STREAM
-    with socket.socket(socket.AF_INET, kind) as busy:
-        busy.bind(("127.0.0.1", 0))
-        if kind == socket.SOCK_STREAM:
-            busy.listen()
-        port = busy.getsockname()[1]
-        ports = {"--robot-port": "0", "--sensor-port": "0", "--udp-port": "0", taken: str(port)}
-        done = subprocess.run(
-            [sys.executable, "-m", "cell", "serve", *extra,
-             *(x for option, value in ports.items() for x in (option, value))],
-            capture_output=True, text=True, timeout=60,
-        )  # fmt: skip
+def test_a_port_in_use_is_named_with_its_option(
+    taken: str, extra: list[str], busy_port: BusyPort
+) -> None:
+    port = busy_port(taken == "--udp-port")
+    ports = {"--robot-port": "0", "--sensor-port": "0", "--udp-port": "0", taken: str(port)}
+    done = subprocess.run(
+        [sys.executable, "-m", "cell", "serve", *extra,
+         *(x for option, value in ports.items() for x in (option, value))],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
     assert done.returncode == 2, done.stderr
     assert done.stderr.splitlines()[-1].startswith("python -m cell: error: cannot bind the ")
     assert f"to 127.0.0.1:{port} ({taken}): Address already in use" in done.stderr

@@ -19,7 +19,7 @@ from robotsocket.service import RobotService
 from spec.server import ServerPolicy
 
 if TYPE_CHECKING:
-    from tests.conftest import NotAServer, Serve
+    from tests.conftest import BusyPort, NotAServer, Serve
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -208,15 +208,10 @@ def test_a_missing_token_names_the_option(serve: Serve, tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("option", ["--port", "--udp-port"])
-def test_serve_names_the_option_of_a_port_in_use(option: str) -> None:
-    kind = socket.SOCK_DGRAM if option == "--udp-port" else socket.SOCK_STREAM
-    with socket.socket(socket.AF_INET, kind) as busy:
-        busy.bind(("127.0.0.1", 0))
-        if kind == socket.SOCK_STREAM:
-            busy.listen()
-        port = busy.getsockname()[1]
-        ports = {"--port": "0", "--udp-port": "0", option: str(port)}
-        done = robot_cli("serve", "--clock", "sim", *(x for kv in ports.items() for x in kv))
+def test_serve_names_the_option_of_a_port_in_use(option: str, busy_port: BusyPort) -> None:
+    port = busy_port(option == "--udp-port")
+    ports = {"--port": "0", "--udp-port": "0", option: str(port)}
+    done = robot_cli("serve", "--clock", "sim", *(x for kv in ports.items() for x in kv))
     assert done.returncode == 2, done.stderr
     assert done.stderr.splitlines()[-1] == (
         f"error: cannot listen on 127.0.0.1:{port} ({option}): Address already in use"
