@@ -357,7 +357,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         # ValueError covers the kinematics (unknown model) and emulator argument checks.
         print(f"python -m cell: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # the demo's cell and clients are closed on the way out
+        print("python -m cell: interrupted", file=sys.stderr)
         return 130
 
 

@@ -141,3 +141,23 @@ def test_a_host_that_is_not_this_machines_names_host() -> None:
     assert last.startswith(
         "python -m cell: error: cannot listen on no-such-host.invalid (--host): "
     )
+
+
+def test_ctrl_c_in_the_demo_is_one_line_and_exit_130(tmp_path: Path) -> None:
+    # As from a terminal: SIGINT raises KeyboardInterrupt (a test worker may ignore SIGINT).
+    start = (
+        "import runpy, signal; signal.signal(signal.SIGINT, signal.default_int_handler);"
+        " runpy.run_module('cell', run_name='__main__', alter_sys=True)"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", start, "demo", "--out", str(tmp_path), "--no-conformance"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert proc.stdout is not None
+    for line in proc.stdout:
+        if line.startswith("2/4"):  # the tour is under way
+            break
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130, err
+    assert err.splitlines()[-1:] == ["python -m cell: interrupted"] and "Traceback" not in err
