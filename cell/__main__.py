@@ -68,8 +68,8 @@ def _parser() -> cliargs.Parser:
             s.add_argument(
                 "--in-process",
                 action="store_true",
-                help="real clock: run the robot loop, UDP and sensor in this process, not in "
-                "a real-time child process (the default; docs/REALTIME.md)",
+                help="real clock: run the robot loop, UDP and sensor in this process instead "
+                "of the real-time child process used by default (docs/REALTIME.md)",
             )
             s.add_argument(
                 "--frame-timeout",
@@ -80,7 +80,12 @@ def _parser() -> cliargs.Parser:
                 "%(default)g as in PROTOCOL.md RS-7.5; announced in Hello)",
             )
         if name == "demo":
-            s.add_argument("--out", default="out", help="directory for the frame and plots")
+            s.add_argument(
+                "--out",
+                type=cliargs.output_dir,
+                default="out",
+                help="directory for the frame and plots (created)",
+            )
             s.add_argument(
                 "--duration",
                 type=cliargs.number_in(0.01, 3600.0),
@@ -352,7 +357,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         # ValueError covers the kinematics (unknown model) and emulator argument checks.
         print(f"python -m cell: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # the demo's cell and clients are closed on the way out
+        print("python -m cell: interrupted", file=sys.stderr)
         return 130
 
 

@@ -28,11 +28,14 @@ simulated trigger/data link (:mod:`cell.sim_link`) and the ΔT bookkeeping
 
 from __future__ import annotations
 
+import errno
 import logging
 import math
+import socket
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -66,6 +69,24 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+
+
+_T = TypeVar("_T")
+
+
+def bound(what: str, option: str, host: str, port: int, make: Callable[[], _T]) -> _T:
+    """Bind one of the cell's ports with ``make``; a port in use is a CellError naming the
+    port and the option that set it, a host this machine cannot listen on names --host."""
+    try:
+        return make()
+    except OSError as exc:
+        reason = exc.strerror or str(exc)
+        if isinstance(exc, socket.gaierror) or exc.errno == errno.EADDRNOTAVAIL:
+            msg = f"cannot listen on {host} (--host): {reason}"
+        else:
+            msg = f"cannot bind the {what} to {host}:{port} ({option}): {reason}"
+        raise CellError(msg) from None
+
 
 FloatArray = NDArray[np.float64]
 
@@ -192,9 +213,12 @@ class EmulatedCell:
             )
             self.sync = SyncService(self.robot, self.core, self.link.transport)
         else:
-            self.listener = TriggerListener(
-                self.handler, self.host, self.udp_port, clock=self.robot.time, hold=True
-            )
+            self.listener = bound(
+                "sensor's UDP trigger port", "--udp-port", self.host, self.udp_port,
+                lambda: TriggerListener(
+                    self.handler, self.host, self.udp_port, clock=self.robot.time, hold=True
+                ),
+            )  # fmt: skip
             self.udp_address = self.listener.address
             self.endpoint = UdpSyncEndpoint(
                 self.core,
@@ -211,12 +235,16 @@ class EmulatedCell:
         self.robot_server: FramedServer | None = None
         self.sensor_server: FramedServer | None = None
         if self.serve:
-            self.robot_server = FramedServer(
-                self.robot_service, self.host, self.robot_port, self.policy
-            )
-            self.sensor_server = FramedServer(
-                self.sensor_service, self.host, self.sensor_port, self.policy
-            )
+            self.robot_server = bound(
+                "robot's TCP port", "--robot-port", self.host, self.robot_port,
+                lambda: FramedServer(self.robot_service, self.host, self.robot_port, self.policy),
+            )  # fmt: skip
+            self.sensor_server = bound(
+                "sensor's TCP port", "--sensor-port", self.host, self.sensor_port,
+                lambda: FramedServer(
+                    self.sensor_service, self.host, self.sensor_port, self.policy
+                ),
+            )  # fmt: skip
         self._started = False
 
     # --- geometry ----------------------------------------------------------------------------

@@ -15,7 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from cell.cell import EmulatedCell
+from cell.cell import EmulatedCell, bound
+from cell.timing import CellError
 from cell.truth import WeldRecorder, WeldTruth
 from kinematics.robot import get_model
 from robotsocket.rtprocess import ChildParts, ForwardedService, RealtimeProcess, RobotProcess
@@ -75,7 +76,7 @@ class CellProcess:
     """``python -m cell serve --clock real``: the cell's real-time part in a child process,
     its two TCP servers here. Keyword arguments are :class:`~cell.cell.EmulatedCell`'s
     (``clock`` is real). Raises :class:`~robotsocket.rtprocess.ChildStartError` when the
-    child cannot be built and ``OSError`` when a port cannot be bound."""
+    child cannot be built and :class:`~cell.timing.CellError` when a port cannot be bound."""
 
     def __init__(
         self,
@@ -89,11 +90,17 @@ class CellProcess:
         config = {"cell": {"host": host, **cell}}
         self.child = RealtimeProcess("cell.rtcell:build_cell", config)
         try:
-            self.robot_server = FramedServer(RobotProcess(self.child), host, robot_port, policy)
-            self.sensor_server = FramedServer(
-                ForwardedService(self.child, "sensor"), host, sensor_port, policy
-            )
-        except OSError:
+            self.robot_server = bound(
+                "robot's TCP port", "--robot-port", host, robot_port,
+                lambda: FramedServer(RobotProcess(self.child), host, robot_port, policy),
+            )  # fmt: skip
+            self.sensor_server = bound(
+                "sensor's TCP port", "--sensor-port", host, sensor_port,
+                lambda: FramedServer(
+                    ForwardedService(self.child, "sensor"), host, sensor_port, policy
+                ),
+            )  # fmt: skip
+        except CellError:
             self.child.close()
             raise
         self.udp_address: tuple[str, int] = tuple(self.child.facts["udp_address"])

@@ -9,7 +9,7 @@ code  meaning
 1     a MUST requirement failed
 2     only SHOULD requirements failed, and ``--strict`` was given
 3     usage error or harness fault (a case crashed inside the harness; bad option or file)
-4     endpoint unreachable, or it stopped answering (errors and timeouts, never fails)
+4     endpoint unreachable, silent at Hello or not a frame, or it stopped answering
 5     nothing selected (no case matches the profile, globs and tags)
 ====  =====================================================================================
 """
@@ -74,9 +74,12 @@ def parse_capabilities(path: str) -> frozenset[int]:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:
         raise UsageError(f"cannot read capability file {path}: {exc}") from None
+    listed = data.get("not_offered", []) if isinstance(data, dict) else None
+    if not isinstance(listed, list):
+        raise UsageError(f'capability file {path}: expected {{"not_offered": [names or IDs]}}')
     names = {c.name: int(c.id) for c in COMMANDS}
     out: set[int] = set()
-    for item in data.get("not_offered", []) if isinstance(data, dict) else []:
+    for item in listed:
         if isinstance(item, int) and item in BY_ID:
             out.add(item)
         elif isinstance(item, str) and item in names:
@@ -86,6 +89,16 @@ def parse_capabilities(path: str) -> frozenset[int]:
         else:
             raise UsageError(f"capability file {path}: unknown command {item!r}")
     return frozenset(out)
+
+
+def read_expectations(path: str) -> frozenset[str]:
+    """The --expect file's case IDs; a file that cannot be read or parsed is a usage error."""
+    try:
+        return load_expectations(path)
+    except OSError as exc:
+        raise UsageError(f"cannot read --expect file {path}: {exc.strerror or exc}") from None
+    except ValueError as exc:  # not UTF-8, not JSON, not a list of IDs
+        raise UsageError(f"--expect file {path}: {exc}") from None
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -195,7 +208,7 @@ def _main(argv: Sequence[str] | None) -> int:
         seed=args.seed,
         not_offered=parse_capabilities(args.capabilities) if args.capabilities else frozenset(),
     )
-    expect = load_expectations(args.expect) if args.expect else frozenset()
+    expect = read_expectations(args.expect) if args.expect else frozenset()
     endpoint = args.udp if args.service == "sync" and args.udp else args.endpoint
     reference = None
     if endpoint:

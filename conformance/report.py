@@ -292,7 +292,7 @@ def load_expectations(path: str | Path) -> frozenset[str]:
     if text.lstrip().startswith("["):
         data = json.loads(text)
         if not isinstance(data, list) or not all(isinstance(x, str) for x in data):
-            raise ValueError(f"{path}: expected a JSON list of case IDs")
+            raise ValueError("expected a JSON list of case IDs")
         return frozenset(data)
     ids = []
     for line in text.splitlines():

@@ -91,9 +91,17 @@ def negotiate(
     service: str, host: str, port: int, options: Options
 ) -> tuple[bool, Hello | None, str]:
     """Connect and send Hello: (reachable, hello or None, error text)."""
-    if service == "sync":
-        return True, None, ""
     timeout = options.reply_timeout * options.timeout_scale
+    if service == "sync":
+        try:
+            socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
+        except OSError as exc:
+            return False, None, f"cannot resolve {host}: {exc.strerror or exc}"
+        if _probe_trigger(host, port, timeout) == "refused" and not _tcp_listens(
+            host, port, timeout
+        ):
+            return False, None, f"nothing listens on UDP {host}:{port} (port unreachable)"
+        return True, None, ""  # a TCP port given by mistake: preflight says so
     try:
         sock = socket.create_connection((host, port), timeout=timeout)
     except OSError as exc:
@@ -104,12 +112,64 @@ def negotiate(
     conn = Conn(sock, WireLog(), 1, timeout)
     try:
         params = conn.ok(CommandId.HELLO, wire.VERSION_MAJOR, wire.VERSION_MINOR, "conformance")
-    except (Fail, EndpointTimeout, EndpointGone, Closed) as exc:
+    except EndpointTimeout:
+        # Nothing at all came back: every case would only time out (a wall of them), and
+        # "stopped answering" would be wrong, it never answered.
+        return (
+            False,
+            None,
+            (
+                f"{host}:{port} accepted the connection but did not answer Hello within"
+                f" {timeout:g} s: is it a {service} endpoint? (a slow one: --timeout-scale)"
+            ),
+        )
+    except (Fail, EndpointGone, Closed) as exc:
+        received = b"".join(e.data for e in conn.log.entries if e.direction == "<-")
+        if not received and conn.closed:
+            # Closed before a byte came back: every case would end the same way.
+            return (
+                False,
+                None,
+                (
+                    f"{host}:{port} closed the connection without answering Hello: does it"
+                    " refuse this machine (an allow-list) or take no more clients?"
+                ),
+            )
+        if received and not received.startswith(wire.MAGIC[: len(received)]):
+            # Not this protocol at all (an HTTP or SSH server on that port): one line says
+            # so. Frames with the right magic but broken fields still get every case.
+            return (
+                False,
+                None,
+                (
+                    f"{host}:{port} answered Hello with bytes that are not a frame"
+                    f" ({_shown(received)}): is it a {service} endpoint?"
+                ),
+            )
         return True, None, f"Hello failed: {exc}"
     finally:
         conn.close()
         ctx.close_all()
     return True, Hello(dict(zip(HELLO_FIELDS, params, strict=False))), ""
+
+
+def _shown(data: bytes, count: int = 12) -> str:
+    """The first bytes of an answer, as hex and as text: ``48 54 54 50 "HTTP"``."""
+    head = data[:count]
+    text = "".join(chr(b) if 32 <= b < 127 else "." for b in head)
+    return f'{head.hex(" ")} "{text}"'
+
+
+def other_service(service: str, hello: Hello | None, endpoint: str) -> str:
+    """The endpoint announces the other TCP service in Hello [RS-5.31] (a sensor port given
+    to the robot suite): the user's mistake, said in one line; "" when it is not that."""
+    announced = hello.text("service") if hello is not None else ""
+    if announced in ("robot", "sensor") and announced != service:
+        return (
+            f"{endpoint} is a {announced} endpoint (its Hello says so), not a {service} one:"
+            f" check it with `python -m conformance {announced} {endpoint}`; nothing was run"
+        )
+    return ""
 
 
 def preflight(service: str, host: str, port: int, options: Options) -> str:
@@ -145,24 +205,38 @@ def preflight(service: str, host: str, port: int, options: Options) -> str:
 def _tcp_port_for_udp(host: str, port: int, timeout: float) -> str:
     """The sync profile talks UDP to the sensor's trigger port; a TCP listener there that
     does not answer a trigger is the sensor's command port given by mistake."""
+    if _probe_trigger(host, port, timeout) == "answered" or not _tcp_listens(host, port, timeout):
+        return ""
+    return (
+        f"{host}:{port} is a TCP port and no trigger was answered there: the sync"
+        " profile needs the sensor's UDP trigger port (GetTriggerEndpoint tells it,"
+        " e.g. `python -m sensorsocket call HOST:2000 GetTriggerEndpoint`)"
+    )
+
+
+def _probe_trigger(host: str, port: int, timeout: float) -> str:
+    """Send one trigger: "answered" (a datagram came back), "refused" (the host said
+    nothing listens on that UDP port) or "silent"."""
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
     with socket.socket(family, socket.SOCK_DGRAM) as udp:
         udp.settimeout(min(timeout, 1.0))
         try:
-            udp.sendto(encode_trigger(Trigger(secrets.randbelow(1 << 31), 0.0)), (host, port))
-            udp.recvfrom(2048)
-            return ""  # a datagram came back: a UDP endpoint
+            udp.connect((host, port))  # connected: the host's "port unreachable" is reported
+            udp.send(encode_trigger(Trigger(secrets.randbelow(1 << 31), 0.0)))
+            udp.recv(2048)
+            return "answered"
+        except ConnectionRefusedError:
+            return "refused"
         except OSError:
-            pass
+            return "silent"
+
+
+def _tcp_listens(host: str, port: int, timeout: float) -> bool:
     try:
         with socket.create_connection((host, port), timeout=timeout):
-            return (
-                f"{host}:{port} is a TCP port and no trigger was answered there: the sync"
-                " profile needs the sensor's UDP trigger port (GetTriggerEndpoint tells it,"
-                " e.g. `python -m sensorsocket call HOST:2000 GetTriggerEndpoint`)"
-            )
+            return True
     except OSError:
-        return ""
+        return False
 
 
 def _judge(case: Case, exc: Fail) -> Outcome:
@@ -273,7 +347,9 @@ def run(
     if not reachable:
         run_result.duration = time.monotonic() - t0
         return run_result  # one line says why; no case could have run
-    run_result.refused = preflight(service, host, port, options)
+    run_result.refused = other_service(service, hello, run_result.endpoint) or preflight(
+        service, host, port, options
+    )
     if run_result.refused:
         run_result.duration = time.monotonic() - t0
         return run_result

@@ -40,6 +40,10 @@ class CliError(Exception):
     """A user mistake on the command line: one line on stderr, exit code 2."""
 
 
+class CliUnreachable(Exception):
+    """The server cannot be reached or does not speak the protocol: one line, exit code 3."""
+
+
 def parse_endpoint(text: str) -> tuple[str, int]:
     try:
         return callcli.parse_endpoint(text, DEFAULT_PORT)
@@ -87,7 +91,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
         server = FramedServer(parts.services["robot"], args.host, args.port, policy)
     except OSError as exc:
         parts.stop()
-        raise CliError(f"cannot listen on {args.host}:{args.port}: {exc.strerror}") from None
+        raise CliError(
+            f"cannot listen on {args.host}:{args.port} (--port): {exc.strerror}"
+        ) from None
     parts.start()
     log.info(
         "robot %s emulator, %s clock, encoder latency %.1f ms, control token %s, allow %s",
@@ -123,7 +129,9 @@ def _serve_child(args: argparse.Namespace, allow: tuple[Network, ...]) -> int:
         server = FramedServer(RobotProcess(child), args.host, args.port, policy)
     except OSError as exc:
         child.close()
-        raise CliError(f"cannot listen on {args.host}:{args.port}: {exc.strerror}") from None
+        raise CliError(
+            f"cannot listen on {args.host}:{args.port} (--port): {exc.strerror}"
+        ) from None
     log.info(
         "robot %s emulator, real-time clock in process %d, encoder latency %.1f ms, "
         "control token %s, allow %s",
@@ -161,7 +169,11 @@ def cmd_watch(args: argparse.Namespace) -> int:
     from robotsocket.client import RobotClient
 
     host, port = parse_endpoint(args.endpoint)
-    with RobotClient(host, port, timeout=args.timeout) as client:
+    try:
+        client = RobotClient(host, port, timeout=args.timeout)
+    except (OSError, ProtocolError) as exc:
+        raise CliUnreachable(callcli.unreachable(host, port, exc)) from None
+    with client:
         n = 0
         while args.count is None or n < args.count:
             if n:
@@ -193,8 +205,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--in-process",
         action="store_true",
-        help="real clock: run the 4 ms loop in the server's process, not in a real-time "
-        "child process (the default; docs/REALTIME.md)",
+        help="real clock: run the 4 ms loop in the server's process instead of the "
+        "real-time child process used by default (docs/REALTIME.md)",
     )
     s.add_argument(
         "--allow",
@@ -283,6 +295,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except CliError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except CliUnreachable as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return callcli.EXIT_UNREACHABLE
     except RemoteError as exc:
         print(f"error {exc.raw_code} {exc.code.name}: {exc.message}", file=sys.stderr)
         return 1

@@ -125,7 +125,9 @@ def build_robot(config: dict[str, Any]) -> ChildParts:
         try:
             _, endpoint = attach_udp_sync(service, robot, host=host, port=port)
         except OSError as exc:
-            raise ChildStartError(f"cannot listen on {host}:{port} (UDP): {exc.strerror}") from None
+            raise ChildStartError(
+                f"cannot listen on {host}:{port} (--udp-port): {exc.strerror}"
+            ) from None
         endpoint.allow = tuple(config["allow"])  # [RS-7.7]
         endpoint.sensor_only = not config["data_from_any"]  # [SY-3.7]
 

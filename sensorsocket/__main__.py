@@ -28,6 +28,7 @@ from spec.callcli import (
     ListCommands,
     main_call,
     parse_endpoint,
+    unreachable,
 )
 from spec.cliargs import run_cli
 from spec.errors import ErrorCode, ProtocolError, RemoteError
@@ -255,12 +256,16 @@ def cmd_snapshot(args: argparse.Namespace) -> int:
         print(f"error {exc.code.name} ({exc.raw_code}): {exc.message}", file=sys.stderr)
         return EXIT_REMOTE_ERROR
     except (OSError, ProtocolError) as exc:
-        print(f"{PROG} snapshot: cannot reach {host}:{port}: {exc}", file=sys.stderr)
+        print(f"{PROG} snapshot: {unreachable(host, port, exc)}", file=sys.stderr)
         return EXIT_UNREACHABLE
-    if suffix == ".png":
-        _write_png(out, image)
-    else:
-        write_pgm(out, image)
+    try:
+        if suffix == ".png":
+            _write_png(out, image)
+        else:
+            write_pgm(out, image)
+    except OSError as exc:  # checked before the call, but a disk fills, a mount is read-only
+        print(f"{PROG} snapshot: cannot write {out}: {exc.strerror or exc}", file=sys.stderr)
+        return EXIT_USAGE
     print(f"wrote {out} ({image.shape[1]}x{image.shape[0]}, frame {index})")
     if settings.columns < settings.width:
         # the window is the sensor's, not this connection's: a frame half black is not a fault

@@ -56,7 +56,11 @@ def cmd_decode(args: argparse.Namespace) -> int:
         raw = _read_input(args.input)
         if not raw:
             raise ValueError("empty input: give a frame or datagram as hex, a file or -")
-        print(describe_all(raw))
+        text, error = describe_all(raw)
+        if text:
+            print(text)  # the good frames before a bad or cut-off one
+        if error is not None:
+            raise error
     except (ValueError, OSError) as exc:
         print(f"spec decode: {exc}", file=sys.stderr)
         return 2

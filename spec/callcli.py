@@ -23,7 +23,7 @@ from typing import Any
 
 from spec.client import FramedClient, wait_end_move
 from spec.codec import encode_packet, request
-from spec.errors import ProtocolError, RemoteError
+from spec.errors import ErrorCode, ProtocolError, RemoteError
 from spec.jsonform import plain
 from spec.params import FloatArray, IntArray, Joints, Location, Transform, Value
 from spec.registry import BY_ID, COMMANDS, CommandId, CommandSpec, ParamSpec
@@ -281,16 +281,29 @@ def main_call(
         print(f"interrupted{stopped}; control released", file=sys.stderr)
         return EXIT_INTERRUPTED
     except RemoteError as exc:
-        print(f"error {exc.code.name} ({exc.raw_code}): {exc.message}", file=sys.stderr)
+        hint = ""
+        if exc.code is ErrorCode.AUTH_FAILED and not token:
+            hint = " (the server wants a control token: --token-file FILE)"
+        print(f"error {exc.code.name} ({exc.raw_code}): {exc.message}{hint}", file=sys.stderr)
         return EXIT_REMOTE_ERROR
     except (OSError, ProtocolError) as exc:
-        print(f"error: cannot reach {host}:{port}: {exc}", file=sys.stderr)
+        print(f"error: {unreachable(host, port, exc)}", file=sys.stderr)
         return EXIT_UNREACHABLE
     print(format_reply(reply))
     if reply.get("done") is False:
         print(f"error: the move did not end within {wait:g} s (it goes on)", file=sys.stderr)
         return EXIT_REMOTE_ERROR
     return 0
+
+
+def unreachable(host: str, port: int, exc: OSError | ProtocolError) -> str:
+    """What went wrong reaching a server, in one line naming it: the client's own errors
+    (no reply, a bad frame, closed) already name the server, and their wire code
+    ("INTERNAL_ERROR (19)" for a closed connection) would read as the server's; a socket
+    error does not name it."""
+    if isinstance(exc, ProtocolError):
+        return exc.message
+    return f"cannot reach {host}:{port}: {exc.strerror or exc}"
 
 
 def _stop_what_was_started(client: FramedClient, moved: bool) -> None:

@@ -168,10 +168,24 @@ def network(text: str) -> Network:
 
 class Parser(argparse.ArgumentParser):
     """An argument parser whose errors are one line on stderr and exit status 2 (no usage
-    dump); give it to ``add_subparsers(parser_class=Parser)`` too."""
+    dump); give it to ``add_subparsers(parser_class=Parser)`` too.
+
+    Options are not taken by a prefix: ``welding track --robot X --sensor Y`` (track has
+    neither) said "ambiguous option: --sensor could match --sensor-tool, ..." instead of
+    naming the unknown options, and a script's abbreviation changes meaning when an option
+    is added."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message}\n")
+
+    def format_help(self) -> str:
+        for action in self._actions:
+            _show_default(action)
+        return super().format_help()
 
     def _get_values(self, action: argparse.Action, arg_strings: list[str]) -> Any:
         # Python 3.11's argparse drops the value of ``--seed=--`` as if it ended the options
@@ -180,6 +194,21 @@ class Parser(argparse.ArgumentParser):
         if action.option_strings and action.nargs is None and arg_strings == ["--"]:
             return self._get_value(action, "--")
         return super()._get_values(action, arg_strings)
+
+
+def _show_default(action: argparse.Action) -> None:
+    """Add an option's default to its help line, unless the help already names one: a user
+    reading ``--help`` must not have to guess the port or the clock."""
+    default, text = action.default, action.help or ""
+    if not action.option_strings or text == argparse.SUPPRESS or "default" in text:
+        return
+    if default is None or isinstance(default, bool) or default in ("", argparse.SUPPRESS):
+        return
+    if isinstance(default, list | tuple) and not default:
+        return
+    values = default if isinstance(default, list | tuple) else [default]
+    shown = ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in values)
+    action.help = f"{text}; default {shown}" if text else f"default {shown}"
 
 
 def output_file(text: str) -> str:
@@ -206,15 +235,27 @@ def output_dir(text: str) -> str:
 
 #: Exit status of a Unix tool stopped by SIGPIPE (128 + 13).
 EXIT_BROKEN_PIPE = 141
+#: Exit status of a tool stopped by Ctrl-C (128 + SIGINT).
+EXIT_INTERRUPTED = 130
+
+
+def program_name(argv0: str) -> str:
+    """How the user started us: ``python -m conformance`` or ``rsf-conformance``."""
+    path = Path(argv0)
+    return f"python -m {path.parent.name}" if path.name == "__main__.py" else path.name
 
 
 def run_cli(main: Callable[[], int]) -> int:
     """Run a command line's ``main``. A reader that closed our standard output (``… | head``)
-    ends it quietly, as it ends a Unix tool, instead of with an error message."""
+    ends it quietly, as it ends a Unix tool, instead of with an error message; Ctrl-C that
+    ``main`` does not handle itself is one line and exit status 130, not a traceback."""
     try:
         code = main()
         sys.stdout.flush()
         return code
+    except KeyboardInterrupt:
+        print(f"{program_name(sys.argv[0])}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except BrokenPipeError:
         # Python flushes stdout again at exit: point it at /dev/null so that stays quiet.
         devnull = os.open(os.devnull, os.O_WRONLY)

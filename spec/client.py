@@ -216,7 +216,7 @@ class FramedClient:
                     return event  # the awaited reply (never a limit notice: its ID is 0)
                 if not isinstance(event, Packet):
                     self.close()
-                    raise event.error
+                    raise self._from_peer(event.error)
                 if event.kind is _EVENT:
                     pass  # [RS-3.14] an event is never the reply to a request
                 elif event.request_id in self._abandoned and event.request_id != request_id:
@@ -229,7 +229,7 @@ class FramedClient:
             first = False
             if remaining <= 0:
                 self.close()  # a late reply would be mistaken for the next one
-                raise ClientTimeout(f"no reply within {timeout:.3g} s")
+                raise ClientTimeout(f"no reply from {self.address} within {timeout:.3g} s")
             current = self._kernel_timeout
             if current is None or current > remaining * 1.1 + 0.01:
                 self._arm_timeout(remaining)  # else it overshoots by at most 10 % + 10 ms
@@ -244,19 +244,34 @@ class FramedClient:
                 continue
             except OSError as exc:
                 self.close()
-                raise ConnectionClosed(f"connection lost: {exc}") from None
+                raise ConnectionClosed(f"connection to {self.address} lost: {exc}") from None
             if not n:
                 self.close()
-                raise ConnectionClosed("server closed the connection")
+                raise ConnectionClosed(f"{self.address} closed the connection")
             if view is not None:
                 decoder.buffer_updated(n)
                 event = decoder.next_event()
                 continue
             try:
                 event = decoder.feed_next(self._scratch_view[:n])
-            except PeerError:
+            except PeerError as exc:
                 self.close()
-                raise
+                raise self._from_peer(exc) from None
+
+    @property
+    def address(self) -> str:
+        """``host:port`` of the server, as messages name it."""
+        return f"[{self.host}]:{self.port}" if ":" in self.host else f"{self.host}:{self.port}"
+
+    def _from_peer(self, exc: PeerError) -> PeerError:
+        """``exc`` with its message naming the server; bytes that do not even start like a
+        frame mean another protocol is listening there (an HTTP server, the wrong port)."""
+        hint = (
+            " (not a RobotSocket or SensorSocket endpoint?)" if "bad magic" in exc.message else ""
+        )
+        exc.message = f"{self.address} sent a bad frame: {exc.message}{hint}"
+        exc.args = (exc.message,)
+        return exc
 
     def _arm_timeout(self, remaining: float) -> None:
         """Bound the next receive (and send) by about ``remaining`` seconds: a kernel timeout,

@@ -7,7 +7,7 @@ import math
 from spec import wire
 from spec.codec import FrameDecoder, Header, Packet, Rejected, decode_packet
 from spec.datagrams import SensorData, Trigger, decode_datagram
-from spec.errors import ErrorCode, FrameError
+from spec.errors import ErrorCode, FrameError, PeerError
 from spec.params import (
     FloatArray,
     Image,
@@ -132,27 +132,32 @@ def describe(raw: bytes) -> str:
     return "\n".join(describe_packet(decode_packet(raw), raw))
 
 
-def describe_all(raw: bytes) -> str:
-    """Dissect a datagram, or every frame of a TCP capture (frames back to back); raises the
-    codec's PeerError at the first malformed or incomplete frame, after the good ones."""
+def describe_all(raw: bytes) -> tuple[str, PeerError | None]:
+    """Dissect a datagram, or every frame of a TCP capture (frames back to back): the text of
+    the good frames and the codec's PeerError at the first malformed or incomplete one (None
+    when there is none), so a capture cut short still shows what it holds."""
     if raw[:2] == wire.DATAGRAM_MAGIC:
-        return describe(raw)
+        return describe(raw), None
     decoder = FrameDecoder(max_payload=wire.MAX_PAYLOAD)
     decoder.feed(raw)
     parts: list[str] = []
     offset = 0
+    error: PeerError | None = None
     for event in decoder.events():
         if isinstance(event, Rejected):
-            raise event.error
+            error = event.error
+            break
         size = wire.FRAME_OVERHEAD + Header.unpack(raw[offset:]).length
         frame = raw[offset : offset + size]
         offset += size
         parts.append("\n".join(describe_packet(event, frame)))
-    if decoder.buffered:
+    if error is None and decoder.buffered:
         need = wire.HEADER_SIZE
         if decoder.buffered >= wire.HEADER_SIZE:
             need = wire.FRAME_OVERHEAD + Header.unpack(raw[offset:]).length
-        raise FrameError(f"truncated frame at byte {offset}: {decoder.buffered} of {need} bytes")
-    if len(parts) == 1:
-        return parts[0]
-    return "\n\n".join(f"== frame {i + 1} of {len(parts)}\n{p}" for i, p in enumerate(parts))
+        error = FrameError(f"truncated frame at byte {offset}: {decoder.buffered} of {need} bytes")
+    if not parts or (len(parts) == 1 and error is None):
+        return "".join(parts), error
+    total = f" of {len(parts)}" if error is None else ""  # the error says where it stopped
+    text = "\n\n".join(f"== frame {i + 1}{total}\n{p}" for i, p in enumerate(parts))
+    return text, error

@@ -39,6 +39,11 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     try:
         yield tmp
         os.replace(tmp, target)
+    except OSError as exc:
+        if exc.filename not in (str(tmp), tmp):
+            raise
+        # The user named the target, not our temporary file: say that one (same errno/type).
+        raise type(exc)(exc.errno, exc.strerror, str(target)) from None
     finally:
         tmp.unlink(missing_ok=True)
 

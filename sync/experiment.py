@@ -235,6 +235,17 @@ def _sync_statistics(robot: FramedClient) -> dict[str, int]:
     return {k: v for k, v in reply.items() if isinstance(v, int) and not isinstance(v, bool)}
 
 
+def _check_service(client: FramedClient, info: dict[str, Value], wanted: str) -> None:
+    """The endpoint given as --robot (--sensor) announces that service in Hello [RS-5.31];
+    the other one means the two addresses were swapped (else: an unknown model name)."""
+    service = info.get("service")
+    if service in ("robot", "sensor") and service != wanted:
+        raise ExperimentError(
+            f"{client.address} (--{wanted}) is a {service} endpoint, not a {wanted}:"
+            " are --robot and --sensor swapped?"
+        )
+
+
 def record_sine(
     robot: FramedClient,
     sensor: FramedClient | None,
@@ -248,6 +259,9 @@ def record_sine(
     """
     s = settings
     info = robot.hello()
+    _check_service(robot, info, "robot")
+    if sensor is not None:
+        _check_service(sensor, sensor.hello(), "sensor")
     model_name = s.model or str(info.get("model", ""))
     try:
         model = get_model(model_name)
@@ -261,7 +275,6 @@ def record_sine(
             raise ExperimentError(f"the robot does not implement {', '.join(missing)}")
     robot.take_control(s.token)
     if sensor is not None:
-        sensor.hello()
         host, port = _endpoint(sensor)
         robot.call(CommandId.SET_SENSOR_ENDPOINT, host, port)
     config = _reply(robot, CommandId.GET_SYNC_CONFIG)

@@ -16,6 +16,9 @@ fixture is set up about once per worker.
 
 from __future__ import annotations
 
+import contextlib
+import socket
+import threading
 from collections.abc import Callable, Iterator
 from itertools import islice
 
@@ -42,6 +45,67 @@ def serve() -> Iterator[Serve]:
         srv.shutdown()
     for srv in servers:
         assert not srv.handler_errors, srv.handler_errors
+
+
+#: ``not_a_server(answer)`` -> "127.0.0.1:PORT" of a TCP server that is no robot or sensor.
+NotAServer = Callable[[bytes | None], str]
+
+
+@pytest.fixture
+def not_a_server() -> Iterator[NotAServer]:
+    """``not_a_server(answer)`` -> the address of a TCP server that answers whatever it
+    receives with ``answer`` and closes (an HTTP server, say), or, with None, accepts and
+    never answers (a hung one): what a user points a tool at by mistake."""
+    listeners: list[socket.socket] = []
+    conns: list[socket.socket] = []
+
+    def start(answer: bytes | None) -> str:
+        listener = socket.create_server(("127.0.0.1", 0))
+        listeners.append(listener)
+
+        def serve() -> None:
+            while True:
+                try:
+                    conn, _ = listener.accept()
+                except OSError:
+                    return
+                conns.append(conn)
+                if answer is not None:
+                    with contextlib.suppress(OSError):
+                        conn.recv(4096)
+                        conn.sendall(answer)
+                        conn.close()
+
+        threading.Thread(target=serve, daemon=True).start()
+        return f"127.0.0.1:{listener.getsockname()[1]}"
+
+    yield start
+    for sock in listeners + conns:
+        sock.close()
+
+
+#: ``busy_port(udp)`` -> a port on 127.0.0.1 another socket holds until the test ends.
+BusyPort = Callable[[bool], int]
+
+
+@pytest.fixture
+def busy_port() -> Iterator[BusyPort]:
+    """``busy_port(udp)`` -> a TCP port that is listened on (or a UDP port that is bound):
+    what a tool meets when another program, or a second copy of it, has the port."""
+    held: list[socket.socket] = []
+
+    def take(udp: bool) -> int:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM if udp else socket.SOCK_STREAM)
+        held.append(sock)
+        sock.bind(("127.0.0.1", 0))
+        if not udp:
+            sock.listen()
+        port: int = sock.getsockname()[1]
+        return port
+
+    yield take
+    for sock in held:
+        sock.close()
 
 
 @pytest.fixture(autouse=True)

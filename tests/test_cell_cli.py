@@ -8,12 +8,16 @@ import signal
 import subprocess
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 
 from cell.__main__ import main
 from robotsocket.__main__ import main as robot_main
 from sensorsocket.__main__ import main as sensor_main
+
+if TYPE_CHECKING:
+    from tests.conftest import BusyPort
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = dict(os.environ, PYTHONPATH=str(ROOT))
@@ -89,3 +93,71 @@ def test_demo_runs_end_to_end(tmp_path: Path) -> None:
     assert ("verdict: UNTRUSTED" in text) == (out.returncode == 3), text
     assert "EnablePower, Herej()" in text and "ΔT measured (ms)" in text and "verdict:" in text
     assert any(p.suffix == ".pgm" for p in tmp_path.iterdir())
+
+
+@pytest.mark.parametrize(
+    ("taken", "extra"),
+    [("--robot-port", []), ("--sensor-port", ["--in-process"]), ("--udp-port", [])],
+)
+def test_a_port_in_use_is_named_with_its_option(
+    taken: str, extra: list[str], busy_port: BusyPort
+) -> None:
+    port = busy_port(taken == "--udp-port")
+    ports = {"--robot-port": "0", "--sensor-port": "0", "--udp-port": "0", taken: str(port)}
+    done = subprocess.run(
+        [sys.executable, "-m", "cell", "serve", *extra,
+         *(x for option, value in ports.items() for x in (option, value))],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.splitlines()[-1].startswith("python -m cell: error: cannot bind the ")
+    assert f"to 127.0.0.1:{port} ({taken}): Address already in use" in done.stderr
+    assert "Traceback" not in done.stderr
+
+
+def test_demo_out_that_is_a_file_is_refused_before_the_tour(tmp_path: Path) -> None:
+    taken = tmp_path / "out"
+    taken.write_text("a file")
+    done = subprocess.run(
+        [sys.executable, "-m", "cell", "demo", "--out", str(taken)],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    assert done.stdout == ""  # before: half the tour, then "[Errno 17] File exists"
+    assert done.stderr.splitlines() == [
+        f"python -m cell demo: error: argument --out: {taken} exists and is not a directory"
+    ]
+
+
+def test_a_host_that_is_not_this_machines_names_host() -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "cell", "serve", "--host", "no-such-host.invalid",
+         "--robot-port", "0", "--sensor-port", "0", "--udp-port", "0"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    # before: "... the sensor's UDP trigger port ... (--udp-port): Name or service not known"
+    last = done.stderr.splitlines()[-1]
+    assert last.startswith(
+        "python -m cell: error: cannot listen on no-such-host.invalid (--host): "
+    )
+
+
+def test_ctrl_c_in_the_demo_is_one_line_and_exit_130(tmp_path: Path) -> None:
+    # As from a terminal: SIGINT raises KeyboardInterrupt (a test worker may ignore SIGINT).
+    start = (
+        "import runpy, signal; signal.signal(signal.SIGINT, signal.default_int_handler);"
+        " runpy.run_module('cell', run_name='__main__', alter_sys=True)"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", start, "demo", "--out", str(tmp_path), "--no-conformance"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert proc.stdout is not None
+    for line in proc.stdout:
+        if line.startswith("2/4"):  # the tour is under way
+            break
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130, err
+    assert err.splitlines()[-1:] == ["python -m cell: interrupted"] and "Traceback" not in err

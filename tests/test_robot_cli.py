@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -18,7 +19,7 @@ from robotsocket.service import RobotService
 from spec.server import ServerPolicy
 
 if TYPE_CHECKING:
-    from tests.conftest import Serve
+    from tests.conftest import BusyPort, NotAServer, Serve
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -154,3 +155,64 @@ def test_call_list_and_a_joint_log_one_row_per_line(
     log = json.loads(out)["log"]
     assert len(out.splitlines()) == len(log) + 2  # "{log: [", one line per sample, "]..."
     assert all(len(row) == 7 for row in log)
+
+
+def robot_cli(*argv: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "robotsocket", *argv],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+
+
+def test_a_server_of_another_protocol_is_named_not_unreachable(
+    not_a_server: NotAServer,
+) -> None:
+    address = not_a_server(b"HTTP/1.0 400 Bad request\r\n\r\n")
+    done = robot_cli("call", address, "herej")
+    assert done.returncode == 3, done.stderr
+    assert done.stderr.splitlines() == [
+        f"error: {address} sent a bad frame: bad magic 4854, expected 5253"
+        " (not a RobotSocket or SensorSocket endpoint?)"
+    ]
+
+
+def test_a_silent_server_is_named_with_the_time_waited(not_a_server: NotAServer) -> None:
+    address = not_a_server(None)
+    done = robot_cli("call", address, "herej", "--timeout", "0.3")
+    assert done.returncode == 3, done.stderr
+    assert done.stderr.splitlines() == [f"error: no reply from {address} within 0.3 s"]
+
+
+def test_watch_names_the_address_it_cannot_reach() -> None:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    done = robot_cli("watch", f"127.0.0.1:{port}", "--count", "1")  # nobody listens
+    assert done.returncode == 3, done.stderr
+    assert done.stderr.splitlines() == [f"error: cannot reach 127.0.0.1:{port}: Connection refused"]
+
+
+def test_a_missing_token_names_the_option(serve: Serve, tmp_path: Path) -> None:
+    srv = serve(RobotService(RobotEmulator()), ServerPolicy(token="s3cret"))
+    address = "{}:{}".format(*srv.address)
+    done = robot_cli("call", address, "enablepower")
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.splitlines() == [
+        "error AUTH_FAILED (14): control token missing or wrong"
+        " (the server wants a control token: --token-file FILE)"
+    ]
+    wrong = tmp_path / "token.txt"
+    wrong.write_text("wrong\n")
+    done = robot_cli("call", address, "enablepower", "--token-file", str(wrong))
+    assert done.stderr.splitlines() == ["error AUTH_FAILED (14): control token missing or wrong"]
+
+
+@pytest.mark.parametrize("option", ["--port", "--udp-port"])
+def test_serve_names_the_option_of_a_port_in_use(option: str, busy_port: BusyPort) -> None:
+    port = busy_port(option == "--udp-port")
+    ports = {"--port": "0", "--udp-port": "0", option: str(port)}
+    done = robot_cli("serve", "--clock", "sim", *(x for kv in ports.items() for x in kv))
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.splitlines()[-1] == (
+        f"error: cannot listen on 127.0.0.1:{port} ({option}): Address already in use"
+    )

@@ -145,6 +145,14 @@ def test_snapshot_writes_the_frame(served: Served, tmp_path: Path, run: Callable
     assert "readout window" not in r.stdout
 
 
+def test_snapshot_a_file_that_cannot_be_written_is_one_line(served: Served) -> None:
+    # /proc takes no new files: refused before the call (not writable) or when writing
+    done = cli("snapshot", served.tcp, "-o", "/proc/frame.pgm")
+    assert done.returncode == 2, done.stderr
+    assert "Traceback" not in done.stderr and len(done.stderr.splitlines()) == 1
+    assert "/proc" in done.stderr and ".tmp" not in done.stderr
+
+
 def test_snapshot_says_a_readout_window_is_in_force(
     served: Served, tmp_path: Path, run: Callable[..., Ran], call: Callable[..., dict[str, object]]
 ) -> None:

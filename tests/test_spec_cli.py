@@ -70,6 +70,10 @@ def test_decode_a_capture_of_several_frames(tmp_path: Path) -> None:
     capture.write_bytes(b"".join(frames) + frames[0][:5])
     r = run("decode", str(capture))
     assert r.returncode == 2 and "truncated frame" in r.stderr
+    # a capture cut short still shows the frames it holds, then where it stopped
+    assert "== frame 3\n" in r.stdout and "== frame 4" not in r.stdout
+    assert r.stderr.splitlines() == ["spec decode: invalid: BAD_FRAME (1): truncated frame at"
+                                     f" byte {len(b''.join(frames))}: 5 of 16 bytes"]  # fmt: skip
 
 
 def test_vectors_end_with_a_summary_and_the_shipped_capture_decodes() -> None:

@@ -267,3 +267,58 @@ def test_empty_token_file_stops_every_client(argv: tuple[str, ...], empty_token:
     assert done.returncode in (2, 3)  # 3: the harness's documented usage code
     assert f"token file {empty_token} is empty" in done.stderr
     assert len(done.stderr.strip().splitlines()) == 1, done.stderr
+
+
+def test_program_name_is_how_the_user_started_the_tool() -> None:
+    assert cliargs.program_name("/x/site-packages/conformance/__main__.py") == (
+        "python -m conformance"
+    )
+    assert cliargs.program_name("/x/.venv/bin/rsf-conformance") == "rsf-conformance"
+
+
+def test_help_names_each_options_default_once() -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "cell", "serve", "--help"],
+        capture_output=True, text=True, timeout=60, check=True,
+    )  # fmt: skip
+    text = " ".join(done.stdout.split())  # argparse wraps lines to the terminal width
+    for option, default in [
+        ("--robot-port ROBOT_PORT", "4000"),
+        ("--sensor-port SENSOR_PORT", "2000"),
+        ("--udp-port UDP_PORT", "2001"),
+        ("--clock {real,sim}", "real"),
+        ("--model MODEL", "RX90B"),
+    ]:
+        assert f"{option} default {default} " in text, option
+    # a help that already names its default keeps it, once
+    assert "(ms), default 2.8 --trigger-poll-hz" in text
+    assert "--in-process default" not in text  # a flag has no default to show
+
+
+def test_a_default_is_shown_for_a_plain_help_too() -> None:
+    parser = cliargs.Parser(prog="tool")
+    parser.add_argument("--interval", type=float, default=0.5, help="seconds between lines")
+    parser.add_argument("--allow", nargs="+", default=[], help="networks")
+    parser.add_argument("--error", default=(0.0,) * 3, help="mm")
+    text = " ".join(parser.format_help().split())
+    assert "seconds between lines; default 0.5" in text
+    assert "mm; default 0,0,0" in text
+    assert "networks default" not in text and "networks;" not in text
+    assert text == " ".join(parser.format_help().split())  # formatting twice adds nothing
+
+
+def test_an_unknown_option_is_named_not_taken_for_a_prefix() -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "welding", "track", "--emulate", "--robot", "127.0.0.1:4000",
+         "--sensor", "127.0.0.1:2000"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 2
+    assert done.stderr.splitlines() == [
+        "python -m welding: error: unrecognized arguments: --robot 127.0.0.1:4000"
+        " --sensor 127.0.0.1:2000"
+    ]  # not "ambiguous option: --sensor could match --sensor-tool, ..."
+    parser = cliargs.Parser(prog="tool")
+    parser.add_argument("--duration", type=float)
+    with pytest.raises(SystemExit):
+        parser.parse_args(["--dur", "1"])

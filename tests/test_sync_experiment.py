@@ -7,13 +7,19 @@ import math
 import subprocess
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
 
+from robotsocket.emulator import RobotEmulator
+from robotsocket.service import RobotService
 from sync.__main__ import main
 from sync.delay import simulate_sine_experiment
 from sync.experiment import ExperimentData, ExperimentSettings, analyse, sine_path, write_json
+
+if TYPE_CHECKING:
+    from tests.conftest import Serve
 
 
 def test_sine_path_starts_and_ends_at_rest_on_the_4ms_grid() -> None:
@@ -175,3 +181,20 @@ def test_cli_sigterm_exits_130_with_one_line() -> None:
     assert lines[-2] == "python -m sync: interrupted: triggers and motion stopped, control released"
     assert "Traceback" not in err and "error" not in err
     assert out == ""
+
+
+def test_cli_a_robot_given_as_the_sensor_is_named(serve: Serve) -> None:
+    # before: the robot took the sensor's commands for unknown ones, or the sensor's model
+    # name was "no kinematic model 'seam-tracker-emulator 512x256': use --model"
+    robot = serve(RobotService(RobotEmulator()), None)
+    address = "{}:{}".format(*robot.address)
+    done = subprocess.run(
+        [sys.executable, "-m", "sync", "delay", "--robot", address, "--sensor", address,
+         "--duration", "1", "-q"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.splitlines() == [
+        f"python -m sync: error: {address} (--sensor) is a robot endpoint, not a sensor:"
+        " are --robot and --sensor swapped?"
+    ]

@@ -11,11 +11,17 @@ import socket
 import subprocess
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 
+from robotsocket.emulator import RobotEmulator
+from robotsocket.service import RobotService
 from welding import job as J
 from welding.cli import main
+
+if TYPE_CHECKING:
+    from tests.conftest import Serve
 
 
 @pytest.fixture(autouse=True)
@@ -123,7 +129,9 @@ def test_unreachable_robot_and_bad_endpoint(capsys: pytest.CaptureFixture[str]) 
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]  # bound, not listening: connection refused
         assert main(["status", "--robot", f"127.0.0.1:{port}", "--timeout", "2"]) == 3
-    assert "unreachable" in capsys.readouterr().err
+    assert capsys.readouterr().err.splitlines() == [
+        f"python -m welding: error: robot: cannot reach 127.0.0.1:{port}: Connection refused"
+    ]
     with pytest.raises(SystemExit) as info:
         main(["status", "--robot", "host:99999"])
     assert info.value.code == 2
@@ -272,3 +280,33 @@ def test_track_on_the_real_clock_interrupted_leaves_nothing_behind() -> None:
 def test_track_with_an_unknown_sensor_tool(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["track", "--emulate", "--sensor-tool", "nope"]) == 1
     assert "no tool named 'nope'" in capsys.readouterr().err
+
+
+def test_run_of_a_missing_job_touches_nothing(tmp_path: Path) -> None:
+    # before: the emulated cell's tools were added to ./welding-tools.json, then the error
+    done = subprocess.run(
+        [sys.executable, "-m", "welding", "job", "run", "nosuch.xml", "--emulate", "--dry-run"],
+        capture_output=True, text=True, timeout=60, cwd=tmp_path,
+    )  # fmt: skip
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.splitlines() == [
+        "python -m welding: error: cannot read nosuch.xml: No such file or directory"
+    ]
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_console_names_the_endpoint_it_cannot_reach(serve: Serve) -> None:
+    robot = serve(RobotService(RobotEmulator()), None)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]  # bound, not listening: connection refused
+        done = subprocess.run(
+            [sys.executable, "-m", "welding", "console", "--robot",
+             "{}:{}".format(*robot.address), "--sensor", f"127.0.0.1:{port}", "--port", "0"],
+            capture_output=True, text=True, timeout=60,
+        )  # fmt: skip
+    assert done.returncode == 3, done.stderr
+    # before: "robot or sensor unreachable: [Errno 111] Connection refused"
+    assert done.stderr.splitlines() == [
+        f"python -m welding: error: sensor: cannot reach 127.0.0.1:{port}: Connection refused"
+    ]

@@ -39,7 +39,7 @@ import numpy as np
 from robotsocket.client import RobotClient
 from sensorsocket.client import SensorClient
 from spec import cliargs
-from spec.callcli import parse_endpoint, stop_signals_interrupt
+from spec.callcli import parse_endpoint, stop_signals_interrupt, unreachable
 from spec.client import ClientTimeout
 from spec.errors import ProtocolError, RemoteError
 from spec.files import write_atomically
@@ -330,7 +330,7 @@ def _cell(args: argparse.Namespace, *, control: bool, sensor: bool = False) -> I
     try:
         robot = RobotClient(host, port, timeout=args.timeout)
     except (OSError, ClientTimeout) as exc:
-        raise CliError(f"robot {host}:{port} unreachable: {exc}", EXIT_UNREACHABLE) from None
+        raise CliError(f"robot: {unreachable(host, port, exc)}", EXIT_UNREACHABLE) from None
     sensor_client: SensorClient | None = None
     try:
         if sensor:
@@ -339,7 +339,9 @@ def _cell(args: argparse.Namespace, *, control: bool, sensor: bool = False) -> I
             try:
                 sensor_client = SensorClient(*args.sensor, timeout=args.timeout)
             except (OSError, ClientTimeout) as exc:
-                raise CliError(f"sensor unreachable: {exc}", EXIT_UNREACHABLE) from None
+                sensor_host, sensor_port = args.sensor
+                why = unreachable(sensor_host, sensor_port, exc)
+                raise CliError(f"sensor: {why}", EXIT_UNREACHABLE) from None
             sensor_client.take_control(args.token_file or "")
         if control:
             robot.take_control(args.token_file or "")
@@ -489,6 +491,9 @@ class _ProgressBar:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    # A missing or broken file is said before the cell starts, the robot is connected or the
+    # tool database gets the emulated cell's tools; the names are checked once tables exist.
+    _load_job(args.job, None)
     with _cell(args, control=True, sensor=not args.emulate and args.sensor is not None) as cell:
         job = _load_job(args.job, cell.tables)
         emulated = cell.emulated is not None

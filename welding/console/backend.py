@@ -33,6 +33,7 @@ import numpy as np
 
 from robotsocket.client import MotionDesc, RobotClient
 from sensorsocket.client import SensorClient
+from spec.callcli import unreachable
 from spec.errors import ProtocolError, RemoteError
 from welding import job as J
 from welding.console.jobjson import JobJsonError, job_from_json, job_to_json, problems_json
@@ -124,14 +125,21 @@ class Console:
         #: The emulated cell (``--emulate``): its spot detector and true tools.
         self.cell = cell
         self._laser_runs = 0  # seeds the emulated spot detector's noise: a session repeats
-        self.control = RobotClient(*robot, timeout=timeout, client_name="welding-console")
-        self.poll = RobotClient(*robot, timeout=timeout, client_name="welding-console-status")
-        self.stopper = RobotClient(*robot, timeout=timeout, client_name="welding-console-estop")
-        self.sensor = (
-            SensorClient(*sensor, timeout=timeout, client_name="welding-console")
-            if sensor is not None
-            else None
-        )
+        try:
+            self.control = RobotClient(*robot, timeout=timeout, client_name="welding-console")
+            self.poll = RobotClient(*robot, timeout=timeout, client_name="welding-console-status")
+            self.stopper = RobotClient(*robot, timeout=timeout, client_name="welding-console-estop")
+        except (OSError, ProtocolError) as exc:
+            raise ConnectionError(f"robot: {unreachable(*robot, exc)}") from None
+        try:
+            self.sensor = (
+                SensorClient(*sensor, timeout=timeout, client_name="welding-console")
+                if sensor is not None
+                else None
+            )
+        except (OSError, ProtocolError) as exc:
+            assert sensor is not None
+            raise ConnectionError(f"sensor: {unreachable(*sensor, exc)}") from None
         self.in_control = False
         self.sensor_in_control = False
         self._lock = threading.Lock()  # guards jog, activity, selections

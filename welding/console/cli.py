@@ -124,7 +124,7 @@ def cmd_console(args: argparse.Namespace) -> int:
                 cell=cell,
             )
         except OSError as exc:
-            raise CliError(f"robot or sensor unreachable: {exc}", 3) from None
+            raise CliError(str(exc), 3) from None  # names robot or sensor and its address
         try:
             port = listener.getsockname()[1]  # the one bound (--port 0: a free one)
             print(f"console: http://{args.host}:{port}/", file=sys.stderr, flush=True)
