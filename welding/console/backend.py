@@ -139,6 +139,8 @@ class Console:
             )
         except (OSError, ProtocolError) as exc:
             assert sensor is not None
+            for c in (self.control, self.poll, self.stopper):
+                c.close()
             raise ConnectionError(f"sensor: {unreachable(*sensor, exc)}") from None
         self.in_control = False
         self.sensor_in_control = False
