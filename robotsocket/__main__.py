@@ -22,7 +22,7 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
-from spec import callcli, cliargs
+from spec import callcli, cliargs, wire
 from spec.auth import Network
 from spec.client import ClientTimeout, ConnectionClosed
 from spec.errors import ProtocolError, RemoteError
@@ -33,7 +33,7 @@ from spec.server import FramedServer, ServerPolicy, serve_until_signal
 
 log = logging.getLogger("robotsocket")
 
-DEFAULT_PORT = 4000
+DEFAULT_PORT = wire.ROBOT_PORT
 
 
 class CliError(Exception):
@@ -46,7 +46,7 @@ class CliUnreachable(Exception):
 
 def parse_endpoint(text: str) -> tuple[str, int]:
     try:
-        return callcli.parse_endpoint(text, DEFAULT_PORT)
+        return cliargs.parse_endpoint(text, DEFAULT_PORT)
     except ValueError as exc:
         raise CliError(str(exc)) from None
 

@@ -24,6 +24,7 @@ import numpy as np
 
 from robotsocket import interface
 from robotsocket.interface import IDENTITY_LOC, Array, Loc, MotionDesc
+from spec import wire
 from spec.client import ClientTimeout, ConnectionClosed, FramedClient, wait_end_move
 from spec.errors import ErrorCode, RemoteError
 from spec.params import Joints, Location, Matrix
@@ -116,7 +117,7 @@ class RobotClient(FramedClient):
     """Blocking client of a RobotSocket server (see :class:`spec.client.FramedClient` for
     ``timeout``, ``auto_reconnect``, ``reconnect()`` and the context manager)."""
 
-    DEFAULT_PORT = 4000
+    DEFAULT_PORT = wire.ROBOT_PORT
     CLIENT_NAME = "robotsocket-client/0.1"
 
     def __enter__(self) -> RobotClient:

@@ -20,17 +20,16 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from spec import cliargs
+from spec import cliargs, wire
 from spec.callcli import (
     EXIT_REMOTE_ERROR,
     EXIT_UNREACHABLE,
     EXIT_USAGE,
     ListCommands,
     main_call,
-    parse_endpoint,
     unreachable,
 )
-from spec.cliargs import run_cli
+from spec.cliargs import parse_endpoint, run_cli
 from spec.errors import ErrorCode, ProtocolError, RemoteError
 from spec.files import atomic_path
 from spec.server import FramedServer, ServerPolicy, serve_until_signal
@@ -43,7 +42,7 @@ if TYPE_CHECKING:
 # `call` needs only the protocol, and starts in half the time without them.
 
 PROG = "python -m sensorsocket"
-DEFAULT_PORT = 2000
+DEFAULT_PORT = wire.SENSOR_PORT
 DEFAULT_UDP_PORT = 2001
 log = logging.getLogger("sensorsocket")
 

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from spec import wire
 from spec.client import FramedClient
 from spec.errors import PeerError
 from spec.params import Image, Location, Matrix, Value
@@ -94,7 +95,7 @@ def image_to_array(image: Image) -> NDArray[np.uint8] | NDArray[np.uint16]:
 class SensorClient(FramedClient):
     """Blocking client of a SensorSocket server (default port 2000)."""
 
-    DEFAULT_PORT = 2000
+    DEFAULT_PORT = wire.SENSOR_PORT
     CLIENT_NAME = "sensorsocket-client/0.1"
 
     def __enter__(self) -> SensorClient:

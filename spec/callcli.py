@@ -21,6 +21,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
+from spec.cliargs import parse_endpoint
 from spec.client import FramedClient, wait_end_move
 from spec.codec import encode_packet, request
 from spec.errors import ErrorCode, ProtocolError, RemoteError
@@ -41,20 +42,6 @@ _QUEUED_MOVES = {
     CommandId.TOOL_MOVE_TRAJECTORY,
     CommandId.RESTART_MOVE,
 }
-
-
-def parse_endpoint(text: str, default_port: int) -> tuple[str, int]:
-    """``HOST:PORT``, ``HOST`` or ``[V6]:PORT``; ValueError names the problem."""
-    host, sep, port = text.rpartition(":")
-    if not sep or "]" in port:
-        return text.strip("[]"), default_port
-    try:
-        number = int(port)
-    except ValueError:
-        raise ValueError(f"bad port in {text!r}") from None
-    if not 0 < number < 65536:
-        raise ValueError(f"port out of range in {text!r}")
-    return host.strip("[]") or "127.0.0.1", number
 
 
 def find_command(name: str, service: str) -> CommandSpec:

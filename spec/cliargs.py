@@ -166,6 +166,32 @@ def network(text: str) -> Network:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def parse_endpoint(text: str, default_port: int) -> tuple[str, int]:
+    """``HOST:PORT``, ``HOST`` or ``[V6]:PORT``; ValueError names the problem."""
+    host, sep, port = text.rpartition(":")
+    if not sep or "]" in port:
+        return text.strip("[]"), default_port
+    try:
+        number = int(port)
+    except ValueError:
+        raise ValueError(f"bad port in {text!r}") from None
+    if not 0 < number < 65536:
+        raise ValueError(f"port out of range in {text!r}")
+    return host.strip("[]") or "127.0.0.1", number
+
+
+def endpoint(default_port: int) -> Callable[[str], tuple[str, int]]:
+    """An argparse type: ``HOST[:PORT]`` (``[V6]:PORT``), ``default_port`` when none is given."""
+
+    def parse(text: str) -> tuple[str, int]:
+        try:
+            return parse_endpoint(text, default_port)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    return parse
+
+
 class Parser(argparse.ArgumentParser):
     """An argument parser whose errors are one line on stderr and exit status 2 (no usage
     dump); give it to ``add_subparsers(parser_class=Parser)`` too.

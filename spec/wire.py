@@ -16,6 +16,10 @@ VERSION = f"{VERSION_MAJOR}.{VERSION_MINOR}"
 
 #: Frame magic, ASCII "RS" (robot/sensor) [RS-3.1].
 MAGIC = b"RS"
+#: The servers' TCP ports in the paper (RobotSocket 4000, SensorSocket 2000): the port a
+#: client or a command line uses when HOST alone is given.
+ROBOT_PORT = 4000
+SENSOR_PORT = 2000
 
 #: Frame header: magic, version major, version minor, kind, flags, command ID, request ID,
 #: payload length [RS-3.1].

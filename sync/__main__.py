@@ -25,7 +25,7 @@ from contextlib import contextmanager
 from types import FrameType
 from typing import Any
 
-from spec import cliargs
+from spec import cliargs, wire
 from spec.errors import ProtocolError
 from sync.curvature import sine_min_radius, sine_min_radius_numeric
 from sync.delay import DelayEstimateError, QualityLimits, Verdict
@@ -71,21 +71,18 @@ def _frequencies(text: str) -> list[float]:
     return values
 
 
-def _endpoint(text: str) -> tuple[str, int]:
-    host, sep, port = text.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise argparse.ArgumentTypeError(f"expected HOST:PORT, got {text!r}")
-    return host, int(port)
-
-
 def _parser() -> cliargs.Parser:
     p = cliargs.Parser(prog=PROG, description="Robot-sensor synchronisation tools.")
     sub = p.add_subparsers(dest="command", required=True, parser_class=cliargs.Parser)
     for name in ("delay", "sweep"):
         what = "the frequency sweep of Fig. 8" if name == "sweep" else "the sine experiment"
         d = sub.add_parser(name, help=f"measure ΔT with {what} (section VI)")
-        d.add_argument("--robot", type=_endpoint, help="RobotSocket HOST:PORT")
-        d.add_argument("--sensor", type=_endpoint, help="SensorSocket HOST:PORT")
+        d.add_argument(
+            "--robot", type=cliargs.endpoint(wire.ROBOT_PORT), help="RobotSocket HOST[:PORT]"
+        )
+        d.add_argument(
+            "--sensor", type=cliargs.endpoint(wire.SENSOR_PORT), help="SensorSocket HOST[:PORT]"
+        )
         d.add_argument(
             "--frequency", type=_HZ, default=1.5, help="sine frequency (Hz, 0.001..1000)"
         )

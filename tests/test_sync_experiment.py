@@ -14,7 +14,7 @@ import pytest
 
 from robotsocket.emulator import RobotEmulator
 from robotsocket.service import RobotService
-from sync.__main__ import main
+from sync.__main__ import _parser, main
 from sync.delay import simulate_sine_experiment
 from sync.experiment import ExperimentData, ExperimentSettings, analyse, sine_path, write_json
 
@@ -58,12 +58,16 @@ def test_cli_curvature_and_usage_errors(capsys: pytest.CaptureFixture[str]) -> N
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "error" in err
     done = subprocess.run(
-        [sys.executable, "-m", "sync", "delay", "--robot", "nohost"],
+        [sys.executable, "-m", "sync", "delay", "--robot", "nohost:x"],
         capture_output=True,
         text=True,
         timeout=60,
     )
-    assert done.returncode == 2 and "HOST:PORT" in done.stderr and "Traceback" not in done.stderr
+    assert done.returncode == 2 and "--robot" in done.stderr and "bad port" in done.stderr
+    assert "Traceback" not in done.stderr
+    # HOST alone takes the paper's port, as in every other command
+    args = _parser().parse_args(["delay", "--robot", "10.0.0.5", "--sensor", "[::1]:2100"])
+    assert args.robot == ("10.0.0.5", 4000) and args.sensor == ("::1", 2100)
 
 
 def test_cli_emulate_writes_json_with_the_truth_and_says_what_apply_set(

@@ -38,8 +38,8 @@ import numpy as np
 
 from robotsocket.client import RobotClient
 from sensorsocket.client import SensorClient
-from spec import cliargs
-from spec.callcli import parse_endpoint, stop_signals_interrupt, unreachable
+from spec import cliargs, wire
+from spec.callcli import stop_signals_interrupt, unreachable
 from spec.client import ClientTimeout
 from spec.errors import ProtocolError, RemoteError
 from spec.files import write_atomically
@@ -75,16 +75,6 @@ class CliError(Exception):
 # --- arguments -------------------------------------------------------------------------------
 
 
-def _endpoint(default_port: int) -> Any:
-    def parse(text: str) -> tuple[str, int]:
-        try:
-            return parse_endpoint(text, default_port)
-        except ValueError as exc:
-            raise argparse.ArgumentTypeError(str(exc)) from None
-
-    return parse
-
-
 def _location(text: str) -> tuple[float, float, float, float, float, float]:
     try:
         values = [float(v) for v in text.split(",")]
@@ -117,7 +107,7 @@ def _add_cell_options(
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument(
         "--robot",
-        type=_endpoint(4000),
+        type=cliargs.endpoint(wire.ROBOT_PORT),
         metavar="HOST:PORT",
         help="RobotSocket server (default port 4000)",
     )
@@ -129,7 +119,7 @@ def _add_cell_options(
     if sensor:
         p.add_argument(
             "--sensor",
-            type=_endpoint(2000),
+            type=cliargs.endpoint(wire.SENSOR_PORT),
             metavar="HOST:PORT",
             help="SensorSocket server (default port 2000), with --robot" + sensor_help,
         )
@@ -280,7 +270,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--postflow", type=cliargs.nonnegative_float, default=0.5, help="s")
 
     calibrate_cli.add_parser(sub, _add_cell_options)
-    console_cli.add_parser(sub, _endpoint, _add_tools_option)
+    console_cli.add_parser(sub, _add_tools_option)
 
     p = sub.add_parser("track", help="real-time seam tracking on the emulated cell")
     add_track_options(p)

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from spec import cliargs
+from spec import cliargs, wire
 from welding import job as J
 
 __all__ = ["add_parser", "cmd_console", "demo_job"]
@@ -26,7 +26,7 @@ log = logging.getLogger("welding.console")
 DEFAULT_PORT = 8024
 
 
-def add_parser(sub: Any, endpoint: Any, add_tools_option: Any) -> None:
+def add_parser(sub: Any, add_tools_option: Any) -> None:
     p = sub.add_parser(
         "console",
         help="the operator console in the browser (pip install '.[console]')",
@@ -34,19 +34,36 @@ def add_parser(sub: Any, endpoint: Any, add_tools_option: Any) -> None:
         "jobs, teaching. Open http://HOST:PORT/ in a browser.",
     )
     where = p.add_mutually_exclusive_group(required=True)
-    where.add_argument("--robot", type=endpoint(4000), metavar="HOST:PORT")
+    where.add_argument(
+        "--robot",
+        type=cliargs.endpoint(wire.ROBOT_PORT),
+        metavar="HOST[:PORT]",
+        help=f"the RobotSocket server (port {wire.ROBOT_PORT} when none is given)",
+    )
     where.add_argument(
         "--emulate", action="store_true", help="start an emulated cell (real-time clock)"
     )
-    p.add_argument("--sensor", type=endpoint(2000), metavar="HOST:PORT", help="with --robot")
-    p.add_argument("--token-file", metavar="PATH", type=cliargs.token_file)
+    p.add_argument(
+        "--sensor",
+        type=cliargs.endpoint(wire.SENSOR_PORT),
+        metavar="HOST[:PORT]",
+        help=f"the SensorSocket server, with --robot (port {wire.SENSOR_PORT} when none is given)",
+    )
+    p.add_argument(
+        "--token-file",
+        metavar="PATH",
+        type=cliargs.token_file,
+        help="file holding the robot's control token (one line)",
+    )
     p.add_argument(
         "--seam", choices=("straight", "sine", "corner"), default="straight", help="--emulate"
     )
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default loopback)")
     p.add_argument("--port", type=int, default=DEFAULT_PORT, help="default %(default)s")
     p.add_argument("--jobs", metavar="DIR", default=".", help="folder of job files (default: here)")
-    p.add_argument("--timeout", type=cliargs.positive_float, default=10.0)
+    p.add_argument(
+        "--timeout", type=cliargs.positive_float, default=10.0, help="seconds per robot reply"
+    )
     add_tools_option(p)
 
 
