@@ -108,8 +108,8 @@ def _add_cell_options(
     where.add_argument(
         "--robot",
         type=cliargs.endpoint(wire.ROBOT_PORT),
-        metavar="HOST:PORT",
-        help="RobotSocket server (default port 4000)",
+        metavar="HOST[:PORT]",
+        help=f"RobotSocket server (default port {wire.ROBOT_PORT})",
     )
     where.add_argument(
         "--emulate",
@@ -120,8 +120,9 @@ def _add_cell_options(
         p.add_argument(
             "--sensor",
             type=cliargs.endpoint(wire.SENSOR_PORT),
-            metavar="HOST:PORT",
-            help="SensorSocket server (default port 2000), with --robot" + sensor_help,
+            metavar="HOST[:PORT]",
+            help=f"SensorSocket server (default port {wire.SENSOR_PORT}), with --robot"
+            + sensor_help,
         )
     p.add_argument(
         "--seam",
