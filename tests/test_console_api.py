@@ -100,10 +100,15 @@ def next_error(ws: Any, timeout: float = 10.0) -> dict[str, Any]:
     raise AssertionError(f"no error message within {timeout} s")
 
 
+def _release(client: TestClient) -> None:
+    """The tests share one console, and xdist runs any of them before any other: whichever
+    ran before may have left it in control."""
+    assert call(client, "POST", "/api/control", {"take": False}).status_code == 200
+
+
 def test_status_stream_updates_and_refusals_before_control(env: Any) -> None:
     client, _, _ = env
-    # the tests share one console: whichever ran before may have left it in control
-    assert call(client, "POST", "/api/control", {"take": False}).status_code == 200
+    _release(client)
     with client.websocket_connect("/ws") as ws:
         seqs = []
         for _ in range(12):
@@ -197,6 +202,7 @@ def test_bad_requests_get_a_clear_error(
     env: Any, method: str, path: str, body: Any, code: int, text: str
 ) -> None:
     client, _, _ = env
+    _release(client)  # "take control" is the answer only without control
     r = call(client, method, path, body)
     assert r.status_code == code, r.text
     assert text in r.json()["error"]

@@ -358,36 +358,11 @@ class Console:
             raise ConsoleError("direction: expected 1 or -1")
         with self._jog_lock:
             self._check_idle()  # under the lock: a job cannot start beside this jog
-            r = self.control
             if self._jog is not None:
                 self.stop_jog(None, "new jog")
-            desc = r.motion_desc()
-            move: Callable[[], object]
-            if mode == "joint":
-                if not isinstance(axis, int) or isinstance(axis, bool) or not 1 <= axis <= 6:
-                    raise ConsoleError("joint: expected 1..6")
-                limits = r.joint_limits()
-                q = [float(v) for v in r.herej()]
-                lo, hi = limits[axis - 1] + np.array([JOG_LIMIT_MARGIN_DEG, -JOG_LIMIT_MARGIN_DEG])
-                q[axis - 1] = float(hi if direction > 0 else lo)
-                jog_desc = replace(desc, joint_speed=pct, blend=0.0)
-                move = partial(r.joint_move, q)
-            elif mode == "cartesian":
-                if axis not in AXES:
-                    raise ConsoleError(f"axis: expected one of {', '.join(AXES)}")
-                tables = self.tables()
-                try:
-                    t, f = tables.tool(tool).location, tables.frame(frame).location
-                except ToolDBError as exc:
-                    raise ConsoleError(str(exc)) from None
-                loc = list(r.here(t, f))
-                i = AXES.index(axis)
-                loc[i] += direction * (JOG_REACH_MM if i < 3 else JOG_REACH_DEG)
-                jog_desc = replace(desc, tool_speed=JOG_TOOL_SPEED_MM_S * pct / 100.0, blend=0.0)
-                move = partial(r.tool_move_l, loc, t, f)
-            else:
-                raise ConsoleError("mode: expected 'joint' or 'cartesian'")
-            r.set_motion_desc(jog_desc)
+            desc = self.control.motion_desc()
+            jog_desc, move = self._jog_move(desc, mode, axis, direction, pct, tool, frame)
+            self.control.set_motion_desc(jog_desc)
             jog = self._jog = Jog(client_id, time.monotonic(), desc)
             self._guard(move)
             # The start's round trips are not the operator's: the holds sent meanwhile wait
@@ -395,6 +370,42 @@ class Console:
             # from the moment the move was accepted.
             jog.last_hold = time.monotonic()
         log.info("jog started: %s axis %s, direction %+d, %g %%", mode, axis, direction, pct)
+
+    def _jog_move(
+        self,
+        desc: MotionDesc,
+        mode: str,
+        axis: Any,
+        direction: int,
+        pct: float,
+        tool: str,
+        frame: str,
+    ) -> tuple[MotionDesc, Callable[[], object]]:
+        """The jog's motion descriptor and its one move: toward the joint limit (a margin
+        short) or a long way along the Cartesian axis; the release stops it."""
+        r = self.control
+        if mode == "joint":
+            if not isinstance(axis, int) or isinstance(axis, bool) or not 1 <= axis <= 6:
+                raise ConsoleError("joint: expected 1..6")
+            limits = r.joint_limits()
+            q = [float(v) for v in r.herej()]
+            lo, hi = limits[axis - 1] + np.array([JOG_LIMIT_MARGIN_DEG, -JOG_LIMIT_MARGIN_DEG])
+            q[axis - 1] = float(hi if direction > 0 else lo)
+            return replace(desc, joint_speed=pct, blend=0.0), partial(r.joint_move, q)
+        if mode == "cartesian":
+            if axis not in AXES:
+                raise ConsoleError(f"axis: expected one of {', '.join(AXES)}")
+            tables = self.tables()
+            try:
+                t, f = tables.tool(tool).location, tables.frame(frame).location
+            except ToolDBError as exc:
+                raise ConsoleError(str(exc)) from None
+            loc = list(r.here(t, f))
+            i = AXES.index(axis)
+            loc[i] += direction * (JOG_REACH_MM if i < 3 else JOG_REACH_DEG)
+            speed = JOG_TOOL_SPEED_MM_S * pct / 100.0
+            return replace(desc, tool_speed=speed, blend=0.0), partial(r.tool_move_l, loc, t, f)
+        raise ConsoleError("mode: expected 'joint' or 'cartesian'")
 
     def _guard(self, move: Callable[[], object]) -> None:
         try:
