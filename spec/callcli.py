@@ -293,6 +293,19 @@ def unreachable(host: str, port: int, exc: OSError | ProtocolError) -> str:
     return f"cannot reach {host}:{port}: {exc.strerror or exc}"
 
 
+def error_text(exc: BaseException) -> str:
+    """What went wrong, for a one-line message: an error reply keeps the code the server sent
+    ("NOT_POWERED (10): ...": it says what to do), the client's own errors (no reply, a bad
+    frame, closed) only their text, as in :func:`unreachable`; a socket error its reason."""
+    if isinstance(exc, RemoteError):
+        return str(exc)
+    if isinstance(exc, ProtocolError):
+        return exc.message
+    if isinstance(exc, OSError) and exc.strerror:
+        return f"{exc.strerror}: {exc.filename}" if exc.filename else exc.strerror
+    return str(exc)
+
+
 def _stop_what_was_started(client: FramedClient, moved: bool) -> None:
     """After Ctrl-C: a move this call queued decelerates and the queue empties. Best
     effort: an unreachable server stops the arm itself when control is lost [RS-7.10]."""
