@@ -25,7 +25,7 @@ from typing import Any
 
 from spec import callcli, cliargs, wire
 from spec.auth import Network
-from spec.errors import ProtocolError, RemoteError
+from spec.errors import ProtocolError, RemoteError, error_text
 from spec.server import FramedServer, ServerPolicy, listen, serve_until_signal
 
 # The emulator, its kinematics (numpy) and the client are imported by the subcommands that use
@@ -301,14 +301,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return callcli.EXIT_UNREACHABLE
     except RemoteError as exc:
-        print(f"error {callcli.error_text(exc)}", file=sys.stderr)  # as `call` prints it
+        print(f"error {error_text(exc)}", file=sys.stderr)  # as `call` prints it
         return callcli.EXIT_REMOTE_ERROR
     except BrokenPipeError:
         raise  # our stdout was closed (`| head`): cliargs.run_cli ends quietly
     except (ProtocolError, OSError) as exc:
         # No reply, closed, or a frame that is not ours (an HTTP server): unreachable, as
         # `call` says (docs/CLI.md), not an error reply.
-        print(f"error: {callcli.error_text(exc)}", file=sys.stderr)
+        print(f"error: {error_text(exc)}", file=sys.stderr)
         return callcli.EXIT_UNREACHABLE
     except KeyboardInterrupt:
         return 130
