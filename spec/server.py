@@ -1011,6 +1011,7 @@ __all__ = [
     "ServerPolicy",
     "Service",
     "Session",
+    "listen",
     "parse_networks",
     "serve_until_signal",
 ]
