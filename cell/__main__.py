@@ -31,7 +31,7 @@ from robotsocket.rtprocess import ChildStartError
 from sensorsocket.pgm import write_pgm
 from spec import cliargs
 from spec.client import FramedClient, wait_end_move
-from spec.errors import ProtocolError
+from spec.errors import ProtocolError, error_text
 from spec.params import Image, Joints, Location
 from spec.registry import CommandId
 from spec.server import ServerPolicy, serve_until_signal
@@ -355,7 +355,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise  # our stdout was closed (`| head`): cliargs.run_cli ends quietly
     except (CellError, ExperimentError, ProtocolError, OSError, ValueError) as exc:
         # ValueError covers the kinematics (unknown model) and emulator argument checks.
-        print(f"python -m cell: error: {exc}", file=sys.stderr)
+        print(f"python -m cell: error: {error_text(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # the demo's cell and clients are closed on the way out
         print("python -m cell: interrupted", file=sys.stderr)

@@ -20,7 +20,7 @@ from cell.timing import CellError
 from cell.truth import WeldRecorder, WeldTruth
 from kinematics.robot import get_model
 from robotsocket.rtprocess import ChildParts, ForwardedService, RealtimeProcess, RobotProcess
-from spec.server import FramedServer, ServerPolicy
+from spec.server import FramedServer, ServerPolicy, listen
 
 __all__ = ["CellProcess", "build_cell"]
 
@@ -87,22 +87,32 @@ class CellProcess:
         policy: ServerPolicy | None = None,
         **cell: Any,
     ) -> None:
-        config = {"cell": {"host": host, **cell}}
-        self.child = RealtimeProcess("cell.rtcell:build_cell", config)
+        # The TCP ports are bound before the child starts: a port in use is one error, not
+        # the child's start-up log followed by it.
+        robot_sock = bound(
+            "robot's TCP port", "--robot-port", host, robot_port, lambda: listen(host, robot_port)
+        )
         try:
-            self.robot_server = bound(
-                "robot's TCP port", "--robot-port", host, robot_port,
-                lambda: FramedServer(RobotProcess(self.child), host, robot_port, policy),
-            )  # fmt: skip
-            self.sensor_server = bound(
+            sensor_sock = bound(
                 "sensor's TCP port", "--sensor-port", host, sensor_port,
-                lambda: FramedServer(
-                    ForwardedService(self.child, "sensor"), host, sensor_port, policy
-                ),
+                lambda: listen(host, sensor_port),
             )  # fmt: skip
         except CellError:
-            self.child.close()
+            robot_sock.close()
             raise
+        config = {"cell": {"host": host, **cell}}
+        try:
+            self.child = RealtimeProcess("cell.rtcell:build_cell", config)
+        except BaseException:
+            robot_sock.close()
+            sensor_sock.close()
+            raise
+        self.robot_server = FramedServer(
+            RobotProcess(self.child), policy=policy, listener=robot_sock
+        )
+        self.sensor_server = FramedServer(
+            ForwardedService(self.child, "sensor"), policy=policy, listener=sensor_sock
+        )
         self.udp_address: tuple[str, int] = tuple(self.child.facts["udp_address"])
         self._model = get_model(self.child.facts["model"])
 

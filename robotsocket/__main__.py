@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import socket
 import sys
 import time
 from collections.abc import Sequence
@@ -24,9 +25,8 @@ from typing import Any
 
 from spec import callcli, cliargs, wire
 from spec.auth import Network
-from spec.client import ClientTimeout, ConnectionClosed
-from spec.errors import ProtocolError, RemoteError
-from spec.server import FramedServer, ServerPolicy, serve_until_signal
+from spec.errors import ProtocolError, RemoteError, error_text
+from spec.server import FramedServer, ServerPolicy, listen, serve_until_signal
 
 # The emulator, its kinematics (numpy) and the client are imported by the subcommands that use
 # them: `call` needs only the protocol, and starts in half the time without them.
@@ -58,6 +58,17 @@ def _announce(server: FramedServer) -> None:
     print(f"listening on {server.address[0]}:{server.address[1]}", flush=True)
 
 
+def _listen(args: argparse.Namespace) -> socket.socket:
+    """The TCP port, bound before the emulator or its real-time child starts: a port in use is
+    one error line, not the child's start-up log followed by it."""
+    try:
+        return listen(args.host, args.port)
+    except OSError as exc:
+        raise CliError(
+            f"cannot listen on {args.host}:{args.port} (--port): {exc.strerror or exc}"
+        ) from None
+
+
 def _robot_config(args: argparse.Namespace, allow: tuple[Network, ...]) -> dict[str, Any]:
     return {
         "model": args.model,
@@ -76,24 +87,20 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     token: str | None = args.token  # read (and refused if empty) by cliargs.token_file
     allow = tuple(args.allow or ())
+    sock = _listen(args)
     if args.clock == "real" and not args.in_process:
-        return _serve_child(args, allow)
+        return _serve_child(args, allow, sock)
     try:
         # The synchronisation commands (0x3001-0x3009) and their UDP endpoint are registered
         # before the server reads the service's command list.
         parts = build_robot(_robot_config(args, allow))
     except (ValueError, KinematicsError, ChildStartError) as exc:
+        sock.close()
         raise CliError(str(exc)) from None
     policy = ServerPolicy(
         max_clients=args.max_clients, allow=allow, token=token, watchdog=args.watchdog
     )
-    try:
-        server = FramedServer(parts.services["robot"], args.host, args.port, policy)
-    except OSError as exc:
-        parts.stop()
-        raise CliError(
-            f"cannot listen on {args.host}:{args.port} (--port): {exc.strerror}"
-        ) from None
+    server = FramedServer(parts.services["robot"], policy=policy, listener=sock)
     parts.start()
     log.info(
         "robot %s emulator, %s clock, encoder latency %.1f ms, control token %s, allow %s",
@@ -113,25 +120,20 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
-def _serve_child(args: argparse.Namespace, allow: tuple[Network, ...]) -> int:
+def _serve_child(args: argparse.Namespace, allow: tuple[Network, ...], sock: socket.socket) -> int:
     """The real clock's default: the 4 ms loop and the UDP endpoint in a real-time child
-    process, the TCP server here (docs/REALTIME.md)."""
+    process, the TCP server here on ``sock`` (docs/REALTIME.md)."""
     from robotsocket.rtprocess import ChildStartError, RealtimeProcess, RobotProcess
 
     try:
         child = RealtimeProcess("robotsocket.rtprocess:build_robot", _robot_config(args, allow))
     except ChildStartError as exc:
+        sock.close()
         raise CliError(str(exc)) from None
     policy = ServerPolicy(
         max_clients=args.max_clients, allow=allow, token=args.token, watchdog=args.watchdog
     )
-    try:
-        server = FramedServer(RobotProcess(child), args.host, args.port, policy)
-    except OSError as exc:
-        child.close()
-        raise CliError(
-            f"cannot listen on {args.host}:{args.port} (--port): {exc.strerror}"
-        ) from None
+    server = FramedServer(RobotProcess(child), policy=policy, listener=sock)
     log.info(
         "robot %s emulator, real-time clock in process %d, encoder latency %.1f ms, "
         "control token %s, allow %s",
@@ -299,18 +301,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return callcli.EXIT_UNREACHABLE
     except RemoteError as exc:
-        print(f"error {exc.raw_code} {exc.code.name}: {exc.message}", file=sys.stderr)
-        return 1
-    except (ClientTimeout, ConnectionClosed) as exc:
-        print(f"error: {exc.message}", file=sys.stderr)
-        return callcli.EXIT_UNREACHABLE
-    except ProtocolError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
+        print(f"error {error_text(exc)}", file=sys.stderr)  # as `call` prints it
+        return callcli.EXIT_REMOTE_ERROR
     except BrokenPipeError:
         raise  # our stdout was closed (`| head`): cliargs.run_cli ends quietly
-    except OSError as exc:
-        print(f"error: {exc.strerror or exc}", file=sys.stderr)
+    except (ProtocolError, OSError) as exc:
+        # No reply, closed, or a frame that is not ours (an HTTP server): unreachable, as
+        # `call` says (docs/CLI.md), not an error reply.
+        print(f"error: {error_text(exc)}", file=sys.stderr)
         return callcli.EXIT_UNREACHABLE
     except KeyboardInterrupt:
         return 130

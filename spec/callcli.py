@@ -24,7 +24,7 @@ from typing import Any
 from spec.cliargs import parse_endpoint
 from spec.client import FramedClient, wait_end_move
 from spec.codec import encode_packet, request
-from spec.errors import ErrorCode, ProtocolError, RemoteError
+from spec.errors import ErrorCode, ProtocolError, RemoteError, error_text
 from spec.jsonform import plain
 from spec.params import FloatArray, IntArray, Joints, Location, Transform, Value
 from spec.registry import BY_ID, COMMANDS, CommandId, CommandSpec, ParamSpec
@@ -271,7 +271,7 @@ def main_call(
         hint = ""
         if exc.code is ErrorCode.AUTH_FAILED and not token:
             hint = " (the server wants a control token: --token-file FILE)"
-        print(f"error {exc.code.name} ({exc.raw_code}): {exc.message}{hint}", file=sys.stderr)
+        print(f"error {error_text(exc)}{hint}", file=sys.stderr)
         return EXIT_REMOTE_ERROR
     except (OSError, ProtocolError) as exc:
         print(f"error: {unreachable(host, port, exc)}", file=sys.stderr)
@@ -289,8 +289,8 @@ def unreachable(host: str, port: int, exc: OSError | ProtocolError) -> str:
     ("INTERNAL_ERROR (19)" for a closed connection) would read as the server's; a socket
     error does not name it."""
     if isinstance(exc, ProtocolError):
-        return exc.message
-    return f"cannot reach {host}:{port}: {exc.strerror or exc}"
+        return error_text(exc)
+    return f"cannot reach {host}:{port}: {error_text(exc)}"
 
 
 def _stop_what_was_started(client: FramedClient, moved: bool) -> None:

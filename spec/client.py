@@ -306,11 +306,13 @@ class FramedClient:
 
     # --- common commands ---------------------------------------------------------------------
 
-    def hello(self) -> dict[str, Value]:
-        """Negotiate (Hello) and return what the server reports about itself."""
+    def hello(self, timeout: float | None = None) -> dict[str, Value]:
+        """Negotiate (Hello) and return what the server reports about itself; ``timeout``
+        (s) bounds this reply alone, e.g. shorter as a connection check."""
         values = self.call(
-            CommandId.HELLO, wire.VERSION_MAJOR, wire.VERSION_MINOR, self.client_name
-        )
+            CommandId.HELLO, wire.VERSION_MAJOR, wire.VERSION_MINOR, self.client_name,
+            timeout=timeout,
+        )  # fmt: skip
         names = [p.name for p in BY_ID[CommandId.HELLO].reply]
         info = dict(zip(names, values, strict=False))
         commands = info.get("commands")

@@ -135,3 +135,17 @@ class RemoteError(ProtocolError):
     def __str__(self) -> str:
         name = self.code.name if self.raw_code == int(self.code) else f"code {self.raw_code}"
         return f"{name} ({self.raw_code}): {self.message}"
+
+
+def error_text(exc: BaseException) -> str:
+    """What went wrong, for a one-line message to a user: an error reply keeps the code the
+    server sent ("NOT_POWERED (10): ...": it says what to do); our own errors (no reply, a bad
+    frame, closed) only their text, since their wire code would read as the server's; a
+    socket error its reason, without "[Errno 111]"."""
+    if isinstance(exc, RemoteError):
+        return str(exc)
+    if isinstance(exc, ProtocolError):
+        return exc.message
+    if isinstance(exc, OSError) and exc.strerror:
+        return f"{exc.strerror}: {exc.filename}" if exc.filename else exc.strerror
+    return str(exc)

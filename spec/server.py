@@ -313,6 +313,22 @@ class HandlerService(Service):
             raise ProtocolError(str(exc), code) from None
 
 
+def listen(host: str, port: int) -> socket.socket:
+    """A TCP socket listening on ``host:port`` (OSError when it cannot be bound). A command
+    line binds first, so a port in use is its one error line before anything else starts
+    (a real-time child process, its log lines)."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind((host, port))
+        sock.listen(128)
+    except OSError:
+        sock.close()
+        raise
+    return sock
+
+
 class FramedServer:
     """Threaded TCP server shell; ``serve_forever`` in a thread, ``shutdown`` to stop."""
 
@@ -322,18 +338,14 @@ class FramedServer:
         host: str = "127.0.0.1",
         port: int = 0,
         policy: ServerPolicy | None = None,
+        *,
+        listener: socket.socket | None = None,
     ) -> None:
+        """Binds ``host:port``, unless ``listener`` (from :func:`listen`) is given: then the
+        port was bound before the service was built, and that listener is served."""
         self.service = service
         self.policy = policy or ServerPolicy()
-        family = socket.AF_INET6 if ":" in host else socket.AF_INET
-        self._listener = socket.socket(family, socket.SOCK_STREAM)
-        self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            self._listener.bind((host, port))
-        except OSError:
-            self._listener.close()
-            raise
-        self._listener.listen(128)
+        self._listener = listener if listener is not None else listen(host, port)
         self.address: tuple[str, int] = self._listener.getsockname()[:2]
         # shutdown() writes a byte here to wake the accept loop at once (no polling).
         self._wake_r, self._wake_w = socket.socketpair()
@@ -999,6 +1011,7 @@ __all__ = [
     "ServerPolicy",
     "Service",
     "Session",
+    "listen",
     "parse_networks",
     "serve_until_signal",
 ]

@@ -26,7 +26,7 @@ from types import FrameType
 from typing import Any
 
 from spec import cliargs, wire
-from spec.errors import ProtocolError
+from spec.errors import ProtocolError, error_text
 from sync.curvature import sine_min_radius, sine_min_radius_numeric
 from sync.delay import DelayEstimateError, QualityLimits, Verdict
 from sync.experiment import (
@@ -351,7 +351,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_INTERRUPTED
     except (ExperimentError, DelayEstimateError, ProtocolError, OSError, ValueError) as exc:
         progress.end()
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        print(f"{PROG}: error: {error_text(exc)}", file=sys.stderr)
         return EXIT_ERROR
 
 

@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 
 from kinematics.robot import get_model
 from kinematics.transforms import location_to_transform
-from spec.client import FramedClient, wait_end_move
+from spec.client import ClientTimeout, FramedClient, wait_end_move
 from spec.files import atomic_path, prepare_output_path, write_atomically
 from spec.params import IDENTITY_LOCATION, FloatArray, IntArray, Location, Matrix, Value
 from spec.registry import BY_ID, SEAM_POINT_COLUMNS, CommandId
@@ -235,6 +235,27 @@ def _sync_statistics(robot: FramedClient) -> dict[str, int]:
     return {k: v for k, v in reply.items() if isinstance(v, int) and not isinstance(v, bool)}
 
 
+#: How long the robot and the sensor get to answer Hello (s): a connection check, as the
+#: conformance runner's, so an endpoint that accepts and never answers is named in seconds,
+#: not after the experiment's own reply timeout.
+HELLO_TIMEOUT_S = 3.0
+
+
+def _hello(client: FramedClient, wanted: str) -> dict[str, Value]:
+    """Hello from the endpoint given as --robot (--sensor), checked to be that service."""
+    timeout = min(client.timeout, HELLO_TIMEOUT_S)
+    try:
+        info = client.hello(timeout=timeout)
+    except ClientTimeout:
+        protocol = "RobotSocket" if wanted == "robot" else "SensorSocket"
+        raise ExperimentError(
+            f"{client.address} (--{wanted}) accepted the connection but did not answer Hello"
+            f" within {timeout:g} s (not a {protocol} server, or a hung one?)"
+        ) from None
+    _check_service(client, info, wanted)
+    return info
+
+
 def _check_service(client: FramedClient, info: dict[str, Value], wanted: str) -> None:
     """The endpoint given as --robot (--sensor) announces that service in Hello [RS-5.31];
     the other one means the two addresses were swapped (else: an unknown model name)."""
@@ -258,10 +279,9 @@ def record_sine(
     already know it (SetSensorEndpoint).
     """
     s = settings
-    info = robot.hello()
-    _check_service(robot, info, "robot")
+    info = _hello(robot, "robot")
     if sensor is not None:
-        _check_service(sensor, sensor.hello(), "sensor")
+        _hello(sensor, "sensor")
     model_name = s.model or str(info.get("model", ""))
     try:
         model = get_model(model_name)

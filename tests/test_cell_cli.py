@@ -112,6 +112,24 @@ def test_a_port_in_use_is_named_with_its_option(
     assert done.returncode == 2, done.stderr
     assert done.stderr.splitlines()[-1].startswith("python -m cell: error: cannot bind the ")
     assert f"to 127.0.0.1:{port} ({taken}): Address already in use" in done.stderr
+
+
+@pytest.mark.parametrize("taken", ["--robot-port", "--sensor-port"])
+def test_a_tcp_port_in_use_is_the_only_line_even_verbose(taken: str, busy_port: BusyPort) -> None:
+    port = busy_port(False)
+    ports = {"--robot-port": "0", "--sensor-port": "0", "--udp-port": "0", taken: str(port)}
+    done = subprocess.run(
+        [sys.executable, "-m", "cell", "serve", "--verbose",
+         *(x for option, value in ports.items() for x in (option, value))],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    # Both ports are bound before the real-time child starts: no start-up log before this.
+    what = "robot" if taken == "--robot-port" else "sensor"
+    assert done.stderr.splitlines() == [
+        f"python -m cell: error: cannot bind the {what}'s TCP port to 127.0.0.1:{port}"
+        f" ({taken}): Address already in use"
+    ]
     assert "Traceback" not in done.stderr
 
 

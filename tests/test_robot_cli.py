@@ -164,11 +164,14 @@ def robot_cli(*argv: str) -> subprocess.CompletedProcess[str]:
     )  # fmt: skip
 
 
+@pytest.mark.parametrize("command", [["call"], ["watch", "--count", "1"]])
 def test_a_server_of_another_protocol_is_named_not_unreachable(
-    not_a_server: NotAServer,
+    command: list[str], not_a_server: NotAServer
 ) -> None:
     address = not_a_server(b"HTTP/1.0 400 Bad request\r\n\r\n")
-    done = robot_cli("call", address, "herej")
+    # call and watch agree (docs/CLI.md: 3 = unreachable or not the protocol); watch said
+    # "error: BAD_FRAME (1): ..." and exited 1 as if the robot had refused something.
+    done = robot_cli(command[0], address, *(["herej"] if command == ["call"] else command[1:]))
     assert done.returncode == 3, done.stderr
     assert done.stderr.splitlines() == [
         f"error: {address} sent a bad frame: bad magic 4854, expected 5253"
@@ -216,3 +219,15 @@ def test_serve_names_the_option_of_a_port_in_use(option: str, busy_port: BusyPor
     assert done.stderr.splitlines()[-1] == (
         f"error: cannot listen on 127.0.0.1:{port} ({option}): Address already in use"
     )
+
+
+@pytest.mark.parametrize("clock", [[], ["--clock", "real", "--in-process"], ["--clock", "sim"]])
+def test_a_tcp_port_in_use_is_the_only_line(clock: list[str], busy_port: BusyPort) -> None:
+    port = busy_port(False)
+    done = robot_cli("serve", *clock, "--port", str(port), "--udp-port", "0")
+    assert done.returncode == 2, done.stderr
+    # The port is bound before the real-time child starts: before, its six INFO lines of
+    # start-up and exit came first.
+    assert done.stderr.splitlines() == [
+        f"error: cannot listen on 127.0.0.1:{port} (--port): Address already in use"
+    ]

@@ -16,10 +16,17 @@ from robotsocket.emulator import RobotEmulator
 from robotsocket.service import RobotService
 from sync.__main__ import _parser, main
 from sync.delay import simulate_sine_experiment
-from sync.experiment import ExperimentData, ExperimentSettings, analyse, sine_path, write_json
+from sync.experiment import (
+    HELLO_TIMEOUT_S,
+    ExperimentData,
+    ExperimentSettings,
+    analyse,
+    sine_path,
+    write_json,
+)
 
 if TYPE_CHECKING:
-    from tests.conftest import Serve
+    from tests.conftest import NotAServer, Serve
 
 
 def test_sine_path_starts_and_ends_at_rest_on_the_4ms_grid() -> None:
@@ -201,4 +208,36 @@ def test_cli_a_robot_given_as_the_sensor_is_named(serve: Serve) -> None:
     assert done.stderr.splitlines() == [
         f"python -m sync: error: {address} (--sensor) is a robot endpoint, not a sensor:"
         " are --robot and --sensor swapped?"
+    ]
+
+
+def _sync_delay(address: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "sync", "delay", "--robot", address, "--sensor", address,
+         "--duration", "1", "-q"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+
+
+def test_cli_a_server_of_another_protocol_is_a_plain_line(not_a_server: NotAServer) -> None:
+    address = not_a_server(b"HTTP/1.0 400 Bad request\r\n\r\n")
+    done = _sync_delay(address)
+    assert done.returncode == 2, done.stderr
+    # before: "python -m sync: error: BAD_FRAME (1): ...", a code that reads as the server's
+    assert done.stderr.splitlines() == [
+        f"python -m sync: error: {address} sent a bad frame: bad magic 4854, expected 5253"
+        " (not a RobotSocket or SensorSocket endpoint?)"
+    ]
+
+
+def test_cli_a_robot_that_never_answers_is_named_after_a_short_hello(
+    not_a_server: NotAServer,
+) -> None:
+    address = not_a_server(None)  # accepts, never answers
+    done = _sync_delay(address)
+    assert done.returncode == 2, done.stderr
+    # before: "TIMEOUT (18): no reply from ... within 30 s", after the experiment's timeout
+    assert done.stderr.splitlines() == [
+        f"python -m sync: error: {address} (--robot) accepted the connection but did not"
+        f" answer Hello within {HELLO_TIMEOUT_S:g} s (not a RobotSocket server, or a hung one?)"
     ]

@@ -21,7 +21,7 @@ from welding import job as J
 from welding.cli import main
 
 if TYPE_CHECKING:
-    from tests.conftest import Serve
+    from tests.conftest import NotAServer, Serve
 
 
 @pytest.fixture(autouse=True)
@@ -309,4 +309,18 @@ def test_console_names_the_endpoint_it_cannot_reach(serve: Serve) -> None:
     # before: "robot or sensor unreachable: [Errno 111] Connection refused"
     assert done.stderr.splitlines() == [
         f"python -m welding: error: sensor: cannot reach 127.0.0.1:{port}: Connection refused"
+    ]
+
+
+def test_a_server_of_another_protocol_is_a_plain_line(not_a_server: NotAServer) -> None:
+    address = not_a_server(b"HTTP/1.0 400 Bad request\r\n\r\n")
+    done = subprocess.run(
+        [sys.executable, "-m", "welding", "status", "--robot", address],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 3, done.stderr
+    # before: "python -m welding: connection problem: BAD_FRAME (1): ..."
+    assert done.stderr.splitlines() == [
+        f"python -m welding: error: {address} sent a bad frame: bad magic 4854, expected 5253"
+        " (not a RobotSocket or SensorSocket endpoint?)"
     ]

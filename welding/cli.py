@@ -41,7 +41,7 @@ from sensorsocket.client import SensorClient
 from spec import cliargs, wire
 from spec.callcli import stop_signals_interrupt, unreachable
 from spec.client import ClientTimeout
-from spec.errors import ProtocolError, RemoteError
+from spec.errors import ProtocolError, RemoteError, error_text
 from spec.files import write_atomically
 from welding import calibrate_cli
 from welding import job as J
@@ -805,10 +805,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"python -m welding: error: {exc}", file=sys.stderr)
         return EXIT_PROBLEMS
     except RemoteError as exc:
-        print(f"python -m welding: the robot refused: {exc}", file=sys.stderr)
+        print(f"python -m welding: the robot refused: {error_text(exc)}", file=sys.stderr)
         return EXIT_PROBLEMS
     except (ProtocolError, OSError) as exc:
-        print(f"python -m welding: connection problem: {exc}", file=sys.stderr)
+        print(f"python -m welding: error: {error_text(exc)}", file=sys.stderr)
         return EXIT_UNREACHABLE
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED

@@ -49,7 +49,7 @@ from kinematics.transforms import (
 )
 from robotsocket.client import MotionDesc, RobotClient
 from spec.client import ConnectionClosed
-from spec.errors import ProtocolError, RemoteError
+from spec.errors import ProtocolError, RemoteError, error_text
 from spec.params import Location as Location6
 from spec.registry import CommandId
 from welding.job import Item, Job, Line, Location, Path, Pause, Stitch, Via
@@ -505,9 +505,10 @@ class JobRunner:
             self.robot.set_motion_desc(desc)
         except BaseException as exc:
             reason = _reason(exc)
-            self._note("abort", item, reason=reason, message=str(exc) or type(exc).__name__)
+            message = error_text(exc) or type(exc).__name__
+            self._note("abort", item, reason=reason, message=message)
             self.safe_stop()
-            raise JobAborted(reason, str(exc) or type(exc).__name__, self.log) from exc
+            raise JobAborted(reason, message, self.log) from exc
         self._note("end", job=job.name)
         return self.log
 
