@@ -26,7 +26,7 @@ from starlette.routing import Mount, Route, WebSocketRoute
 from starlette.staticfiles import StaticFiles
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
-from spec.errors import ProtocolError, RemoteError
+from spec.errors import ProtocolError, RemoteError, error_text
 from welding.console.backend import STATUS_HZ, Console, ConsoleError
 from welding.tools import ToolDBError
 
@@ -66,7 +66,7 @@ def _api(fn: Callable[[Request, Any], Any]) -> Handler:
         except RemoteError as exc:
             return _error(f"the robot refused: {exc}", 409)
         except (ProtocolError, OSError) as exc:
-            return _error(f"connection problem: {exc}", 503)
+            return _error(f"connection problem: {error_text(exc)}", 503)
         return JSONResponse({"ok": True} if result is None else result)
 
     return endpoint
@@ -97,7 +97,7 @@ def create_app(console: Console) -> Starlette:
         except ConsoleError as exc:
             return _error(str(exc), exc.status)
         except (ProtocolError, OSError) as exc:
-            return _error(f"connection problem: {exc}", 503)
+            return _error(f"connection problem: {error_text(exc)}", 503)
         png = data.pop("png")
         data["image"] = None if png is None else base64.b64encode(png).decode("ascii")
         return JSONResponse(data)
