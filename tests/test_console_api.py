@@ -486,3 +486,12 @@ def test_a_port_in_use_is_one_line_before_any_url(tmp_path: Path) -> None:
     ), run.stderr
     assert run.stdout == ""
     assert not (tmp_path / "tools.json").exists()  # no cell was started
+
+
+def test_a_host_that_cannot_be_served_on_is_one_line(tmp_path: Path) -> None:
+    command = [sys.executable, "-m", "welding", "console", "--emulate", "--host", "nosuch.invalid"]
+    command += ["--tools", str(tmp_path / "tools.json"), "--jobs", str(tmp_path)]
+    run = subprocess.run(command, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 3
+    assert run.stderr.startswith("python -m welding: error: cannot serve on nosuch.invalid:8024: ")
+    assert run.stderr.count("\n") == 1 and "Traceback" not in run.stderr

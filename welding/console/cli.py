@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from spec import cliargs, wire
+from spec.server import listen
 from welding import job as J
 
 __all__ = ["add_parser", "cmd_console", "demo_job"]
@@ -162,19 +163,11 @@ def cmd_console(args: argparse.Namespace) -> int:
 
 
 def _listen(host: str, port: int, error: Any) -> socket.socket:
-    """A listening TCP socket on host:port; ``error`` (one line, exit 3) when it cannot be."""
+    """A listening TCP socket on host:port (as every server binds it); ``error`` (one line,
+    exit 3) when it cannot be."""
     try:
-        info = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+        return listen(host, port)
     except (OSError, UnicodeError) as exc:
-        raise error(f"cannot serve on {host}:{port}: {exc}", 3) from None
-    family, kind, proto, _, address = info[0]
-    sock = socket.socket(family, kind, proto)
-    try:
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        sock.bind(address)
-        sock.listen(128)
-    except OSError as exc:
-        sock.close()
-        why = "in use" if exc.errno == errno.EADDRINUSE else exc.strerror or str(exc)
+        code = exc.errno if isinstance(exc, OSError) else None
+        why = "in use" if code == errno.EADDRINUSE else getattr(exc, "strerror", None) or exc
         raise error(f"cannot serve on {host}:{port}: {why}", 3) from None
-    return sock
