@@ -11,6 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NoReturn
 
+from spec import wire
 from spec.auth import Network, read_token_file
 from spec.files import prepare_output_path
 from spec.server import ServerPolicy, parse_networks
@@ -190,6 +191,24 @@ def endpoint(default_port: int) -> Callable[[str], tuple[str, int]]:
             raise argparse.ArgumentTypeError(str(exc)) from None
 
     return parse
+
+
+_SERVICES = {
+    "robot": ("RobotSocket", wire.ROBOT_PORT),
+    "sensor": ("SensorSocket", wire.SENSOR_PORT),
+}
+
+
+def add_endpoint(parser: Any, service: str, note: str = "") -> None:
+    """``--robot`` or ``--sensor`` HOST[:PORT] on ``parser`` (or a group of it), the paper's
+    port when none is given; ``note`` ends the help line (e.g. ", with --robot")."""
+    name, port = _SERVICES[service]
+    parser.add_argument(
+        f"--{service}",
+        type=endpoint(port),
+        metavar="HOST[:PORT]",
+        help=f"the {name} server (port {port} when none is given){note}",
+    )
 
 
 class Parser(argparse.ArgumentParser):

@@ -25,7 +25,7 @@ from contextlib import contextmanager
 from types import FrameType
 from typing import Any
 
-from spec import cliargs, wire
+from spec import cliargs
 from spec.errors import ProtocolError, error_text
 from sync.curvature import sine_min_radius, sine_min_radius_numeric
 from sync.delay import DelayEstimateError, QualityLimits, Verdict
@@ -77,12 +77,8 @@ def _parser() -> cliargs.Parser:
     for name in ("delay", "sweep"):
         what = "the frequency sweep of Fig. 8" if name == "sweep" else "the sine experiment"
         d = sub.add_parser(name, help=f"measure ΔT with {what} (section VI)")
-        d.add_argument(
-            "--robot", type=cliargs.endpoint(wire.ROBOT_PORT), help="RobotSocket HOST[:PORT]"
-        )
-        d.add_argument(
-            "--sensor", type=cliargs.endpoint(wire.SENSOR_PORT), help="SensorSocket HOST[:PORT]"
-        )
+        cliargs.add_endpoint(d, "robot")
+        cliargs.add_endpoint(d, "sensor")
         d.add_argument(
             "--frequency", type=_HZ, default=1.5, help="sine frequency (Hz, 0.001..1000)"
         )

@@ -38,7 +38,7 @@ import numpy as np
 
 from robotsocket.client import RobotClient
 from sensorsocket.client import SensorClient
-from spec import cliargs, wire
+from spec import cliargs
 from spec.callcli import stop_signals_interrupt, unreachable
 from spec.client import ClientTimeout
 from spec.errors import ProtocolError, RemoteError, error_text
@@ -105,25 +105,14 @@ def _add_cell_options(
     p: argparse.ArgumentParser, *, sensor: bool = False, sensor_help: str = ""
 ) -> None:
     where = p.add_mutually_exclusive_group(required=True)
-    where.add_argument(
-        "--robot",
-        type=cliargs.endpoint(wire.ROBOT_PORT),
-        metavar="HOST[:PORT]",
-        help=f"RobotSocket server (default port {wire.ROBOT_PORT})",
-    )
+    cliargs.add_endpoint(where, "robot")
     where.add_argument(
         "--emulate",
         action="store_true",
         help="run against an in-process emulated cell (simulated clock)",
     )
     if sensor:
-        p.add_argument(
-            "--sensor",
-            type=cliargs.endpoint(wire.SENSOR_PORT),
-            metavar="HOST[:PORT]",
-            help=f"SensorSocket server (default port {wire.SENSOR_PORT}), with --robot"
-            + sensor_help,
-        )
+        cliargs.add_endpoint(p, "sensor", ", with --robot" + sensor_help)
     p.add_argument(
         "--seam",
         choices=SEAMS,

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from spec import cliargs, wire
+from spec import cliargs
 from spec.server import listen
 from welding import job as J
 
@@ -35,21 +35,11 @@ def add_parser(sub: Any, add_tools_option: Any) -> None:
         "jobs, teaching. Open http://HOST:PORT/ in a browser.",
     )
     where = p.add_mutually_exclusive_group(required=True)
-    where.add_argument(
-        "--robot",
-        type=cliargs.endpoint(wire.ROBOT_PORT),
-        metavar="HOST[:PORT]",
-        help=f"the RobotSocket server (port {wire.ROBOT_PORT} when none is given)",
-    )
+    cliargs.add_endpoint(where, "robot")
     where.add_argument(
         "--emulate", action="store_true", help="start an emulated cell (real-time clock)"
     )
-    p.add_argument(
-        "--sensor",
-        type=cliargs.endpoint(wire.SENSOR_PORT),
-        metavar="HOST[:PORT]",
-        help=f"the SensorSocket server, with --robot (port {wire.SENSOR_PORT} when none is given)",
-    )
+    cliargs.add_endpoint(p, "sensor", ", with --robot")
     p.add_argument(
         "--token-file",
         metavar="PATH",
