@@ -22,6 +22,7 @@ import logging
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from string import hexdigits
 from typing import NoReturn
 
 from conformance import SUITE_VERSION, TOOL_VERSION
@@ -80,12 +81,14 @@ def parse_capabilities(path: str) -> frozenset[int]:
     names = {c.name: int(c.id) for c in COMMANDS}
     out: set[int] = set()
     for item in listed:
-        if isinstance(item, int) and item in BY_ID:
-            out.add(item)
+        if isinstance(item, str) and item.lower().startswith("0x"):
+            number = int(item, 16) if all(c in hexdigits for c in item[2:]) and item[2:] else -1
+        else:  # bool is an int in Python, not a command ID in JSON
+            number = item if isinstance(item, int) and not isinstance(item, bool) else -1
+        if number in BY_ID:
+            out.add(number)
         elif isinstance(item, str) and item in names:
             out.add(names[item])
-        elif isinstance(item, str) and item.lower().startswith("0x"):
-            out.add(int(item, 16))
         else:
             raise UsageError(f"capability file {path}: unknown command {item!r}")
     return frozenset(out)

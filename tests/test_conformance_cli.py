@@ -183,6 +183,21 @@ def test_a_server_that_closes_at_once_is_one_line_exit_4(not_a_server: NotAServe
             b'{"not_offered": 5}',
             'capability file {path}: expected {{"not_offered": [names or IDs]}}',
         ),
+        (
+            "--capabilities",
+            b'{"not_offered": ["0xzz"]}',
+            "capability file {path}: unknown command '0xzz'",
+        ),
+        (
+            "--capabilities",
+            b'{"not_offered": ["0x7777"]}',
+            "capability file {path}: unknown command '0x7777'",
+        ),
+        (
+            "--capabilities",
+            b'{"not_offered": [true]}',
+            "capability file {path}: unknown command True",
+        ),
     ],
 )
 def test_a_bad_expect_or_capability_file_is_one_line_exit_3(
