@@ -1,12 +1,12 @@
 """Print the results of one ``make bench`` run as Markdown tables, or put them into a document.
 
-Usage: ``python -m bench.table [RESULTS] [--into README.md] [--check]``
+Usage: ``python -m bench.table [RESULTS] [--into docs/BENCHMARKS.md] [--check]``
 
 RESULTS is ``bench-results/results.json`` by default; its run record ``results.run.json``
 (date, commit, machine, load, library versions) becomes the line above the tables, and the
 targets of :mod:`bench.targets` are checked against the run in the first table. With
 ``--into``, the text between the document's ``<!-- bench-table:start -->`` and
-``<!-- bench-table:end -->`` lines is replaced (atomically), so the README's table is always
+``<!-- bench-table:end -->`` lines is replaced (atomically), so the published tables are always
 one run's output and never a hand-merged mix of runs. ``--check`` prints the targets table
 alone, and its exit status says whether the run meets every target: 0 yes, 4 a target is
 missed, 5 none is missed but some are undecided (missed only while the CPU ran below full
