@@ -19,6 +19,7 @@ from pathlib import Path
 import bench
 from bench import run_info
 from spec import cliargs
+from spec.exitcodes import ExitCode
 from spec.files import write_atomically
 
 
@@ -45,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
     names = _modules(args.only)
     if not names:
         print("bench: nothing selected", file=sys.stderr)
-        return 5
+        return ExitCode.NOTHING_SELECTED
     started, load_start = run_info.utc_now(), run_info.load_average()
     for name in names:
         print(f"== {name}", file=sys.stderr, flush=True)

@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.common import Result, result
+from spec.exitcodes import ExitCode
 
 HOGS = 2
 CLIENTS = 64
@@ -369,7 +370,7 @@ def run() -> list[Result]:
             if "error" in j:
                 note = f" (no result, exit {j['exit']}: {j['error'][:60]})"
             else:
-                note = "" if verdict.get("ok") else " (UNTRUSTED: exit 3)"
+                note = "" if verdict.get("ok") else f" (UNTRUSTED: exit {ExitCode.UNTRUSTED:d})"
             tag = f"encoder {latency * 1e3:g} ms, {what}"
             out.append(
                 result(

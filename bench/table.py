@@ -25,6 +25,7 @@ from bench.pace import FULL_SPEED
 from bench.run_info import record_path
 from bench.targets import Verdict, judge, verdicts
 from spec import cliargs
+from spec.exitcodes import ExitCode
 from spec.files import write_atomically
 
 START = "<!-- bench-table:start -->"
@@ -112,15 +113,13 @@ def targets_table(results: list[Mapping[str, Any]]) -> str:
     return "\n".join(out) + "\n"
 
 
-EXIT_MISSED, EXIT_UNDECIDED = 4, 5
-
-
 def check_status(results: list[Mapping[str, Any]]) -> int:
-    """Exit status of ``--check``: 0 every target met, else EXIT_MISSED or EXIT_UNDECIDED."""
+    """Exit status of ``--check``: OK every target met, FAILED one missed, UNTRUSTED one that
+    the results cannot decide."""
     found = {judge(target, r) for target, r in verdicts(results)}
     if Verdict.NOT_MET in found:
-        return EXIT_MISSED
-    return 0 if found == {Verdict.MET} else EXIT_UNDECIDED
+        return ExitCode.FAILED
+    return ExitCode.OK if found == {Verdict.MET} else ExitCode.UNTRUSTED
 
 
 def tables(results: Iterable[Mapping[str, Any]]) -> str:
@@ -198,10 +197,10 @@ def main(argv: list[str] | None = None) -> int:
         write_atomically(args.into, put_into(args.into.read_text(), text))
     except (OSError, ValueError) as exc:  # JSONDecodeError is a ValueError
         print(f"bench.table: {exc}", file=sys.stderr)
-        return 1
+        return ExitCode.USAGE
     except KeyError as exc:
         print(f"bench.table: {args.results}: a result lacks the field {exc}", file=sys.stderr)
-        return 1
+        return ExitCode.USAGE
     print(f"bench.table: wrote the tables of {args.results} into {args.into}", file=sys.stderr)
     return 0
 

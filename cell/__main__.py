@@ -32,6 +32,7 @@ from sensorsocket.pgm import write_pgm
 from spec import cliargs
 from spec.client import FramedClient, wait_end_move
 from spec.errors import ProtocolError, error_text
+from spec.exitcodes import ExitCode
 from spec.params import Image, Joints, Location
 from spec.registry import CommandId
 from spec.server import ServerPolicy, serve_until_signal
@@ -336,9 +337,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
     if trusted and conformant:
         print(f"\nResult: everything worked ({seconds:.0f} s).")
         return 0
-    what = "the ΔT run could not be trusted" if not trusted else "an endpoint is not conformant"
-    print(f"\nResult: {what} ({seconds:.0f} s); see above.")
-    return 3
+    if not conformant:
+        print(f"\nResult: an endpoint is not conformant ({seconds:.0f} s); see above.")
+        return ExitCode.FAILED
+    print(f"\nResult: the ΔT run could not be trusted ({seconds:.0f} s); see above.")
+    return ExitCode.UNTRUSTED
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -353,13 +356,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         return cmd_demo(args)
     except BrokenPipeError:
         raise  # our stdout was closed (`| head`): cliargs.run_cli ends quietly
-    except (CellError, ExperimentError, ProtocolError, OSError, ValueError) as exc:
-        # ValueError covers the kinematics (unknown model) and emulator argument checks.
+    except ValueError as exc:  # the kinematics (unknown model) and emulator argument checks
         print(f"python -m cell: error: {error_text(exc)}", file=sys.stderr)
-        return 2
+        return ExitCode.USAGE
+    except (CellError, ExperimentError, ProtocolError, OSError) as exc:
+        print(f"python -m cell: error: {error_text(exc)}", file=sys.stderr)
+        return ExitCode.FAILED
     except KeyboardInterrupt:  # the demo's cell and clients are closed on the way out
         print("python -m cell: interrupted", file=sys.stderr)
-        return 130
+        return ExitCode.INTERRUPTED
 
 
 def console() -> int:

@@ -1,17 +1,6 @@
 """Command line: ``python -m conformance {robot,sensor,sync} [HOST:PORT] [options]``.
 
-Exit codes:
-
-====  =====================================================================================
-code  meaning
-====  =====================================================================================
-0     conformant: no MUST failed (SHOULD failures too, with ``--strict``)
-1     a MUST requirement failed
-2     only SHOULD requirements failed, and ``--strict`` was given
-3     usage error or harness fault (a case crashed inside the harness; bad option or file)
-4     endpoint unreachable, silent at Hello or not a frame, or it stopped answering
-5     nothing selected (no case matches the profile, globs and tags)
-====  =====================================================================================
+Exit codes: the project's one table (:class:`spec.exitcodes.ExitCode`, docs/CONFORMANCE.md).
 """
 
 from __future__ import annotations
@@ -38,23 +27,23 @@ from conformance.report import (
     write_atomic,
 )
 from conformance.runner import (
-    EXIT_NOTHING_SELECTED,
-    EXIT_USAGE,
     RunResult,
     Selection,
     exit_code,
     run,
 )
 from spec import cliargs
+from spec.exitcodes import ExitCode
 from spec.registry import BY_ID, COMMANDS
 
-EPILOG = """exit codes: 0 conformant; 1 a MUST failed; 2 only SHOULD failures (with --strict);
-3 usage or harness error; 4 endpoint unreachable or stopped answering; 5 nothing selected.
+EPILOG = """exit codes: 0 conformant; 1 a MUST failed; 2 usage error; 3 endpoint unreachable or
+stopped answering; 4 harness fault (no verdict); 5 only SHOULD failures (with --strict);
+7 nothing selected.
 Without HOST:PORT the reference server of the service is started in-process."""
 
 
 class UsageError(Exception):
-    """A bad command line or input file (exit code 3)."""
+    """A bad command line or input file (exit code 2, ``ExitCode.USAGE``)."""
 
 
 class _Parser(cliargs.Parser):
@@ -152,7 +141,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", metavar="FILE", type=cliargs.output_file, help="JSON report")
     p.add_argument("--junit", metavar="FILE", type=cliargs.output_file, help="JUnit XML")
     p.add_argument("--markdown", metavar="FILE", type=cliargs.output_file, help="Markdown report")
-    p.add_argument("--strict", action="store_true", help="SHOULD failures give exit code 2")
+    p.add_argument("--strict", action="store_true", help="SHOULD failures give exit code 5")
     p.add_argument("-v", "--verbose", action="store_true", help="print every case")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.add_argument(
@@ -175,12 +164,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _main(argv)
     except UsageError as exc:
         print(f"conformance: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+        return ExitCode.USAGE
     except BrokenPipeError:
         raise  # our stdout was closed (`| head`): cliargs.run_cli ends quietly
     except OSError as exc:
         print(f"conformance: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+        return ExitCode.USAGE
 
 
 def _main(argv: Sequence[str] | None) -> int:
@@ -197,12 +186,12 @@ def _main(argv: Sequence[str] | None) -> int:
     cases = selection.pick(all_cases(), args.service)
     if not cases and not args.list:
         print("conformance: no case matches the profile, selections and tags", file=sys.stderr)
-        return EXIT_NOTHING_SELECTED
+        return ExitCode.NOTHING_SELECTED
     if args.list:
         for c in cases:
             flags = " motion" if c.motion else ""
             print(f"{c.id:<52} {c.level:<6} {','.join(c.requirements):<28} {c.title}{flags}")
-        return 0 if cases else EXIT_NOTHING_SELECTED
+        return 0 if cases else ExitCode.NOTHING_SELECTED
     options = Options(
         allow_motion=args.allow_motion,
         timeout_scale=args.timeout_scale,
@@ -221,7 +210,7 @@ def _main(argv: Sequence[str] | None) -> int:
             reference = start(args.service)
         except ReferenceUnavailable as exc:
             print(f"conformance: {exc}", file=sys.stderr)
-            return EXIT_USAGE
+            return ExitCode.FAILED
         host, port = reference.host, reference.port
         if not args.quiet:
             print(

@@ -2,7 +2,7 @@
 
 The imports of robotsocket and sensorsocket are lazy and live only here: the cases never
 import them (they drive endpoints through the public protocol only). When a package is not
-installed or fails to start, :class:`ReferenceUnavailable` says why (exit code 3).
+installed or fails to start, :class:`ReferenceUnavailable` says why (exit code 1).
 """
 
 from __future__ import annotations

@@ -30,6 +30,7 @@ from conformance.model import (
 from spec import wire
 from spec.datagrams import Trigger, encode_trigger
 from spec.errors import ErrorCode
+from spec.exitcodes import ExitCode
 from spec.registry import CommandId
 
 log = logging.getLogger(__name__)
@@ -392,34 +393,25 @@ def run(
     return run_result
 
 
-#: Exit codes of ``python -m conformance`` (documented in the README and ``--help``).
-EXIT_CONFORMANT = 0
-EXIT_MUST_FAILED = 1
-EXIT_SHOULD_FAILED = 2
-EXIT_USAGE = 3
-EXIT_UNREACHABLE = 4
-EXIT_NOTHING_SELECTED = 5
-
-
 def exit_code(run_result: RunResult, strict: bool = False) -> int:
-    """The process exit code for a run (see the table in :mod:`conformance.cli`)."""
+    """The process exit code for a run (:class:`spec.exitcodes.ExitCode`, docs/CONFORMANCE.md)."""
     results = run_result.results
     if not run_result.reachable:
-        return EXIT_UNREACHABLE
+        return ExitCode.UNREACHABLE
     if run_result.refused:
-        return EXIT_USAGE
+        return ExitCode.USAGE
     if not results:
-        return EXIT_NOTHING_SELECTED
+        return ExitCode.NOTHING_SELECTED
     fresh = [r for r in results if not r.known_failure]
     if any(r.outcome is Outcome.FAIL for r in fresh):
-        return EXIT_MUST_FAILED
+        return ExitCode.FAILED
     if any(
         r.outcome in (Outcome.ERROR, Outcome.TIMEOUT) and not r.details.get("harness_error")
         for r in fresh
     ):
-        return EXIT_UNREACHABLE
-    if run_result.harness_errors:
-        return EXIT_USAGE
+        return ExitCode.UNREACHABLE
+    if run_result.harness_errors:  # the harness cannot vouch for a verdict it did not reach
+        return ExitCode.UNTRUSTED
     if strict and any(r.outcome is Outcome.NON_STRICT for r in fresh):
-        return EXIT_SHOULD_FAILED
-    return EXIT_CONFORMANT
+        return ExitCode.SHOULD_FAILED
+    return ExitCode.OK

@@ -24,6 +24,7 @@ from kinematics.transforms import (
     location_to_transform,
     transform_to_location,
 )
+from spec.exitcodes import ExitCode
 
 #: Largest coordinate (mm) or angle (deg) on the command line.
 _LARGEST = 1e6
@@ -162,7 +163,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         result = _run(argv)
     except (_UsageError, KinematicsError) as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return ExitCode.USAGE
     try:
         if isinstance(result, list) and "--json" not in argv:
             print(_models_table(result), flush=True)
@@ -170,7 +171,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(json.dumps(result), flush=True)
     except BrokenPipeError:  # `… | head -c N`: end quietly, as a Unix tool does
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 141
+        return ExitCode.BROKEN_PIPE
     return 0
 
 

@@ -26,6 +26,7 @@ from typing import Any
 from spec import callcli, cliargs, wire
 from spec.auth import Network
 from spec.errors import ProtocolError, RemoteError, error_text
+from spec.exitcodes import ExitCode
 from spec.server import FramedServer, ServerPolicy, listen, serve_until_signal
 
 # The emulator, its kinematics (numpy) and the client are imported by the subcommands that use
@@ -296,22 +297,22 @@ def main(argv: Sequence[str] | None = None) -> int:
         return code
     except CliError as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return ExitCode.USAGE
     except CliUnreachable as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return callcli.EXIT_UNREACHABLE
+        return ExitCode.UNREACHABLE
     except RemoteError as exc:
         print(f"error {error_text(exc)}", file=sys.stderr)  # as `call` prints it
-        return callcli.EXIT_REMOTE_ERROR
+        return ExitCode.FAILED
     except BrokenPipeError:
         raise  # our stdout was closed (`| head`): cliargs.run_cli ends quietly
     except (ProtocolError, OSError) as exc:
         # No reply, closed, or a frame that is not ours (an HTTP server): unreachable, as
         # `call` says (docs/CLI.md), not an error reply.
         print(f"error: {error_text(exc)}", file=sys.stderr)
-        return callcli.EXIT_UNREACHABLE
+        return ExitCode.UNREACHABLE
     except KeyboardInterrupt:
-        return 130
+        return ExitCode.INTERRUPTED
 
 
 def console() -> int:

@@ -22,15 +22,13 @@ from typing import TYPE_CHECKING, Any
 
 from spec import cliargs, wire
 from spec.callcli import (
-    EXIT_REMOTE_ERROR,
-    EXIT_UNREACHABLE,
-    EXIT_USAGE,
     ListCommands,
     main_call,
     unreachable,
 )
 from spec.cliargs import parse_endpoint, run_cli
 from spec.errors import ErrorCode, ProtocolError, RemoteError
+from spec.exitcodes import ExitCode
 from spec.files import atomic_path
 from spec.server import FramedServer, ServerPolicy, serve_until_signal
 
@@ -171,7 +169,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
             )
     except OSError as exc:
         print(f"{PROG} serve: cannot bind {what}: {exc.strerror or exc}", file=sys.stderr)
-        return EXIT_USAGE
+        return ExitCode.USAGE
     host, port = server.address
     udp = f"{listener.address[0]}:{listener.address[1]}" if listener else "off"
     service.trigger_endpoint = listener.address if listener else (host, 0)
@@ -253,10 +251,10 @@ def cmd_snapshot(args: argparse.Namespace) -> int:
             client.close()
     except RemoteError as exc:
         print(f"error {exc.code.name} ({exc.raw_code}): {exc.message}", file=sys.stderr)
-        return EXIT_REMOTE_ERROR
+        return ExitCode.FAILED
     except (OSError, ProtocolError) as exc:
         print(f"{PROG} snapshot: {unreachable(host, port, exc)}", file=sys.stderr)
-        return EXIT_UNREACHABLE
+        return ExitCode.UNREACHABLE
     try:
         if suffix == ".png":
             _write_png(out, image)
@@ -264,7 +262,7 @@ def cmd_snapshot(args: argparse.Namespace) -> int:
             write_pgm(out, image)
     except OSError as exc:  # checked before the call, but a disk fills, a mount is read-only
         print(f"{PROG} snapshot: cannot write {out}: {exc.strerror or exc}", file=sys.stderr)
-        return EXIT_USAGE
+        return ExitCode.USAGE
     print(f"wrote {out} ({image.shape[1]}x{image.shape[0]}, frame {index})")
     if settings.columns < settings.width:
         # the window is the sensor's, not this connection's: a frame half black is not a fault
@@ -292,7 +290,7 @@ def main(argv: list[str] | None = None) -> int:
         )
     except _UsageError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+        return ExitCode.USAGE
 
 
 def console() -> int:

@@ -20,6 +20,7 @@ from pathlib import Path
 from spec import cliargs, doc, requirements, vectorgen
 from spec.dissect import describe, describe_all
 from spec.errors import PeerError
+from spec.exitcodes import ExitCode
 
 
 def _read_input(arg: str) -> bytes:
@@ -63,10 +64,10 @@ def cmd_decode(args: argparse.Namespace) -> int:
             raise error
     except (ValueError, OSError) as exc:
         print(f"spec decode: {exc}", file=sys.stderr)
-        return 2
-    except PeerError as exc:
+        return ExitCode.USAGE
+    except PeerError as exc:  # the input is bytes, but they break a rule of the spec
         print(f"spec decode: invalid: {exc}", file=sys.stderr)
-        return 2
+        return ExitCode.FAILED
     return 0
 
 
@@ -106,7 +107,7 @@ def cmd_vectors(args: argparse.Namespace) -> int:
         f"{total} vectors: {counts['valid']} valid, {counts['invalid']} invalid; "
         + (f"{len(wrong)} not as expected: {', '.join(wrong)}" if wrong else "all as expected")
     )
-    return 1 if wrong else 0
+    return ExitCode.FAILED if wrong else ExitCode.OK
 
 
 def cmd_requirements(args: argparse.Namespace) -> int:
@@ -127,7 +128,7 @@ def cmd_doc(args: argparse.Namespace) -> int:
     diff = doc.differences()
     if diff:
         print(f"PROTOCOL.md differs from the registry in: {', '.join(diff)}", file=sys.stderr)
-        return 1
+        return ExitCode.FAILED
     print("PROTOCOL.md matches the registry")
     return 0
 
@@ -141,7 +142,7 @@ def cmd_fuzz(args: argparse.Namespace) -> int:
         print(f"  {code:<22} {n}")
     for data, why in report.failures[:20]:
         print(f"FAILURE {why}: {data.hex()}")
-    return 1 if report.failures else 0
+    return ExitCode.FAILED if report.failures else ExitCode.OK
 
 
 def main(argv: list[str] | None = None) -> int:

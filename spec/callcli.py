@@ -25,15 +25,11 @@ from spec.cliargs import parse_endpoint
 from spec.client import FramedClient, wait_end_move
 from spec.codec import encode_packet, request
 from spec.errors import ErrorCode, ProtocolError, RemoteError, error_text
+from spec.exitcodes import ExitCode
 from spec.jsonform import plain
 from spec.params import FloatArray, IntArray, Joints, Location, Transform, Value
 from spec.registry import BY_ID, COMMANDS, CommandId, CommandSpec, ParamSpec
 from spec.wire import ParamType
-
-EXIT_REMOTE_ERROR = 1
-EXIT_USAGE = 2
-EXIT_UNREACHABLE = 3
-EXIT_INTERRUPTED = 130
 
 _QUEUED_MOVES = {
     CommandId.JOINT_MOVE,
@@ -232,17 +228,17 @@ def main_call(
     returns at once and the move goes on (control is released, not lost)."""
     if wait is not None and not wait > 0:
         print(f"error: the wait must be > 0 s, got {wait}", file=sys.stderr)
-        return EXIT_USAGE
+        return ExitCode.USAGE
     if not timeout > 0:
         print(f"error: the timeout must be > 0 s, got {timeout}", file=sys.stderr)
-        return EXIT_USAGE
+        return ExitCode.USAGE
     try:
         host, port = parse_endpoint(endpoint, default_port)
         spec = find_command(command, service)
         params = parse_args(spec, args)
     except (ValueError, ProtocolError) as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+        return ExitCode.USAGE
     queued = False
     try:
         with stop_signals_interrupt(), FramedClient(host, port, timeout=timeout) as client:
@@ -266,20 +262,20 @@ def main_call(
     except KeyboardInterrupt:
         stopped = "; the move was stopped" if queued else ""
         print(f"interrupted{stopped}; control released", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return ExitCode.INTERRUPTED
     except RemoteError as exc:
         hint = ""
         if exc.code is ErrorCode.AUTH_FAILED and not token:
             hint = " (the server wants a control token: --token-file FILE)"
         print(f"error {error_text(exc)}{hint}", file=sys.stderr)
-        return EXIT_REMOTE_ERROR
+        return ExitCode.FAILED
     except (OSError, ProtocolError) as exc:
         print(f"error: {unreachable(host, port, exc)}", file=sys.stderr)
-        return EXIT_UNREACHABLE
+        return ExitCode.UNREACHABLE
     print(format_reply(reply))
     if reply.get("done") is False:
         print(f"error: the move did not end within {wait:g} s (it goes on)", file=sys.stderr)
-        return EXIT_REMOTE_ERROR
+        return ExitCode.FAILED
     return 0
 
 

@@ -13,6 +13,7 @@ from typing import Any, NoReturn
 
 from spec import wire
 from spec.auth import Network, read_token_file
+from spec.exitcodes import ExitCode
 from spec.files import prepare_output_path
 from spec.server import ServerPolicy, parse_networks
 
@@ -278,12 +279,6 @@ def output_dir(text: str) -> str:
     return text
 
 
-#: Exit status of a Unix tool stopped by SIGPIPE (128 + 13).
-EXIT_BROKEN_PIPE = 141
-#: Exit status of a tool stopped by Ctrl-C (128 + SIGINT).
-EXIT_INTERRUPTED = 130
-
-
 def program_name(argv0: str) -> str:
     """How the user started us: ``python -m conformance`` or ``rsf-conformance``."""
     path = Path(argv0)
@@ -300,9 +295,9 @@ def run_cli(main: Callable[[], int]) -> int:
         return code
     except KeyboardInterrupt:
         print(f"{program_name(sys.argv[0])}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return ExitCode.INTERRUPTED
     except BrokenPipeError:
         # Python flushes stdout again at exit: point it at /dev/null so that stays quiet.
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
-        return EXIT_BROKEN_PIPE
+        return ExitCode.BROKEN_PIPE

@@ -26,7 +26,8 @@ from types import FrameType
 from typing import Any
 
 from spec import cliargs
-from spec.errors import ProtocolError, error_text
+from spec.errors import ProtocolError, RemoteError, error_text
+from spec.exitcodes import ExitCode
 from sync.curvature import sine_min_radius, sine_min_radius_numeric
 from sync.delay import DelayEstimateError, QualityLimits, Verdict
 from sync.experiment import (
@@ -42,9 +43,6 @@ from sync.experiment import (
 )
 
 PROG = "python -m sync"
-EXIT_ERROR = 2
-EXIT_UNTRUSTED = 3
-EXIT_INTERRUPTED = 130
 
 
 _FORCE_AFTER_S = 5.0
@@ -256,7 +254,9 @@ def cmd_delay(args: argparse.Namespace, progress: _Progress) -> int:
         robot, sensor = cell.robot_address, cell.sensor_address
     else:
         if args.robot is None:
-            raise ExperimentError("give --robot HOST:PORT (and --sensor), or --emulate")
+            raise ExperimentError(
+                "give --robot HOST:PORT (and --sensor), or --emulate", ExitCode.USAGE
+            )
         robot, sensor = args.robot, args.sensor
     try:
         extra: dict[str, Any] = {}
@@ -315,7 +315,7 @@ def cmd_delay(args: argparse.Namespace, progress: _Progress) -> int:
         if cell is not None:
             cell.close()
     _print_untrusted(verdicts)
-    return EXIT_UNTRUSTED if any(not v.ok for _, v in verdicts) else 0
+    return ExitCode.UNTRUSTED if any(not v.ok for _, v in verdicts) else 0
 
 
 def cmd_curvature(args: argparse.Namespace) -> int:
@@ -344,11 +344,26 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"{PROG}: interrupted: triggers and motion stopped, control released",
             file=sys.stderr,
         )
-        return EXIT_INTERRUPTED
+        return ExitCode.INTERRUPTED
     except (ExperimentError, DelayEstimateError, ProtocolError, OSError, ValueError) as exc:
         progress.end()
         print(f"{PROG}: error: {error_text(exc)}", file=sys.stderr)
-        return EXIT_ERROR
+        return _exit_code(exc)
+
+
+def _exit_code(exc: Exception) -> ExitCode:
+    """One table for every tool (docs/CLI.md): bad arguments USAGE, an endpoint that does not
+    answer or speak the protocol UNREACHABLE, an experiment that cannot run or gave too little
+    data FAILED."""
+    if isinstance(exc, ExperimentError):
+        return exc.code
+    if isinstance(exc, (DelayEstimateError, RemoteError)):  # too little data; a refusal
+        return ExitCode.FAILED
+    if isinstance(exc, ValueError):
+        return ExitCode.USAGE
+    if isinstance(exc, (ProtocolError, OSError)):
+        return ExitCode.UNREACHABLE
+    return ExitCode.FAILED
 
 
 def console() -> int:

@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 from kinematics.robot import get_model
 from kinematics.transforms import location_to_transform
 from spec.client import ClientTimeout, FramedClient, wait_end_move
+from spec.exitcodes import ExitCode
 from spec.files import atomic_path, prepare_output_path, write_atomically
 from spec.params import IDENTITY_LOCATION, FloatArray, IntArray, Location, Matrix, Value
 from spec.registry import BY_ID, SEAM_POINT_COLUMNS, CommandId
@@ -76,7 +77,13 @@ _IDX = SEAM_POINT_COLUMNS.index("index")
 
 
 class ExperimentError(RuntimeError):
-    """The experiment cannot run or gave too little data (message says why)."""
+    """The experiment cannot run or gave too little data (message says why); ``code`` is the
+    exit code a command line ends with (an endpoint that is not what it was given as: USAGE or
+    UNREACHABLE; else FAILED)."""
+
+    def __init__(self, message: str, code: ExitCode = ExitCode.FAILED) -> None:
+        super().__init__(message)
+        self.code = code
 
 
 @dataclass(frozen=True)
@@ -250,7 +257,8 @@ def _hello(client: FramedClient, wanted: str) -> dict[str, Value]:
         protocol = "RobotSocket" if wanted == "robot" else "SensorSocket"
         raise ExperimentError(
             f"{client.address} (--{wanted}) accepted the connection but did not answer Hello"
-            f" within {timeout:g} s (not a {protocol} server, or a hung one?)"
+            f" within {timeout:g} s (not a {protocol} server, or a hung one?)",
+            ExitCode.UNREACHABLE,
         ) from None
     _check_service(client, info, wanted)
     return info
@@ -263,7 +271,8 @@ def _check_service(client: FramedClient, info: dict[str, Value], wanted: str) ->
     if service in ("robot", "sensor") and service != wanted:
         raise ExperimentError(
             f"{client.address} (--{wanted}) is a {service} endpoint, not a {wanted}:"
-            " are --robot and --sensor swapped?"
+            " are --robot and --sensor swapped?",
+            ExitCode.USAGE,
         )
 
 

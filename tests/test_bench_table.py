@@ -14,6 +14,7 @@ from bench import run_info
 from bench.common import result
 from bench.table import END, START, number, put_into, ratio, render
 from bench.targets import TARGETS, Verdict, judge
+from spec.exitcodes import ExitCode
 
 
 def _run(tmp_path: Path) -> Path:
@@ -87,11 +88,11 @@ def test_cli_writes_into_the_document_and_refuses_what_it_cannot_use(tmp_path: P
     plain = tmp_path / "plain.md"
     plain.write_text("no markers here\n")
     refused = _cli(results, "--into", plain)
-    assert refused.returncode == 1 and "Traceback" not in refused.stderr
+    assert refused.returncode == ExitCode.USAGE and "Traceback" not in refused.stderr
     assert "bench-table:start" in refused.stderr and plain.read_text() == "no markers here\n"
 
     missing = _cli(tmp_path / "nothing.json")
-    assert missing.returncode == 1 and "nothing.json" in missing.stderr
+    assert missing.returncode == ExitCode.USAGE and "nothing.json" in missing.stderr
     assert len(missing.stderr.splitlines()) == 1
 
 
@@ -152,12 +153,14 @@ def test_check_prints_the_targets_and_says_with_its_exit_status_if_all_are_met(
         {**r, "value": 10.0, "machine_speed": 0.5} if "detect" in r["name"] else r for r in fast
     ]
     undecided = _cli(_results_file(tmp_path, *slow), "--check")
-    assert undecided.returncode == 5
+    assert undecided.returncode == ExitCode.UNTRUSTED
     assert "10 x (CPU at 50 % of full speed)" in undecided.stdout
     assert "undecided (CPU below full speed)" in undecided.stdout
 
     missed = [{**r, "value": 10.0} if "detect" in r["name"] else r for r in fast]
-    assert _cli(_results_file(tmp_path, *missed), "--check").returncode == 4
-    assert _cli(_results_file(tmp_path, *fast[:2]), "--check").returncode == 5  # not measured
+    assert _cli(_results_file(tmp_path, *missed), "--check").returncode == ExitCode.FAILED
+    assert (
+        _cli(_results_file(tmp_path, *fast[:2]), "--check").returncode == ExitCode.UNTRUSTED
+    )  # not measured
     both = _cli(_results_file(tmp_path, *fast), "--check", "--into", tmp_path / "README.md")
     assert both.returncode == 2 and "--into" in both.stderr

@@ -14,9 +14,9 @@ from typing import TYPE_CHECKING
 import pytest
 
 from conformance.cli import main
-from conformance.runner import EXIT_UNREACHABLE, EXIT_USAGE
 from robotsocket.emulator import RobotEmulator
 from robotsocket.service import RobotService
+from spec.exitcodes import ExitCode
 from spec.server import FramedServer, ServerPolicy
 
 if TYPE_CHECKING:
@@ -43,7 +43,7 @@ def test_unreachable_endpoint_is_one_line_and_a_short_report(
     md, js = tmp_path / "r.md", tmp_path / "r.json"
     code = main(["robot", f"127.0.0.1:{free_port()}", "--markdown", str(md), "--json", str(js)])
     out, err = capsys.readouterr()
-    assert code == EXIT_UNREACHABLE
+    assert code == ExitCode.UNREACHABLE
     assert out == "" and err.count("\n") == 1 and "cannot connect" in err
     assert len(md.read_text().splitlines()) < 20  # not one line per case
     assert json.loads(js.read_text())["reachable"] is False
@@ -54,7 +54,7 @@ def test_missing_token_is_the_users_mistake_not_a_failure(
 ) -> None:
     code = main(["robot", protected_robot, "-q"])
     _, err = capsys.readouterr()
-    assert code == EXIT_USAGE
+    assert code == ExitCode.USAGE
     assert err.strip().splitlines() == [
         "conformance: the robot requires a control token (none was given): pass --token or"
         " --token-file; nothing was run"
@@ -74,7 +74,7 @@ def test_a_tcp_port_given_to_the_sync_profile_is_named(
 ) -> None:
     code = main(["sync", protected_robot, "-q"])
     _, err = capsys.readouterr()
-    assert code == EXIT_USAGE
+    assert code == ExitCode.USAGE
     assert "is a TCP port" in err and "UDP trigger port" in err and err.count("\n") == 1
 
 
@@ -94,7 +94,7 @@ def test_a_server_that_never_answers_is_one_line_exit_4(
     js = tmp_path / "r.json"
     address = not_a_server(None)
     done = conformance_cli("robot", address, "--timeout-scale", "0.25", "--json", str(js))
-    assert done.returncode == EXIT_UNREACHABLE, done.stderr
+    assert done.returncode == ExitCode.UNREACHABLE, done.stderr
     assert done.stdout == ""
     assert done.stderr.splitlines() == [
         f"conformance: {address} accepted the connection but did not answer Hello within"
@@ -106,7 +106,7 @@ def test_a_server_that_never_answers_is_one_line_exit_4(
 def test_a_server_of_another_protocol_is_one_line_exit_4(not_a_server: NotAServer) -> None:
     address = not_a_server(b"HTTP/1.0 400 Bad request\r\n\r\n")
     done = conformance_cli("sensor", address)
-    assert done.returncode == EXIT_UNREACHABLE, done.stderr
+    assert done.returncode == ExitCode.UNREACHABLE, done.stderr
     assert done.stdout == ""
     assert done.stderr.splitlines() == [
         f"conformance: {address} answered Hello with bytes that are not a frame"
@@ -116,7 +116,7 @@ def test_a_server_of_another_protocol_is_one_line_exit_4(not_a_server: NotAServe
 
 def test_the_other_service_is_named_with_the_command_to_use(protected_robot: str) -> None:
     done = conformance_cli("sensor", protected_robot)
-    assert done.returncode == EXIT_USAGE, done.stderr
+    assert done.returncode == ExitCode.USAGE, done.stderr
     assert done.stdout == ""
     assert done.stderr.splitlines() == [
         f"conformance: {protected_robot} is a robot endpoint (its Hello says so), not a sensor"
@@ -129,12 +129,12 @@ def test_a_closed_udp_port_and_an_unknown_host_are_one_line_exit_4() -> None:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     done = conformance_cli("sync", "--udp", f"127.0.0.1:{port}")  # nothing listens there now
-    assert done.returncode == EXIT_UNREACHABLE, done.stderr
+    assert done.returncode == ExitCode.UNREACHABLE, done.stderr
     assert done.stderr.splitlines() == [
         f"conformance: nothing listens on UDP 127.0.0.1:{port} (port unreachable)"
     ]
     done = conformance_cli("sync", "--udp", "no-such-host.invalid:2001")
-    assert done.returncode == EXIT_UNREACHABLE, done.stderr
+    assert done.returncode == ExitCode.UNREACHABLE, done.stderr
     assert done.stderr.startswith("conformance: cannot resolve no-such-host.invalid: ")
     assert done.stderr.count("\n") == 1
 
@@ -164,7 +164,7 @@ def test_ctrl_c_in_a_run_is_one_line_and_exit_130(protected_robot: str) -> None:
 def test_a_server_that_closes_at_once_is_one_line_exit_4(not_a_server: NotAServer) -> None:
     address = not_a_server(b"")  # reads the Hello, answers nothing and closes
     done = conformance_cli("robot", address)
-    assert done.returncode == EXIT_UNREACHABLE, done.stderr
+    assert done.returncode == ExitCode.UNREACHABLE, done.stderr
     assert done.stderr.splitlines() == [
         f"conformance: {address} closed the connection without answering Hello: does it"
         " refuse this machine (an allow-list) or take no more clients?"
@@ -207,6 +207,6 @@ def test_a_bad_expect_or_capability_file_is_one_line_exit_3(
     if content is not None:
         path.write_bytes(content)
     done = conformance_cli("robot", "127.0.0.1:1", option, str(path))
-    assert done.returncode == EXIT_USAGE, done.stderr
+    assert done.returncode == ExitCode.USAGE, done.stderr
     assert len(done.stderr.splitlines()) == 1 and "Traceback" not in done.stderr
     assert done.stderr.startswith("conformance: " + says.format(path=path)), done.stderr

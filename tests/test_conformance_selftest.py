@@ -31,6 +31,7 @@ from spec.auth import AuthBackoff
 from spec.codec import FrameDecoder, Packet, Rejected, decode_packet, encode_packet
 from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data, encode_trigger
 from spec.errors import DatagramError, ErrorCode, ProtocolError
+from spec.exitcodes import ExitCode
 from spec.params import Image, Joints, Location, Matrix, Value
 from spec.registry import BY_ID, CommandSpec, check_params
 from spec.registry import CommandId as C
@@ -322,7 +323,7 @@ def _caught(result: RunResult, *case_ids: str) -> None:
     got = outcomes(result)
     for case_id in case_ids:
         assert got[case_id] is Outcome.FAIL, (case_id, problems(result).get(case_id, got[case_id]))
-    assert exit_code(result) == 1
+    assert exit_code(result) == ExitCode.FAILED
 
 
 def test_wrong_request_id_echo_is_caught(send_hook: Any) -> None:
@@ -621,19 +622,19 @@ def test_ignoring_the_length_field_is_caught() -> None:
     assert Outcome.FAIL in got.values()
 
 
-def test_never_answering_runs_nothing_and_exits_4() -> None:
+def test_never_answering_runs_nothing_and_exits_unreachable() -> None:
     with RawServer(never_answers) as address:
         result = check("sensor", address, ("framing.*", "negotiation.*"))
     assert not result.reachable and "did not answer Hello" in result.negotiation_error
     assert result.results == []  # one line says why, not a timeout per case
-    assert exit_code(result) == 4
+    assert exit_code(result) == ExitCode.UNREACHABLE
 
 
 def test_slow_answers_give_timeouts_not_fails() -> None:
     with RawServer(slow) as address:
         result = check("sensor", address, ("framing.ping.echo", "framing.reply.echo"))
     assert set(outcomes(result).values()) == {Outcome.TIMEOUT}
-    assert exit_code(result) == 4
+    assert exit_code(result) == ExitCode.UNREACHABLE
 
 
 class CrashingServer(FramedServer):
@@ -665,10 +666,10 @@ def test_crashing_server_gives_errors_not_fails() -> None:
     assert Outcome.FAIL not in got
     assert Outcome.PASS in got  # the cases before the crash ran
     assert got[-1] is Outcome.ERROR  # the cases after it are errors ("not run")
-    assert exit_code(result) == 4
+    assert exit_code(result) == ExitCode.UNREACHABLE
 
 
-def test_unreachable_endpoint_runs_nothing_and_exits_4() -> None:
+def test_unreachable_endpoint_runs_nothing_and_exits_unreachable() -> None:
     sock = socket.socket()
     sock.bind(("127.0.0.1", 0))
     address = sock.getsockname()[:2]
@@ -676,7 +677,7 @@ def test_unreachable_endpoint_runs_nothing_and_exits_4() -> None:
     result = check("robot", address, ("framing.*",))
     assert not result.reachable and "cannot connect" in result.negotiation_error
     assert result.results == []  # one line says why; no "not run" per case
-    assert exit_code(result) == 4
+    assert exit_code(result) == ExitCode.UNREACHABLE
 
 
 # --- the UDP sync endpoint -------------------------------------------------------------------
@@ -1135,7 +1136,7 @@ def test_capability_file_makes_cases_not_applicable(tmp_path: Any) -> None:
 def test_silent_udp_endpoint_gives_timeouts_not_fails() -> None:
     result = sync_check(MiniTriggerListener(drop_every=1), ("sync.trigger.*", "sync.duplicate.*"))
     assert {r.outcome for r in result.results} == {Outcome.TIMEOUT}
-    assert exit_code(result) == 4
+    assert exit_code(result) == ExitCode.UNREACHABLE
 
 
 def test_set_frame_crc_that_keeps_the_crc_is_caught(monkeypatch: Any) -> None:

@@ -15,6 +15,8 @@ from typing import Any
 
 import pytest
 
+from spec.exitcodes import ExitCode
+
 pytest.importorskip("starlette", reason="the console extra is not installed")
 pytest.importorskip("httpx2", reason="the console extra is not installed")
 
@@ -480,7 +482,7 @@ def test_a_port_in_use_is_one_line_before_any_url(tmp_path: Path) -> None:
         command = [sys.executable, "-m", "welding", "console", "--emulate", "--port", str(port)]
         command += ["--tools", str(tmp_path / "tools.json"), "--jobs", str(tmp_path)]
         run = subprocess.run(command, capture_output=True, text=True, timeout=60)
-    assert run.returncode == 3
+    assert run.returncode == ExitCode.FAILED
     assert run.stderr == (
         f"python -m welding: error: cannot serve on 127.0.0.1:{port}: in use\n"
     ), run.stderr
@@ -492,6 +494,6 @@ def test_a_host_that_cannot_be_served_on_is_one_line(tmp_path: Path) -> None:
     command = [sys.executable, "-m", "welding", "console", "--emulate", "--host", "nosuch.invalid"]
     command += ["--tools", str(tmp_path / "tools.json"), "--jobs", str(tmp_path)]
     run = subprocess.run(command, capture_output=True, text=True, timeout=60)
-    assert run.returncode == 3
+    assert run.returncode == ExitCode.FAILED
     assert run.stderr.startswith("python -m welding: error: cannot serve on nosuch.invalid:8024: ")
     assert run.stderr.count("\n") == 1 and "Traceback" not in run.stderr

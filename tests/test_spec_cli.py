@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from spec.__main__ import cmd_vectors
+from spec.exitcodes import ExitCode
 from spec.vectorgen import load
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -44,14 +45,17 @@ def test_decode_a_file_and_stdin(tmp_path: Path) -> None:
     assert r.returncode == 0 and "TRIGGER" in r.stdout
 
 
-def test_decode_bad_input_is_one_line_and_exit_2() -> None:
-    for arg in ("not-hex", "5253", "52530100"):
+def test_decode_bad_input_is_one_line_and_an_exit_code() -> None:
+    # not bytes at all: a usage error; bytes that break a rule of the spec: a failure
+    for arg, code in (("not-hex", ExitCode.USAGE), ("5253", ExitCode.FAILED)):
         r = run("decode", arg)
-        assert r.returncode == 2
+        assert r.returncode == code, (arg, r.stderr)
         assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
+    r = run("decode", "52530100")
+    assert r.returncode == ExitCode.FAILED and r.stderr.count("\n") == 1
     bad_crc = next(v["hex"] for v in load("frames.json") if v["name"] == "bad-crc")
     r = run("decode", bad_crc)
-    assert r.returncode == 2 and "BAD_CRC" in r.stderr
+    assert r.returncode == ExitCode.FAILED and "BAD_CRC" in r.stderr
 
 
 def test_doc_check_and_requirements_listing() -> None:
@@ -69,7 +73,7 @@ def test_decode_a_capture_of_several_frames(tmp_path: Path) -> None:
     assert "== frame 3 of 3" in r.stdout
     capture.write_bytes(b"".join(frames) + frames[0][:5])
     r = run("decode", str(capture))
-    assert r.returncode == 2 and "truncated frame" in r.stderr
+    assert r.returncode == ExitCode.FAILED and "truncated frame" in r.stderr
     # a capture cut short still shows the frames it holds, then where it stopped
     assert "== frame 3\n" in r.stdout and "== frame 4" not in r.stdout
     assert r.stderr.splitlines() == ["spec decode: invalid: BAD_FRAME (1): truncated frame at"
@@ -95,6 +99,6 @@ def test_vectors_exit_1_naming_a_vector_not_as_marked(
     bad = {**load("frames.json")[0], "name": "marked-wrongly", "valid": False, "error": "BAD_CRC"}
     monkeypatch.setattr("spec.vectorgen.load", lambda name: [bad] if name == "frames.json" else [])
     # cmd_vectors, not main: main sets SIGPIPE to its default, which would outlive this test
-    assert cmd_vectors(argparse.Namespace(generate=False, force=False)) == 1
+    assert cmd_vectors(argparse.Namespace(generate=False, force=False)) == ExitCode.FAILED
     last = capsys.readouterr().out.splitlines()[-1]
     assert last == "1 vectors: 0 valid, 1 invalid; 1 not as expected: frames.json:marked-wrongly"

@@ -14,6 +14,7 @@ import pytest
 
 from robotsocket.emulator import RobotEmulator
 from robotsocket.service import RobotService
+from spec.exitcodes import ExitCode
 from sync.__main__ import _parser, main
 from sync.delay import simulate_sine_experiment
 from sync.experiment import (
@@ -61,7 +62,7 @@ def test_write_json_is_atomic_and_valid(tmp_path: Path) -> None:
 def test_cli_curvature_and_usage_errors(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["curvature", "--amplitude", "2", "--frequency", "5", "--speed", "250"]) == 0
     assert "31.66 mm" in capsys.readouterr().out
-    assert main(["delay"]) == 2  # neither an endpoint nor --emulate
+    assert main(["delay"]) == ExitCode.USAGE  # neither an endpoint nor --emulate
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "error" in err
     done = subprocess.run(
@@ -70,7 +71,9 @@ def test_cli_curvature_and_usage_errors(capsys: pytest.CaptureFixture[str]) -> N
         text=True,
         timeout=60,
     )
-    assert done.returncode == 2 and "--robot" in done.stderr and "bad port" in done.stderr
+    assert (
+        done.returncode == ExitCode.USAGE and "--robot" in done.stderr and "bad port" in done.stderr
+    )
     assert "Traceback" not in done.stderr
     # HOST alone takes the paper's port, as in every other command
     args = _parser().parse_args(["delay", "--robot", "10.0.0.5", "--sensor", "[::1]:2100"])
@@ -90,7 +93,9 @@ def test_cli_emulate_writes_json_with_the_truth_and_says_what_apply_set(
     assert said in capsys.readouterr().out
 
 
-def test_cli_untrusted_run_exits_3_with_its_reason_on_a_line_of_its_own(tmp_path: Path) -> None:
+def test_cli_untrusted_run_exits_untrusted_with_its_reason_on_a_line_of_its_own(
+    tmp_path: Path,
+) -> None:
     out = tmp_path / "d.json"
     done = subprocess.run(
         [
@@ -110,7 +115,7 @@ def test_cli_untrusted_run_exits_3_with_its_reason_on_a_line_of_its_own(tmp_path
         text=True,
         timeout=120,
     )
-    assert done.returncode == 3, done.stderr
+    assert done.returncode == ExitCode.UNTRUSTED, done.stderr
     last = done.stderr.splitlines()[-1]
     # the progress line ended before the reason: the reason is a line of its own
     assert last.startswith("python -m sync: untrusted result: MSE minimum at the edge")
@@ -204,7 +209,7 @@ def test_cli_a_robot_given_as_the_sensor_is_named(serve: Serve) -> None:
          "--duration", "1", "-q"],
         capture_output=True, text=True, timeout=60,
     )  # fmt: skip
-    assert done.returncode == 2, done.stderr
+    assert done.returncode == ExitCode.USAGE, done.stderr
     assert done.stderr.splitlines() == [
         f"python -m sync: error: {address} (--sensor) is a robot endpoint, not a sensor:"
         " are --robot and --sensor swapped?"
@@ -222,7 +227,7 @@ def _sync_delay(address: str) -> subprocess.CompletedProcess[str]:
 def test_cli_a_server_of_another_protocol_is_a_plain_line(not_a_server: NotAServer) -> None:
     address = not_a_server(b"HTTP/1.0 400 Bad request\r\n\r\n")
     done = _sync_delay(address)
-    assert done.returncode == 2, done.stderr
+    assert done.returncode == ExitCode.UNREACHABLE, done.stderr
     # before: "python -m sync: error: BAD_FRAME (1): ...", a code that reads as the server's
     assert done.stderr.splitlines() == [
         f"python -m sync: error: {address} sent a bad frame: bad magic 4854, expected 5253"
@@ -235,7 +240,7 @@ def test_cli_a_robot_that_never_answers_is_named_after_a_short_hello(
 ) -> None:
     address = not_a_server(None)  # accepts, never answers
     done = _sync_delay(address)
-    assert done.returncode == 2, done.stderr
+    assert done.returncode == ExitCode.UNREACHABLE, done.stderr
     # before: "TIMEOUT (18): no reply from ... within 30 s", after the experiment's timeout
     assert done.stderr.splitlines() == [
         f"python -m sync: error: {address} (--robot) accepted the connection but did not"

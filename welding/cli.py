@@ -42,6 +42,7 @@ from spec import cliargs
 from spec.callcli import stop_signals_interrupt, unreachable
 from spec.client import ClientTimeout
 from spec.errors import ProtocolError, RemoteError, error_text
+from spec.exitcodes import ExitCode
 from spec.files import write_atomically
 from welding import calibrate_cli
 from welding import job as J
@@ -56,10 +57,6 @@ __all__ = ["main"]
 
 log = logging.getLogger("welding")
 
-EXIT_PROBLEMS = 1
-EXIT_USAGE = 2
-EXIT_UNREACHABLE = 3
-EXIT_INTERRUPTED = 130
 DEFAULT_TOOLS = "welding-tools.json"
 SEAMS = ("straight", "sine", "corner", "jog")
 
@@ -67,7 +64,7 @@ SEAMS = ("straight", "sine", "corner", "jog")
 class CliError(Exception):
     """A failure to report in one line with an exit code."""
 
-    def __init__(self, message: str, code: int = EXIT_PROBLEMS) -> None:
+    def __init__(self, message: str, code: int = ExitCode.FAILED) -> None:
         super().__init__(message)
         self.code = code
 
@@ -310,18 +307,18 @@ def _cell(args: argparse.Namespace, *, control: bool, sensor: bool = False) -> I
     try:
         robot = RobotClient(host, port, timeout=args.timeout)
     except (OSError, ClientTimeout) as exc:
-        raise CliError(f"robot: {unreachable(host, port, exc)}", EXIT_UNREACHABLE) from None
+        raise CliError(f"robot: {unreachable(host, port, exc)}", ExitCode.UNREACHABLE) from None
     sensor_client: SensorClient | None = None
     try:
         if sensor:
             if args.sensor is None:
-                raise CliError("--sensor HOST:PORT is needed with --robot", EXIT_USAGE)
+                raise CliError("--sensor HOST:PORT is needed with --robot", ExitCode.USAGE)
             try:
                 sensor_client = SensorClient(*args.sensor, timeout=args.timeout)
             except (OSError, ClientTimeout) as exc:
                 sensor_host, sensor_port = args.sensor
                 why = unreachable(sensor_host, sensor_port, exc)
-                raise CliError(f"sensor: {why}", EXIT_UNREACHABLE) from None
+                raise CliError(f"sensor: {why}", ExitCode.UNREACHABLE) from None
             sensor_client.take_control(args.token_file or "")
         if control:
             robot.take_control(args.token_file or "")
@@ -496,7 +493,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                 print(file=sys.stderr)
             _write_log(args, job, "aborted", exc.log, exc.reason)
             print(f"python -m welding: {exc}", file=sys.stderr)
-            return EXIT_INTERRUPTED if exc.reason == "interrupted" else EXIT_PROBLEMS
+            return ExitCode.INTERRUPTED if exc.reason == "interrupted" else ExitCode.FAILED
         _write_log(args, job, "done", entries, None)
         what = "dry run" if args.dry_run else "run"
         t = [e.t for e in entries]
@@ -548,7 +545,7 @@ def cmd_tools(args: argparse.Namespace) -> int:
         db.add(Entry(args.name, args.kind, args.location, args.note))
     elif a == "edit":
         if args.location is None and args.note is None:
-            raise CliError("nothing to change: give --location and/or --note", EXIT_USAGE)
+            raise CliError("nothing to change: give --location and/or --note", ExitCode.USAGE)
         db.edit(args.name, location=args.location, note=args.note)
     elif a == "remove":
         db.remove(args.name)
@@ -786,18 +783,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         raise  # our stdout was closed (`| head`): cliargs.run_cli ends quietly
     except J.JobError as exc:
         print(exc, file=sys.stderr)
-        return EXIT_PROBLEMS
+        return ExitCode.FAILED
     except CliError as exc:
         print(f"python -m welding: error: {exc}", file=sys.stderr)
         return exc.code
     except (ToolDBError, PlanError, TeachError, CalibrationError, ValueError) as exc:
         print(f"python -m welding: error: {exc}", file=sys.stderr)
-        return EXIT_PROBLEMS
+        return ExitCode.FAILED
     except RemoteError as exc:
         print(f"python -m welding: the robot refused: {error_text(exc)}", file=sys.stderr)
-        return EXIT_PROBLEMS
+        return ExitCode.FAILED
     except (ProtocolError, OSError) as exc:
         print(f"python -m welding: error: {error_text(exc)}", file=sys.stderr)
-        return EXIT_UNREACHABLE
+        return ExitCode.UNREACHABLE
     except KeyboardInterrupt:
-        return EXIT_INTERRUPTED
+        return ExitCode.INTERRUPTED

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from spec import cliargs
+from spec.exitcodes import ExitCode
 from spec.server import listen
 from welding import job as J
 
@@ -95,7 +96,7 @@ def cmd_console(args: argparse.Namespace) -> int:
             f"python -m welding console: {exc.name} is missing: pip install '.[console]'",
             file=sys.stderr,
         )
-        return 2
+        return ExitCode.FAILED
     from welding.cli import CliError, merge_cell_tools
 
     # the port first: a console that cannot serve says so before it starts a cell or a URL
@@ -132,7 +133,9 @@ def cmd_console(args: argparse.Namespace) -> int:
                 cell=cell,
             )
         except OSError as exc:
-            raise CliError(str(exc), 3) from None  # names robot or sensor and its address
+            raise CliError(
+                str(exc), ExitCode.UNREACHABLE
+            ) from None  # names robot or sensor and its address
         try:
             port = listener.getsockname()[1]  # the one bound (--port 0: a free one)
             print(f"console: http://{args.host}:{port}/", file=sys.stderr, flush=True)
@@ -154,10 +157,10 @@ def cmd_console(args: argparse.Namespace) -> int:
 
 def _listen(host: str, port: int, error: Any) -> socket.socket:
     """A listening TCP socket on host:port (as every server binds it); ``error`` (one line,
-    exit 3) when it cannot be."""
+    exit 1) when it cannot be."""
     try:
         return listen(host, port)
     except (OSError, UnicodeError) as exc:
         code = exc.errno if isinstance(exc, OSError) else None
         why = "in use" if code == errno.EADDRINUSE else getattr(exc, "strerror", None) or exc
-        raise error(f"cannot serve on {host}:{port}: {why}", 3) from None
+        raise error(f"cannot serve on {host}:{port}: {why}", ExitCode.FAILED) from None
