@@ -61,7 +61,9 @@ def console(tmp_path: Path) -> Iterator[tuple[str, Path]]:
     )  # fmt: skip
     try:
         deadline = time.monotonic() + 30
-        while not (url := re.search(r"console: (http://\S+)", log_path.read_text())):
+        while not (
+            url := re.search(r"console: (http://\S+/signin\?token=\S+)", log_path.read_text())
+        ):
             if proc.poll() is not None or time.monotonic() > deadline:
                 pytest.fail(f"the console did not start: {log_path.read_text()}")
             time.sleep(0.1)
@@ -145,7 +147,9 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             page = ctx.new_page()
             page.set_default_timeout(15_000)
             _print_console_errors(page)
+            # the printed one-time sign-in URL signs the operator in and opens the console
             page.goto(url + "#status")
+            expect(page.locator("#user")).to_have_text("token (operator)")
 
             # status streams in (the robot clock advances on the page)
             expect(page.locator("#link")).to_have_text("connected")
@@ -156,7 +160,7 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
 
             # control, then power on after a confirmation
             page.locator("#take").click()
-            expect(page.locator("#st-owner")).to_have_text("this console")
+            expect(page.locator("#st-owner")).to_have_text("this console (token)")
             page.locator("#power-on").click()
             expect(page.locator("#confirm")).to_be_visible()
             _confirm(page)
