@@ -319,3 +319,56 @@ def test_the_issues_curl_lines_are_refused_and_the_robot_has_no_owner(tmp_path: 
     finally:
         proc.terminate()
         proc.wait(20)
+
+
+def _console_banner(command: list[str], log: Path) -> tuple[subprocess.Popen[bytes], str]:
+    with log.open("w") as out:
+        proc = subprocess.Popen(command, stdout=out, stderr=subprocess.STDOUT)
+    deadline = time.monotonic() + 60
+    while not (m := re.search(r"console: (\S+/signin\?token=\S+)", log.read_text())):
+        if proc.poll() is not None or time.monotonic() > deadline:
+            proc.kill()
+            pytest.fail(log.read_text())
+        time.sleep(0.1)
+    return proc, m[1]
+
+
+@pytest.mark.slow  # about 10 s: two consoles
+def test_tls_serves_https_and_insecure_warns(tmp_path: Path) -> None:
+    import ssl
+    import urllib.request
+
+    cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
+    subprocess.run(
+        ["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1", "-subj",
+         "/CN=127.0.0.1", "-keyout", str(key), "-out", str(cert)],
+        check=True, capture_output=True, timeout=60,
+    )  # fmt: skip
+    common = ["--emulate", "--port", "0", "--tools", str(tmp_path / "t.json"), "--jobs",
+              str(tmp_path)]  # fmt: skip
+    proc, url = _console_banner(
+        [sys.executable, "-m", "welding", "console", *common, "--certfile", str(cert),
+         "--keyfile", str(key)],
+        tmp_path / "tls.log",
+    )  # fmt: skip
+    try:
+        assert url.startswith("https://127.0.0.1:")
+        ctx = ssl.create_default_context(cafile=str(cert))
+        ctx.check_hostname = False
+        with urllib.request.urlopen(url, context=ctx, timeout=10) as r:
+            assert r.status == 200 and b"24-Laser" in r.read()
+    finally:
+        proc.terminate()
+        proc.wait(20)
+    proc, url = _console_banner(
+        [sys.executable, "-m", "welding", "console", *common, "--host", "0.0.0.0", "--insecure"],
+        tmp_path / "insecure.log",
+    )  # fmt: skip
+    try:
+        assert url.startswith("http://0.0.0.0:")
+        assert (
+            "--insecure: serving plain http on 0.0.0.0" in (tmp_path / "insecure.log").read_text()
+        )
+    finally:
+        proc.terminate()
+        proc.wait(20)
