@@ -228,12 +228,13 @@ class Console:
             except ToolDBError:
                 continue  # removed from the database meanwhile
             poses[f"{tool}@{frame}"] = [round(v, 4) for v in r.here(t, f)]
-        owner = "console" if self.in_control else ("other" if st.controlled else "nobody")
-        if self.in_control and not st.controlled:
-            owner = "lost"  # the lease ran out or the server dropped us
-        with self._lock:
+        with self._lock:  # read under the lock take/release write them under
+            in_control, controller = self.in_control, self.controller
             jog = self._jog is not None
             act = self.activity.to_json() if self.activity is not None else None
+        owner = "console" if in_control else ("other" if st.controlled else "nobody")
+        if in_control and not st.controlled:
+            owner = "lost"  # the lease ran out or the server dropped us
         return {
             "connected": True,
             "estop": st.estop,
@@ -241,7 +242,7 @@ class Console:
             "moving": st.moving,
             "queue": st.queue,
             "owner": owner,
-            "controller": self.controller if owner in ("console", "lost") else None,
+            "controller": controller if owner in ("console", "lost") else None,
             "last_error": st.last_error,
             "last_message": st.last_message,
             "time": st.time,
