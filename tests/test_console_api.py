@@ -26,7 +26,10 @@ from starlette.websockets import WebSocketDisconnect
 from cell.cell import READY_JOINTS
 from welding import job as J
 from welding.cli import merge_cell_tools
+from welding.console.access import Access
 from welding.console.app import create_app
+from welding.console.audit import AuditLog
+from welding.console.auth import Sessions
 from welding.console.backend import DEADMAN_S, Console
 from welding.console.cli import demo_job
 from welding.emulate import cell_tables, realtime_cell
@@ -54,8 +57,10 @@ def env(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[TestClient, 
     console = Console(
         cell.robot_address, cell.sensor_address, tools=tools, jobs=jobs, token=TOKEN, cell=cell
     )
+    access = Access(Sessions({}), AuditLog(tmp / "audit.jsonl"))
     try:
-        with TestClient(create_app(console)) as client:
+        with TestClient(create_app(console, access), base_url=BASE) as client:
+            sign_in(client, access)
             yield client, console, cell
     finally:
         console.close()
@@ -63,9 +68,23 @@ def env(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[TestClient, 
 
 
 SEEN = Recorder()
+BASE = "http://127.0.0.1:8024"
+WS = "ws://127.0.0.1:8024/ws"
+
+
+def sign_in(client: TestClient, access: Access) -> str:
+    """Sign ``client`` in with the sign-in URL's token; its requests then carry the CSRF
+    token, as the page's do. The session's CSRF token."""
+    r = client.get(f"/signin?token={access.sessions.token}", follow_redirects=False)
+    assert r.status_code == 303 and r.headers["location"] == "/", r.text
+    csrf: str = client.get("/api/session").json()["csrf"]
+    client.headers["X-CSRF-Token"] = csrf
+    return csrf
 
 
 def call(client: TestClient, method: str, path: str, body: Any = None) -> Any:
+    if body is None and method != "GET":
+        body = {}  # the page's wrapper sends every state-changing request as JSON
     r = client.request(method, path, json=body)
     SEEN.texts.append(r.text)
     return r
@@ -111,7 +130,7 @@ def _release(client: TestClient) -> None:
 def test_status_stream_updates_and_refusals_before_control(env: Any) -> None:
     client, _, _ = env
     _release(client)
-    with client.websocket_connect("/ws") as ws:
+    with client.websocket_connect(WS) as ws:
         seqs = []
         for _ in range(12):
             msg = ws.receive_json()
@@ -140,7 +159,7 @@ def test_status_stream_that_fails_is_closed_not_left_hanging(
     """A status stream whose server side fails closes with 1011: a client must never wait
     forever on a socket nobody serves (this once hung the suite)."""
     client, console, _ = env
-    with client.websocket_connect("/ws") as ws:
+    with client.websocket_connect(WS) as ws:
         assert ws.receive_json()["type"] == "status"
 
         def broken() -> dict[str, Any]:
@@ -152,15 +171,18 @@ def test_status_stream_that_fails_is_closed_not_left_hanging(
                 ws.receive_json()
         assert closed.value.code == 1011
     monkeypatch.undo()
-    with client.websocket_connect("/ws") as ws:  # the next client is served again
+    with client.websocket_connect(WS) as ws:  # the next client is served again
         assert ws.receive_json()["type"] == "status"
 
 
 @pytest.mark.parametrize(
     ("method", "path", "body", "code", "text"),
     [
-        ("POST", "/api/power", {"on": "yes"}, 400, "on: expected true or false"),
-        ("POST", "/api/control", None, 400, "take: expected true or false"),
+        ("POST", "/api/power", {"on": "yes"}, 422, "on: expected true or false"),
+        ("POST", "/api/control", None, 422, "take: required"),
+        ("POST", "/api/control", [True], 400, "expected a JSON object"),
+        ("POST", "/api/power", {"on": True, "off": 1}, 422, "unknown field off"),
+        ("POST", "/api/teach", "step", 400, "expected a JSON object"),
         ("GET", "/api/jobs/..secret.xml", None, 400, "bad job file name"),
         ("GET", "/api/jobs/missing.xml", None, 404, "no job file"),
         (
@@ -212,7 +234,9 @@ def test_bad_requests_get_a_clear_error(
 
 def test_body_that_is_not_json(env: Any) -> None:
     client, _, _ = env
-    r = client.post("/api/power", content=b"{not json")
+    r = client.post(
+        "/api/power", content=b"{not json", headers={"Content-Type": "application/json"}
+    )
     assert r.status_code == 400 and r.json() == {"error": "the request body is not JSON"}
 
 
@@ -256,7 +280,7 @@ def test_token_is_never_sent_to_the_browser(env: Any) -> None:
     client, _, _ = env
     assert call(client, "POST", "/api/control", {"take": True}).status_code == 200
     try:
-        with client.websocket_connect("/ws") as ws:
+        with client.websocket_connect(WS) as ws:
             for _ in range(5):
                 SEEN.texts.append(str(ws.receive_json()))
         for path in ("/api/status", "/api/tools", "/api/jobs", "/api/sensor/settings"):
@@ -277,7 +301,7 @@ def test_deadman_stops_a_jog_without_hold_and_on_a_closed_socket(env: Any) -> No
     client, console, _ = env
     _power_on(client)
     before = status(client)["joints"][0]
-    with client.websocket_connect("/ws") as ws:
+    with client.websocket_connect(WS) as ws:
         ws.send_json({"type": "jog", "mode": "joint", "axis": 1, "direction": 1, "speed": 20})
         s = wait_for(client, lambda s: s["jogging"] and s["moving"])
         t0 = time.monotonic()
@@ -314,7 +338,7 @@ def test_deadman_during_a_slow_jog_start_stops_the_move(
         return real_move(q)
 
     monkeypatch.setattr(console.control, "joint_move", slow_move)
-    with client.websocket_connect("/ws") as ws:
+    with client.websocket_connect(WS) as ws:
         ws.send_json({"type": "jog", "mode": "joint", "axis": 1, "direction": 1, "speed": 20})
         wait_for(client, lambda s: s["moving"])  # the move went out, no "hold" follows
         s = wait_for(client, lambda s: not s["jogging"] and not s["moving"])
@@ -338,7 +362,7 @@ def test_a_job_cannot_start_beside_a_jog_that_is_starting(
         return real_limits()
 
     monkeypatch.setattr(console.control, "joint_limits", slow_limits)
-    with client.websocket_connect("/ws") as ws:
+    with client.websocket_connect(WS) as ws:
         ws.send_json({"type": "jog", "mode": "joint", "axis": 1, "direction": 1, "speed": 5})
         assert reading.wait(10)
         threading.Timer(0.5, go_on.set).start()  # the start goes on after a while
@@ -375,7 +399,7 @@ def test_dry_run_with_progress_then_abort_laser_off(env: Any) -> None:
 def test_estop_gets_through_and_stops(env: Any) -> None:
     client, _, _ = env
     _power_on(client)
-    with client.websocket_connect("/ws") as ws:
+    with client.websocket_connect(WS) as ws:
         ws.send_json({"type": "jog", "mode": "joint", "axis": 1, "direction": -1, "speed": 20})
         ws.send_json({"type": "hold"})
         wait_for(client, lambda s: s["moving"])
@@ -491,7 +515,8 @@ def test_a_port_in_use_is_one_line_before_any_url(tmp_path: Path) -> None:
 
 
 def test_a_host_that_cannot_be_served_on_is_one_line(tmp_path: Path) -> None:
-    command = [sys.executable, "-m", "welding", "console", "--emulate", "--host", "nosuch.invalid"]
+    command = [sys.executable, "-m", "welding", "console", "--emulate", "--insecure"]
+    command += ["--host", "nosuch.invalid"]
     command += ["--tools", str(tmp_path / "tools.json"), "--jobs", str(tmp_path)]
     run = subprocess.run(command, capture_output=True, text=True, timeout=60)
     assert run.returncode == ExitCode.FAILED

@@ -61,13 +61,16 @@ def console(tmp_path: Path) -> Iterator[tuple[str, Path]]:
     )  # fmt: skip
     try:
         deadline = time.monotonic() + 30
-        while not (url := re.search(r"console: (http://\S+)", log_path.read_text())):
+        while not (
+            url := re.search(r"console: (http://\S+/signin\?token=\S+)", log_path.read_text())
+        ):
             if proc.poll() is not None or time.monotonic() > deadline:
                 pytest.fail(f"the console did not start: {log_path.read_text()}")
             time.sleep(0.1)
         # the banner names the emulated cell's servers, for other tools to use beside it
         banner = r"emulated cell: robot [\d.]+:\d+, sensor [\d.]+:\d+"
         assert re.search(banner, log_path.read_text())
+        _LOGS[url[1]] = log_path
         yield url[1], jobs
     finally:
         proc.terminate()
@@ -78,6 +81,9 @@ def console(tmp_path: Path) -> Iterator[tuple[str, Path]]:
             proc.wait()
         log_file.close()
         print("--- the console's log ---\n" + log_path.read_text(errors="replace"))
+
+
+_LOGS: dict[str, Path] = {}
 
 
 def _joints(page: Page) -> list[float]:
@@ -145,7 +151,9 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             page = ctx.new_page()
             page.set_default_timeout(15_000)
             _print_console_errors(page)
+            # the printed one-time sign-in URL signs the operator in and opens the console
             page.goto(url + "#status")
+            expect(page.locator("#user")).to_have_text("token (operator)")
 
             # status streams in (the robot clock advances on the page)
             expect(page.locator("#link")).to_have_text("connected")
@@ -156,7 +164,7 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
 
             # control, then power on after a confirmation
             page.locator("#take").click()
-            expect(page.locator("#st-owner")).to_have_text("this console")
+            expect(page.locator("#st-owner")).to_have_text("this console (token)")
             page.locator("#power-on").click()
             expect(page.locator("#confirm")).to_be_visible()
             _confirm(page)
@@ -331,3 +339,106 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             _shot(page, "tools")
         finally:
             ctx.close()
+
+
+EVIL_PAGE = """<!doctype html><title>evil</title><script>
+const target = "TARGET";
+const routes = ["/api/control", "/api/power", "/api/estop/reset", "/api/move", "/api/tools",
+  "/api/jobs/demo.xml/run", "/api/teach", "/api/delta-t", "/api/calibrate", "/api/track",
+  "/api/sensor/settings", "/api/abort"];
+const bodies = { "/api/control": {take: true}, "/api/power": {on: true},
+  "/api/jobs/demo.xml/run": {dry_run: false} };
+window.done = (async () => {
+  for (const r of routes) {
+    await fetch(target + r, { method: "POST", mode: "no-cors", credentials: "include",
+      body: JSON.stringify(bodies[r] || {}) }).catch(() => {});
+  }
+  const f = document.createElement("form");
+  f.method = "POST"; f.action = target + "/api/control"; f.target = "sink";
+  f.enctype = "text/plain";
+  const i = document.createElement("input"); i.name = '{"take":true,"x":"'; i.value = '"}';
+  f.appendChild(i); document.body.appendChild(f); f.submit();
+  await new Promise((res) => {
+    const ws = new WebSocket(target.replace("http", "ws") + "/ws");
+    ws.onopen = () => {
+      ws.send(JSON.stringify({ type: "jog", mode: "joint", axis: 1, direction: 1, speed: 100 }));
+      const t = setInterval(() => ws.send(JSON.stringify({ type: "hold" })), 100);
+      setTimeout(() => { clearInterval(t); res("opened"); }, 2000);
+    };
+    ws.onerror = ws.onclose = () => res("refused");
+  }).then((v) => { window.wsResult = v; });
+  await new Promise((r) => setTimeout(r, 1000));
+  return "done";
+})();
+</script><iframe name="sink"></iframe>"""
+
+
+@pytest.mark.slow  # about 20 s
+def test_a_page_of_another_origin_cannot_drive_the_robot(
+    console: tuple[str, Path], tmp_path: Path
+) -> None:
+    """Issue 28: the operator is signed in; a page from another origin (python3 -m
+    http.server on another port) sends no-cors fetches to every state-changing route, a form
+    POST and a WebSocket jog with its own holds. The robot's control holder, power, joints
+    and outputs stay as they were, the console logs the refusals, and the operator's own
+    page still works."""
+    from robotsocket.client import RobotClient
+
+    url, _ = console
+    log_path = _LOGS[url]
+    robot = re.search(r"emulated cell: robot ([\d.]+):(\d+)", log_path.read_text())
+    assert robot
+    base = url.split("/signin")[0]
+    site = tmp_path / "evil"
+    site.mkdir()
+    (site / "index.html").write_text(EVIL_PAGE.replace("TARGET", base))
+    evil = subprocess.Popen(
+        [sys.executable, "-m", "http.server", "0", "--bind", "127.0.0.1", "-d", str(site)],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+    try:
+        assert evil.stdout is not None
+        line = evil.stdout.readline()
+        evil_port = re.search(r"port (\d+)", line)
+        assert evil_port, line
+        with (
+            RobotClient(robot[1], int(robot[2]), timeout=10, client_name="observer") as obs,
+            sync_playwright() as pw,
+        ):
+            ctx = pw.chromium.launch_persistent_context(
+                str(tmp_path / "profile"), executable_path=CHROMIUM, headless=True, args=ARGS
+            )
+            try:
+                page = ctx.new_page()
+                page.set_default_timeout(15_000)
+                page.goto(url + "#status")
+                expect(page.locator("#user")).to_have_text("token (operator)")
+                expect(page.locator("#link")).to_have_text("connected")
+                outputs = obs.list_io()[0]
+
+                def robot_state() -> Any:
+                    st = obs.status()
+                    return (st.controlled, st.powered, [round(float(q), 3) for q in obs.herej()],
+                            {o: obs.read_io(o) for o in outputs})  # fmt: skip
+
+                before = robot_state()
+                attacker = ctx.new_page()  # same browser, the operator's cookie in its jar
+                attacker.goto(f"http://127.0.0.1:{evil_port[1]}/index.html")
+                assert attacker.evaluate("window.done") == "done"
+                assert attacker.evaluate("window.wsResult") == "refused"
+                assert robot_state() == before
+                assert not before[0] and not before[1]
+                text = log_path.read_text()
+                assert text.count("cross-origin request from http://127.0.0.1:") >= 13, text
+                assert "refused WebSocket /ws" in text
+                # the operator's own page still does everything after signing in
+                page.locator("#take").click()
+                expect(page.locator("#st-owner")).to_have_text("this console (token)")
+                assert obs.status().controlled
+                page.locator("#release").click()
+                expect(page.locator("#st-owner")).to_have_text("nobody")
+            finally:
+                ctx.close()
+    finally:
+        evil.terminate()
+        evil.wait(10)

@@ -5,6 +5,7 @@ thawed, the console says control was lost, runs no jog, and can take control aga
 
 from __future__ import annotations
 
+import http.cookiejar
 import json
 import os
 import re
@@ -72,17 +73,27 @@ class Console:
             lambda t: "console: http" in t or self.proc.poll() is not None,
             60.0,
         )
-        url = re.search(r"console: (http://\S+)", text)
+        url = re.search(r"console: (http://\S+/)signin\?token=(\S+)", text)
         assert url, text
         self.url = url[1]
+        # signed in with the printed one-time URL, as the operator at the terminal does
+        self.cookies = http.cookiejar.CookieJar()
+        self.opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(self.cookies))
+        self.opener.open(f"{self.url}signin?token={url[2]}", timeout=10).close()
+        self.csrf = self.api("GET", "session")["csrf"]
+
+    def cookie(self) -> str:
+        """The session cookie, for the WebSocket handshake."""
+        return "; ".join(f"{c.name}={c.value}" for c in self.cookies)
 
     def api(self, method: str, path: str, body: Any = None) -> Any:
         data = None if body is None else json.dumps(body).encode()
         req = urllib.request.Request(
             self.url + "api/" + path, data=data, method=method,
-            headers={"Content-Type": "application/json"},
+            headers={"Content-Type": "application/json",
+                     "X-CSRF-Token": getattr(self, "csrf", "")},
         )  # fmt: skip
-        with urllib.request.urlopen(req, timeout=10) as r:
+        with self.opener.open(req, timeout=10) as r:
             return json.loads(r.read())
 
     def close(self) -> None:
@@ -123,7 +134,9 @@ def test_a_console_that_freezes_dies_or_is_stopped_mid_jog_stops_the_arm(
     with RobotClient(*console.robot, timeout=10.0, client_name="observer") as observer:
         start = float(observer.herej()[0])
         ws_url = console.url.replace("http://", "ws://") + "ws"
-        with ws_client.connect(ws_url, open_timeout=10) as ws:
+        with ws_client.connect(
+            ws_url, open_timeout=10, additional_headers={"Cookie": console.cookie()}
+        ) as ws:
             ws.send(json.dumps({"type": "jog", "mode": "joint", "axis": 1, "direction": 1,
                                 "speed": 5}))  # fmt: skip
 

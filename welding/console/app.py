@@ -1,9 +1,13 @@
 """The console's web application (Starlette): JSON API, the status WebSocket, static pages.
 
-Every blocking call of :class:`~welding.console.backend.Console` runs in the thread pool, so
-a request waiting for the robot never holds up the event loop, the status stream or an
-EmergencyStop. Errors come back as ``{"error": message}`` with a 4xx/5xx status, never a
-traceback.
+A thin composition: the routes table below (each route with its :class:`~welding.console.
+access.Rule`: role, control, audit name, and its request body's :class:`Body`), the access
+control middleware (:mod:`welding.console.access`) in front of all of it, and the console's
+connections (:class:`~welding.console.backend.Console`) behind it.
+
+Every blocking call of the console runs in the thread pool, so a request waiting for the
+robot never holds up the event loop, the status stream or an EmergencyStop. Errors come back
+as ``{"error": message}`` with a 4xx/5xx status, never a traceback.
 """
 
 from __future__ import annotations
@@ -14,51 +18,158 @@ import contextlib
 import itertools
 import json
 import logging
-from collections.abc import Awaitable, Callable
+import math
+from collections.abc import Awaitable, Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from starlette.applications import Starlette
 from starlette.concurrency import run_in_threadpool
+from starlette.middleware import Middleware
 from starlette.requests import Request
-from starlette.responses import JSONResponse, Response
-from starlette.routing import Mount, Route, WebSocketRoute
+from starlette.responses import FileResponse, JSONResponse, RedirectResponse, Response
+from starlette.routing import BaseRoute, Match, Mount, Route, WebSocketRoute
 from starlette.staticfiles import StaticFiles
+from starlette.types import Scope
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from spec.errors import ProtocolError, RemoteError, error_text
+from welding.console.access import (
+    Access,
+    AccessControl,
+    Rule,
+    cookie_header,
+    expired_cookie,
+    session_of,
+    set_cookie,
+)
+from welding.console.auth import Session, SignInRefused
 from welding.console.backend import STATUS_HZ, Console, ConsoleError
 from welding.tools import ToolDBError
 
-__all__ = ["create_app"]
+__all__ = ["Body", "create_app"]
 
 log = logging.getLogger("welding.console")
 STATIC = Path(__file__).with_name("static")
 Handler = Callable[[Request], Awaitable[Response]]
+Kind = Literal["bool", "str", "number", "list", "object"]
+
+
+@dataclass(frozen=True)
+class Body:
+    """The JSON object a route takes: each field's kind and whether it is required. Anything
+    else is refused: a body that is not an object (400), an unknown or missing field or one
+    of the wrong kind (422), each with a message naming the field."""
+
+    fields: Mapping[str, tuple[Kind, bool]] = field(default_factory=dict)
+
+    def check(self, value: Any) -> dict[str, Any]:
+        if not isinstance(value, dict):
+            raise ConsoleError("expected a JSON object {...} as the request body", 400)
+        unknown = sorted(set(value) - set(self.fields))
+        if unknown:
+            known = ", ".join(self.fields) or "none"
+            raise ConsoleError(f"unknown field {', '.join(unknown)} (fields: {known})", 422)
+        for key, (kind, required) in self.fields.items():
+            if key not in value:
+                if required:
+                    raise ConsoleError(f"{key}: required", 422)
+                continue
+            v = value[key]
+            ok = {
+                "bool": isinstance(v, bool),
+                "str": isinstance(v, str),
+                "number": isinstance(v, int | float)
+                and not isinstance(v, bool)
+                and math.isfinite(v),
+                "list": isinstance(v, list),
+                "object": isinstance(v, dict),
+            }[kind]
+            if not ok:
+                what = {"bool": "true or false", "number": "a number", "str": "a string"}
+                raise ConsoleError(f"{key}: expected {what.get(kind, f'a JSON {kind}')}", 422)
+        return value
+
+
+NONE = Body()
+
+
+def _b(**fields: tuple[Kind, bool]) -> Body:
+    return Body(fields)
+
+
+REQ, OPT = True, False
+BODIES = {
+    "signin": _b(name=("str", REQ), password=("str", REQ)),
+    "control": _b(take=("bool", REQ)),
+    "power": _b(on=("bool", REQ)),
+    "move": _b(job=("str", REQ), name=("str", REQ), linear=("bool", OPT)),
+    "tool_new": _b(name=("str", REQ), kind=("str", REQ), location=("list", REQ), note=("str", OPT)),
+    "tool_edit": _b(location=("list", REQ), note=("str", OPT)),
+    "job": _b(job=("object", OPT), xml=("str", OPT)),
+    "run": _b(dry_run=("bool", REQ)),
+    "teach": _b(
+        step=("number", OPT),
+        length=("number", OPT),
+        max_points=("number", OPT),
+        speed=("number", OPT),
+        sensor_tool=("str", OPT),
+    ),
+    "delta_t": _b(frequency=("number", OPT), amplitude=("number", OPT), duration=("number", OPT)),
+    "calibrate": _b(
+        which=("str", OPT), tool=("str", OPT), poses=("number", OPT), repeats=("number", OPT)
+    ),
+    "track": _b(seam=("str", OPT), speed=("number", OPT), tracked=("bool", OPT)),
+    "sensor_settings": _b(
+        exposure_ms=("number", OPT), first_column=("number", OPT), columns=("number", OPT)
+    ),
+}
 
 
 def _error(message: str, status: int) -> JSONResponse:
     return JSONResponse({"error": message}, status_code=status)
 
 
-async def _body(request: Request) -> Any:
+async def _body(request: Request, schema: Body) -> dict[str, Any]:
+    """The request's JSON object, checked against ``schema`` (an empty body is ``{}``)."""
     raw = await request.body()
-    if not raw:
-        return {}
+    if not raw.strip():
+        return schema.check({})
     try:
-        return json.loads(raw)
+        value = json.loads(raw)
     except (ValueError, UnicodeDecodeError):
         raise ConsoleError("the request body is not JSON") from None
+    return schema.check(value)
 
 
-def _api(fn: Callable[[Request, Any], Any]) -> Handler:
+class ApiRoute(Route):
+    """A route with the access rule the middleware applies to it."""
+
+    def __init__(self, path: str, endpoint: Callable[..., Any], *, rule: Rule, **kw: Any) -> None:
+        super().__init__(path, endpoint, **kw)
+        self.rule = rule
+
+
+def _rule_for(routes: list[BaseRoute]) -> Callable[[Scope], Rule]:
+    def rule(scope: Scope) -> Rule:
+        for route in routes:
+            match, _ = route.matches(scope)
+            if match is Match.FULL:
+                return route.rule if isinstance(route, ApiRoute) else Rule("viewer")
+        return Rule("operator")  # a method no route has: the router answers 405
+
+    return rule
+
+
+def _api(fn: Callable[[Request, dict[str, Any]], Any], body: Body = NONE) -> Handler:
     """A JSON endpoint: ``fn(request, body)`` runs in the thread pool; its result is the
     reply (None: ``{"ok": true}``); refusals become one-line errors."""
 
     async def endpoint(request: Request) -> Response:
         try:
-            body = await _body(request) if request.method in ("POST", "PUT") else None
-            result = await run_in_threadpool(fn, request, body)
+            b = await _body(request, body) if request.method in ("POST", "PUT") else {}
+            result = await run_in_threadpool(fn, request, b)
         except ConsoleError as exc:
             return _error(str(exc), exc.status)
         except ToolDBError as exc:  # e.g. a database file broken by hand
@@ -72,24 +183,82 @@ def _api(fn: Callable[[Request, Any], Any]) -> Handler:
     return endpoint
 
 
-def create_app(console: Console) -> Starlette:
-    """The application over ``console`` (which the caller starts and closes)."""
+def _user(r: Request) -> str:
+    return session_of(r.scope).user
+
+
+def create_app(
+    console: Console,
+    access: Access,
+    *,
+    announce: Callable[[str], None] = log.info,
+    base_url: str = "",
+) -> Starlette:
+    """The application over ``console`` (which the caller starts and closes), behind the
+    access control of ``access``. ``announce`` is told each new sign-in URL (``base_url``
+    + ``/signin?token=…``) after the last one was used."""
     ids = itertools.count(1)
+    sessions = access.sessions
+    access.holder = lambda: console.controller if console.in_control else None
 
     def p(request: Request, key: str) -> str:
         return str(request.path_params[key])
 
-    def flag(body: Any, key: str) -> bool:
-        v = body.get(key) if isinstance(body, dict) else None
-        if not isinstance(v, bool):
-            raise ConsoleError(f"{key}: expected true or false")
-        return v
+    def session_json(s: Session) -> dict[str, Any]:
+        return {"user": s.user, "role": s.role, "csrf": s.csrf, "controller": console.controller}
 
-    def text(body: Any, key: str) -> str:
-        v = body.get(key) if isinstance(body, dict) else None
-        if not isinstance(v, str):
-            raise ConsoleError(f"{key}: expected a string")
-        return v
+    def signed_in(request: Request, s: Session, reply: Response) -> Response:
+        access.audit.record(s.user, s.address, "sign-in", "ok")
+        return set_cookie(
+            reply,
+            cookie_header(request.scope, s, tls=access.tls, max_age=sessions.lifetime),
+        )
+
+    def refused(request: Request, user: str, exc: SignInRefused) -> None:
+        address = request.client.host if request.client else "?"
+        log.warning("sign-in refused for %r from %s: %s", user, address, exc)
+        access.audit.record(user, address, "sign-in", f"refused ({exc.status})", error=str(exc))
+
+    async def signin_page(request: Request) -> Response:
+        token = request.query_params.get("token")
+        if token is None:
+            return FileResponse(STATIC / "signin.html")
+        address = request.client.host if request.client else "?"
+        try:
+            s = sessions.sign_in_token(token, address, access.clock())
+        except SignInRefused as exc:
+            await run_in_threadpool(refused, request, "token", exc)
+            return RedirectResponse("/signin?failed=1", 303)
+        announce(f"console: the sign-in URL was used from {address}; the next one: "
+                 f"{base_url}/signin?token={sessions.token}")  # fmt: skip
+        return await run_in_threadpool(signed_in, request, s, RedirectResponse("/", 303))
+
+    async def signin(request: Request) -> Response:
+        try:
+            b = await _body(request, BODIES["signin"])
+        except ConsoleError as exc:
+            return _error(str(exc), exc.status)
+        address = request.client.host if request.client else "?"
+        try:
+            s = await run_in_threadpool(
+                sessions.sign_in_password, b["name"], b["password"], address, access.clock()
+            )
+        except SignInRefused as exc:
+            await run_in_threadpool(refused, request, b["name"], exc)
+            headers = {"Retry-After": str(math.ceil(exc.retry_after))} if exc.retry_after else {}
+            return JSONResponse({"error": str(exc)}, exc.status, headers=headers)
+        return await run_in_threadpool(signed_in, request, s, JSONResponse(session_json(s)))
+
+    async def signout(request: Request) -> Response:
+        s = session_of(request.scope)
+        sessions.end(s.sid)
+        return set_cookie(JSONResponse({"ok": True}), expired_cookie(request.scope))
+
+    async def session(request: Request) -> Response:
+        return JSONResponse(session_json(session_of(request.scope)))
+
+    async def index(request: Request) -> Response:
+        return FileResponse(STATIC / "index.html")
 
     async def frame(request: Request) -> Response:
         try:
@@ -103,6 +272,8 @@ def create_app(console: Console) -> Starlette:
         return JSONResponse(data)
 
     async def status_ws(ws: WebSocket) -> None:
+        s = session_of(ws.scope)
+        address = ws.client.host if ws.client else "?"
         await ws.accept()
         client_id = next(ids)
         console.select(client_id, "flange", "world")
@@ -116,6 +287,27 @@ def create_app(console: Console) -> Starlette:
                     await ws.send_json({"type": "status", **snap})
                 await asyncio.sleep(0.5 / STATUS_HZ)
 
+        def may_move() -> None:
+            # the middleware's rules for a route, applied to the jog messages
+            if s.role != "operator":
+                raise ConsoleError(f"operators only: {s.user} is a {s.role}", 403)
+            holder = access.holder()
+            if holder is not None and holder != s.user:
+                raise ConsoleError(f"{holder} holds control", 409)
+
+        def jog(msg: dict[str, Any]) -> None:
+            try:
+                may_move()
+                _jog(console, client_id, msg)
+            except (ConsoleError, RemoteError, ProtocolError, OSError) as exc:
+                access.audit.record(s.user, address, "jog start", "refused", error=str(exc))
+                raise
+            access.audit.record(s.user, address, "jog start", "ok", request=msg)
+
+        def release() -> None:
+            if console.stop_jog(client_id, "released"):
+                access.audit.record(s.user, address, "jog stop", "ok")
+
         async def receive() -> None:
             while True:
                 msg = await ws.receive_json()
@@ -124,9 +316,9 @@ def create_app(console: Console) -> Starlette:
                     if kind == "hold":
                         console.hold_jog(client_id)
                     elif kind == "jog":
-                        await run_in_threadpool(_jog, console, client_id, msg)
+                        await run_in_threadpool(jog, msg)
                     elif kind == "release":
-                        await run_in_threadpool(console.stop_jog, client_id, "released")
+                        await run_in_threadpool(release)
                     elif kind == "select":
                         tool, frame = str(msg.get("tool")), str(msg.get("frame"))
                         await run_in_threadpool(console.select, client_id, tool, frame)
@@ -155,59 +347,90 @@ def create_app(console: Console) -> Starlette:
             with contextlib.suppress(Exception):
                 await ws.close(code=1011)
 
-    def move(r: Request, b: Any) -> None:
-        console.move_to(text(b, "job"), text(b, "name"), bool(b.get("linear", False)))
+    def control(r: Request, b: dict[str, Any]) -> None:
+        if b["take"]:
+            console.take_control(_user(r))
+        else:
+            console.release_control()
 
-    def edit_tool(r: Request, b: Any) -> None:
-        console.save_tool(b | {"name": p(r, "name")} if isinstance(b, dict) else b, new=False)
+    def move(r: Request, b: dict[str, Any]) -> None:
+        console.move_to(b["job"], b["name"], bool(b.get("linear", False)))
 
-    def run(r: Request, b: Any) -> None:
-        console.run_job(p(r, "name"), flag(b, "dry_run"))
+    def edit_tool(r: Request, b: dict[str, Any]) -> None:
+        console.save_tool(b | {"name": p(r, "name")}, new=False)
+
+    def run(r: Request, b: dict[str, Any]) -> None:
+        console.run_job(p(r, "name"), b["dry_run"])
+
+    def audit(r: Request, b: dict[str, Any]) -> dict[str, Any]:
+        return {"entries": access.audit.tail(500), "file": str(access.audit.path)}
+
+    viewer = Rule("viewer")
+    operator = Rule("operator")
+
+    def act(name: str, control: bool = False) -> Rule:
+        return Rule("operator", control=control, action=name)
 
     post, put, delete = ["POST"], ["PUT"], ["DELETE"]
-    routes = [
-        Route("/api/status", _api(lambda r, b: console.snapshot())),
-        Route("/api/control", _api(lambda r, b: _control(console, flag(b, "take"))), methods=post),
-        Route("/api/power", _api(lambda r, b: console.power(flag(b, "on"))), methods=post),
-        Route("/api/estop", _api(lambda r, b: console.emergency_stop()), methods=post),
-        Route("/api/estop/reset", _api(lambda r, b: console.reset_emergency_stop()), methods=post),
-        Route("/api/move", _api(move), methods=post),
-        Route("/api/tools", _api(lambda r, b: console.tools_json())),
-        Route("/api/tools", _api(lambda r, b: console.save_tool(b, new=True)), methods=post),
-        Route("/api/tools/{name}", _api(edit_tool), methods=put),
-        Route(
-            "/api/tools/{name}",
-            _api(lambda r, b: console.remove_tool(p(r, "name"))),
-            methods=delete,
-        ),
-        Route("/api/jobs", _api(lambda r, b: {"jobs": console.list_jobs()})),
-        Route("/api/jobs/{name}", _api(lambda r, b: console.open_job(p(r, "name")))),
-        Route(
-            "/api/jobs/{name}", _api(lambda r, b: console.save_job(p(r, "name"), b)), methods=put
-        ),
-        Route(
-            "/api/jobs/{name}/check",
-            _api(lambda r, b: console.check_job(p(r, "name"), b)),
-            methods=post,
-        ),
-        Route("/api/jobs/{name}/run", _api(run), methods=post),
-        Route("/api/abort", _api(lambda r, b: console.abort()), methods=post),
-        Route("/api/teach", _api(lambda r, b: console.teach(b)), methods=post),
-        Route("/api/delta-t", _api(lambda r, b: console.delta_t(b)), methods=post),
-        Route("/api/calibrate", _api(lambda r, b: console.calibrate(b)), methods=post),
-        Route("/api/track", _api(lambda r, b: console.track(b)), methods=post),
-        Route(
-            "/api/result/{kind}", _api(lambda r, b: {"result": console.results.get(p(r, "kind"))})
-        ),
-        Route("/api/sensor/frame", frame),
-        Route("/api/sensor/settings", _api(lambda r, b: console.sensor_settings())),
-        Route(
-            "/api/sensor/settings", _api(lambda r, b: console.set_sensor_settings(b)), methods=post
-        ),
+    B = BODIES
+    routes: list[BaseRoute] = [
+        Route("/signin", signin_page),
+        Route("/api/signin", signin, methods=post),
+        ApiRoute("/api/signout", signout, methods=post, rule=Rule("viewer", action="sign-out")),
+        ApiRoute("/api/session", session, rule=viewer),
+        ApiRoute("/api/audit", _api(audit), rule=operator),
+        ApiRoute("/", index, rule=viewer),
+        ApiRoute("/index.html", index, rule=viewer),
+        ApiRoute("/api/status", _api(lambda r, b: console.snapshot()), rule=viewer),
+        ApiRoute("/api/control", _api(control, B["control"]), methods=post,
+                 rule=act("control", control=True)),
+        ApiRoute("/api/power", _api(lambda r, b: console.power(b["on"]), B["power"]),
+                 methods=post, rule=act("power", control=True)),
+        # EmergencyStop: every signed-in user, viewer included, whoever holds control
+        ApiRoute("/api/estop", _api(lambda r, b: console.emergency_stop()), methods=post,
+                 rule=Rule("viewer", action="estop")),
+        ApiRoute("/api/estop/reset", _api(lambda r, b: console.reset_emergency_stop()),
+                 methods=post, rule=act("estop reset", control=True)),
+        ApiRoute("/api/move", _api(move, B["move"]), methods=post, rule=act("move", True)),
+        ApiRoute("/api/tools", _api(lambda r, b: console.tools_json()), rule=viewer),
+        ApiRoute("/api/tools", _api(lambda r, b: console.save_tool(b, new=True), B["tool_new"]),
+                 methods=post, rule=act("tool add")),
+        ApiRoute("/api/tools/{name}", _api(edit_tool, B["tool_edit"]), methods=put,
+                 rule=act("tool edit")),
+        ApiRoute("/api/tools/{name}", _api(lambda r, b: console.remove_tool(p(r, "name"))),
+                 methods=delete, rule=act("tool remove")),
+        ApiRoute("/api/jobs", _api(lambda r, b: {"jobs": console.list_jobs()}), rule=viewer),
+        ApiRoute("/api/jobs/{name}", _api(lambda r, b: console.open_job(p(r, "name"))),
+                 rule=viewer),
+        ApiRoute("/api/jobs/{name}", _api(lambda r, b: console.save_job(p(r, "name"), b),
+                 B["job"]), methods=put, rule=act("job save")),
+        ApiRoute("/api/jobs/{name}/check", _api(lambda r, b: console.check_job(p(r, "name"), b),
+                 B["job"]), methods=post, rule=operator),
+        ApiRoute("/api/jobs/{name}/run", _api(run, B["run"]), methods=post,
+                 rule=act("job run", True)),
+        ApiRoute("/api/abort", _api(lambda r, b: console.abort()), methods=post,
+                 rule=act("abort", True)),
+        ApiRoute("/api/teach", _api(lambda r, b: console.teach(b), B["teach"]), methods=post,
+                 rule=act("teach", True)),
+        ApiRoute("/api/delta-t", _api(lambda r, b: console.delta_t(b), B["delta_t"]),
+                 methods=post, rule=act("delta-t", True)),
+        ApiRoute("/api/calibrate", _api(lambda r, b: console.calibrate(b), B["calibrate"]),
+                 methods=post, rule=act("calibrate", True)),
+        ApiRoute("/api/track", _api(lambda r, b: console.track(b), B["track"]), methods=post,
+                 rule=act("track")),
+        ApiRoute("/api/result/{kind}",
+                 _api(lambda r, b: {"result": console.results.get(p(r, "kind"))}), rule=viewer),
+        ApiRoute("/api/sensor/frame", frame, rule=viewer),
+        ApiRoute("/api/sensor/settings", _api(lambda r, b: console.sensor_settings()),
+                 rule=viewer),
+        ApiRoute("/api/sensor/settings",
+                 _api(lambda r, b: console.set_sensor_settings(b), B["sensor_settings"]),
+                 methods=post, rule=act("sensor settings", True)),
         WebSocketRoute("/ws", status_ws),
-        Mount("/", StaticFiles(directory=STATIC, html=True), name="static"),
-    ]
-    return Starlette(routes=routes)
+        Mount("/", StaticFiles(directory=STATIC, html=False), name="static"),
+    ]  # fmt: skip
+    middleware = [Middleware(AccessControl, access=access, rule=_rule_for(routes))]
+    return Starlette(routes=routes, middleware=middleware)
 
 
 def _jog(console: Console, client_id: int, msg: dict[str, Any]) -> None:
@@ -220,10 +443,3 @@ def _jog(console: Console, client_id: int, msg: dict[str, Any]) -> None:
         tool=str(msg.get("tool", "flange")),
         frame=str(msg.get("frame", "world")),
     )
-
-
-def _control(console: Console, take: bool) -> None:
-    if take:
-        console.take_control()
-    else:
-        console.release_control()

@@ -144,6 +144,8 @@ class Console:
             raise ConnectionError(f"sensor: {unreachable(*sensor, exc)}") from None
         self.in_control = False
         self.sensor_in_control = False
+        #: The signed-in operator on whose behalf the console holds control (None: nobody).
+        self.controller: str | None = None
         self._lock = threading.Lock()  # guards jog, activity, selections
         # Held while a jog starts or stops: a stop (the dead-man's too) waits for a start to
         # finish, so it stops what the start began, never just before the move goes out.
@@ -226,12 +228,13 @@ class Console:
             except ToolDBError:
                 continue  # removed from the database meanwhile
             poses[f"{tool}@{frame}"] = [round(v, 4) for v in r.here(t, f)]
-        owner = "console" if self.in_control else ("other" if st.controlled else "nobody")
-        if self.in_control and not st.controlled:
-            owner = "lost"  # the lease ran out or the server dropped us
-        with self._lock:
+        with self._lock:  # read under the lock take/release write them under
+            in_control, controller = self.in_control, self.controller
             jog = self._jog is not None
             act = self.activity.to_json() if self.activity is not None else None
+        owner = "console" if in_control else ("other" if st.controlled else "nobody")
+        if in_control and not st.controlled:
+            owner = "lost"  # the lease ran out or the server dropped us
         return {
             "connected": True,
             "estop": st.estop,
@@ -239,6 +242,7 @@ class Console:
             "moving": st.moving,
             "queue": st.queue,
             "owner": owner,
+            "controller": controller if owner in ("console", "lost") else None,
             "last_error": st.last_error,
             "last_message": st.last_message,
             "time": st.time,
@@ -283,9 +287,16 @@ class Console:
 
     # --- control, power, E-stop -------------------------------------------------------------
 
-    def take_control(self) -> None:
+    def take_control(self, user: str = "console") -> None:
+        """Control for ``user``: one operator holds it at a time (issue 28 item 2)."""
+        with self._lock:
+            holder = self.controller
+        if holder is not None and holder != user and self.in_control:
+            raise ConsoleError(f"{holder} holds control", 409)
         self.control.take_control(self.token)
-        self.in_control = True
+        with self._lock:
+            self.in_control = True
+            self.controller = user
         if self.sensor is not None:
             try:
                 self.sensor.take_control(self.token)
@@ -296,7 +307,9 @@ class Console:
     def release_control(self) -> None:
         self._check_idle()
         self.stop_jog(None, "control released")
-        self.in_control = False
+        with self._lock:
+            self.in_control = False
+            self.controller = None
         self.control.release_control()
         if self.sensor is not None and self.sensor_in_control:
             self.sensor_in_control = False

@@ -19,13 +19,51 @@ function say(text, kind = "info") {
   m.className = kind;
 }
 
-async function api(method, path, body) {
+// --- the one way to the console: every request and the WebSocket go through here ----------
+
+let session = null; // { user, role, csrf, controller }: who is signed in (GET /api/session)
+
+// Every state-changing request is JSON with the session's CSRF token (the console refuses
+// anything else); a 401 (not signed in, or the session expired) goes to the sign-in page.
+async function request(method, path, body) {
   const opts = { method, headers: {} };
-  if (body !== undefined) {
-    opts.body = JSON.stringify(body);
+  if (method !== "GET" && method !== "HEAD") {
+    if (!session) await loadSession();
+    opts.body = JSON.stringify(body === undefined ? {} : body);
     opts.headers["Content-Type"] = "application/json";
+    opts.headers["X-CSRF-Token"] = session.csrf;
   }
   const r = await fetch(path, opts);
+  if (r.status === 401) {
+    location.href = "/signin";
+    throw new Error("sign in first");
+  }
+  return r;
+}
+
+async function loadSession() {
+  const r = await fetch("/api/session");
+  if (r.status === 401) {
+    location.href = "/signin";
+    throw new Error("sign in first");
+  }
+  session = await r.json();
+  $("user").textContent = `${session.user} (${session.role})`;
+  document.body.dataset.role = session.role;
+  $("nav-audit").hidden = session.role !== "operator";
+}
+
+function openSocket() {
+  return new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`);
+}
+
+async function signOut() {
+  await request("POST", "/api/signout");
+  location.href = "/signin";
+}
+
+async function api(method, path, body) {
+  const r = await request(method, path, body);
   const data = await r.json().catch(() => ({ error: `HTTP ${r.status}` }));
   if (!r.ok) {
     say(data.error || `HTTP ${r.status}`, "error");
@@ -56,13 +94,14 @@ function showPage() {
   if (page === "deltat") loadDeltaT().catch(() => {});
   if (page === "calibration") loadCalibration().catch(() => {});
   if (page === "track") loadTrack().catch(() => {});
+  if (page === "audit") loadAudit().catch(() => {});
 }
 window.addEventListener("hashchange", showPage);
 
 // --- status --------------------------------------------------------------------------------
 
 function connect() {
-  ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`);
+  ws = openSocket();
   ws.onopen = () => {
     $("link").textContent = "connected";
     $("link").className = "pill ok";
@@ -72,6 +111,7 @@ function connect() {
     $("link").textContent = "disconnected";
     $("link").className = "pill bad";
     releaseJog();
+    loadSession().catch(() => {}); // a refused handshake (session ended): to the sign-in page
     setTimeout(connect, 1000);
   };
   ws.onmessage = (ev) => {
@@ -100,7 +140,7 @@ function showStatus(s) {
   $("st-power").innerHTML = onoff(s.powered, "on", "off", false);
   $("st-motion").textContent = (s.moving ? "moving" : "still") + ` (queue ${s.queue})` + (s.jogging ? ", jogging" : "");
   const owners = { console: "this console", other: "another client", nobody: "nobody", lost: "LOST (lease ran out)" };
-  $("st-owner").textContent = owners[s.owner] || s.owner;
+  $("st-owner").textContent = (owners[s.owner] || s.owner) + (s.controller ? ` (${s.controller})` : "");
   $("st-time").textContent = `${s.time.toFixed(3)} s`;
   $("st-error").textContent = $("st-error").title = s.last_error ? `${s.last_error}: ${s.last_message}` : "–";
   $("joints").innerHTML = s.joints.map((q, i) => `<tr><th>J${i + 1}</th><td>${q.toFixed(3)}</td></tr>`).join("");
@@ -235,7 +275,7 @@ async function sensorLoop() {
 }
 
 async function showFrame() {
-  const r = await fetch("/api/sensor/frame");
+  const r = await request("GET", "/api/sensor/frame");
   const f = await r.json();
   if (!r.ok) { $("sensor-index").textContent = f.error; return; }
   $("sensor-index").textContent = f.index >= 0 ? `#${f.index}` : f.message || "";
@@ -618,8 +658,24 @@ $("tr-start").onclick = async () => {
   say("tracked weld started");
 };
 
+// --- audit log (operators) -----------------------------------------------------------------
+
+async function loadAudit() {
+  const { entries, file } = await api("GET", "/api/audit");
+  $("audit-file").textContent = file;
+  const cols = ["time", "user", "address", "action", "outcome"];
+  const rows = entries.reverse().map((e) => {
+    const rest = Object.fromEntries(Object.entries(e).filter(([k]) => !cols.includes(k)));
+    return `<tr>${cols.map((c) => `<td>${esc(e[c] ?? "")}</td>`).join("")}<td>${esc(JSON.stringify(rest))}</td></tr>`;
+  });
+  $("audit-table").innerHTML = `<tr>${[...cols, "detail"].map((c) => `<th>${c}</th>`).join("")}</tr>${rows.join("")}`;
+}
+$("audit-reload").onclick = () => loadAudit();
+$("signout").onclick = () => signOut();
+
 // --- start ---------------------------------------------------------------------------------
 
+loadSession().catch(() => {});
 showPage();
 connect();
 loadSelections().catch(() => {});
