@@ -134,6 +134,8 @@ class RobotEmulator(RobotInterface):
         self._gen = TrajectoryGenerator(q0, period)
         self._desc = MotionDesc()
         self._powered = False
+        #: [RS-7.22] control was lost: arm power goes off once the arm stands.
+        self._power_off_at_rest = False
         self._estop = False
         self._last_error: RobotError | None = None
         self._next_move_id = 1
@@ -253,6 +255,8 @@ class RobotEmulator(RobotInterface):
             self._buffer.append(t, q_m)
             if self._loop is not None and self._gen.in_motion:
                 self._sample_lateness.append(max(self._loop.now() - t, 0.0))
+            if self._power_off_at_rest and self._gen.idle:
+                self._power_down("controller lost: the arm stands")
             if self._gen.in_motion or self._alter.engaged:
                 self._idle_since = math.inf
             elif self._idle_since == math.inf:
@@ -307,6 +311,13 @@ class RobotEmulator(RobotInterface):
             self._outputs[name] = False
             self.io_log.append((self.time(), name, False))
             log.warning("%s: %s off", why, name)
+
+    def _power_down(self, why: str) -> None:
+        """[RS-7.22] The end of a stop of category 1: power off once the arm stands."""
+        self._power_off_at_rest = False
+        if self._powered:
+            self._powered = False
+            log.warning("%s: arm power off", why)
 
     def _halt(self) -> None:
         """Immediate stop at the last (corrected) setpoint; any correction is folded in."""
@@ -418,6 +429,7 @@ class RobotEmulator(RobotInterface):
         with self._lock:
             if self._estop:
                 raise EmergencyStopError("emergency stop engaged: reset it before power on")
+            self._power_off_at_rest = False  # a new controller's power-on holds
             if not self._powered:
                 self._powered = True
                 log.info("arm power on")
@@ -452,6 +464,7 @@ class RobotEmulator(RobotInterface):
                 self._last_error = err
                 raise err from None
             assert isinstance(move, Move)
+            self._power_off_at_rest = False  # a new controller's move runs powered
             self._next_move_id += 1
             self._gen.enqueue(move)
             if self._loop is not None:
@@ -564,33 +577,38 @@ class RobotEmulator(RobotInterface):
 
     def on_control_lost(self) -> None:
         """[RS-7.10] The laser goes off before anything else, then the arm decelerates along
-        its path and the queue is dropped, then gas and crossjet go off; power stays."""
+        its path and the queue is dropped, then crossjet and gas go off; arm power goes off
+        once the arm stands [RS-7.22]."""
         with self._lock:
-            if self._outputs["laser"]:
-                self._outputs["laser"] = False
-                self.io_log.append((self.time(), "laser", False))
-                log.warning("controller lost: laser off")
+            self._switch_off("laser", "controller lost")
             if not self._gen.idle:
                 log.warning("controller lost: decelerating along the path and dropping the queue")
             self._gen.reset()
             if self._alter.active:
                 self._alter.abandon()  # [RS-5.38] the correction ramps back to zero
             for name in ("crossjet", "gas"):
-                if self._outputs[name]:
-                    self._outputs[name] = False
-                    self.io_log.append((self.time(), name, False))
-                    log.warning("controller lost: %s off", name)
+                self._switch_off(name, "controller lost")
+            if self._gen.idle:
+                self._power_down("controller lost")
+            else:
+                self._power_off_at_rest = self._powered
+
+    def on_control_released(self) -> None:
+        """[RS-7.21] The process outputs need an owner: laser first, then crossjet and gas.
+        Queued moves go on and power stays [RS-7.11] [RS-7.22]."""
+        with self._lock:
+            for name in ("laser", "crossjet", "gas"):
+                self._switch_off(name, "control released")
 
     def emergency_stop(self) -> None:
         with self._lock:
+            self._switch_off("laser", "EMERGENCY STOP")  # [RS-7.21] before anything else
             self._halt()
             self._estop = True
             self._powered = False
-            # Safety: the process outputs (laser, gas, crossjet) go off with the arm.
-            for name in self._outputs:
-                if self._outputs[name]:
-                    self.io_log.append((self.time(), name, False))
-                self._outputs[name] = False
+            self._power_off_at_rest = False
+            for name in ("crossjet", "gas"):
+                self._switch_off(name, "EMERGENCY STOP")
             self._last_error = EmergencyStopError("emergency stop engaged")
             log.warning("EMERGENCY STOP: motion halted, power and outputs off")
 

@@ -27,6 +27,8 @@ Array = npt.NDArray[np.float64]
 #: A VAL3 location: x, y, z (mm), rx, ry, rz (degrees), R = Rx(rx)·Ry(ry)·Rz(rz).
 Loc = tuple[float, float, float, float, float, float]
 IDENTITY_LOC: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+#: s the default controlled stop waits for the arm to stand before power goes off [RS-7.22].
+STOP_WAIT_S = 10.0
 
 
 class RobotError(Exception):
@@ -261,5 +263,22 @@ class RobotInterface(ABC):
         raise NotImplementedError
 
     def on_control_lost(self) -> None:
-        """The controlling client vanished: stop in a controlled way, keep power as it is."""
+        """[RS-7.10] The controlling client vanished: laser off first, stop in a controlled
+        way, then the other outputs; power off once the arm stands [RS-7.22]. A real
+        controller's adapter overrides this with its own stop of category 1."""
+        self._outputs_off(("laser",))
         self.reset_motion()
+        self._outputs_off(("crossjet", "gas"))
+        if self.wait_end_move(STOP_WAIT_S):
+            self.disable_power()
+
+    def on_control_released(self) -> None:
+        """[RS-7.21] Control was given back: the process outputs go off, the laser first;
+        queued moves go on and power stays [RS-7.11] [RS-7.22]."""
+        self._outputs_off(("laser", "crossjet", "gas"))
+
+    def _outputs_off(self, names: Sequence[str]) -> None:
+        outputs = set(self.list_io()[0])
+        for name in names:
+            if name in outputs:
+                self.set_output(name, False)

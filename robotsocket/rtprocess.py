@@ -252,8 +252,10 @@ class _ChildHost:
                     self._execute(rid, name, cid, params, who)  # overtakes queued commands
                 else:
                     self._queues[name].put((rid, name, cid, params, who))
-            elif kind == "lost":
-                self.parts.services[msg[2]].on_control_lost(cast(Session, _NOBODY))
+            elif kind in ("lost", "released"):
+                service = self.parts.services[msg[2]]
+                hook = service.on_control_lost if kind == "lost" else service.on_control_released
+                hook(cast(Session, _NOBODY))
                 self.publish()
                 self._send(("ok", rid, ()))
             elif kind == "query":
@@ -463,6 +465,9 @@ class RealtimeProcess:
     def control_lost(self, name: str) -> None:
         self._call("lost", name)
 
+    def control_released(self, name: str) -> None:
+        self._call("released", name)
+
     def query(self, name: str, *args: Any) -> Any:
         return self._call("query", name, args)
 
@@ -512,6 +517,12 @@ class ForwardedService(HandlerService):
             self.child.control_lost(self.name)
         except ProtocolError as exc:
             log.error("controlled stop not forwarded: %s", exc.message)
+
+    def on_control_released(self, session: Session) -> None:
+        try:
+            self.child.control_released(self.name)
+        except ProtocolError as exc:
+            log.error("release not forwarded: %s", exc.message)
 
 
 class RobotProcess(ForwardedService):

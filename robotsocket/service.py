@@ -154,6 +154,10 @@ class RobotService(HandlerService):
                 except Exception:
                     log.exception("control-lost hook failed")
 
+    def on_control_released(self, session: Session) -> None:
+        # [RS-7.21] the outputs go off (laser first); queued moves and triggers go on.
+        self.robot.on_control_released()
+
     # --- handlers ----------------------------------------------------------------------------
 
     @staticmethod

@@ -62,6 +62,8 @@ log = logging.getLogger(__name__)
 
 # How long TakeControl waits for a lost controller's controlled stop before it says BUSY.
 CONTROL_STOP_WAIT_S = 5.0
+#: Control changes kept in :attr:`FramedServer.control_events`.
+CONTROL_EVENTS = 256
 
 
 @dataclass(frozen=True)
@@ -268,6 +270,10 @@ class Service:
         """The controller is gone (closed, silent past its watchdog, or the server stops):
         stop what it started in a controlled way, process outputs first [RS-7.10]."""
 
+    def on_control_released(self, session: Session) -> None:
+        """The controller gave control back (ReleaseControl): what may be on only under
+        control goes off, the laser first [RS-7.21]; queued moves go on [RS-7.11]."""
+
     def on_disconnect(self, session: Session) -> None:
         """A connection closed (after control was released)."""
 
@@ -364,6 +370,9 @@ class FramedServer:
         self._watchdog_thread: threading.Thread | None = None
         self.control_holder: Session | None = None
         self.stopping_for: Session | None = None  # the controlled stop of a lost controller
+        #: (service clock s, session ID, what) of every control change: "took", "released",
+        #: "lost: why", stamped when the server saw it, before the service acted on it.
+        self.control_events: deque[tuple[float, int, str]] = deque(maxlen=CONTROL_EVENTS)
         self._auth = AuthBackoff()  # failed TakeControl attempts per address [RS-7.20]
         self.handler_errors: list[BaseException] = []
         register(self)
@@ -669,21 +678,36 @@ class FramedServer:
     def _revoke_control(self, session: Session | None, why: str) -> None:
         """Take control from ``session`` (None: from whoever holds it) and let the service
         make its controlled stop."""
+        self._end_control(session, why, lost=True)
+
+    def _end_control(self, session: Session | None, why: str, *, lost: bool) -> None:
+        """Control of ``session`` (None: whoever holds it) ends; the service switches off
+        what needs an owner (lost: the controlled stop [RS-7.10]; released: the outputs
+        [RS-7.21]) before control is free again."""
         with self._control:
             holder = self.control_holder
             if holder is None or (session is not None and holder is not session):
                 return
             self.control_holder = None
             self.stopping_for = holder
-            holder.control_lost = why
+            if lost:
+                holder.control_lost = why
+            self._note_control(holder, f"lost: {why}" if lost else "released")
             self._control.notify_all()
-        log.warning("session %d lost control (%s): controlled stop", holder.id, why)
+        if lost:
+            log.warning("session %d lost control (%s): controlled stop", holder.id, why)
+        else:
+            log.info("session %d released control", holder.id)
+        hook = self.service.on_control_lost if lost else self.service.on_control_released
         try:
-            self._guard(self.service.on_control_lost, holder)
+            self._guard(hook, holder)
         finally:
             with self._control:
                 self.stopping_for = None
                 self._control.notify_all()
+
+    def _note_control(self, session: Session, what: str) -> None:
+        self.control_events.append((float(self.service.clock()), session.id, what))
 
     @property
     def control_free(self) -> bool:
@@ -874,16 +898,15 @@ class FramedServer:
             session.alive_at = time.monotonic()
             session.control_lost = None
             self.control_holder = session
+            self._note_control(session, "took")
             self._control.notify_all()
         log.info("session %d took control (watchdog %g s)", session.id, watchdog)
         return (watchdog,)
 
     def _release_control(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        with self._control:
-            if self.control_holder is session:
-                self.control_holder = None
-                self._control.notify_all()
-                log.info("session %d released control", session.id)
+        # [RS-7.21] the outputs are off before the reply: a client that reads them after
+        # it finds them off.
+        self._end_control(session, "released", lost=False)
         return ()
 
     def _get_time(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:

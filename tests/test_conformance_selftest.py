@@ -153,6 +153,10 @@ class MiniSensor(Service):
     def acq_time(self) -> float:
         return 3.5e-3 * self.window[1] / self.W
 
+    def on_control_lost(self, session: Session) -> None:
+        with self.lock:
+            self.laser = False  # [RS-7.23] a lost controller's laser goes off
+
     def handle(
         self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
     ) -> tuple[Value, ...]:

@@ -90,7 +90,8 @@ def assert_safe_stop(cell: Cell) -> None:
     assert cell.wait_until(cell.stopped_short), cell.robot.status()
     assert cell.robot.read_io("laser") == (False, True)
     assert cell.robot.read_io("gas") == (False, True)
-    assert cell.robot.status().powered  # power stays as it was [RS-7.10]
+    # [RS-7.22] a lost controller's arm loses power once it stands (category 1 stop).
+    assert cell.wait_until(lambda: not cell.robot.status().powered)
     assert cell.server.control_holder is None
 
 
@@ -319,3 +320,55 @@ def test_an_idle_controller_that_dies_or_freezes_leaves_the_outputs_off(
         assert cell.wait_until(lambda: cell.server.control_free)
         assert cell.robot.read_io("laser") == (False, True)
         assert cell.robot.read_io("gas") == (False, True)
+
+
+# --- [RS-7.21] the process outputs follow control -------------------------------------------
+
+
+def _laser_off_after(cell: Cell, what: str) -> float:
+    """Robot-clock seconds from the server seeing ``what`` (a control event) to the laser's
+    switch-off in the robot's I/O log."""
+    seen = [t for t, _sid, ev in cell.server.control_events if ev.startswith(what)]
+    off = [t for t, name, value in cell.robot.io_log if name == "laser" and not value]
+    assert seen and off, (list(cell.server.control_events), list(cell.robot.io_log))
+    return off[-1] - seen[-1]
+
+
+def test_call_setoutput_laser_on_leaves_the_laser_off_when_it_exits(cell: Cell) -> None:
+    """The probe of issue 29: `call setoutput laser on`, the CLI exits -> laser off, in the
+    same cycle the release was seen; power stays (a release is a handover) [RS-7.22]."""
+    proc = call(cell, "setoutput", "laser", "on")
+    _out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0, err
+    assert ("laser", True) in [(n, v) for _, n, v in cell.robot.io_log]
+    assert cell.robot.read_io("laser") == (False, True)
+    assert 0.0 <= _laser_off_after(cell, "released") <= cell.robot.period
+    assert cell.robot.status().powered
+    assert cell.server.statistics()["watchdog_expired"] == 0
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT])
+def test_a_controller_killed_or_interrupted_with_the_laser_on_leaves_it_off(
+    cell: Cell, sig: signal.Signals
+) -> None:
+    """kill -9 and Ctrl-C of a client that switched laser and gas on: off, laser first, in
+    the cycle the close was seen [RS-7.10] [RS-7.21]."""
+    with controller(cell, IDLE, "idle") as proc:
+        assert cell.robot.read_io("laser") == (True, True)
+        proc.send_signal(sig)
+        assert cell.wait_until(lambda: cell.server.control_free)
+        assert cell.robot.read_io("laser") == (False, True)
+        assert cell.robot.read_io("gas") == (False, True)
+        offs = [name for _, name, value in cell.robot.io_log if not value]
+        assert offs == ["laser", "gas"]
+        assert 0.0 <= _laser_off_after(cell, "lost: connection closed") <= cell.robot.period
+
+
+def test_emergency_stop_switches_the_outputs_off_laser_first(cell: Cell) -> None:
+    with controller(cell, IDLE, "idle"):
+        proc = call(cell, "EmergencyStop")
+        _out, err = proc.communicate(timeout=10)
+        assert proc.returncode == 0, err
+        assert [n for _, n, v in cell.robot.io_log if not v] == ["laser", "gas"]
+        st = cell.robot.status()
+        assert st.estop and not st.powered
