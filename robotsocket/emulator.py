@@ -60,6 +60,7 @@ from robotsocket.service import error_code
 from robotsocket.shared_state import Snapshot
 from robotsocket.timed_path import plan_timed
 from robotsocket.trajectory import PERIOD, TrajectoryGenerator
+from spec.wire import MoveOutcome
 from sync.joint_buffer import JointBuffer
 
 log = logging.getLogger(__name__)
@@ -136,6 +137,9 @@ class RobotEmulator(RobotInterface):
         self._powered = False
         #: [RS-7.22] control was lost: arm power goes off once the arm stands.
         self._power_off_at_rest = False
+        #: [RS-5.50] the last queued move: MOVING until it reached its target (then it reads
+        #: REACHED once the arm settled) or was stopped or failed, with the reason.
+        self._outcome: tuple[MoveOutcome, str] = (MoveOutcome.REACHED, "")
         self._estop = False
         self._last_error: RobotError | None = None
         self._next_move_id = 1
@@ -284,6 +288,7 @@ class RobotEmulator(RobotInterface):
         alter = self._alter
         if alter.step(t):
             self._switch_off("laser", "alter stream lost")
+            self._stopped(MoveOutcome.STOPPED, "alter stream lost")
             self._gen.reset()
             self._last_error = BadStateError(
                 f"alter stream lost: no correction for {alter.timeout * 1000:.0f} ms"
@@ -299,6 +304,7 @@ class RobotEmulator(RobotInterface):
         except KinematicsError as exc:
             self._last_error = robot_error(exc)
             self._switch_off("laser", "alter correction unreachable")
+            self._stopped(MoveOutcome.FAILED, f"alter correction unreachable: {exc}")
             self._gen.halt()
             self._gen.hold_q = self._setpoint.copy()
             alter.fold()
@@ -311,6 +317,25 @@ class RobotEmulator(RobotInterface):
             self._outputs[name] = False
             self.io_log.append((self.time(), name, False))
             log.warning("%s: %s off", why, name)
+
+    def _stopped(self, kind: MoveOutcome, why: str) -> None:
+        """[RS-5.50] Moves are being stopped or failed (``why``): the last one did not reach
+        its target. Nothing queued or executing: the last outcome stands."""
+        if not self._gen.idle and self._outcome[0] is MoveOutcome.MOVING:
+            self._outcome = (kind, why)
+
+    def move_outcome(self) -> tuple[MoveOutcome, str]:
+        with self._lock:
+            kind, why = self._outcome
+            if kind is not MoveOutcome.MOVING:
+                return kind, why
+            if self._gen.held:
+                return MoveOutcome.STOPPED, "StopMove (held: RestartMove goes on)"
+            return (MoveOutcome.REACHED, "") if self._settled() else (MoveOutcome.MOVING, "")
+
+    def _done_waiting(self) -> bool:
+        """WaitEndMove ends when the arm settled, or stands held by StopMove."""
+        return self._settled() or (self._gen.held and not self._gen.in_motion)
 
     def _power_down(self, why: str) -> None:
         """[RS-7.22] The end of a stop of category 1: power off once the arm stands."""
@@ -384,6 +409,7 @@ class RobotEmulator(RobotInterface):
         process publishes each cycle, :mod:`robotsocket.shared_state`)."""
         with self._lock:
             err = self._last_error
+            outcome, why = self.move_outcome()
             return Snapshot(
                 cycle=self._gen.k,
                 t=self._gen.k * self.period,
@@ -396,6 +422,8 @@ class RobotEmulator(RobotInterface):
                 queue=self._gen.queued,
                 error_code=0 if err is None else int(error_code(err)),
                 error_message="" if err is None else str(err),
+                outcome=outcome.value,
+                outcome_reason=why,
             )
 
     def herej(self) -> Array:
@@ -436,6 +464,7 @@ class RobotEmulator(RobotInterface):
 
     def disable_power(self) -> None:
         with self._lock:
+            self._stopped(MoveOutcome.STOPPED, "DisablePower")
             self._halt()
             if self._powered:
                 self._powered = False
@@ -467,6 +496,7 @@ class RobotEmulator(RobotInterface):
             self._power_off_at_rest = False  # a new controller's move runs powered
             self._next_move_id += 1
             self._gen.enqueue(move)
+            self._outcome = (MoveOutcome.MOVING, "")
             if self._loop is not None:
                 self._loop.wake()
             self._idle_since = math.inf
@@ -532,7 +562,7 @@ class RobotEmulator(RobotInterface):
             if self._loop is not None:
                 self._loop.wake()  # an idle clock thread: tick for the waiter
             try:
-                return self._cond.wait_for(self._settled, timeout)
+                return self._cond.wait_for(self._done_waiting, timeout)
             finally:
                 self._waiters -= 1
 
@@ -546,8 +576,8 @@ class RobotEmulator(RobotInterface):
             end = clock.cycle + math.ceil(timeout / self.period)
         while True:
             with self._lock:
-                if self._settled() or clock.cycle >= end:
-                    return self._settled()
+                if self._done_waiting() or clock.cycle >= end:
+                    return self._done_waiting()
                 if self._gen.held and not self._gen.in_motion:
                     # Held by StopMove: nothing changes until a command does.
                     n = min(end - clock.cycle, _SIM_SLICE)
@@ -572,10 +602,11 @@ class RobotEmulator(RobotInterface):
 
     def reset_motion(self) -> None:
         with self._lock:
+            self._stopped(MoveOutcome.STOPPED, "ResetMotion")
             self._gen.reset()
             self._last_error = None
 
-    def on_control_lost(self) -> None:
+    def on_control_lost(self, why: str = "control lost") -> None:
         """[RS-7.10] The laser goes off before anything else, then the arm decelerates along
         its path and the queue is dropped, then crossjet and gas go off; arm power goes off
         once the arm stands [RS-7.22]."""
@@ -583,6 +614,7 @@ class RobotEmulator(RobotInterface):
             self._switch_off("laser", "controller lost")
             if not self._gen.idle:
                 log.warning("controller lost: decelerating along the path and dropping the queue")
+            self._stopped(MoveOutcome.STOPPED, why)
             self._gen.reset()
             if self._alter.active:
                 self._alter.abandon()  # [RS-5.38] the correction ramps back to zero
@@ -603,6 +635,7 @@ class RobotEmulator(RobotInterface):
     def emergency_stop(self) -> None:
         with self._lock:
             self._switch_off("laser", "EMERGENCY STOP")  # [RS-7.21] before anything else
+            self._stopped(MoveOutcome.STOPPED, "emergency stop")
             self._halt()
             self._estop = True
             self._powered = False

@@ -47,7 +47,7 @@ from kinematics.errors import KinematicsError
 from kinematics.robot import get_model
 from robotsocket.emulator import RobotEmulator, here_at
 from robotsocket.interface import OutOfRangeError, RobotError, RobotStatus
-from robotsocket.service import RobotService, error_code, status_reply
+from robotsocket.service import RobotService, error_code, status_reply, wait_reply
 from robotsocket.shared_state import SharedState, Snapshot
 from robotsocket.sync_service import attach_udp_sync
 from spec.errors import ErrorCode, ProtocolError
@@ -55,6 +55,7 @@ from spec.params import Joints, Location, Value
 from spec.realtime import promote_current_thread
 from spec.registry import CommandId, lookup
 from spec.server import Handler, HandlerService, Identity, Session
+from spec.wire import MoveOutcome
 
 __all__ = [
     "ChildParts",
@@ -162,14 +163,14 @@ def build_robot(config: dict[str, Any]) -> ChildParts:
 class _RemoteSession:
     """What a forwarded handler sees of the server's session."""
 
-    def __init__(self, sid: int, peer: tuple[str, int], in_control: bool, held: bool) -> None:
+    def __init__(
+        self, sid: int, peer: tuple[str, int], in_control: bool, held: bool, lost: str = ""
+    ) -> None:
         self.id = sid
         self.peer = peer
         self.in_control = in_control
+        self.control_lost = lost or None
         self.server = SimpleNamespace(control_holder=object() if held else None)
-
-
-_NOBODY = _RemoteSession(0, ("", 0), False, False)
 
 
 class _ChildHost:
@@ -255,7 +256,8 @@ class _ChildHost:
             elif kind in ("lost", "released"):
                 service = self.parts.services[msg[2]]
                 hook = service.on_control_lost if kind == "lost" else service.on_control_released
-                hook(cast(Session, _NOBODY))
+                who = _RemoteSession(0, ("", 0), False, False, *msg[3:4])
+                hook(cast(Session, who))
                 self.publish()
                 self._send(("ok", rid, ()))
             elif kind == "query":
@@ -273,7 +275,9 @@ class _ChildHost:
         log.warning("%s: controlled stop", why)
         for service in self.parts.services.values():
             try:
-                service.on_control_lost(cast(Session, _NOBODY))
+                service.on_control_lost(
+                    cast(Session, _RemoteSession(0, ("", 0), False, False, why))
+                )
             except Exception:
                 log.exception("controlled stop failed")
         robot = self.parts.robot
@@ -462,8 +466,8 @@ class RealtimeProcess:
         out: tuple[Value, ...] = self._call("cmd", name, cid, params, who)
         return out
 
-    def control_lost(self, name: str) -> None:
-        self._call("lost", name)
+    def control_lost(self, name: str, why: str = "") -> None:
+        self._call("lost", name, why)
 
     def control_released(self, name: str) -> None:
         self._call("released", name)
@@ -514,7 +518,7 @@ class ForwardedService(HandlerService):
 
     def on_control_lost(self, session: Session) -> None:
         try:
-            self.child.control_lost(self.name)
+            self.child.control_lost(self.name, session.control_lost or "")
         except ProtocolError as exc:
             log.error("controlled stop not forwarded: %s", exc.message)
 
@@ -565,13 +569,20 @@ class RobotProcess(ForwardedService):
         assert isinstance(timeout, float)
         if not (0.0 < timeout <= 3600.0):
             raise OutOfRangeError(f"timeout must be in (0, 3600] s, got {timeout}")
-        # the child publishes every cycle: look once a cycle until settled or the deadline
+        # the child publishes every cycle: look once a cycle until settled (or standing
+        # stopped) or the deadline [RS-5.50]
         deadline = self.child.state.now() + timeout
         wake = threading.Event()  # never set: a wait with a timeout, not a short sleep
         while True:
-            if self.snapshot().settled:
-                return (True,)
+            s = self.snapshot()
+            stopped = s.outcome not in (MoveOutcome.MOVING, MoveOutcome.REACHED)
+            if s.settled or (stopped and not s.moving):
+                try:
+                    outcome = MoveOutcome(s.outcome)
+                except ValueError:
+                    outcome = MoveOutcome.FAILED
+                return wait_reply(outcome, s.outcome_reason)
             left = deadline - self.child.state.now()
             if left <= 0.0:
-                return (False,)
+                return wait_reply(MoveOutcome.MOVING, "")
             wake.wait(min(self.period, left))

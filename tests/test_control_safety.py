@@ -9,6 +9,7 @@ arm stopped short of its target, queue empty, outputs off), never on how fast.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import socket
@@ -372,3 +373,39 @@ def test_emergency_stop_switches_the_outputs_off_laser_first(cell: Cell) -> None
         assert [n for _, n, v in cell.robot.io_log if not v] == ["laser", "gas"]
         st = cell.robot.status()
         assert st.estop and not st.powered
+
+
+# --- [RS-5.50] a move that did not reach its target never reports done ----------------------
+
+
+def test_emergency_stop_during_call_jointmove_exits_non_zero_naming_the_stop(cell: Cell) -> None:
+    """The probe of issue 29: EmergencyStop from a second client during `call jointmove`; the
+    call printed done true, rc 0. Now: done false, outcome stopped, exit 1 naming it."""
+    proc = call(cell, "JointMove", FAR)
+    moving_under_control(cell)
+    stop = call(cell, "EmergencyStop")
+    _o, err = stop.communicate(timeout=10)
+    assert stop.returncode == 0, err
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 1, (out, err)
+    reply = json.loads(out)
+    assert reply["done"] is False
+    assert reply["outcome"] == "stopped" and reply["reason"] == "emergency stop"
+    assert err.strip() == "error: the move was stopped: emergency stop"
+
+
+def test_a_move_cut_short_by_reset_motion_is_stopped_and_one_that_ends_is_reached(
+    cell: Cell,
+) -> None:
+    with RobotClient(*cell.server.address, timeout=5.0) as robot:
+        robot.take_control()
+        robot.joint_move([150.0, 0.0, 90.0, 0.0, 90.0, 0.0])
+        assert cell.wait_until(cell.moving)
+        robot.reset_motion()
+        result = robot.wait_move(30.0)
+        assert (result.outcome.value, result.reason) == ("stopped", "ResetMotion")
+        assert not robot.status().moving  # it answered once the arm stood
+        q = cell.robot.herej()
+        q[0] += 1.0
+        robot.joint_move(list(q))
+        assert robot.wait_move(30.0).reached

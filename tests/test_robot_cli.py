@@ -47,7 +47,7 @@ def test_call_prints_json_and_errors(
     assert code == 1 and "NOT_POWERED" in err and "10" in err
     assert run(capsys, "call", endpoint, "EnablePower", *tok)[0] == 0
     code, out, _ = run(capsys, "call", endpoint, "jointmove", "0,-30,90,0,60,0", *tok)
-    assert code == 0 and json.loads(out) == {"move_id": 1, "done": True}
+    assert code == 0 and json.loads(out) == {"move_id": 1, "done": True, "outcome": "reached"}
     code, out, _ = run(capsys, "call", endpoint, "herej")
     assert json.loads(out)["joints"] == [0.0, -30.0, 90.0, 0.0, 60.0, 0.0]
     code, out, _ = run(capsys, "call", endpoint, "here", "0,0,100,0,0,0")

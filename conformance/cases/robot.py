@@ -375,6 +375,39 @@ def motion_estop(ctx: Context) -> None:
 
 
 @case(
+    "robot.motion.stopped_is_not_done",
+    requirements=["RS-5.50", "RS-5.22"],
+    tags=["robot", "motion", "control"],
+    service="robot",
+    motion=True,
+    commands=[*MOTION, C.RESET_MOTION, C.ROBOT_STATUS],
+)
+def motion_stopped_is_not_done(ctx: Context) -> str:
+    """A move cut short by ResetMotion: WaitEndMove says done false, outcome stopped, with a
+    reason; the same move run to its end says done true, outcome reached."""
+    with _Motion(ctx) as m:
+        conn = m.conn
+        m.power()
+        start = _joints(conn)
+        target = list(start)
+        target[0] += STEP_DEG
+        conn.ok(C.JOINT_MOVE, Joints(target))
+        time.sleep(0.05)
+        conn.ok(C.RESET_MOTION)
+        reply = conn.ok(C.WAIT_END_MOVE, 10.0, timeout=15.0)
+        if len(reply) < 3:
+            raise Fail("WaitEndMove has no outcome (a 1.2 reply)", "done, outcome, reason", reply)
+        if reply[0] is not False or reply[1] != "stopped" or not reply[2]:
+            raise Fail("a move cut short by ResetMotion", "(False, 'stopped', reason)", reply)
+        stopped = reply
+        conn.ok(C.JOINT_MOVE, Joints(start))
+        reply = conn.ok(C.WAIT_END_MOVE, 10.0, timeout=15.0)
+        if tuple(reply[:3]) != (True, "reached", ""):
+            raise Fail("a move that reached its target", "(True, 'reached', '')", reply)
+    return f"ResetMotion: {stopped!r}; run to its end: {reply!r}"
+
+
+@case(
     "robot.motion.out_of_range",
     requirements=["RS-5.14"],
     tags=["robot", "motion", "limits"],
