@@ -62,6 +62,9 @@ log = logging.getLogger(__name__)
 
 # How long TakeControl waits for a lost controller's controlled stop before it says BUSY.
 CONTROL_STOP_WAIT_S = 5.0
+#: A frame may take 1 s longer for every this many bytes of it received [RS-7.5]: a large
+#: frame on a slow link is not cut off, a trickle of bytes is.
+FRAME_ALLOWANCE_BYTES = 65536
 #: Control changes kept in :attr:`FramedServer.control_events`.
 CONTROL_EVENTS = 256
 
@@ -71,12 +74,17 @@ class ServerPolicy:
     """Connection policies (PROTOCOL.md section 7); the defaults are the spec's SHOULDs."""
 
     max_clients: int = 64
+    #: Connections one source address may hold at once; more are treated as over the
+    #: client limit (BUSY, EmergencyStop only), so one host cannot take every slot [RS-7.24].
+    max_per_address: int = 48
     #: Connections over ``max_clients`` kept open for EmergencyStop only [RS-7.14].
     reserved_slots: int = 4
     #: s a reserved connection stays open for its EmergencyStop [RS-7.14].
     reserved_grace: float = 2.0
     max_payload: int = wire.DEFAULT_MAX_PAYLOAD
-    frame_timeout: float = 5.0  # s to finish a frame once its first byte arrived [RS-7.5]
+    #: s to finish a frame from its first byte, plus 1 s per FRAME_ALLOWANCE_BYTES of it
+    #: received [RS-7.5]
+    frame_timeout: float = 5.0
     idle_timeout: float = 300.0  # s without any byte before the server closes [RS-7.6]
     allow: tuple[Network, ...] = ()  # empty: every client that can reach the address
     token: str | None = None  # TakeControl must present it when set [RS-7.3]
@@ -91,9 +99,17 @@ class ServerPolicy:
                 f"control watchdog must satisfy 0 < min <= default <= max < inf, got "
                 f"{self.watchdog_min} <= {self.watchdog} <= {self.watchdog_max}"
             )
+        if self.max_per_address < 1:
+            raise ValueError(f"max_per_address must be >= 1, got {self.max_per_address}")
         if self.token is not None and not self.token.strip():
             # An empty token would be presented by any client: protection silently off.
             raise ValueError("the control token is empty (use None for no token)")
+
+    @property
+    def per_address(self) -> int:
+        """The connections one address may hold [RS-7.24]; below ``max_clients`` only when
+        ``max_per_address`` is (a test filling the server from one host sets both)."""
+        return self.max_per_address
 
     def allows(self, host: str) -> bool:
         return address_allowed(self.allow, host)
@@ -465,6 +481,7 @@ class FramedServer:
                     "errors_sent",
                     "rejected",
                     "refused_busy",
+                    "refused_per_address",
                     "refused_address",
                     "reserved_connections",
                     "timeouts",
@@ -502,7 +519,9 @@ class FramedServer:
             return
         evicted: Session | None = None
         with self._lock:
-            full = len(self._sessions) >= self.policy.max_clients
+            mine = sum(1 for s in self._sessions if s.peer[0] == peer[0])
+            crowded = mine >= self.policy.per_address  # [RS-7.24]
+            full = crowded or len(self._sessions) >= self.policy.max_clients
             reserved = full and self.policy.reserved_slots > 0
             session = Session(self, sock, peer, reserved=reserved)
             if not full:
@@ -519,7 +538,13 @@ class FramedServer:
             # [RS-7.2] the client over the limit gets BUSY (request ID 0); [RS-7.14] on a
             # reserved connection it may still send EmergencyStop for a short while.
             self._count("refused_busy")
-            text = "client limit reached"
+            if crowded:
+                self._count("refused_per_address")
+            text = (
+                f"connection limit per address reached ({self.policy.per_address} from {peer[0]})"
+                if crowded
+                else "client limit reached"
+            )
             if reserved:
                 grace = self.policy.reserved_grace
                 text += f": this connection serves only EmergencyStop for {grace:g} s"
@@ -550,14 +575,15 @@ class FramedServer:
             self._end_session(session)
 
     def _deadline(
-        self, session: Session, in_frame: bool, frame_start: float, last_byte: float
+        self, session: Session, decoder: FrameDecoder, frame_start: float, last_byte: float
     ) -> tuple[float, str]:
         """(time, reason) of the next deadline of a connection [RS-7.5], [RS-7.6], [RS-7.14]."""
         policy = self.policy
         if session.reserved:
             return session.opened + policy.reserved_grace, ""
-        if in_frame:
-            return frame_start + policy.frame_timeout, "frame stopped half-way"
+        if decoder.in_frame:
+            allowance = decoder.buffered / FRAME_ALLOWANCE_BYTES
+            return frame_start + policy.frame_timeout + allowance, "frame not finished in time"
         if session.busy:
             return math.inf, ""  # waiting for our own reply is not idleness
         return last_byte + policy.idle_timeout, "idle"
@@ -591,7 +617,7 @@ class FramedServer:
                 if self._shutdown.is_set():
                     return
                 now = time.monotonic()
-                deadline, why = self._deadline(session, decoder.in_frame, frame_start, last_byte)
+                deadline, why = self._deadline(session, decoder, frame_start, last_byte)
                 if now >= deadline:
                     if why:
                         self._count("timeouts")
@@ -610,8 +636,11 @@ class FramedServer:
             look = False
             hot.bytes_in += n
             last_byte = time.monotonic()
+            was_in_frame = decoder.in_frame
             try:
                 event = decoder.feed_next(view[:n])
+                if event is not None:
+                    was_in_frame = False  # a frame ended here: what is left began here too
                 while event is not None:
                     # [RS-7.13] every frame from the controller renews its lease.
                     session.alive_at = last_byte
@@ -622,9 +651,9 @@ class FramedServer:
                 self._reject_code(exc.code)
                 self._send_error(session, 0, 0, exc.code, exc.message)
                 return
-            # [RS-7.5] the partial-frame clock runs between bytes: every byte of an
-            # unfinished frame restarts it, so a large frame on a slow link is not cut off.
-            if decoder.in_frame:
+            # [RS-7.5] the partial-frame clock runs from the frame's first byte (a trickle of
+            # bytes cannot hold a connection open); its allowance grows with what arrived.
+            if decoder.in_frame and not was_in_frame:
                 frame_start = last_byte
 
     def _route(self, session: Session, event: Packet | Rejected) -> None:

@@ -38,7 +38,9 @@ from spec.server import FramedServer, Identity, ServerPolicy, Service, Session
 from spec.wire import PacketKind, SensorStatus
 
 SCALE = 0.1  # --timeout-scale of these tests: answers within 0.2 s, budgets a tenth
-POLICY = ServerPolicy(max_clients=16, max_payload=64 * 1024, frame_timeout=0.3, idle_timeout=1.0)
+POLICY = ServerPolicy(
+    max_clients=16, max_per_address=15, max_payload=64 * 1024, frame_timeout=0.3, idle_timeout=1.0
+)
 
 # --- minimal conforming services ------------------------------------------------------------
 
