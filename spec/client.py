@@ -22,9 +22,14 @@ from spec import wire
 from spec.codec import FrameDecoder, Packet, encode_request
 from spec.errors import ErrorCode, PeerError, ProtocolError, RemoteError
 from spec.params import IntArray, Value
+from spec.realtime import promote_current_thread
 from spec.registry import BY_ID, CommandId, check_params, exact_classes
 from spec.sockopt import set_kernel_timeouts
 from spec.wire import MoveOutcome, PacketKind
+
+#: SCHED_FIFO priority of the control-lease keeper: below the robot's own timing threads (50)
+#: and command threads (40) when both run on one host.
+KEEPER_PRIORITY = 30
 
 
 class ClientTimeout(ProtocolError, TimeoutError):
@@ -370,6 +375,9 @@ class FramedClient:
         a call is in flight (a WaitEndMove piece that a busy or simulated server takes long
         to answer) it is sent beside it and its reply is dropped when it comes."""
         interval = lease / 3
+        # Real-time priority where the process may have it: a busy host must not delay the
+        # keeper past the lease (a false trip of a live controller). Else it runs as it is.
+        promote_current_thread(KEEPER_PRIORITY)
         while not self._keeper_stop.wait(interval / 2):
             if time.monotonic() - self._last_sent < interval:
                 continue

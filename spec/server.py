@@ -89,7 +89,9 @@ class ServerPolicy:
     allow: tuple[Network, ...] = ()  # empty: every client that can reach the address
     token: str | None = None  # TakeControl must present it when set [RS-7.3]
     #: Control lease (s) when TakeControl names none, and the range a client may ask [RS-7.13].
-    watchdog: float = 1.0
+    #: 0.25 s (1.3; 1.0 before): a frozen controller at cruise has its laser off 0.25 s and
+    #: its arm stopped 0.28 s after its last frame (bench/lease.py, issue 29 item 3).
+    watchdog: float = 0.25
     watchdog_min: float = 0.05
     watchdog_max: float = 10.0
 
@@ -386,9 +388,10 @@ class FramedServer:
         self._watchdog_thread: threading.Thread | None = None
         self.control_holder: Session | None = None
         self.stopping_for: Session | None = None  # the controlled stop of a lost controller
-        #: (service clock s, session ID, what) of every control change: "took", "released",
-        #: "lost: why", stamped when the server saw it, before the service acted on it.
-        self.control_events: deque[tuple[float, int, str]] = deque(maxlen=CONTROL_EVENTS)
+        #: (service clock s, session ID, what, last frame) of every control change: "took",
+        #: "released", "lost: why", stamped when the server saw it, before the service acted
+        #: on it; ``last frame``: when the session's last frame arrived, on the same clock.
+        self.control_events: deque[tuple[float, int, str, float]] = deque(maxlen=CONTROL_EVENTS)
         self._auth = AuthBackoff()  # failed TakeControl attempts per address [RS-7.20]
         self.handler_errors: list[BaseException] = []
         register(self)
@@ -736,7 +739,9 @@ class FramedServer:
                 self._control.notify_all()
 
     def _note_control(self, session: Session, what: str) -> None:
-        self.control_events.append((float(self.service.clock()), session.id, what))
+        now = float(self.service.clock())
+        last = now - (time.monotonic() - session.alive_at)
+        self.control_events.append((now, session.id, what, last))
 
     @property
     def control_free(self) -> bool:
