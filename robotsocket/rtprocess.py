@@ -36,6 +36,7 @@ import subprocess
 import sys
 import threading
 from collections.abc import Callable
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from types import SimpleNamespace
@@ -268,6 +269,8 @@ class _ChildHost:
             elif kind == "close":
                 self.close_rid = rid
                 return "close"
+            else:  # every kind is answered: a caller never waits out its timeout
+                self._send(("err", rid, int(ErrorCode.INTERNAL_ERROR), f"unknown kind {kind!r}"))
 
     def controlled_stop(self, why: str) -> None:
         """[RS-7.10] as for a lost controller: laser off first, the arm decelerates along its
@@ -342,12 +345,6 @@ _CHILD = (
 )
 
 
-class _Waiter:
-    def __init__(self) -> None:
-        self.event = threading.Event()
-        self.reply: tuple[Any, ...] | None = None
-
-
 class RealtimeProcess:
     """The child process and the pipe to it, as the server process sees them.
 
@@ -383,7 +380,7 @@ class RealtimeProcess:
         self.pid = self.proc.pid
         self._lock = threading.Lock()
         self._send_lock = threading.Lock()
-        self._pending: dict[int, _Waiter] = {}
+        self._pending: dict[int, Future[tuple[Any, ...]]] = {}
         self._ids = itertools.count(1)
         self.dead: str | None = None
         self._closing = False
@@ -407,8 +404,7 @@ class RealtimeProcess:
             with self._lock:
                 waiter = self._pending.pop(msg[1], None)
             if waiter is not None:
-                waiter.reply = msg
-                waiter.event.set()
+                waiter.set_result(msg)
         code = self.proc.wait()
         with self._lock:
             if self.dead is None:
@@ -416,8 +412,9 @@ class RealtimeProcess:
                 if not self._closing:
                     log.error("%s: motion refused", self.dead)
             pending, self._pending = self._pending, {}
+            gone = ProtocolError(f"robot unavailable: {self.dead}", ErrorCode.BAD_STATE)
         for waiter in pending.values():
-            waiter.event.set()
+            waiter.set_exception(gone)
 
     @property
     def alive(self) -> bool:
@@ -429,7 +426,7 @@ class RealtimeProcess:
             raise ProtocolError(f"robot unavailable: {self.dead}", ErrorCode.BAD_STATE)
 
     def _call(self, kind: str, *body: Any, timeout: float = COMMAND_TIMEOUT_S) -> Any:
-        waiter = _Waiter()
+        waiter: Future[tuple[Any, ...]] = Future()
         with self._lock:
             self.check_alive()
             rid = next(self._ids)
@@ -439,17 +436,15 @@ class RealtimeProcess:
                 self._conn.send((kind, rid, *body))
         except OSError:
             pass  # the reader sees the EOF and fails the waiter
-        if not waiter.event.wait(timeout):
+        try:
+            reply = waiter.result(timeout)  # raises the child's death as BAD_STATE
+        except TimeoutError:
             with self._lock:
                 self._pending.pop(rid, None)
             raise ProtocolError(
                 f"robot unavailable: the real-time process did not answer in {timeout:g} s",
                 ErrorCode.BAD_STATE,
-            )
-        reply = waiter.reply
-        if reply is None:
-            self.check_alive()
-            raise ProtocolError("robot unavailable", ErrorCode.BAD_STATE)
+            ) from None
         if reply[0] == "err":
             try:
                 code = ErrorCode(reply[2])

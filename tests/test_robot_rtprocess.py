@@ -20,7 +20,7 @@ from robotsocket.client import RobotClient
 from robotsocket.emulator import HOME, RobotEmulator
 from robotsocket.rtprocess import ChildStartError, RealtimeProcess, RobotProcess
 from robotsocket.service import RobotService
-from spec.errors import ErrorCode, RemoteError
+from spec.errors import ErrorCode, ProtocolError, RemoteError
 from spec.params import FloatArray, Joints, Location, Value
 from spec.registry import CommandId
 from spec.server import FramedServer
@@ -276,3 +276,12 @@ def test_call_setoutput_laser_on_then_exit_leaves_the_laser_off_on_the_real_cloc
         server.send_signal(signal.SIGINT)
         _, err = server.communicate(timeout=30)
     assert "control released: laser off" in err
+
+
+def test_an_unknown_pipe_message_is_answered_not_left_to_time_out(child: RealtimeProcess) -> None:
+    """Every kind the child receives gets an answer: an unknown one an error, at once (the
+    caller's timeout here is 30 s; a missing answer would fail the test by its timeout)."""
+    with pytest.raises(ProtocolError) as err:
+        child._call("no-such-kind", timeout=30.0)
+    assert err.value.code is ErrorCode.INTERNAL_ERROR and "no-such-kind" in err.value.message
+    assert child._call("released", "robot") == ()  # the pipe still serves
