@@ -118,12 +118,14 @@ def _in_process_server() -> tuple[Any, Callable[[], dict[str, float]], Callable[
     from robotsocket.emulator import RobotEmulator
     from robotsocket.service import RobotService
     from robotsocket.sync_service import attach_udp_sync
-    from spec.server import FramedServer
+    from spec.server import FramedServer, ServerPolicy
 
     robot = RobotEmulator(clock="real")
     service = RobotService(robot)
     _, endpoint = attach_udp_sync(service, robot)
-    server = FramedServer(service, "127.0.0.1", 0).start()
+    server = FramedServer(
+        service, "127.0.0.1", 0, ServerPolicy(max_per_address=CLIENTS)
+    ).start()  # one host (RS-7.24)
     robot.start()
     endpoint.start()
 
@@ -139,7 +141,7 @@ def _child_server() -> tuple[Any, Callable[[], dict[str, float]], Callable[[], N
     """``robotsocket serve --clock real`` (the default): the loop in a real-time child; the
     jitter is the child's record of its own ticks."""
     from robotsocket.rtprocess import RealtimeProcess, RobotProcess
-    from spec.server import FramedServer
+    from spec.server import FramedServer, ServerPolicy
 
     config = {
         "model": "RX90B",
@@ -150,7 +152,9 @@ def _child_server() -> tuple[Any, Callable[[], dict[str, float]], Callable[[], N
         "data_from_any": False,
     }
     child = RealtimeProcess("robotsocket.rtprocess:build_robot", config)
-    server = FramedServer(RobotProcess(child), "127.0.0.1", 0).start()
+    server = FramedServer(
+        RobotProcess(child), "127.0.0.1", 0, ServerPolicy(max_per_address=CLIENTS)
+    ).start()  # one host (RS-7.24)
 
     def stop() -> None:
         server.shutdown()

@@ -5,7 +5,7 @@ move (the controlled stop the fault should cost, no more). EmergencyStop on a fu
 connect and request to the reply (the arm is halted when it comes), against the same on a
 free server.
 
-The robot runs on the real clock with the default control watchdog (1 s)."""
+The robot runs on the real clock with the default control watchdog (0.25 s)."""
 
 from __future__ import annotations
 

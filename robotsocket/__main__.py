@@ -99,7 +99,11 @@ def cmd_serve(args: argparse.Namespace) -> int:
         sock.close()
         raise CliError(str(exc)) from None
     policy = ServerPolicy(
-        max_clients=args.max_clients, allow=allow, token=token, watchdog=args.watchdog
+        max_clients=args.max_clients,
+        max_per_address=args.max_per_address,
+        allow=allow,
+        token=token,
+        watchdog=args.watchdog,
     )
     server = FramedServer(parts.services["robot"], policy=policy, listener=sock)
     parts.start()
@@ -132,7 +136,11 @@ def _serve_child(args: argparse.Namespace, allow: tuple[Network, ...], sock: soc
         sock.close()
         raise CliError(str(exc)) from None
     policy = ServerPolicy(
-        max_clients=args.max_clients, allow=allow, token=args.token, watchdog=args.watchdog
+        max_clients=args.max_clients,
+        max_per_address=args.max_per_address,
+        allow=allow,
+        token=args.token,
+        watchdog=args.watchdog,
     )
     server = FramedServer(RobotProcess(child), policy=policy, listener=sock)
     log.info(
@@ -245,6 +253,13 @@ def build_parser() -> argparse.ArgumentParser:
         "SetSensorEndpoint (for a sensor that replies from another port)",
     )
     s.add_argument("--max-clients", type=cliargs.int_in(1, 65535), default=64)
+    s.add_argument(
+        "--max-per-address",
+        type=cliargs.int_in(1, 65535),
+        default=ServerPolicy.max_per_address,
+        metavar="N",
+        help="connections one source address may hold (default %(default)d, RS-7.24)",
+    )
     s.add_argument(
         "--watchdog",
         type=cliargs.watchdog,

@@ -25,7 +25,14 @@ import numpy as np
 from robotsocket import interface
 from robotsocket.interface import IDENTITY_LOC, Array, Loc, MotionDesc
 from spec import wire
-from spec.client import ClientTimeout, ConnectionClosed, FramedClient, wait_end_move
+from spec.client import (
+    ClientTimeout,
+    ConnectionClosed,
+    FramedClient,
+    MoveResult,
+    wait_end_move,
+    wait_move,
+)
 from spec.errors import ErrorCode, RemoteError
 from spec.params import Joints, Location, Matrix
 from spec.registry import CommandId
@@ -211,9 +218,16 @@ class RobotClient(FramedClient):
         return MotionDesc(*self.call(CommandId.GET_MOTION_DESC))  # type: ignore[arg-type]
 
     def wait_end_move(self, timeout: float = 60.0) -> bool:
-        """True when the arm settled, False when ``timeout`` s passed first. While control is
-        held the wait goes out in pieces shorter than the control lease [RS-7.13]."""
+        """True only when the last move reached its target and the arm settled; False when
+        it was stopped or failed, or ``timeout`` s passed first (:meth:`wait_move` says
+        which) [RS-5.50]. While control is held the wait goes out in pieces shorter than the
+        control lease [RS-7.13]."""
         return wait_end_move(self, timeout)
+
+    def wait_move(self, timeout: float = 60.0) -> MoveResult:
+        """How the last move ended: reached, stopped or failed (with the reason), or still
+        moving after ``timeout`` s [RS-5.50]."""
+        return wait_move(self, timeout)
 
     def stop_move(self) -> None:
         self.call(CommandId.STOP_MOVE)
@@ -259,6 +273,7 @@ __all__ = [
     "ConnectionClosed",
     "EmergencyStopError",
     "MotionDesc",
+    "MoveResult",
     "NotInControlError",
     "NotPoweredError",
     "OutOfRangeError",

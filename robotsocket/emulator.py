@@ -60,6 +60,7 @@ from robotsocket.service import error_code
 from robotsocket.shared_state import Snapshot
 from robotsocket.timed_path import plan_timed
 from robotsocket.trajectory import PERIOD, TrajectoryGenerator
+from spec.wire import MoveOutcome
 from sync.joint_buffer import JointBuffer
 
 log = logging.getLogger(__name__)
@@ -134,6 +135,11 @@ class RobotEmulator(RobotInterface):
         self._gen = TrajectoryGenerator(q0, period)
         self._desc = MotionDesc()
         self._powered = False
+        #: [RS-7.22] control was lost: arm power goes off once the arm stands.
+        self._power_off_at_rest = False
+        #: [RS-5.50] the last queued move: MOVING until it reached its target (then it reads
+        #: REACHED once the arm settled) or was stopped or failed, with the reason.
+        self._outcome: tuple[MoveOutcome, str] = (MoveOutcome.REACHED, "")
         self._estop = False
         self._last_error: RobotError | None = None
         self._next_move_id = 1
@@ -253,6 +259,8 @@ class RobotEmulator(RobotInterface):
             self._buffer.append(t, q_m)
             if self._loop is not None and self._gen.in_motion:
                 self._sample_lateness.append(max(self._loop.now() - t, 0.0))
+            if self._power_off_at_rest and self._gen.idle:
+                self._power_down("controller lost: the arm stands")
             if self._gen.in_motion or self._alter.engaged:
                 self._idle_since = math.inf
             elif self._idle_since == math.inf:
@@ -280,6 +288,7 @@ class RobotEmulator(RobotInterface):
         alter = self._alter
         if alter.step(t):
             self._switch_off("laser", "alter stream lost")
+            self._stopped(MoveOutcome.STOPPED, "alter stream lost")
             self._gen.reset()
             self._last_error = BadStateError(
                 f"alter stream lost: no correction for {alter.timeout * 1000:.0f} ms"
@@ -295,6 +304,7 @@ class RobotEmulator(RobotInterface):
         except KinematicsError as exc:
             self._last_error = robot_error(exc)
             self._switch_off("laser", "alter correction unreachable")
+            self._stopped(MoveOutcome.FAILED, f"alter correction unreachable: {exc}")
             self._gen.halt()
             self._gen.hold_q = self._setpoint.copy()
             alter.fold()
@@ -307,6 +317,32 @@ class RobotEmulator(RobotInterface):
             self._outputs[name] = False
             self.io_log.append((self.time(), name, False))
             log.warning("%s: %s off", why, name)
+
+    def _stopped(self, kind: MoveOutcome, why: str) -> None:
+        """[RS-5.50] Moves are being stopped or failed (``why``): the last one did not reach
+        its target. Nothing queued or executing: the last outcome stands."""
+        if not self._gen.idle and self._outcome[0] is MoveOutcome.MOVING:
+            self._outcome = (kind, why)
+
+    def move_outcome(self) -> tuple[MoveOutcome, str]:
+        with self._lock:
+            kind, why = self._outcome
+            if kind is not MoveOutcome.MOVING:
+                return kind, why
+            if self._gen.held:
+                return MoveOutcome.STOPPED, "StopMove (held: RestartMove goes on)"
+            return (MoveOutcome.REACHED, "") if self._settled() else (MoveOutcome.MOVING, "")
+
+    def _done_waiting(self) -> bool:
+        """WaitEndMove ends when the arm settled, or stands held by StopMove."""
+        return self._settled() or (self._gen.held and not self._gen.in_motion)
+
+    def _power_down(self, why: str) -> None:
+        """[RS-7.22] The end of a stop of category 1: power off once the arm stands."""
+        self._power_off_at_rest = False
+        if self._powered:
+            self._powered = False
+            log.warning("%s: arm power off", why)
 
     def _halt(self) -> None:
         """Immediate stop at the last (corrected) setpoint; any correction is folded in."""
@@ -373,6 +409,7 @@ class RobotEmulator(RobotInterface):
         process publishes each cycle, :mod:`robotsocket.shared_state`)."""
         with self._lock:
             err = self._last_error
+            outcome, why = self.move_outcome()
             return Snapshot(
                 cycle=self._gen.k,
                 t=self._gen.k * self.period,
@@ -385,6 +422,8 @@ class RobotEmulator(RobotInterface):
                 queue=self._gen.queued,
                 error_code=0 if err is None else int(error_code(err)),
                 error_message="" if err is None else str(err),
+                outcome=outcome.value,
+                outcome_reason=why,
             )
 
     def herej(self) -> Array:
@@ -418,12 +457,14 @@ class RobotEmulator(RobotInterface):
         with self._lock:
             if self._estop:
                 raise EmergencyStopError("emergency stop engaged: reset it before power on")
+            self._power_off_at_rest = False  # a new controller's power-on holds
             if not self._powered:
                 self._powered = True
                 log.info("arm power on")
 
     def disable_power(self) -> None:
         with self._lock:
+            self._stopped(MoveOutcome.STOPPED, "DisablePower")
             self._halt()
             if self._powered:
                 self._powered = False
@@ -452,8 +493,10 @@ class RobotEmulator(RobotInterface):
                 self._last_error = err
                 raise err from None
             assert isinstance(move, Move)
+            self._power_off_at_rest = False  # a new controller's move runs powered
             self._next_move_id += 1
             self._gen.enqueue(move)
+            self._outcome = (MoveOutcome.MOVING, "")
             if self._loop is not None:
                 self._loop.wake()
             self._idle_since = math.inf
@@ -519,7 +562,7 @@ class RobotEmulator(RobotInterface):
             if self._loop is not None:
                 self._loop.wake()  # an idle clock thread: tick for the waiter
             try:
-                return self._cond.wait_for(self._settled, timeout)
+                return self._cond.wait_for(self._done_waiting, timeout)
             finally:
                 self._waiters -= 1
 
@@ -533,8 +576,8 @@ class RobotEmulator(RobotInterface):
             end = clock.cycle + math.ceil(timeout / self.period)
         while True:
             with self._lock:
-                if self._settled() or clock.cycle >= end:
-                    return self._settled()
+                if self._done_waiting() or clock.cycle >= end:
+                    return self._done_waiting()
                 if self._gen.held and not self._gen.in_motion:
                     # Held by StopMove: nothing changes until a command does.
                     n = min(end - clock.cycle, _SIM_SLICE)
@@ -559,38 +602,46 @@ class RobotEmulator(RobotInterface):
 
     def reset_motion(self) -> None:
         with self._lock:
+            self._stopped(MoveOutcome.STOPPED, "ResetMotion")
             self._gen.reset()
             self._last_error = None
 
-    def on_control_lost(self) -> None:
+    def on_control_lost(self, why: str = "control lost") -> None:
         """[RS-7.10] The laser goes off before anything else, then the arm decelerates along
-        its path and the queue is dropped, then gas and crossjet go off; power stays."""
+        its path and the queue is dropped, then crossjet and gas go off; arm power goes off
+        once the arm stands [RS-7.22]."""
         with self._lock:
-            if self._outputs["laser"]:
-                self._outputs["laser"] = False
-                self.io_log.append((self.time(), "laser", False))
-                log.warning("controller lost: laser off")
+            self._switch_off("laser", "controller lost")
             if not self._gen.idle:
                 log.warning("controller lost: decelerating along the path and dropping the queue")
+            self._stopped(MoveOutcome.STOPPED, why)
             self._gen.reset()
             if self._alter.active:
                 self._alter.abandon()  # [RS-5.38] the correction ramps back to zero
             for name in ("crossjet", "gas"):
-                if self._outputs[name]:
-                    self._outputs[name] = False
-                    self.io_log.append((self.time(), name, False))
-                    log.warning("controller lost: %s off", name)
+                self._switch_off(name, "controller lost")
+            if self._gen.idle:
+                self._power_down("controller lost")
+            else:
+                self._power_off_at_rest = self._powered
+
+    def on_control_released(self) -> None:
+        """[RS-7.21] The process outputs need an owner: laser first, then crossjet and gas.
+        Queued moves go on and power stays [RS-7.11] [RS-7.22]."""
+        with self._lock:
+            for name in ("laser", "crossjet", "gas"):
+                self._switch_off(name, "control released")
 
     def emergency_stop(self) -> None:
         with self._lock:
+            self._switch_off("laser", "EMERGENCY STOP")  # [RS-7.21] before anything else
+            self._stopped(MoveOutcome.STOPPED, "emergency stop")
             self._halt()
             self._estop = True
             self._powered = False
-            # Safety: the process outputs (laser, gas, crossjet) go off with the arm.
-            for name in self._outputs:
-                if self._outputs[name]:
-                    self.io_log.append((self.time(), name, False))
-                self._outputs[name] = False
+            self._power_off_at_rest = False
+            for name in ("crossjet", "gas"):
+                self._switch_off(name, "EMERGENCY STOP")
             self._last_error = EmergencyStopError("emergency stop engaged")
             log.warning("EMERGENCY STOP: motion halted, power and outputs off")
 

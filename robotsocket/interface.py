@@ -22,11 +22,14 @@ import numpy as np
 import numpy.typing as npt
 
 from kinematics import errors as kin
+from spec.wire import MoveOutcome
 
 Array = npt.NDArray[np.float64]
 #: A VAL3 location: x, y, z (mm), rx, ry, rz (degrees), R = Rx(rx)·Ry(ry)·Rz(rz).
 Loc = tuple[float, float, float, float, float, float]
 IDENTITY_LOC: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+#: s the default controlled stop waits for the arm to stand before power goes off [RS-7.22].
+STOP_WAIT_S = 10.0
 
 
 class RobotError(Exception):
@@ -208,6 +211,16 @@ class RobotInterface(ABC):
         """Wait until the queue is empty and the arm settled; False when ``timeout`` (s)
         expired first."""
 
+    def move_outcome(self) -> tuple[MoveOutcome, str]:
+        """[RS-5.50] How the last queued move ended, with the reason when it was stopped or
+        failed. This default reads the status; the emulator tracks each stop."""
+        st = self.status()
+        if st.moving or st.queue:
+            return MoveOutcome.MOVING, ""
+        if st.estop:
+            return MoveOutcome.STOPPED, "emergency stop"
+        return MoveOutcome.REACHED, ""
+
     @abstractmethod
     def stop_move(self) -> None:
         """Decelerate along the path and hold; the queue is kept."""
@@ -260,6 +273,24 @@ class RobotInterface(ABC):
         """[RS-5.37] End alter mode; the correction ramps back to zero within the limits."""
         raise NotImplementedError
 
-    def on_control_lost(self) -> None:
-        """The controlling client vanished: stop in a controlled way, keep power as it is."""
+    def on_control_lost(self, why: str = "control lost") -> None:
+        """[RS-7.10] The controlling client vanished (``why``: closed, lease expired, ...):
+        laser off first, stop in a controlled way, then the other outputs; power off once
+        the arm stands [RS-7.22]. A real controller's adapter overrides this with its own
+        stop of category 1."""
+        self._outputs_off(("laser",))
         self.reset_motion()
+        self._outputs_off(("crossjet", "gas"))
+        if self.wait_end_move(STOP_WAIT_S):
+            self.disable_power()
+
+    def on_control_released(self) -> None:
+        """[RS-7.21] Control was given back: the process outputs go off, the laser first;
+        queued moves go on and power stays [RS-7.11] [RS-7.22]."""
+        self._outputs_off(("laser", "crossjet", "gas"))
+
+    def _outputs_off(self, names: Sequence[str]) -> None:
+        outputs = set(self.list_io()[0])
+        for name in names:
+            if name in outputs:
+                self.set_output(name, False)

@@ -36,6 +36,7 @@ import subprocess
 import sys
 import threading
 from collections.abc import Callable
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from types import SimpleNamespace
@@ -47,7 +48,7 @@ from kinematics.errors import KinematicsError
 from kinematics.robot import get_model
 from robotsocket.emulator import RobotEmulator, here_at
 from robotsocket.interface import OutOfRangeError, RobotError, RobotStatus
-from robotsocket.service import RobotService, error_code, status_reply
+from robotsocket.service import RobotService, error_code, status_reply, wait_reply
 from robotsocket.shared_state import SharedState, Snapshot
 from robotsocket.sync_service import attach_udp_sync
 from spec.errors import ErrorCode, ProtocolError
@@ -55,6 +56,7 @@ from spec.params import Joints, Location, Value
 from spec.realtime import promote_current_thread
 from spec.registry import CommandId, lookup
 from spec.server import Handler, HandlerService, Identity, Session
+from spec.wire import MoveOutcome
 
 __all__ = [
     "ChildParts",
@@ -162,14 +164,14 @@ def build_robot(config: dict[str, Any]) -> ChildParts:
 class _RemoteSession:
     """What a forwarded handler sees of the server's session."""
 
-    def __init__(self, sid: int, peer: tuple[str, int], in_control: bool, held: bool) -> None:
+    def __init__(
+        self, sid: int, peer: tuple[str, int], in_control: bool, held: bool, lost: str = ""
+    ) -> None:
         self.id = sid
         self.peer = peer
         self.in_control = in_control
+        self.control_lost = lost or None
         self.server = SimpleNamespace(control_holder=object() if held else None)
-
-
-_NOBODY = _RemoteSession(0, ("", 0), False, False)
 
 
 class _ChildHost:
@@ -252,8 +254,11 @@ class _ChildHost:
                     self._execute(rid, name, cid, params, who)  # overtakes queued commands
                 else:
                     self._queues[name].put((rid, name, cid, params, who))
-            elif kind == "lost":
-                self.parts.services[msg[2]].on_control_lost(cast(Session, _NOBODY))
+            elif kind in ("lost", "released"):
+                service = self.parts.services[msg[2]]
+                hook = service.on_control_lost if kind == "lost" else service.on_control_released
+                who = _RemoteSession(0, ("", 0), False, False, *msg[3:4])
+                hook(cast(Session, who))
                 self.publish()
                 self._send(("ok", rid, ()))
             elif kind == "query":
@@ -264,6 +269,8 @@ class _ChildHost:
             elif kind == "close":
                 self.close_rid = rid
                 return "close"
+            else:  # every kind is answered: a caller never waits out its timeout
+                self._send(("err", rid, int(ErrorCode.INTERNAL_ERROR), f"unknown kind {kind!r}"))
 
     def controlled_stop(self, why: str) -> None:
         """[RS-7.10] as for a lost controller: laser off first, the arm decelerates along its
@@ -271,7 +278,9 @@ class _ChildHost:
         log.warning("%s: controlled stop", why)
         for service in self.parts.services.values():
             try:
-                service.on_control_lost(cast(Session, _NOBODY))
+                service.on_control_lost(
+                    cast(Session, _RemoteSession(0, ("", 0), False, False, why))
+                )
             except Exception:
                 log.exception("controlled stop failed")
         robot = self.parts.robot
@@ -336,12 +345,6 @@ _CHILD = (
 )
 
 
-class _Waiter:
-    def __init__(self) -> None:
-        self.event = threading.Event()
-        self.reply: tuple[Any, ...] | None = None
-
-
 class RealtimeProcess:
     """The child process and the pipe to it, as the server process sees them.
 
@@ -377,7 +380,7 @@ class RealtimeProcess:
         self.pid = self.proc.pid
         self._lock = threading.Lock()
         self._send_lock = threading.Lock()
-        self._pending: dict[int, _Waiter] = {}
+        self._pending: dict[int, Future[tuple[Any, ...]]] = {}
         self._ids = itertools.count(1)
         self.dead: str | None = None
         self._closing = False
@@ -401,8 +404,7 @@ class RealtimeProcess:
             with self._lock:
                 waiter = self._pending.pop(msg[1], None)
             if waiter is not None:
-                waiter.reply = msg
-                waiter.event.set()
+                waiter.set_result(msg)
         code = self.proc.wait()
         with self._lock:
             if self.dead is None:
@@ -410,8 +412,9 @@ class RealtimeProcess:
                 if not self._closing:
                     log.error("%s: motion refused", self.dead)
             pending, self._pending = self._pending, {}
+            gone = ProtocolError(f"robot unavailable: {self.dead}", ErrorCode.BAD_STATE)
         for waiter in pending.values():
-            waiter.event.set()
+            waiter.set_exception(gone)
 
     @property
     def alive(self) -> bool:
@@ -423,7 +426,7 @@ class RealtimeProcess:
             raise ProtocolError(f"robot unavailable: {self.dead}", ErrorCode.BAD_STATE)
 
     def _call(self, kind: str, *body: Any, timeout: float = COMMAND_TIMEOUT_S) -> Any:
-        waiter = _Waiter()
+        waiter: Future[tuple[Any, ...]] = Future()
         with self._lock:
             self.check_alive()
             rid = next(self._ids)
@@ -433,17 +436,15 @@ class RealtimeProcess:
                 self._conn.send((kind, rid, *body))
         except OSError:
             pass  # the reader sees the EOF and fails the waiter
-        if not waiter.event.wait(timeout):
+        try:
+            reply = waiter.result(timeout)  # raises the child's death as BAD_STATE
+        except TimeoutError:
             with self._lock:
                 self._pending.pop(rid, None)
             raise ProtocolError(
                 f"robot unavailable: the real-time process did not answer in {timeout:g} s",
                 ErrorCode.BAD_STATE,
-            )
-        reply = waiter.reply
-        if reply is None:
-            self.check_alive()
-            raise ProtocolError("robot unavailable", ErrorCode.BAD_STATE)
+            ) from None
         if reply[0] == "err":
             try:
                 code = ErrorCode(reply[2])
@@ -460,8 +461,11 @@ class RealtimeProcess:
         out: tuple[Value, ...] = self._call("cmd", name, cid, params, who)
         return out
 
-    def control_lost(self, name: str) -> None:
-        self._call("lost", name)
+    def control_lost(self, name: str, why: str = "") -> None:
+        self._call("lost", name, why)
+
+    def control_released(self, name: str) -> None:
+        self._call("released", name)
 
     def query(self, name: str, *args: Any) -> Any:
         return self._call("query", name, args)
@@ -509,9 +513,15 @@ class ForwardedService(HandlerService):
 
     def on_control_lost(self, session: Session) -> None:
         try:
-            self.child.control_lost(self.name)
+            self.child.control_lost(self.name, session.control_lost or "")
         except ProtocolError as exc:
             log.error("controlled stop not forwarded: %s", exc.message)
+
+    def on_control_released(self, session: Session) -> None:
+        try:
+            self.child.control_released(self.name)
+        except ProtocolError as exc:
+            log.error("release not forwarded: %s", exc.message)
 
 
 class RobotProcess(ForwardedService):
@@ -554,13 +564,20 @@ class RobotProcess(ForwardedService):
         assert isinstance(timeout, float)
         if not (0.0 < timeout <= 3600.0):
             raise OutOfRangeError(f"timeout must be in (0, 3600] s, got {timeout}")
-        # the child publishes every cycle: look once a cycle until settled or the deadline
+        # the child publishes every cycle: look once a cycle until settled (or standing
+        # stopped) or the deadline [RS-5.50]
         deadline = self.child.state.now() + timeout
         wake = threading.Event()  # never set: a wait with a timeout, not a short sleep
         while True:
-            if self.snapshot().settled:
-                return (True,)
+            s = self.snapshot()
+            stopped = s.outcome not in (MoveOutcome.MOVING, MoveOutcome.REACHED)
+            if s.settled or (stopped and not s.moving):
+                try:
+                    outcome = MoveOutcome(s.outcome)
+                except ValueError:
+                    outcome = MoveOutcome.FAILED
+                return wait_reply(outcome, s.outcome_reason)
             left = deadline - self.child.state.now()
             if left <= 0.0:
-                return (False,)
+                return wait_reply(MoveOutcome.MOVING, "")
             wake.wait(min(self.period, left))

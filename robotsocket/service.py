@@ -36,6 +36,7 @@ from spec.errors import ErrorCode, ProtocolError
 from spec.params import FloatArray, Joints, Location, Matrix, Value
 from spec.registry import CommandId
 from spec.server import Handler, HandlerService, Identity, Session
+from spec.wire import MoveOutcome
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +74,11 @@ def status_reply(st: RobotStatus, code: int, message: str, session: Session) -> 
         message,
         float(st.time),
     )
+
+
+def wait_reply(outcome: MoveOutcome, why: str) -> tuple[Value, ...]:
+    """[RS-5.50] WaitEndMove's reply: done only for a move that reached its target."""
+    return (outcome is MoveOutcome.REACHED, outcome.value, why)
 
 
 def _loc(value: Value) -> Loc:
@@ -146,13 +152,18 @@ class RobotService(HandlerService):
     def on_control_lost(self, session: Session) -> None:
         # [RS-7.10] the robot first (laser off, controlled stop, outputs safe), then the rest.
         try:
-            self.robot.on_control_lost()
+            why = session.control_lost
+            self.robot.on_control_lost(f"control lost ({why})" if why else "control lost")
         finally:
             for hook in self.control_lost_hooks:
                 try:
                     hook()
                 except Exception:
                     log.exception("control-lost hook failed")
+
+    def on_control_released(self, session: Session) -> None:
+        # [RS-7.21] the outputs go off (laser first); queued moves and triggers go on.
+        self.robot.on_control_released()
 
     # --- handlers ----------------------------------------------------------------------------
 
@@ -252,7 +263,9 @@ class RobotService(HandlerService):
         )
 
     def _wait_end_move(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        return (self.robot.wait_end_move(_float(params[0])),)
+        ended = self.robot.wait_end_move(_float(params[0]))
+        outcome, why = self.robot.move_outcome() if ended else (MoveOutcome.MOVING, "")
+        return wait_reply(outcome, why)
 
     def _estop(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
         log.warning("emergency stop requested by session %d (%s)", session.id, session.peer[0])

@@ -28,8 +28,9 @@ __all__ = ["SharedState", "Snapshot", "TornReadError"]
 #: once, before the reader attaches).
 _HEADER = struct.Struct("<Qq")
 #: cycle, t_k (s), measured joints (6), setpoint (6), powered, estop, moving, settled,
-#: queue length, last error code (0: none), message length, message (UTF-8).
-_RECORD = struct.Struct("<qd6d6d????iiH238s")
+#: queue length, last error code (0: none), message length, message (UTF-8), the last move's
+#: outcome (UTF-8, [RS-5.50]), its reason's length and reason (UTF-8).
+_RECORD = struct.Struct("<qd6d6d????iiH238s8sH238s")
 _SIZE = _HEADER.size + _RECORD.size
 MESSAGE_BYTES = 238
 #: A reader that sees a write in progress for this long gives up (s; a writer that died in
@@ -56,12 +57,16 @@ class Snapshot:
     queue: int = 0
     error_code: int = 0
     error_message: str = ""
+    outcome: str = "reached"
+    outcome_reason: str = ""
 
     def pack(self) -> bytes:
         msg = self.error_message.encode()[:MESSAGE_BYTES]
+        why = self.outcome_reason.encode()[:MESSAGE_BYTES]
         return _RECORD.pack(
             self.cycle, self.t, *self.measured, *self.setpoint, self.powered, self.estop,
             self.moving, self.settled, self.queue, self.error_code, len(msg), msg,
+            self.outcome.encode(), len(why), why,
         )  # fmt: skip
 
     @classmethod
@@ -70,6 +75,7 @@ class Snapshot:
         return cls(
             v[0], v[1], tuple(v[2:8]), tuple(v[8:14]), v[14], v[15], v[16], v[17], v[18],
             v[19], v[21][: v[20]].decode(errors="replace"),
+            v[22].rstrip(b"\0").decode(errors="replace"), v[24][: v[23]].decode(errors="replace"),
         )  # fmt: skip
 
 

@@ -71,10 +71,13 @@ class SensorService(HandlerService):
         return ErrorCode.OUT_OF_RANGE if isinstance(exc, SensorError) else None
 
     def on_control_lost(self, session: Session) -> None:
-        # [RS-7.10] the laser a lost controller switched on goes off.
+        # [RS-7.10] [RS-7.23] the laser goes off and stays off until SetLaser switches it on.
         if self.sensor.settings.laser:
             log.warning("controller lost: sensor laser off")
             self.sensor.set_laser(False)
+
+    def on_control_released(self, session: Session) -> None:
+        """[RS-7.23] A release hands the sensor over as it is: the laser stays as it was."""
 
     # --- read-only --------------------------------------------------------------------------
 

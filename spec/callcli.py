@@ -5,7 +5,8 @@ registry gives the command's parameter (joints and locations as comma-separated 
 booleans as on/off), sends one request and prints the reply as JSON named by the registry's
 reply table. A command that needs control takes it first (with the token) and gives it back
 (released, not lost: a queued move goes on unless ``call`` waits for it, the default).
-Exit codes: 0 ok, 1 error reply (code and message on stderr), 2 usage, 3 unreachable,
+Exit codes: 0 ok, 1 error reply (code and message on stderr) or a move that did not reach its
+target (stopped, failed or still moving: the reason on stderr), 2 usage, 3 unreachable,
 130 interrupted (Ctrl-C or SIGTERM: a move this call queued is stopped with ResetMotion and
 control is released first).
 """
@@ -22,14 +23,14 @@ from contextlib import contextmanager
 from typing import Any
 
 from spec.cliargs import parse_endpoint
-from spec.client import FramedClient, wait_end_move
+from spec.client import FramedClient, MoveResult, wait_move
 from spec.codec import encode_packet, request
 from spec.errors import ErrorCode, ProtocolError, RemoteError, error_text
 from spec.exitcodes import ExitCode
 from spec.jsonform import plain
 from spec.params import FloatArray, IntArray, Joints, Location, Transform, Value
 from spec.registry import BY_ID, COMMANDS, CommandId, CommandSpec, ParamSpec
-from spec.wire import ParamType
+from spec.wire import MoveOutcome, ParamType
 
 _QUEUED_MOVES = {
     CommandId.JOINT_MOVE,
@@ -240,6 +241,7 @@ def main_call(
         print(f"error: {exc}", file=sys.stderr)
         return ExitCode.USAGE
     queued = False
+    result: MoveResult | None = None
     try:
         with stop_signals_interrupt(), FramedClient(host, port, timeout=timeout) as client:
             take = spec.needs_control and spec.id != CommandId.TAKE_CONTROL
@@ -250,7 +252,11 @@ def main_call(
                 reply = reply_json(BY_ID[spec.id], values)
                 queued = spec.id in _QUEUED_MOVES
                 if queued and wait is not None:
-                    reply["done"] = wait_end_move(client, wait)
+                    result = wait_move(client, wait)
+                    reply["done"] = result.reached
+                    reply["outcome"] = result.outcome.value
+                    if result.reason:
+                        reply["reason"] = result.reason
             except KeyboardInterrupt:
                 _stop_what_was_started(client, take and queued)
                 raise
@@ -273,8 +279,12 @@ def main_call(
         print(f"error: {unreachable(host, port, exc)}", file=sys.stderr)
         return ExitCode.UNREACHABLE
     print(format_reply(reply))
-    if reply.get("done") is False:
+    if result is not None and result.outcome is MoveOutcome.MOVING:
         print(f"error: the move did not end within {wait:g} s (it goes on)", file=sys.stderr)
+        return ExitCode.FAILED
+    if result is not None and not result.reached:
+        # [RS-5.50] stopped short or failed: a script must not take it for done.
+        print(f"error: the move was {result.outcome.value}: {result.reason}", file=sys.stderr)
         return ExitCode.FAILED
     return 0
 

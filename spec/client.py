@@ -14,6 +14,7 @@ import itertools
 import socket
 import threading
 import time
+from dataclasses import dataclass
 from types import TracebackType
 from typing import NoReturn
 
@@ -21,9 +22,14 @@ from spec import wire
 from spec.codec import FrameDecoder, Packet, encode_request
 from spec.errors import ErrorCode, PeerError, ProtocolError, RemoteError
 from spec.params import IntArray, Value
+from spec.realtime import promote_current_thread
 from spec.registry import BY_ID, CommandId, check_params, exact_classes
 from spec.sockopt import set_kernel_timeouts
-from spec.wire import PacketKind
+from spec.wire import MoveOutcome, PacketKind
+
+#: SCHED_FIFO priority of the control-lease keeper: below the robot's own timing threads (50)
+#: and command threads (40) when both run on one host.
+KEEPER_PRIORITY = 30
 
 
 class ClientTimeout(ProtocolError, TimeoutError):
@@ -369,6 +375,9 @@ class FramedClient:
         a call is in flight (a WaitEndMove piece that a busy or simulated server takes long
         to answer) it is sent beside it and its reply is dropped when it comes."""
         interval = lease / 3
+        # Real-time priority where the process may have it: a busy host must not delay the
+        # keeper past the lease (a false trip of a live controller). Else it runs as it is.
+        promote_current_thread(KEEPER_PRIORITY)
         while not self._keeper_stop.wait(interval / 2):
             if time.monotonic() - self._last_sent < interval:
                 continue
@@ -406,18 +415,52 @@ _REPLY_PARAMS = {
 }
 
 
-def wait_end_move(client: FramedClient, timeout: float) -> bool:
+@dataclass(frozen=True)
+class MoveResult:
+    """How the last queued move ended [RS-5.50]: ``reason`` names what stopped or failed it."""
+
+    outcome: MoveOutcome
+    reason: str = ""
+
+    @property
+    def reached(self) -> bool:
+        return self.outcome is MoveOutcome.REACHED
+
+    @classmethod
+    def from_reply(cls, reply: tuple[Value, ...]) -> MoveResult:
+        """WaitEndMove's reply; a 1.2 server sends ``done`` only (reached or still moving)."""
+        done = bool(reply[:1] == (True,))
+        if len(reply) < 2 or not isinstance(reply[1], str):
+            return cls(MoveOutcome.REACHED if done else MoveOutcome.MOVING)
+        reason = reply[2] if len(reply) > 2 and isinstance(reply[2], str) else ""
+        try:
+            outcome = MoveOutcome(reply[1])
+        except ValueError:
+            return cls(MoveOutcome.FAILED, f"unknown outcome {reply[1]!r}: {reason}".rstrip(": "))
+        if outcome is MoveOutcome.REACHED and not done:  # contradicts itself: not reached
+            return cls(MoveOutcome.FAILED, "outcome reached but done false")
+        return cls(outcome, reason)
+
+
+def wait_move(client: FramedClient, timeout: float) -> MoveResult:
     """WaitEndMove for up to ``timeout`` s, sent in pieces shorter than half the control
-    lease, so a controller waiting for a long move keeps its lease [RS-7.13]; True when the
-    arm settled. The pieces add up to ``timeout`` on the robot's clock (simulated or real)."""
+    lease, so a controller waiting for a long move keeps its lease [RS-7.13]. The pieces add
+    up to ``timeout`` on the robot's clock (simulated or real); the result says whether the
+    last move reached its target, was stopped or failed (and why), or is still moving."""
     remaining = float(timeout)
     while True:
         lease = client.lease
         piece = remaining if lease is None else min(remaining, lease / 2)
-        (done,) = client.call(CommandId.WAIT_END_MOVE, piece, timeout=piece + client.timeout)
+        reply = client.call(CommandId.WAIT_END_MOVE, piece, timeout=piece + client.timeout)
+        result = MoveResult.from_reply(reply)
         remaining -= piece
-        if done is True or remaining <= 1e-9:
-            return done is True
+        if result.outcome is not MoveOutcome.MOVING or remaining <= 1e-9:
+            return result
+
+
+def wait_end_move(client: FramedClient, timeout: float) -> bool:
+    """:func:`wait_move`: True only when the last move reached its target [RS-5.50]."""
+    return wait_move(client, timeout).reached
 
 
 def _is_limit_notice(packet: Packet) -> bool:
@@ -430,4 +473,12 @@ def _is_limit_notice(packet: Packet) -> bool:
     )
 
 
-__all__ = ["ClientTimeout", "ConnectionClosed", "FramedClient", "RemoteError", "wait_end_move"]
+__all__ = [
+    "ClientTimeout",
+    "ConnectionClosed",
+    "FramedClient",
+    "MoveResult",
+    "RemoteError",
+    "wait_end_move",
+    "wait_move",
+]

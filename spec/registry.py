@@ -313,9 +313,20 @@ COMMANDS: tuple[CommandSpec, ...] = (
         CommandId.WAIT_END_MOVE,
         "WaitEndMove",
         "robot",
-        "Wait until the queue is empty and the arm settled, at most timeout.",
+        "Wait until the queue is empty and the arm settled (or stood stopped), at most timeout; "
+        "say how the last move ended (outcome, reason: 1.3).",
         params=(P("timeout", T.FLOAT, "s", "maximum wait, 0 < timeout <= 3600"),),
-        reply=(P("done", T.BOOL, "", "false when the timeout expired first"),),
+        reply=(
+            P("done", T.BOOL, "", "true only when the last move reached its target"),
+            P(
+                "outcome",
+                T.STRING,
+                "",
+                "reached, moving, stopped or failed (absent from 1.2 servers)",
+                optional=True,
+            ),
+            P("reason", T.STRING, "", "what stopped or failed it, else empty", optional=True),
+        ),
     ),
     CommandSpec(
         CommandId.STOP_MOVE,

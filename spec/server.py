@@ -62,6 +62,11 @@ log = logging.getLogger(__name__)
 
 # How long TakeControl waits for a lost controller's controlled stop before it says BUSY.
 CONTROL_STOP_WAIT_S = 5.0
+#: A frame may take 1 s longer for every this many bytes of it received [RS-7.5]: a large
+#: frame on a slow link is not cut off, a trickle of bytes is.
+FRAME_ALLOWANCE_BYTES = 65536
+#: Control changes kept in :attr:`FramedServer.control_events`.
+CONTROL_EVENTS = 256
 
 
 @dataclass(frozen=True)
@@ -69,17 +74,24 @@ class ServerPolicy:
     """Connection policies (PROTOCOL.md section 7); the defaults are the spec's SHOULDs."""
 
     max_clients: int = 64
+    #: Connections one source address may hold at once; more are treated as over the
+    #: client limit (BUSY, EmergencyStop only), so one host cannot take every slot [RS-7.24].
+    max_per_address: int = 48
     #: Connections over ``max_clients`` kept open for EmergencyStop only [RS-7.14].
     reserved_slots: int = 4
     #: s a reserved connection stays open for its EmergencyStop [RS-7.14].
     reserved_grace: float = 2.0
     max_payload: int = wire.DEFAULT_MAX_PAYLOAD
-    frame_timeout: float = 5.0  # s to finish a frame once its first byte arrived [RS-7.5]
+    #: s to finish a frame from its first byte, plus 1 s per FRAME_ALLOWANCE_BYTES of it
+    #: received [RS-7.5]
+    frame_timeout: float = 5.0
     idle_timeout: float = 300.0  # s without any byte before the server closes [RS-7.6]
     allow: tuple[Network, ...] = ()  # empty: every client that can reach the address
     token: str | None = None  # TakeControl must present it when set [RS-7.3]
     #: Control lease (s) when TakeControl names none, and the range a client may ask [RS-7.13].
-    watchdog: float = 1.0
+    #: 0.25 s (1.3; 1.0 before): a frozen controller at cruise has its laser off 0.25 s and
+    #: its arm stopped 0.28 s after its last frame (bench/lease.py, issue 29 item 3).
+    watchdog: float = 0.25
     watchdog_min: float = 0.05
     watchdog_max: float = 10.0
 
@@ -89,9 +101,17 @@ class ServerPolicy:
                 f"control watchdog must satisfy 0 < min <= default <= max < inf, got "
                 f"{self.watchdog_min} <= {self.watchdog} <= {self.watchdog_max}"
             )
+        if self.max_per_address < 1:
+            raise ValueError(f"max_per_address must be >= 1, got {self.max_per_address}")
         if self.token is not None and not self.token.strip():
             # An empty token would be presented by any client: protection silently off.
             raise ValueError("the control token is empty (use None for no token)")
+
+    @property
+    def per_address(self) -> int:
+        """The connections one address may hold [RS-7.24]; below ``max_clients`` only when
+        ``max_per_address`` is (a test filling the server from one host sets both)."""
+        return self.max_per_address
 
     def allows(self, host: str) -> bool:
         return address_allowed(self.allow, host)
@@ -268,6 +288,10 @@ class Service:
         """The controller is gone (closed, silent past its watchdog, or the server stops):
         stop what it started in a controlled way, process outputs first [RS-7.10]."""
 
+    def on_control_released(self, session: Session) -> None:
+        """The controller gave control back (ReleaseControl): what may be on only under
+        control goes off, the laser first [RS-7.21]; queued moves go on [RS-7.11]."""
+
     def on_disconnect(self, session: Session) -> None:
         """A connection closed (after control was released)."""
 
@@ -364,6 +388,10 @@ class FramedServer:
         self._watchdog_thread: threading.Thread | None = None
         self.control_holder: Session | None = None
         self.stopping_for: Session | None = None  # the controlled stop of a lost controller
+        #: (service clock s, session ID, what, last frame) of every control change: "took",
+        #: "released", "lost: why", stamped when the server saw it, before the service acted
+        #: on it; ``last frame``: when the session's last frame arrived, on the same clock.
+        self.control_events: deque[tuple[float, int, str, float]] = deque(maxlen=CONTROL_EVENTS)
         self._auth = AuthBackoff()  # failed TakeControl attempts per address [RS-7.20]
         self.handler_errors: list[BaseException] = []
         register(self)
@@ -456,6 +484,7 @@ class FramedServer:
                     "errors_sent",
                     "rejected",
                     "refused_busy",
+                    "refused_per_address",
                     "refused_address",
                     "reserved_connections",
                     "timeouts",
@@ -493,7 +522,9 @@ class FramedServer:
             return
         evicted: Session | None = None
         with self._lock:
-            full = len(self._sessions) >= self.policy.max_clients
+            mine = sum(1 for s in self._sessions if s.peer[0] == peer[0])
+            crowded = mine >= self.policy.per_address  # [RS-7.24]
+            full = crowded or len(self._sessions) >= self.policy.max_clients
             reserved = full and self.policy.reserved_slots > 0
             session = Session(self, sock, peer, reserved=reserved)
             if not full:
@@ -510,7 +541,13 @@ class FramedServer:
             # [RS-7.2] the client over the limit gets BUSY (request ID 0); [RS-7.14] on a
             # reserved connection it may still send EmergencyStop for a short while.
             self._count("refused_busy")
-            text = "client limit reached"
+            if crowded:
+                self._count("refused_per_address")
+            text = (
+                f"connection limit per address reached ({self.policy.per_address} from {peer[0]})"
+                if crowded
+                else "client limit reached"
+            )
             if reserved:
                 grace = self.policy.reserved_grace
                 text += f": this connection serves only EmergencyStop for {grace:g} s"
@@ -541,14 +578,15 @@ class FramedServer:
             self._end_session(session)
 
     def _deadline(
-        self, session: Session, in_frame: bool, frame_start: float, last_byte: float
+        self, session: Session, decoder: FrameDecoder, frame_start: float, last_byte: float
     ) -> tuple[float, str]:
         """(time, reason) of the next deadline of a connection [RS-7.5], [RS-7.6], [RS-7.14]."""
         policy = self.policy
         if session.reserved:
             return session.opened + policy.reserved_grace, ""
-        if in_frame:
-            return frame_start + policy.frame_timeout, "frame stopped half-way"
+        if decoder.in_frame:
+            allowance = decoder.buffered / FRAME_ALLOWANCE_BYTES
+            return frame_start + policy.frame_timeout + allowance, "frame not finished in time"
         if session.busy:
             return math.inf, ""  # waiting for our own reply is not idleness
         return last_byte + policy.idle_timeout, "idle"
@@ -582,7 +620,7 @@ class FramedServer:
                 if self._shutdown.is_set():
                     return
                 now = time.monotonic()
-                deadline, why = self._deadline(session, decoder.in_frame, frame_start, last_byte)
+                deadline, why = self._deadline(session, decoder, frame_start, last_byte)
                 if now >= deadline:
                     if why:
                         self._count("timeouts")
@@ -601,8 +639,11 @@ class FramedServer:
             look = False
             hot.bytes_in += n
             last_byte = time.monotonic()
+            was_in_frame = decoder.in_frame
             try:
                 event = decoder.feed_next(view[:n])
+                if event is not None:
+                    was_in_frame = False  # a frame ended here: what is left began here too
                 while event is not None:
                     # [RS-7.13] every frame from the controller renews its lease.
                     session.alive_at = last_byte
@@ -613,9 +654,9 @@ class FramedServer:
                 self._reject_code(exc.code)
                 self._send_error(session, 0, 0, exc.code, exc.message)
                 return
-            # [RS-7.5] the partial-frame clock runs between bytes: every byte of an
-            # unfinished frame restarts it, so a large frame on a slow link is not cut off.
-            if decoder.in_frame:
+            # [RS-7.5] the partial-frame clock runs from the frame's first byte (a trickle of
+            # bytes cannot hold a connection open); its allowance grows with what arrived.
+            if decoder.in_frame and not was_in_frame:
                 frame_start = last_byte
 
     def _route(self, session: Session, event: Packet | Rejected) -> None:
@@ -669,21 +710,38 @@ class FramedServer:
     def _revoke_control(self, session: Session | None, why: str) -> None:
         """Take control from ``session`` (None: from whoever holds it) and let the service
         make its controlled stop."""
+        self._end_control(session, why, lost=True)
+
+    def _end_control(self, session: Session | None, why: str, *, lost: bool) -> None:
+        """Control of ``session`` (None: whoever holds it) ends; the service switches off
+        what needs an owner (lost: the controlled stop [RS-7.10]; released: the outputs
+        [RS-7.21]) before control is free again."""
         with self._control:
             holder = self.control_holder
             if holder is None or (session is not None and holder is not session):
                 return
             self.control_holder = None
             self.stopping_for = holder
-            holder.control_lost = why
+            if lost:
+                holder.control_lost = why
+            self._note_control(holder, f"lost: {why}" if lost else "released")
             self._control.notify_all()
-        log.warning("session %d lost control (%s): controlled stop", holder.id, why)
+        if lost:
+            log.warning("session %d lost control (%s): controlled stop", holder.id, why)
+        else:
+            log.info("session %d released control", holder.id)
+        hook = self.service.on_control_lost if lost else self.service.on_control_released
         try:
-            self._guard(self.service.on_control_lost, holder)
+            self._guard(hook, holder)
         finally:
             with self._control:
                 self.stopping_for = None
                 self._control.notify_all()
+
+    def _note_control(self, session: Session, what: str) -> None:
+        now = float(self.service.clock())
+        last = now - (time.monotonic() - session.alive_at)
+        self.control_events.append((now, session.id, what, last))
 
     @property
     def control_free(self) -> bool:
@@ -874,16 +932,15 @@ class FramedServer:
             session.alive_at = time.monotonic()
             session.control_lost = None
             self.control_holder = session
+            self._note_control(session, "took")
             self._control.notify_all()
         log.info("session %d took control (watchdog %g s)", session.id, watchdog)
         return (watchdog,)
 
     def _release_control(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        with self._control:
-            if self.control_holder is session:
-                self.control_holder = None
-                self._control.notify_all()
-                log.info("session %d released control", session.id)
+        # [RS-7.21] the outputs are off before the reply: a client that reads them after
+        # it finds them off.
+        self._end_control(session, "released", lost=False)
         return ()
 
     def _get_time(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:

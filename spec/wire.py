@@ -7,7 +7,7 @@ precompiled :class:`struct.Struct` with an explicit ``>``.
 from __future__ import annotations
 
 import struct
-from enum import IntEnum
+from enum import IntEnum, StrEnum
 
 #: Protocol version implemented here (PROTOCOL.md section 1).
 VERSION_MAJOR = 1
@@ -115,6 +115,15 @@ class DatagramKind(IntEnum):
 
     TRIGGER = 1
     DATA = 2
+
+
+class MoveOutcome(StrEnum):
+    """How the last queued move ended: WaitEndMove's ``outcome`` (1.3) [RS-5.50]."""
+
+    REACHED = "reached"  # it reached its target and the arm settled
+    MOVING = "moving"  # the wait ended first: the move goes on
+    STOPPED = "stopped"  # stopped short: the reason says by what
+    FAILED = "failed"  # the robot could not execute it: the reason says why
 
 
 class SensorStatus(IntEnum):

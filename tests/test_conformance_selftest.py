@@ -39,7 +39,9 @@ from spec.server import FramedServer, Identity, ServerPolicy, Service, Session
 from spec.wire import PacketKind, SensorStatus
 
 SCALE = 0.1  # --timeout-scale of these tests: answers within 0.2 s, budgets a tenth
-POLICY = ServerPolicy(max_clients=16, max_payload=64 * 1024, frame_timeout=0.3, idle_timeout=1.0)
+POLICY = ServerPolicy(
+    max_clients=16, max_per_address=15, max_payload=64 * 1024, frame_timeout=0.3, idle_timeout=1.0
+)
 
 # --- minimal conforming services ------------------------------------------------------------
 
@@ -153,6 +155,10 @@ class MiniSensor(Service):
 
     def acq_time(self) -> float:
         return 3.5e-3 * self.window[1] / self.W
+
+    def on_control_lost(self, session: Session) -> None:
+        with self.lock:
+            self.laser = False  # [RS-7.23] a lost controller's laser goes off
 
     def handle(
         self, session: Session, spec: CommandSpec, params: tuple[Value, ...]

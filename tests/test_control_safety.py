@@ -9,6 +9,7 @@ arm stopped short of its target, queue empty, outputs off), never on how fast.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import socket
@@ -20,6 +21,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from robotsocket.client import RobotClient
@@ -90,7 +92,8 @@ def assert_safe_stop(cell: Cell) -> None:
     assert cell.wait_until(cell.stopped_short), cell.robot.status()
     assert cell.robot.read_io("laser") == (False, True)
     assert cell.robot.read_io("gas") == (False, True)
-    assert cell.robot.status().powered  # power stays as it was [RS-7.10]
+    # [RS-7.22] a lost controller's arm loses power once it stands (category 1 stop).
+    assert cell.wait_until(lambda: not cell.robot.status().powered)
     assert cell.server.control_holder is None
 
 
@@ -319,3 +322,150 @@ def test_an_idle_controller_that_dies_or_freezes_leaves_the_outputs_off(
         assert cell.wait_until(lambda: cell.server.control_free)
         assert cell.robot.read_io("laser") == (False, True)
         assert cell.robot.read_io("gas") == (False, True)
+
+
+# --- [RS-7.21] the process outputs follow control -------------------------------------------
+
+
+def _laser_off_after(cell: Cell, what: str) -> float:
+    """Robot-clock seconds from the server seeing ``what`` (a control event) to the laser's
+    switch-off in the robot's I/O log."""
+    seen = [t for t, _sid, ev, _last in cell.server.control_events if ev.startswith(what)]
+    off = [t for t, name, value in cell.robot.io_log if name == "laser" and not value]
+    assert seen and off, (list(cell.server.control_events), list(cell.robot.io_log))
+    return off[-1] - seen[-1]
+
+
+def test_call_setoutput_laser_on_leaves_the_laser_off_when_it_exits(cell: Cell) -> None:
+    """The probe of issue 29: `call setoutput laser on`, the CLI exits -> laser off, in the
+    same cycle the release was seen; power stays (a release is a handover) [RS-7.22]."""
+    proc = call(cell, "setoutput", "laser", "on")
+    _out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0, err
+    assert ("laser", True) in [(n, v) for _, n, v in cell.robot.io_log]
+    assert cell.robot.read_io("laser") == (False, True)
+    assert 0.0 <= _laser_off_after(cell, "released") <= cell.robot.period
+    assert cell.robot.status().powered
+    assert cell.server.statistics()["watchdog_expired"] == 0
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT])
+def test_a_controller_killed_or_interrupted_with_the_laser_on_leaves_it_off(
+    cell: Cell, sig: signal.Signals
+) -> None:
+    """kill -9 and Ctrl-C of a client that switched laser and gas on: off, laser first, in
+    the cycle the close was seen [RS-7.10] [RS-7.21]."""
+    with controller(cell, IDLE, "idle") as proc:
+        assert cell.robot.read_io("laser") == (True, True)
+        proc.send_signal(sig)
+        assert cell.wait_until(lambda: cell.server.control_free)
+        assert cell.robot.read_io("laser") == (False, True)
+        assert cell.robot.read_io("gas") == (False, True)
+        offs = [name for _, name, value in cell.robot.io_log if not value]
+        assert offs == ["laser", "gas"]
+        assert 0.0 <= _laser_off_after(cell, "lost: connection closed") <= cell.robot.period
+
+
+def test_emergency_stop_switches_the_outputs_off_laser_first(cell: Cell) -> None:
+    with controller(cell, IDLE, "idle"):
+        proc = call(cell, "EmergencyStop")
+        _out, err = proc.communicate(timeout=10)
+        assert proc.returncode == 0, err
+        assert [n for _, n, v in cell.robot.io_log if not v] == ["laser", "gas"]
+        st = cell.robot.status()
+        assert st.estop and not st.powered
+
+
+# --- [RS-5.50] a move that did not reach its target never reports done ----------------------
+
+
+def test_emergency_stop_during_call_jointmove_exits_non_zero_naming_the_stop(cell: Cell) -> None:
+    """The probe of issue 29: EmergencyStop from a second client during `call jointmove`; the
+    call printed done true, rc 0. Now: done false, outcome stopped, exit 1 naming it."""
+    proc = call(cell, "JointMove", FAR)
+    moving_under_control(cell)
+    stop = call(cell, "EmergencyStop")
+    _o, err = stop.communicate(timeout=10)
+    assert stop.returncode == 0, err
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 1, (out, err)
+    reply = json.loads(out)
+    assert reply["done"] is False
+    assert reply["outcome"] == "stopped" and reply["reason"] == "emergency stop"
+    assert err.strip() == "error: the move was stopped: emergency stop"
+
+
+def test_a_move_cut_short_by_reset_motion_is_stopped_and_one_that_ends_is_reached(
+    cell: Cell,
+) -> None:
+    with RobotClient(*cell.server.address, timeout=5.0) as robot:
+        robot.take_control()
+        robot.joint_move([150.0, 0.0, 90.0, 0.0, 90.0, 0.0])
+        assert cell.wait_until(cell.moving)
+        robot.reset_motion()
+        result = robot.wait_move(30.0)
+        assert (result.outcome.value, result.reason) == ("stopped", "ResetMotion")
+        assert not robot.status().moving  # it answered once the arm stood
+        q = cell.robot.herej()
+        q[0] += 1.0
+        robot.joint_move(list(q))
+        assert robot.wait_move(30.0).reached
+
+
+# --- [RS-7.13] a frozen controller at cruise, timed on the robot clock ----------------------
+
+CRUISE = textwrap.dedent(
+    """
+    import sys, time
+    from robotsocket.client import MotionDesc, RobotClient
+    robot = RobotClient(sys.argv[1], int(sys.argv[2]))
+    robot.take_control()  # the server's default lease
+    robot.set_motion_desc(MotionDesc(joint_speed=10.0))
+    robot.joint_move([150.0, 0.0, 90.0, 0.0, 90.0, 0.0])
+    robot.set_output("laser", True)
+    time.sleep(0.5)  # past the acceleration: at cruise
+    print("cruise", flush=True)
+    time.sleep(60)
+    """
+)
+
+
+def freeze_at_cruise(cell: Cell) -> tuple[float, float, float]:
+    """SIGSTOP a controller at cruise; (lease, laser off, arm stopped), the last two in robot
+    seconds after its last frame: its lost event's stamp, the I/O log and the joint log."""
+    with controller(cell, CRUISE, "cruise") as proc:
+        assert cell.moving()
+        proc.send_signal(signal.SIGSTOP)
+        assert cell.wait_until(lambda: cell.server.control_free and not cell.moving())
+    lost = [e for e in cell.server.control_events if e[2].startswith("lost: watchdog")]
+    assert len(lost) == 1, list(cell.server.control_events)
+    last_frame = lost[0][3]
+    off = [t for t, name, value in cell.robot.io_log if name == "laser" and not value]
+    times, joints = cell.robot.joint_log(last_frame - 1.0)
+    still = np.all(np.abs(np.diff(joints, axis=0)) < 1e-9, axis=1)
+    moving_rows = np.flatnonzero(~still)
+    stopped_at = float(times[moving_rows[-1] + 1])  # the first sample of the standing arm
+    return cell.server.policy.watchdog, off[0] - last_frame, stopped_at - last_frame
+
+
+def test_a_frozen_controller_at_cruise_loses_the_laser_and_the_arm_within_the_lease(
+    cell_default_lease: Cell,
+) -> None:
+    """The laser goes off one lease (plus the watchdog's wake-up) after the frozen
+    controller's last frame, the arm stands one deceleration later; both on the robot
+    clock. The issue's targets (0.3 s, 0.35 s) are measured by bench/bench_lease.py on a
+    quiet machine; here only the order and the bound by the lease are checked."""
+    lease, laser_off, stopped = freeze_at_cruise(cell_default_lease)
+    assert lease <= laser_off <= lease + 0.1, (lease, laser_off)
+    assert laser_off < stopped <= laser_off + 0.2, (laser_off, stopped)
+
+
+@pytest.fixture
+def cell_default_lease() -> Iterator[Cell]:
+    robot = RobotEmulator(clock="real").start()
+    server = FramedServer(RobotService(robot), "127.0.0.1", 0, ServerPolicy())
+    with server:
+        robot.enable_power()
+        yield Cell(robot, server)
+    robot.close()
+    assert server.handler_errors == []

@@ -181,16 +181,47 @@ def test_tool_moves_reach_their_location() -> None:
         robot.wait_end_move(0.0)
 
 
-def test_reset_motion_keeps_power() -> None:
+def test_a_lost_controller_stops_the_arm_then_its_power_goes_off() -> None:
+    """[RS-7.10] [RS-7.22] a stop of category 1: power stays while the arm decelerates and
+    goes off in the cycle it stands."""
     robot = powered()
     robot.joint_move(TARGET)
     robot.joint_move(np.array(HOME))
     robot.step(40)
     robot.on_control_lost()
+    robot.step(1)
+    assert robot.status().powered and robot.status().moving  # decelerating, powered
     assert robot.wait_end_move(10.0)
     st = robot.status()
-    assert st.powered and st.queue == 0
+    assert not st.powered and st.queue == 0
     assert not np.allclose(robot.herej(), TARGET)
+
+
+def test_a_new_controllers_power_on_during_the_stop_holds() -> None:
+    """[RS-7.22] EnablePower by the next controller while the lost one's arm still
+    decelerates cancels the pending power-off."""
+    robot = powered()
+    robot.joint_move(TARGET)
+    robot.step(40)
+    robot.on_control_lost()
+    robot.enable_power()
+    assert robot.wait_end_move(10.0)
+    assert robot.status().powered
+
+
+def test_a_release_switches_the_outputs_off_laser_first_and_the_move_goes_on() -> None:
+    """[RS-7.21] [RS-7.11] released: outputs off (laser first), queue and power kept."""
+    robot = powered()
+    robot.set_output("gas", True)
+    robot.set_output("laser", True)
+    robot.joint_move(TARGET)
+    robot.step(10)
+    robot.on_control_released()
+    assert [(n, v) for _, n, v in robot.io_log][-2:] == [("laser", False), ("gas", False)]
+    assert robot.wait_end_move(30.0)
+    st = robot.status()
+    assert st.powered
+    np.testing.assert_allclose(robot.herej(), TARGET)
 
 
 def test_real_time_clock_ticks_and_reports_jitter() -> None:
@@ -231,6 +262,19 @@ def test_io_log_records_every_output_change_on_the_robot_clock() -> None:
         (t2, "laser", False), (t2, "gas", False),  # control lost: laser first
         (t2, "crossjet", True), (t2, "crossjet", False),  # emergency stop
     ]  # fmt: skip
+
+
+def test_emergency_stop_switches_the_laser_off_first() -> None:
+    """[RS-7.21] laser before crossjet and gas."""
+    r = powered()
+    for name in ("crossjet", "gas", "laser"):
+        r.set_output(name, True)
+    r.emergency_stop()
+    assert [n for _, n, v in r.io_log if not v] == ["laser", "crossjet", "gas"]
+    assert r.read_io("laser") == (False, True)
+    r.set_output("gas", False)  # switching off is allowed under the emergency stop
+    with pytest.raises(EmergencyStopError):
+        r.set_output("gas", True)
 
 
 def test_readers_run_due_cycles_when_the_clock_thread_does_not() -> None:

@@ -3,6 +3,7 @@ real sockets on loopback."""
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -19,7 +20,7 @@ from robotsocket.client import RobotClient
 from robotsocket.emulator import HOME, RobotEmulator
 from robotsocket.rtprocess import ChildStartError, RealtimeProcess, RobotProcess
 from robotsocket.service import RobotService
-from spec.errors import ErrorCode, RemoteError
+from spec.errors import ErrorCode, ProtocolError, RemoteError
 from spec.params import FloatArray, Joints, Location, Value
 from spec.registry import CommandId
 from spec.server import FramedServer
@@ -247,3 +248,40 @@ def test_serve_with_a_bad_model_says_so_in_one_line() -> None:
     assert done.returncode == 2
     assert done.stderr.strip().splitlines()[-1].startswith("error: ")
     assert "Traceback" not in done.stderr
+
+
+def _call(endpoint: str, *args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "robotsocket", "call", endpoint, *args],
+        capture_output=True, text=True, timeout=30,
+    )  # fmt: skip
+
+
+def test_call_setoutput_laser_on_then_exit_leaves_the_laser_off_on_the_real_clock() -> None:
+    """The probe of issue 29 against `serve --clock real` (the real-time child): the laser
+    a `call` switched on is off once the call has released control [RS-7.21]."""
+    server = subprocess.Popen(
+        [sys.executable, "-m", "robotsocket", "serve", "--port", "0", "--udp-port", "off"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert server.stdout is not None
+    try:
+        endpoint = server.stdout.readline().split()[-1]
+        done = _call(endpoint, "setoutput", "laser", "on")
+        assert done.returncode == 0, done.stderr
+        read = _call(endpoint, "readio", "laser")
+        assert read.returncode == 0, read.stderr
+        assert json.loads(read.stdout)["value"] is False
+    finally:
+        server.send_signal(signal.SIGINT)
+        _, err = server.communicate(timeout=30)
+    assert "control released: laser off" in err
+
+
+def test_an_unknown_pipe_message_is_answered_not_left_to_time_out(child: RealtimeProcess) -> None:
+    """Every kind the child receives gets an answer: an unknown one an error, at once (the
+    caller's timeout here is 30 s; a missing answer would fail the test by its timeout)."""
+    with pytest.raises(ProtocolError) as err:
+        child._call("no-such-kind", timeout=30.0)
+    assert err.value.code is ErrorCode.INTERNAL_ERROR and "no-such-kind" in err.value.message
+    assert child._call("released", "robot") == ()  # the pipe still serves

@@ -17,6 +17,7 @@ from robotsocket.client import (
     BusyError,
     EmergencyStopError,
     MotionDesc,
+    MoveResult,
     NotInControlError,
     NotPoweredError,
     OutOfRangeError,
@@ -32,6 +33,7 @@ from spec.errors import ErrorCode
 from spec.params import Joints, Location
 from spec.registry import CommandId, commands_for
 from spec.server import FramedServer, ServerPolicy
+from spec.wire import MoveOutcome
 
 if TYPE_CHECKING:
     from tests.conftest import Serve
@@ -198,7 +200,7 @@ def test_stop_restart_and_reset(client: RobotClient, robot: RobotEmulator) -> No
     client.joint_move(HOME)
     robot.step(40)
     client.reset_motion()
-    assert client.wait_end_move(10.0)
+    assert client.wait_move(10.0) == MoveResult(MoveOutcome.STOPPED, "ResetMotion")
     assert client.status().queue == 0 and not np.allclose(client.herej(), HOME)
 
 
@@ -250,7 +252,11 @@ def test_controller_disconnect_during_a_move_stops_on_the_path() -> None:
                 time.sleep(0.02)
             st = watcher.status()
             q = watcher.herej()
-        assert not st.moving and st.queue == 0 and st.powered  # power stays as it was
+            while watcher.status().powered and time.monotonic() < deadline:
+                time.sleep(0.02)
+            powered = watcher.status().powered
+        assert not st.moving and st.queue == 0
+        assert not powered  # [RS-7.22] off once the arm stands
         frac = (q - np.array(HOME)) / (np.array(TARGET) - np.array(HOME))
         assert 0.0 < frac[0] < 1.0
         np.testing.assert_allclose(frac, frac[0], atol=1e-9)  # stopped on the joint line
@@ -287,16 +293,17 @@ def test_raw_frames_get_the_request_id_echoed(server: FramedServer) -> None:
 def test_long_simulated_wait_of_a_bystander_does_not_freeze_the_server(
     robot: RobotEmulator, server: FramedServer, client: RobotClient
 ) -> None:
-    """Sim clock, arm held by StopMove: another connection's WaitEndMove(600) advances 150 000
-    cycles; Herej from a third connection is answered meanwhile (the emulator's lock is
-    taken per slice of cycles), and the controller's EmergencyStop gets in."""
+    """Sim clock, a very slow move: another connection's WaitEndMove(600) advances the clock
+    cycle by cycle; Herej from a third connection is answered meanwhile (the emulator's lock
+    is taken per cycle), and the controller's EmergencyStop gets in and ends the wait as a
+    stopped move, not a done one [RS-5.50]."""
     client.take_control("s3cret")
     client.enable_power()
+    client.set_motion_desc(MotionDesc(joint_speed=0.1))
     client.joint_move([20.0, 0.0, 90.0, 0.0, 90.0, 0.0])
-    client.stop_move()
-    done: list[bool] = []
+    done: list[MoveResult] = []
     with RobotClient(*server.address, timeout=120.0) as bystander:
-        waiter = threading.Thread(target=lambda: done.append(bystander.wait_end_move(600.0)))
+        waiter = threading.Thread(target=lambda: done.append(bystander.wait_move(600.0)))
         waiter.start()
         with RobotClient(*server.address) as reader:
             answered = 0
@@ -307,7 +314,7 @@ def test_long_simulated_wait_of_a_bystander_does_not_freeze_the_server(
         client.emergency_stop()
         waiter.join(120.0)
     assert answered == 3 and alive_while_answering
-    assert done == [True]  # the e-stop ended the held move: settled
+    assert done == [MoveResult(MoveOutcome.STOPPED, "emergency stop")]
 
 
 def test_controller_keeps_its_lease_while_a_slow_simulated_wait_runs(

@@ -18,6 +18,7 @@ from spec.errors import ErrorCode, ProtocolError, RemoteError
 from spec.params import Joints, Value
 from spec.registry import CommandId, CommandSpec
 from spec.server import (
+    FRAME_ALLOWANCE_BYTES,
     FramedServer,
     Identity,
     ServerPolicy,
@@ -315,15 +316,35 @@ def test_a_frame_that_stops_half_way_times_out(server: FramedServer) -> None:
         assert c.ping() == b""
 
 
-def test_a_slow_frame_that_keeps_arriving_is_not_cut_off(server: FramedServer) -> None:
-    """[RS-7.5] the frame timeout (0.5 s here) runs between bytes, not over the frame."""
+def test_a_trickled_frame_times_out_from_its_first_byte(server: FramedServer) -> None:
+    """[RS-7.5] the frame timeout (0.5 s here) runs from the frame's first byte: bytes that
+    keep trickling in (slowloris) do not hold the connection open."""
     frame = encode_packet(request(CommandId.HEREJ, 7))
     with raw_conn(server) as s:
         for i in range(0, len(frame), 4):  # 6 pieces, 0.15 s apart: 0.75 s in all
-            s.sendall(frame[i : i + 4])
+            try:
+                s.sendall(frame[i : i + 4])
+            except OSError:
+                break  # closed by the server after its TIMEOUT
             time.sleep(0.15)
-        (reply,) = read_packets(s, 1)
-    assert reply.kind is PacketKind.REPLY and reply.request_id == 7
+        (err,) = read_packets(s, 1)
+    assert err.error is not None and err.error[0] == ErrorCode.TIMEOUT
+    assert "not finished" in err.error[1]
+
+
+def test_a_large_frame_gets_time_for_its_size() -> None:
+    """[RS-7.5] the allowance: 1 s more for every 64 KiB of the frame received."""
+    server = FramedServer(EchoRobot(), "127.0.0.1", 0, ServerPolicy(frame_timeout=5.0))
+    try:
+        decoder = FrameDecoder(max_payload=1 << 24)
+        frame = encode_packet(request(CommandId.PING, 1, b"x" * 200_000))
+        decoder.feed(frame[: 3 * FRAME_ALLOWANCE_BYTES])
+        session = Session(server, socket.socket(), ("127.0.0.1", 1))
+        deadline, why = server._deadline(session, decoder, 100.0, 100.0)
+        session.sock.close()
+    finally:
+        server.shutdown()
+    assert deadline == pytest.approx(100.0 + 5.0 + 3.0) and why
 
 
 def test_idle_timeout_closes_a_silent_connection_not_a_busy_one(serve: Serve) -> None:
@@ -814,3 +835,30 @@ def test_sendmsg_all_sends_every_byte_once_in_order(parts: list[bytes], limit: i
     assert sock.out == b"".join(parts)
     if size <= limit:
         assert sock.calls == 1
+
+
+def test_200_slowloris_connections_from_one_host_leave_room_for_another(serve: Serve) -> None:
+    """[RS-7.24] 200 connections from 127.0.0.2 trickling header bytes: at most
+    max_per_address of them are served, the rest get BUSY (EmergencyStop only); 127.0.0.1
+    still gets Herej answered, on a server with the default limits."""
+    server = serve(EchoRobot(), ServerPolicy())
+    policy = server.policy
+    flood: list[socket.socket] = []
+    try:
+        for _ in range(200):
+            s = socket.socket()
+            s.settimeout(5.0)
+            s.bind(("127.0.0.2", 0))
+            s.connect(server.address)
+            s.sendall(b"R")  # the first byte of a frame that never finishes
+            flood.append(s)
+        deadline = time.monotonic() + 10.0
+        while server.statistics()["refused_per_address"] < 200 - policy.per_address:
+            assert time.monotonic() < deadline, server.statistics()
+            time.sleep(0.01)
+        assert server.statistics()["clients"] <= policy.per_address
+        with FramedClient(*server.address, timeout=5.0) as c:
+            assert c.call(CommandId.HEREJ) == (Joints([1, 2, 3, 4, 5, 6]),)
+    finally:
+        for s in flood:
+            s.close()

@@ -9,6 +9,7 @@ from conformance.cases import (  # noqa: F401  (imported for their registrations
     control,
     framing,
     negotiation,
+    outputs,
     precedence,
     robot,
     robustness,

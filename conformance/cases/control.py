@@ -295,3 +295,60 @@ def watchdog(ctx: Context) -> str:
         )
     conn.call(C.RELEASE_CONTROL)
     return f"lease {period:g} s kept by Pings, lost after silence"
+
+
+@case(
+    "connections.per_address_limit",
+    requirements=["RS-7.24"],
+    tags=["concurrency", "limits", "security"],
+    profiles=("full",),
+    budget=30.0,
+    order=66,
+)
+def per_address_limit(ctx: Context) -> str:
+    """max_clients + 8 connections from 127.0.0.2, each stopped after the first byte of a
+    frame, leave a connection from 127.0.0.1 served (an endpoint on loopback only)."""
+    import ipaddress
+    import socket
+
+    try:
+        loopback = ipaddress.ip_address(ctx.host).is_loopback
+    except ValueError:
+        loopback = ctx.host == "localhost"
+    if not loopback:
+        raise NotApplicable("needs a second source address: runs against a loopback endpoint")
+    limit = int(ctx.hello.number("max_clients", 0)) if ctx.hello else 0
+    if not 1 <= limit <= 256:
+        raise Skip(f"max_clients {limit} is not in 1..256; not tried")
+    flood: list[socket.socket] = []
+    try:
+        for _ in range(limit + 8):
+            s = socket.socket()
+            s.settimeout(ctx.timeout)
+            try:
+                s.bind(("127.0.0.2", 0))
+                s.connect((ctx.host if ctx.host != "localhost" else "127.0.0.1", ctx.port))
+                s.sendall(b"R")
+            except OSError as exc:
+                s.close()
+                if not flood:
+                    raise NotApplicable(f"cannot connect from 127.0.0.2: {exc}") from None
+                break
+            flood.append(s)
+        time.sleep(0.2)  # the endpoint accepts them
+        try:
+            conn = ctx.connect()
+            answer = conn.call(C.PING, b"fair")
+        except Closed:
+            answer = None
+        if answer is None or answer.error is not None:
+            why = "closed" if answer is None else answer.error
+            raise Fail(
+                f"{len(flood)} stalled connections from 127.0.0.2 locked out 127.0.0.1",
+                "Ping answered",
+                why,
+            )
+    finally:
+        for s in flood:
+            s.close()
+    return f"{len(flood)} connections from 127.0.0.2; 127.0.0.1 still served"

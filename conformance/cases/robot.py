@@ -375,6 +375,39 @@ def motion_estop(ctx: Context) -> None:
 
 
 @case(
+    "robot.motion.stopped_is_not_done",
+    requirements=["RS-5.50", "RS-5.22"],
+    tags=["robot", "motion", "control"],
+    service="robot",
+    motion=True,
+    commands=[*MOTION, C.RESET_MOTION, C.ROBOT_STATUS],
+)
+def motion_stopped_is_not_done(ctx: Context) -> str:
+    """A move cut short by ResetMotion: WaitEndMove says done false, outcome stopped, with a
+    reason; the same move run to its end says done true, outcome reached."""
+    with _Motion(ctx) as m:
+        conn = m.conn
+        m.power()
+        start = _joints(conn)
+        target = list(start)
+        target[0] += STEP_DEG
+        conn.ok(C.JOINT_MOVE, Joints(target))
+        time.sleep(0.05)
+        conn.ok(C.RESET_MOTION)
+        reply = conn.ok(C.WAIT_END_MOVE, 10.0, timeout=15.0)
+        if len(reply) < 3:
+            raise Fail("WaitEndMove has no outcome (a 1.2 reply)", "done, outcome, reason", reply)
+        if reply[0] is not False or reply[1] != "stopped" or not reply[2]:
+            raise Fail("a move cut short by ResetMotion", "(False, 'stopped', reason)", reply)
+        stopped = reply
+        conn.ok(C.JOINT_MOVE, Joints(start))
+        reply = conn.ok(C.WAIT_END_MOVE, 10.0, timeout=15.0)
+        if tuple(reply[:3]) != (True, "reached", ""):
+            raise Fail("a move that reached its target", "(True, 'reached', '')", reply)
+    return f"ResetMotion: {stopped!r}; run to its end: {reply!r}"
+
+
+@case(
     "robot.motion.out_of_range",
     requirements=["RS-5.14"],
     tags=["robot", "motion", "limits"],
@@ -469,7 +502,7 @@ def motion_queued(ctx: Context) -> str:
 
 @case(
     "robot.motion.control_lost",
-    requirements=["RS-7.10"],
+    requirements=["RS-7.10", "RS-7.22"],
     tags=["robot", "motion", "control"],
     service="robot",
     motion=True,
@@ -478,13 +511,16 @@ def motion_queued(ctx: Context) -> str:
 )
 def motion_control_lost(ctx: Context) -> str:
     """When the controlling connection closes mid-move the arm stops, the queue empties and
-    power stays on."""
+    then arm power goes off (a stop of category 1)."""
     lost = _lose_controller_mid_move(ctx, wait_pending=False, requirement="RS-7.10")
-    if not lost.status.get("powered"):
+    if lost.powered_after_stop:
         raise Fail(
-            "power changed when control was lost", "powered", lost.status, requirement="RS-7.10"
+            "arm power stayed on after a lost controller's stop",
+            "power off once the arm stands",
+            lost.status,
+            requirement="RS-7.22",
         )
-    return "stopped and emptied the queue; power stayed on"
+    return "stopped and emptied the queue; then power went off"
 
 
 @dataclass
@@ -492,6 +528,8 @@ class _Lost:
     status: dict[str, Value]
     stopped_after_s: float
     ran_to_the_end: bool
+    #: Power still on a second after the arm stood [RS-7.22].
+    powered_after_stop: bool
 
 
 def _lose_controller_mid_move(ctx: Context, *, wait_pending: bool, requirement: str) -> _Lost:
@@ -527,12 +565,18 @@ def _lose_controller_mid_move(ctx: Context, *, wait_pending: bool, requirement: 
         )
     stopped_after = time.monotonic() - closed
     ran_to_the_end = abs(_joints(watcher)[0] - start[0]) < 0.05
+    stood = time.monotonic()
+    powered = bool(status.get("powered"))
+    while powered and time.monotonic() < stood + 1.0:
+        time.sleep(0.01)
+        powered = bool(_status(watcher).get("powered"))
     # Bring joint 1 back to where it started.
     ctx.take_control(watcher)
+    watcher.ok(C.ENABLE_POWER)
     watcher.ok(C.JOINT_MOVE, Joints(start))
     _wait_still(watcher, 30.0)
     watcher.call(C.RELEASE_CONTROL)
-    return _Lost(status, stopped_after, ran_to_the_end)
+    return _Lost(status, stopped_after, ran_to_the_end, powered)
 
 
 @case(
