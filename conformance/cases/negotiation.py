@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 from conformance.cases._util import raw_frame
-from conformance.context import HELLO_FIELDS, Context
-from conformance.model import Fail, Informational, case
+from conformance.context import HELLO_FIELDS, PING_PATIENCE, Context
+from conformance.model import EndpointTimeout, Fail, Informational, case
 from spec import wire
 from spec.codec import Packet
 from spec.errors import ErrorCode
@@ -12,6 +12,37 @@ from spec.registry import CommandId as C
 from spec.registry import commands_for
 
 SMOKE = ("smoke", "core", "full")
+
+
+@case(
+    "negotiation.ping.liveness",
+    requirements=["RS-5.8"],
+    tags=["negotiation", "liveness"],
+    profiles=("smoke", "core", "full", "robustness"),
+    commands=[C.PING],
+    order=5,
+    budget=15.0,  # Ping gets PING_PATIENCE reply times, then Hello one
+)
+def ping_liveness(ctx: Context) -> str:
+    """A new connection's Ping is echoed: the harness's liveness probe (see the summary's
+    "liveness probe" line). An endpoint that answers Hello but not Ping breaks RS-5.8 here,
+    once; the runner then probes with Hello so the other cases are judged on their own."""
+    payload = b"conformance-liveness"
+    conn = ctx.connect()
+    try:
+        echoed = conn.ok(C.PING, payload, timeout=ctx.timeout * PING_PATIENCE)[:1]
+    except EndpointTimeout:
+        other = ctx.connect()
+        other.ok(C.HELLO, 1, 0, "conformance")  # a timeout here too: the endpoint hangs
+        raise Fail(
+            "Ping is not answered although Hello is",
+            "Ping's reply echoing its bytes",
+            f"no answer within {ctx.timeout * PING_PATIENCE:g} s",
+            requirement="RS-5.8",
+        ) from None
+    if echoed != (payload,):
+        raise Fail("Ping does not echo its bytes", (payload,), echoed, requirement="RS-5.8")
+    return "Ping echoed on a new connection"
 
 
 @case(
