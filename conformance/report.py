@@ -99,6 +99,7 @@ def to_json(run: RunResult, strict: bool = False) -> dict[str, Any]:
         "negotiation_error": run.negotiation_error,
         "refused": run.refused,
         "liveness": run.liveness,
+        "profiles": dict(zip(("claimed", "not_covered"), run.scope(), strict=True)),
         "profile": run.profile,
         "options": {
             "allow_motion": run.options.allow_motion,
@@ -252,6 +253,8 @@ def terminal(run: RunResult, strict: bool = False, verbose: bool = False) -> str
         )
     if run.liveness:
         out.append(run.liveness)
+    if run.scope_line():
+        out.append(run.scope_line())
     if not run.reachable:
         out.append(f"ENDPOINT UNREACHABLE: {run.negotiation_error}")
     elif run.refused:

@@ -39,7 +39,7 @@ from conformance.model import (
 from spec import wire
 from spec.datagrams import Trigger, encode_trigger
 from spec.errors import ErrorCode
-from spec.registry import BY_ID, CommandId
+from spec.registry import BY_ID, CommandId, profiles_for
 from spec.wire import PacketKind
 
 log = logging.getLogger(__name__)
@@ -100,6 +100,28 @@ class RunResult:
     refused: str = ""
     #: The one line saying which request tells "stopped answering" from "refused".
     liveness: str = ""
+
+    def scope(self) -> tuple[list[str], list[str]]:
+        """(profiles claimed, profiles not covered): a profile is claimed when every one of
+        its commands is offered (Hello's list minus --capabilities' not_offered)."""
+        if self.service not in ("robot", "sensor") or not self.reachable or self.refused:
+            return [], []
+        ctx = Context(self.service, "", 0, self.options, self.hello, Shared())
+        offered = ctx.advertised
+        claimed: list[str] = []
+        missing: list[str] = []
+        for profile in profiles_for(self.service):
+            (claimed if set(profile.commands) <= offered else missing).append(profile.name)
+        return claimed, missing
+
+    def scope_line(self) -> str:
+        claimed, missing = self.scope()
+        if not claimed and not missing:
+            return ""
+        text = "scope: profiles claimed " + (", ".join(claimed) or "none")
+        if missing:
+            text += f"; not covered (not offered): {', '.join(missing)}"
+        return text
 
 
 def negotiate(
@@ -485,6 +507,8 @@ EXIT_SHOULD_FAILED = 2
 EXIT_USAGE = 3
 EXIT_UNREACHABLE = 4
 EXIT_NOTHING_SELECTED = 5
+#: Conformant to the profiles it claims, not to all of 1.x (the lead's exit-code table: SUBSET).
+EXIT_SUBSET = 6
 
 
 def exit_code(run_result: RunResult, strict: bool = False) -> int:
@@ -508,4 +532,6 @@ def exit_code(run_result: RunResult, strict: bool = False) -> int:
         return EXIT_USAGE
     if strict and any(r.outcome is Outcome.NON_STRICT for r in fresh):
         return EXIT_SHOULD_FAILED
+    if run_result.scope()[1]:
+        return EXIT_SUBSET
     return EXIT_CONFORMANT

@@ -26,7 +26,7 @@ from hypothesis import strategies as st
 
 from conformance.context import Options
 from conformance.model import Outcome
-from conformance.runner import RunResult, Selection, exit_code, run
+from conformance.runner import EXIT_SUBSET, RunResult, Selection, exit_code, run
 from kinematics.transforms import concat, invert, location_to_transform, transform_to_location
 from spec import wire
 from spec.auth import AuthBackoff
@@ -265,7 +265,8 @@ def test_minimal_robot_scores_100_percent() -> None:
     with serving(FramedServer(MiniRobot(), policy=POLICY)) as address:
         result = check("robot", address, profile="full")
     assert problems(result) == {}
-    assert exit_code(result) == 0
+    assert exit_code(result) == EXIT_SUBSET  # conformant to the profiles it claims only
+    assert result.scope() == (["core", "crc-off"], ["motion", "cartesian", "alter", "sync"])
     got = outcomes(result)
     assert got["robot.here.frames"] is Outcome.PASS
     assert got["commands.robot.JointMove.reply"] is Outcome.NOT_APPLICABLE  # not offered
@@ -1128,10 +1129,11 @@ def test_capability_file_makes_cases_not_applicable(tmp_path: Any) -> None:
                 "-q",
             ]
         )
-    assert code == 0
+    assert code == EXIT_SUBSET  # GetImage not offered: the sensor core profile not covered
     data = json.loads(out.read_text())
     assert {c["outcome"] for c in data["cases"]} == {"not-applicable"}
     assert len(data["cases"]) == 5
+    assert data["profiles"] == {"claimed": ["sync", "crc-off"], "not_covered": ["core"]}
 
 
 def test_silent_udp_endpoint_gives_timeouts_not_fails() -> None:
@@ -1191,7 +1193,8 @@ def test_refused_precondition_blocks_the_case_instead_of_failing_it() -> None:
     assert "Here was refused" in blocked.message and "NOT_SUPPORTED" in blocked.message
     assert blocked.details["precondition"] == "correct arguments for ToolMoveJ"
     assert got["commands.robot.ToolMoveJ.reply"].outcome is Outcome.BLOCKED
-    assert exit_code(result) == 0  # Here's own rule is judged by Here's own cases
+    # Here's own rule is judged by Here's own cases; the robot claims a subset of 1.x
+    assert exit_code(result) == EXIT_SUBSET
 
 
 def test_answers_are_matched_by_command_and_fresh_request_id() -> None:
@@ -1286,3 +1289,38 @@ def test_no_outcome_depends_on_a_request_another_case_left_unanswered(
     assert alone["commands.robot.GetJointLimits.reply"] is Outcome.TIMEOUT
     assert alone["commands.robot.GetStatus.reply"] is Outcome.PASS
     assert outcomes_in(order) == alone
+
+
+class CoreOnlyRobot(MiniRobot):
+    """Claims the core profile only (no Here): a robot without kinematics or motion."""
+
+    COMMANDS = tuple(c for c in MiniRobot.COMMANDS if c != C.HERE)
+
+
+class SyncRobot(MiniRobot):
+    """Claims core and sync (answers the sync commands' shapes, no UDP behind them)."""
+
+    COMMANDS = (*MiniRobot.COMMANDS, *(C(c) for c in range(0x3001, 0x300A)))
+
+
+@pytest.mark.parametrize(
+    ("service", "claimed", "not_covered"),
+    [
+        (CoreOnlyRobot, ["core", "crc-off"], ["motion", "cartesian", "alter", "sync"]),
+        (SyncRobot, ["core", "sync", "crc-off"], ["motion", "cartesian", "alter"]),
+    ],
+)
+def test_summary_states_the_verdict_with_its_scope(
+    service: type[MiniRobot], claimed: list[str], not_covered: list[str]
+) -> None:
+    """A robot offering a subset of the profiles passes what it claims with the SUBSET exit
+    code, and the summary names what was not covered."""
+    from conformance.report import terminal
+
+    with serving(FramedServer(service(), policy=POLICY)) as address:
+        result = check("robot", address, ("negotiation.hello.*", "commands.robot.Herej.*"))
+    assert problems(result) == {}
+    assert result.scope() == (claimed, not_covered)
+    text = terminal(result)
+    assert f"not covered (not offered): {', '.join(not_covered)}" in text
+    assert exit_code(result) == EXIT_SUBSET
