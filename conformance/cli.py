@@ -11,6 +11,7 @@ code  meaning
 3     usage error or harness fault (a case crashed inside the harness; bad option or file)
 4     endpoint unreachable, silent at Hello or not a frame, or it stopped answering
 5     nothing selected (no case matches the profile, globs and tags)
+6     conformant to the capability profiles the endpoint claims, not to all of 1.x
 ====  =====================================================================================
 """
 
@@ -49,7 +50,8 @@ from spec import cliargs
 from spec.registry import BY_ID, COMMANDS
 
 EPILOG = """exit codes: 0 conformant; 1 a MUST failed; 2 only SHOULD failures (with --strict);
-3 usage or harness error; 4 endpoint unreachable or stopped answering; 5 nothing selected.
+3 usage or harness error; 4 endpoint unreachable or stopped answering; 5 nothing selected;
+6 conformant to the capability profiles claimed only (the summary's scope: line).
 Without HOST:PORT the reference server of the service is started in-process."""
 
 
