@@ -38,7 +38,8 @@ from spec.registry import BY_ID, COMMANDS
 
 EPILOG = """exit codes: 0 conformant; 1 a MUST failed; 2 usage error; 3 endpoint unreachable or
 stopped answering; 4 harness fault (no verdict); 5 only SHOULD failures (with --strict);
-7 nothing selected.
+6 conformant to the capability profiles claimed only (the summary's scope: line); 7 nothing
+selected.
 Without HOST:PORT the reference server of the service is started in-process."""
 
 

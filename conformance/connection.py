@@ -79,6 +79,9 @@ class Conn:
         #: Control lease (s) the endpoint granted this connection, None when it has none.
         self.lease: float | None = None
         self._next_id = 1
+        #: Requests sent on this connection and not answered yet: request ID -> command ID.
+        #: A late answer to one of them is never taken for the answer to a later request.
+        self.pending: dict[int, int] = {}
         #: Set by the context: True when the endpoint still answers on a new connection.
         self.alive: Callable[[], bool] | None = None
 
@@ -104,16 +107,41 @@ class Conn:
             time.sleep(0.0005)
 
     def next_request_id(self) -> int:
+        """A request ID not used before on this connection [RS-3.13] (IDs 1..2^32-1)."""
         rid = self._next_id
         self._next_id = rid % 0xFFFFFFFF + 1
         return rid
 
     def request(self, command: int, *params: Value, request_id: int | None = None) -> int:
-        """Send one request frame; return its request ID."""
-        rid = self.next_request_id() if request_id is None else request_id
+        """Send one request frame; return its request ID. An explicit ``request_id`` (a case
+        that tests ID handling) moves the counter past it, so later requests stay fresh."""
+        if request_id is None:
+            rid = self.next_request_id()
+        else:
+            rid = request_id
+            if rid >= self._next_id:
+                self._next_id = rid % 0xFFFFFFFF + 1
         name = BY_ID[command].name if command in BY_ID else f"0x{command:04x}"
         self.send(encode_packet(request(command, rid, *params)), f"request {name} id {rid}")
+        self.pending[rid] = command
         return rid
+
+    def answer_to(self, command: int, request_id: int, timeout: float | None = None) -> Packet:
+        """The answer to the request (``command``, ``request_id``) [RS-3.4]: answers to this
+        connection's earlier, still unanswered requests are passed over (logged), anything
+        else that does not echo both IDs is a Fail of RS-3.4."""
+        deadline = time.monotonic() + (self.timeout if timeout is None else timeout)
+        while True:
+            answer = self._recv(max(deadline - time.monotonic(), 0.0))
+            if answer.request_id == request_id and answer.command == command:
+                self.pending.pop(request_id, None)
+                return answer
+            earlier = self.pending.get(answer.request_id)
+            if answer.request_id != request_id and earlier == answer.command:
+                del self.pending[answer.request_id]
+                self.log.add("--", self.number, b"", f"late answer to id {answer.request_id}")
+                continue
+            check_echo(answer, command, request_id)
 
     def _fill(self, deadline: float) -> None:
         """Read once from the socket; raise EndpointTimeout at the deadline, Closed on EOF."""
@@ -141,6 +169,12 @@ class Conn:
 
     def recv_packet(self, timeout: float | None = None) -> Packet:
         """The next reply or error frame (event frames are counted and skipped [RS-3.14])."""
+        packet = self._recv(timeout)
+        if self.pending.get(packet.request_id) == packet.command:
+            del self.pending[packet.request_id]
+        return packet
+
+    def _recv(self, timeout: float | None) -> Packet:
         deadline = time.monotonic() + (self.timeout if timeout is None else timeout)
         while True:
             try:
@@ -190,7 +224,7 @@ class Conn:
         """Send a request and return its answer (reply or error), checking the echo [RS-3.4]."""
         rid = self.request(command, *params)
         try:
-            answer = self.recv_packet(timeout)
+            answer = self.answer_to(command, rid, timeout)
         except Closed as exc:
             name = BY_ID[command].name if command in BY_ID else f"0x{command:04x}"
             if self.alive is not None and self.alive():
@@ -204,7 +238,6 @@ class Conn:
             raise EndpointGone(
                 f"the endpoint closed the connection instead of answering: {exc}"
             ) from None
-        check_echo(answer, command, rid)
         return answer
 
     def ok(self, command: int, *params: Value, timeout: float | None = None) -> tuple[Value, ...]:

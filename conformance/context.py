@@ -6,11 +6,14 @@ import secrets
 import socket
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
 from conformance.connection import Closed, Conn, UdpConn, WireLog
 from conformance.model import (
+    Blocked,
     EndpointGone,
     EndpointTimeout,
     Fail,
@@ -85,6 +88,9 @@ class Shared:
     # second run of the suite for duplicates of the first.
     next_index: int = field(default_factory=lambda: secrets.randbelow(1 << 30))
     lock: threading.Lock = field(default_factory=threading.Lock)
+    #: The request that tells "stopped answering" from "refused" (see runner.LIVENESS):
+    #: Ping, or Hello when the endpoint does not answer Ping (reported once, as RS-5.8).
+    probe_command: int = CommandId.PING
 
     def take_indices(self, n: int) -> int:
         """``n`` fresh trigger indices, never used before in this run."""
@@ -145,6 +151,17 @@ class Context:
             names = ", ".join(BY_ID[c].name if c in BY_ID else f"0x{c:04x}" for c in missing)
             raise NotApplicable(f"the endpoint does not offer {names}")
 
+    @contextmanager
+    def precondition(self, what: str) -> Iterator[None]:
+        """Requests a case needs before the one it judges: a Fail in them ends the case as
+        BLOCKED with ``what`` named, never as a failure of the case's own rule."""
+        try:
+            yield
+        except Fail as exc:
+            req = f" [{exc.requirement}]" if exc.requirement else ""
+            got = f": {exc.actual}" if exc.actual not in (None, "") else ""
+            raise Blocked(what, f"{exc.message}{req}{got}") from None
+
     def require_motion(self, what: str) -> None:
         if not self.options.allow_motion:
             raise Skip(f"{what}: moves the robot or switches an output; needs --allow-motion")
@@ -198,29 +215,28 @@ class Context:
         conn.lease = granted if isinstance(granted, float) else None
 
     def alive(self) -> bool:
-        """True when a new connection's Ping is echoed (quietly; not part of the wire log)."""
+        """True when a new connection answers the liveness probe (quietly; not logged)."""
         try:
             with socket.create_connection((self.host, self.port), timeout=self.timeout) as sock:
-                conn = Conn(sock, WireLog(), 0, self.timeout)
-                return conn.ok(CommandId.PING, b"alive")[:1] == (b"alive",)
+                return probe_answered(Conn(sock, WireLog(), 0, self.timeout), self.shared)
         except Exception:
             return False
 
     def probe(self) -> None:
-        """Liveness probe: a new connection answers Ping [RS-7.9]; raise Fail otherwise."""
-        payload = b"conformance-liveness"
+        """Liveness probe: a new connection answers it [RS-7.9]; raise Fail otherwise."""
         deadline = time.monotonic() + self.timeout * 2
         last = ""
+        name = BY_ID[self.shared.probe_command].name
         # The endpoint may still be closing the previous connection: retry briefly.
         while time.monotonic() < deadline:
             try:
                 conn = self.connect()
                 try:
-                    reply = conn.ok(CommandId.PING, payload)
+                    answered = probe_answered(conn, self.shared)
                 finally:
                     conn.close()
-                if reply[:1] != (payload,):
-                    last = f"Ping echoed {reply[:1]!r}"
+                if not answered:
+                    last = f"{name} was not answered as its table says"
                     break
                 return
             except (EndpointGone, Closed) as exc:
@@ -231,7 +247,7 @@ class Context:
                 break
         raise Fail(
             "the endpoint no longer answers after the input (liveness probe)",
-            "a new connection whose Ping is echoed",
+            f"a new connection that answers {name}",
             last,
             requirement="RS-7.9",
         )
@@ -246,3 +262,20 @@ class Context:
             conns = list(self._conns)
         for c in conns:
             c.close()
+
+
+PROBE_PAYLOAD = b"conformance-liveness"
+
+
+#: How many reply times a Ping may take before it counts as not answered at all (a slow
+#: endpoint is slow, not broken: its cases time out, Ping is not blamed).
+PING_PATIENCE = 5.0
+
+
+def probe_answered(conn: Conn, shared: Shared, timeout: float | None = None) -> bool:
+    """One liveness probe on ``conn``: Ping echoed [RS-5.8], or (fallback) Hello answered."""
+    if shared.probe_command == CommandId.PING:
+        echoed = conn.ok(CommandId.PING, PROBE_PAYLOAD, timeout=timeout)[:1]
+        return echoed == (PROBE_PAYLOAD,)
+    conn.ok(CommandId.HELLO, 1, 0, "conformance")
+    return True

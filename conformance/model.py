@@ -27,6 +27,7 @@ class Outcome(StrEnum):
     NON_STRICT = "non-strict"  # a SHOULD rule is broken
     INFORMATIONAL = "informational"  # an observation, no verdict
     NOT_APPLICABLE = "not-applicable"  # capability not offered (negotiation or capability file)
+    BLOCKED = "blocked"  # a precondition failed before the case's own rule could be tried
     SKIPPED = "skipped"  # not run: motion not allowed, budget too small, endpoint gone
     ERROR = "error"  # endpoint unreachable or harness fault; never a fail
     TIMEOUT = "timeout"  # the endpoint did not answer within the case's time
@@ -56,6 +57,17 @@ class Fail(CaseSignal):
 
 class NotApplicable(CaseSignal):
     """The endpoint does not offer the capability the case needs."""
+
+
+class Blocked(CaseSignal):
+    """A precondition of the case failed (a request it needs before the one it judges), so
+    the case's own rule was never tried: not a verdict on that rule. The precondition's own
+    rule is judged by its own case."""
+
+    def __init__(self, precondition: str, why: str) -> None:
+        super().__init__(f"blocked: precondition {precondition} failed ({why})")
+        self.precondition = precondition
+        self.why = why
 
 
 class Skip(CaseSignal):

@@ -98,6 +98,8 @@ def to_json(run: RunResult, strict: bool = False) -> dict[str, Any]:
         "reachable": run.reachable,
         "negotiation_error": run.negotiation_error,
         "refused": run.refused,
+        "liveness": run.liveness,
+        "profiles": dict(zip(("claimed", "not_covered"), run.scope(), strict=True)),
         "profile": run.profile,
         "options": {
             "allow_motion": run.options.allow_motion,
@@ -150,7 +152,7 @@ def to_junit(run: RunResult, strict: bool = False) -> str:
                 el = ET.SubElement(tc, "error", message=r.message, type=r.outcome.value)
                 el.text = text
                 c["errors"] += 1
-            elif r.outcome in (Outcome.NOT_APPLICABLE, Outcome.SKIPPED):
+            elif r.outcome in (Outcome.NOT_APPLICABLE, Outcome.SKIPPED, Outcome.BLOCKED):
                 ET.SubElement(tc, "skipped", message=f"{r.outcome.value}: {r.message}")
                 c["skipped"] += 1
             elif r.message or r.outcome is Outcome.NON_STRICT:
@@ -249,6 +251,10 @@ def terminal(run: RunResult, strict: bool = False, verbose: bool = False) -> str
             f"endpoint: {h.text('vendor')} {h.text('model')} serial {h.text('serial')}"
             f" software {h.text('software')} protocol {h.text('version')}"
         )
+    if run.liveness:
+        out.append(run.liveness)
+    if run.scope_line():
+        out.append(run.scope_line())
     if not run.reachable:
         out.append(f"ENDPOINT UNREACHABLE: {run.negotiation_error}")
     elif run.refused:
@@ -265,7 +271,8 @@ def terminal(run: RunResult, strict: bool = False, verbose: bool = False) -> str
         out.append(f"  {section:<12} {len(results):4d} cases: {text}")
     out.append("")
     for r in run.results:
-        if verbose or (r.is_problem and not r.known_failure) or r.unexpected_pass:
+        shown = (r.is_problem and not r.known_failure) or r.outcome is Outcome.BLOCKED
+        if verbose or shown or r.unexpected_pass:
             flag = " (unexpected pass)" if r.unexpected_pass else ""
             reqs = ", ".join(r.case.requirements)
             out.append(f"{r.outcome.value.upper():<14} {r.case.id} [{reqs}]{flag}")

@@ -14,8 +14,17 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from conformance.connection import Closed, WireLog
-from conformance.context import HELLO_FIELDS, Context, Hello, Options, Shared
+from conformance.context import (
+    HELLO_FIELDS,
+    PING_PATIENCE,
+    Context,
+    Hello,
+    Options,
+    Shared,
+    probe_answered,
+)
 from conformance.model import (
+    Blocked,
     Case,
     CaseResult,
     EndpointGone,
@@ -31,9 +40,13 @@ from spec import wire
 from spec.datagrams import Trigger, encode_trigger
 from spec.errors import ErrorCode
 from spec.exitcodes import ExitCode
-from spec.registry import CommandId
+from spec.registry import BY_ID, CommandId, profiles_for
+from spec.wire import PacketKind
 
 log = logging.getLogger(__name__)
+
+#: The case that judges Ping once when the runner has to fall back to Hello as its probe.
+PING_CASE = "negotiation.ping.liveness"
 
 
 @dataclass
@@ -86,6 +99,30 @@ class RunResult:
     #: Why nothing was run although the endpoint answers: the user's mistake, not the
     #: endpoint's (a control token missing, a TCP port given for the UDP profile).
     refused: str = ""
+    #: The one line saying which request tells "stopped answering" from "refused".
+    liveness: str = ""
+
+    def scope(self) -> tuple[list[str], list[str]]:
+        """(profiles claimed, profiles not covered): a profile is claimed when every one of
+        its commands is offered (Hello's list minus --capabilities' not_offered)."""
+        if self.service not in ("robot", "sensor") or not self.reachable or self.refused:
+            return [], []
+        ctx = Context(self.service, "", 0, self.options, self.hello, Shared())
+        offered = ctx.advertised
+        claimed: list[str] = []
+        missing: list[str] = []
+        for profile in profiles_for(self.service):
+            (claimed if set(profile.commands) <= offered else missing).append(profile.name)
+        return claimed, missing
+
+    def scope_line(self) -> str:
+        claimed, missing = self.scope()
+        if not claimed and not missing:
+            return ""
+        text = "scope: profiles claimed " + (", ".join(claimed) or "none")
+        if missing:
+            text += f"; not covered (not offered): {', '.join(missing)}"
+        return text
 
 
 def negotiate(
@@ -286,6 +323,9 @@ def run_case(case: Case, ctx: Context) -> CaseResult:
         result.actual = exc.actual
     elif isinstance(exc, NotApplicable):
         result.outcome, result.message = Outcome.NOT_APPLICABLE, str(exc)
+    elif isinstance(exc, Blocked):
+        result.outcome, result.message = Outcome.BLOCKED, str(exc)
+        result.details["precondition"] = exc.precondition
     elif isinstance(exc, Skip):
         result.outcome, result.message = Outcome.SKIPPED, str(exc)
     elif isinstance(exc, Informational):
@@ -311,13 +351,56 @@ def run_case(case: Case, ctx: Context) -> CaseResult:
     return result
 
 
-def alive(host: str, port: int, options: Options) -> tuple[Outcome, str]:
-    """(PASS, '') when the endpoint still answers Ping on a new connection, else the outcome
-    the remaining cases get (TIMEOUT when it hangs, ERROR when it refuses) and why."""
-    ctx = Context("robot", host, port, options, None, Shared())
+def _sends_ping(result: CaseResult) -> bool:
+    """True when a frame the case sent starts with a Ping request header."""
+    for entry in result.wire:
+        data = entry.data
+        if entry.direction == "->" and len(data) >= wire.HEADER_SIZE:
+            magic, _, _, kind, _, command, _, _ = wire.HEADER.unpack_from(data)
+            if magic == wire.MAGIC and kind == PacketKind.REQUEST and command == CommandId.PING:
+                return True
+    return False
+
+
+def liveness_line(probe: int, why: str = "") -> str:
+    """The one line of the summary that names the liveness probe."""
+    line = (
+        f"liveness probe: {BY_ID[probe].name} (0x{probe:04x}) on a new connection; no answer"
+        " in time = stopped answering, connection refused or closed = refused"
+    )
+    if why:
+        line += f" (Ping is not answered: {why}; breaks RS-5.8, see negotiation.ping.liveness)"
+    return line
+
+
+def choose_probe(host: str, port: int, options: Options) -> tuple[int, str]:
+    """Ping on a new connection is the liveness probe; an endpoint that answers Hello but
+    not Ping (a proxy that swallows it) gets Hello instead, so one broken rule is reported
+    once and not as a wall of timeouts. Returns (command, why Ping was not used)."""
+    ping_failed = ""
+    for command in (CommandId.PING, CommandId.HELLO):
+        ctx = Context("robot", host, port, options, None, Shared(probe_command=command))
+        try:
+            if probe_answered(ctx.connect(), ctx.shared, ctx.timeout * PING_PATIENCE):
+                return command, ping_failed
+            ping_failed = ping_failed or "Ping is answered without its bytes echoed"
+        except (Fail, EndpointTimeout, EndpointGone, Closed) as exc:
+            ping_failed = ping_failed or str(exc) or type(exc).__name__
+        finally:
+            ctx.close_all()
+    return CommandId.PING, ""  # answers neither: the cases say what is wrong
+
+
+def alive(
+    host: str, port: int, options: Options, probe: int = CommandId.PING
+) -> tuple[Outcome, str]:
+    """(PASS, '') when the endpoint still answers the liveness probe on a new connection,
+    else the outcome the remaining cases get (TIMEOUT when it hangs, ERROR when it refuses)
+    and why."""
+    ctx = Context("robot", host, port, options, None, Shared(probe_command=probe))
     try:
-        conn = ctx.connect()
-        conn.ok(CommandId.PING, b"alive")
+        if not probe_answered(ctx.connect(), ctx.shared):
+            return Outcome.ERROR, f"{BY_ID[probe].name} not answered as its table says"
         return Outcome.PASS, ""
     except EndpointTimeout as exc:
         return Outcome.TIMEOUT, str(exc)
@@ -355,6 +438,10 @@ def run(
         run_result.duration = time.monotonic() - t0
         return run_result
     shared = Shared(next_index=1000 + (options.seed % 1000) * 1_000_000)
+    ping_failed = ""
+    if service != "sync":
+        shared.probe_command, ping_failed = choose_probe(host, port, options)
+        run_result.liveness = liveness_line(shared.probe_command, ping_failed)
     dead = "" if reachable else why
     dead_outcome = Outcome.ERROR
     for case in cases:
@@ -371,11 +458,32 @@ def run(
             if missing:
                 names = ", ".join(f"0x{c:04x}" for c in missing)
                 result = CaseResult(case, Outcome.NOT_APPLICABLE, f"not offered: {names}")
+            elif ping_failed and CommandId.PING in case.commands and case.id != PING_CASE:
+                result = CaseResult(
+                    case,
+                    Outcome.BLOCKED,
+                    f"blocked: precondition Ping answered failed (see {PING_CASE})",
+                )
+                result.details["precondition"] = "Ping answered"
             else:
                 result = run_case(case, ctx)
+                if (
+                    ping_failed
+                    and case.id != PING_CASE
+                    and result.is_problem
+                    and _sends_ping(result)
+                ):
+                    # Ping is the case's vehicle, not its rule: the one broken rule is
+                    # reported by PING_CASE, not again by every case that rides on it.
+                    result.outcome = Outcome.BLOCKED
+                    result.message = (
+                        f"blocked: precondition Ping answered failed (see {PING_CASE});"
+                        f" the case sends Ping. It ended: {result.message}"
+                    )
+                    result.details["precondition"] = "Ping answered"
                 if result.outcome in (Outcome.TIMEOUT, Outcome.ERROR) and service != "sync":
                     # One dead endpoint must not cost every remaining case its full budget.
-                    dead_outcome, dead = alive(host, port, options)
+                    dead_outcome, dead = alive(host, port, options, shared.probe_command)
                     if dead:
                         dead = f"stopped answering after {case.id} ({dead})"
         if case.id in expect:
@@ -414,4 +522,6 @@ def exit_code(run_result: RunResult, strict: bool = False) -> int:
         return ExitCode.UNTRUSTED
     if strict and any(r.outcome is Outcome.NON_STRICT for r in fresh):
         return ExitCode.SHOULD_FAILED
+    if run_result.scope()[1]:
+        return ExitCode.SUBSET
     return ExitCode.OK

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from spec.errors import ERROR_MEANINGS, ErrorCode
 from spec.files import write_atomically
-from spec.registry import COMMANDS, CommandSpec, ParamSpec
+from spec.registry import BY_ID, COMMANDS, PROFILES, CommandSpec, ParamSpec
 from spec.requirements import PROTOCOL_MD
 
 _BLOCK = re.compile(r"(<!-- registry:(?P<name>\w+) -->\n)(?P<body>.*?)(<!-- /registry -->)", re.S)
@@ -55,9 +55,19 @@ def error_table() -> str:
     return "\n".join(rows) + "\n"
 
 
+def profile_table() -> str:
+    rows = ["| service | profile | commands | what it covers |", "|---|---|---|---|"]
+    for p in PROFILES:
+        names = ", ".join(BY_ID[c].name for c in p.commands)
+        rows.append(f"| {p.service} | {p.name} | {names} | {p.summary} |")
+    return "\n".join(rows) + "\n"
+
+
 def generated(name: str) -> str:
     if name == "errors":
         return error_table()
+    if name == "profiles":
+        return profile_table()
     return command_table(name)
 
 

@@ -679,6 +679,117 @@ SEAM_POINT_COLUMNS = (
 )  # fmt: skip
 
 
+@dataclass(frozen=True)
+class Profile:
+    """A capability profile [issue 32]: commands an endpoint offers together. An endpoint
+    claims a profile by listing every one of its commands in Hello's ``commands``; the
+    conformance summary names the profiles claimed and the ones not covered."""
+
+    name: str
+    service: str  # "robot" or "sensor"
+    summary: str
+    commands: tuple[CommandId, ...]
+
+
+_COMMON_CORE = (
+    CommandId.HELLO,
+    CommandId.PING,
+    CommandId.TAKE_CONTROL,
+    CommandId.RELEASE_CONTROL,
+    CommandId.GET_TIME,
+)
+
+#: Every command of a service is in exactly one of its profiles (tests/test_spec_registry.py).
+PROFILES: tuple[Profile, ...] = (
+    Profile(
+        "core",
+        "robot",
+        "negotiation, control, status, joints, motion descriptor, I/O reading, joint log",
+        (
+            *_COMMON_CORE,
+            CommandId.ROBOT_STATUS,
+            CommandId.HEREJ,
+            CommandId.SET_MOTION_DESC,
+            CommandId.GET_MOTION_DESC,
+            CommandId.WAIT_END_MOVE,
+            CommandId.STOP_MOVE,
+            CommandId.RESET_MOTION,
+            CommandId.READ_IO,
+            CommandId.LIST_IO,
+            CommandId.GET_JOINT_LOG,
+            CommandId.GET_JOINT_LIMITS,
+        ),
+    ),
+    Profile(
+        "motion",
+        "robot",
+        "power, joint moves, emergency stop, outputs",
+        (
+            CommandId.ENABLE_POWER,
+            CommandId.DISABLE_POWER,
+            CommandId.JOINT_MOVE,
+            CommandId.RESTART_MOVE,
+            CommandId.EMERGENCY_STOP,
+            CommandId.RESET_EMERGENCY_STOP,
+            CommandId.SET_OUTPUT,
+        ),
+    ),
+    Profile(
+        "cartesian",
+        "robot",
+        "kinematics: Here and tool moves",
+        (
+            CommandId.HERE,
+            CommandId.TOOL_MOVE_J,
+            CommandId.TOOL_MOVE_L,
+            CommandId.TOOL_MOVE_TRAJECTORY,
+        ),
+    ),
+    Profile(
+        "alter",
+        "robot",
+        "real-time path correction",
+        (CommandId.ALTER_BEGIN, CommandId.ALTER, CommandId.ALTER_END),
+    ),
+    Profile(
+        "sync",
+        "robot",
+        "UDP trigger/data synchronisation with a sensor",
+        tuple(CommandId(c) for c in range(0x3001, 0x300A)),
+    ),
+    Profile("crc-off", "robot", "frames without CRC", (CommandId.SET_FRAME_CRC,)),
+    Profile(
+        "core",
+        "sensor",
+        "negotiation, control, status, seam data, image, settings",
+        (
+            *_COMMON_CORE,
+            CommandId.SENSOR_STATUS,
+            CommandId.GET_DATA,
+            CommandId.GET_IMAGE,
+            CommandId.GET_PROFILE,
+            CommandId.SET_LASER,
+            CommandId.SET_EXPOSURE,
+            CommandId.SET_READOUT_WINDOW,
+            CommandId.GET_SETTINGS,
+            CommandId.ACQUIRE,
+        ),
+    ),
+    Profile(
+        "sync",
+        "sensor",
+        "UDP trigger endpoint",
+        (CommandId.GET_TRIGGER_ENDPOINT,),
+    ),
+    Profile("crc-off", "sensor", "frames without CRC", (CommandId.SET_FRAME_CRC,)),
+)
+
+
+def profiles_for(service: str) -> tuple[Profile, ...]:
+    """The capability profiles of a ``"robot"`` or ``"sensor"`` endpoint, core first."""
+    return tuple(p for p in PROFILES if p.service == service)
+
+
 def commands_for(service: str) -> tuple[CommandSpec, ...]:
     """Every command a ``"robot"`` or ``"sensor"`` server implements."""
     return tuple(c for c in COMMANDS if service in c.services)

@@ -21,6 +21,8 @@ from contextlib import contextmanager
 from typing import Any
 
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from conformance.context import Options
 from conformance.model import Outcome
@@ -270,7 +272,8 @@ def test_minimal_robot_scores_100_percent() -> None:
     with serving(FramedServer(MiniRobot(), policy=POLICY)) as address:
         result = check("robot", address, profile="full")
     assert problems(result) == {}
-    assert exit_code(result) == 0
+    assert exit_code(result) == ExitCode.SUBSET  # conformant to the profiles it claims only
+    assert result.scope() == (["core", "crc-off"], ["motion", "cartesian", "alter", "sync"])
     got = outcomes(result)
     assert got["robot.here.frames"] is Outcome.PASS
     assert got["commands.robot.JointMove.reply"] is Outcome.NOT_APPLICABLE  # not offered
@@ -1133,10 +1136,11 @@ def test_capability_file_makes_cases_not_applicable(tmp_path: Any) -> None:
                 "-q",
             ]
         )
-    assert code == 0
+    assert code == ExitCode.SUBSET  # GetImage not offered: the sensor core profile not covered
     data = json.loads(out.read_text())
     assert {c["outcome"] for c in data["cases"]} == {"not-applicable"}
     assert len(data["cases"]) == 5
+    assert data["profiles"] == {"claimed": ["sync", "crc-off"], "not_covered": ["core"]}
 
 
 def test_silent_udp_endpoint_gives_timeouts_not_fails() -> None:
@@ -1166,3 +1170,164 @@ def test_server_without_set_frame_crc_is_not_applicable(monkeypatch: Any) -> Non
     with serving(server) as address:
         result = check("robot", address, ("framing.no_crc",))
     assert outcomes(result)["framing.no_crc"] is Outcome.NOT_APPLICABLE
+
+
+# --- misattributions: a case fails only for its own rule [issue 32] ---------------------------
+
+
+class NoKinematicsRobot(MiniRobot):
+    """Offers ToolMoveJ but answers Here with NOT_SUPPORTED (a robot without kinematics)."""
+
+    COMMANDS = (*MiniRobot.COMMANDS, C.TOOL_MOVE_J)
+
+    def handle(
+        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
+        if spec.id == C.HERE:
+            raise ProtocolError("no kinematics", ErrorCode.NOT_SUPPORTED)
+        return super().handle(session, spec, params)
+
+
+def test_refused_precondition_blocks_the_case_instead_of_failing_it() -> None:
+    """ToolMoveJ.not_in_control needs Here for a harmless target: Here refused is a failed
+    precondition (blocked, Here named), not a failure of RS-7.4."""
+    with serving(FramedServer(NoKinematicsRobot(), policy=POLICY)) as address:
+        options = Options(timeout_scale=SCALE, allow_motion=True)
+        result = run("robot", *address, options, Selection("core", ("commands.robot.ToolMoveJ.*",)))
+    got = {r.case.id: r for r in result.results}
+    blocked = got["commands.robot.ToolMoveJ.not_in_control"]
+    assert blocked.outcome is Outcome.BLOCKED, blocked.message
+    assert "Here was refused" in blocked.message and "NOT_SUPPORTED" in blocked.message
+    assert blocked.details["precondition"] == "correct arguments for ToolMoveJ"
+    assert got["commands.robot.ToolMoveJ.reply"].outcome is Outcome.BLOCKED
+    # Here's own rule is judged by Here's own cases; the robot claims a subset of 1.x
+    assert exit_code(result) == ExitCode.SUBSET
+
+
+def test_answers_are_matched_by_command_and_fresh_request_id() -> None:
+    """A late answer to an earlier request on the connection is never taken for the answer
+    to the next one (the emergency_stop_when_full misattribution), and an explicit request
+    ID moves the counter past it so the next request's ID is fresh [RS-3.4]."""
+    from conformance.connection import Conn, WireLog
+
+    ours, theirs = socket.socketpair()
+    with ours, theirs:
+        conn = Conn(ours, WireLog(), 1, 1.0)
+        status_id = conn.request(C.ROBOT_STATUS, request_id=1)
+        estop_id = conn.request(C.EMERGENCY_STOP)
+        assert estop_id != status_id
+        busy = Packet(PacketKind.ERROR, C.ROBOT_STATUS, status_id, (int(ErrorCode.BUSY), "full"))
+        done = Packet(PacketKind.REPLY, C.EMERGENCY_STOP, estop_id, ())
+        theirs.sendall(encode_packet(busy) + encode_packet(done))
+        answer = conn.answer_to(C.EMERGENCY_STOP, estop_id)
+    assert answer.kind is PacketKind.REPLY and answer.error is None
+    assert conn.pending == {}
+
+
+class PingSwallowingServer(FramedServer):
+    """Answers everything but Ping (a proxy that swallows it)."""
+
+    def _dispatch(self, session: Session, packet: Packet) -> None:
+        if packet.command == C.PING:
+            return
+        super()._dispatch(session, packet)
+
+
+def test_unanswered_ping_is_one_broken_rule_not_a_wall_of_timeouts() -> None:
+    with serving(PingSwallowingServer(MiniRobot(), policy=POLICY)) as address:
+        result = check("robot", address, profile="core")
+    got = {r.case.id: r for r in result.results}
+    assert "liveness probe: Hello (0x0001)" in result.liveness
+    assert "RS-5.8" in result.liveness
+    assert got["negotiation.ping.liveness"].outcome is Outcome.FAIL
+    assert "RS-5.8" in got["negotiation.ping.liveness"].message
+    timeouts = [r.case.id for r in result.results if r.outcome is Outcome.TIMEOUT]
+    assert timeouts == []
+    assert got["commands.common.Ping.reply"].outcome is Outcome.BLOCKED
+    assert list(problems(result)) == ["negotiation.ping.liveness"]  # reported once
+    passed = sum(r.outcome is Outcome.PASS for r in result.results)
+    assert passed > 50  # everything that does not ride on Ping is judged on its own
+    assert exit_code(result) == 1
+
+
+class SwallowsJointLimits(FramedServer):
+    """Never answers GetJointLimits: a case that sends it leaves a request unanswered."""
+
+    def _dispatch(self, session: Session, packet: Packet) -> None:
+        if packet.command == C.GET_JOINT_LIMITS:
+            return
+        super()._dispatch(session, packet)
+
+
+_ISOLATION_CASES = (
+    "commands.robot.GetJointLimits.reply",  # times out, its request left unanswered
+    "commands.robot.GetJointLimits.bad_params",
+    "commands.robot.GetStatus.reply",
+    "commands.robot.Herej.reply",
+    "commands.robot.GetMotionDesc.reply",
+    "framing.reply.echo",
+)
+
+
+@settings(max_examples=4, deadline=None, suppress_health_check=list(HealthCheck))
+@given(order=st.permutations(_ISOLATION_CASES))
+def test_no_outcome_depends_on_a_request_another_case_left_unanswered(
+    order: list[str],
+) -> None:
+    """Each case's outcome is the same whichever cases ran before it, among them cases
+    whose requests the endpoint never answered."""
+    from conformance.context import Context, Shared
+    from conformance.model import all_cases
+    from conformance.runner import run_case
+
+    by_id = {c.id: c for c in all_cases()}
+    options = Options(timeout_scale=SCALE)
+
+    def outcomes_in(ids: Any) -> dict[str, Outcome]:
+        got = {}
+        with serving(SwallowsJointLimits(MiniRobot(), policy=POLICY)) as (host, port):
+            shared = Shared()
+            for case_id in ids:
+                ctx = Context("robot", host, port, options, None, shared)
+                got[case_id] = run_case(by_id[case_id], ctx).outcome
+        return got
+
+    alone = {case_id: outcomes_in([case_id])[case_id] for case_id in _ISOLATION_CASES}
+    assert alone["commands.robot.GetJointLimits.reply"] is Outcome.TIMEOUT
+    assert alone["commands.robot.GetStatus.reply"] is Outcome.PASS
+    assert outcomes_in(order) == alone
+
+
+class CoreOnlyRobot(MiniRobot):
+    """Claims the core profile only (no Here): a robot without kinematics or motion."""
+
+    COMMANDS = tuple(c for c in MiniRobot.COMMANDS if c != C.HERE)
+
+
+class SyncRobot(MiniRobot):
+    """Claims core and sync (answers the sync commands' shapes, no UDP behind them)."""
+
+    COMMANDS = (*MiniRobot.COMMANDS, *(C(c) for c in range(0x3001, 0x300A)))
+
+
+@pytest.mark.parametrize(
+    ("service", "claimed", "not_covered"),
+    [
+        (CoreOnlyRobot, ["core", "crc-off"], ["motion", "cartesian", "alter", "sync"]),
+        (SyncRobot, ["core", "sync", "crc-off"], ["motion", "cartesian", "alter"]),
+    ],
+)
+def test_summary_states_the_verdict_with_its_scope(
+    service: type[MiniRobot], claimed: list[str], not_covered: list[str]
+) -> None:
+    """A robot offering a subset of the profiles passes what it claims with the SUBSET exit
+    code, and the summary names what was not covered."""
+    from conformance.report import terminal
+
+    with serving(FramedServer(service(), policy=POLICY)) as address:
+        result = check("robot", address, ("negotiation.hello.*", "commands.robot.Herej.*"))
+    assert problems(result) == {}
+    assert result.scope() == (claimed, not_covered)
+    text = terminal(result)
+    assert f"not covered (not offered): {', '.join(not_covered)}" in text
+    assert exit_code(result) == ExitCode.SUBSET

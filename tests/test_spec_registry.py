@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import re
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -142,3 +143,12 @@ def test_fast_parameter_check_agrees_with_the_reference(
 
 
 CLASS_SAMPLE = {type_of(v): v for v in _SAMPLES if type(v) in CLASS_OF.values()}  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("service", ["robot", "sensor"])
+def test_every_command_is_in_exactly_one_profile(service: str) -> None:
+    from spec.registry import commands_for, profiles_for
+
+    listed = [c for p in profiles_for(service) for c in p.commands]
+    assert sorted(listed) == sorted(int(c.id) for c in commands_for(service))
+    assert profiles_for(service)[0].name == "core"

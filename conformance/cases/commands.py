@@ -89,8 +89,9 @@ def _reply_case(spec: CommandSpec) -> Callable[[Context], str | None]:
         if spec.needs_control:
             ctx.take_control(conn)
         try:
-            powered = _power_for(ctx, conn, spec)
-            args = valid_args(ctx, conn, spec)
+            with ctx.precondition(f"power and correct arguments for {spec.name}"):
+                powered = _power_for(ctx, conn, spec)
+                args = valid_args(ctx, conn, spec)
             answer = conn.call(spec.id, *args, timeout=ctx.timeout * 2)
             if powered:
                 _settle(conn)
@@ -220,7 +221,8 @@ def _not_in_control_case(spec: CommandSpec) -> Callable[[Context], str | None]:
             if _dangerous(spec):
                 # A server that ignored control would execute this: make it a no-op target.
                 probe = ctx.connect()
-                args = valid_args(ctx, probe, spec)
+                with ctx.precondition(f"correct arguments for {spec.name}"):
+                    args = valid_args(ctx, probe, spec)
         conn = ctx.connect()  # a fresh connection never holds control
         conn.error(spec.id, ErrorCode.NOT_IN_CONTROL, *args)
         return None

@@ -3,15 +3,48 @@
 from __future__ import annotations
 
 from conformance.cases._util import raw_frame
-from conformance.context import HELLO_FIELDS, Context
-from conformance.model import Fail, Informational, case
+from conformance.cases.commands import dummy
+from conformance.context import HELLO_FIELDS, PING_PATIENCE, Context
+from conformance.model import EndpointTimeout, Fail, Informational, case
 from spec import wire
 from spec.codec import Packet
 from spec.errors import ErrorCode
+from spec.params import IntArray
+from spec.registry import BY_ID, commands_for, profiles_for
 from spec.registry import CommandId as C
-from spec.registry import commands_for
 
 SMOKE = ("smoke", "core", "full")
+
+
+@case(
+    "negotiation.ping.liveness",
+    requirements=["RS-5.8"],
+    tags=["negotiation", "liveness"],
+    profiles=("smoke", "core", "full", "robustness"),
+    commands=[C.PING],
+    order=5,
+    budget=15.0,  # Ping gets PING_PATIENCE reply times, then Hello one
+)
+def ping_liveness(ctx: Context) -> str:
+    """A new connection's Ping is echoed: the harness's liveness probe (see the summary's
+    "liveness probe" line). An endpoint that answers Hello but not Ping breaks RS-5.8 here,
+    once; the runner then probes with Hello so the other cases are judged on their own."""
+    payload = b"conformance-liveness"
+    conn = ctx.connect()
+    try:
+        echoed = conn.ok(C.PING, payload, timeout=ctx.timeout * PING_PATIENCE)[:1]
+    except EndpointTimeout:
+        other = ctx.connect()
+        other.ok(C.HELLO, 1, 0, "conformance")  # a timeout here too: the endpoint hangs
+        raise Fail(
+            "Ping is not answered although Hello is",
+            "Ping's reply echoing its bytes",
+            f"no answer within {ctx.timeout * PING_PATIENCE:g} s",
+            requirement="RS-5.8",
+        ) from None
+    if echoed != (payload,):
+        raise Fail("Ping does not echo its bytes", (payload,), echoed, requirement="RS-5.8")
+    return "Ping echoed on a new connection"
 
 
 @case(
@@ -214,3 +247,63 @@ def request_id_max(ctx: Context) -> None:
         answer = conn.recv_packet()
         if answer.request_id != rid:
             raise Fail("request ID not echoed across the wrap", rid, answer.request_id)
+
+
+@case(
+    "negotiation.profile.core",
+    requirements=["RS-5.60", "RS-5.61"],
+    tags=["negotiation", "profiles"],
+    profiles=SMOKE,
+    order=10,
+)
+def profile_core(ctx: Context) -> str:
+    """Hello lists every command of the service's core profile."""
+    conn = ctx.connect()
+    listed = conn.ok(C.HELLO, 1, 0, "conformance")[6:7]
+    offered = frozenset(listed[0].values) if listed and isinstance(listed[0], IntArray) else None
+    if offered is None:
+        raise Fail("Hello carries no command list", "commands INT_ARRAY", listed)
+    core = profiles_for(ctx.service)[0]
+    missing = [BY_ID[c].name for c in core.commands if c not in offered]
+    if missing:
+        raise Fail(
+            f"Hello leaves out commands of the {ctx.service} core profile",
+            "every core command listed",
+            ", ".join(missing),
+            requirement="RS-5.60",
+        )
+    claimed = [p.name for p in profiles_for(ctx.service) if set(p.commands) <= offered]
+    return "profiles claimed: " + ", ".join(claimed)
+
+
+@case(
+    "negotiation.profile.not_offered_answer",
+    requirements=["RS-5.62"],
+    level="SHOULD",
+    tags=["negotiation", "profiles"],
+    profiles=("core", "full"),
+    order=12,
+)
+def profile_not_offered_answer(ctx: Context) -> str:
+    """A registry command left out of Hello is answered NOT_SUPPORTED (or a 1.2 endpoint's
+    UNKNOWN_COMMAND), from a connection without control, so nothing can execute."""
+    if ctx.hello is None or not ctx.hello.commands:
+        raise Informational("no Hello command list to compare with")
+    conn = ctx.connect()
+    tried = []
+    for spec in commands_for(ctx.service):
+        if spec.id in ctx.hello.commands or (spec.moves and not spec.needs_control):
+            continue
+        answer = conn.call(spec.id, *(dummy(p.type) for p in spec.params))
+        got = answer.error[0] if answer.error is not None else None
+        if got not in (ErrorCode.NOT_SUPPORTED, ErrorCode.UNKNOWN_COMMAND):
+            raise Fail(
+                f"{spec.name}, left out of Hello, is answered as if offered",
+                "error NOT_SUPPORTED (or UNKNOWN_COMMAND)",
+                "a reply" if answer.error is None else f"error {answer.error}",
+                requirement="RS-5.62",
+            )
+        tried.append(spec.name)
+    if not tried:
+        raise Informational("Hello lists every command of the service")
+    return f"{len(tried)} unlisted command(s) answered as not offered"

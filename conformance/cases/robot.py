@@ -720,10 +720,10 @@ def emergency_stop_when_full(ctx: Context) -> str:
     conns = []
     try:
         refused = None
-        for i in range(limit + 2):
+        for _ in range(limit + 2):
             conn = ctx.connect(hello=False)
             conns.append(conn)
-            conn.request(C.ROBOT_STATUS, request_id=i + 1)
+            conn.request(C.ROBOT_STATUS)
             answer = conn.recv_packet()
             if answer.error is not None and answer.request_id == 0:
                 refused = conn
@@ -731,11 +731,10 @@ def emergency_stop_when_full(ctx: Context) -> str:
         if refused is None:
             raise NotApplicable(f"no connection was refused up to {limit + 2}")
         t0 = time.perf_counter()
+        # A fresh request ID, and the answer matched by command and ID [RS-3.4]: the
+        # server's answer to the GetStatus sent before is not EmergencyStop's.
         rid = refused.request(C.EMERGENCY_STOP)
-        while True:
-            answer = refused.recv_packet()
-            if answer.request_id == rid:
-                break
+        answer = refused.answer_to(C.EMERGENCY_STOP, rid)
         latency = time.perf_counter() - t0
         if answer.error is not None:
             raise Fail(

@@ -174,7 +174,7 @@ def cmd_console(args: argparse.Namespace) -> int:
             "python -m welding console: error: one of --robot or --emulate is required",
             file=sys.stderr,
         )
-        return 2
+        return ExitCode.USAGE
     try:
         import uvicorn
 
