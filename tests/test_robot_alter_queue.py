@@ -49,7 +49,7 @@ def smooth_tables(draw: st.DrawFn) -> tuple[np.ndarray, np.ndarray]:
     5 deg/s, two of which fall in two adjacent cycles at most: < a_max * T_r)."""
     n = draw(st.integers(2, 40))
     gaps = draw(st.lists(st.floats(0.004, 0.04), min_size=n - 1, max_size=n - 1))
-    t0 = draw(st.floats(0.0, 0.05))
+    t0 = draw(st.floats(0.001, 0.05))  # after the cycle of AlterBegin
     kicks = draw(
         st.lists(st.lists(st.floats(-1.0, 1.0), min_size=6, max_size=6), min_size=n, max_size=n)
     )
