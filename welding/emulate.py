@@ -14,6 +14,7 @@ import contextlib
 import json
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -234,6 +235,7 @@ def run_tracking(
     clock: str = "sim",
     tolerance_mm: float = TOLERANCE_MM,
     timed: bool = True,
+    load: Callable[[tuple[str, int]], contextlib.AbstractContextManager[object]] | None = None,
 ) -> TrackingRun:
     """Weld ``weld_mm`` of ``seam`` (``straight|offset|sine``) at ``speed_mm_s`` on the
     simulated cell, correcting the laser every cycle from the synchronised seam points.
@@ -254,7 +256,8 @@ def run_tracking(
     waits for each cycle. ``timed``: timed corrections sent ahead (AlterQueue) where the
     robot has them, else one Alter per cycle (a loop that stalls then misses cycles, which
     ``corrections`` < ``cycles`` shows). The verdict is the tracker's own (``tolerance_mm``);
-    the errors against the truth stand beside it."""
+    the errors against the truth stand beside it. ``load``: a context entered with the
+    robot server's address around the weld on the real clock (a benchmark's load)."""
     if seam not in TRACK_SEAMS:
         raise ValueError(f"seam must be one of {', '.join(TRACK_SEAMS)}, got {seam!r}")
     shape, placement = TRACK_SEAMS[seam]
@@ -279,9 +282,10 @@ def run_tracking(
             with realtime_threads(TRACKER_PRIORITY) as got:
                 log.info("tracker threads: scheduling %s", got)
                 side = _ChildSide(child.start(), sensor_tool)
-                return _track_on(side, seam, speed_mm_s, delta_t_ms, weld_mm, rate_hz, track,
-                                 sensor_silent_after_mm, measure_delta_t, True, tolerance_mm,
-                                 timed)  # fmt: skip
+                with load(side.robot_address) if load else contextlib.nullcontext():
+                    return _track_on(side, seam, speed_mm_s, delta_t_ms, weld_mm, rate_hz,
+                                     track, sensor_silent_after_mm, measure_delta_t, True,
+                                     tolerance_mm, timed)  # fmt: skip
         finally:
             child.close()
     cell = EmulatedCell(clock=clock, **config)
