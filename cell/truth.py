@@ -11,7 +11,7 @@ emulated arm actually did, on the robot's clock.
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -37,6 +37,8 @@ class WeldTruth:
     correction: FloatArray
     scene: Scene
     laser_on: bool
+    #: robot time (s) of each of the N cycles
+    times: FloatArray = field(default_factory=lambda: np.zeros(0))
 
 
 class WeldRecorder:
@@ -46,6 +48,7 @@ class WeldRecorder:
         self.cell = cell
         self._lock = threading.Lock()
         self._q: list[FloatArray] = []
+        self._t: list[float] = []
         self._applied: list[FloatArray] = []
         self._lasing: list[bool] = []
         self._on = False
@@ -53,7 +56,7 @@ class WeldRecorder:
 
     def start(self) -> None:
         with self._lock:
-            self._q, self._applied, self._lasing = [], [], []
+            self._q, self._applied, self._lasing, self._t = [], [], [], []
             self._on = True
 
     def _record(self, t: float, q_sp: FloatArray, q_m: FloatArray) -> None:
@@ -63,6 +66,7 @@ class WeldRecorder:
         applied, lasing = robot.alter_applied(), robot.read_io("laser")[0]
         with self._lock:
             self._q.append(q_sp)
+            self._t.append(t)
             self._applied.append(applied)
             self._lasing.append(lasing)
 
@@ -71,6 +75,7 @@ class WeldRecorder:
         with self._lock:
             self._on = False
             q, applied, lasing = list(self._q), list(self._applied), list(self._lasing)
+            times = np.array(self._t)
         on = [i for i, v in enumerate(lasing) if v]
         cell = self.cell
         if on:
@@ -79,4 +84,4 @@ class WeldRecorder:
             corr = np.array(applied)[on, :3]
         else:
             laser, corr = np.zeros((0, 3)), np.zeros((0, 3))
-        return WeldTruth(laser, corr, cell.scene, cell.robot.read_io("laser")[0])
+        return WeldTruth(laser, corr, cell.scene, cell.robot.read_io("laser")[0], times[on])

@@ -20,6 +20,7 @@ import math
 import numpy as np
 
 from kinematics.transforms import invert
+from robotsocket.alter_queue import CorrectionQueue, QueueReport, check_batch
 from robotsocket.interface import Array, BadStateError, OutOfRangeError
 
 #: [RS-5.33] Largest correction: translation (mm) and rotation (deg).
@@ -118,6 +119,7 @@ class AlterState:
         self._last_target = np.zeros(6)
         self._last_rx = 0.0
         self.lost = 0  # streams declared lost (statistics)
+        self.queue = CorrectionQueue()  # timed corrections [RS-5.39]
 
     @property
     def engaged(self) -> bool:
@@ -145,14 +147,29 @@ class AlterState:
         self.timeout = timeout
         self.target = np.zeros(6)
         self._last_rx = now
+        self.queue.clear()
+        self.queue.applied_until = now  # entries for this cycle or before are late
 
     def command(self, correction: Array, now: float) -> Array:
         """[RS-5.33] A new correction in force; returns the applied correction (6,)."""
         if not self.active:
             raise BadStateError("alter mode is not active: AlterBegin first")
+        if self.queue.depth:
+            # [RS-5.46] the two would fight over the target
+            raise BadStateError("timed corrections are queued: Alter is refused until AlterEnd")
         self.target = check_correction(correction)
         self._last_rx = now
         return self.applied.copy()
+
+    def enqueue(self, times: Array, corrections: Array) -> QueueReport:
+        """[RS-5.39] Queue timed corrections ``corrections`` (N, 6) for the robot-clock
+        ``times`` (N,); an empty batch only reports the queue's state."""
+        if not self.active:
+            raise BadStateError("alter mode is not active: AlterBegin first")
+        t = np.asarray(times, dtype=np.float64).reshape(-1)
+        c = np.asarray(corrections, dtype=np.float64)
+        check_batch(t, c, MAX_OFFSET_MM, MAX_ROTATION_DEG)
+        return self.queue.insert(t, c.reshape(len(t), 6))
 
     def end(self) -> None:
         """[RS-5.37] End alter mode: the correction ramps back to zero within the limits."""
@@ -160,11 +177,13 @@ class AlterState:
             raise BadStateError("alter mode is not active")
         self.active = False
         self.target = np.zeros(6)
+        self.queue.clear()
 
     def abandon(self) -> None:
         """Control lost or stream lost: end alter mode, ramp the correction back to zero."""
         self.active = False
         self.target = np.zeros(6)
+        self.queue.clear()
 
     def fold(self) -> None:
         """Emergency stop: the arm stops where it is; the correction is dropped, not ramped
@@ -174,11 +193,18 @@ class AlterState:
         self.applied = np.zeros(6)
         self._v = np.zeros(6)
         self._last_target = np.zeros(6)
+        self.queue.clear()
 
     def step(self, now: float) -> bool:
         """Advance the applied correction one cycle; True when the stream was just declared
         lost [RS-5.36] (the caller stops the motion safely)."""
-        lost = self.active and now - self._last_rx > self.timeout + 1e-9
+        if self.active:
+            due = self.queue.due(now)  # [RS-5.44] the timed correction of this cycle
+            if due is not None:
+                self.target = due
+        # [RS-5.36] [RS-5.44] a correction is in force while an Alter is fresh or a queued
+        # entry is due: the stream is lost `timeout` after the later of the two
+        lost = self.active and now - max(self._last_rx, self.queue.horizon) > self.timeout + 1e-9
         if lost:
             self.lost += 1
             self.abandon()

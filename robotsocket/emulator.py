@@ -37,6 +37,7 @@ from kinematics.transforms import (
     transform_to_location,
 )
 from robotsocket.alter import AlterState, corrected_flange
+from robotsocket.alter_queue import QueueReport
 from robotsocket.clock import RealTimeLoop, SimLoop, lateness_summary
 from robotsocket.interface import (
     IDENTITY_LOC,
@@ -708,6 +709,14 @@ class RobotEmulator(RobotInterface):
         with self._lock:
             self._alter.end()
             log.info("alter mode off: the correction ramps back to zero")
+
+    def alter_queue(self, times: Array, corrections: Array) -> tuple[QueueReport, Array, float]:
+        self.catch_up()
+        with self._lock:
+            report = self._alter.enqueue(times, corrections)
+            if self._loop is not None:
+                self._loop.wake()
+            return report, self._alter.applied.copy(), self._gen.k * self.period
 
     def alter_applied(self) -> Array:
         """The correction (6,) applied at the last cycle (mm, deg, base frame)."""

@@ -17,12 +17,16 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
 from kinematics import errors as kin
 from spec.wire import MoveOutcome
+
+if TYPE_CHECKING:
+    from robotsocket.alter_queue import QueueReport
 
 Array = npt.NDArray[np.float64]
 #: A VAL3 location: x, y, z (mm), rx, ry, rz (degrees), R = Rx(rx)·Ry(ry)·Rz(rz).
@@ -271,6 +275,12 @@ class RobotInterface(ABC):
 
     def alter_end(self) -> None:
         """[RS-5.37] End alter mode; the correction ramps back to zero within the limits."""
+        raise NotImplementedError
+
+    def alter_queue(self, times: Array, corrections: Array) -> tuple[QueueReport, Array, float]:
+        """[RS-5.39] Queue timed corrections (N, 6) for the robot-clock ``times`` (N,);
+        (the queue's report, the correction applied at the last cycle (6,), that cycle's
+        time). Optional (1.3): a robot without it answers UNKNOWN_COMMAND."""
         raise NotImplementedError
 
     def on_control_lost(self, why: str = "control lost") -> None:

@@ -140,6 +140,8 @@ class RobotService(HandlerService):
             self.register(C.ALTER_BEGIN, self._alter_begin)
             self.register(C.ALTER, self._alter)
             self.register(C.ALTER_END, self._alter_end)
+        if type(robot).alter_queue is not RobotInterface.alter_queue:
+            self.register(C.ALTER_QUEUE, self._alter_queue)
 
     # --- Service -----------------------------------------------------------------------------
 
@@ -246,6 +248,26 @@ class RobotService(HandlerService):
         except NotImplementedError:
             raise ProtocolError("alter mode not implemented", ErrorCode.UNKNOWN_COMMAND) from None
         return ()
+
+    def _alter_queue(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        times, table = params
+        assert isinstance(times, FloatArray) and isinstance(table, Matrix)
+        t = np.array(times.values, dtype=np.float64)
+        c = np.array(table.values, dtype=np.float64).reshape(table.rows, table.cols)
+        try:
+            report, applied, now = self.robot.alter_queue(t, c)
+        except NotImplementedError:
+            raise ProtocolError("AlterQueue not implemented", ErrorCode.UNKNOWN_COMMAND) from None
+        return (
+            report.accepted,
+            report.late,
+            report.depth,
+            report.horizon,
+            report.late_total,
+            report.held_total,
+            Location(*(float(v) for v in applied)),
+            float(now),
+        )
 
     def _set_mdesc(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
         self.robot.set_motion_desc(MotionDesc(*(_float(p) for p in params)))

@@ -54,6 +54,7 @@ class CommandId(IntEnum):
     ALTER_BEGIN = 0x1017
     ALTER = 0x1018
     ALTER_END = 0x1019
+    ALTER_QUEUE = 0x101A
 
     SENSOR_STATUS = 0x2001
     GET_DATA = 0x2002
@@ -463,6 +464,35 @@ COMMANDS: tuple[CommandSpec, ...] = (
         needs_control=True,
         moves=True,
     ),
+    CommandSpec(
+        CommandId.ALTER_QUEUE,
+        "AlterQueue",
+        "robot",
+        "Queue timed corrections in alter mode: each for the cycle at a robot-clock time, "
+        "interpolated in between; sent ahead (a window or a whole table in several frames), "
+        "so a late client costs nothing. An empty batch reports the queue (1.3, optional).",
+        params=(
+            P("times", T.FLOAT_ARRAY, "s", "robot clock, strictly increasing; at most 4096"),
+            P(
+                "corrections",
+                T.MATRIX,
+                "mm, deg",
+                "N x 6: dx, dy, dz and rotation vector rx, ry, rz per time, as Alter",
+            ),
+        ),
+        reply=(
+            P("accepted", T.INT, "", "entries of this batch queued"),
+            P("late", T.INT, "", "entries of this batch for cycles already applied: dropped"),
+            P("depth", T.INT, "", "entries queued now"),
+            P("horizon", T.FLOAT, "s", "time of the last queued entry; -1 when empty"),
+            P("late_total", T.INT, "", "late entries since AlterBegin"),
+            P("held_total", T.INT, "", "cycles past the last entry since AlterBegin"),
+            P("applied", T.LOCATION, "mm, deg", "the correction applied at the last cycle"),
+            P("time", T.FLOAT, "s", "robot time of the last cycle applied"),
+        ),
+        needs_control=True,
+        moves=True,
+    ),
     # --- sensor -------------------------------------------------------------------------
     CommandSpec(
         CommandId.SENSOR_STATUS,
@@ -750,6 +780,12 @@ PROFILES: tuple[Profile, ...] = (
         "robot",
         "real-time path correction",
         (CommandId.ALTER_BEGIN, CommandId.ALTER, CommandId.ALTER_END),
+    ),
+    Profile(
+        "alter-queue",
+        "robot",
+        "timed path corrections (1.3, with alter)",
+        (CommandId.ALTER_QUEUE,),
     ),
     Profile(
         "sync",

@@ -99,6 +99,8 @@ def valid_frames() -> list[tuple[str, str, Packet]]:
         ("request-id-max", "largest request ID, experimental command", request(0xFFFE, 0xFFFFFFFF)),
         ("mixed-params", "every scalar type in one list", request(0x8001, 24, 7, 2.5, True, "s", b"b", Location(1, 2, 3, 4, 5, 6))),
         ("set-motion-desc", "SetMotionDesc with six FLOATs", request(C.SET_MOTION_DESC, 25, 10.0, 100.0, 100.0, 250.0, 90.0, 0.0)),
+        ("request-alterqueue", "AlterQueue: two timed corrections (RS-5.39)", request(C.ALTER_QUEUE, 26, FloatArray([12.004, 12.008]), Matrix(2, 6, [0.0, 0.25, -0.5, 0.0, 0.0, 0.0, 0.0, 0.3, -0.5, 0.0, 0.0, 0.1]))),
+        ("reply-alterqueue", "AlterQueue reply: counts, queue state, applied, time (RS-5.45)", _reply(C.ALTER_QUEUE, 26, 2, 0, 40, 12.16, 0, 0, Location(0.0, 0.2, -0.5, 0.0, 0.0, 0.0), 12.0)),
     ]  # fmt: skip
 
 

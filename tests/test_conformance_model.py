@@ -15,6 +15,7 @@ from conformance.context import Options
 from conformance.model import Case, CaseResult, Outcome, WireEntry, all_cases
 from conformance.report import load_expectations, to_json, to_junit, to_markdown, write_atomic
 from conformance.runner import RunResult, Selection, exit_code
+from spec.exitcodes import ExitCode
 from spec.requirements import requirements
 
 #: MUST rules that cannot be observed at the wire in bounded time; each still has a case,
@@ -104,13 +105,13 @@ def _run(*outcomes: Outcome, reachable: bool = True) -> RunResult:
 @pytest.mark.parametrize(
     ("outcomes", "strict", "code"),
     [
-        ((Outcome.PASS, Outcome.NOT_APPLICABLE, Outcome.SKIPPED), False, 0),
-        ((Outcome.PASS, Outcome.FAIL, Outcome.NON_STRICT), False, 1),
-        ((Outcome.PASS, Outcome.NON_STRICT), False, 0),
-        ((Outcome.PASS, Outcome.NON_STRICT), True, 2),
-        ((Outcome.PASS, Outcome.TIMEOUT), True, 4),
-        ((Outcome.ERROR,), False, 4),
-        ((), False, 5),
+        ((Outcome.PASS, Outcome.NOT_APPLICABLE, Outcome.SKIPPED), False, ExitCode.OK),
+        ((Outcome.PASS, Outcome.FAIL, Outcome.NON_STRICT), False, ExitCode.FAILED),
+        ((Outcome.PASS, Outcome.NON_STRICT), False, ExitCode.OK),
+        ((Outcome.PASS, Outcome.NON_STRICT), True, ExitCode.SHOULD_FAILED),
+        ((Outcome.PASS, Outcome.TIMEOUT), True, ExitCode.UNREACHABLE),
+        ((Outcome.ERROR,), False, ExitCode.UNREACHABLE),
+        ((), False, ExitCode.NOTHING_SELECTED),
     ],
 )
 def test_exit_codes(outcomes: tuple[Outcome, ...], strict: bool, code: int) -> None:
@@ -120,13 +121,13 @@ def test_exit_codes(outcomes: tuple[Outcome, ...], strict: bool, code: int) -> N
 def test_known_failures_do_not_fail_the_run() -> None:
     run = _run(Outcome.PASS, Outcome.FAIL)
     run.results[1].known_failure = True
-    assert exit_code(run) == 0
+    assert exit_code(run) == ExitCode.OK
 
 
-def test_harness_fault_is_exit_3() -> None:
+def test_harness_fault_is_untrusted() -> None:
     run = _run(Outcome.PASS)
     run.harness_errors = 1
-    assert exit_code(run) == 3
+    assert exit_code(run) == ExitCode.UNTRUSTED
 
 
 def test_json_report_schema() -> None:
@@ -205,14 +206,17 @@ def test_cli_list_and_nothing_selected(capsys: pytest.CaptureFixture[str]) -> No
     assert main(["robot", "--list", "--select", "framing.crc.*"]) == 0
     out = capsys.readouterr().out
     assert "framing.crc.bad" in out and "RS-3.6" in out
-    assert main(["robot", "--list", "--select", "no.such.case"]) == 5
-    assert main(["robot", "127.0.0.1:1", "--select", "no.such.case", "-q"]) == 5
+    assert main(["robot", "--list", "--select", "no.such.case"]) == ExitCode.NOTHING_SELECTED
+    assert (
+        main(["robot", "127.0.0.1:1", "--select", "no.such.case", "-q"])
+        == ExitCode.NOTHING_SELECTED
+    )
 
 
-def test_cli_usage_errors_exit_3(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["robot", "not-an-endpoint"]) == 3
-    assert main(["robot", "--timeout-scale", "0"]) == 3
-    assert main(["teapot"]) == 3
+def test_cli_usage_errors_exit_usage(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["robot", "not-an-endpoint"]) == ExitCode.USAGE
+    assert main(["robot", "--timeout-scale", "0"]) == ExitCode.USAGE
+    assert main(["teapot"]) == ExitCode.USAGE
     err = capsys.readouterr().err
     assert err.count("\n") >= 3 and "Traceback" not in err
 
@@ -232,9 +236,9 @@ def test_cli_unreachable_writes_every_report(tmp_path: Path) -> None:
             *(a for k, p in paths.items() for a in (f"--{k}", str(p))),
         ]
     )
-    assert code == 4
+    assert code == ExitCode.UNREACHABLE
     data = json.loads(paths["json"].read_text())
-    assert data["reachable"] is False and data["exit_code"] == 4
+    assert data["reachable"] is False and data["exit_code"] == ExitCode.UNREACHABLE
     assert data["cases"] == []  # nothing ran; the reason is said once
     assert "cannot connect" in data["negotiation_error"]
     assert ET.parse(paths["junit"]).getroot() is not None

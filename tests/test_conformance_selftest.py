@@ -273,7 +273,10 @@ def test_minimal_robot_scores_100_percent() -> None:
         result = check("robot", address, profile="full")
     assert problems(result) == {}
     assert exit_code(result) == ExitCode.SUBSET  # conformant to the profiles it claims only
-    assert result.scope() == (["core", "crc-off"], ["motion", "cartesian", "alter", "sync"])
+    assert result.scope() == (
+        ["core", "crc-off"],
+        ["motion", "cartesian", "alter", "alter-queue", "sync"],
+    )
     got = outcomes(result)
     assert got["robot.here.frames"] is Outcome.PASS
     assert got["commands.robot.JointMove.reply"] is Outcome.NOT_APPLICABLE  # not offered
@@ -1313,8 +1316,12 @@ class SyncRobot(MiniRobot):
 @pytest.mark.parametrize(
     ("service", "claimed", "not_covered"),
     [
-        (CoreOnlyRobot, ["core", "crc-off"], ["motion", "cartesian", "alter", "sync"]),
-        (SyncRobot, ["core", "sync", "crc-off"], ["motion", "cartesian", "alter"]),
+        (
+            CoreOnlyRobot,
+            ["core", "crc-off"],
+            ["motion", "cartesian", "alter", "alter-queue", "sync"],
+        ),
+        (SyncRobot, ["core", "sync", "crc-off"], ["motion", "cartesian", "alter", "alter-queue"]),
     ],
 )
 def test_summary_states_the_verdict_with_its_scope(

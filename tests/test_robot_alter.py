@@ -222,3 +222,47 @@ def test_alter_mode_keeps_a_settled_arm_from_counting_as_settled() -> None:
     robot.alter_begin(TOOL, 0.5)
     assert not robot.wait_end_move(0.004)  # one cycle: the clock advances
     assert robot.time() == pytest.approx(t + 0.004)
+
+
+def test_emulator_applies_a_timed_table_at_its_cycles() -> None:
+    """[RS-5.39] [RS-5.44] A table sent ahead in one batch, then nothing: the tool point at
+    each cycle is the nominal one plus the table's value for that cycle's time."""
+    robot = _robot()
+    robot.alter_begin(TOOL, 0.05)
+    start = _tool_point(robot)
+    t0 = robot.time()
+    times = t0 + np.arange(1, 101) * PERIOD
+    c = np.zeros((100, 6))
+    c[:, 2] = np.linspace(0.0, 1.0, 100) ** 2  # 1 mm, within RS-5.34 at every cycle
+    report, applied, now = robot.alter_queue(times, c)
+    assert (report.accepted, report.late, report.depth) == (100, 0, 100)
+    assert now == pytest.approx(t0) and not np.any(applied)
+    for k in range(100):
+        robot.step()
+        assert robot.time() == pytest.approx(times[k])
+        assert _tool_point(robot)[2] - start[2] == pytest.approx(c[k, 2], abs=1e-6)
+    for _ in range(12):  # held past the end (never extrapolated) until the stream is lost
+        robot.step()
+        assert robot.alter_applied()[2] == pytest.approx(1.0, abs=1e-9)
+    robot.step(2)  # 50 ms after the last entry's time: lost, alter mode over
+    with pytest.raises(BadStateError, match="not active"):
+        robot.alter_queue(np.zeros(0), np.zeros((0, 6)))
+
+
+def test_emulator_alter_queue_rules() -> None:
+    """[RS-5.39] outside alter mode BAD_STATE; [RS-5.46] no Alter while queued."""
+    robot = _robot()
+    with pytest.raises(BadStateError):
+        robot.alter_queue(np.array([1.0]), np.zeros((1, 6)))
+    robot.alter_begin(TOOL, 0.1)
+    robot.alter_queue(np.array([robot.time() + 0.1]), np.zeros((1, 6)))
+    with pytest.raises(BadStateError, match="queued"):
+        robot.alter([0.0] * 6)
+
+
+def test_alter_queue_is_listed_only_by_a_robot_that_has_it() -> None:
+    class NoQueue(RobotEmulator):
+        alter_queue = RobotInterface.alter_queue
+
+    assert CommandId.ALTER_QUEUE in RobotService(RobotEmulator()).implemented()
+    assert CommandId.ALTER_QUEUE not in RobotService(NoQueue()).implemented()

@@ -192,7 +192,29 @@ def test_track_writes_the_json_fields(tmp_path: Path, capsys: pytest.CaptureFixt
     assert data["speed_mm_s"] == 100.0 and data["delta_t_ms"] == pytest.approx(4.9)
     assert data["tracking_error_max_mm"] <= 0.1
     assert data["tracking_error_rms_mm"] <= data["tracking_error_max_mm"]
-    assert "tracking error max" in capsys.readouterr().out
+    out_lines = capsys.readouterr().out.splitlines()
+    assert "error against the emulator's truth max" in out_lines[0]
+    assert "the tracker's estimate max" in out_lines[0]
+    # the verdict: the last line, the same in the JSON
+    assert out_lines[-1].startswith("WITHIN TOLERANCE 0.1 mm")
+    assert data["verdict"]["line"] == out_lines[-1] and data["verdict"]["within_tolerance"]
+
+
+def test_track_out_of_tolerance_exits_3_with_the_reason(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """[issue 30] The untracked nominal path is 2 mm off the sine: the tracker's own estimate
+    says so, exit 3, the reason on the last line and in the JSON."""
+    out = tmp_path / "track.json"
+    argv = ["track", "--emulate", "--seam", "sine", "--length", "40", "--untracked"]
+    assert main([*argv, "--true-delta-t", "--json", str(out)]) == 3
+    last = capsys.readouterr().out.splitlines()[-1]
+    assert last.startswith("OUT OF TOLERANCE 0.1 mm: estimated error")
+    data = json.loads(out.read_text())
+    assert not data["verdict"]["within_tolerance"] and data["verdict"]["line"] == last
+    assert data["verdict"]["estimate_max_mm"] == pytest.approx(
+        data["tracking_error_max_mm"], abs=0.05
+    )
 
 
 @pytest.mark.parametrize("bad", [["--speed", "0"], ["--seam", "zigzag"], []])

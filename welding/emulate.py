@@ -14,6 +14,7 @@ import contextlib
 import json
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -38,9 +39,16 @@ from spec.params import Location, Value
 from spec.realtime import realtime_threads
 from spec.registry import CommandId
 from welding.tools import Entry, Loc, Tables
-from welding.track_loop import RobotLink, TrackedWeld, TrackLink, weld_tracked
+from welding.track_loop import (
+    QueueState,
+    RobotLink,
+    TrackedWeld,
+    TrackLink,
+    laser_path,
+    weld_tracked,
+)
 from welding.track_options import TRACK_SEAMS
-from welding.tracking import NominalWeld, Tracker, seam_error
+from welding.tracking import TOLERANCE_MM, NominalWeld, Tracker, seam_error
 
 __all__ = ["EmulatedSession", "cell_tables", "realtime_cell"]
 
@@ -49,6 +57,8 @@ log = logging.getLogger(__name__)
 #: SCHED_FIFO priority of the real-clock tracker's process: below the real-time child's
 #: command (40) and timing (50) threads, above everything else.
 TRACKER_PRIORITY = 30
+#: Exit code of a tracked weld out of its tolerance (or stopped early), as ``welding track``.
+EXIT_OUT_OF_TOLERANCE = 3
 
 
 def _loc(values: object) -> Loc:
@@ -189,10 +199,20 @@ class TrackingRun:
     corrections: int = 0  # corrections sent during it: one per cycle when the loop keeps up
     start_on_grid: bool = True  # the cycle the move started on is known exactly
     cell: str = "in-process"  # where the cell ran: in-process or the real-time child
+    #: the tracker's own verdict (welding.tracking.Verdict.summary: no truth in it)
+    verdict: dict[str, object] = field(default_factory=dict)
+    timed: bool = False  # timed corrections (AlterQueue) or one Alter per cycle
+    #: laser cycles whose applied correction is not the table's entry for that cycle
+    #: (timed mode; the emulator's truth)
+    misapplied_cycles: int = 0
     plot: dict[str, npt.NDArray[np.float64]] = field(default_factory=dict, repr=False)
 
     def summary(self) -> dict[str, object]:
         return {k: v for k, v in asdict(self).items() if k != "plot"}
+
+    @property
+    def within_tolerance(self) -> bool:
+        return bool(self.verdict.get("within_tolerance"))
 
 
 def run_tracking(
@@ -213,6 +233,9 @@ def run_tracking(
     laser_tool_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
     sensor_tool: Loc | None = None,
     clock: str = "sim",
+    tolerance_mm: float = TOLERANCE_MM,
+    timed: bool = True,
+    load: Callable[[tuple[str, int]], contextlib.AbstractContextManager[object]] | None = None,
 ) -> TrackingRun:
     """Weld ``weld_mm`` of ``seam`` (``straight|offset|sine``) at ``speed_mm_s`` on the
     simulated cell, correcting the laser every cycle from the synchronised seam points.
@@ -230,8 +253,11 @@ def run_tracking(
     ``sensor_tool`` is the ^N_S T the robot computes seam points with (SetSensorTool;
     default the nominal one), e.g. a calibrated tool. ``clock="real"``: the cell runs on the
     wall clock (its 4 ms cycle in a thread) and the tracker is a client of its servers that
-    waits for each cycle; a loop that stalls misses cycles (the robot holds the last
-    correction), which ``corrections`` < ``cycles`` shows."""
+    waits for each cycle. ``timed``: timed corrections sent ahead (AlterQueue) where the
+    robot has them, else one Alter per cycle (a loop that stalls then misses cycles, which
+    ``corrections`` < ``cycles`` shows). The verdict is the tracker's own (``tolerance_mm``);
+    the errors against the truth stand beside it. ``load``: a context entered with the
+    robot server's address around the weld on the real clock (a benchmark's load)."""
     if seam not in TRACK_SEAMS:
         raise ValueError(f"seam must be one of {', '.join(TRACK_SEAMS)}, got {seam!r}")
     shape, placement = TRACK_SEAMS[seam]
@@ -256,8 +282,10 @@ def run_tracking(
             with realtime_threads(TRACKER_PRIORITY) as got:
                 log.info("tracker threads: scheduling %s", got)
                 side = _ChildSide(child.start(), sensor_tool)
-                return _track_on(side, seam, speed_mm_s, delta_t_ms, weld_mm, rate_hz, track,
-                                 sensor_silent_after_mm, measure_delta_t, True)  # fmt: skip
+                with load(side.robot_address) if load else contextlib.nullcontext():
+                    return _track_on(side, seam, speed_mm_s, delta_t_ms, weld_mm, rate_hz,
+                                     track, sensor_silent_after_mm, measure_delta_t, True,
+                                     tolerance_mm, timed)  # fmt: skip
         finally:
             child.close()
     cell = EmulatedCell(clock=clock, **config)
@@ -278,6 +306,8 @@ def run_tracking(
             sensor_silent_after_mm,
             measure_delta_t,
             over_sockets,
+            tolerance_mm,
+            timed,
         )
     finally:
         if servers:
@@ -390,6 +420,8 @@ def _track_on(
     sensor_silent_after_mm: float | None,
     measure_delta_t: bool,
     over_sockets: bool,
+    tolerance_mm: float,
+    timed: bool,
 ) -> TrackingRun:
     period = cell.period
     true_dt = cell.true_delta_t_s()
@@ -405,9 +437,14 @@ def _track_on(
     if over_sockets:
         client = FramedClient(*cell.robot_address, timeout=10.0, client_name="track")
         client.take_control()
-        link = RobotLink(client, cell.udp_address, period=period, real_time=cell.clock == "real")
+        robot_link = RobotLink(
+            client, cell.udp_address, period=period, real_time=cell.clock == "real"
+        )
+        robot_link.use_queue = timed
+        link = robot_link
     else:
         link = cell.direct_link()
+        link.timed = timed
     try:
         dt = link.delta_t()  # the ΔT in force (GetSyncConfig)
         laser_tool = cell.laser_tool
@@ -424,7 +461,10 @@ def _track_on(
             speed_mm_s=speed_mm_s,
         )
         tracker = Tracker(weld, look_ahead)
-        plan = TrackedWeld(tracker, laser_tool, look_ahead, look_ahead + weld_mm, rate_hz, track)
+        plan = TrackedWeld(
+            tracker, laser_tool, look_ahead, look_ahead + weld_mm, rate_hz, track,
+            tolerance_mm=tolerance_mm,
+        )  # fmt: skip
         outcome = weld_tracked(link, plan, sensor_silent_after_mm=sensor_silent_after_mm)
         stopped = outcome.stopped
     finally:
@@ -459,13 +499,33 @@ def _track_on(
         corrections=outcome.corrections,
         start_on_grid=outcome.start_on_grid,
         cell="real-time child" if isinstance(cell, _ChildSide) else "in-process",
+        verdict=outcome.verdict.summary() if outcome.verdict is not None else {},
+        timed=outcome.timed,
+        misapplied_cycles=_misapplied(outcome.sent, truth.times, corr) if outcome.timed else 0,
         plot={
             "laser": _to_w(laser_pts, b2w),
             "nominal": _to_w(laser_pts - corr, b2w),
             "measured": _to_w(tracker.model.points(), b2w),
             "seam": _true_seam(scene, laser_pts, b2w),
+            "estimate": outcome.estimate,
+            "truth_error": np.column_stack([weld.project(laser_pts), err]),
         },
     )
+
+
+def _misapplied(
+    sent: npt.NDArray[np.float64], times: npt.NDArray[np.float64], applied: npt.NDArray[np.float64]
+) -> int:
+    """Cycles at ``times`` (N,) whose applied correction (N, 3) is not the sent table's
+    (rows t, correction 6) entry for that very cycle (RS-5.44: one entry per cycle)."""
+    if not len(times):
+        return 0
+    if not len(sent):
+        return len(times)
+    i = np.clip(np.searchsorted(sent[:, 0], times - 1e-9), 0, len(sent) - 1)
+    same_cycle = np.abs(sent[i, 0] - times) < 1e-9
+    same_value = np.all(np.abs(sent[i, 1:4] - applied) < 1e-6, axis=1)
+    return int(np.count_nonzero(~(same_cycle & same_value)))
 
 
 class _DirectLink:
@@ -475,6 +535,7 @@ class _DirectLink:
         self.cell = cell
         self.robot = cell.robot
         self.period = cell.robot.period
+        self.timed = True
 
     def delta_t(self) -> float:
         return self.cell.core.delta_t_s
@@ -501,6 +562,16 @@ class _DirectLink:
 
     def alter(self, correction: npt.NDArray[np.float64]) -> None:
         self.robot.alter(correction)
+
+    def queue(
+        self, times: npt.NDArray[np.float64], corrections: npt.NDArray[np.float64]
+    ) -> QueueState:
+        report, _, now = self.robot.alter_queue(times, corrections)
+        return QueueState(report.late_total, report.held_total, report.horizon, now)
+
+    def laser_points(self, tool: Loc, since: float) -> npt.NDArray[np.float64]:
+        _, joints = self.robot.joint_log(since)
+        return laser_path(self.robot.model, joints, tool)
 
     def step(self) -> None:
         self.robot.step()
@@ -562,8 +633,9 @@ def _true_seam(
 
 
 def cmd_track(args: argparse.Namespace) -> int:
-    """Run one tracked weld; print and optionally write the result. Exit 1 when the weld
-    stopped early (the laser is off)."""
+    """Run one tracked weld; print and optionally write the result and end with the
+    tracker's own verdict: exit 0 within ``--tolerance``, 3 (with the reason) when not,
+    including a weld that stopped early (the laser is off)."""
     run = run_tracking(
         args.seam,
         args.speed,
@@ -579,26 +651,31 @@ def cmd_track(args: argparse.Namespace) -> int:
         laser_tool_error=args.laser_tool_error,
         sensor_tool=args.sensor_tool_location,
         clock=args.clock,
+        tolerance_mm=args.tolerance,
+        timed=not args.per_cycle,
     )
     data = run.summary()
     if args.json:
         write_atomically(args.json, json.dumps(data, indent=1) + "\n")
     if args.plot:
         _plot(run, Path(args.plot))
+    estimate = float(run.verdict.get("estimate_max_mm", math.nan))  # type: ignore[arg-type]
     print(
         f"{run.seam} seam at {run.speed_mm_s:g} mm/s, ΔT {run.delta_t_ms:.2f} ms: "
-        f"tracking error max {run.tracking_error_max_mm * 1e3:.1f} µm, "
+        f"error against the emulator's truth max {run.tracking_error_max_mm * 1e3:.1f} µm, "
         f"rms {run.tracking_error_rms_mm * 1e3:.1f} µm over {run.welded_mm:g} mm "
-        f"(nominal path {run.nominal_error_max_mm:.3f} mm)"
+        f"(nominal path {run.nominal_error_max_mm:.3f} mm); "
+        f"the tracker's estimate max {estimate * 1e3:.1f} µm"
         + (f"; STOPPED: {run.stopped}" if run.stopped else "")
     )
     if run.clock == "real":
         print(
-            f"real clock ({run.cell}): {run.corrections} corrections in {run.cycles} cycles "
-            "of the move"
+            f"real clock ({run.cell}, {'timed corrections' if run.timed else 'Alter per cycle'}"
+            f"): {run.corrections} corrections in {run.cycles} cycles of the move"
             + ("" if run.start_on_grid else "; the move's start cycle was not known exactly")
         )
-    return 1 if run.stopped else 0
+    print(run.verdict.get("line", "no verdict"))
+    return 0 if run.within_tolerance else EXIT_OUT_OF_TOLERANCE
 
 
 def _plot(run: TrackingRun, out_dir: Path) -> None:

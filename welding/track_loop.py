@@ -20,21 +20,33 @@ import contextlib
 import logging
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
 
+from kinematics.robot import RobotModel, get_model
+from kinematics.transforms import location_to_transform
+from spec import wire
 from spec.errors import RemoteError
-from spec.params import IDENTITY_LOCATION, FloatArray, Location, Matrix, Value
+from spec.params import IDENTITY_LOCATION, FloatArray, IntArray, Location, Matrix, Value
 from spec.registry import CommandId
 from welding.tools import Loc
-from welding.tracking import MIN_FIT_POINTS, Tracker, TrackingError
+from welding.tracking import (
+    FIT_HALF_WIDTH_MM,
+    MIN_FIT_POINTS,
+    TOLERANCE_MM,
+    Tracker,
+    TrackingError,
+    Verdict,
+    estimate_errors,
+    judge,
+)
 
 Array = npt.NDArray[np.float64]
 
-__all__ = ["RobotLink", "TrackLink", "TrackOutcome", "TrackedWeld", "weld_tracked"]
+__all__ = ["QueueState", "RobotLink", "TrackLink", "TrackOutcome", "TrackedWeld", "weld_tracked"]
 
 log = logging.getLogger(__name__)
 
@@ -42,12 +54,33 @@ log = logging.getLogger(__name__)
 #: enough for the path to reach the robot and be planned meanwhile (about 15 ms for 1000
 #: samples here), short against the 0.1 s alter timeout the loop pauses for.
 HOLD_S = 0.048
+#: A timed correction is sent once the seam is measured this far beyond its laser point
+#: (mm): the whole fit window and a point's spacing, so each cycle's correction is computed
+#: once, from the same points as it would be at its cycle.
+FINAL_MARGIN_MM = FIT_HALF_WIDTH_MM + 1.0
+#: Past the laser's end the seam is followed on this far (mm) where it is measured, then the
+#: correction is held: far more than the ~0.2 mm RS-5.34 needs to brake a 63 mm/s one.
+FOLLOW_ON_MM = 10.0
+#: Timed corrections go on past the move's end this long (s): the robot holds none of the
+#: move's cycles, and the counts read just after it are of the weld alone.
+TAIL_S = 0.2
+
+
+@dataclass(frozen=True)
+class QueueState:
+    """The robot's timed-correction queue as AlterQueue reports it (RS-5.45)."""
+
+    late_total: int
+    held_total: int
+    horizon: float
+    time: float
 
 
 class TrackLink(Protocol):
     """What the tracking loop needs of the robot (and its sync service)."""
 
     period: float
+    timed: bool  # the robot takes timed corrections (AlterQueue): set by start()
 
     def delta_t(self) -> float: ...
     def here(self, tool: Loc) -> Loc: ...
@@ -56,6 +89,8 @@ class TrackLink(Protocol):
     def next_cycle(self) -> float: ...
     def points(self, since: int) -> Array: ...
     def alter(self, correction: Array) -> None: ...
+    def queue(self, times: Array, corrections: Array) -> QueueState: ...
+    def laser_points(self, tool: Loc, since: float) -> Array: ...
     def step(self) -> None: ...
     def move(self, times: Array, locs: Array, tool: Loc) -> tuple[float, bool]: ...
     def queued(self) -> int: ...
@@ -81,6 +116,7 @@ class TrackedWeld:
     track: bool = True
     laser: bool = True
     settle_s: float = 0.25
+    tolerance_mm: float = TOLERANCE_MM
 
 
 @dataclass(frozen=True)
@@ -93,13 +129,24 @@ class TrackOutcome:
     cycles: int
     corrections: int
     start_on_grid: bool
+    verdict: Verdict | None = None
+    #: timed mode: the table sent, rows (robot time s, correction 6); else empty
+    sent: Array = field(default_factory=lambda: np.zeros((0, 7)))
+    timed: bool = False
+    #: the verdict's estimate along the weld: rows (arc length mm, estimated error mm)
+    estimate: Array = field(default_factory=lambda: np.zeros((0, 2)))
 
 
 def weld_tracked(
     link: TrackLink, weld: TrackedWeld, *, sensor_silent_after_mm: float | None = None
 ) -> TrackOutcome:
     """Run ``weld`` on ``link``; ``sensor_silent_after_mm`` stops the triggers once the laser
-    is that far past ``laser_from_mm`` (a dropped sensor, for tests)."""
+    is that far past ``laser_from_mm`` (a dropped sensor, for tests).
+
+    A robot that takes timed corrections (AlterQueue, RS-5.39) gets each cycle's correction
+    ahead of its cycle, as soon as the seam around its laser point is measured (the sensor
+    looks ahead: ~140 ms at 250 mm/s), so a loop late by tens of milliseconds costs nothing;
+    otherwise the correction for the next cycle is sent every cycle (Alter)."""
     tracker = weld.tracker
     nominal = tracker.weld
     period = link.period
@@ -117,9 +164,13 @@ def weld_tracked(
 
     # points of earlier runs (the ΔT measurement, another weld) are not this seam's
     last_index = link.start(weld.laser_tool, weld.rate_hz) - 1
-    t0 = link.time()
+    timed = link.timed
+    t_first = t0 = link.time()
     on_grid = False
     corrections = 0
+    sent_t: list[float] = []
+    sent_c: list[Array] = []
+    state = QueueState(0, 0, -1.0, t0)
     try:
         # the arm stands still while the sensor measures the seam's start and the laser is
         # brought onto it
@@ -131,32 +182,73 @@ def weld_tracked(
             link.step()
         times, locs = nominal.timed_path(period)
         t0, on_grid = link.move(times, locs, weld.laser_tool)  # the law's start, a cycle
-        log.info("tracked move queued: %d cycles", len(times))
+        log.info("tracked move queued: %d cycles (%s corrections)", len(times),
+                 "timed" if timed else "per-cycle")  # fmt: skip
         held = np.zeros(6)
         n = 0
+        # timed: the next cycle without a queued correction, and the last one to queue
+        # (on the real clock two cycles on: the stand before the move is still on, and the
+        # Alter in force covers it while the first batch is on its way)
+        k_next = round(link.next_cycle() / period)
+        if t0 > link.next_cycle() + 2 * period:
+            k_next += 2
+        k_last = math.ceil((t0 + float(times[-1]) + TAIL_S) / period)
         while link.queued():
-            t_move = link.next_cycle() - t0  # the correction applies at the next cycle
+            t_cycle = link.next_cycle()
+            t_move = t_cycle - t0  # the correction applies at the next cycle
             s = float(nominal.s_at(t_move))
             if (
                 sensor_silent_after_mm is not None
                 and s > weld.laser_from_mm + sensor_silent_after_mm
             ):
                 link.stop_triggers()  # no more seam points: the sensor has dropped out
-            if s <= weld.laser_to_mm:
-                held = tracker.correction(t_move) if track else np.zeros(6)
-            # past the weld's end the seam no longer matters: the last correction is held
-            link.alter(held)
-            corrections += t_move > 0.0  # the stand before a real-clock move is no cycle of it
+            if timed:
+                if track and s <= weld.laser_to_mm:
+                    tracker.check_ahead(t_move)  # a silent sensor stops the weld
+                ready_s = tracker.model.furthest - FINAL_MARGIN_MM
+                batch_t: list[float] = []
+                while k_next <= k_last:
+                    t_k = k_next * period
+                    s_k = float(nominal.s_at(t_k - t0))
+                    due = t_k <= t_cycle + period + 1e-9
+                    beyond = s_k > weld.laser_to_mm + FOLLOW_ON_MM
+                    if s_k > ready_s and not (due or beyond):
+                        break  # final once its fit window is measured
+                    if not track:
+                        held = np.zeros(6)
+                    elif s_k <= weld.laser_to_mm:
+                        # one due at once is sent with what there is (TrackingError when
+                        # that is not enough: the weld stops)
+                        held = tracker.correction_at(s_k)
+                    elif not beyond:
+                        # past the weld's end the seam is followed on a little where it is
+                        # measured (a correction stopping dead at the laser's last cycle
+                        # would be braked within RS-5.34 before it), then held
+                        with contextlib.suppress(TrackingError):
+                            held = tracker.correction_at(s_k)
+                    batch_t.append(t_k)
+                    sent_c.append(held)
+                    k_next += 1
+                if batch_t:
+                    sent_t.extend(batch_t)
+                    state = link.queue(np.array(batch_t), np.array(sent_c[-len(batch_t) :]))
+            else:
+                if s <= weld.laser_to_mm:
+                    held = tracker.correction(t_move) if track else np.zeros(6)
+                link.alter(held)
+                corrections += t_move > 0.0  # the stand before a real-clock move is no cycle
             want_on = weld.laser and weld.laser_from_mm <= s <= weld.laser_to_mm
             if want_on != laser_on:
                 link.set_laser(want_on)
                 laser_on = want_on
             # after the correction, whose cycle is the deadline, and every other cycle: the
             # points come at the trigger rate and are measured 40 mm ahead of the laser
-            if n % 2 == 0:
+            if n % 2 == 0 or timed:
                 fetch()
             n += 1
             link.step()
+        if timed:
+            state = link.queue(np.zeros(0), np.zeros((0, 6)))  # the counts of the weld
     except (TrackingError, RemoteError) as exc:
         # the seam is lost, or the robot refused a correction (it ends alter mode when the
         # stream goes silent): laser off first, then the arm stops along its path
@@ -173,8 +265,32 @@ def weld_tracked(
     if laser_on:
         link.set_laser(False)
     cycles = round((link.time() - t0) / period)
+    if timed:  # the move's cycles whose correction was queued
+        t_arr = np.array(sent_t)
+        corrections = int(np.count_nonzero((t_arr > t0) & (t_arr <= t0 + cycles * period)))
     link.finish()
-    return TrackOutcome(stopped, cycles, corrections, on_grid)
+    # the verdict from what a real cell has: the laser's path from the measured joints, the
+    # seam the sensor measured, the corrections the robot did not get in time
+    try:
+        laser = link.laser_points(weld.laser_tool, t_first)
+    except RemoteError as exc:
+        stopped = stopped or f"the robot's joint log is not available: {exc}"
+        laser = np.zeros((0, 3))
+    s_est, err = estimate_errors(tracker.model, laser, weld.laser_from_mm, weld.laser_to_mm)
+    late, missed = (state.late_total, state.held_total) if timed else (0, cycles - corrections)
+    verdict = judge(
+        err,
+        late=late,
+        held=max(missed, 0),
+        tolerance_mm=weld.tolerance_mm,
+        stopped=stopped,
+        s=s_est,
+    )
+    sent = (
+        np.column_stack([sent_t, np.array(sent_c).reshape(-1, 6)]) if sent_t else np.zeros((0, 7))
+    )
+    estimate = np.column_stack([s_est, err])
+    return TrackOutcome(stopped, cycles, corrections, on_grid, verdict, sent, timed, estimate)
 
 
 class RobotLink:
@@ -198,6 +314,10 @@ class RobotLink:
         self.real_time = real_time
         self._offset = 0.0  # robot time - local monotonic time (real clock)
         self._end = -math.inf  # robot time the queued move's law ends (real clock)
+        self.timed = False
+        #: use timed corrections when the robot lists AlterQueue in Hello (False: Alter only)
+        self.use_queue = True
+        self._model: RobotModel | None = None
 
     def _call(self, command: CommandId, *params: Value) -> tuple[Value, ...]:
         return self.client.call(command, *params)
@@ -211,6 +331,11 @@ class RobotLink:
         return loc.as_tuple()
 
     def start(self, tool: Loc, rate_hz: float) -> int:
+        info = self._call(CommandId.HELLO, wire.VERSION_MAJOR, wire.VERSION_MINOR, "track")
+        commands = info[6]
+        listed = commands.values if isinstance(commands, IntArray) else []
+        self.timed = self.use_queue and int(CommandId.ALTER_QUEUE) in listed
+        self._model = get_model(str(info[3]))
         self._call(CommandId.ENABLE_POWER)
         if self.sensor_endpoint is not None:
             self._call(CommandId.SET_SENSOR_ENDPOINT, *self.sensor_endpoint)
@@ -258,6 +383,22 @@ class RobotLink:
 
     def alter(self, correction: Array) -> None:
         self._call(CommandId.ALTER, Location(*(float(v) for v in correction)))
+
+    def queue(self, times: Array, corrections: Array) -> QueueState:
+        r = self._call(
+            CommandId.ALTER_QUEUE,
+            FloatArray(times.tolist()),
+            Matrix(len(times), 6, corrections.ravel().tolist()),
+        )
+        return QueueState(int(r[4]), int(r[5]), float(r[3]), float(r[7]))  # type: ignore[arg-type]
+
+    def laser_points(self, tool: Loc, since: float) -> Array:
+        """The laser tool's points (N, 3), base frame, from the measured joints logged
+        after ``since`` (GetJointLog and the arm's model of Hello)."""
+        m = self._call(CommandId.GET_JOINT_LOG, float(since))[0]
+        assert isinstance(m, Matrix) and self._model is not None
+        rows = np.array(m.values, dtype=np.float64).reshape(m.rows, m.cols)
+        return laser_path(self._model, rows[:, 1:], tool)
 
     def step(self) -> None:
         if not self.real_time:
@@ -324,6 +465,15 @@ class RobotLink:
 
     def close(self) -> None:
         pass
+
+
+def laser_path(model: RobotModel, joints: Array, tool: Loc) -> Array:
+    """Points (N, 3) of ``tool`` (flange, mm, deg), base frame, at the joints (N, 6) deg."""
+    if not len(joints):
+        return np.zeros((0, 3))
+    f2b = model.flange2base_batch(joints)
+    out: Array = (f2b @ location_to_transform(np.array(tool, dtype=np.float64)))[:, :3, 3]
+    return out
 
 
 class _Caller(Protocol):

@@ -56,6 +56,19 @@ def add_track_options(p: argparse.ArgumentParser) -> None:
         "wall clock in a real-time child process, the tracker a client that keeps pace "
         "(default %(default)s)",
     )
+    p.add_argument(
+        "--tolerance",
+        type=cliargs.number_in(0.001, 10.0),
+        default=0.1,
+        metavar="MM",
+        help="the tracker's own error estimate must stay within it: exit 0, else 3 "
+        "(default %(default)s)",
+    )
+    p.add_argument(
+        "--per-cycle",
+        action="store_true",
+        help="send one Alter per cycle instead of timed corrections ahead (AlterQueue)",
+    )
     p.add_argument("--json", type=cliargs.output_file, metavar="OUT.json")
     p.add_argument("--plot", metavar="DIR", help="write track.png (needs matplotlib)")
     p.add_argument(

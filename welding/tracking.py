@@ -189,6 +189,24 @@ class SeamModel:
         out: FloatArray = coef[0]
         return out
 
+    def scatter_at(self, s: float) -> float:
+        """RMS distance (mm) of the seam points within ``half_width_mm`` of ``s`` from the
+        local fit there, weighted as the fit: how far one measurement is from the seam the
+        tracker believes; 0 where there are too few points to tell."""
+        ss = self._s
+        near = np.abs(ss - s) <= self.half_width_mm
+        n = int(np.count_nonzero(near))
+        if n <= MIN_FIT_POINTS:
+            return 0.0
+        x = ss[near] - s
+        w = (1.0 - (np.abs(x) / self.half_width_mm) ** 3) ** 3 + 1e-6
+        A = np.vander(x, 3, increasing=True)
+        sw = np.sqrt(w)[:, None]
+        coef, *_ = np.linalg.lstsq(A * sw, self._e[near] * sw, rcond=None)
+        r = np.linalg.norm(self._e[near] - A @ coef, axis=1)
+        # the degrees of freedom the quadratic took from the points
+        return float(np.sqrt(np.sum(w * r**2) / np.sum(w) * n / (n - 3)))
+
 
 @dataclass
 class Tracker:
@@ -211,6 +229,12 @@ class Tracker:
         """Correction (6,) (mm, deg; base frame) for the laser at ``t_move`` s after the move
         start. Raises :class:`TrackingError` when the seam ahead is not measured or needs more
         than the robot may correct: the weld must stop."""
+        self.check_ahead(t_move)
+        return self.correction_at(float(self.weld.s_at(t_move)))
+
+    def check_ahead(self, t_move: float) -> None:
+        """TrackingError unless the seam is measured ahead of the laser at ``t_move`` s after
+        the move start as far as a live sensor measures it (a silent sensor stops the weld)."""
         s = float(self.weld.s_at(t_move))
         end = self.weld.length_mm if self.seam_end_mm is None else self.seam_end_mm
         sensor_at = min(s + self.look_ahead_mm, end)
@@ -219,6 +243,10 @@ class Tracker:
                 f"seam not measured ahead of the laser: furthest point {self.model.furthest:.1f}"
                 f" mm, sensor at {sensor_at:.1f} mm"
             )
+
+    def correction_at(self, s: float) -> FloatArray:
+        """Correction (6,) for the laser at arc length ``s`` from the seam measured there;
+        TrackingError when it is not measured or needs more than the robot may correct."""
         e = self.model.offset_at(s)
         if float(np.linalg.norm(e)) > self.max_correction_mm:
             raise TrackingError(
@@ -436,3 +464,107 @@ def check_sensor_view(
             f"the corner turns too sharply for the sensor {ahead:.0f} mm ahead: it {seen}"
             f" (at most {half_field_mm:g} mm)",
         )
+
+
+# --- the tracked weld's own verdict (no truth needed) -------------------------------------------
+
+#: Default tolerance of a tracked weld (mm): the paper's 0.1 mm.
+TOLERANCE_MM = 0.1
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """What a tracked weld can say about itself on a real cell: the laser's error estimated
+    from the robot's measured joints (the laser's path) against the seam the sensor measured
+    ahead of it, and the corrections the robot did not get in time. ``within``: exit 0;
+    else ``reason`` (exit 3)."""
+
+    within: bool
+    reason: str
+    tolerance_mm: float
+    estimate_max_mm: float
+    estimate_rms_mm: float
+    cycles: int  # laser cycles estimated
+    late: int  # timed corrections that reached the robot after their cycle
+    held: int  # cycles the robot held a correction because the next one had not come
+
+    def line(self) -> str:
+        est = (
+            f"estimated error max {self.estimate_max_mm:.3f} mm, rms {self.estimate_rms_mm:.3f}"
+            f" mm over {self.cycles} cycles; {self.late} late corrections, {self.held} held"
+            " cycles"
+        )
+        if self.within:
+            return f"WITHIN TOLERANCE {self.tolerance_mm:g} mm: {est}"
+        return f"OUT OF TOLERANCE {self.tolerance_mm:g} mm: {self.reason} ({est})"
+
+    def summary(self) -> dict[str, object]:
+        return {
+            "within_tolerance": self.within,
+            "reason": self.reason,
+            "tolerance_mm": self.tolerance_mm,
+            "estimate_max_mm": self.estimate_max_mm,
+            "estimate_rms_mm": self.estimate_rms_mm,
+            "estimate_cycles": self.cycles,
+            "late_corrections": self.late,
+            "held_cycles": self.held,
+            "line": self.line(),
+        }
+
+
+def estimate_errors(
+    model: SeamModel, laser_points: FloatArray, s_from: float, s_to: float
+) -> tuple[FloatArray, FloatArray]:
+    """(arc lengths (K,), errors (K,) mm) of the laser points (N, 3) (base frame, from the
+    measured joints) inside [``s_from``, ``s_to``] against the measured seam there: the
+    distance of the laser's offset from the nominal path to the seam's (the local fit the
+    tracker used, now with every point the sensor measured around it), plus the scatter of
+    the seam points about that fit (the measurement's own error, which the fit cannot
+    average away when it is correlated along the seam, as a camera's is). A place without
+    enough seam points is an error of +inf (not measured: not within any tolerance)."""
+    p = np.asarray(laser_points, dtype=np.float64).reshape(-1, 3)
+    s = model.weld.project(p)
+    keep = (s >= s_from) & (s <= s_to)
+    s, p = s[keep], p[keep]
+    e_laser = p - model.weld.point(s)
+    err = np.empty(len(s))
+    for i, si in enumerate(s):
+        try:
+            off = float(np.linalg.norm(e_laser[i] - model.offset_at(float(si))))
+            err[i] = off + model.scatter_at(float(si))
+        except TrackingError:
+            err[i] = math.inf
+    return s, err
+
+
+def judge(
+    errors: FloatArray,
+    *,
+    late: int,
+    held: int,
+    tolerance_mm: float = TOLERANCE_MM,
+    stopped: str = "",
+    s: FloatArray | None = None,
+) -> Verdict:
+    """The verdict of a tracked weld: within ``tolerance_mm`` when it was completed, every
+    estimated error is within it and every correction reached the robot in time."""
+    e = np.asarray(errors, dtype=np.float64)
+    finite = e[np.isfinite(e)]
+    e_max = float(e.max()) if len(e) else math.nan
+    e_rms = float(np.sqrt(np.mean(finite**2))) if len(finite) else math.nan
+    reason = ""
+    if stopped:
+        reason = f"the weld stopped: {stopped}"
+    elif not len(e):
+        reason = "no laser cycle to estimate the error on"
+    elif not np.all(np.isfinite(e)):
+        at = f" at s = {float(s[np.argmax(~np.isfinite(e))]):.1f} mm" if s is not None else ""
+        reason = f"the seam was not measured under the laser{at}"
+    elif e_max > tolerance_mm:
+        at = f" at s = {float(s[int(np.argmax(e))]):.1f} mm" if s is not None else ""
+        reason = f"estimated error {e_max:.3f} mm{at} exceeds {tolerance_mm:g} mm"
+    elif late:
+        reason = f"{late} corrections reached the robot after their cycle"
+    elif held:
+        reason = f"the robot held the correction for {held} cycles (the next had not come)"
+    return Verdict(not reason, reason, tolerance_mm, e_max, e_rms, len(e), late, held)

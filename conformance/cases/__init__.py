@@ -5,6 +5,7 @@ from __future__ import annotations
 from conformance.cases import (  # noqa: F401  (imported for their registrations)
     access,
     alter,
+    alter_queue,
     commands,
     control,
     framing,
