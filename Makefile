@@ -5,7 +5,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint chromium bench fuzz clean
+.PHONY: demo test lint chromium tshark bench fuzz clean
 
 $(STAMP): pyproject.toml Makefile
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -33,7 +33,7 @@ lint: $(STAMP)
 # clean clone (about 15 s of one core) fits in the CPU the mostly-waiting suite leaves idle (it
 # uses about half of two cores), and nice keeps it from taking CPU the real-time tests need.
 # Either failing fails the target.
-test: $(STAMP) chromium
+test: $(STAMP) chromium tshark
 	@log=$$(mktemp); nice -n 10 $(MAKE) --no-print-directory lint >"$$log" 2>&1 & lint=$$!; \
 	$(PY) -m pytest -n 2 --dist worksteal; tests=$$?; \
 	wait $$lint; linted=$$?; cat "$$log"; rm -f "$$log"; \
@@ -48,6 +48,15 @@ chromium:
 		apt-get install -y chromium || { apt-get update && apt-get install -y chromium; } || \
 		echo "BROWSER TESTS WILL BE SKIPPED: apt-get could not install chromium"; \
 	else echo "BROWSER TESTS WILL BE SKIPPED: /usr/bin/chromium not installed (not root)"; fi
+
+# The dissector's tests run Debian's tshark: installed as chromium is (root, non-interactive;
+# the wireshark-common question about non-root capture is answered "no" by the frontend).
+tshark:
+	@if command -v tshark >/dev/null; then :; \
+	elif [ "$$(id -u)" = 0 ]; then export DEBIAN_FRONTEND=noninteractive; \
+		apt-get install -y tshark || { apt-get update && apt-get install -y tshark; } || \
+		echo "TSHARK TESTS WILL BE SKIPPED: apt-get could not install tshark"; \
+	else echo "TSHARK TESTS WILL BE SKIPPED: tshark not installed (not root)"; fi
 
 # The peer libraries of the benchmarks only here: `make test` must not need them.
 $(VENV)/.installed-bench: $(STAMP)

@@ -11,6 +11,7 @@ behind, so its late reply is dropped instead of being taken for the next one's.
 from __future__ import annotations
 
 import itertools
+import os
 import socket
 import threading
 import time
@@ -23,6 +24,7 @@ from spec.codec import FrameDecoder, Packet, encode_request
 from spec.errors import ErrorCode, PeerError, ProtocolError, RemoteError
 from spec.params import IntArray, Value
 from spec.realtime import promote_current_thread
+from spec.record import SessionRecorder
 from spec.registry import BY_ID, CommandId, check_params, exact_classes
 from spec.sockopt import set_kernel_timeouts
 from spec.wire import MoveOutcome, PacketKind
@@ -67,6 +69,7 @@ class FramedClient:
         auto_reconnect: bool = False,
         client_name: str | None = None,
         frame_crc: bool = True,
+        record: str | os.PathLike[str] | SessionRecorder | None = None,
     ) -> None:
         if port is None:
             if self.DEFAULT_PORT is None:
@@ -95,19 +98,38 @@ class FramedClient:
         self._last_sent = 0.0
         self._keeper: threading.Thread | None = None
         self._keeper_stop = threading.Event()
-        self.connect()
+        #: The pcapng recording of this client's connections (``record``): a file name starts
+        #: one, ended by :meth:`close`; a :class:`SessionRecorder` is shared (its owner ends it).
+        self.recorder: SessionRecorder | None = None
+        self._owns_recorder = False
+        self._flow = 0
+        if record is not None:
+            if isinstance(record, SessionRecorder):
+                self.recorder = record
+            else:
+                comment = f"{self.client_name} to {host}:{port}"
+                self.recorder = SessionRecorder(record, comment, self.client_name)
+                self._owns_recorder = True
+        try:
+            self.connect()
+        except BaseException:
+            self.close()
+            raise
 
     # --- connection --------------------------------------------------------------------------
 
     def connect(self) -> None:
         with self._lock:
-            self.close()
+            self._disconnect()
             try:
                 sock = socket.create_connection((self.host, self.port), timeout=self.timeout)
             except TimeoutError:
                 raise ClientTimeout(f"connect to {self.host}:{self.port} timed out") from None
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             self._sock = sock
+            if self.recorder is not None:
+                here, there = sock.getsockname()[:2], sock.getpeername()[:2]
+                self._flow = self.recorder.open_tcp(here, there)
             self._decoder = FrameDecoder(max_payload=wire.MAX_PAYLOAD)
             self._kernel_timeout = None
             self._abandoned.clear()
@@ -134,6 +156,12 @@ class FramedClient:
         self.connect()
 
     def close(self) -> None:
+        """Close the connection; a recording this client started is complete now."""
+        self._disconnect()
+        if self._owns_recorder and self.recorder is not None:
+            self.recorder.close()
+
+    def _disconnect(self) -> None:
         self._stop_keeper()
         with self._lock:
             self.lease = None
@@ -142,6 +170,9 @@ class FramedClient:
                     self._sock.close()
                 finally:
                     self._sock = None
+                    if self.recorder is not None:
+                        self.recorder.close_tcp(self._flow, True)
+                        self.recorder.forget_tcp(self._flow)
 
     @property
     def connected(self) -> bool:
@@ -203,8 +234,10 @@ class FramedClient:
             with self._send_lock:  # the lease keeper may send beside a pending call
                 sock.sendall(data)
                 self._last_sent = time.monotonic()
+                if self.recorder is not None:
+                    self.recorder.tcp(self._flow, True, data)
         except BlockingIOError:  # the kernel send timeout expired: the server stopped reading
-            self.close()
+            self._disconnect()
             raise ClientTimeout("the server does not take the request (send timed out)") from None
 
     def _receive(self, timeout: float, command: int = -1, request_id: int = -1) -> Packet:
@@ -221,7 +254,7 @@ class FramedClient:
                 if type(event) is Packet and event[2] == request_id and event[0] is not _EVENT:
                     return event  # the awaited reply (never a limit notice: its ID is 0)
                 if not isinstance(event, Packet):
-                    self.close()
+                    self._disconnect()
                     raise self._from_peer(event.error)
                 if event.kind is _EVENT:
                     pass  # [RS-3.14] an event is never the reply to a request
@@ -234,7 +267,7 @@ class FramedClient:
             remaining = timeout if first else deadline - time.monotonic()
             first = False
             if remaining <= 0:
-                self.close()  # a late reply would be mistaken for the next one
+                self._disconnect()  # a late reply would be mistaken for the next one
                 raise ClientTimeout(f"no reply from {self.address} within {timeout:.3g} s")
             current = self._kernel_timeout
             if current is None or current > remaining * 1.1 + 0.01:
@@ -249,10 +282,12 @@ class FramedClient:
             except (TimeoutError, BlockingIOError):
                 continue
             except OSError as exc:
-                self.close()
+                self._disconnect()
                 raise ConnectionClosed(f"connection to {self.address} lost: {exc}") from None
+            if self.recorder is not None:
+                self._record_received(view, n)
             if not n:
-                self.close()
+                self._disconnect()
                 raise ConnectionClosed(f"{self.address} closed the connection")
             if view is not None:
                 decoder.buffer_updated(n)
@@ -261,8 +296,15 @@ class FramedClient:
             try:
                 event = decoder.feed_next(self._scratch_view[:n])
             except PeerError as exc:
-                self.close()
+                self._disconnect()
                 raise self._from_peer(exc) from None
+
+    def _record_received(self, view: memoryview | None, n: int) -> None:
+        assert self.recorder is not None
+        if n:
+            self.recorder.tcp(self._flow, False, (self._scratch_view if view is None else view)[:n])
+        else:
+            self.recorder.close_tcp(self._flow, False)
 
     @property
     def address(self) -> str:
@@ -297,7 +339,7 @@ class FramedClient:
             code, message = reply.error or (0, "")
             if reply.request_id in (request_id, 0):
                 raise self._remote_error(code, message, reply.command, reply.request_id)
-        self.close()
+        self._disconnect()
         if reply.request_id != request_id or reply.command != command:
             raise PeerError(
                 f"reply does not match request: expected command 0x{command:04x} id "

@@ -7,7 +7,7 @@ import math
 from spec import wire
 from spec.codec import FrameDecoder, Header, Packet, Rejected, decode_packet
 from spec.datagrams import SensorData, Trigger, decode_datagram
-from spec.errors import ErrorCode, FrameError, PeerError
+from spec.errors import ErrorCode, FrameError, ParameterError, PeerError
 from spec.params import (
     FloatArray,
     Image,
@@ -19,8 +19,8 @@ from spec.params import (
     Value,
     type_of,
 )
-from spec.registry import BY_ID, ParamSpec
-from spec.wire import PacketKind
+from spec.registry import BY_ID, ParamSpec, check_params_reference
+from spec.wire import PacketKind, SensorStatus
 
 
 def _short(values: tuple[float, ...] | tuple[int, ...], limit: int = 8) -> str:
@@ -68,6 +68,62 @@ def _param_specs(packet: Packet) -> tuple[ParamSpec, ...]:
     return ()
 
 
+def packet_rules(packet: Packet) -> list[str]:
+    """The rules a decodable frame breaks on its own, each ``[ID] what`` (the frame-level
+    checks of the codec passed already: magic, length, CRC, version, kind, flags, encoding)."""
+    out = []
+    kind, spec = packet.kind, BY_ID.get(packet.command)
+    if kind is PacketKind.REQUEST and packet.request_id == 0:
+        out.append("[RS-3.18] a request with request ID 0")
+    if kind is PacketKind.ERROR:
+        p = packet.params
+        if len(p) != 2 or type(p[0]) is not int or not isinstance(p[1], str):
+            out.append("[RS-6.1] an error frame carries exactly (INT code, STRING message)")
+        elif p[0] not in ErrorCode._value2member_map_:
+            out.append(f"[RS-6.1] error code {p[0]} is not in the table")
+    elif spec is not None and kind in (PacketKind.REQUEST, PacketKind.REPLY):
+        request = kind is PacketKind.REQUEST
+        try:
+            check_params_reference(
+                spec.params if request else spec.reply,
+                packet.params,
+                f"{spec.name} {'request' if request else 'reply'}",
+                allow_extra=not request,  # a newer minor version's extra reply values [RS-5.6]
+            )
+        except ParameterError as exc:
+            out.append(f"[{'RS-5.4' if request else 'RS-5.5'}] {exc.message}")
+        else:
+            if not request and spec.name == "Hello":
+                version, service = packet.params[0], packet.params[1]
+                header = f"{wire.VERSION_MAJOR}.{packet.version_minor}"
+                if version != header:
+                    out.append(
+                        f"[RS-5.31] Hello version {version!r} differs from the frame header's "
+                        f"{header}"
+                    )
+                if service not in ("robot", "sensor"):
+                    out.append(f"[RS-5.31] Hello service {service!r} is not robot or sensor")
+    return out
+
+
+def datagram_rules(d: Trigger | SensorData) -> list[str]:
+    """The rules of section 9 a decodable datagram breaks on its own."""
+    if not isinstance(d, SensorData):
+        return []
+    out = []
+    if not d.t_arrival <= d.t_exposure_start <= d.t_exposure_end:
+        out.append("[SY-2.6] t_arrival <= t_exposure_start <= t_exposure_end does not hold")
+    if d.status is not SensorStatus.FOUND and not (
+        all(math.isnan(v) for v in d.seam) or all(v == 0 for v in d.seam)
+    ):
+        out.append(f"[SY-2.7] status {d.status.name} with a location not all NaN or all zero")
+    return out
+
+
+def _rule_lines(rules: list[str]) -> list[str]:
+    return [f"breaks           {r}" for r in rules]
+
+
 def describe_packet(packet: Packet, raw: bytes) -> list[str]:
     header = Header.unpack(raw)
     spec = BY_ID.get(packet.command)
@@ -101,7 +157,7 @@ def describe_packet(packet: Packet, raw: bytes) -> list[str]:
             label += f" {specs[i].name}"
             unit = f" [{specs[i].unit}]" if specs[i].unit else ""
         lines.append(f"  {label:<22} {type_of(value).name:<12} {format_value(value)}{unit}")
-    return lines
+    return lines + _rule_lines(packet_rules(packet))
 
 
 def describe_datagram(raw: bytes) -> list[str]:
@@ -122,7 +178,7 @@ def describe_datagram(raw: bytes) -> list[str]:
             f"t_exposure_start {d.t_exposure_start:.9f} s",
             f"t_exposure_end   {d.t_exposure_end:.9f} s",
         ]
-    return lines
+    return lines + _rule_lines(datagram_rules(d))
 
 
 def describe(raw: bytes) -> str:
@@ -130,6 +186,27 @@ def describe(raw: bytes) -> str:
     if raw[:2] == wire.DATAGRAM_MAGIC:
         return "\n".join(describe_datagram(raw))
     return "\n".join(describe_packet(decode_packet(raw), raw))
+
+
+def broken_rules(raw: bytes) -> list[str]:
+    """``frame N: [ID] what`` for every rule the good frames of ``raw`` (or its datagram)
+    break on their own; the first malformed frame ends the list, as it ends the dissection."""
+    if raw[:2] == wire.DATAGRAM_MAGIC:
+        try:
+            return datagram_rules(decode_datagram(raw))
+        except PeerError:
+            return []
+    decoder = FrameDecoder(max_payload=wire.MAX_PAYLOAD)
+    decoder.feed(raw)
+    out = []
+    try:
+        for i, event in enumerate(decoder.events(), start=1):
+            if isinstance(event, Rejected):
+                break
+            out += [f"frame {i}: {r}" for r in packet_rules(event)]
+    except PeerError:
+        pass
+    return out
 
 
 def describe_all(raw: bytes) -> tuple[str, PeerError | None]:

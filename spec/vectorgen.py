@@ -62,7 +62,7 @@ ROTATION = (0.0, -1.0, 0.0, 10.0, 1.0, 0.0, 0.0, -20.5, 0.0, 0.0, 1.0, 300.0, 0.
 
 def valid_frames() -> list[tuple[str, str, Packet]]:
     hello_reply = _reply(
-        C.HELLO, 1, "1.0", "robot", "reference", "RX90B", "0001", "0.1.0",
+        C.HELLO, 1, wire.VERSION, "robot", "reference", "RX90B", "0001", "0.1.0",
         IntArray([1, 2, 3, 4, 5, 0x1002]), 4194304, 64, 300.0, 5.0,
     )  # fmt: skip
     return [
@@ -222,9 +222,49 @@ def build() -> dict[str, list[dict[str, Any]]]:
     return {"frames.json": frames, "datagrams.json": datagrams()}
 
 
+#: A short robot session, frames back to back as a TCP capture holds them (both directions):
+#: what ``python -m spec decode spec/capture.bin`` shows a new user.
+CAPTURE_PATH = Path(__file__).with_name("capture.bin")
+
+
+def capture() -> bytes:
+    """The session of :data:`CAPTURE_PATH`; it conforms: no frame breaks a rule on its own
+    (Hello's version is its headers' [RS-5.31]), request IDs go up by one [RS-3.13], and the
+    commands it answers are listed in Hello [RS-5.3]."""
+    herej, joint_move = int(C.HEREJ), int(C.JOINT_MOVE)
+    commands = IntArray((1, 2, 3, 4, 5, herej, joint_move))
+    hello = int(C.HELLO)
+    packets = [
+        request(hello, 1, wire.VERSION_MAJOR, wire.VERSION_MINOR, "client/1.0"),
+        _reply(
+            hello,
+            1,
+            wire.VERSION,
+            "robot",
+            "reference",
+            "RX90B",
+            "0001",
+            "0.1.0",
+            commands,
+            wire.DEFAULT_MAX_PAYLOAD,
+            64,
+            300.0,
+            5.0,
+        ),
+        request(herej, 2),
+        _reply(herej, 2, Joints((10.0, -20.0, 90.0, 0.0, 45.0, 0.0))),
+        request(joint_move, 3, Joints((0.0, 0.0, 90.0, 0.0, 90.0, 0.0))),
+        error_packet(joint_move, 3, ErrorCode.NOT_POWERED, "arm power is off"),
+    ]
+    return b"".join(encode_packet(p) for p in packets)
+
+
 def write(force: bool = False) -> list[Path]:
     VECTOR_DIR.mkdir(exist_ok=True)
     written = []
+    if force or not CAPTURE_PATH.exists():
+        write_atomically(CAPTURE_PATH, capture())
+        written.append(CAPTURE_PATH)
     for name, items in build().items():
         path = VECTOR_DIR / name
         if path.exists() and not force:
