@@ -346,3 +346,14 @@ def test_a_server_of_another_protocol_is_a_plain_line(not_a_server: NotAServer) 
         f"python -m welding: error: {address} sent a bad frame: bad magic 4854, expected 5253"
         " (not a RobotSocket or SensorSocket endpoint?)"
     ]
+
+
+def test_deeply_nested_job_is_one_line_not_a_traceback(tmp_path: Path) -> None:
+    # '<a>' * 5000 once took welding job check down with a RecursionError (#29)
+    deep = tmp_path / "deep.xml"
+    deep.write_text('<job name="x" version="1">' + "<a>" * 5000 + "</a>" * 5000 + "</job>")
+    r = subprocess.run([sys.executable, "-m", "welding", "job", "check", str(deep)],
+                       capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert r.returncode == 1, r.stderr
+    assert "Traceback" not in r.stderr and "nested deeper than 32 levels" in r.stderr
+    assert len(r.stderr.strip().splitlines()) <= 2, r.stderr
