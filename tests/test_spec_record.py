@@ -196,12 +196,13 @@ def test_a_background_recorder_ends_on_sigint(robot_server: FramedServer, tmp_pa
     host, port = robot_server.address
     cmd = [sys.executable, "-m", "spec", "record", "--listen", "0", "--to", f"{host}:{port}",
            "-o", str(tmp_path / "bg.pcapng")]  # fmt: skip
-    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))  # fmt: skip
+    ignore_sigint = lambda: signal.signal(signal.SIGINT, signal.SIG_IGN)  # noqa: E731
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, preexec_fn=ignore_sigint)  # fmt: skip
     try:
         assert proc.stdout is not None and proc.stdout.readline().startswith("listening on")
         proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=20)
+        _, err = proc.communicate(timeout=20)
     finally:
         proc.kill()
     assert proc.returncode == 0, err
