@@ -99,7 +99,7 @@ def read_packets(sock: socket.socket, n: int) -> list[Packet]:
 def test_hello_reports_identity_commands_and_limits(server: FramedServer) -> None:
     with FramedClient(*server.address) as c:
         info = c.hello()
-    assert info["version"] == "1.2" and info["service"] == "robot" and info["model"] == "echo"
+    assert info["version"] == "1.3" and info["service"] == "robot" and info["model"] == "echo"
     commands = set(info["commands"].values)  # type: ignore[union-attr]
     assert {CommandId.HELLO, CommandId.PING, CommandId.HEREJ} <= commands
     assert CommandId.HERE not in commands  # [RS-5.3] only what it implements

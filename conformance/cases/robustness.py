@@ -31,6 +31,8 @@ from spec.vectorgen import load
 #: Requirement IDs per corpus vector (the vectors' own names, spec/vectors/frames.json).
 VECTOR_RULES: dict[str, tuple[str, ...]] = {
     "bad-magic": ("RS-3.8", "RS-3.1"),
+    "bad-magic-two-bytes": ("RS-3.19", "RS-3.8"),
+    "bad-magic-second-byte": ("RS-3.19", "RS-3.8"),
     "garbage-http": ("RS-3.8", "RS-3.1"),
     "length-over-max": ("RS-3.5", "RS-3.8"),
     "length-max-u32": ("RS-3.5", "RS-3.8"),
@@ -64,6 +66,7 @@ VECTOR_RULES: dict[str, tuple[str, ...]] = {
     "image-unknown-format": ("RS-4.8",),
     "image-unknown-order": ("RS-4.8",),
     "truncated-1-byte": ("RS-7.9", "RS-2.4"),
+    "truncated-1-wrong-byte": ("RS-3.19", "RS-2.4"),
     "truncated-header": ("RS-7.9", "RS-2.4"),
     "truncated-payload": ("RS-7.9", "RS-2.4"),
     "truncated-crc": ("RS-7.9", "RS-2.4"),
