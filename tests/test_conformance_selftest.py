@@ -394,13 +394,14 @@ def test_error_frame_without_message_is_caught(send_hook: Any) -> None:
 
 
 class WrongCodeServer(FramedServer):
-    """Answers an unknown command with BAD_PARAMETERS instead of UNKNOWN_COMMAND."""
+    """Answers an unknown command, or one not offered, with BAD_PARAMETERS instead of
+    UNKNOWN_COMMAND or NOT_SUPPORTED."""
 
     def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
         try:
             return super()._execute(session, packet)
         except ProtocolError as exc:
-            if exc.code is ErrorCode.UNKNOWN_COMMAND:
+            if exc.code in (ErrorCode.UNKNOWN_COMMAND, ErrorCode.NOT_SUPPORTED):
                 raise ProtocolError("bad", ErrorCode.BAD_PARAMETERS) from None
             raise
 
