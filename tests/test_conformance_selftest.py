@@ -1180,9 +1180,10 @@ def test_server_without_set_frame_crc_is_not_applicable(monkeypatch: Any) -> Non
 
 
 class NoKinematicsRobot(MiniRobot):
-    """Offers ToolMoveJ but answers Here with NOT_SUPPORTED (a robot without kinematics)."""
+    """Lists the tool moves but answers Here with NOT_SUPPORTED (a robot without kinematics
+    whose Hello says otherwise): every tool move case needs Here for a harmless target."""
 
-    COMMANDS = (*MiniRobot.COMMANDS, C.TOOL_MOVE_J)
+    COMMANDS = (*MiniRobot.COMMANDS, C.TOOL_MOVE_J, C.TOOL_MOVE_L, C.TOOL_MOVE_TRAJECTORY)
 
     def handle(
         self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
@@ -1192,20 +1193,148 @@ class NoKinematicsRobot(MiniRobot):
         return super().handle(session, spec, params)
 
 
-def test_refused_precondition_blocks_the_case_instead_of_failing_it() -> None:
-    """ToolMoveJ.not_in_control needs Here for a harmless target: Here refused is a failed
-    precondition (blocked, Here named), not a failure of RS-7.4."""
+def _sent(result: Any, case_id: str) -> list[Packet]:
+    """The requests a case sent, decoded from its wire log."""
+    entry = next(r for r in result.results if r.case.id == case_id)
+    out: list[Packet] = []
+    for conn in sorted({e.conn for e in entry.wire}):
+        decoder = FrameDecoder()
+        decoder.feed(b"".join(e.data for e in entry.wire if e.conn == conn and e.direction == "->"))
+        out.extend(e for e in decoder.events() if isinstance(e, Packet))
+    return out
+
+
+def _received(entry: Any, conn: int) -> list[Packet]:
+    decoder = FrameDecoder()
+    decoder.feed(b"".join(e.data for e in entry.wire if e.conn == conn and e.direction == "<-"))
+    return [e for e in decoder.events() if isinstance(e, Packet)]
+
+
+@pytest.mark.parametrize("move", ["ToolMoveJ", "ToolMoveL", "ToolMoveTrajectory"])
+def test_refused_precondition_blocks_the_case_instead_of_failing_it(move: str) -> None:
+    """Misattribution 2 of issue 32: {move}.not_in_control needs Here for a harmless target.
+    Here refused is a failed precondition (blocked, Here named), not a failure of RS-7.4; the
+    move itself is never sent."""
     with serving(FramedServer(NoKinematicsRobot(), policy=POLICY)) as address:
         options = Options(timeout_scale=SCALE, allow_motion=True)
-        result = run("robot", *address, options, Selection("core", ("commands.robot.ToolMoveJ.*",)))
+        result = run("robot", *address, options, Selection("core", (f"commands.robot.{move}.*",)))
     got = {r.case.id: r for r in result.results}
-    blocked = got["commands.robot.ToolMoveJ.not_in_control"]
+    blocked = got[f"commands.robot.{move}.not_in_control"]
     assert blocked.outcome is Outcome.BLOCKED, blocked.message
     assert "Here was refused" in blocked.message and "NOT_SUPPORTED" in blocked.message
-    assert blocked.details["precondition"] == "correct arguments for ToolMoveJ"
-    assert got["commands.robot.ToolMoveJ.reply"].outcome is Outcome.BLOCKED
+    assert blocked.details["precondition"] == f"correct arguments for {move}"
+    sent = {p.command for p in _sent(result, f"commands.robot.{move}.not_in_control")}
+    assert C.HERE in sent and int(getattr(C, _CONST[move])) not in sent
+    assert got[f"commands.robot.{move}.reply"].outcome is Outcome.BLOCKED
+    assert not [r.case.id for r in result.results if r.outcome is Outcome.FAIL]
     # Here's own rule is judged by Here's own cases; the robot claims a subset of 1.x
     assert exit_code(result) == ExitCode.SUBSET
+
+
+_CONST = {
+    "ToolMoveJ": "TOOL_MOVE_J",
+    "ToolMoveL": "TOOL_MOVE_L",
+    "ToolMoveTrajectory": "TOOL_MOVE_TRAJECTORY",
+}
+
+
+class LegacyNotOfferedServer(FramedServer):
+    """A 1.2 server: a command it does not offer gets UNKNOWN_COMMAND, not NOT_SUPPORTED."""
+
+    def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
+        try:
+            return super()._execute(session, packet)
+        except ProtocolError as exc:
+            if exc.code is ErrorCode.NOT_SUPPORTED:
+                raise ProtocolError(exc.message, ErrorCode.UNKNOWN_COMMAND) from None
+            raise
+
+
+@pytest.mark.parametrize(
+    ("server_class", "code"),
+    [(FramedServer, ErrorCode.NOT_SUPPORTED), (LegacyNotOfferedServer, ErrorCode.UNKNOWN_COMMAND)],
+)
+def test_cartesian_commands_not_offered_are_a_scope_not_a_failure(
+    server_class: type[FramedServer], code: ErrorCode
+) -> None:
+    """Misattribution 1 of issue 32: a robot without kinematics leaves Here and the tool
+    moves out of Hello and answers them NOT_SUPPORTED (1.3) or UNKNOWN_COMMAND (1.2). Both are
+    conformant to what they claim (exit SUBSET, no failure), and the summary says that the
+    cartesian profile (and sync, motion, ...) was not covered."""
+    from conformance.report import terminal
+
+    service = CoreOnlyRobot()
+    with serving(server_class(service, policy=POLICY)) as address:
+        with socket.create_connection(address, timeout=2) as raw:  # the planted answer
+            raw.sendall(encode_packet(Packet(PacketKind.REQUEST, C.HERE, 1, ())))
+            decoder = FrameDecoder()
+            while not (events := list(decoder.events())):
+                decoder.feed(raw.recv(4096))
+        assert events[0].error is not None and events[0].error[0] == code  # type: ignore[union-attr]
+        result = check("robot", address, profile="core")
+    assert problems(result) == {}, problems(result)
+    got = outcomes(result)
+    assert got["negotiation.hello.commands_complete"] is Outcome.PASS
+    assert got["negotiation.profile.core"] is Outcome.PASS
+    for move in ("Here", "ToolMoveJ", "ToolMoveL", "ToolMoveTrajectory"):
+        assert got[f"commands.robot.{move}.reply"] is Outcome.NOT_APPLICABLE
+    claimed, not_covered = result.scope()
+    assert "cartesian" in not_covered and "sync" in not_covered and "core" in claimed
+    assert "not covered (not offered): motion, cartesian" in terminal(result)
+    assert exit_code(result) == ExitCode.SUBSET
+
+
+class EstopRobot(MiniRobot):
+    """MiniRobot with a software emergency stop (GetStatus reports it)."""
+
+    COMMANDS = (*MiniRobot.COMMANDS, C.EMERGENCY_STOP, C.RESET_EMERGENCY_STOP)
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.estop = False
+        self.estops = 0
+
+    def handle(
+        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
+        if spec.id == C.EMERGENCY_STOP:
+            self.estop, self.estops = True, self.estops + 1
+            return ()
+        if spec.id == C.RESET_EMERGENCY_STOP:
+            self.estop = False
+            return ()
+        if spec.id == C.ROBOT_STATUS:
+            held = session.server.control_holder
+            return (False, self.estop, False, 0, held is session, held is not None, 0, "", 0.0)
+        return super().handle(session, spec, params)
+
+
+def test_emergency_stop_when_full_is_not_confused_with_an_earlier_answer() -> None:
+    """Misattribution 3 of issue 32: on the reserved connection of a full server the harness
+    sent GetStatus and then EmergencyStop; the server's BUSY for GetStatus arrives before
+    EmergencyStop's reply. With a fresh request ID per request, matched by command and ID
+    [RS-3.4], the harness reports the EmergencyStop as executed, which it was."""
+    service = EstopRobot()
+    policy = dataclasses.replace(POLICY, max_clients=3, max_per_address=3)
+    with serving(FramedServer(service, policy=policy)) as address:
+        options = Options(timeout_scale=SCALE, allow_motion=True)
+        result = run(
+            "robot", *address, options, Selection("full", ("robot.emergency_stop_when_full",))
+        )
+    (entry,) = result.results
+    assert entry.outcome is Outcome.PASS, (entry.message, entry.actual)
+    assert service.estops == 1 and not service.estop  # executed once, then reset
+    # The trap was there: the connection that got EmergencyStop got an error for the
+    # GetStatus before it, then the reply; the two requests had different IDs.
+    for conn in sorted({e.conn for e in entry.wire}):
+        answers = _received(entry, conn)
+        stop = [p for p in answers if p.command == C.EMERGENCY_STOP]
+        if stop:
+            break
+    status = [p for p in answers if p.command == C.ROBOT_STATUS]
+    assert status and status[0].error is not None and status[0].error[0] == ErrorCode.BUSY
+    assert stop[0].kind is PacketKind.REPLY and stop[0].request_id != status[0].request_id
+    assert answers.index(status[0]) < answers.index(stop[0])
 
 
 def test_answers_are_matched_by_command_and_fresh_request_id() -> None:
