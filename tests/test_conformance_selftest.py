@@ -35,7 +35,7 @@ from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data, en
 from spec.errors import DatagramError, ErrorCode, ProtocolError
 from spec.exitcodes import ExitCode
 from spec.params import Image, Joints, Location, Matrix, Value
-from spec.registry import BY_ID, CommandSpec, check_params
+from spec.registry import BY_ID, CommandSpec, check_params, commands_for, profiles_for
 from spec.registry import CommandId as C
 from spec.server import FramedServer, Identity, ServerPolicy, Service, Session
 from spec.wire import PacketKind, SensorStatus
@@ -1467,4 +1467,71 @@ def test_summary_states_the_verdict_with_its_scope(
     assert result.scope() == (claimed, not_covered)
     text = terminal(result)
     assert f"not covered (not offered): {', '.join(not_covered)}" in text
+    assert exit_code(result) == ExitCode.SUBSET
+
+
+# --- one self-test server per profile subset [issue 32] --------------------------------------
+
+_ROBOT_PROFILES = [p.name for p in profiles_for("robot")]
+_SUBSETS = [
+    ("core",),
+    ("core", "motion"),
+    ("core", "cartesian"),
+    ("core", "sync"),
+    ("core", "motion", "cartesian"),
+    ("core", "motion", "alter", "alter-queue"),
+    tuple(_ROBOT_PROFILES),
+]
+
+
+def _subset_robot(names: tuple[str, ...]) -> type[MiniRobot]:
+    """A MiniRobot whose Hello lists exactly the commands of ``names`` (crc-off too: the
+    shell always serves SetFrameCrc)."""
+    offered = {int(c) for p in profiles_for("robot") if p.name in names for c in p.commands}
+    common = {int(c) for c in C if c < 0x1000}
+    commands = tuple(C(c) for c in sorted(offered - common))
+    return type(f"Robot_{'_'.join(names)}", (MiniRobot,), {"COMMANDS": commands})
+
+
+@pytest.mark.parametrize("names", _SUBSETS, ids=["+".join(n) for n in _SUBSETS])
+def test_a_robot_claiming_a_profile_subset_is_judged_on_it(names: tuple[str, ...]) -> None:
+    """Each subset of profiles: the claimed ones (and only they) are in the verdict's scope,
+    every case of a command not offered is not-applicable (never a failure), the checks the
+    shell makes for every offered command pass, and the exit code says "a subset" unless
+    every profile is claimed."""
+    service = _subset_robot(names)()
+    select = ("negotiation.*", "commands.robot.*.bad_params", "commands.robot.*.not_in_control")
+    with serving(FramedServer(service, policy=POLICY)) as address:
+        result = check("robot", address, select)
+    claimed, not_covered = result.scope()
+    want = [n for n in _ROBOT_PROFILES if n in (*names, "crc-off")]
+    assert claimed == want and not_covered == [n for n in _ROBOT_PROFILES if n not in want]
+    assert problems(result) == {}, problems(result)
+    offered = set(service.implemented())
+    judged, left_out = 0, 0
+    for r in result.results:
+        needs = set(r.case.commands) - {int(c) for c in C if c < 0x1000}
+        if needs and not needs <= offered:
+            assert r.outcome is Outcome.NOT_APPLICABLE, (r.case.id, r.outcome)
+            left_out += 1
+        elif r.case.id.endswith(".bad_params"):
+            assert r.outcome is Outcome.PASS, (r.case.id, r.outcome, r.message)
+            judged += 1
+    assert judged >= 8 and (left_out > 0) == bool(not_covered)
+    assert exit_code(result) == (ExitCode.OK if not not_covered else ExitCode.SUBSET)
+
+
+class CoreOnlySensor(MiniSensor):
+    """A sensor without UDP triggering: the sensor core profile only."""
+
+    def implemented(self) -> tuple[int, ...]:
+        return tuple(int(c.id) for c in commands_for("sensor") if c.id != C.GET_TRIGGER_ENDPOINT)
+
+
+def test_a_sensor_without_triggering_is_judged_on_its_core() -> None:
+    with serving(FramedServer(CoreOnlySensor(), policy=POLICY)) as address:
+        result = check("sensor", address, ("negotiation.*", "commands.sensor.*"))
+    assert problems(result) == {}, problems(result)
+    assert result.scope() == (["core", "crc-off"], ["sync"])
+    assert outcomes(result)["commands.sensor.GetTriggerEndpoint.reply"] is Outcome.NOT_APPLICABLE
     assert exit_code(result) == ExitCode.SUBSET
