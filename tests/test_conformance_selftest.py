@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import math
 import socket
 import struct
 import threading
@@ -109,6 +110,8 @@ class MiniRobot(Service):
             self.mdesc = v
             return ()
         if c == C.WAIT_END_MOVE:
+            if not 0 < float(params[0]) <= 3600:  # type: ignore[arg-type]
+                raise ProtocolError("timeout out of (0, 3600] s", ErrorCode.OUT_OF_RANGE)
             return (True,)
         if c in (C.STOP_MOVE, C.RESET_MOTION):
             return ()
@@ -123,6 +126,8 @@ class MiniRobot(Service):
             raise ProtocolError(f"no I/O named {name!r}", ErrorCode.OUT_OF_RANGE)
         if c == C.GET_JOINT_LOG:
             since = float(params[0])  # type: ignore[arg-type]
+            if math.isnan(since):
+                raise ProtocolError("since is NaN", ErrorCode.OUT_OF_RANGE)  # [RS-5.58]
             k1 = int((now - self.t0) / 0.004)
             k0 = max(0, k1 - 2500)
             rows = [[self.t0 + k * 0.004, *self.q] for k in range(k0, k1 + 1)]
@@ -1535,3 +1540,63 @@ def test_a_sensor_without_triggering_is_judged_on_its_core() -> None:
     assert result.scope() == (["core", "crc-off"], ["sync"])
     assert outcomes(result)["commands.sensor.GetTriggerEndpoint.reply"] is Outcome.NOT_APPLICABLE
     assert exit_code(result) == ExitCode.SUBSET
+
+
+# --- the rules that answer the vendor's guesses catch the servers that guessed wrong --------
+
+
+class NanLogRobot(MiniRobot):
+    """1.2 behaviour: GetJointLog since NaN answers an empty log."""
+
+    def handle(
+        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
+        if spec.id == C.GET_JOINT_LOG and math.isnan(float(params[0])):  # type: ignore[arg-type]
+            return (Matrix(0, 7, []), 0.004)
+        return super().handle(session, spec, params)
+
+
+class StickyErrorRobot(MiniRobot):
+    """A refused SetMotionDesc sets GetStatus' last_error (only moves may)."""
+
+    last = (0, "")
+
+    def handle(
+        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
+        if spec.id == C.ROBOT_STATUS:
+            held = session.server.control_holder
+            return (False, False, False, 0, held is session, held is not None, *self.last, 0.0)
+        try:
+            return super().handle(session, spec, params)
+        except ProtocolError as exc:
+            self.last = (int(exc.code), exc.message)
+            raise
+
+
+class HolderFirstServer(FramedServer):
+    """Checks the holder before the watchdog period: BUSY where OUT_OF_RANGE is due."""
+
+    def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
+        holder = self.control_holder
+        if packet.command == C.TAKE_CONTROL and holder is not None and holder is not session:
+            raise ProtocolError("control is held", ErrorCode.BUSY)
+        return super()._execute(session, packet)
+
+
+@pytest.mark.parametrize(
+    ("server_class", "service_class", "case_id", "rule"),
+    [
+        (FramedServer, NanLogRobot, "robot.jointlog.since_nan", "RS-5.58"),
+        (FramedServer, StickyErrorRobot, "robot.last_error.only_moves", "RS-5.51"),
+        (HolderFirstServer, MiniRobot, "control.take_control.order", "RS-7.25"),
+    ],
+)
+def test_a_server_that_guessed_what_1_2_left_open_is_caught(
+    server_class: type[FramedServer], service_class: type[MiniRobot], case_id: str, rule: str
+) -> None:
+    with serving(server_class(service_class(), policy=POLICY)) as address:
+        result = check("robot", address, (case_id,))
+    (entry,) = result.results
+    assert entry.outcome is Outcome.FAIL, (entry.outcome, entry.message)
+    assert f"[{rule}]" in entry.message  # the rule of the case, named in its verdict
