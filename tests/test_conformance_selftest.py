@@ -1106,8 +1106,28 @@ class NoBackoffServer(FramedServer):
         self._auth = AuthBackoff(threshold=1 << 30)
 
 
+class ExtendingBackoff(AuthBackoff):
+    """Counts an attempt refused during the back-off as a failure [RS-7.26 broken]."""
+
+    def wait(self, address: str, now: float) -> float:
+        if super().wait(address, now) > 0.0:
+            self.failed(address, now)
+        return super().wait(address, now)
+
+
+class ExtendingBackoffServer(FramedServer):
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._auth = ExtendingBackoff()
+
+
 @pytest.mark.parametrize(
-    ("server_class", "want"), [(FramedServer, Outcome.PASS), (NoBackoffServer, Outcome.FAIL)]
+    ("server_class", "want"),
+    [
+        (FramedServer, Outcome.PASS),
+        (NoBackoffServer, Outcome.FAIL),
+        (ExtendingBackoffServer, Outcome.FAIL),
+    ],
 )
 def test_missing_token_backoff_is_caught(server_class: type[FramedServer], want: Outcome) -> None:
     policy = dataclasses.replace(POLICY, token="s3cret")
@@ -1117,6 +1137,8 @@ def test_missing_token_backoff_is_caught(server_class: type[FramedServer], want:
     got = outcomes(result)
     assert got["control.token"] is Outcome.PASS
     assert got["control.token_backoff"] is want, problems(result)
+    if server_class is ExtendingBackoffServer:
+        assert "[RS-7.26]" in problems(result)["control.token_backoff"]
 
 
 def test_capability_file_makes_cases_not_applicable(tmp_path: Any) -> None:
