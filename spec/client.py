@@ -140,9 +140,9 @@ class FramedClient:
         try:
             (enabled,) = self.call(CommandId.SET_FRAME_CRC, False)
         except RemoteError as exc:
-            if exc.code != ErrorCode.UNKNOWN_COMMAND:
+            if exc.code not in (ErrorCode.NOT_SUPPORTED, ErrorCode.UNKNOWN_COMMAND):
                 raise
-            return  # a 1.0 server: its frames keep their CRC [RS-3.15]
+            return  # a server without it (1.0: unknown): its frames keep their CRC [RS-3.15]
         # The reply came with a CRC; every later frame carries NO_CRC [RS-3.16], [RS-3.17].
         self._decoder.accept_no_crc = not enabled
 

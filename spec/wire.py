@@ -11,7 +11,7 @@ from enum import IntEnum, StrEnum
 
 #: Protocol version implemented here (PROTOCOL.md section 1).
 VERSION_MAJOR = 1
-VERSION_MINOR = 2
+VERSION_MINOR = 3
 VERSION = f"{VERSION_MAJOR}.{VERSION_MINOR}"
 
 #: Frame magic, ASCII "RS" (robot/sensor) [RS-3.1].

@@ -278,7 +278,7 @@ def test_hello_whose_version_is_not_its_headers_is_flagged(tmp_path: Path) -> No
     reply[0], reply[1] = "1.0", "robot"
     frame = encode_packet(Packet(PacketKind.REPLY, hello.id, 1, tuple(reply)))
     rows = tshark(write_capture(tmp_path / "h.pcapng", [(False, frame)]), "_ws.expert.message")
-    assert rows == [['Hello version "1.0" differs from the frame header\'s 1.2 [RS-5.31]']]
+    assert rows == [['Hello version "1.0" differs from the frame header\'s 1.3 [RS-5.31]']]
 
 
 @needs_tshark

@@ -18,6 +18,9 @@ from spec.registry import CommandId as C
 from spec.registry import CommandSpec
 from spec.wire import PacketKind
 
+#: The answers to a registry command an endpoint does not offer: 1.3's and 1.2's [RS-5.62].
+NOT_OFFERED = (ErrorCode.NOT_SUPPORTED, ErrorCode.UNKNOWN_COMMAND)
+
 
 def seal(header_and_payload: bytes) -> bytes:
     """Append the CRC-32 trailer [RS-3.6]."""
@@ -271,5 +274,12 @@ def fatal_check(ctx: Context, data: bytes, codes: tuple[int, ...], what: str) ->
             f"error {names}",
             f"error {packets[0].error[0]}: {packets[0].error[1]}",
             requirement="RS-3.8",
+        )
+    if packets[0].command != 0:
+        raise Fail(
+            f"the error after {what} answers no request but names a command",
+            "command ID 0 (with request ID 0)",
+            f"command ID 0x{packets[0].command:04x}",
+            requirement="RS-3.20",
         )
     ctx.probe()
