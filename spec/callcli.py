@@ -30,7 +30,7 @@ from spec.exitcodes import ExitCode
 from spec.jsonform import plain
 from spec.params import FloatArray, IntArray, Joints, Location, Transform, Value
 from spec.registry import BY_ID, COMMANDS, CommandId, CommandSpec, ParamSpec
-from spec.wire import MoveOutcome, ParamType
+from spec.wire import MoveOutcome, ParamType, SensorStatus
 
 _QUEUED_MOVES = {
     CommandId.JOINT_MOVE,
@@ -155,6 +155,20 @@ def parse_args(spec: CommandSpec, args: list[str]) -> tuple[Value, ...]:
     return tuple(values)
 
 
+def reply_notes(spec: CommandSpec, values: tuple[Value, ...], endpoint: str) -> list[str]:
+    """What a reply's enumerated values tell the user beyond their number: a measurement
+    whose status says the sensor's laser is off says so, and how to switch it on [SS-5.13]."""
+    notes = []
+    for p, value in zip(spec.reply, values, strict=False):
+        if (
+            p.enum is SensorStatus
+            and isinstance(value, int)
+            and value in SensorStatus._value2member_map_
+        ):
+            notes.append(SensorStatus(value).problem(endpoint))
+    return [n for n in notes if n]
+
+
 def reply_json(spec: CommandSpec, values: tuple[Value, ...]) -> dict[str, Any]:
     names = [p.name for p in spec.reply]
     out: dict[str, Any] = {}
@@ -250,6 +264,7 @@ def main_call(
             try:
                 values = client.call(spec.id, *params)
                 reply = reply_json(BY_ID[spec.id], values)
+                notes = reply_notes(BY_ID[spec.id], values, endpoint)
                 queued = spec.id in _QUEUED_MOVES
                 if queued and wait is not None:
                     result = wait_move(client, wait)
@@ -279,6 +294,8 @@ def main_call(
         print(f"error: {unreachable(host, port, exc)}", file=sys.stderr)
         return ExitCode.UNREACHABLE
     print(format_reply(reply))
+    for note in notes:
+        print(f"note: {note}", file=sys.stderr)
     if result is not None and result.outcome is MoveOutcome.MOVING:
         print(f"error: the move did not end within {wait:g} s (it goes on)", file=sys.stderr)
         return ExitCode.FAILED
