@@ -63,11 +63,14 @@ def test_check_names_every_problem_with_its_position(capsys: pytest.CaptureFixtu
     assert main(["job", "check", "bad.xml"]) == 1
     err = capsys.readouterr().err.splitlines()
     assert err == [
-        "bad.xml:2:3: <pause> duration='x': not a number",
-        "bad.xml:3:3: <via> tool='torch': no such tool in the database",
+        "bad.xml:2:3: item 1 (pause 'p'): <pause> duration='x': not a number",
+        "bad.xml:3:3: item 2 (via 'v'): <via> tool='torch': no such tool in the database",
     ]
     assert main(["job", "check", "bad.xml", "--no-tools"]) == 1
     assert len(capsys.readouterr().err.splitlines()) == 1
+    # issue 35 item 5: `job run` names the same problems, before any cell starts
+    assert main(["job", "run", "bad.xml", "--emulate", "--dry-run"]) == 1
+    assert capsys.readouterr().err.splitlines() == err
 
 
 def test_hostile_file_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
