@@ -17,6 +17,7 @@ import pytest
 
 from robotsocket.emulator import RobotEmulator
 from robotsocket.service import RobotService
+from spec.exitcodes import ExitCode
 from welding import job as J
 from welding.cli import main
 
@@ -349,3 +350,17 @@ def test_a_server_of_another_protocol_is_a_plain_line(not_a_server: NotAServer) 
         f"python -m welding: error: {address} sent a bad frame: bad magic 4854, expected 5253"
         " (not a RobotSocket or SensorSocket endpoint?)"
     ]
+
+
+def test_ctrl_c_in_any_command_is_one_line(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # issue 35 item 6: Ctrl-C in calibrate or console printed nothing
+    import welding.cli as cli
+
+    def interrupted(args: object) -> int:
+        raise KeyboardInterrupt
+
+    monkeypatch.setitem(cli.COMMANDS, "calibrate", interrupted)
+    assert main(["calibrate", "sensor-tool", "--emulate"]) == ExitCode.INTERRUPTED
+    assert capsys.readouterr().err == "python -m welding: interrupted\n"

@@ -361,7 +361,12 @@ def merge_cell_tools(path: str, cell_tables: Tables) -> Tables:
     for e in (*cell_tables.tools.values(), *cell_tables.frames.values()):
         mine = current.frame(e.name) if e.kind == "frame" else current.tool(e.name)
         if not np.allclose(mine.location, e.location, atol=1e-6):
-            print(f"warning: {e.name} in {path} differs from the emulated cell's", file=sys.stderr)
+            print(
+                f"warning: {e.name} in {path} differs from the emulated cell's; this run uses "
+                f"the database's (a calibrated one?). For the cell's: python -m welding tools "
+                f"remove {e.name} --tools {path}, and run again",
+                file=sys.stderr,
+            )
     return current
 
 
@@ -817,5 +822,5 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ProtocolError, OSError) as exc:
         print(f"python -m welding: error: {error_text(exc)}", file=sys.stderr)
         return ExitCode.UNREACHABLE
-    except KeyboardInterrupt:
-        return ExitCode.INTERRUPTED
+    except KeyboardInterrupt:  # the safe stops ran on the way out (laser off, motion stopped)
+        return cliargs.interrupted("python -m welding")
