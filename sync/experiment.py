@@ -604,14 +604,23 @@ def write_plots(
     return files
 
 
-def judge(r: DelayResult, limits: QualityLimits | None = None) -> Verdict:
+def judge(
+    r: DelayResult, limits: QualityLimits | None = None, *, need_windows: bool = False
+) -> Verdict:
     """The quality verdict of one run (:func:`sync.delay.assess_run`): ΔT per window over the
-    full-amplitude part of the sine, loss, the residual with and without synchronisation."""
+    full-amplitude part of the sine, loss, the residual with and without synchronisation.
+    ``need_windows``: a run too short for two windows is not trusted (one ``delay`` run; a
+    sweep's low frequencies never fit two windows in a few seconds)."""
     limits = QualityLimits() if limits is None else limits
     st = r.settings
     # the full-amplitude part of the sine, with a cycle's margin for the start of the move
-    t0 = r.data.t_start + st.rest_s + st.ramp + 0.05
+    margin = 0.05
+    t0 = r.data.t_start + st.rest_s + st.ramp + margin
     t1 = r.data.t_start + st.rest_s + st.duration_s - st.ramp
+    window = max(limits.window_s, 2.0 / st.frequency_hz)  # as window_delays cuts them
+    # the ramp grows with the duration up to its cap: the cap's, when two windows need it
+    ramp = min(max(0.25, 1.0 / st.frequency_hz), 1.0) if st.ramp_s is None else st.ramp_s
+    min_duration = 2 * ramp + margin + 2 * window if need_windows else None
     windows = window_delays(
         r.data.t_robot,
         r.data.y_robot,
@@ -630,4 +639,12 @@ def judge(r: DelayResult, limits: QualityLimits | None = None) -> Verdict:
         sine_amplitude(r.data.t_robot[robot], r.data.y_robot[robot], st.frequency_hz),
         st.frequency_hz,
     )
-    return assess_run(r.estimate, r.residual, r.data.statistics, windows, limits, motion=motion)
+    return assess_run(
+        r.estimate,
+        r.residual,
+        r.data.statistics,
+        windows,
+        limits,
+        motion=motion,
+        min_duration_s=min_duration,
+    )

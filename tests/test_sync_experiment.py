@@ -119,6 +119,11 @@ def test_cli_untrusted_run_exits_untrusted_with_its_reason_on_a_line_of_its_own(
     last = done.stderr.splitlines()[-1]
     # the progress line ended before the reason: the reason is a line of its own
     assert last.startswith("python -m sync: untrusted result: MSE minimum at the edge")
+    # issue 35 item 8: 2 s at 1.5 Hz cannot show a drift: not trusted, the minimum named
+    assert last.endswith(
+        "; too short to judge: ΔT per window needs two windows of full amplitude, a run of "
+        "at least 4.1 s at this frequency (--duration)"
+    )
     assert "Traceback" not in done.stderr
     assert "UNTRUSTED" in done.stdout.splitlines()[0]
     verdict = json.loads(out.read_text())["verdict"]
