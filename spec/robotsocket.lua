@@ -204,7 +204,7 @@ local COMMANDS = {
     reply = { { name = "laser", type = 3, unit = "" }, { name = "frames", type = 1, unit = "" }, { name = "last_index", type = 1, unit = "" }, { name = "in_control", type = 3, unit = "" }, { name = "controlled", type = 3, unit = "" }, { name = "time", type = 2, unit = "s" } } },
   [0x2002] = { name = "GetData", service = "sensor",
     params = {},
-    reply = { { name = "index", type = 1, unit = "" }, { name = "status", type = 1, unit = "" }, { name = "seam", type = 9, unit = "mm, deg" }, { name = "quality", type = 2, unit = "" }, { name = "t_arrival", type = 2, unit = "s" }, { name = "t_exposure_start", type = 2, unit = "s" }, { name = "t_exposure_end", type = 2, unit = "s" } } },
+    reply = { { name = "index", type = 1, unit = "" }, { name = "status", type = 1, unit = "", enum = SENSOR_STATUS }, { name = "seam", type = 9, unit = "mm, deg" }, { name = "quality", type = 2, unit = "" }, { name = "t_arrival", type = 2, unit = "s" }, { name = "t_exposure_start", type = 2, unit = "s" }, { name = "t_exposure_end", type = 2, unit = "s" } } },
   [0x2003] = { name = "GetImage", service = "sensor",
     params = { { name = "column", type = 1, unit = "px", opt = true }, { name = "row", type = 1, unit = "px", opt = true }, { name = "width", type = 1, unit = "px", opt = true }, { name = "height", type = 1, unit = "px", opt = true } },
     reply = { { name = "index", type = 1, unit = "" }, { name = "image", type = 12, unit = "" } } },
@@ -578,6 +578,8 @@ local function dissect_params(tvb, pos, stop, tree, specs, kind)
     -- a LOCATION's text names its units already
     local unit = spec and spec.unit ~= "" and tag ~= T.LOCATION and (" [" .. spec.unit .. "]")
       or ""
+    local named = spec and spec.enum and spec.enum[tonumber(text)]  -- e.g. GetData's status
+    if named then text = text .. " (" .. named .. ")" end
     sub:add(f.p_value, tvb(start, nxt - start), text)
     sub:set_text(string.format("#%d%s: %s = %s%s", i, name and (" " .. name) or "",
       PARAM_TYPES[tag], text, unit))
