@@ -238,11 +238,13 @@ def _endpoint(sensor: FramedClient) -> tuple[str, int]:
     return host, port
 
 
-#: The shortest rest before the sine after which the seam is checked to be in view.
+#: The shortest rest before the sine after which the seam is checked to be in view, and the
+#: sensor answers without a seam that stop the run.
 _MIN_REST_CHECK_S = 0.1
+_MIN_ANSWERS = 5
 
 
-def _no_seam(sensor: FramedClient | None, waited_s: float) -> str:
+def _no_seam(sensor: FramedClient | None, answered: int, waited_s: float) -> str:
     """Why the sensor gave no seam point at the start pose, from its latest measurement."""
     what = "the sensor sees no seam, or its laser is off (--sensor HOST:PORT tells which)"
     if sensor is not None:
@@ -255,7 +257,10 @@ def _no_seam(sensor: FramedClient | None, waited_s: float) -> str:
             pass
         else:
             what = status.problem(sensor.address) or what
-    return f"no seam point in the first {waited_s:.2f} s at the start pose, nothing moved: {what}"
+    return (
+        f"no seam point in {answered} sensor answers ({waited_s:.2f} s) at the start pose, "
+        f"nothing moved: {what}"
+    )
 
 
 def _sync_statistics(robot: FramedClient) -> dict[str, int]:
@@ -380,11 +385,16 @@ def record_sine(
                 points.append(prow)
                 since_index = int(prow[-1, _IDX])
             now = _f(robot.get_time())
-            if chunk != s.chunk_s:
-                chunk = float(s.chunk_s)
-                if not points:
+            chunk = float(s.chunk_s)
+            if not points:
+                # the sensor answered and none of its answers had a seam: stop. Not a
+                # timeout: on a busy machine answers may be late, never taken for "no seam".
+                answered = _sync_statistics(robot).get("received", 0) - stats_before.get(
+                    "received", 0
+                )
+                if answered >= _MIN_ANSWERS:
                     robot.call(CommandId.RESET_MOTION)
-                    raise ExperimentError(_no_seam(sensor, now - t_start))
+                    raise ExperimentError(_no_seam(sensor, answered, now - t_start))
             if progress is not None:
                 frac = min(1.0, (now - t_start) / s.total_s)
                 progress(frac, f"{now - t_start:6.2f} s of {s.total_s:.2f} s")

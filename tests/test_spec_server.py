@@ -231,17 +231,11 @@ def test_token_guessing_is_slowed_per_address() -> None:
             for _ in range(3):
                 with pytest.raises(RemoteError, match="token missing or wrong"):
                     c.take_control("guess")
-            t0 = time.monotonic()
             with pytest.raises(RemoteError, match=r"retry in 0\.\d\d s") as info:
-                c.take_control("s3cret")
+                c.call(CommandId.TAKE_CONTROL, "s3cret")  # the server's refusal, as sent
             assert info.value.code is ErrorCode.AUTH_FAILED
-            while True:  # the back-off (0.1 s after the third failure) ends
-                try:
-                    c.take_control("s3cret")
-                    break
-                except RemoteError:
-                    assert time.monotonic() - t0 < 5.0
-                    time.sleep(0.02)
+            # issue 35 item 8: the client waits out a short back-off and asks once more
+            c.take_control("s3cret")
             c.release_control()
             with pytest.raises(RemoteError, match="token missing or wrong"):
                 c.take_control("guess")  # reset by the success: a free failure again
