@@ -179,6 +179,8 @@ def datagrams() -> list[dict[str, Any]]:
     out: list[dict[str, Any]] = [
         {"name": "trigger", "hex": trigger.hex(), "valid": True,
          "decoded": {"kind": "TRIGGER", "index": 42, "t_trigger": 12.5}},
+        {"name": "trigger-minor-2", "hex": _seal(trigger[:3] + b"\x02" + trigger[4:-4]).hex(),
+         "valid": True, "decoded": {"kind": "TRIGGER", "index": 42, "t_trigger": 12.5}},
         {"name": "trigger-index-max", "hex": encode_trigger(Trigger(0xFFFFFFFF, 0.0)).hex(),
          "valid": True, "decoded": {"kind": "TRIGGER", "index": 0xFFFFFFFF, "t_trigger": 0.0}},
         {"name": "data-found", "hex": found.hex(), "valid": True,

@@ -1628,3 +1628,44 @@ def test_a_server_that_guessed_what_1_2_left_open_is_caught(
     (entry,) = result.results
     assert entry.outcome is Outcome.FAIL, (entry.outcome, entry.message)
     assert f"[{rule}]" in entry.message  # the rule of the case, named in its verdict
+
+
+class SlowWaitRobot(MiniRobot):
+    """Offers JointMove and power; a WaitEndMove takes 0.3 s (a move running), so requests
+    sent behind it queue on the connection's worker."""
+
+    COMMANDS = (*MiniRobot.COMMANDS, C.ENABLE_POWER, C.DISABLE_POWER, C.JOINT_MOVE)
+    blocking = frozenset({int(C.WAIT_END_MOVE)})
+
+    def handle(
+        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
+        if spec.id in (C.ENABLE_POWER, C.DISABLE_POWER):
+            return ()
+        if spec.id == C.JOINT_MOVE:
+            return (1,)
+        if spec.id == C.WAIT_END_MOVE:
+            time.sleep(min(0.3, float(params[0])))  # type: ignore[arg-type]
+            return (True,)
+        return super().handle(session, spec, params)
+
+
+@pytest.mark.parametrize(("limit", "want"), [(None, Outcome.PASS), (4, Outcome.FAIL)])
+def test_refusing_requests_queued_behind_a_wait_is_caught(
+    monkeypatch: pytest.MonkeyPatch, limit: int | None, want: Outcome
+) -> None:
+    """[RS-7.27] a server that queues only 4 requests behind a pending WaitEndMove (the
+    rule: at least 16) fails robot.motion.queued_behind_wait; ours passes."""
+    import spec.server
+
+    if limit is not None:
+        monkeypatch.setattr(spec.server, "MAX_PENDING", limit)
+    with serving(FramedServer(SlowWaitRobot(), policy=POLICY)) as address:
+        options = Options(timeout_scale=SCALE, allow_motion=True)
+        result = run(
+            "robot", *address, options, Selection("full", ("robot.motion.queued_behind_wait",))
+        )
+    (entry,) = result.results
+    assert entry.outcome is want, (entry.outcome, entry.message)
+    if want is Outcome.FAIL:
+        assert "[RS-7.27]" in entry.message

@@ -904,3 +904,18 @@ def test_idle_timeout_runs_from_the_reply_to_a_long_request(serve: Serve) -> Non
         s.sendall(encode_packet(request(CommandId.HEREJ, 2)))
         (reply,) = read_packets(s, 1)
     assert reply.kind is PacketKind.REPLY and reply.request_id == 2
+
+
+@pytest.mark.parametrize("minor", [0, 1, 2])
+def test_a_1_0_to_1_2_peer_is_answered_by_a_1_3_server(server: FramedServer, minor: int) -> None:
+    """[RS-1.2] frames of an older minor version are accepted; the server answers with its
+    own minor (3) and says so in Hello [RS-5.31]."""
+    with raw_conn(server) as s:
+        s.sendall(
+            encode_packet(Packet(PacketKind.REQUEST, CommandId.HELLO, 1, (1, minor, "old"), minor))
+            + encode_packet(Packet(PacketKind.REQUEST, CommandId.HEREJ, 2, (), minor))
+        )
+        hello, herej = read_packets(s, 2)
+    assert hello.kind is PacketKind.REPLY and hello.params[0] == "1.3"
+    assert herej.kind is PacketKind.REPLY and herej.params == (Joints([1, 2, 3, 4, 5, 6]),)
+    assert hello.version_minor == herej.version_minor == wire.VERSION_MINOR == 3

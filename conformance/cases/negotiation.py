@@ -253,7 +253,7 @@ def request_id_max(ctx: Context) -> None:
 
 @case(
     "negotiation.profile.core",
-    requirements=["RS-5.60", "RS-5.61"],
+    requirements=["RS-5.60", "RS-5.61", "RS-5.63"],
     tags=["negotiation", "profiles"],
     profiles=SMOKE,
     order=10,

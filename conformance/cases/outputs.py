@@ -13,6 +13,7 @@ from conformance.cases._util import io_names
 from conformance.connection import Conn
 from conformance.context import Context
 from conformance.model import Fail, NotApplicable, case
+from spec.errors import ErrorCode
 from spec.registry import CommandId as C
 
 #: The process outputs of RS-7.21, in the order they go off.
@@ -86,6 +87,55 @@ def off_on_close(ctx: Context) -> str:
                 f"on: {', '.join(still)}",
             )
         time.sleep(0.01)
+
+
+@case(
+    "robot.outputs.off_on_estop",
+    requirements=["RS-7.21", "RS-5.20", "RS-5.53"],
+    tags=["robot", "safety", "io"],
+    service="robot",
+    motion=True,
+    commands=[C.SET_OUTPUT, C.READ_IO, C.LIST_IO, C.EMERGENCY_STOP, C.RESET_EMERGENCY_STOP],
+)
+def off_on_estop(ctx: Context) -> str:
+    """EmergencyStop switches every process output off while control stays; under the
+    engaged stop SetOutput to on is EMERGENCY_STOP and to off is executed; after
+    ResetEmergencyStop an output can be switched on again (no arm power needed)."""
+    conn = ctx.connect()
+    names = _process_outputs(conn)
+    ctx.take_control(conn)
+    try:
+        _on(conn, names)
+        conn.ok(C.EMERGENCY_STOP)
+        still = [n for n in names if conn.ok(C.READ_IO, n)[0]]
+        if still:
+            raise Fail(
+                "outputs stayed on after EmergencyStop",
+                "all off",
+                f"on: {', '.join(still)}",
+                requirement="RS-7.21",
+            )
+        on = conn.call(C.SET_OUTPUT, names[-1], True)
+        off = conn.call(C.SET_OUTPUT, names[-1], False)
+        conn.ok(C.RESET_EMERGENCY_STOP)
+        if on.error is None or on.error[0] != ErrorCode.EMERGENCY_STOP or off.error is not None:
+            raise Fail(
+                "SetOutput under an engaged emergency stop",
+                "on: EMERGENCY_STOP, off: executed",
+                f"on: {on.error or 'executed'}, off: {off.error or 'executed'}",
+                requirement="RS-7.21",
+            )
+        again = conn.call(C.SET_OUTPUT, names[-1], True)
+        if again.error is not None:
+            raise Fail(
+                "SetOutput after ResetEmergencyStop (power is off; outputs need none)",
+                "executed",
+                again.error,
+                requirement="RS-5.53",
+            )
+    finally:
+        conn.call(C.RELEASE_CONTROL)  # the outputs go off with control [RS-7.21]
+    return f"{', '.join(names)} off at EmergencyStop"
 
 
 @case(

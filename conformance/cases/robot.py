@@ -456,7 +456,7 @@ def motion_unreachable(ctx: Context) -> None:
 
 @case(
     "robot.motion.queued",
-    requirements=["RS-5.11", "RS-5.22"],
+    requirements=["RS-5.11", "RS-5.22", "RS-5.59"],
     tags=["robot", "motion"],
     service="robot",
     motion=True,
@@ -465,7 +465,7 @@ def motion_unreachable(ctx: Context) -> None:
 )
 def motion_queued(ctx: Context) -> str:
     """JointMove (+2 degrees on joint 1, 5 % speed) replies at once; WaitEndMove is false before
-    the end and true after; the arm comes back."""
+    the end and true after, and GetStatus then says not moving, queue 0; the arm comes back."""
     with _Motion(ctx) as m:
         conn = m.conn
         m.power()
@@ -483,10 +483,18 @@ def motion_queued(ctx: Context) -> str:
             raise Fail("WaitEndMove(30 s) did not see the end of a 2 degree move", True, False)
         move_s = time.monotonic() - t0
         reached = _joints(conn)
+        settled = _status(conn)
         if abs(reached[0] - target[0]) > 0.05:
             raise Fail("the arm did not reach the target", target[0], reached[0])
         conn.ok(C.JOINT_MOVE, Joints(start))
         _wait_still(conn, 30.0)
+        if settled.get("moving") or settled.get("queue") != 0:
+            raise Fail(
+                "GetStatus after WaitEndMove said done",
+                "moving false, queue 0",
+                {k: settled.get(k) for k in ("moving", "queue")},
+                requirement="RS-5.59",
+            )
         if not still_moving:
             raise Fail(
                 "JointMove did not return before the move ended",

@@ -4,12 +4,13 @@ RestartMove in every state (PROTOCOL.md sections 5.3 and 7)."""
 
 from __future__ import annotations
 
-from conformance.cases.robot import _Motion, _status
+from conformance.cases.robot import STEP_DEG, _joints, _Motion, _status, _wait_still
 from conformance.connection import Conn
 from conformance.context import Context
 from conformance.model import Fail, Informational, Skip, case
 from spec.codec import Packet
 from spec.errors import ErrorCode
+from spec.params import Joints
 from spec.registry import CommandId as C
 
 
@@ -234,3 +235,74 @@ def restart_without_stop(ctx: Context) -> str:
                 requirement="RS-5.54",
             )
     return "nothing held, nothing started"
+
+
+@case(
+    "timeouts.idle_while_pending",
+    requirements=["RS-7.28"],
+    level="INFO",
+    tags=["timeouts", "not-observable"],
+)
+def idle_while_pending(ctx: Context) -> str:
+    """Not observable in a case's budget: see the case's message."""
+    idle = ctx.hello.number("idle_timeout", 300.0) if ctx.hello else 300.0
+    raise Informational(
+        f"RS-7.28 needs a request pending for longer than the idle timeout ({idle:g} s here),"
+        " i.e. a move longer than that; the harness's documented motion is a 2 degree move."
+        " The reference server's tests check it (tests/test_spec_server.py)."
+    )
+
+
+#: [RS-7.27] a server queues at least this many requests behind a pending one.
+MIN_QUEUED = 16
+
+
+@case(
+    "robot.motion.queued_behind_wait",
+    requirements=["RS-7.27", "RS-7.12", "RS-3.10"],
+    tags=["robot", "motion", "limits"],
+    service="robot",
+    motion=True,
+    budget=60.0,
+    commands=[C.JOINT_MOVE, C.ENABLE_POWER, C.WAIT_END_MOVE, C.SET_MOTION_DESC, C.HEREJ],
+)
+def queued_behind_wait(ctx: Context) -> str:
+    """During a 2 degree move, WaitEndMove and 40 Herej go out back to back: the first 16
+    Herej queue behind the pending WaitEndMove and are answered after it, in order; any
+    BUSY goes only to the later ones. The arm comes back."""
+    count = 40
+    with _Motion(ctx) as m:
+        conn = m.conn
+        m.power()
+        start = _joints(conn)
+        target = [start[0] + STEP_DEG, *start[1:]]
+        conn.ok(C.JOINT_MOVE, Joints(target))
+        piece = 5.0 if conn.lease is None else min(5.0, conn.lease / 2)
+        wait_id = conn.request(C.WAIT_END_MOVE, piece)
+        ids = [conn.request(C.HEREJ) for _ in range(count)]
+        # Collected by request ID: a BUSY may overtake the pending replies [RS-7.27].
+        got: dict[int, Packet] = {}
+        while len(got) < count + 1:
+            packet = conn.recv_packet(timeout=piece + 10.0)
+            got[packet.request_id] = packet
+        _wait_still(conn, 30.0)
+        conn.ok(C.JOINT_MOVE, Joints(start))
+        _wait_still(conn, 30.0)
+    if set(got) != {wait_id, *ids}:
+        raise Fail("answers that echo no request", sorted(ids), sorted(got), requirement="RS-3.4")
+    answers = [got[rid] for rid in ids]
+    busy = [k for k, a in enumerate(answers) if a.error is not None]
+    wrong = [
+        (k, _code(answers[k]))
+        for k in busy
+        if k < MIN_QUEUED or answers[k].error[0] != ErrorCode.BUSY  # type: ignore[index]
+    ]
+    if wrong:
+        raise Fail(
+            f"requests behind a pending WaitEndMove refused (the first {MIN_QUEUED} must queue;"
+            " only BUSY may refuse later ones)",
+            f"replies to the first {MIN_QUEUED}",
+            wrong[:5],
+            requirement="RS-7.27",
+        )
+    return f"{count - len(busy)} queued, {len(busy)} BUSY"
