@@ -51,7 +51,7 @@ from welding.console import cli as console_cli
 from welding.process import JobAborted, JobRunner, PlanError, Progress, plan, steps_summary
 from welding.teach import SeamTeacher, TeachError, record_here, seam_path
 from welding.tools import TOOL_KINDS, Entry, Tables, ToolDB, ToolDBError, check_location
-from welding.track_options import add_track_options
+from welding.track_options import add_dynamics_option, add_track_options
 
 __all__ = ["main"]
 
@@ -117,6 +117,7 @@ def _add_cell_options(
         help="the emulated cell's seam (with --emulate)",
     )
     p.add_argument("--seed", type=int, default=0, help="the emulated cell's seed")
+    add_dynamics_option(p)
     for which in ("sensor", "laser"):
         p.add_argument(
             f"--{which}-tool-error",
@@ -289,6 +290,7 @@ def _cell(args: argparse.Namespace, *, control: bool, sensor: bool = False) -> I
         session = EmulatedSession(
             args.seam,
             seed=args.seed,
+            dynamics=args.dynamics,
             sensor_tool_error=args.sensor_tool_error,
             laser_tool_error=args.laser_tool_error,
         )

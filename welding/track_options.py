@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import argparse
 
-from cell.options import add_timing_options, add_tool_error_options
+from cell.options import add_dynamics_option, add_timing_options, add_tool_error_options
 from spec import cliargs
 from welding.tools import Loc
 
-__all__ = ["TRACK_SEAMS", "add_track_options"]
+__all__ = ["TRACK_SEAMS", "add_dynamics_option", "add_track_options"]
 
 #: Seams of the tracking benchmark: the cell's seam shape and the workpiece placement error
 #: (location in the workpiece frame, mm, deg) that puts it off the nominal path.
@@ -77,5 +77,6 @@ def add_track_options(p: argparse.ArgumentParser) -> None:
         help="the sensor tool the robot computes seam points with, from the tool database "
         "(e.g. one `calibrate sensor-tool --save NAME` wrote; default: the cell's nominal)",
     )
+    add_dynamics_option(p)
     add_timing_options(p)
     add_tool_error_options(p)
