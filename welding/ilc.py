@@ -173,19 +173,19 @@ class Convergence:
         }
 
 
-def check_convergence(Q: Array, L: Array, G: Array) -> Convergence:
-    """The convergence of u_{j+1} = Q (u_j + L (r − G u_j)) (see :class:`Convergence`)."""
+def check_convergence(Q: Array, L: Array, G: Array, channels: int = 3) -> Convergence:
+    """The convergence of u_{j+1} = Q (u_j + L (r − G u_j)) (see :class:`Convergence`) for
+    lifted matrices of ``channels`` interleaved channels."""
     M = Q @ (np.eye(G.shape[0]) - L @ G)
     norm = float(np.linalg.norm(M, 2))
     radius = float(np.abs(np.linalg.eigvals(M)).max())
-    return Convergence(norm, radius, _frequency_max(M))
+    return Convergence(norm, radius, _frequency_max(M, channels))
 
 
-def _frequency_max(M: Array) -> float:
+def _frequency_max(M: Array, c: int) -> float:
     """max over frequencies of the gain of M around the middle of the pass: the response
     of M's middle columns to e^{iωk}, per channel (the LTI reading of the lifted matrix)."""
     n = M.shape[0]
-    c = 3 if n % 3 == 0 else 1
     cycles = n // c
     k = np.arange(cycles)
     worst = 0.0

@@ -8,6 +8,7 @@ the robot and the sensor through the protocol, as they would a real cell.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import math
@@ -21,6 +22,7 @@ from cell.cell import CellTiming, EmulatedCell
 from cell.options import timing_kwargs
 from cell.truth import WeldRecorder
 from spec.client import FramedClient
+from spec.errors import ProtocolError
 from spec.exitcodes import ExitCode
 from spec.files import write_atomically
 from welding.ilc import IlcTable, LearningDiverges
@@ -77,7 +79,6 @@ def run_ilc_emulated(
     try:
         client = FramedClient(*cell.robot_address, timeout=30.0, client_name="ilc")
         try:
-            client.take_control()
             trials, conv, learned = run_ilc(
                 client,
                 cell.udp_address,
@@ -91,6 +92,8 @@ def run_ilc_emulated(
                 record=recorder.start,
             )
         finally:
+            with contextlib.suppress(OSError, ProtocolError):  # not held, or gone
+                client.release_control()
             client.close()
     finally:
         cell.close()

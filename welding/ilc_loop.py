@@ -60,6 +60,10 @@ log = logging.getLogger(__name__)
 Array = npt.NDArray[np.float64]
 
 SOURCES = ("seam", "joints")
+#: The control lease (s, RS-7.13) the trials take: between two passes the arm stands while
+#: the table is judged and learned (a second or two of numpy on a busy machine), longer
+#: than the 0.25 s default a moving controller should keep.
+LEASE_S = 3.0
 
 
 @dataclass(frozen=True)
@@ -159,9 +163,10 @@ def run_ilc(
     progress: Callable[[IlcTrial], None] | None = None,
     record: Callable[[], None] | None = None,
 ) -> tuple[list[IlcTrial], Convergence, IlcTable]:
-    """Run the trials on the robot ``client`` holds control of (its sensor's trigger
-    address ``sensor_endpoint``): refuse a learning that diverges (:class:`LearningDiverges`,
-    before anything moves), teach the seam unless ``table`` brings it, then ``trials``
+    """Run the trials on the robot of ``client`` (its sensor's trigger address
+    ``sensor_endpoint``): refuse a learning that diverges (:class:`LearningDiverges`,
+    before control is taken), take control, teach the seam unless ``table`` brings it, then
+    ``trials``
     passes, each judged by ``judge(outcome, geometry)`` -> (truth max, truth rms, profile)
     after ``record()`` was called before it; the table is handed to ``save`` after every
     trial."""
@@ -207,7 +212,9 @@ def run_ilc(
             )
         taught, u = table.seam, table.correction.copy()
         done = table.trials
-    else:
+    client.take_control(watchdog=LEASE_S)
+    client.call(CommandId.ENABLE_POWER)
+    if table is None:
         taught = np.zeros((0, 4)) if settings.track else _teach(link, geometry, settings)
         u = np.zeros((n, 3))
         done = 0
