@@ -25,7 +25,12 @@ from typing import Any
 import numpy as np
 
 from cell.cell import CellError, CellTiming, EmulatedCell
-from cell.options import add_timing_options, add_tool_error_options, timing_kwargs
+from cell.options import (
+    add_dynamics_option,
+    add_timing_options,
+    add_tool_error_options,
+    timing_kwargs,
+)
 from cell.rtcell import CellProcess
 from robotsocket.rtprocess import ChildStartError
 from sensorsocket.pgm import write_pgm
@@ -63,6 +68,7 @@ def _parser() -> cliargs.Parser:
         s.add_argument("--seam", choices=("straight", "sine", "corner"), default="straight")
         s.add_argument("--seed", type=cliargs.seed, default=0)
         s.add_argument("-v", "--verbose", action="store_true")
+        add_dynamics_option(s)
         add_timing_options(s)
         add_tool_error_options(s)
         if name == "serve":
@@ -107,6 +113,7 @@ def _cell_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     return {
         "timing": CellTiming(**timing_kwargs(args)),
         "model": args.model,
+        "dynamics": args.dynamics,
         "joint": args.joint,
         "seam": args.seam,
         "seed": args.seed,

@@ -3,7 +3,8 @@
 One object runs what the paper's lab had on the bench: a Stäubli arm (default RX90B) with the
 seam-tracking sensor on its flange (^N_S T, and a laser tool ^N_L T), a workpiece with a seam
 under the sensor, the RobotSocket and SensorSocket servers, and the UDP trigger/data link of
-section V. The camera sees the arm's *true* motion (the setpoints, interpolated between
+section V. The camera sees the arm's *true* motion (the setpoints, or with ``dynamics``
+the elastic arm's link side, interpolated between
 cycles); the robot reports *measured* joints delayed by the encoder latency. So the delay the
 ΔT experiment must find is known from the timing parameters (:meth:`CellTiming.true_delta_t_s`)
 and, per acquisition, from the sensor's own records (:meth:`EmulatedCell.measured_delta_t`).
@@ -45,6 +46,7 @@ from cell.motion import TrueMotion
 from cell.noisy import NoisyHandler
 from cell.sim_link import SimulatedLink
 from cell.timing import CellError, CellTiming
+from kinematics.dynamics import dynamics_named
 from kinematics.transforms import location_to_transform, transform_to_location
 from robotsocket.emulator import RobotEmulator
 from robotsocket.service import RobotService
@@ -123,6 +125,9 @@ class EmulatedCell:
         seed: seeds every random draw of the cell.
         host: address of the servers; ports 0 pick free ones.
         delta_t_s: the robot's initial ΔT setting (the synchronisation commands change it).
+        dynamics: the arm's dynamics, ``off`` or ``elastic``
+            (:func:`kinematics.dynamics.dynamics_named`): with ``elastic`` the robot reports
+            its motor side, and the camera and the laser follow its link side (the truth).
         serve: serve robot and sensor over TCP here; False leaves that to another process
             (:mod:`cell.rtcell`), with the services in :attr:`robot_service` and
             :attr:`sensor_service`.
@@ -145,6 +150,7 @@ class EmulatedCell:
     udp_port: int = 0
     delta_t_s: float = 0.0
     ready_joints: Sequence[float] = READY_JOINTS
+    dynamics: str = "off"
     serve: bool = True
     policy: ServerPolicy | None = None  # the TCP servers' (None: the spec's defaults)
 
@@ -152,6 +158,10 @@ class EmulatedCell:
         if self.clock not in ("sim", "real"):
             raise CellError(f"clock must be 'sim' or 'real', got {self.clock!r}")
         t = self.timing
+        try:
+            params = dynamics_named(self.dynamics, self.model)
+        except ValueError as exc:
+            raise CellError(str(exc)) from None
         seeds = np.random.SeedSequence(self.seed).spawn(4)
         rng_timing, rng_render, rng_noise, rng_net = (np.random.default_rng(s) for s in seeds)
         self.robot = RobotEmulator(
@@ -160,6 +170,7 @@ class EmulatedCell:
             encoder_latency=t.encoder_latency_s,
             home=self.ready_joints,
             buffer_seconds=60.0,
+            dynamics=params,
         )
         nominal = location_to_transform(np.array(self.sensor_tool, dtype=np.float64))
         # the true tools (what the camera and the laser do) and the nominal sensor tool (what
@@ -169,7 +180,7 @@ class EmulatedCell:
             np.array(self.laser_tool, dtype=np.float64)
         ) @ _error_transform(self.laser_tool_error, "laser")
         self.nominal_sensor2flange = nominal
-        # the camera sees the arm's true motion (the setpoints), see cell.motion
+        # the camera sees the arm's true motion (setpoints or link side), see cell.motion
         self.motion = TrueMotion(
             self.robot.model.flange2base_batch,
             self.sensor2flange,
@@ -298,7 +309,8 @@ class EmulatedCell:
     # --- the clock ---------------------------------------------------------------------------
 
     def _on_cycle(self, t: float, q_sp: FloatArray, q_m: FloatArray) -> None:
-        self.motion.append(t, q_sp)
+        # the camera sees where the arm truly is: the link side (the setpoint of a rigid arm)
+        self.motion.append(t, self.robot.true_joints())
         if self.link is not None:
             self.link.cycle(t, q_m)
 
@@ -408,6 +420,7 @@ class EmulatedCell:
         return {
             "clock": self.clock,
             "model": self.model,
+            "dynamics": self.dynamics,
             "robot": f"{self.robot_address[0]}:{self.robot_address[1]}",
             "sensor": f"{self.sensor_address[0]}:{self.sensor_address[1]}",
             # The simulated cell carries triggers in-process: its address only names the

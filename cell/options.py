@@ -9,7 +9,13 @@ from typing import Any
 
 from spec import cliargs
 
-__all__ = ["add_timing_options", "add_tool_error_options", "timing_kwargs", "tool_error"]
+__all__ = [
+    "add_dynamics_option",
+    "add_timing_options",
+    "add_tool_error_options",
+    "timing_kwargs",
+    "tool_error",
+]
 
 #: (option, CellTiming field, factor to SI, default on the command line, help)
 _OPTIONS: tuple[tuple[str, str, float, float, str], ...] = (
@@ -83,3 +89,20 @@ def add_tool_error_options(parser: argparse.ArgumentParser) -> None:
             metavar="DX,DY,DZ,RX,RY,RZ",
             help=f"the true {which} tool = nominal · this error (mm, deg; default none)",
         )
+
+
+#: kinematics.dynamics.DYNAMICS, spelt out: parsers import this module without numpy
+#: (``robotsocket call`` starts without it); tests/test_robot_emulator.py checks they agree.
+DYNAMICS = ("off", "elastic")
+
+
+def add_dynamics_option(parser: argparse.ArgumentParser) -> None:
+    """Add ``--dynamics off|elastic`` (the emulated arm's; default off, a rigid arm)."""
+    parser.add_argument(
+        "--dynamics",
+        choices=DYNAMICS,
+        default="off",
+        help="the emulated arm: off = exactly at its setpoints (default); elastic = elastic "
+        "joints with servos on the motor encoders (measured joints are the motor side, the "
+        "tool and the sensor follow the link side; docs/ILC.md)",
+    )

@@ -1,6 +1,7 @@
 """The emulated cell's truth of a weld: where the laser focal point really went.
 
-A :class:`WeldRecorder` hooks the robot's cycle and keeps, every cycle, the true setpoints,
+A :class:`WeldRecorder` hooks the robot's cycle and keeps, every cycle, the true joints (the
+setpoints of a rigid arm, the link side of an elastic one),
 the path correction applied and the laser output. :meth:`WeldRecorder.truth` turns them into
 the laser focal point's path (through the TRUE laser tool) on the cycles the laser was on, with
 the scene whose seam it is judged against. The same recorder runs in-process and in the
@@ -65,7 +66,7 @@ class WeldRecorder:
         robot = self.cell.robot
         applied, lasing = robot.alter_applied(), robot.read_io("laser")[0]
         with self._lock:
-            self._q.append(q_sp)
+            self._q.append(robot.true_joints())
             self._t.append(t)
             self._applied.append(applied)
             self._lasing.append(lasing)

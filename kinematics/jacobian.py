@@ -16,20 +16,13 @@ from kinematics.transforms import Array, check_transform
 class JacobianMixin(DgmMixin):
     """Jacobian (6, 6) of the tool centre point, in the base or the tool frame."""
 
-    def jacobian(
-        self, q_deg: Any, frame: Literal["base", "tool"] = "base", tool: Any = None
-    ) -> Array:
-        """Geometric Jacobian (6, 6) at joints (6,) deg: rows (vx, vy, vz) mm/rad and
-        (wx, wy, wz) rad/rad, columns per joint (per radian).
-
-        The velocity is that of the tool centre point (flange centre without ``tool``, a
-        tool2flange (4, 4) otherwise), expressed in the base frame or in the tool frame.
-        """
-        if frame not in ("base", "tool"):
-            raise KinematicsError(f"jacobian: frame must be 'base' or 'tool', got {frame!r}")
+    def joint_axes(self, q_deg: Any) -> tuple[Array, Array, Array]:
+        """(axes (6, 3) unit vectors, points (6, 3) mm on each axis, ^B_N T (4, 4)) at
+        joints (6,) deg, base frame: the joint axes the Jacobian and the arm's dynamics
+        (:mod:`kinematics.dynamics`, link inertias about each axis) are built on. Points 4-6
+        are the wrist centre."""
         q = vector6(q_deg)
         F = self.flange2base(q)
-        T = F if tool is None else F @ check_transform(tool, name="tool")
         t = [math.radians(v + o) for v, o in zip(q, self.joint_offsets_deg, strict=True)]
         s1, c1 = math.sin(t[0]), math.cos(t[0])
         s2, c2 = math.sin(t[1]), math.cos(t[1])
@@ -50,6 +43,21 @@ class JacobianMixin(DgmMixin):
         points = np.array(
             [[0.0, 0.0, 0.0], rz1(a1, 0.0, 0.0), rz1(a1 + a2 * s2, d, a2 * c2), wc, wc, wc]
         )
+        return axes, points, F
+
+    def jacobian(
+        self, q_deg: Any, frame: Literal["base", "tool"] = "base", tool: Any = None
+    ) -> Array:
+        """Geometric Jacobian (6, 6) at joints (6,) deg: rows (vx, vy, vz) mm/rad and
+        (wx, wy, wz) rad/rad, columns per joint (per radian).
+
+        The velocity is that of the tool centre point (flange centre without ``tool``, a
+        tool2flange (4, 4) otherwise), expressed in the base frame or in the tool frame.
+        """
+        if frame not in ("base", "tool"):
+            raise KinematicsError(f"jacobian: frame must be 'base' or 'tool', got {frame!r}")
+        axes, points, F = self.joint_axes(q_deg)
+        T = F if tool is None else F @ check_transform(tool, name="tool")
         J = np.empty((6, 6))
         J[:3] = np.cross(axes, T[:3, 3] - points).T
         J[3:] = axes.T

@@ -75,6 +75,7 @@ def _robot_config(args: argparse.Namespace, allow: tuple[Network, ...]) -> dict[
         "model": args.model,
         "clock": args.clock,
         "encoder_latency_s": args.encoder_latency_ms / 1000.0,
+        "dynamics": args.dynamics,
         "host": args.host,
         "udp_port": args.udp_port,
         "allow": allow,
@@ -240,6 +241,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="measured joints lag the setpoints by this (ms, 0..1000); default 0, an ideal "
         "robot: the cell (python -m cell serve) uses 2.8, its model of a CS8's encoders",
     )
+    from cell.options import add_dynamics_option  # one option for every emulated arm
+
+    add_dynamics_option(s)
     s.add_argument(
         "--udp-port",
         type=cliargs.udp_port,

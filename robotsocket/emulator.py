@@ -6,6 +6,12 @@ default 10 s deep). Every cycle (T_r = 4 ms) produces a setpoint; the measured j
 setpoints delayed by ``encoder_latency`` seconds (linear interpolation between cycles) plus
 optional Gaussian noise, and are what Herej, Here and the joint log report.
 
+Dynamics (``dynamics``, default None: the arm is where its setpoint is): an elastic arm
+(:class:`kinematics.dynamics.ElasticArm`) follows the setpoints through its servos; the
+measured joints are then its MOTOR side (delayed as above), what a CS8 reports from its
+motor encoders, and :meth:`RobotEmulator.true_joints` its LINK side, where the tool truly is
+(what the cell's camera sees and its laser hits). A move has settled once the link stands.
+
 Clocks: ``clock="sim"`` (default) never advances by itself: call :meth:`RobotEmulator.step`
 or :meth:`RobotEmulator.advance_to`; :meth:`wait_end_move` *advances the simulated clock*
 until the motion is done or the timeout (simulated seconds) expires. ``clock="real"`` runs a
@@ -14,7 +20,8 @@ reader first runs the cycles that are due but not yet ticked (:meth:`RobotEmulat
 so a late clock thread never makes a sample stale or wrong.
 
 Observers: callables in :attr:`RobotEmulator.cycle_hooks` are called every cycle with
-(t_k, q_setpoint (6,), q_measured (6,)) while the emulator's lock is held; keep them short.
+(t_k, q_setpoint (6,), q_measured (6,)) while the emulator's lock is held; keep them short
+(:meth:`RobotEmulator.true_joints` is that cycle's link side).
 """
 
 from __future__ import annotations
@@ -28,6 +35,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from kinematics.dynamics import ElasticArm, ElasticParams
 from kinematics.errors import KinematicsError
 from kinematics.robot import RobotModel, get_model
 from kinematics.transforms import (
@@ -101,7 +109,8 @@ class RobotEmulator(RobotInterface):
     """An emulated Stäubli arm (default RX90B) behind the robot API.
 
     ``encoder_latency`` s (>= 0), ``noise_deg`` standard deviation of the measured joints
-    (needs ``rng``), ``buffer_seconds`` depth of the joint log, ``home`` start joints (6,).
+    (needs ``rng``), ``buffer_seconds`` depth of the joint log, ``home`` start joints (6,),
+    ``dynamics`` the elastic arm's parameters (None: a rigid arm, exactly at its setpoints).
     """
 
     def __init__(
@@ -116,6 +125,7 @@ class RobotEmulator(RobotInterface):
         home: Sequence[float] = HOME,
         buffer_seconds: float = 10.0,
         serial: str = "EMU-0001",
+        dynamics: ElasticParams | None = None,
     ) -> None:
         self.model = model if isinstance(model, RobotModel) else get_model(model)
         if clock not in ("sim", "real"):
@@ -147,9 +157,12 @@ class RobotEmulator(RobotInterface):
         self._outputs = dict.fromkeys(OUTPUTS, False)
         self._inputs = dict.fromkeys(INPUTS, True)
         self._lag_cycles = math.ceil(encoder_latency / period) + 2
+        # what the encoders read each cycle (the setpoints of a rigid arm), before the latency
         self._setpoints: deque[tuple[float, Array]] = deque(maxlen=self._lag_cycles + 1)
         self._setpoints.append((0.0, q0))
         self._measured = q0.copy()
+        self._arm = None if dynamics is None else ElasticArm(self.model, dynamics, q0, period)
+        self._link = q0.copy()
         self._setpoint = q0.copy()
         self._buffer = JointBuffer(capacity=max(2, round(buffer_seconds / period)))
         self._buffer.append(0.0, q0)
@@ -252,7 +265,12 @@ class RobotEmulator(RobotInterface):
             if self._alter.engaged:
                 q_sp = self._altered(t, q_sp)
             self._setpoint = q_sp
-            self._setpoints.append((t, q_sp))
+            if self._arm is None:
+                self._link = q_sp
+            else:
+                self._arm.cycle(q_sp)
+                self._link = self._arm.link_deg
+            self._setpoints.append((t, q_sp if self._arm is None else self._arm.motor_deg))
             q_m = self._delayed(t - self.encoder_latency)
             if self.noise_deg > 0.0 and self._rng is not None:
                 q_m = q_m + self._rng.normal(0.0, self.noise_deg, q_m.shape)
@@ -381,7 +399,19 @@ class RobotEmulator(RobotInterface):
             self._gen.idle
             and not self._alter.engaged  # alter mode moves the arm without a move queued
             and t >= self._idle_since + self.encoder_latency - 1e-12
+            and (self._arm is None or self._arm.at_rest())
         )
+
+    @property
+    def dynamics(self) -> ElasticParams | None:
+        """The elastic arm's parameters; None for a rigid arm."""
+        return None if self._arm is None else self._arm.params
+
+    def true_joints(self) -> Array:
+        """The link side (6,) deg at the latest cycle: where the arm truly is (the setpoint
+        of a rigid arm). The emulator's truth, not part of the robot API; a new array each
+        cycle, never written into."""
+        return self._link
 
     def status(self) -> RobotStatus:
         self.catch_up()

@@ -44,6 +44,7 @@ from typing import Any, cast
 
 import numpy as np
 
+from kinematics.dynamics import dynamics_named
 from kinematics.errors import KinematicsError
 from kinematics.robot import get_model
 from robotsocket.emulator import RobotEmulator, here_at
@@ -114,11 +115,17 @@ class ChildParts:
 def build_robot(config: dict[str, Any]) -> ChildParts:
     """The emulator, its service and the UDP synchronisation endpoint of
     ``python -m robotsocket serve``: the real-time child's parts, and the same parts run
-    in-process (simulated clock, ``--in-process``). ``config["clock"]`` defaults to real."""
+    in-process (simulated clock, ``--in-process``). ``config["clock"]`` defaults to real,
+    ``config["dynamics"]`` to off (:func:`kinematics.dynamics.dynamics_named`)."""
+    try:
+        dynamics = dynamics_named(config.get("dynamics", "off"), config["model"])
+    except ValueError as exc:
+        raise ChildStartError(str(exc)) from None
     robot = RobotEmulator(
         config["model"],
         clock=config.get("clock", "real"),
         encoder_latency=config["encoder_latency_s"],
+        dynamics=dynamics,
     )
     service = RobotService(robot)
     endpoint = None

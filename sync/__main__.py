@@ -129,8 +129,9 @@ def _parser() -> cliargs.Parser:
         d.add_argument("--emulate", action="store_true", help="in-process cell, simulated clock")
         d.add_argument("--seed", type=cliargs.seed, default=0, help="seed of the emulated cell")
         d.add_argument("-q", "--quiet", action="store_true", help="no progress")
-        from cell.options import add_timing_options
+        from cell.options import add_dynamics_option, add_timing_options
 
+        add_dynamics_option(d)
         add_timing_options(d)
     c = sub.add_parser("curvature", help="minimum radius of a sine seam (eq. 8-9)")
     c.add_argument("--amplitude", type=_MM, default=2.0, help="mm (0.001..1000)")
@@ -249,7 +250,12 @@ def cmd_delay(args: argparse.Namespace, progress: _Progress) -> int:
         from cell.cell import CellTiming, EmulatedCell
         from cell.options import timing_kwargs
 
-        cell = EmulatedCell(clock="sim", timing=CellTiming(**timing_kwargs(args)), seed=args.seed)
+        cell = EmulatedCell(
+            clock="sim",
+            timing=CellTiming(**timing_kwargs(args)),
+            seed=args.seed,
+            dynamics=args.dynamics,
+        )
         cell.start()
         robot, sensor = cell.robot_address, cell.sensor_address
     else:

@@ -29,7 +29,7 @@ EAGER_ONLY = {"conformance": {"spec"}}
 NEVER = {"welding": {"cell"}}
 # Entry points sit on top of everything: command lines (every __main__.py) and welding's
 # --emulate modules may import any package, the emulated cell included.
-ENTRY_POINTS = {"__main__.py"} | {"emulate.py", "track_options.py"}
+ENTRY_POINTS = {"__main__.py"} | {"emulate.py", "ilc_emulate.py", "track_options.py"}
 
 
 def allowed(package: str, path: Path) -> set[str]:

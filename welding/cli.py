@@ -9,6 +9,7 @@ record NAME --job JOB.xml    manual teaching: the current location as a via item
 teach                        3D seam teaching with the sensor; JSON and optionally a job
 calibrate sensor-tool|laser-tool   tool calibration by least squares (--json, --save)
 track --emulate              real-time seam tracking (--seam, --speed, --delta-t-ms, --json)
+ilc --emulate                iterative learning control of a repeated pass (--trials, --json)
 console --emulate            the operator console in the browser (127.0.0.1:8024)
 
 Robot and sensor: ``--robot HOST:PORT`` / ``--sensor HOST:PORT`` (RobotSocket 4000,
@@ -51,7 +52,7 @@ from welding.console import cli as console_cli
 from welding.process import JobAborted, JobRunner, PlanError, Progress, plan, steps_summary
 from welding.teach import SeamTeacher, TeachError, record_here, seam_path
 from welding.tools import TOOL_KINDS, Entry, Tables, ToolDB, ToolDBError, check_location
-from welding.track_options import add_track_options
+from welding.track_options import add_dynamics_option, add_ilc_options, add_track_options
 
 __all__ = ["main"]
 
@@ -117,6 +118,7 @@ def _add_cell_options(
         help="the emulated cell's seam (with --emulate)",
     )
     p.add_argument("--seed", type=int, default=0, help="the emulated cell's seed")
+    add_dynamics_option(p)
     for which in ("sensor", "laser"):
         p.add_argument(
             f"--{which}-tool-error",
@@ -262,6 +264,9 @@ def _parser() -> argparse.ArgumentParser:
     p = sub.add_parser("track", help="real-time seam tracking on the emulated cell")
     add_track_options(p)
     _add_tools_option(p)
+
+    p = sub.add_parser("ilc", help="iterative learning control of a repeated pass (emulated)")
+    add_ilc_options(p)
     return parser
 
 
@@ -289,6 +294,7 @@ def _cell(args: argparse.Namespace, *, control: bool, sensor: bool = False) -> I
         session = EmulatedSession(
             args.seam,
             seed=args.seed,
+            dynamics=args.dynamics,
             sensor_tool_error=args.sensor_tool_error,
             laser_tool_error=args.laser_tool_error,
         )
@@ -779,6 +785,12 @@ def cmd_track(args: argparse.Namespace) -> int:
     return run_track(args)
 
 
+def cmd_ilc(args: argparse.Namespace) -> int:
+    from welding.ilc_emulate import cmd_ilc as run_ilc
+
+    return run_ilc(args)
+
+
 # --- main ------------------------------------------------------------------------------------
 
 
@@ -792,6 +804,7 @@ COMMANDS = {
     "teach": cmd_teach,
     "calibrate": cmd_calibrate,
     "track": cmd_track,
+    "ilc": cmd_ilc,
     "console": console_cli.cmd_console,
 }
 

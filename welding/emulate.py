@@ -91,13 +91,13 @@ def cell_tables(cell: EmulatedCell | CellProcess) -> Tables:
     return tables
 
 
-def realtime_cell(seam: str = "straight", *, seed: int = 0) -> CellProcess:
+def realtime_cell(seam: str = "straight", *, seed: int = 0, dynamics: str = "off") -> CellProcess:
     """A started emulated cell on the real-time clock, its real-time part in a child process
     (the operator console's ``--emulate``: an operator watches and jogs it at the speed a
     real arm moves; the console's web server and status threads cannot starve its 4 ms
     loop). Raises ValueError when the child cannot start."""
     try:
-        cell = CellProcess(seam=seam, seed=seed)
+        cell = CellProcess(seam=seam, seed=seed, dynamics=dynamics)
     except ChildStartError as exc:
         raise ValueError(f"the real-time cell did not start: {exc}") from None
     return cell.start()
@@ -117,11 +117,13 @@ class EmulatedSession:
         sensor_tool_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
         laser_tool_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
         workpiece_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+        dynamics: str = "off",
     ) -> None:
         self.cell = EmulatedCell(
             clock="sim",
             seam=seam,
             seed=seed,
+            dynamics=dynamics,
             sensor_tool_error=sensor_tool_error,
             laser_tool_error=laser_tool_error,
             workpiece_error=workpiece_error,
@@ -241,6 +243,7 @@ def run_tracking(
     tolerance_mm: float = TOLERANCE_MM,
     timed: bool = True,
     load: Callable[[tuple[str, int]], contextlib.AbstractContextManager[object]] | None = None,
+    dynamics: str = "off",
 ) -> TrackingRun:
     """Weld ``weld_mm`` of ``seam`` (``straight|offset|sine``) at ``speed_mm_s`` on the
     simulated cell, correcting the laser every cycle from the synchronised seam points.
@@ -262,7 +265,8 @@ def run_tracking(
     robot has them, else one Alter per cycle (a loop that stalls then misses cycles, which
     ``corrections`` < ``cycles`` shows). The verdict is the tracker's own (``tolerance_mm``);
     the errors against the truth stand beside it. ``load``: a context entered with the
-    robot server's address around the weld on the real clock (a benchmark's load)."""
+    robot server's address around the weld on the real clock (a benchmark's load).
+    ``dynamics``: the emulated arm's (``off`` or ``elastic``, :class:`EmulatedCell`)."""
     if seam not in TRACK_SEAMS:
         raise ValueError(f"seam must be one of {', '.join(TRACK_SEAMS)}, got {seam!r}")
     shape, placement = TRACK_SEAMS[seam]
@@ -273,6 +277,7 @@ def run_tracking(
         "seed": seed,
         "sensor_tool_error": sensor_tool_error,
         "laser_tool_error": laser_tool_error,
+        "dynamics": dynamics,
     }
     if clock == "real":
         # the robot's clock runs by itself in the real-time child: only its servers reach
@@ -658,6 +663,7 @@ def cmd_track(args: argparse.Namespace) -> int:
         clock=args.clock,
         tolerance_mm=args.tolerance,
         timed=not args.per_cycle,
+        dynamics=args.dynamics,
     )
     data = run.summary()
     if args.json:

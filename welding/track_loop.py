@@ -20,6 +20,7 @@ import contextlib
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -106,7 +107,9 @@ class TrackedWeld:
     """One tracked weld: the tracker (nominal path, look-ahead), the laser tool (flange,
     mm, deg) the path is in (base frame), and the laser window: on from ``laser_from_mm``
     to ``laser_to_mm`` of arc length. ``laser=False`` keeps it off (a dry run);
-    ``track=False`` runs the nominal path uncorrected (the baseline)."""
+    ``track=False`` runs the nominal path uncorrected (the baseline). ``feedforward``: a
+    correction (6,) at each time (s since the move's start) added to the tracker's (a
+    learned table, :mod:`welding.ilc`); during the stand before the move, its value at 0."""
 
     tracker: Tracker
     laser_tool: Loc
@@ -117,6 +120,7 @@ class TrackedWeld:
     laser: bool = True
     settle_s: float = 0.25
     tolerance_mm: float = TOLERANCE_MM
+    feedforward: Callable[[float], Array] | None = None
 
 
 @dataclass(frozen=True)
@@ -135,6 +139,10 @@ class TrackOutcome:
     timed: bool = False
     #: the verdict's estimate along the weld: rows (arc length mm, estimated error mm)
     estimate: Array = field(default_factory=lambda: np.zeros((0, 2)))
+    #: robot time (s) the move's law started at
+    t0: float = math.nan
+    #: the seam points of the weld as GetSeamPoints gave them (M, 17)
+    rows: Array = field(default_factory=lambda: np.zeros((0, 17)))
 
 
 def weld_tracked(
@@ -154,6 +162,8 @@ def weld_tracked(
     stopped = ""
     laser_on = False
     track = weld.track
+    ff = weld.feedforward or (lambda _t: np.zeros(6))
+    seen: list[Array] = []
 
     def fetch() -> None:
         nonlocal last_index
@@ -161,6 +171,7 @@ def weld_tracked(
         if len(rows):
             last_index = int(rows[-1, 0])
             tracker.model.add(rows[:, 11:14])
+            seen.append(rows)
 
     # points of earlier runs (the ΔT measurement, another weld) are not this seam's
     last_index = link.start(weld.laser_tool, weld.rate_hz) - 1
@@ -178,7 +189,7 @@ def weld_tracked(
         while link.time() < t_go - 1e-9:
             fetch()
             ready = track and tracker.model.count >= MIN_FIT_POINTS
-            link.alter(tracker.correction(0.0) if ready else np.zeros(6))
+            link.alter((tracker.correction(0.0) if ready else np.zeros(6)) + ff(0.0))
             link.step()
         times, locs = nominal.timed_path(period)
         t0, on_grid = link.move(times, locs, weld.laser_tool)  # the law's start, a cycle
@@ -227,7 +238,7 @@ def weld_tracked(
                         with contextlib.suppress(TrackingError):
                             held = tracker.correction_at(s_k)
                     batch_t.append(t_k)
-                    sent_c.append(held)
+                    sent_c.append(held + ff(t_k - t0))
                     k_next += 1
                 if batch_t:
                     sent_t.extend(batch_t)
@@ -235,7 +246,7 @@ def weld_tracked(
             else:
                 if s <= weld.laser_to_mm:
                     held = tracker.correction(t_move) if track else np.zeros(6)
-                link.alter(held)
+                link.alter(held + ff(t_move))
                 corrections += t_move > 0.0  # the stand before a real-clock move is no cycle
             want_on = weld.laser and weld.laser_from_mm <= s <= weld.laser_to_mm
             if want_on != laser_on:
@@ -290,7 +301,10 @@ def weld_tracked(
         np.column_stack([sent_t, np.array(sent_c).reshape(-1, 6)]) if sent_t else np.zeros((0, 7))
     )
     estimate = np.column_stack([s_est, err])
-    return TrackOutcome(stopped, cycles, corrections, on_grid, verdict, sent, timed, estimate)
+    rows_seen = np.vstack(seen) if seen else np.zeros((0, 17))
+    return TrackOutcome(
+        stopped, cycles, corrections, on_grid, verdict, sent, timed, estimate, t0, rows_seen
+    )
 
 
 class RobotLink:

@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import argparse
 
-from cell.options import add_timing_options, add_tool_error_options
+from cell.options import add_dynamics_option, add_timing_options, add_tool_error_options
 from spec import cliargs
 from welding.tools import Loc
 
-__all__ = ["TRACK_SEAMS", "add_track_options"]
+__all__ = ["TRACK_SEAMS", "add_dynamics_option", "add_ilc_options", "add_track_options"]
 
 #: Seams of the tracking benchmark: the cell's seam shape and the workpiece placement error
 #: (location in the workpiece frame, mm, deg) that puts it off the nominal path.
@@ -77,5 +77,62 @@ def add_track_options(p: argparse.ArgumentParser) -> None:
         help="the sensor tool the robot computes seam points with, from the tool database "
         "(e.g. one `calibrate sensor-tool --save NAME` wrote; default: the cell's nominal)",
     )
+    add_dynamics_option(p)
     add_timing_options(p)
     add_tool_error_options(p)
+
+
+def add_ilc_options(p: argparse.ArgumentParser) -> None:
+    """Options of ``python -m welding ilc`` (docs/ILC.md)."""
+    p.add_argument(
+        "--emulate",
+        action="store_true",
+        required=True,
+        help="learn on the emulated cell (simulated clock, through its servers); required",
+    )
+    p.add_argument("--seam", choices=tuple(TRACK_SEAMS), default="sine")
+    p.add_argument("--speed", type=cliargs.number_in(1.0, 500.0), default=250.0, help="mm/s")
+    p.add_argument("--length", type=cliargs.number_in(10.0, 200.0), default=200.0, help="mm")
+    p.add_argument("--trials", type=cliargs.int_in(1, 100), default=5, help="passes (default 5)")
+    p.add_argument(
+        "--source",
+        choices=("seam", "joints"),
+        default="seam",
+        help="the error learned from: seam = the sensor's measurement of where the tool went "
+        "(end-effector ILC, default); joints = the measured joints (motor encoders)",
+    )
+    p.add_argument(
+        "--gain",
+        type=cliargs.number_in(0.01, 10.0),
+        default=1.0,
+        help="learning gain γ (default 1; a gain the model says diverges is refused)",
+    )
+    p.add_argument(
+        "--q-hz",
+        type=cliargs.number_in(1.0, 120.0),
+        default=50.0,
+        help="cutoff of the zero-phase Q-filter (Hz, default 50)",
+    )
+    p.add_argument(
+        "--track",
+        action="store_true",
+        help="track the seam live as well; the table learns the arm's error on top",
+    )
+    p.add_argument(
+        "--model-payload-kg",
+        type=cliargs.number_in(0.0, 50.0),
+        default=5.0,
+        help="the payload the ILC's model assumes (the emulated arm carries 5 kg)",
+    )
+    p.add_argument(
+        "--table",
+        metavar="PATH",
+        help="the learned table: reused when the file exists, written after every trial",
+    )
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", type=cliargs.output_file, metavar="OUT.json")
+    p.add_argument(
+        "--plot", metavar="DIR", help="write ilc_trials.png, ilc_convergence.png (matplotlib)"
+    )
+    add_dynamics_option(p)
+    add_timing_options(p)

@@ -163,6 +163,11 @@ class SeamModel:
         return out
 
     @property
+    def first(self) -> float:
+        """The nearest arc length measured (mm; +inf before the first point)."""
+        return float(self._s.min()) if len(self._s) else math.inf
+
+    @property
     def furthest(self) -> float:
         """The furthest arc length measured (mm; -inf before the first point)."""
         return float(self._s.max()) if len(self._s) else -math.inf

@@ -1,0 +1,160 @@
+"""The ILC: the lifted update on a known linear system (converges exactly where the criterion
+says), the lifted model against the arm it models, the table file, and end to end over the
+emulated cell's sockets (the truth error falls at every trial)."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+
+from kinematics import get_model, location_to_transform
+from kinematics.dynamics import RX90B, link_inertia, simulate
+from welding.__main__ import main
+from welding.ilc import IlcTable, check_convergence, learning_matrix, lifted_model, q_filter
+from welding.ilc_emulate import run_ilc_emulated
+from welding.ilc_loop import IlcSettings
+
+PERIOD = 0.004
+
+
+def _first_order(n: int, a: float, b: float) -> np.ndarray:
+    """Lifted G of y_k = a y_{k-1} + b u_k (a known linear system)."""
+    h = b * a ** np.arange(n)
+    k = np.arange(n)
+    lag = k[:, None] - k[None, :]
+    return np.where(lag >= 0, h[np.clip(lag, 0, n - 1)], 0.0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    gain=st.floats(0.05, 4.0),
+    cutoff=st.floats(5.0, 120.0),
+    beta=st.floats(1e-6, 1e-1),
+    a=st.floats(0.2, 0.95),
+    model_error=st.floats(0.5, 1.5),
+)
+def test_lifted_ilc_converges_exactly_where_the_criterion_says(
+    gain: float, cutoff: float, beta: float, a: float, model_error: float
+) -> None:
+    """u_{j+1} = Q(u_j + L e_j) on a true system G, L from a model off by ``model_error``:
+    the criterion of the true loop, Q(I − L G), predicts it. A spectral radius below 1: the
+    correction reaches the fixed point (and with a norm below 1, monotonically); above 1: it
+    grows without bound."""
+    n = 30
+    G = _first_order(n, a, 1.0 - a)
+    model = model_error * G
+    Q = q_filter(n, cutoff, PERIOD, channels=1)
+    L = learning_matrix(model, gain, np.ones(n), beta)
+    conv = check_convergence(Q, L, G, channels=1)
+    assume(abs(conv.radius - 1.0) > 0.05)
+    r = np.sin(np.linspace(0.0, 3.0, n))
+    M = Q @ (np.eye(n) - L @ G)
+    u = np.zeros(n)
+    if conv.radius < 1.0:
+        u_star = np.linalg.solve(np.eye(n) - M, Q @ L @ r)
+        last = np.linalg.norm(u - u_star)
+        for _ in range(2000):
+            u = Q @ (u + L @ (r - G @ u))
+            now = np.linalg.norm(u - u_star)
+            if conv.norm < 1.0:
+                assert now <= last * (1 + 1e-9) + 1e-12
+            last = now
+        assert last <= 1e-6 * max(np.linalg.norm(u_star), 1e-9)
+    else:
+        bound = 1e3 * np.linalg.norm(Q @ L @ r)
+        for _ in range(5000):
+            u = Q @ (u + L @ (r - G @ u))
+            if np.linalg.norm(u) > bound:
+                break
+        assert np.linalg.norm(u) > bound
+
+
+def test_a_gain_on_the_exact_model_converges_up_to_two() -> None:
+    """Model inverse with the model exact: 1 − L·G = 1 − γ (β → 0), so the norm is |1 − γ|
+    under Q <= 1: below 2 converges, above 2 does not (Norrlöf's criterion)."""
+    n = 30
+    G = _first_order(n, 0.8, 0.2)
+    Q = q_filter(n, 100.0, PERIOD, channels=1)
+    assert check_convergence(Q, learning_matrix(G, 1.5, np.ones(n), 1e-9), G, 1).converges
+    assert not check_convergence(Q, learning_matrix(G, 2.5, np.ones(n), 1e-9), G, 1).converges
+
+
+def test_q_filter_is_zero_phase_and_never_amplifies() -> None:
+    n = 200
+    Q = q_filter(n, 20.0, PERIOD, channels=1)
+    np.testing.assert_allclose(Q, Q.T, atol=1e-15)  # zero phase: symmetric
+    assert np.linalg.norm(Q, 2) <= 1.0 + 1e-12
+    assert Q[100].sum() == pytest.approx(1.0, abs=1e-9)  # unit gain at 0 Hz inside
+    with pytest.raises(ValueError, match="cutoff"):
+        q_filter(n, 200.0, PERIOD)
+
+
+def test_the_lifted_model_predicts_the_arm() -> None:
+    """G·u against the elastic arm itself for a small lateral correction at one pose: the
+    laser's motion agrees within 2 % (the model is linearised, the arm is not)."""
+    model = get_model("RX90B")
+    q = np.array([0.0, 30.0, 100.0, 0.0, 50.0, 0.0])
+    tool = location_to_transform(np.array([0.0, 0.0, 200.0, 0.0, 0.0, 0.0]))
+    n = 80
+    G = lifted_model(RX90B, model, q, tool, n, PERIOD)
+    u = np.zeros((n, 3))
+    u[5:, 1] = 0.5 * np.sin(2 * math.pi * 5.0 * PERIOD * np.arange(n - 5))  # mm, base y
+    predicted = (G @ u.ravel()).reshape(n, 3)
+    J = model.jacobian(q, tool=tool)
+    dq = np.linalg.solve(J, np.column_stack([u, np.zeros((n, 3))]).T).T  # rad
+    r = np.radians(q) + np.vstack([np.zeros(6), dq])
+    _, link = simulate(RX90B, link_inertia(model, q, RX90B), r, period=PERIOD)
+    f2b = model.flange2base_batch(np.degrees(link)) @ tool
+    actual = f2b[:, :3, 3] - (model.flange2base(q) @ tool)[:3, 3]
+    assert np.abs(actual - predicted).max() < 0.02 * np.abs(actual).max()
+
+
+def test_a_table_round_trips_and_a_bad_one_is_named(tmp_path: Path) -> None:
+    t = IlcTable(0.004, 250.0, np.ones((4, 3)), np.array([[0.0, 1, 2, 3], [1.0, 2, 3, 4]]),
+                 "seam", 3)  # fmt: skip
+    path = tmp_path / "t.json"
+    t.save(path)
+    back = IlcTable.load(path)
+    np.testing.assert_array_equal(back.correction, t.correction)
+    np.testing.assert_allclose(back.offsets(np.array([0.5])), [[1.5, 2.5, 3.5]])
+    (tmp_path / "bad.json").write_text(json.dumps({"version": 1, "period": 0.004}))
+    with pytest.raises(ValueError, match=r"bad\.json: not an ILC table"):
+        IlcTable.load(tmp_path / "bad.json")
+
+
+def test_a_diverging_gain_is_refused_before_the_first_trial(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    out = tmp_path / "ilc.json"
+    code = main(["ilc", "--emulate", "--dynamics", "elastic", "--gain", "2.5", "--json",
+                 str(out)])  # fmt: skip
+    stdout, err = capsys.readouterr()
+    assert code == 2
+    assert err.count("\n") == 1 and "the learning would diverge" in err
+    assert "trial" not in stdout and not out.exists()
+
+
+def test_ilc_over_the_sockets_lowers_the_truth_error_every_trial(tmp_path: Path) -> None:
+    """The end-effector ILC on the elastic arm, sine seam, 250 mm/s, simulated clock: the
+    laser's error against the emulator's truth falls at every trial; the saved table, reused,
+    starts where the learning left off."""
+    saved: list[IlcTable] = []
+    settings_ = IlcSettings(weld_mm=60.0, trials=3)
+    result = run_ilc_emulated(settings_, save=saved.append)
+    errors = [t["error_max_mm"] for t in result["trials"]]
+    assert [t["trial"] for t in result["trials"]] == [1, 2, 3]
+    assert all(b < a for a, b in itertools.pairwise(errors)), errors
+    assert errors[-1] < errors[0] / 3
+    path = tmp_path / "table.json"
+    saved[-1].save(path)
+    again = run_ilc_emulated(IlcSettings(weld_mm=60.0, trials=1), table=IlcTable.load(path))
+    (trial,) = again["trials"]
+    assert trial["trial"] == 4
+    assert trial["error_max_mm"] < errors[0] / 3

@@ -1,0 +1,260 @@
+"""Iterative learning control (the 24-Laser's ILC DLL, paper ref. [10]), pure: the lifted
+model of the arm, the zero-phase Q-filter, the learning update, Norrlöf's convergence check
+and the learned table's file.
+
+Lifted form (Hakvoort et al., on the same RX90): one pass of N cycles is one vector. The
+correction u (N x 3, the laser tool's translation in the base frame, mm) the robot adds to
+its path, one entry per 4 ms cycle of the move (AlterQueue, PROTOCOL.md RS-5.39), moves the
+laser by y = G u, with G (3N x 3N) lower block-triangular: each axis' response to a
+setpoint pulse (:func:`kinematics.dynamics.simulate` of the application's model of the
+arm), mapped through the Jacobian of the pass (a correction Δp becomes joint offsets
+J⁻¹ Δp, each axis answers with its own dynamics, the laser moves by J Δq). The error of
+trial j, e_j = reference − measured, teaches the next correction:
+
+    u_{j+1} = Q (u_j + L e_j),   L = γ (GᵀWG + βI)⁻¹ GᵀW
+
+with W the cycles where the error was measured (the laser window; the sensor cannot see
+along the seam). Q is a zero-phase low-pass (forward and backward through a causal
+second-order filter): it keeps what the model does not know (resonances, noise) out of
+the learning. Norrlöf's criterion |Q(1 − L·G)| < 1 over the frequencies, in lifted form the
+largest singular value of Q(I − LG), decides before the first trial whether the learning
+converges (monotonically, for the model); :func:`check_convergence` gives it with the
+spectral radius (converges at all: < 1).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from kinematics.dynamics import ElasticParams, link_inertia, simulate
+from spec.files import write_atomically
+
+__all__ = [
+    "Convergence",
+    "IlcTable",
+    "LearningDiverges",
+    "check_convergence",
+    "learning_matrix",
+    "lifted_model",
+    "q_filter",
+]
+
+Array = npt.NDArray[np.float64]
+
+#: Version of the table file.
+TABLE_VERSION = 1
+
+
+class LearningDiverges(ValueError):
+    """Norrlöf's criterion fails for the model: the learning would diverge."""
+
+
+def axis_pulse_responses(
+    params: ElasticParams, jl: Array, n: int, period: float, *, latency_s: float = 0.0
+) -> tuple[Array, Array]:
+    """Responses (n, 6) of the link and of the measured motor (delayed by ``latency_s``,
+    linearly between cycles as the robot's joint log is) of each axis to a setpoint pulse
+    of 1 rad in the first cycle, at the end of each cycle from that one on."""
+    r = np.zeros((n + 1, 6))
+    r[1] = 1.0
+    motor, link = simulate(params, jl, r, period=period)
+    if latency_s > 0.0:
+        shift = latency_s / period
+        whole = math.floor(shift)
+        w = shift - whole
+        padded = np.vstack([np.zeros((whole + 1, 6)), motor])
+        motor = (1.0 - w) * padded[1 : n + 1] + w * padded[:n]
+    return link, motor
+
+
+def lifted_model(
+    params: ElasticParams,
+    model: Any,
+    q_deg: Array,
+    laser2flange: Array,
+    n: int,
+    period: float,
+    *,
+    side: str = "link",
+    latency_s: float = 0.0,
+) -> Array:
+    """G (3N, 3N), rows and columns ordered (cycle, axis x/y/z): the laser's translation
+    (mm, base frame) at each cycle of the pass for a unit translation correction at each
+    cycle, linearised at joints ``q_deg`` (6,) (a :class:`~kinematics.robot.RobotModel`
+    ``model``, the laser tool ``laser2flange`` (4, 4)). ``side``: ``link`` (where the laser
+    truly is) or ``motor`` (what the measured joints say, ``latency_s`` late)."""
+    if side not in ("link", "motor"):
+        raise ValueError(f"side must be link or motor, got {side!r}")
+    jl = link_inertia(model, q_deg, params)
+    link, motor = axis_pulse_responses(params, jl, n, period, latency_s=latency_s)
+    h = link if side == "link" else motor
+    J = model.jacobian(q_deg, tool=laser2flange)  # mm/rad and rad/rad, base frame
+    Jinv = np.linalg.inv(J)
+    toeplitz = _toeplitz(h)  # (6, n, n)
+    G = np.zeros((3 * n, 3 * n))
+    for i in range(6):
+        # a translation Δp (orientation kept) asks axis i for Jinv[i, :3]·Δp rad; axis i
+        # moves the laser by J[:3, i] per rad
+        mix = np.outer(J[:3, i], Jinv[i, :3])
+        G += np.kron(toeplitz[i], mix)
+    return G
+
+
+def _toeplitz(h: Array) -> Array:
+    """Lower-triangular Toeplitz matrices (6, n, n) of the responses h (n, 6)."""
+    n = h.shape[0]
+    k = np.arange(n)
+    lag = k[:, None] - k[None, :]
+    T = np.where(lag[None] >= 0, h.T[:, np.clip(lag, 0, n - 1)], 0.0)
+    return T
+
+
+def q_filter(n: int, cutoff_hz: float, period: float, channels: int = 3) -> Array:
+    """The zero-phase Q (channels·N square, same ordering as :func:`lifted_model`): a
+    critically damped second-order low-pass of ``cutoff_hz`` run forward, then backward
+    (Fᵀ F): no phase, |Q| = |F|² <= 1, unit gain at 0 Hz away from the pass's end."""
+    if not (0.0 < cutoff_hz < 0.5 / period):
+        raise ValueError(f"Q cutoff must be in (0, {0.5 / period:g}) Hz, got {cutoff_hz}")
+    # discrete critically damped pole pair from the continuous one (matched z)
+    p = math.exp(-2.0 * math.pi * cutoff_hz * period)
+    # y_k = 2p y_{k-1} - p^2 y_{k-2} + (1 - p)^2 x_k
+    h = np.zeros(n)
+    y1 = y2 = 0.0
+    for k in range(n):
+        x = 1.0 if k == 0 else 0.0
+        y = 2 * p * y1 - p * p * y2 + (1 - p) ** 2 * x
+        h[k] = y
+        y2, y1 = y1, y
+    F = _toeplitz(np.repeat(h[:, None], 6, axis=1))[0]
+    # not rescaled at the end of the pass (where the backward run starts, it sees part of
+    # its window): |F| <= 1 keeps the lifted norm of Q <= 1, so the cycles nothing is
+    # learned on fade instead of growing
+    return np.kron(F.T @ F, np.eye(channels))
+
+
+def learning_matrix(G: Array, gain: float, weights: Array, beta: float) -> Array:
+    """L = γ (GᵀWG + βI)⁻¹ GᵀW for cycle weights ``weights`` (3N,) (1 measured, 0 not)."""
+    if not (math.isfinite(gain) and gain > 0.0):
+        raise ValueError(f"the learning gain must be > 0, got {gain}")
+    GW = G.T * weights[None, :]
+    A = GW @ G + beta * np.eye(G.shape[1])
+    out: Array = np.asarray(gain * np.linalg.solve(A, GW), dtype=np.float64)
+    return out
+
+
+@dataclass(frozen=True)
+class Convergence:
+    """Norrlöf's criterion for the model: ``norm`` = max singular value of Q(I − LG)
+    (< 1: the error of the model converges monotonically), ``radius`` = its spectral radius
+    (< 1: the learning converges at all), and the largest |Q(1 − L·G)| over the frequency
+    grid of the pass (the frequency-domain form, from the middle of the pass)."""
+
+    norm: float
+    radius: float
+    frequency_max: float
+
+    @property
+    def converges(self) -> bool:
+        return self.norm < 1.0
+
+    def summary(self) -> dict[str, float | bool]:
+        return {
+            "norm": self.norm,
+            "spectral_radius": self.radius,
+            "frequency_max": self.frequency_max,
+            "converges": self.converges,
+        }
+
+
+def check_convergence(Q: Array, L: Array, G: Array, channels: int = 3) -> Convergence:
+    """The convergence of u_{j+1} = Q (u_j + L (r − G u_j)) (see :class:`Convergence`) for
+    lifted matrices of ``channels`` interleaved channels."""
+    M = Q @ (np.eye(G.shape[0]) - L @ G)
+    norm = float(np.linalg.norm(M, 2))
+    radius = float(np.abs(np.linalg.eigvals(M)).max())
+    return Convergence(norm, radius, _frequency_max(M, channels))
+
+
+def _frequency_max(M: Array, c: int) -> float:
+    """max over frequencies of the gain of M around the middle of the pass: the response
+    of M's middle columns to e^{iωk}, per channel (the LTI reading of the lifted matrix)."""
+    n = M.shape[0]
+    cycles = n // c
+    k = np.arange(cycles)
+    worst = 0.0
+    mid = slice(cycles // 4, 3 * cycles // 4)
+    for f in np.linspace(0.0, 0.5, 65)[1:]:
+        wave = np.exp(2j * math.pi * f * k)
+        for ch in range(c):
+            x = np.zeros(n, dtype=complex)
+            x[ch::c] = wave
+            y = (M @ x)[ch::c][mid]
+            worst = max(worst, float(np.abs(y).max()))
+    return worst
+
+
+@dataclass
+class IlcTable:
+    """The learned correction of one pass: ``correction`` (N, 3) mm, base frame, at cycle k
+    of the move (k·``period`` s after its start); ``seam`` the seam taught, rows (arc
+    length along the nominal line mm, offset from it (3,) mm, base frame), which the laser
+    follows (empty: the nominal line, a tracked pass); and what it was learned for."""
+
+    period: float
+    speed_mm_s: float
+    correction: Array
+    seam: Array
+    source: str
+    trials: int
+
+    def offsets(self, s: Array) -> Array:
+        """The taught seam's offsets (M, 3) at arc lengths ``s`` (M,), linear between its
+        rows, its ends held; zero without a taught seam."""
+        s = np.asarray(s, dtype=np.float64)
+        if not len(self.seam):
+            return np.zeros((len(s), 3))
+        return np.column_stack(
+            [np.interp(s, self.seam[:, 0], self.seam[:, 1 + c]) for c in range(3)]
+        )
+
+    def save(self, path: str | Path) -> None:
+        """Write atomically (JSON)."""
+        data = {
+            "version": TABLE_VERSION,
+            "period": self.period,
+            "speed_mm_s": self.speed_mm_s,
+            "source": self.source,
+            "trials": self.trials,
+            "correction": np.round(self.correction, 9).tolist(),
+            "seam": np.round(self.seam, 9).tolist(),
+        }
+        write_atomically(path, json.dumps(data) + "\n")
+
+    @classmethod
+    def load(cls, path: str | Path) -> IlcTable:
+        """ValueError naming the file when it is not a table of this version."""
+        try:
+            data = json.loads(Path(path).read_text(encoding="utf-8"))
+            if data.get("version") != TABLE_VERSION:
+                raise ValueError(f"version {data.get('version')!r}, not {TABLE_VERSION}")
+            table = cls(
+                float(data["period"]),
+                float(data["speed_mm_s"]),
+                np.array(data["correction"], dtype=np.float64).reshape(-1, 3),
+                np.array(data["seam"], dtype=np.float64).reshape(-1, 4),
+                str(data["source"]),
+                int(data["trials"]),
+            )
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+            raise ValueError(f"{path}: not an ILC table ({exc})") from None
+        ok = np.all(np.isfinite(table.correction)) and np.all(np.isfinite(table.seam))
+        if not ok or (len(table.seam) > 1 and not np.all(np.diff(table.seam[:, 0]) > 0)):
+            raise ValueError(f"{path}: not an ILC table (bad correction or seam)")
+        return table

@@ -1,0 +1,211 @@
+"""``python -m welding ilc --emulate``: the ILC trials (:mod:`welding.ilc_loop`) on the
+simulated cell, through its servers, each trial judged against the emulator's truth.
+
+Only this module and :mod:`welding.emulate` of the ILC build a :mod:`cell`; the trials see
+the robot and the sensor through the protocol, as they would a real cell.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import logging
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cell.cell import CellTiming, EmulatedCell
+from cell.options import timing_kwargs
+from cell.truth import WeldRecorder
+from spec.client import FramedClient
+from spec.errors import ProtocolError
+from spec.exitcodes import ExitCode
+from spec.files import write_atomically
+from welding.ilc import IlcTable, LearningDiverges
+from welding.ilc_loop import IlcSettings, IlcTrial, PassGeometry, run_ilc
+from welding.track_loop import TrackOutcome
+from welding.track_options import TRACK_SEAMS
+from welding.tracking import seam_error
+
+__all__ = ["cmd_ilc", "run_ilc_emulated"]
+
+log = logging.getLogger(__name__)
+
+
+def run_ilc_emulated(
+    settings: IlcSettings,
+    *,
+    seam: str = "sine",
+    dynamics: str = "elastic",
+    timing: CellTiming | None = None,
+    seed: int = 0,
+    table: IlcTable | None = None,
+    save: Any = None,
+    progress: Any = None,
+) -> dict[str, Any]:
+    """The trials on a simulated cell (``seam`` of ``welding track``, ``dynamics``); the
+    result as the JSON of ``welding ilc`` (trials in order, each with ``error_max_mm``
+    against the truth), plus ``"profiles"`` (per trial (arc length, error) arrays) and
+    ``"table"`` (the learned :class:`IlcTable`), which the JSON leaves out."""
+    shape, placement = TRACK_SEAMS[seam]
+    cell = EmulatedCell(
+        clock="sim",
+        timing=timing or CellTiming(),
+        seam=shape,
+        workpiece_error=placement,
+        seed=seed,
+        dynamics=dynamics,
+    )
+    cell.core.set_delay(cell.true_delta_t_s())  # as `track --true-delta-t`
+    recorder = WeldRecorder(cell)
+    scene = cell.scene
+
+    def judge(_outcome: TrackOutcome, g: PassGeometry) -> tuple[float, float, np.ndarray]:
+        truth = recorder.truth()
+        lat, hgt = seam_error(
+            truth.laser, scene.base2workpiece, scene.path.lateral, scene.joint.seam_height_mm
+        )
+        err = np.hypot(lat, hgt)
+        if not len(err):
+            return math.nan, math.nan, np.zeros((0, 2))
+        profile = np.column_stack([g.weld.project(truth.laser) - g.laser_from_mm, err])
+        return float(err.max()), float(np.sqrt(np.mean(err**2))), profile
+
+    cell.start()
+    try:
+        client = FramedClient(*cell.robot_address, timeout=30.0, client_name="ilc")
+        try:
+            trials, conv, learned = run_ilc(
+                client,
+                cell.udp_address,
+                settings,
+                judge,
+                laser_tool=cell.laser_tool,
+                sensor_tool=cell.sensor_tool,
+                table=table,
+                save=save,
+                progress=progress,
+                record=recorder.start,
+            )
+        finally:
+            with contextlib.suppress(OSError, ProtocolError):  # not held, or gone
+                client.release_control()
+            client.close()
+    finally:
+        cell.close()
+    return {
+        "seam": seam,
+        "dynamics": dynamics,
+        "speed_mm_s": settings.speed_mm_s,
+        "source": settings.source,
+        "track": settings.track,
+        "gain": settings.gain,
+        "q_hz": settings.q_hz,
+        "model_payload_kg": settings.model_payload_kg,
+        "arm_payload_kg": settings.params.payload_kg,
+        "convergence": conv.summary(),
+        "trials": [t.summary() for t in trials],
+        "profiles": [t.profile for t in trials],
+        "table": learned,
+    }
+
+
+def _line(trial: IlcTrial) -> str:
+    return (
+        f"trial {trial.trial}: error against the truth max {trial.error_max_mm:.4f} mm, rms "
+        f"{trial.error_rms_mm:.4f} mm; the ILC measured {trial.measured_max_mm:.4f} mm; "
+        f"correction up to {trial.correction_max_mm:.3f} mm"
+        + (f"; STOPPED: {trial.stopped}" if trial.stopped else "")
+    )
+
+
+def cmd_ilc(args: argparse.Namespace) -> int:
+    """Learn, print a line per trial, write the JSON, the table and the plots."""
+    settings = IlcSettings(
+        speed_mm_s=args.speed,
+        weld_mm=args.length,
+        trials=args.trials,
+        source=args.source,
+        gain=args.gain,
+        q_hz=args.q_hz,
+        track=args.track,
+        model_payload_kg=args.model_payload_kg,
+    )
+    table = None
+    if args.table and Path(args.table).exists():
+        try:
+            table = IlcTable.load(args.table)
+        except ValueError as exc:
+            print(f"python -m welding: error: {exc}", file=sys.stderr)
+            return ExitCode.USAGE
+        print(f"reusing the table of {args.table} ({table.trials} trials learned)")
+    try:
+        result = run_ilc_emulated(
+            settings,
+            seam=args.seam,
+            dynamics=args.dynamics,
+            timing=CellTiming(**timing_kwargs(args)),
+            seed=args.seed,
+            table=table,
+            save=(lambda t: t.save(args.table)) if args.table else None,
+            progress=lambda t: print(_line(t), flush=True),
+        )
+    except (LearningDiverges, ValueError) as exc:
+        print(f"python -m welding: error: {exc}", file=sys.stderr)
+        return ExitCode.USAGE
+    profiles = result.pop("profiles")
+    result.pop("table")
+    if args.json:
+        write_atomically(args.json, json.dumps(result, indent=1) + "\n")
+    if args.plot:
+        plot_trials(result, profiles, Path(args.plot))
+    trials = result["trials"]
+    if any(t["stopped"] for t in trials):
+        return ExitCode.FAILED
+    first, last = trials[0]["error_max_mm"], trials[-1]["error_max_mm"]
+    print(f"error max {first:.4f} -> {last:.4f} mm over {len(trials)} trials")
+    return ExitCode.OK
+
+
+def plot_trials(result: dict[str, Any], profiles: list[np.ndarray], out_dir: Path) -> None:
+    """``ilc_trials.png`` (the truth error along the path, per trial) and
+    ``ilc_convergence.png`` (max and rms per trial, log scale)."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise ValueError("--plot needs matplotlib (the `plot` extra)") from None
+    out_dir.mkdir(parents=True, exist_ok=True)
+    title = (
+        f"{result['seam']} seam, {result['speed_mm_s']:g} mm/s, dynamics {result['dynamics']}, "
+        f"source {result['source']}" + (", tracked" if result["track"] else "")
+    )
+    fig, ax = plt.subplots(figsize=(10, 4))
+    for t, p in zip(result["trials"], profiles, strict=True):
+        ax.plot(p[:, 0], p[:, 1] * 1e3, linewidth=1, label=f"trial {t['trial']}")
+    ax.set_xlabel("along the weld (mm)")
+    ax.set_ylabel("laser error against the truth (µm)")
+    ax.set_yscale("log")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(out_dir / "ilc_trials.png", dpi=100)
+    plt.close(fig)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    k = [t["trial"] for t in result["trials"]]
+    ax.semilogy(k, [t["error_max_mm"] for t in result["trials"]], "o-", label="max")
+    ax.semilogy(k, [t["error_rms_mm"] for t in result["trials"]], "s--", label="rms")
+    ax.axhline(0.1, color="grey", linewidth=0.8, label="0.1 mm")
+    ax.set_xlabel("trial")
+    ax.set_ylabel("error against the truth (mm)")
+    ax.set_title(title, fontsize=8)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out_dir / "ilc_convergence.png", dpi=100)
+    plt.close(fig)

@@ -1,0 +1,451 @@
+"""The ILC trials through the protocol only: teach the seam, repeat the pass, learn.
+
+One pass is the ``track`` pass over the cell's seam (the laser's straight nominal line along
+the sensor's x axis, the laser on over ``weld_mm``), a ToolMoveTrajectory with a timed
+correction for every 4 ms cycle (AlterQueue, RS-5.39): the reference the laser should
+follow plus the learned correction u_j (:mod:`welding.ilc`). The reference is the seam as
+the sensor measured it on a slow teaching pass first (at 50 mm/s the arm's own error is a
+few µm), saved with the table; with ``track`` the tracker corrects the workpiece live and
+the table learns only the arm's repeatable error on top of it.
+
+The error each trial learns from, both through the protocol:
+
+- ``joints``: the laser's path from the measured joints (GetJointLog: the motor encoders)
+  against the reference, every cycle: the joint ILC of the paper's ref. [10]; it cannot see
+  the gearbox's deflection between motor and tool.
+- ``seam``: the seam sensor's own measurement ^S_G T (in the sensor frame, so no joint
+  reading is in it) against what it would read if the tool were on the reference: where
+  the tool really went, across the seam (lateral and height; along it the sensor sees
+  nothing). The end-effector ILC.
+
+The caller scores each trial against the emulator's truth (``judge``): this module never
+sees it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from kinematics.dynamics import RX90B, ElasticParams
+from kinematics.robot import RobotModel, get_model
+from kinematics.transforms import location_to_transform
+from spec import wire
+from spec.client import FramedClient
+from spec.params import IDENTITY_LOCATION, Joints, Location, Matrix
+from spec.registry import CommandId
+from welding.ilc import (
+    Convergence,
+    IlcTable,
+    LearningDiverges,
+    check_convergence,
+    learning_matrix,
+    lifted_model,
+    q_filter,
+)
+from welding.tools import Loc
+from welding.track_loop import RobotLink, TrackedWeld, TrackOutcome, laser_path, weld_tracked
+from welding.tracking import NominalWeld, SeamModel, Tracker, TrackingError
+
+__all__ = ["IlcSettings", "IlcTrial", "PassGeometry", "run_ilc"]
+
+log = logging.getLogger(__name__)
+
+Array = npt.NDArray[np.float64]
+
+SOURCES = ("seam", "joints")
+#: The control lease (s, RS-7.13) the trials take: between two passes the arm stands while
+#: the table is judged and learned (a second or two of numpy on a busy machine), longer
+#: than the 0.25 s default a moving controller should keep.
+LEASE_S = 3.0
+
+
+@dataclass(frozen=True)
+class IlcSettings:
+    """What to learn and how. ``gain`` γ, ``q_hz`` the Q-filter's cutoff, ``beta`` the
+    regularisation of the model inverse, ``model_payload_kg`` the payload the ILC's model
+    assumes (the arm's is 5 kg), ``latency_s`` the joint log's lag behind the motors the
+    joint source's model allows for."""
+
+    speed_mm_s: float = 250.0
+    weld_mm: float = 200.0
+    trials: int = 5
+    source: str = "seam"
+    gain: float = 1.0
+    q_hz: float = 50.0
+    beta: float = 1e-3
+    rate_hz: float = 200.0
+    teach_speed_mm_s: float = 50.0
+    track: bool = False
+    model_payload_kg: float = RX90B.payload_kg
+    latency_s: float = 0.0028
+    params: ElasticParams = RX90B
+
+    def check(self) -> None:
+        if self.source not in SOURCES:
+            raise ValueError(f"source must be {' or '.join(SOURCES)}, got {self.source!r}")
+        if not (1 <= self.trials <= 100):
+            raise ValueError(f"trials must be 1..100, got {self.trials}")
+
+
+@dataclass
+class IlcTrial:
+    """One trial: the laser's error against the truth (max, rms, mm; the caller's judge)
+    and against the ILC's own measurement (max over the window, mm), the largest learned
+    correction it ran with (mm), and the truth error along the path (arc length, error)."""
+
+    trial: int
+    error_max_mm: float
+    error_rms_mm: float
+    measured_max_mm: float
+    correction_max_mm: float
+    stopped: str
+    profile: Array = field(default_factory=lambda: np.zeros((0, 2)), repr=False)
+
+    def summary(self) -> dict[str, object]:
+        return {
+            "trial": self.trial,
+            "error_max_mm": self.error_max_mm,
+            "error_rms_mm": self.error_rms_mm,
+            "measured_max_mm": self.measured_max_mm,
+            "correction_max_mm": self.correction_max_mm,
+            "stopped": self.stopped,
+        }
+
+
+@dataclass(frozen=True)
+class PassGeometry:
+    """The pass: the nominal laser line (``weld``), the laser tool, the sensor's pose at the
+    start (^B_S T, nominal tool), the look-ahead (mm), the laser window, the grid."""
+
+    weld: NominalWeld
+    laser_tool: Loc
+    sensor2base: Array
+    look_ahead_mm: float
+    laser_from_mm: float
+    laser_to_mm: float
+    times: Array  # (N,) s since the move's start, one per cycle
+
+    @property
+    def frame(self) -> Array:
+        """(3, 3) columns: along the seam, across it (lateral), the third (height)."""
+        d = self.weld.direction
+        up = self.sensor2base[:3, 2]
+        lat = np.cross(up, d)
+        lat /= np.linalg.norm(lat)
+        return np.column_stack([d, lat, np.cross(d, lat)])
+
+    def window(self) -> Array:
+        """(N,) bool: the cycles with the laser on."""
+        s = self.weld.s_at(self.times)
+        return np.asarray((s >= self.laser_from_mm) & (s <= self.laser_to_mm))
+
+
+Judge = Callable[[TrackOutcome, PassGeometry], tuple[float, float, Array]]
+
+
+def run_ilc(
+    client: FramedClient,
+    sensor_endpoint: tuple[str, int],
+    settings: IlcSettings,
+    judge: Judge,
+    *,
+    laser_tool: Loc,
+    sensor_tool: Loc,
+    table: IlcTable | None = None,
+    save: Callable[[IlcTable], None] | None = None,
+    progress: Callable[[IlcTrial], None] | None = None,
+    record: Callable[[], None] | None = None,
+) -> tuple[list[IlcTrial], Convergence, IlcTable]:
+    """Run the trials on the robot of ``client`` (its sensor's trigger address
+    ``sensor_endpoint``): refuse a learning that diverges (:class:`LearningDiverges`,
+    before control is taken), take control, teach the seam unless ``table`` brings it, then
+    ``trials``
+    passes, each judged by ``judge(outcome, geometry)`` -> (truth max, truth rms, profile)
+    after ``record()`` was called before it; the table is handed to ``save`` after every
+    trial."""
+    settings.check()
+    period = 0.004
+    link = RobotLink(client, sensor_endpoint, period=period)
+    info = client.call(CommandId.HELLO, wire.VERSION_MAJOR, wire.VERSION_MINOR, "ilc")
+    model = get_model(str(info[3]))
+    geometry = _geometry(link, laser_tool, sensor_tool, settings, model)
+    n = len(geometry.times)
+    q_start = client.call(CommandId.HEREJ)[0]
+    assert isinstance(q_start, Joints)
+    laser2flange = location_to_transform(np.array(laser_tool, dtype=np.float64))
+    q_mid = _joints_at(model, geometry, laser2flange, np.array(q_start.values), 0.5)
+    params = settings.params.with_payload(settings.model_payload_kg)
+    side = "link" if settings.source == "seam" else "motor"
+    G = lifted_model(
+        params, model, q_mid, laser2flange, n, period, side=side, latency_s=settings.latency_s
+    )
+    R = geometry.frame
+    big_r = np.kron(np.eye(n), R)
+    Gp = big_r.T @ G @ big_r  # in (along, lateral, height) per cycle
+    # learned over the whole pass (the lead-in onto the seam matters for the weld's start),
+    # from the cycles where the error was measured
+    mask = np.ones(3 * n)
+    if settings.source == "seam":
+        mask[0::3] = 0.0  # the sensor sees nothing along the seam
+    L = learning_matrix(Gp, settings.gain, mask, settings.beta)
+    Q = q_filter(n, settings.q_hz, period)
+    conv = check_convergence(Q, L, Gp)
+    if not conv.converges:
+        raise LearningDiverges(
+            f"the learning would diverge: |Q(1 - L·G)| = {conv.norm:.3f} >= 1 for the model"
+            f" (gain {settings.gain:g}, Q {settings.q_hz:g} Hz): lower --gain"
+        )
+    if table is not None:
+        if table.correction.shape != (n, 3) or not math.isclose(
+            table.speed_mm_s, settings.speed_mm_s
+        ):
+            raise ValueError(
+                f"the table is for {len(table.correction)} cycles at {table.speed_mm_s:g} mm/s,"
+                f" this pass has {n} at {settings.speed_mm_s:g} mm/s"
+            )
+        taught, u = table.seam, table.correction.copy()
+        done = table.trials
+    client.take_control(watchdog=LEASE_S)
+    client.call(CommandId.ENABLE_POWER)
+    if table is None:
+        taught = np.zeros((0, 4)) if settings.track else _teach(link, geometry, settings)
+        u = np.zeros((n, 3))
+        done = 0
+    seam_of = IlcTable(period, settings.speed_mm_s, u, taught, settings.source, done)
+    reference = seam_of.offsets(geometry.weld.s_at(geometry.times))
+    trials: list[IlcTrial] = []
+    for j in range(1, settings.trials + 1):
+        _back_to_start(client, geometry)
+        if record is not None:
+            record()
+        tracker = Tracker(geometry.weld, geometry.look_ahead_mm)
+        plan = TrackedWeld(
+            tracker,
+            laser_tool,
+            geometry.laser_from_mm,
+            geometry.laser_to_mm,
+            settings.rate_hz,
+            settings.track,
+            feedforward=_feedforward(geometry.times, reference + u),
+        )
+        outcome = weld_tracked(link, plan)
+        truth_max, truth_rms, profile = judge(outcome, geometry)
+        if settings.source == "seam":
+            offsets = _tracked_offsets(tracker) if settings.track else seam_of.offsets
+            e_base = _seam_error(geometry, outcome, offsets, settings.latency_s)
+        else:
+            ref = reference + (_tracker_part(outcome, geometry, u) if settings.track else 0.0)
+            e_base = _joint_error(client, model, geometry, outcome, ref)
+        e_path = e_base @ R  # rows in (along, lateral, height)
+        seen = mask * np.repeat(np.any(e_base != 0.0, axis=1), 3)
+        window = np.repeat(geometry.window(), 3) * seen
+        measured = float(np.abs(e_path.ravel() * window).max()) if n else math.nan
+        trial = IlcTrial(
+            done + j,
+            truth_max,
+            truth_rms,
+            measured,
+            float(np.linalg.norm(u, axis=1).max()),
+            outcome.stopped,
+            profile,
+        )
+        trials.append(trial)
+        if progress is not None:
+            progress(trial)
+        if outcome.stopped:
+            break
+        up = (u @ R).ravel()
+        up = Q @ (up + L @ (e_path.ravel() * seen))
+        u = up.reshape(n, 3) @ R.T
+        learned = IlcTable(period, settings.speed_mm_s, u, taught, settings.source, done + j)
+        if save is not None:
+            save(learned)
+    return (
+        trials,
+        conv,
+        IlcTable(period, settings.speed_mm_s, u, taught, settings.source, done + len(trials)),
+    )
+
+
+def _geometry(
+    link: RobotLink, laser_tool: Loc, sensor_tool: Loc, settings: IlcSettings, model: RobotModel
+) -> PassGeometry:
+    """The ``track`` pass from where the arm stands (as :func:`welding.emulate._track_on`)."""
+    start = np.array(link.here(laser_tool))
+    flange = location_to_transform(start) @ np.linalg.inv(
+        location_to_transform(np.array(laser_tool, dtype=np.float64))
+    )
+    s2b = flange @ location_to_transform(np.array(sensor_tool, dtype=np.float64))
+    direction = s2b[:3, 0]
+    look_ahead = float((s2b[:3, 3] - start[:3]) @ direction)
+    ramp_mm = settings.speed_mm_s**2 / (2.0 * 2500.0)
+    weld = NominalWeld(
+        start=start[:3],
+        direction=direction,
+        angles=start[3:],
+        length_mm=look_ahead + settings.weld_mm + ramp_mm + 1.0,
+        speed_mm_s=settings.speed_mm_s,
+    )
+    times, _ = weld.timed_path(link.period)
+    return PassGeometry(
+        weld, laser_tool, s2b, look_ahead, look_ahead, look_ahead + settings.weld_mm, times
+    )
+
+
+def _back_to_start(client: FramedClient, g: PassGeometry) -> None:
+    """A straight move back to the pass's start (where the last pass, or teaching, ended)
+    and the wait until the arm stands there."""
+    start = np.concatenate([g.weld.start, g.weld.angles])
+    client.call(
+        CommandId.TOOL_MOVE_L,
+        Location(*(float(v) for v in start)),
+        Location(*g.laser_tool),
+        IDENTITY_LOCATION,
+    )
+    client.call(CommandId.WAIT_END_MOVE, 60.0, timeout=120.0)
+
+
+def _joints_at(
+    model: RobotModel, g: PassGeometry, laser2flange: Array, near: Array, fraction: float
+) -> Array:
+    """The joints (6,) with the laser at ``fraction`` of the nominal pass."""
+    p = g.weld.point(fraction * g.weld.length_mm)
+    loc = np.concatenate([p, g.weld.angles])
+    flange = location_to_transform(loc) @ np.linalg.inv(laser2flange)
+    q: Array = model.ik(flange, near=near)[0].joints_deg
+    return q
+
+
+def _feedforward(times: Array, table: Array) -> Callable[[float], Array]:
+    """The correction (6,) at a time since the move's start: the table (N, 3) linear
+    between its cycles, its ends held."""
+
+    def at(t: float) -> Array:
+        out = np.zeros(6)
+        for c in range(3):
+            out[c] = np.interp(t, times, table[:, c])
+        return out
+
+    return at
+
+
+def _tracked_offsets(tracker: Tracker) -> Callable[[Array], Array]:
+    """This trial's seam as the tracker measured it, as offsets from the nominal line."""
+    model = tracker.model
+
+    def at(s: Array) -> Array:
+        out = np.zeros((len(s), 3))
+        for i, si in enumerate(s):
+            with contextlib.suppress(TrackingError):
+                out[i] = model.offset_at(float(si))
+        return out
+
+    return at
+
+
+def _teach(link: RobotLink, g: PassGeometry, settings: IlcSettings) -> Array:
+    """A dry pass at the teaching speed with the sensor measuring the seam (the laser off):
+    the seam taught, rows (arc length, offset (3,)) every 0.5 mm where it was measured."""
+    slow = NominalWeld(
+        start=g.weld.start,
+        direction=g.weld.direction,
+        angles=g.weld.angles,
+        length_mm=g.weld.length_mm,
+        speed_mm_s=settings.teach_speed_mm_s,
+    )
+    tracker = Tracker(slow, g.look_ahead_mm)
+    plan = TrackedWeld(
+        tracker, g.laser_tool, g.laser_from_mm, g.laser_to_mm, settings.rate_hz,
+        track=False, laser=False,
+    )  # fmt: skip
+    outcome = weld_tracked(link, plan)
+    if outcome.stopped:
+        raise TrackingError(f"teaching the seam failed: {outcome.stopped}")
+    seam = SeamModel(slow)
+    seam.add(outcome.rows[outcome.rows[:, 3] == 0][:, 11:14])
+    rows = []
+    for s in np.arange(math.ceil(seam.first), seam.furthest, 0.5):
+        with contextlib.suppress(TrackingError):
+            rows.append([s, *seam.offset_at(float(s))])
+    if len(rows) > 2:
+        rows = _lead_in(np.array(rows)) + rows
+    log.info("seam taught from %d points over %.0f..%.0f mm", seam.count, seam.first,
+             seam.furthest)  # fmt: skip
+    return np.array(rows, dtype=np.float64).reshape(-1, 4)
+
+
+#: The reference leaves the seam's start tangentially over this (mm) before the first point
+#: the sensor measured (the laser's weld starts there): a path that takes up the seam's
+#: slope with a bounded curvature instead of a kink the arm cannot follow.
+LEAD_IN_MM = 20.0
+
+
+def _lead_in(rows: Array) -> list[list[float]]:
+    """Rows before ``rows`` (arc length, offset (3,)): a parabola from a standstill offset
+    LEAD_IN_MM before the first row to its offset and slope there."""
+    s0, e0 = rows[0, 0], rows[0, 1:]
+    slope = (rows[2, 1:] - rows[0, 1:]) / (rows[2, 0] - rows[0, 0])
+    out = []
+    for s in np.arange(s0 - LEAD_IN_MM, s0, 0.5):
+        x = s - s0
+        out.append([float(s), *(e0 + slope * x + slope / (2 * LEAD_IN_MM) * x * x)])
+    return out
+
+
+def _seam_error(
+    g: PassGeometry, outcome: TrackOutcome, offsets: Callable[[Array], Array], latency_s: float
+) -> Array:
+    """(N, 3) reference − actual of the laser, base frame, from the sensor's ^S_G T: what it
+    read against what it would read with the tool on the reference (the tool keeps its
+    orientation, so the laser moved as the sensor did); zero where it read nothing.
+    ``latency_s``: the joint log's lag; a seam point's time (t_sync = trigger + ΔT) is where
+    the *measured* joints saw the image, the exposure itself was that much earlier."""
+    rows = outcome.rows[(outcome.rows[:, 3] == 0) & (outcome.rows[:, 2] >= outcome.t0)]
+    n = len(g.times)
+    if len(rows) < 2:
+        return np.zeros((n, 3))
+    t = rows[:, 2] - latency_s - outcome.t0  # the exposure, robot clock, since the start
+    s_l = g.weld.s_at(t)
+    s_s = s_l + g.look_ahead_mm
+    a = g.sensor2base[:3, 3] - g.weld.start  # laser -> sensor, base frame
+    expected = g.weld.point(s_s) + offsets(s_s) - g.weld.point(s_l) - offsets(s_l) - a
+    measured = rows[:, 5:8] @ g.sensor2base[:3, :3].T
+    deviation = expected - measured  # actual - reference
+    out = np.zeros((n, 3))
+    inside = (g.times >= t.min()) & (g.times <= t.max())
+    for c in range(3):
+        out[inside, c] = -np.interp(g.times[inside], t, deviation[:, c])
+    return out
+
+
+def _tracker_part(outcome: TrackOutcome, g: PassGeometry, u: Array) -> Array:
+    """(N, 3) the tracker's share of the corrections sent for the move's cycles."""
+    sent = outcome.sent
+    if not len(sent):
+        return np.zeros((len(g.times), 3))
+    t = sent[:, 0] - outcome.t0
+    total = np.column_stack([np.interp(g.times, t, sent[:, 1 + c]) for c in range(3)])
+    out: Array = total - u
+    return out
+
+
+def _joint_error(
+    client: FramedClient, model: RobotModel, g: PassGeometry, outcome: TrackOutcome, ref: Array
+) -> Array:
+    """(N, 3) reference − the laser's path from the measured joints (GetJointLog), base."""
+    m = client.call(CommandId.GET_JOINT_LOG, float(outcome.t0 - 0.01))[0]
+    assert isinstance(m, Matrix)
+    rows = np.array(m.values, dtype=np.float64).reshape(m.rows, m.cols)
+    t = rows[:, 0] - outcome.t0
+    laser = laser_path(model, rows[:, 1:], g.laser_tool)
+    actual = np.column_stack([np.interp(g.times, t, laser[:, c]) for c in range(3)])
+    desired = g.weld.point(g.weld.s_at(g.times)) + ref
+    out: Array = desired - actual
+    return out
