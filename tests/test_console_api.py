@@ -380,20 +380,50 @@ def test_dry_run_with_progress_then_abort_laser_off(env: Any) -> None:
     assert r.status_code == 200, r.text
     s = wait_for(client, lambda s: finished(s, "job"), timeout=30)
     assert s["activity"]["state"] == "done" and s["activity"]["total"] == 4
+    assert s["activity"]["message"] == ""  # the page said "done done"
+    assert s["outputs"] == {"laser": False, "crossjet": False, "gas": False}
     # welding this time, aborted while it runs: laser off, motion stopped
     r = call(client, "POST", "/api/jobs/demo.xml/run", {"dry_run": False})
     assert r.status_code == 200, r.text
     wait_for(client, lambda s: (s["activity"] or {}).get("item") == "seam", timeout=30)
+    # the status shows the outputs as `welding status` does: the laser is on along the seam
+    s = wait_for(client, lambda s: s["outputs"]["laser"], timeout=30)
+    assert s["outputs"]["gas"] is True
     # a second job or a jog is refused while one runs
     assert call(client, "POST", "/api/jobs/demo.xml/run", {"dry_run": True}).status_code == 409
     assert call(client, "POST", "/api/abort", {}).status_code == 200
     s = wait_for(client, lambda s: finished(s, "job"))
-    assert s["activity"]["state"] == "aborted" and "cancelled" in s["activity"]["message"]
+    assert s["activity"]["state"] == "aborted"
+    assert s["activity"]["message"] == "cancelled by the operator"  # not "job aborted (…)"
+    s = wait_for(client, lambda s: not any(s["outputs"].values()))
     wait_for(client, lambda s: not s["moving"])
     io_log = cell.io_log  # the real-time child's record
     assert io_log[-1][2] is False or all(not v for _, n, v in io_log[-3:])
     outputs = {n: v for _, n, v in io_log}
     assert outputs == {"laser": False, "crossjet": False, "gas": False}
+
+
+def test_a_refused_calibration_says_what_to_do_and_logs_no_traceback(
+    env: Any, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Issue 35 item 7: from a pose where the sensor does not see the seam the calibration
+    is refused with a hint for the page and one line in the console's log."""
+    client, console, _ = env
+    _power_on(client)
+    away = [READY_JOINTS[0] + 40.0, *READY_JOINTS[1:]]  # the seam out of the sensor's view
+    console.control.joint_move(away)
+    assert console.control.wait_end_move(30)
+    with caplog.at_level("WARNING", logger="welding.console"):
+        r = call(client, "POST", "/api/calibrate", {"poses": 10, "repeats": 2})
+        assert r.status_code == 200, r.text
+        s = wait_for(client, lambda s: finished(s, "calibration"), timeout=60)
+    a = s["activity"]
+    assert a["state"] == "failed", a
+    assert a["message"] == "the sensor does not see the seam at the start pose"
+    assert a["hint"] == "move the sensor back over the straight seam and start again"
+    mine = [r for r in caplog.records if r.name == "welding.console"]
+    assert [r.getMessage() for r in mine] == [f"console calibration refused: {a['message']}"]
+    assert not any(r.exc_info for r in mine)
 
 
 def test_estop_gets_through_and_stops(env: Any) -> None:

@@ -57,6 +57,11 @@ JOG_REACH_DEG = 45.0
 JOG_LIMIT_MARGIN_DEG = 1.0
 #: Tool speed at 100 % jog speed (mm/s); the joint speed is the percentage itself.
 JOG_TOOL_SPEED_MM_S = 250.0
+#: The page's jog speed to start with (%): a 1.5 s press moves J1 about 8 deg (55 deg at
+#: 10 %), the tool about 7 mm.
+JOG_DEFAULT_PCT = 2.0
+#: The largest step jog: mm for x, y, z; degrees for joints and rx, ry, rz.
+JOG_STEP_MAX = 10.0
 AXES = ("x", "y", "z", "rx", "ry", "rz")
 JOB_FILE_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]{0,63}\.xml")
 
@@ -75,12 +80,16 @@ class Activity:
 
     kind: str  # "job" | "teach" | "delta_t" | "calibration" | "track"
     state: str = "running"  # running | done | aborted | failed
+    #: What the state alone does not say (never the state's own word again).
     message: str = ""
+    #: What the operator can do about a refusal, one line ("" when nothing to add).
+    hint: str = ""
     detail: dict[str, Any] = field(default_factory=dict)
     cancel: Callable[[], None] | None = None
 
     def to_json(self) -> dict[str, Any]:
-        return {"kind": self.kind, "state": self.state, "message": self.message, **self.detail}
+        return {"kind": self.kind, "state": self.state, "message": self.message,
+                "hint": self.hint, **self.detail}  # fmt: skip
 
 
 @dataclass
@@ -88,6 +97,15 @@ class Jog:
     client_id: int
     last_hold: float
     desc: MotionDesc
+
+
+def _activity_message(exc: BaseException) -> str:
+    """What an activity's end says after its state ("aborted", "failed"): a job's abort
+    gives its reason once ("cancelled by the operator", not "job aborted (cancelled): …")."""
+    if isinstance(exc, JobAborted):
+        return exc.message if exc.reason in exc.message else f"{exc.reason}: {exc.message}"
+    hint = getattr(exc, "hint", "")
+    return str(exc).removesuffix(f": {hint}") if hint else str(exc)  # the hint has its line
 
 
 def _num(v: Any, what: str, lo: float = -math.inf, hi: float = math.inf) -> float:
@@ -158,6 +176,7 @@ class Console:
         self._selections: dict[int, tuple[str, str]] = {}
         self._snapshot: dict[str, Any] = {"seq": 0, "connected": False}
         self._tables_ok = Tables({}, {})
+        self._outputs: list[str] | None = None  # the robot's output names, read once
         self._seq = 0
         self._stop = threading.Event()
         self.status_reads = 0
@@ -221,6 +240,9 @@ class Console:
             tables = self._tables_ok
         with self._lock:
             wanted = set(self._selections.values()) | {("flange", "world")}
+        if self._outputs is None:
+            self._outputs = r.list_io()[0]
+        outputs = {n: r.read_io(n) for n in self._outputs}  # laser, gas, crossjet...
         poses = {}
         for tool, frame in wanted:
             try:
@@ -248,6 +270,7 @@ class Console:
             "time": st.time,
             "joints": joints,
             "poses": poses,
+            "outputs": outputs,
             "jogging": jog,
             "activity": act,
             "sensor": self.sensor is not None,
@@ -622,7 +645,7 @@ class Console:
 
         def work() -> None:
             runner.run(job)
-            act.state, act.message = "done", "done"
+            act.state = "done"
 
         self._start(act, work, cancelled, aborts=(JobAborted,))
 
@@ -646,10 +669,13 @@ class Console:
                 work()
             except Exception as exc:
                 was_cancelled = cancelled is not None and cancelled.is_set()
-                act.message = str(exc)
+                act.message = _activity_message(exc)
+                act.hint = getattr(exc, "hint", "")
                 act.state = "aborted" if was_cancelled or isinstance(exc, aborts) else "failed"
                 if act.state == "failed" and not isinstance(exc, expected):
                     log.exception("console %s", act.kind)
+                elif act.state == "failed":  # a refusal: one line, its reason is on the page
+                    log.warning("console %s refused: %s", act.kind, act.message)
                 if stop_arm:
                     with contextlib.suppress(OSError, ProtocolError, RemoteError):
                         self.control.reset_motion()
@@ -728,7 +754,7 @@ class Console:
             act.detail["length_mm"] = round(result.length_mm, 3)
             act.state, act.message = "done", result.stop_reason
 
-        self._start(act, work, cancelled, expected=(TeachError,))
+        self._start(act, work, cancelled, expected=(TeachError, RemoteError))
 
     # --- ΔT (section VI) ---------------------------------------------------------------------
 
@@ -768,7 +794,7 @@ class Console:
             )
             act.state, act.message = "done", "; ".join(result["reasons"])
 
-        self._start(act, work, cancelled, expected=(ExperimentError,), stop_arm=True)
+        self._start(act, work, cancelled, expected=(ExperimentError, RemoteError), stop_arm=True)
 
     # --- tool calibrations ---------------------------------------------------------------------
 
@@ -850,7 +876,7 @@ class Console:
             )
             act.state, act.message = "done", f"residual rms {est.residual_rms_mm * 1e3:.1f} µm"
 
-        self._start(act, work, cancelled, expected=(CalibrationError,), stop_arm=True)
+        self._start(act, work, cancelled, expected=(CalibrationError, RemoteError), stop_arm=True)
 
     # --- tracked weld (emulated cell only) ----------------------------------------------------
 
