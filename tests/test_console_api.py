@@ -323,6 +323,34 @@ def test_deadman_stops_a_jog_without_hold_and_on_a_closed_socket(env: Any) -> No
     assert console.stop_jog(None, "test") is False
 
 
+def test_step_jog_moves_exactly_one_step_without_holds(env: Any) -> None:
+    """Issue 35 item 7: a step jog is one bounded move (no hold needed, none sent here); a step
+    past the joint limit or while the arm moves is refused with its reason."""
+    client, console, _ = env
+    _power_on(client)
+    before = status(client)["joints"]
+    with client.websocket_connect(WS) as ws:
+        # 5 deg at 1 %: more than a second, a second step comes while it runs
+        step = {"type": "jog", "mode": "joint", "axis": 2, "direction": -1, "step": 5, "speed": 1}
+        ws.send_json(step)
+        wait_for(client, lambda s: s["moving"])
+        ws.send_json(step)  # it would count from a moving arm
+        assert "still moving" in next_error(ws)["message"]
+        s = wait_for(client, lambda s: not s["moving"])
+        assert s["joints"][1] == pytest.approx(before[1] - 5, abs=0.01)
+        assert s["joints"][0] == pytest.approx(before[0], abs=0.01)
+        assert not s["jogging"]
+        ws.send_json({"type": "jog", "mode": "joint", "axis": 1, "direction": 1, "step": 11})
+        assert "outside 0.001..10" in next_error(ws)["message"]
+        z0 = status(client)["poses"]["flange@world"][2]
+        ws.send_json({"type": "jog", "mode": "cartesian", "axis": "z", "direction": 1,
+                      "step": 1.0})  # fmt: skip
+        s = wait_for(client, lambda s: s["poses"]["flange@world"][2] > z0 + 0.99)
+        s = wait_for(client, lambda s: not s["moving"])
+        assert s["poses"]["flange@world"][2] == pytest.approx(z0 + 1.0, abs=0.01)
+    assert console.stop_jog(None, "test") is False  # a step leaves no jog behind
+
+
 def test_deadman_during_a_slow_jog_start_stops_the_move(
     env: Any, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -385,13 +385,19 @@ class Console:
         speed: Any,
         tool: str = "flange",
         frame: str = "world",
+        step: Any = None,
     ) -> None:
         """Move while held: ``mode`` "joint" (``axis`` 1..6) or "cartesian" (``axis`` x..rz
-        of ``tool`` in ``frame``), ``direction`` +1/-1, ``speed`` % (1..100)."""
+        of ``tool`` in ``frame``), ``direction`` +1/-1, ``speed`` % (1..100). With ``step``
+        (deg for joints and rx..rz, mm for x, y, z; at most :data:`JOG_STEP_MAX`) one move of
+        that much instead: bounded, so it needs no hold and runs to its end."""
         self._need_control()
         pct = _num(speed, "speed", 1.0, 100.0)
         if direction not in (1, -1):
             raise ConsoleError("direction: expected 1 or -1")
+        if step is not None:
+            self._step_jog(mode, axis, direction, pct, tool, frame, step)
+            return
         with self._jog_lock:
             self._check_idle()  # under the lock: a job cannot start beside this jog
             if self._jog is not None:
@@ -407,6 +413,25 @@ class Console:
             jog.last_hold = time.monotonic()
         log.info("jog started: %s axis %s, direction %+d, %g %%", mode, axis, direction, pct)
 
+    def _step_jog(
+        self, mode: str, axis: Any, direction: int, pct: float, tool: str, frame: str, step: Any
+    ) -> None:
+        size = _num(step, "step", 0.001, JOG_STEP_MAX)
+        with self._jog_lock:
+            self._check_idle()
+            if self._jog is not None:
+                self.stop_jog(None, "step jog")
+            if self.control.status().moving:  # a step counts from where the arm stands
+                raise ConsoleError("the arm is still moving: a step starts where it stands", 409)
+            desc = self.control.motion_desc()
+            step_desc, move = self._jog_move(desc, mode, axis, direction, pct, tool, frame, size)
+            self.control.set_motion_desc(step_desc)
+            try:
+                move()  # planned when queued: the restored descriptor does not change it
+            finally:
+                self.control.set_motion_desc(desc)
+        log.info("step jog: %s axis %s, %+g, %g %%", mode, axis, direction * size, pct)
+
     def _jog_move(
         self,
         desc: MotionDesc,
@@ -416,9 +441,10 @@ class Console:
         pct: float,
         tool: str,
         frame: str,
+        step: float | None = None,
     ) -> tuple[MotionDesc, Callable[[], object]]:
         """The jog's motion descriptor and its one move: toward the joint limit (a margin
-        short) or a long way along the Cartesian axis; the release stops it."""
+        short) or a long way along the Cartesian axis, the release stops it; or ``step``."""
         r = self.control
         if mode == "joint":
             if not isinstance(axis, int) or isinstance(axis, bool) or not 1 <= axis <= 6:
@@ -426,7 +452,12 @@ class Console:
             limits = r.joint_limits()
             q = [float(v) for v in r.herej()]
             lo, hi = limits[axis - 1] + np.array([JOG_LIMIT_MARGIN_DEG, -JOG_LIMIT_MARGIN_DEG])
-            q[axis - 1] = float(hi if direction > 0 else lo)
+            if step is None:
+                q[axis - 1] = float(hi if direction > 0 else lo)
+            elif not lo <= q[axis - 1] + direction * step <= hi:
+                raise ConsoleError(f"J{axis}: a step of {direction * step:+g} deg passes its limit")
+            else:
+                q[axis - 1] += direction * step
             return replace(desc, joint_speed=pct, blend=0.0), partial(r.joint_move, q)
         if mode == "cartesian":
             if axis not in AXES:
@@ -438,7 +469,8 @@ class Console:
                 raise ConsoleError(str(exc)) from None
             loc = list(r.here(t, f))
             i = AXES.index(axis)
-            loc[i] += direction * (JOG_REACH_MM if i < 3 else JOG_REACH_DEG)
+            reach = step if step is not None else (JOG_REACH_MM if i < 3 else JOG_REACH_DEG)
+            loc[i] += direction * reach
             speed = JOG_TOOL_SPEED_MM_S * pct / 100.0
             return replace(desc, tool_speed=speed, blend=0.0), partial(r.tool_move_l, loc, t, f)
         raise ConsoleError("mode: expected 'joint' or 'cartesian'")
