@@ -388,20 +388,29 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             expect(page.locator("#message")).to_contain_text("sensor tool calibration: ")
             if page.locator("#cal-info").get_attribute("data-state") == "done":
                 expect(page.locator("#cal-result")).to_contain_text("± 1σ")
-                expect(page.locator("#cal-result")).to_contain_text("x (mm)")
-                expect(page.locator("#cal-result")).to_contain_text("rx (°)")
-                _drawn(page, "cal-plot", ["residual per measurement"])
-                _shot(page, "calibration")
                 page.locator("#cal-save").click()
                 expect(page.locator("#message")).to_have_text(
                     "sensor_cal saved in the tool database"
                 )
             else:
                 expect(page.locator("#cal-info")).to_contain_text("is uncertain by")
-                _shot(page, "calibration")
-            # the laser tool, with the emulated spot detector (the API test checks a result)
+                expect(page.locator("#cal-save")).to_be_disabled()  # nothing to save
+            # the laser tool, with the emulated spot detector: 20 poses x 4 pass
             page.locator("#cal-which").select_option("laser-tool")
             expect(page.locator("#cal-tool")).to_have_value("laser")
+            page.locator("#cal-poses").fill("20")
+            page.locator("#cal-start").click()
+            _confirm(page)
+            expect(page.locator("#cal-info")).to_have_attribute(
+                "data-state", "done", timeout=60_000
+            )
+            expect(page.locator("#message")).to_contain_text("laser tool calibration: done")
+            # one unit per column in every row, residuals in µm
+            expect(page.locator("#cal-result")).to_contain_text("x (mm)")
+            expect(page.locator("#cal-result")).to_contain_text("rx (°)")
+            expect(page.locator("#cal-result")).to_contain_text(re.compile(r"rms \d+\.\d µm"))
+            _drawn(page, "cal-plot", ["residual per measurement"])
+            _shot(page, "calibration")
 
             # ΔT (section VI) from where teaching ended, the seam in view: Figs. 6 and 7
             page.locator("nav a[data-page=deltat]").click()
@@ -410,7 +419,8 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             _confirm(page)
             expect(page.locator("#dt-info")).to_have_attribute("data-state", "done", timeout=30_000)
             expect(page.locator("#dt-result")).to_contain_text(re.compile(r"ΔT\s*\d+\.\d+ ms"))
-            _drawn(page, "dt-fig6", ["robot yᴿ (joints, synchronised)", "sensor yˢ (seam points)"])
+            _drawn(page, "dt-fig6", ["robot yᴿ (from the joint log)",
+                                     "sensor yˢ (seam points, at trigger time)"])  # fmt: skip
             shown = re.search(r"ΔT\s*(\d+\.\d+) ms", page.locator("#dt-result").inner_text())
             assert shown
             fig7 = _drawn(page, "dt-fig7", ["MSE(ΔT)", f"minimum: ΔT = {shown[1]} ms"])

@@ -29,16 +29,17 @@ function say(text, kind = "info", until = null) {
   m.textContent = m.title = text;
   m.className = kind;
   const key = stateKey(status);
-  banner = { until: until || ((s) => stateKey(s) === key), held: false, since: performance.now() };
+  banner = { until: until || ((s) => stateKey(s) === key), bound: Boolean(until), held: false, since: performance.now() };
+}
+function clearBanner() {
+  banner = null;
+  $("message").textContent = $("message").title = "";
+  $("message").className = "";
 }
 function clearStaleBanner(s) {
   if (!banner) return;
   if (banner.until(s)) banner.held = true;
-  else if (banner.held || performance.now() - banner.since > 3000) {
-    banner = null;
-    $("message").textContent = $("message").title = "";
-    $("message").className = "";
-  }
+  else if (banner.held || performance.now() - banner.since > 3000) clearBanner();
 }
 
 // --- the one way to the console: every request and the WebSocket go through here ----------
@@ -111,6 +112,7 @@ function confirmAction(text) {
 
 function showPage() {
   const page = (location.hash || "#status").slice(1);
+  if (banner && !banner.bound) clearBanner(); // it was about the page the operator left
   document.querySelectorAll(".page").forEach((p) => p.classList.toggle("active", p.id === `page-${page}`));
   document.querySelectorAll("nav a").forEach((a) => a.classList.toggle("active", a.dataset.page === page));
   if (page === "tools") loadTools();
@@ -221,6 +223,7 @@ function reasons(s) {
     "teach-start": act || need("sensor"), "teach-abort": need("viewer") || running("teach"),
     "cal-start": act || ($("cal-which").value === "sensor-tool" ? need("sensor") : ""),
     "cal-abort": need("viewer") || running("calibration"),
+    "cal-save": need("viewer") || (!calibrated && "no calibration result to save yet"),
     "dt-start": act || need("sensor"), "dt-abort": need("viewer") || running("delta_t"),
     "tr-start": need("viewer", "link", "idle"),
     "set-apply": need("viewer", "link", "control", "sensor"),
@@ -425,27 +428,44 @@ async function showFrame() {
 const COLORS = { blue: "#1565c0", red: "#d50000", green: "#2e7d32", black: "#222", grey: "#888" };
 const xy = (pts) => pts.map(([x, y]) => ({ x, y }));
 
+// The y range to show: at least ``minSpan`` around the data, so a flat profile or a straight
+// seam is drawn flat, not its micrometre noise blown up to the full height.
+function yRange(datasets, minSpan) {
+  const ys = datasets.flatMap((d) => d.data.map((p) => p.y));
+  if (!minSpan || !ys.length) return { min: undefined, max: undefined };
+  const lo = Math.min(...ys), hi = Math.max(...ys);
+  if (hi - lo >= minSpan) return { min: undefined, max: undefined };
+  return { min: (lo + hi) / 2 - minSpan / 2, max: (lo + hi) / 2 + minSpan / 2 };
+}
+
 // One chart per canvas, made on first use and then given new data: ``series`` are
-// { label, pts: [[x, y]...], color, line (default true), points (radius), dash, width }.
-function plot(canvasId, series, xTitle, yTitle) {
-  const datasets = series.map((d) => ({
+// { label, pts: [[x, y]...], color, line (default true), points (radius), dash, width },
+// the later drawn over the earlier, the legend in the same order (line or dot, dash shown).
+function plot(canvasId, series, xTitle, yTitle, { yMinSpan = 0 } = {}) {
+  const datasets = series.map((d, i) => ({
     label: d.label,
     data: xy(d.pts),
     borderColor: d.color,
     backgroundColor: d.color,
     showLine: d.line !== false,
     pointRadius: d.points || 0,
-    pointStyle: d.line === false ? "circle" : "line",
     borderWidth: d.width || 1.5,
     borderDash: d.dash || [],
+    order: series.length - i,
   }));
+  const range = yRange(datasets, yMinSpan);
   const existing = Chart.getChart(canvasId);
   if (existing) {
     existing.data.datasets = datasets;
+    Object.assign(existing.options.scales.y, range);
     existing.update("none");
     return existing;
   }
   const axis = (text) => ({ type: "linear", title: { display: true, text }, grid: { color: "#e3e3e3" }, ticks: { maxTicksLimit: 9 } });
+  const labels = (chart) => Chart.defaults.plugins.legend.labels.generateLabels(chart).map((item) => {
+    const d = chart.data.datasets[item.datasetIndex];
+    return { ...item, pointStyle: d.showLine ? "line" : "circle", lineWidth: d.showLine ? Math.min(d.borderWidth, 4) : 1 };
+  });
   return new Chart($(canvasId), {
     type: "scatter",
     data: { datasets },
@@ -455,9 +475,12 @@ function plot(canvasId, series, xTitle, yTitle) {
       maintainAspectRatio: false,
       parsing: false,
       normalized: true,
-      scales: { x: axis(xTitle), y: axis(yTitle) },
+      scales: { x: axis(xTitle), y: { ...axis(yTitle), ...range } },
       plugins: {
-        legend: { position: "top", labels: { usePointStyle: true, pointStyleWidth: 28, font: { size: 12 } } },
+        legend: {
+          position: "top",
+          labels: { usePointStyle: true, generateLabels: labels, sort: (a, b) => a.datasetIndex - b.datasetIndex, font: { size: 13 }, padding: 14 },
+        },
         tooltip: { enabled: true },
       },
     },
@@ -468,7 +491,7 @@ function drawProfile(profile, seam) {
   plot("sensor-profile", [
     { label: "stripe profile", pts: profile, color: COLORS.blue, line: false, points: 1.5 },
     { label: "seam point (GetData)", pts: seam ? [[seam[1], seam[2]]] : [], color: COLORS.red, line: false, points: 6 },
-  ], "y (mm, sensor frame)", "z (mm, sensor frame)");
+  ], "y (mm, sensor frame)", "z (mm, sensor frame)", { yMinSpan: 4 });
 }
 
 async function loadSettings() {
@@ -715,7 +738,7 @@ function showActivity(a) {
     $("teach-info").dataset.count = a.count;
     if (location.hash === "#teach" || a.state !== "running") {
       plot("teach-plot", [{ label: "taught seam points", pts: a.points.map((q) => [q[0], q[1]]), color: COLORS.blue, points: 4 }],
-        "x (mm, base frame)", "y (mm, base frame)");
+        "x (mm, base frame)", "y (mm, base frame)", { yMinSpan: 4 });
     }
   }
 }
@@ -736,8 +759,12 @@ $("teach-start").onclick = async () => {
 let calibrated = null;
 async function loadCalibration() {
   const { result } = await api("GET", "/api/result/calibration");
+  $("cal-result-card").hidden = !result;
+  $("cal-none").hidden = Boolean(result);
   if (!result) return;
   calibrated = result;
+  $("cal-which-shown").textContent = `${result.calibration.replace("-", " ")}, nominal ${result.nominal_tool}`;
+  updateControls();
   // one unit per column (mm, degrees) in every row; residuals, far smaller, in µm
   const head = `<tr><th></th>${AXES.map((n, i) => `<th class="num">${n} (${UNITS[i]})</th>`).join("")}</tr>`;
   const row = (label, vals) => `<tr><th>${label}</th>${vals.map((v) => `<td class="num">${v === null ? "–" : v.toFixed(4)}</td>`).join("")}</tr>`;
@@ -747,7 +774,7 @@ async function loadCalibration() {
     (result.error_vs_true ? `<tr><th>error vs true tool</th><td colspan="6">${result.error_vs_true.position_mm.toFixed(4)} mm, ${result.error_vs_true.orientation_deg.toFixed(4)}°</td></tr>` : "") +
     `<tr><th>residual</th><td colspan="6">rms ${um(result.residual_rms_mm)}, max ${um(result.residual_max_mm)}, ${result.poses} poses, ${result.measurements} measurements</td></tr>`;
   plot("cal-plot", [{ label: "residual per measurement", pts: result.residuals_mm.map((r, i) => [i + 1, r * 1e3]), color: COLORS.blue, line: false, points: 3 }],
-    "measurement", "residual (µm)");
+    "measurement (index)", "residual (µm)");
 }
 $("cal-start").onclick = async () => {
   const which = $("cal-which").value;
@@ -793,8 +820,8 @@ async function loadDeltaT() {
   ];
   $("dt-result").innerHTML = rows.map(([k, v]) => `<tr><th>${k}</th><td>${esc(v)}</td></tr>`).join("");
   plot("dt-fig6", [
-    { label: "robot yᴿ (joints, synchronised)", pts: result.fig6.robot, color: COLORS.blue },
-    { label: "sensor yˢ (seam points)", pts: result.fig6.sensor, color: COLORS.red, dash: [5, 3] },
+    { label: "robot yᴿ (from the joint log)", pts: result.fig6.robot, color: COLORS.blue },
+    { label: "sensor yˢ (seam points, at trigger time)", pts: result.fig6.sensor, color: COLORS.red, dash: [5, 3] },
   ], "t (s)", "lateral position y (mm)");
   const mse = result.fig7.map((p) => p[1]);
   plot("dt-fig7", [
@@ -852,7 +879,8 @@ async function loadAudit() {
   const cols = ["time", "user", "address", "action", "outcome"];
   const rows = entries.reverse().map((e) => {
     const rest = Object.fromEntries(Object.entries(e).filter(([k]) => !cols.includes(k)));
-    return `<tr>${cols.map((c) => `<td>${esc(e[c] ?? "")}</td>`).join("")}<td>${esc(JSON.stringify(rest))}</td></tr>`;
+    const cell = (c) => (c === "time" ? String(e.time).replace("T", " ").replace(/\+00:00$/, " UTC") : e[c] ?? "");
+    return `<tr>${cols.map((c) => `<td>${esc(cell(c))}</td>`).join("")}<td class="detail">${esc(JSON.stringify(rest))}</td></tr>`;
   });
   $("audit-table").innerHTML = `<tr>${[...cols, "detail"].map((c) => `<th>${c}</th>`).join("")}</tr>${rows.join("")}`;
 }
