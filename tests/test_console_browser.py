@@ -355,6 +355,8 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             page.locator("nav a[data-page=sensor]").click()
             expect(page.locator("#sensor-index")).to_have_text(re.compile(r"#\d+"))
             _drawn(page, "sensor-profile", ["stripe profile", "seam point (GetData)"])
+            # frames keep coming (the screenshot then shows the rate, not the first frame's)
+            expect(page.locator("#sensor-rate")).to_have_text(re.compile(r"[1-9]\d*\.\d frames/s"))
             try:
                 expect(page.locator("#sensor-seam")).to_contain_text("seam (S frame)")
             except AssertionError as exc:  # seen once under a full run's load: say where
@@ -409,8 +411,10 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             expect(page.locator("#cal-result")).to_contain_text("x (mm)")
             expect(page.locator("#cal-result")).to_contain_text("rx (°)")
             expect(page.locator("#cal-result")).to_contain_text(re.compile(r"rms \d+\.\d µm"))
-            _drawn(page, "cal-plot", ["residual per measurement"])
+            _drawn(page, "cal-plot", ["residual per pose"])
             _shot(page, "calibration")
+            page.locator("#cal-save").click()
+            expect(page.locator("#message")).to_have_text("laser_cal saved in the tool database")
 
             # ΔT (section VI) from where teaching ended, the seam in view: Figs. 6 and 7
             page.locator("nav a[data-page=deltat]").click()
@@ -432,8 +436,8 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             page.locator("#tr-start").click()
             expect(page.locator("#tr-info")).to_have_attribute("data-state", "done", timeout=60_000)
             expect(page.locator("#tr-result")).to_contain_text("tracking error")
-            _drawn(page, "tr-top", ["true seam", "nominal path (taught, untracked)",
-                                    "laser (tracked)", "measured seam points"])  # fmt: skip
+            _drawn(page, "tr-top", ["true seam", "measured seam points",
+                                    "nominal path (untracked)", "laser"])  # fmt: skip
             _drawn(page, "tr-error", ["laser − seam, lateral"])
             _shot(page, "track")
 
@@ -448,8 +452,20 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             page.locator("#new-loc").fill("0, 0, 150")
             page.locator("#new-add").click()
             expect(page.locator("#message")).to_contain_text("expected 6 numbers")
+
+            # a calibrated tool's row saved unedited keeps its full precision (the fields
+            # show it rounded)
+            def laser_cal() -> list[float]:
+                tools = _api(page, "tools")["entries"]
+                return next(e["location"] for e in tools if e["name"] == "laser_cal")
+
+            calibrated = laser_cal()
+            assert any(round(v, 3) != v for v in calibrated), calibrated
+            page.locator("tr[data-name=laser_cal] button.save").click()
+            expect(page.locator("#message")).to_have_text("laser_cal saved")
+            assert laser_cal() == calibrated
             # locations in their units at 1 µm / 0.001 deg, in full (not cut off)
-            laser = page.locator("tr[data-name=laser] input.coord")
+            laser = page.locator("tr[data-name=laser_cal] input.coord")
             expect(laser).to_have_count(6)
             for i in range(6):
                 value = laser.nth(i).input_value()

@@ -435,7 +435,9 @@ function yRange(datasets, minSpan) {
   if (!minSpan || !ys.length) return { min: undefined, max: undefined };
   const lo = Math.min(...ys), hi = Math.max(...ys);
   if (hi - lo >= minSpan) return { min: undefined, max: undefined };
-  return { min: (lo + hi) / 2 - minSpan / 2, max: (lo + hi) / 2 + minSpan / 2 };
+  const q = minSpan / 4; // ends on round numbers: ticks at -2, -1, 0, 1, 2, not -1.999
+  const mid = (lo + hi) / 2;
+  return { min: Math.floor((mid - minSpan / 2) / q) * q, max: Math.ceil((mid + minSpan / 2) / q) * q };
 }
 
 // One chart per canvas, made on first use and then given new data: ``series`` are
@@ -773,8 +775,8 @@ async function loadCalibration() {
     row("estimate", result.tool) + row("± 1σ", AXES.map((n) => result.uncertainty[n])) +
     (result.error_vs_true ? `<tr><th>error vs true tool</th><td colspan="6">${result.error_vs_true.position_mm.toFixed(4)} mm, ${result.error_vs_true.orientation_deg.toFixed(4)}°</td></tr>` : "") +
     `<tr><th>residual</th><td colspan="6">rms ${um(result.residual_rms_mm)}, max ${um(result.residual_max_mm)}, ${result.poses} poses, ${result.measurements} measurements</td></tr>`;
-  plot("cal-plot", [{ label: "residual per measurement", pts: result.residuals_mm.map((r, i) => [i + 1, r * 1e3]), color: COLORS.blue, line: false, points: 3 }],
-    "measurement (index)", "residual (µm)");
+  plot("cal-plot", [{ label: "residual per pose", pts: result.residuals_mm.map((r, i) => [i + 1, r * 1e3]), color: COLORS.blue, line: false, points: 3 }],
+    "pose (index)", "residual (µm)");
 }
 $("cal-start").onclick = async () => {
   const which = $("cal-which").value;
@@ -858,9 +860,9 @@ async function loadTrack() {
   // dash and marks (the error plot below shows the difference)
   plot("tr-top", [
     { label: "true seam", pts: t.seam, color: COLORS.green, width: 6 },
-    { label: "nominal path (taught, untracked)", pts: t.nominal, color: COLORS.black, dash: [6, 4] },
-    { label: "laser (tracked)", pts: t.laser, color: COLORS.red, width: 1.5 },
     { label: "measured seam points", pts: t.measured, color: COLORS.blue, line: false, points: 1.5 },
+    { label: "nominal path (untracked)", pts: t.nominal, color: COLORS.black, dash: [6, 4] },
+    { label: "laser", pts: t.laser, color: COLORS.red, width: 1.5 },
   ], "x (mm, workpiece)", "y (mm, workpiece)");
   plot("tr-error", [{ label: "laser − seam, lateral", pts: result.error_um, color: COLORS.red }], "x (mm, workpiece)", "tracking error (µm)");
 }
