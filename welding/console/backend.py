@@ -57,8 +57,8 @@ JOG_REACH_DEG = 45.0
 JOG_LIMIT_MARGIN_DEG = 1.0
 #: Tool speed at 100 % jog speed (mm/s); the joint speed is the percentage itself.
 JOG_TOOL_SPEED_MM_S = 250.0
-#: The page's jog speed to start with (%): a 1.5 s press moves J1 about 8 deg (55 deg at
-#: 10 %), the tool about 7 mm.
+#: The page's jog speed to start with (%): a 1.5 s press turns J1 about 11 deg (56 deg at
+#: 10 %, measured on the emulated RX90B), moves the tool about 8 mm; steps for finer moves.
 JOG_DEFAULT_PCT = 2.0
 #: The largest step jog: mm for x, y, z; degrees for joints and rx, ry, rz.
 JOG_STEP_MAX = 10.0
