@@ -18,6 +18,7 @@ from conformance import SUITE_VERSION, TOOL_VERSION
 from conformance.context import Options
 from conformance.model import PROFILES, CaseResult, all_cases
 from conformance.reference import ReferenceUnavailable, start
+from conformance.replaycase import ReplayUsageError, add_replay_case
 from conformance.report import (
     load_expectations,
     terminal,
@@ -94,6 +95,18 @@ def read_expectations(path: str) -> frozenset[str]:
         raise UsageError(f"--expect file {path}: {exc}") from None
 
 
+def add_recording(path: str, service: str) -> str:
+    """Register the --replay case of a recording; its case ID."""
+    if service == "sync":
+        raise UsageError("--replay replays robot or sensor sessions, not sync")
+    try:
+        return add_replay_case(path, service).id
+    except ReplayUsageError as exc:
+        raise UsageError(f"--replay: {exc}") from None
+    except ValueError as exc:  # a second recording with the same file stem
+        raise UsageError(f"--replay {path}: {exc}") from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(
         prog="python -m conformance",
@@ -122,6 +135,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--expect", metavar="FILE", help="known failures: case IDs, one per line")
     p.add_argument("--capabilities", metavar="FILE", help='JSON {"not_offered": [...]}')
     p.add_argument("--allow-motion", action="store_true", help="run cases that move or switch")
+    p.add_argument(
+        "--replay",
+        action="append",
+        default=[],
+        metavar="FILE",
+        help="also run a recorded session (pcapng, spec record) as the case replay.<stem>",
+    )
     token = p.add_mutually_exclusive_group()
     token.add_argument("--token", default="", help="the endpoint's control token")
     token.add_argument(
@@ -177,12 +197,14 @@ def _main(argv: Sequence[str] | None) -> int:
     args = build_parser().parse_args(argv)
     # An in-process reference server logs through `logging`; keep the report readable.
     logging.basicConfig(level=logging.ERROR)
+    replays = tuple(add_recording(path, args.service) for path in args.replay)
     selection = Selection(
         args.profile,
         tuple(args.select),
         tuple(args.exclude),
         tuple(args.tag),
-        include=("robustness.fuzz",) if args.fuzz else (),  # --fuzz adds the fuzz case
+        # --fuzz adds the fuzz case, --replay its recordings, whatever the profile
+        include=("robustness.fuzz",) * bool(args.fuzz) + replays,
     )
     cases = selection.pick(all_cases(), args.service)
     if not cases and not args.list:

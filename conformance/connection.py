@@ -19,7 +19,7 @@ from spec import wire
 from spec.codec import FrameDecoder, Packet, Rejected, encode_packet, request
 from spec.errors import ErrorCode, PeerError
 from spec.params import Value
-from spec.registry import BY_ID, check_params
+from spec.registry import BY_ID, CommandId, check_params
 from spec.wire import PacketKind
 
 MAX_LOG_ENTRIES = 200  # per case
@@ -84,6 +84,8 @@ class Conn:
         self.pending: dict[int, int] = {}
         #: Set by the context: True when the endpoint still answers on a new connection.
         self.alive: Callable[[], bool] | None = None
+        #: Set by the context: the run's liveness probe (Hello when Ping is not answered).
+        self.probe_command: int = CommandId.PING
 
     # --- raw bytes ---------------------------------------------------------------------------
 

@@ -183,6 +183,7 @@ class Context:
             self._conns.append(conn)
         self.log.add("--", number, b"", f"connected to {self.host}:{self.port}")
         conn.alive = self.alive
+        conn.probe_command = self.shared.probe_command
         if hello:
             conn.ok(CommandId.HELLO, 1, 0, "conformance")
         return conn

@@ -169,7 +169,7 @@ def _serve_child(args: argparse.Namespace, allow: tuple[Network, ...], sock: soc
 def cmd_call(args: argparse.Namespace) -> int:
     return callcli.main_call(
         "robot", DEFAULT_PORT, args.endpoint, args.command, args.args, args.timeout,
-        args.token, None if args.no_wait else args.wait,
+        args.token, None if args.no_wait else args.wait, args.all,
     )  # fmt: skip
 
 
@@ -282,6 +282,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--timeout", type=cliargs.timeout, default=5.0, help="reply timeout (s)")
     c.add_argument("--wait", type=cliargs.timeout, default=60.0, help="max wait for a move (s)")
     c.add_argument("--no-wait", action="store_true", help="do not wait for a move to end")
+    c.add_argument("--all", action="store_true", help="print every row of a matrix reply")
     c.add_argument(
         "--list", action=callcli.ListCommands, service="robot", help="list the commands and exit"
     )

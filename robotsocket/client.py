@@ -86,6 +86,11 @@ class UnknownCommandError(RobotRemoteError):
     pass
 
 
+class NotSupportedError(UnknownCommandError):
+    """A command of the robot service that this robot does not offer [RS-5.62]: to a client
+    as absent as an unknown one (a 1.2 robot answered UNKNOWN_COMMAND)."""
+
+
 _ERRORS: dict[int, type[RobotRemoteError]] = {
     ErrorCode.NOT_POWERED: NotPoweredError,
     ErrorCode.NOT_IN_CONTROL: NotInControlError,
@@ -98,6 +103,7 @@ _ERRORS: dict[int, type[RobotRemoteError]] = {
     ErrorCode.AUTH_FAILED: AuthError,
     ErrorCode.BAD_PARAMETERS: BadParametersError,
     ErrorCode.UNKNOWN_COMMAND: UnknownCommandError,
+    ErrorCode.NOT_SUPPORTED: NotSupportedError,
 }
 
 
@@ -276,6 +282,7 @@ __all__ = [
     "MoveResult",
     "NotInControlError",
     "NotPoweredError",
+    "NotSupportedError",
     "OutOfRangeError",
     "RobotClient",
     "RobotRemoteError",

@@ -260,12 +260,13 @@ class RobotInterface(ABC):
     def tool_move_trajectory(self, times: Array, locations: Array, tool: Loc, frame: Loc) -> int:
         """Queue a timed path: ``tool`` passes location k of ``locations`` (N, 6) (mm, deg,
         in ``frame``) at ``times[k]`` (N,) s after the move starts [RS-5.23]. Optional:
-        a robot without it answers UNKNOWN_COMMAND."""
+        a robot without it answers NOT_SUPPORTED [RS-5.62]."""
         raise NotImplementedError
 
     def alter_begin(self, tool: Loc, timeout: float) -> None:
         """[RS-5.32] Start correcting the running motion of ``tool``; a stream silent for
-        ``timeout`` s is lost [RS-5.36]. Optional: a robot without it answers UNKNOWN_COMMAND."""
+        ``timeout`` s is lost [RS-5.36]. Optional: a robot without it answers NOT_SUPPORTED
+        [RS-5.62]."""
         raise NotImplementedError
 
     def alter(self, correction: Sequence[float] | Array) -> Array:
@@ -280,7 +281,7 @@ class RobotInterface(ABC):
     def alter_queue(self, times: Array, corrections: Array) -> tuple[QueueReport, Array, float]:
         """[RS-5.39] Queue timed corrections (N, 6) for the robot-clock ``times`` (N,);
         (the queue's report, the correction applied at the last cycle (6,), that cycle's
-        time). Optional (1.3): a robot without it answers UNKNOWN_COMMAND."""
+        time). Optional (1.3): a robot without it answers NOT_SUPPORTED [RS-5.62]."""
         raise NotImplementedError
 
     def on_control_lost(self, why: str = "control lost") -> None:

@@ -13,6 +13,7 @@ session's worker) [RS-7.12].
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -224,7 +225,7 @@ class RobotService(HandlerService):
             )
         except NotImplementedError:
             raise ProtocolError(
-                "ToolMoveTrajectory not implemented", ErrorCode.UNKNOWN_COMMAND
+                "ToolMoveTrajectory not implemented", ErrorCode.NOT_SUPPORTED
             ) from None
         return (move_id,)
 
@@ -232,21 +233,21 @@ class RobotService(HandlerService):
         try:
             self.robot.alter_begin(_loc(params[0]), _float(params[1]))
         except NotImplementedError:
-            raise ProtocolError("alter mode not implemented", ErrorCode.UNKNOWN_COMMAND) from None
+            raise ProtocolError("alter mode not implemented", ErrorCode.NOT_SUPPORTED) from None
         return ()
 
     def _alter(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
         try:
             applied = self.robot.alter(_loc(params[0]))
         except NotImplementedError:
-            raise ProtocolError("alter mode not implemented", ErrorCode.UNKNOWN_COMMAND) from None
+            raise ProtocolError("alter mode not implemented", ErrorCode.NOT_SUPPORTED) from None
         return (Location(*(float(v) for v in applied)),)
 
     def _alter_end(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
         try:
             self.robot.alter_end()
         except NotImplementedError:
-            raise ProtocolError("alter mode not implemented", ErrorCode.UNKNOWN_COMMAND) from None
+            raise ProtocolError("alter mode not implemented", ErrorCode.NOT_SUPPORTED) from None
         return ()
 
     def _alter_queue(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
@@ -257,7 +258,7 @@ class RobotService(HandlerService):
         try:
             report, applied, now = self.robot.alter_queue(t, c)
         except NotImplementedError:
-            raise ProtocolError("AlterQueue not implemented", ErrorCode.UNKNOWN_COMMAND) from None
+            raise ProtocolError("AlterQueue not implemented", ErrorCode.NOT_SUPPORTED) from None
         return (
             report.accepted,
             report.late,
@@ -311,7 +312,11 @@ class RobotService(HandlerService):
         return (",".join(outputs), ",".join(inputs))
 
     def _joint_log(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        times, joints = self.robot.joint_log(_float(params[0]))
+        since = _float(params[0])
+        if math.isnan(since):
+            # [RS-5.58] NaN is no time; ±inf are (the whole buffer, no sample).
+            raise ProtocolError("GetJointLog since must be a time, got NaN", ErrorCode.OUT_OF_RANGE)
+        times, joints = self.robot.joint_log(since)
         rows = np.column_stack([times, joints]) if len(times) else np.zeros((0, 7))
         return (Matrix(rows.shape[0], 7, rows.ravel().tolist()), float(self.robot.period))
 

@@ -105,6 +105,7 @@ def _parser() -> cliargs.Parser:
     c.add_argument("name", metavar="COMMAND")
     c.add_argument("args", nargs="*")
     c.add_argument("--timeout", type=cliargs.timeout, default=5.0, help="reply timeout (s)")
+    c.add_argument("--all", action="store_true", help="print every row of a matrix reply")
     c.add_argument(
         "--list", action=ListCommands, service="sensor", help="list the commands and exit"
     )
@@ -286,8 +287,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "snapshot":
             return cmd_snapshot(args)
         return main_call(
-            "sensor", DEFAULT_PORT, args.endpoint, args.name, args.args, args.timeout, args.token
-        )
+            "sensor", DEFAULT_PORT, args.endpoint, args.name, args.args, args.timeout,
+            args.token, all_rows=args.all,
+        )  # fmt: skip
     except _UsageError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return ExitCode.USAGE

@@ -158,8 +158,21 @@ class SensorClient(FramedClient):
         return Settings(_b(v[0]), _f(v[1]), _i(v[2]), _i(v[3]), _f(v[4]), _i(v[5]), _i(v[6]))
 
     def acquire(self) -> int:
-        """Software trigger; returns the index of the new measurement."""
+        """Software trigger; returns the index of the new measurement (needs control)."""
         return _i(self.call(CommandId.ACQUIRE)[0])
+
+    def measure(self) -> SeamData:
+        """Acquire (needs control) and return that measurement, checked to be the new one."""
+        index = self.acquire()
+        data = self.get_data()
+        if data.index != index:
+            raise PeerError(f"GetData returned measurement {data.index}, expected {index}")
+        return data
+
+    def problem(self, data: SeamData) -> str:
+        """What a measurement without a seam tells the operator, "" when FOUND: a laser that
+        is off says so and how to switch it on here, never "no seam" [SS-5.13]."""
+        return data.status.problem(self.address)
 
     def get_trigger_endpoint(self) -> tuple[str, int]:
         v = self.call(CommandId.GET_TRIGGER_ENDPOINT)

@@ -225,16 +225,17 @@ def cmd_record(args: argparse.Namespace) -> int:
         print(f"spec record: cannot write {args.output}: {exc.strerror}", file=sys.stderr)
         return ExitCode.USAGE
     proxy = RecordingProxy(listener, args.to, recorder, tuple(relays))
-    # SIGTERM ends the recording as Ctrl-C does: the file is complete and in place
-    signal.signal(signal.SIGTERM, lambda *_: proxy._stop.set())
+    # SIGTERM ends the recording as Ctrl-C does: the file is complete and in place. SIGINT
+    # gets the handler too: a shell starts a background job (`spec record … &`) with SIGINT
+    # ignored, and `kill -INT` must still end the recording, as it ends `cell serve`.
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: proxy._stop.set())
     print(f"listening on {describe(here)}, relaying to {describe(args.to)}", flush=True)
     for relay in relays:
         print(f"UDP {describe(relay.listen)} relayed to {describe(relay.target)}", flush=True)
     print(f"recording to {recorder.partial} (renamed to {recorder.path} at the end)", flush=True)
     try:
         proxy.serve_forever()
-    except KeyboardInterrupt:
-        pass
     finally:
         proxy.shutdown()
     print(f"recorded {proxy.connections} connections, {recorder.packets} packets to {args.output}")

@@ -30,7 +30,7 @@ from spec.exitcodes import ExitCode
 from spec.jsonform import plain
 from spec.params import FloatArray, IntArray, Joints, Location, Transform, Value
 from spec.registry import BY_ID, COMMANDS, CommandId, CommandSpec, ParamSpec
-from spec.wire import MoveOutcome, ParamType
+from spec.wire import MoveOutcome, ParamType, SensorStatus
 
 _QUEUED_MOVES = {
     CommandId.JOINT_MOVE,
@@ -155,6 +155,20 @@ def parse_args(spec: CommandSpec, args: list[str]) -> tuple[Value, ...]:
     return tuple(values)
 
 
+def reply_notes(spec: CommandSpec, values: tuple[Value, ...], endpoint: str) -> list[str]:
+    """What a reply's enumerated values tell the user beyond their number: a measurement
+    whose status says the sensor's laser is off says so, and how to switch it on [SS-5.13]."""
+    notes = []
+    for p, value in zip(spec.reply, values, strict=False):
+        if (
+            p.enum is SensorStatus
+            and isinstance(value, int)
+            and value in SensorStatus._value2member_map_
+        ):
+            notes.append(SensorStatus(value).problem(endpoint))
+    return [n for n in notes if n]
+
+
 def reply_json(spec: CommandSpec, values: tuple[Value, ...]) -> dict[str, Any]:
     names = [p.name for p in spec.reply]
     out: dict[str, Any] = {}
@@ -163,14 +177,20 @@ def reply_json(spec: CommandSpec, values: tuple[Value, ...]) -> dict[str, Any]:
     return out
 
 
-#: Significant digits printed for reals: 1e-9 of a degree or millimetre at these magnitudes,
-#: far below any sensor or encoder, without float noise like 3.7520000000000002.
+#: Reals are printed to DECIMALS places (a nanometre, a nano-degree, a nanosecond: far below
+#: any sensor or encoder) and at most DIGITS significant digits, without float noise like
+#: 3.7520000000000002 or 1.98806763458e-15 for a joint at zero.
+DECIMALS = 9
 DIGITS = 12
+#: A matrix reply (a joint log, seam points) of more rows than this is summarised unless
+#: ``--all``: its shape, the first and the last rows.
+SUMMARY_ROWS = 20
+_ENDS = 3
 
 
 def _rounded(value: Any) -> Any:
     if isinstance(value, float):
-        return float(f"{value:.{DIGITS}g}")
+        return float(f"{round(value, DECIMALS):.{DIGITS}g}") + 0.0  # + 0.0: no -0.0
     if isinstance(value, list):
         return [_rounded(v) for v in value]
     if isinstance(value, dict):
@@ -178,13 +198,33 @@ def _rounded(value: Any) -> Any:
     return value
 
 
+def _is_matrix(value: Any) -> bool:
+    return isinstance(value, list) and bool(value) and all(isinstance(r, list) for r in value)
+
+
+def summarised(reply: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
+    """The reply with each matrix of more than SUMMARY_ROWS rows replaced by its shape, first
+    and last rows; and the names of the matrices summarised."""
+    out, names = dict(reply), []
+    for name, value in reply.items():
+        if _is_matrix(value) and len(value) > SUMMARY_ROWS:
+            out[name] = {
+                "rows": len(value),
+                "columns": len(value[0]),
+                "first": value[:_ENDS],
+                "last": value[-_ENDS:],
+            }
+            names.append(name)
+    return out, names
+
+
 def format_reply(reply: dict[str, Any]) -> str:
-    """The reply as JSON, reals to DIGITS significant digits; a matrix (a joint log, seam
+    """The reply as JSON, reals rounded (DECIMALS, DIGITS); a matrix (a joint log, seam
     points) gets one row per line so it can be read, grepped and cut."""
     parts = []
     for name, value in _rounded(reply).items():
         text = json.dumps(value, ensure_ascii=False)
-        if isinstance(value, list) and value and all(isinstance(r, list) for r in value):
+        if _is_matrix(value):
             rows = ",\n  ".join(json.dumps(r) for r in value)
             text = f"[\n  {rows}\n]"
         parts.append(f"{json.dumps(name)}: {text}")
@@ -222,6 +262,7 @@ class ListCommands(argparse.Action):
 def main_call(
     service: str, default_port: int, endpoint: str, command: str, args: list[str],
     timeout: float = 5.0, token: str | None = None, wait: float | None = 60.0,
+    all_rows: bool = False,
 ) -> int:  # fmt: skip
     """Run one ``call``; returns the process exit code (0 ok, 1 error reply or a move that did
     not end within ``wait``, 2 usage, 3 unreachable). A queued move is followed by WaitEndMove
@@ -250,6 +291,7 @@ def main_call(
             try:
                 values = client.call(spec.id, *params)
                 reply = reply_json(BY_ID[spec.id], values)
+                notes = reply_notes(BY_ID[spec.id], values, endpoint)
                 queued = spec.id in _QUEUED_MOVES
                 if queued and wait is not None:
                     result = wait_move(client, wait)
@@ -278,7 +320,13 @@ def main_call(
     except (OSError, ProtocolError) as exc:
         print(f"error: {unreachable(host, port, exc)}", file=sys.stderr)
         return ExitCode.UNREACHABLE
+    if not all_rows:
+        reply, cut = summarised(reply)
+        for name in cut:
+            notes.append(f"{name}: {reply[name]['rows']} rows summarised; --all prints every row")
     print(format_reply(reply))
+    for note in notes:
+        print(f"note: {note}", file=sys.stderr)
     if result is not None and result.outcome is MoveOutcome.MOVING:
         print(f"error: the move did not end within {wait:g} s (it goes on)", file=sys.stderr)
         return ExitCode.FAILED

@@ -285,6 +285,12 @@ def program_name(argv0: str) -> str:
     return f"python -m {path.parent.name}" if path.name == "__main__.py" else path.name
 
 
+def interrupted(prog: str) -> ExitCode:
+    """Ctrl-C (or SIGTERM) ended a command: the one line every tool prints, and its code."""
+    print(f"{prog}: interrupted", file=sys.stderr)
+    return ExitCode.INTERRUPTED
+
+
 def run_cli(main: Callable[[], int]) -> int:
     """Run a command line's ``main``. A reader that closed our standard output (``… | head``)
     ends it quietly, as it ends a Unix tool, instead of with an error message; Ctrl-C that
@@ -294,8 +300,7 @@ def run_cli(main: Callable[[], int]) -> int:
         sys.stdout.flush()
         return code
     except KeyboardInterrupt:
-        print(f"{program_name(sys.argv[0])}: interrupted", file=sys.stderr)
-        return ExitCode.INTERRUPTED
+        return interrupted(program_name(sys.argv[0]))
     except BrokenPipeError:
         # Python flushes stdout again at exit: point it at /dev/null so that stays quiet.
         devnull = os.open(os.devnull, os.O_WRONLY)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import re
 import socket
 import threading
 import time
@@ -44,6 +45,19 @@ class ConnectionClosed(ProtocolError, ConnectionError):
     """The server closed the connection."""
 
     code = ErrorCode.INTERNAL_ERROR
+
+
+#: The longest TakeControl back-off a client waits out by itself (s); a longer one is said.
+MAX_BACK_OFF_WAIT_S = 2.0
+_RETRY_IN = re.compile(r"retry in (\d+(?:\.\d+)?) s")
+
+
+def _back_off(exc: RemoteError) -> float | None:
+    """The wait an AUTH_FAILED back-off asks for [RS-7.20] when short enough, else None."""
+    m = _RETRY_IN.search(exc.message) if exc.code is ErrorCode.AUTH_FAILED else None
+    if m is None or float(m.group(1)) > MAX_BACK_OFF_WAIT_S:
+        return None
+    return float(m.group(1)) + 0.01  # the message rounds to 0.01 s
 
 
 class FramedClient:
@@ -140,9 +154,9 @@ class FramedClient:
         try:
             (enabled,) = self.call(CommandId.SET_FRAME_CRC, False)
         except RemoteError as exc:
-            if exc.code != ErrorCode.UNKNOWN_COMMAND:
+            if exc.code not in (ErrorCode.NOT_SUPPORTED, ErrorCode.UNKNOWN_COMMAND):
                 raise
-            return  # a 1.0 server: its frames keep their CRC [RS-3.15]
+            return  # a server without it (1.0: unknown): its frames keep their CRC [RS-3.15]
         # The reply came with a CRC; every later frame carries NO_CRC [RS-3.16], [RS-3.17].
         self._decoder.accept_no_crc = not enabled
 
@@ -379,7 +393,16 @@ class FramedClient:
         Returns the period in force (None from a server without the watchdog) and, when
         ``keepalive`` is on, keeps the lease alive from a background thread [RS-7.13]."""
         params: tuple[Value, ...] = (token,) if watchdog is None else (token, float(watchdog))
-        reply = self.call(CommandId.TAKE_CONTROL, *params)
+        try:
+            reply = self.call(CommandId.TAKE_CONTROL, *params)
+        except RemoteError as exc:
+            # [RS-7.20] a back-off after wrong tokens (another client's, or a typo fixed):
+            # a short one is waited out and TakeControl asked once more
+            wait = _back_off(exc)
+            if wait is None:
+                raise
+            time.sleep(wait)
+            reply = self.call(CommandId.TAKE_CONTROL, *params)
         lease = reply[0] if reply and isinstance(reply[0], float) else None
         self.lease = lease
         if lease is not None and self.keepalive:

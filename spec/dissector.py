@@ -12,6 +12,7 @@ file and the registry disagree (a test runs it, as PROTOCOL.md's drift test does
 from __future__ import annotations
 
 import json
+from enum import IntEnum
 from pathlib import Path
 
 from spec import wire
@@ -32,8 +33,14 @@ def _params(specs: tuple[ParamSpec, ...]) -> str:
     items = []
     for p in specs:
         extra = (", opt = true" if p.optional else "") + (", rep = true" if p.repeated else "")
+        if p.enum is not None:
+            extra += f", enum = {_ENUM_TABLES[p.enum]}"
         items.append(f"{{ name = {_s(p.name)}, type = {int(p.type)}, unit = {_s(p.unit)}{extra} }}")
     return "{ " + ", ".join(items) + " }" if items else "{}"
+
+
+#: The generated Lua table of each enum a registry INT parameter names (ParamSpec.enum).
+_ENUM_TABLES: dict[type[IntEnum], str] = {SensorStatus: "SENSOR_STATUS"}
 
 
 def _enum(name: str, members: dict[int, str]) -> str:
@@ -417,6 +424,8 @@ local function dissect_params(tvb, pos, stop, tree, specs, kind)
     -- a LOCATION's text names its units already
     local unit = spec and spec.unit ~= "" and tag ~= T.LOCATION and (" [" .. spec.unit .. "]")
       or ""
+    local named = spec and spec.enum and spec.enum[tonumber(text)]  -- e.g. GetData's status
+    if named then text = text .. " (" .. named .. ")" end
     sub:add(f.p_value, tvb(start, nxt - start), text)
     sub:set_text(string.format("#%d%s: %s = %s%s", i, name and (" " .. name) or "",
       PARAM_TYPES[tag], text, unit))

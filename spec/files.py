@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 import secrets
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 
 
@@ -27,17 +27,63 @@ def prepare_output_path(path: str | os.PathLike[str]) -> Path:
     return target
 
 
+def _temporary_name(target: Path, pid: int) -> Path:
+    return target.with_name(f".{target.stem}.{pid}-{secrets.token_hex(4)}.tmp{target.suffix}")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process: alive
+        return True
+    return True
+
+
+def sweep_stale_temporaries(target: Path) -> list[Path]:
+    """Remove the temporary files of ``target`` left by writers that no longer run (a
+    ``kill -9`` during a save) and return them; a live writer's file is left alone."""
+    removed: list[Path] = []
+    prefix, suffix = f".{target.stem}.", f".tmp{target.suffix}"
+    try:
+        siblings = list(target.parent.iterdir())
+    except OSError:
+        return removed
+    for candidate in siblings:
+        name = candidate.name
+        if not (name.startswith(prefix) and name.endswith(suffix)):
+            continue
+        pid_text = name[len(prefix) : -len(suffix)].split("-", 1)[0]
+        if not pid_text.isdigit() or _alive(int(pid_text)):
+            continue
+        with suppress(OSError):
+            candidate.unlink()
+            removed.append(candidate)
+    return removed
+
+
 @contextmanager
 def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
-    """A temporary path beside ``path`` to write to; renamed over ``path`` on success.
+    """A temporary path beside ``path`` to write to; synced to disk and renamed over ``path``
+    on success.
 
-    The temporary name keeps the suffix (libraries choose the format by it) and is created
-    with the process's umask, so the result has the usual permissions (not mkstemp's 0600).
+    The temporary name keeps the suffix (libraries choose the format by it) and carries the
+    writer's process ID, so the next save sweeps what a killed writer left behind. It is
+    created with the process's umask, so the result has the usual permissions (not mkstemp's
+    0600). The sync before the rename keeps a power cut from leaving an empty file in place
+    of the old one.
     """
     target = Path(path)
-    tmp = target.with_name(f".{target.stem}.{secrets.token_hex(4)}.tmp{target.suffix}")
+    sweep_stale_temporaries(target)
+    tmp = _temporary_name(target, os.getpid())
     try:
         yield tmp
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
         os.replace(tmp, target)
     except OSError as exc:
         if exc.filename not in (str(tmp), tmp):

@@ -12,7 +12,7 @@ from enum import IntEnum
 
 from spec.errors import ParameterError
 from spec.params import CLASS_OF, Value, type_of
-from spec.wire import ParamType
+from spec.wire import ParamType, SensorStatus
 
 T = ParamType
 
@@ -78,6 +78,10 @@ class CommandId(IntEnum):
     GET_SYNC_STATISTICS = 0x3009
 
 
+#: An enum whose values an INT parameter takes (``type`` is a field name inside ParamSpec).
+EnumType = type[IntEnum]
+
+
 @dataclass(frozen=True, slots=True)
 class ParamSpec:
     """One parameter of a request or reply."""
@@ -88,6 +92,7 @@ class ParamSpec:
     doc: str = ""
     optional: bool = False  # may be left off (only trailing parameters)
     repeated: bool = False  # zero or more of this type (only the last parameter)
+    enum: EnumType | None = None  # an INT whose values are this enum's (named by tools)
 
 
 @dataclass(frozen=True, slots=True)
@@ -112,8 +117,17 @@ class CommandSpec:
         return (self.service,)
 
 
-def P(name: str, type: ParamType, unit: str = "", doc: str = "", **kw: bool) -> ParamSpec:
-    return ParamSpec(name, type, unit, doc, **kw)
+def P(
+    name: str,
+    type: ParamType,
+    unit: str = "",
+    doc: str = "",
+    *,
+    optional: bool = False,
+    repeated: bool = False,
+    enum: type[IntEnum] | None = None,
+) -> ParamSpec:
+    return ParamSpec(name, type, unit, doc, optional, repeated, enum)
 
 
 _LOC_DOC = "VAL3 location x, y, z, rx, ry, rz"
@@ -515,7 +529,13 @@ COMMANDS: tuple[CommandSpec, ...] = (
         "Latest seam measurement relative to the sensor frame (paper: data = GetData()).",
         reply=(
             P("index", T.INT, "", "trigger index i, or the software acquisition number"),
-            P("status", T.INT, "", "0 found, 1 not found, 2 laser off, 3 overrun, 4 error"),
+            P(
+                "status",
+                T.INT,
+                "",
+                "0 found, 1 not found, 2 laser off, 3 overrun, 4 error",
+                enum=SensorStatus,
+            ),
             P("seam", T.LOCATION, "mm, deg", "seam frame G in sensor frame S"),
             P("quality", T.FLOAT, "", "0..1"),
             P("t_arrival", T.FLOAT, "s", "trigger arrival, sensor clock"),

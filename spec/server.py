@@ -67,6 +67,9 @@ CONTROL_STOP_WAIT_S = 5.0
 FRAME_ALLOWANCE_BYTES = 65536
 #: Control changes kept in :attr:`FramedServer.control_events`.
 CONTROL_EVENTS = 256
+#: Requests of one connection that may wait behind a pending one; a further one gets BUSY
+#: at once [RS-7.27], so a client cannot make the server hold an unbounded queue for it.
+MAX_PENDING = 64
 
 
 @dataclass(frozen=True)
@@ -182,6 +185,8 @@ class Session:
         #: False after SetFrameCrc(false): frames to this client carry NO_CRC [RS-3.16].
         self.crc = True
         self._worker: _Worker | None = None
+        #: When the worker last sent a reply: the idle timeout runs from it too [RS-7.28].
+        self.replied_at = self.opened
 
     @property
     def in_control(self) -> bool:
@@ -255,6 +260,7 @@ class _Worker:
             except OSError:
                 pass  # the connection broke; the reader ends the session
             finally:
+                session.replied_at = time.monotonic()
                 with self._cond:
                     self.pending -= 1
 
@@ -588,8 +594,8 @@ class FramedServer:
             allowance = decoder.buffered / FRAME_ALLOWANCE_BYTES
             return frame_start + policy.frame_timeout + allowance, "frame not finished in time"
         if session.busy:
-            return math.inf, ""  # waiting for our own reply is not idleness
-        return last_byte + policy.idle_timeout, "idle"
+            return math.inf, ""  # waiting for our own reply is not idleness [RS-7.28]
+        return max(last_byte, session.replied_at) + policy.idle_timeout, "idle"
 
     def _session_loop(self, session: Session) -> None:
         policy = self.policy
@@ -672,6 +678,19 @@ class FramedServer:
                 return
         elif not busy:
             self._reject(session, event)
+            return
+        if worker is not None and worker.pending >= MAX_PENDING:
+            # [RS-7.27] refused at once (overtaking the pending replies), never executed.
+            header = event.header if isinstance(event, Rejected) else event
+            self._count("frames_in")
+            self._reject_code(ErrorCode.BUSY)
+            self._send_error(
+                session,
+                header.command,
+                header.request_id,
+                ErrorCode.BUSY,
+                f"{worker.pending} requests of this connection are pending (at most {MAX_PENDING})",
+            )
             return
         if worker is None:
             worker = session._worker = _Worker(self, session)
@@ -825,9 +844,16 @@ class FramedServer:
     def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
         spec = self._specs.get(packet.command)
         if spec is None:
+            service = self.service.identity.service
+            known = lookup(packet.command, service)
+            if known is not None:
+                # [RS-5.62] a command of the service that this endpoint does not offer.
+                raise ProtocolError(
+                    f"{known.name} (0x{packet.command:04x}) is not offered by this {service}",
+                    ErrorCode.NOT_SUPPORTED,
+                )
             raise ProtocolError(
-                f"unknown command 0x{packet.command:04x} for the"
-                f" {self.service.identity.service} service",
+                f"unknown command 0x{packet.command:04x} for the {service} service",
                 ErrorCode.UNKNOWN_COMMAND,
             )
         if session.reserved and packet.command != CommandId.EMERGENCY_STOP:

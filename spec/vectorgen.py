@@ -96,6 +96,8 @@ def valid_frames() -> list[tuple[str, str, Packet]]:
         ("hello-request", "Hello request", request(C.HELLO, 1, 1, 0, "client/1.0")),
         ("hello-reply", "Hello reply", hello_reply),
         ("minor-version-5", "a newer minor version is accepted", Packet(PacketKind.REQUEST, C.PING, 23, (b"x",), 5)),
+        ("minor-version-2", "a 1.2 peer's frame (minor 2) is accepted by a 1.3 receiver [RS-1.2]", Packet(PacketKind.REQUEST, C.PING, 27, (b"1.2",), 2)),
+        ("minor-version-0", "a 1.0 peer's frame (minor 0) is accepted [RS-1.2]", Packet(PacketKind.REQUEST, C.PING, 28, (b"1.0",), 0)),
         ("request-id-max", "largest request ID, experimental command", request(0xFFFE, 0xFFFFFFFF)),
         ("mixed-params", "every scalar type in one list", request(0x8001, 24, 7, 2.5, True, "s", b"b", Location(1, 2, 3, 4, 5, 6))),
         ("set-motion-desc", "SetMotionDesc with six FLOATs", request(C.SET_MOTION_DESC, 25, 10.0, 100.0, 100.0, 250.0, 90.0, 0.0)),
@@ -113,6 +115,8 @@ def invalid_frames() -> list[tuple[str, str, bytes, ErrorCode, bool]]:
     bad_last_row = struct.pack(">16d", *ROTATION[:12], 0, 0, 1, 1)
     return [
         ("bad-magic", "magic 'XS' instead of 'RS'", b"XS" + good[2:], ErrorCode.BAD_FRAME, True),
+        ("bad-magic-two-bytes", "only the two bytes 'XS': the magic is judged once two bytes arrived, not after the header [RS-3.19]", b"XS", ErrorCode.BAD_FRAME, True),
+        ("bad-magic-second-byte", "magic 'RX': a right first byte and a wrong second one [RS-3.19]", b"RX" + good[2:], ErrorCode.BAD_FRAME, True),
         ("garbage-http", "an HTTP request line", b"GET / HTTP/1.1\r\nHost: x\r\n\r\n", ErrorCode.BAD_FRAME, True),
         ("length-over-max", "payload length 16 MiB + 1", wire.HEADER.pack(wire.MAGIC, 1, 0, 1, 0, 0x1002, 1, wire.MAX_PAYLOAD + 1), ErrorCode.FRAME_TOO_LARGE, True),
         ("length-max-u32", "payload length 0xFFFFFFFF", wire.HEADER.pack(wire.MAGIC, 1, 0, 1, 0, 0x1002, 1, 0xFFFFFFFF), ErrorCode.FRAME_TOO_LARGE, True),
@@ -155,6 +159,7 @@ def truncated_frames() -> list[tuple[str, str, bytes]]:
     reply = encode_packet(_reply(C.HEREJ, 1, Joints([10, -20, 90, 0, 45, 0])))
     return [
         ("truncated-1-byte", "first byte of a frame", reply[:1]),
+        ("truncated-1-wrong-byte", "one byte X: the magic is two bytes [RS-3.19]", b"X"),
         ("truncated-header", "15 of 16 header bytes", reply[:15]),
         ("truncated-payload", "header and half the payload", reply[:40]),
         ("truncated-crc", "all but the last CRC byte", reply[:-1]),

@@ -11,7 +11,7 @@ from enum import IntEnum, StrEnum
 
 #: Protocol version implemented here (PROTOCOL.md section 1).
 VERSION_MAJOR = 1
-VERSION_MINOR = 2
+VERSION_MINOR = 3
 VERSION = f"{VERSION_MAJOR}.{VERSION_MINOR}"
 
 #: Frame magic, ASCII "RS" (robot/sensor) [RS-3.1].
@@ -134,6 +134,25 @@ class SensorStatus(IntEnum):
     LASER_OFF = 2
     OVERRUN = 3
     ERROR = 4
+
+    def problem(self, sensor: str = "HOST:PORT") -> str:
+        """What a measurement without a seam tells an operator, and what to do about it
+        [SS-5.13]; "" for FOUND. ``sensor``: the sensor's address, for the command."""
+        return _STATUS_PROBLEMS[self].format(sensor=sensor)
+
+
+# One text per status, for every tool: "laser off" is never reported as "no seam" [SS-5.13].
+_STATUS_PROBLEMS = {
+    SensorStatus.FOUND: "",
+    SensorStatus.NOT_FOUND: "the sensor does not see a seam (status NOT_FOUND): "
+    "move the sensor over the seam",
+    SensorStatus.LASER_OFF: "the sensor's laser is off (status LASER_OFF): switch it on with "
+    "`python -m sensorsocket call {sensor} SetLaser on --token-file FILE`",
+    SensorStatus.OVERRUN: "the sensor was still busy with the previous trigger "
+    "(status OVERRUN): lower the trigger rate",
+    SensorStatus.ERROR: "the sensor could not process its image (status ERROR): "
+    "look at it with `python -m sensorsocket snapshot {sensor} -o frame.pgm`",
+}
 
 
 #: Datagram header: magic, version major, minor, kind, flags, index [SY-1.1].

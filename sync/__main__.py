@@ -293,7 +293,7 @@ def cmd_delay(args: argparse.Namespace, progress: _Progress) -> int:
             )
             progress.end()
             main_result.extra.update(extra)
-            v = judge(main_result, limits)
+            v = judge(main_result, limits, need_windows=True)
             verdicts.append(("", v))
             _print_result(main_result, v)
             if "applied_delta_t_ms" in main_result.extra:

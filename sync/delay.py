@@ -613,8 +613,12 @@ def assess_run(
     limits: QualityLimits = QualityLimits(),
     *,
     motion: tuple[float, float, float] | None = None,
+    min_duration_s: float | None = None,
 ) -> Verdict:
     """Judge one ΔT run: the gates of issue 12, each a one-line reason when it fails.
+
+    - with ``min_duration_s`` (the shortest run of two windows), a run without windows is
+      too short to judge ΔT's drift: not trusted, with the duration that would be;
 
     - the sensor never saw the robot's motion: ``motion`` = (sensor amplitude, robot
       amplitude, frequency) in mm and Hz (:func:`sine_amplitude`), the sensor's below
@@ -661,6 +665,12 @@ def assess_run(
         )
     deltas = tuple(w.delta_t_s for w in windows)
     spread = max(deltas) - min(deltas) if deltas else math.nan
+    if not deltas and min_duration_s is not None:
+        reasons.append(
+            "too short to judge: ΔT per window needs two windows of full amplitude, a run "
+            f"of at least {math.ceil(min_duration_s * 10) / 10:.1f} s at this frequency "
+            "(--duration)"
+        )
     if any(w.at_edge for w in windows):
         reasons.append(
             "ΔT drifted: a window's MSE minimum is at the edge of the search range "

@@ -34,10 +34,12 @@ from numpy.typing import NDArray
 from kinematics.robot import get_model
 from kinematics.transforms import location_to_transform
 from spec.client import ClientTimeout, FramedClient, wait_end_move
+from spec.errors import RemoteError
 from spec.exitcodes import ExitCode
 from spec.files import atomic_path, prepare_output_path, write_atomically
 from spec.params import IDENTITY_LOCATION, FloatArray, IntArray, Location, Matrix, Value
 from spec.registry import BY_ID, SEAM_POINT_COLUMNS, CommandId
+from spec.wire import SensorStatus
 from sync.delay import (
     DelayEstimate,
     QualityLimits,
@@ -236,6 +238,31 @@ def _endpoint(sensor: FramedClient) -> tuple[str, int]:
     return host, port
 
 
+#: The shortest rest before the sine after which the seam is checked to be in view, and the
+#: sensor answers without a seam that stop the run.
+_MIN_REST_CHECK_S = 0.1
+_MIN_ANSWERS = 5
+
+
+def _no_seam(sensor: FramedClient | None, answered: int, waited_s: float) -> str:
+    """Why the sensor gave no seam point at the start pose, from its latest measurement."""
+    what = "the sensor sees no seam, or its laser is off (--sensor HOST:PORT tells which)"
+    if sensor is not None:
+        try:
+            code = _reply(sensor, CommandId.GET_DATA)["status"]
+            status = SensorStatus(code if isinstance(code, int) else -1)
+        except RemoteError:  # NO_DATA: it never measured
+            what = "the sensor got no trigger (is --sensor the robot's trigger endpoint?)"
+        except ValueError:
+            pass
+        else:
+            what = status.problem(sensor.address) or what
+    return (
+        f"no seam point in {answered} sensor answers ({waited_s:.2f} s) at the start pose, "
+        f"nothing moved: {what}"
+    )
+
+
 def _sync_statistics(robot: FramedClient) -> dict[str, int]:
     """GetSyncStatistics by field name (the counters since the robot's server started)."""
     reply = _reply(robot, CommandId.GET_SYNC_STATISTICS)
@@ -291,6 +318,8 @@ def record_sine(
     info = _hello(robot, "robot")
     if sensor is not None:
         _hello(sensor, "sensor")
+        if not _reply(sensor, CommandId.SENSOR_STATUS)["laser"]:
+            raise ExperimentError(SensorStatus.LASER_OFF.problem(sensor.address))
     model_name = s.model or str(info.get("model", ""))
     try:
         model = get_model(model_name)
@@ -339,9 +368,12 @@ def record_sine(
         points: list[F64] = []
         since_index = first - 1
         done = False
+        # the first wait ends with the rest before the sine: no seam by then, and the run
+        # stops before the arm has moved instead of after all of it
+        chunk = s.rest_s if s.rest_s >= _MIN_REST_CHECK_S else float(s.chunk_s)
         while True:
             if not done:
-                done = wait_end_move(robot, float(s.chunk_s))
+                done = wait_end_move(robot, chunk)
             rows = _matrix(_reply(robot, CommandId.GET_JOINT_LOG, float(log_since))["log"])
             if rows.size:
                 logs.append(rows)
@@ -353,6 +385,16 @@ def record_sine(
                 points.append(prow)
                 since_index = int(prow[-1, _IDX])
             now = _f(robot.get_time())
+            chunk = float(s.chunk_s)
+            if not points:
+                # the sensor answered and none of its answers had a seam: stop. Not a
+                # timeout: on a busy machine answers may be late, never taken for "no seam".
+                answered = _sync_statistics(robot).get("received", 0) - stats_before.get(
+                    "received", 0
+                )
+                if answered >= _MIN_ANSWERS:
+                    robot.call(CommandId.RESET_MOTION)
+                    raise ExperimentError(_no_seam(sensor, answered, now - t_start))
             if progress is not None:
                 frac = min(1.0, (now - t_start) / s.total_s)
                 progress(frac, f"{now - t_start:6.2f} s of {s.total_s:.2f} s")
@@ -572,14 +614,23 @@ def write_plots(
     return files
 
 
-def judge(r: DelayResult, limits: QualityLimits | None = None) -> Verdict:
+def judge(
+    r: DelayResult, limits: QualityLimits | None = None, *, need_windows: bool = False
+) -> Verdict:
     """The quality verdict of one run (:func:`sync.delay.assess_run`): ΔT per window over the
-    full-amplitude part of the sine, loss, the residual with and without synchronisation."""
+    full-amplitude part of the sine, loss, the residual with and without synchronisation.
+    ``need_windows``: a run too short for two windows is not trusted (one ``delay`` run; a
+    sweep's low frequencies never fit two windows in a few seconds)."""
     limits = QualityLimits() if limits is None else limits
     st = r.settings
     # the full-amplitude part of the sine, with a cycle's margin for the start of the move
-    t0 = r.data.t_start + st.rest_s + st.ramp + 0.05
+    margin = 0.05
+    t0 = r.data.t_start + st.rest_s + st.ramp + margin
     t1 = r.data.t_start + st.rest_s + st.duration_s - st.ramp
+    window = max(limits.window_s, 2.0 / st.frequency_hz)  # as window_delays cuts them
+    # the ramp grows with the duration up to its cap: the cap's, when two windows need it
+    ramp = min(max(0.25, 1.0 / st.frequency_hz), 1.0) if st.ramp_s is None else st.ramp_s
+    min_duration = 2 * ramp + margin + 2 * window if need_windows else None
     windows = window_delays(
         r.data.t_robot,
         r.data.y_robot,
@@ -598,4 +649,12 @@ def judge(r: DelayResult, limits: QualityLimits | None = None) -> Verdict:
         sine_amplitude(r.data.t_robot[robot], r.data.y_robot[robot], st.frequency_hz),
         st.frequency_hz,
     )
-    return assess_run(r.estimate, r.residual, r.data.statistics, windows, limits, motion=motion)
+    return assess_run(
+        r.estimate,
+        r.residual,
+        r.data.statistics,
+        windows,
+        limits,
+        motion=motion,
+        min_duration_s=min_duration,
+    )

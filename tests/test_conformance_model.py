@@ -133,7 +133,7 @@ def test_harness_fault_is_untrusted() -> None:
 def test_json_report_schema() -> None:
     data = to_json(_run(Outcome.PASS, Outcome.FAIL))
     assert data["schema_version"] == 1
-    assert data["tool"] == "conformance" and data["spec_version"] == "1.2"
+    assert data["tool"] == "conformance" and data["spec_version"] == "1.3"
     assert {"suite_version", "seed", "endpoint", "summary", "measurements"} <= set(data)
     failed = data["cases"][1]
     assert failed["outcome"] == "fail" and failed["requirements"] == ["RS-3.4"]

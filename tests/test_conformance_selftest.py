@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import math
 import socket
 import struct
 import threading
@@ -35,7 +36,7 @@ from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data, en
 from spec.errors import DatagramError, ErrorCode, ProtocolError
 from spec.exitcodes import ExitCode
 from spec.params import Image, Joints, Location, Matrix, Value
-from spec.registry import BY_ID, CommandSpec, check_params
+from spec.registry import BY_ID, CommandSpec, check_params, commands_for, profiles_for
 from spec.registry import CommandId as C
 from spec.server import FramedServer, Identity, ServerPolicy, Service, Session
 from spec.wire import PacketKind, SensorStatus
@@ -109,6 +110,8 @@ class MiniRobot(Service):
             self.mdesc = v
             return ()
         if c == C.WAIT_END_MOVE:
+            if not 0 < float(params[0]) <= 3600:  # type: ignore[arg-type]
+                raise ProtocolError("timeout out of (0, 3600] s", ErrorCode.OUT_OF_RANGE)
             return (True,)
         if c in (C.STOP_MOVE, C.RESET_MOTION):
             return ()
@@ -123,6 +126,8 @@ class MiniRobot(Service):
             raise ProtocolError(f"no I/O named {name!r}", ErrorCode.OUT_OF_RANGE)
         if c == C.GET_JOINT_LOG:
             since = float(params[0])  # type: ignore[arg-type]
+            if math.isnan(since):
+                raise ProtocolError("since is NaN", ErrorCode.OUT_OF_RANGE)  # [RS-5.58]
             k1 = int((now - self.t0) / 0.004)
             k0 = max(0, k1 - 2500)
             rows = [[self.t0 + k * 0.004, *self.q] for k in range(k0, k1 + 1)]
@@ -394,13 +399,14 @@ def test_error_frame_without_message_is_caught(send_hook: Any) -> None:
 
 
 class WrongCodeServer(FramedServer):
-    """Answers an unknown command with BAD_PARAMETERS instead of UNKNOWN_COMMAND."""
+    """Answers an unknown command, or one not offered, with BAD_PARAMETERS instead of
+    UNKNOWN_COMMAND or NOT_SUPPORTED."""
 
     def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
         try:
             return super()._execute(session, packet)
         except ProtocolError as exc:
-            if exc.code is ErrorCode.UNKNOWN_COMMAND:
+            if exc.code in (ErrorCode.UNKNOWN_COMMAND, ErrorCode.NOT_SUPPORTED):
                 raise ProtocolError("bad", ErrorCode.BAD_PARAMETERS) from None
             raise
 
@@ -1100,8 +1106,28 @@ class NoBackoffServer(FramedServer):
         self._auth = AuthBackoff(threshold=1 << 30)
 
 
+class ExtendingBackoff(AuthBackoff):
+    """Counts an attempt refused during the back-off as a failure [RS-7.26 broken]."""
+
+    def wait(self, address: str, now: float) -> float:
+        if super().wait(address, now) > 0.0:
+            self.failed(address, now)
+        return super().wait(address, now)
+
+
+class ExtendingBackoffServer(FramedServer):
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._auth = ExtendingBackoff()
+
+
 @pytest.mark.parametrize(
-    ("server_class", "want"), [(FramedServer, Outcome.PASS), (NoBackoffServer, Outcome.FAIL)]
+    ("server_class", "want"),
+    [
+        (FramedServer, Outcome.PASS),
+        (NoBackoffServer, Outcome.FAIL),
+        (ExtendingBackoffServer, Outcome.FAIL),
+    ],
 )
 def test_missing_token_backoff_is_caught(server_class: type[FramedServer], want: Outcome) -> None:
     policy = dataclasses.replace(POLICY, token="s3cret")
@@ -1111,6 +1137,8 @@ def test_missing_token_backoff_is_caught(server_class: type[FramedServer], want:
     got = outcomes(result)
     assert got["control.token"] is Outcome.PASS
     assert got["control.token_backoff"] is want, problems(result)
+    if server_class is ExtendingBackoffServer:
+        assert "[RS-7.26]" in problems(result)["control.token_backoff"]
 
 
 def test_capability_file_makes_cases_not_applicable(tmp_path: Any) -> None:
@@ -1179,9 +1207,10 @@ def test_server_without_set_frame_crc_is_not_applicable(monkeypatch: Any) -> Non
 
 
 class NoKinematicsRobot(MiniRobot):
-    """Offers ToolMoveJ but answers Here with NOT_SUPPORTED (a robot without kinematics)."""
+    """Lists the tool moves but answers Here with NOT_SUPPORTED (a robot without kinematics
+    whose Hello says otherwise): every tool move case needs Here for a harmless target."""
 
-    COMMANDS = (*MiniRobot.COMMANDS, C.TOOL_MOVE_J)
+    COMMANDS = (*MiniRobot.COMMANDS, C.TOOL_MOVE_J, C.TOOL_MOVE_L, C.TOOL_MOVE_TRAJECTORY)
 
     def handle(
         self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
@@ -1191,20 +1220,148 @@ class NoKinematicsRobot(MiniRobot):
         return super().handle(session, spec, params)
 
 
-def test_refused_precondition_blocks_the_case_instead_of_failing_it() -> None:
-    """ToolMoveJ.not_in_control needs Here for a harmless target: Here refused is a failed
-    precondition (blocked, Here named), not a failure of RS-7.4."""
+def _sent(result: Any, case_id: str) -> list[Packet]:
+    """The requests a case sent, decoded from its wire log."""
+    entry = next(r for r in result.results if r.case.id == case_id)
+    out: list[Packet] = []
+    for conn in sorted({e.conn for e in entry.wire}):
+        decoder = FrameDecoder()
+        decoder.feed(b"".join(e.data for e in entry.wire if e.conn == conn and e.direction == "->"))
+        out.extend(e for e in decoder.events() if isinstance(e, Packet))
+    return out
+
+
+def _received(entry: Any, conn: int) -> list[Packet]:
+    decoder = FrameDecoder()
+    decoder.feed(b"".join(e.data for e in entry.wire if e.conn == conn and e.direction == "<-"))
+    return [e for e in decoder.events() if isinstance(e, Packet)]
+
+
+@pytest.mark.parametrize("move", ["ToolMoveJ", "ToolMoveL", "ToolMoveTrajectory"])
+def test_refused_precondition_blocks_the_case_instead_of_failing_it(move: str) -> None:
+    """Misattribution 2 of issue 32: {move}.not_in_control needs Here for a harmless target.
+    Here refused is a failed precondition (blocked, Here named), not a failure of RS-7.4; the
+    move itself is never sent."""
     with serving(FramedServer(NoKinematicsRobot(), policy=POLICY)) as address:
         options = Options(timeout_scale=SCALE, allow_motion=True)
-        result = run("robot", *address, options, Selection("core", ("commands.robot.ToolMoveJ.*",)))
+        result = run("robot", *address, options, Selection("core", (f"commands.robot.{move}.*",)))
     got = {r.case.id: r for r in result.results}
-    blocked = got["commands.robot.ToolMoveJ.not_in_control"]
+    blocked = got[f"commands.robot.{move}.not_in_control"]
     assert blocked.outcome is Outcome.BLOCKED, blocked.message
     assert "Here was refused" in blocked.message and "NOT_SUPPORTED" in blocked.message
-    assert blocked.details["precondition"] == "correct arguments for ToolMoveJ"
-    assert got["commands.robot.ToolMoveJ.reply"].outcome is Outcome.BLOCKED
+    assert blocked.details["precondition"] == f"correct arguments for {move}"
+    sent = {p.command for p in _sent(result, f"commands.robot.{move}.not_in_control")}
+    assert C.HERE in sent and int(getattr(C, _CONST[move])) not in sent
+    assert got[f"commands.robot.{move}.reply"].outcome is Outcome.BLOCKED
+    assert not [r.case.id for r in result.results if r.outcome is Outcome.FAIL]
     # Here's own rule is judged by Here's own cases; the robot claims a subset of 1.x
     assert exit_code(result) == ExitCode.SUBSET
+
+
+_CONST = {
+    "ToolMoveJ": "TOOL_MOVE_J",
+    "ToolMoveL": "TOOL_MOVE_L",
+    "ToolMoveTrajectory": "TOOL_MOVE_TRAJECTORY",
+}
+
+
+class LegacyNotOfferedServer(FramedServer):
+    """A 1.2 server: a command it does not offer gets UNKNOWN_COMMAND, not NOT_SUPPORTED."""
+
+    def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
+        try:
+            return super()._execute(session, packet)
+        except ProtocolError as exc:
+            if exc.code is ErrorCode.NOT_SUPPORTED:
+                raise ProtocolError(exc.message, ErrorCode.UNKNOWN_COMMAND) from None
+            raise
+
+
+@pytest.mark.parametrize(
+    ("server_class", "code"),
+    [(FramedServer, ErrorCode.NOT_SUPPORTED), (LegacyNotOfferedServer, ErrorCode.UNKNOWN_COMMAND)],
+)
+def test_cartesian_commands_not_offered_are_a_scope_not_a_failure(
+    server_class: type[FramedServer], code: ErrorCode
+) -> None:
+    """Misattribution 1 of issue 32: a robot without kinematics leaves Here and the tool
+    moves out of Hello and answers them NOT_SUPPORTED (1.3) or UNKNOWN_COMMAND (1.2). Both are
+    conformant to what they claim (exit SUBSET, no failure), and the summary says that the
+    cartesian profile (and sync, motion, ...) was not covered."""
+    from conformance.report import terminal
+
+    service = CoreOnlyRobot()
+    with serving(server_class(service, policy=POLICY)) as address:
+        with socket.create_connection(address, timeout=2) as raw:  # the planted answer
+            raw.sendall(encode_packet(Packet(PacketKind.REQUEST, C.HERE, 1, ())))
+            decoder = FrameDecoder()
+            while not (events := list(decoder.events())):
+                decoder.feed(raw.recv(4096))
+        assert events[0].error is not None and events[0].error[0] == code  # type: ignore[union-attr]
+        result = check("robot", address, profile="core")
+    assert problems(result) == {}, problems(result)
+    got = outcomes(result)
+    assert got["negotiation.hello.commands_complete"] is Outcome.PASS
+    assert got["negotiation.profile.core"] is Outcome.PASS
+    for move in ("Here", "ToolMoveJ", "ToolMoveL", "ToolMoveTrajectory"):
+        assert got[f"commands.robot.{move}.reply"] is Outcome.NOT_APPLICABLE
+    claimed, not_covered = result.scope()
+    assert "cartesian" in not_covered and "sync" in not_covered and "core" in claimed
+    assert "not covered (not offered): motion, cartesian" in terminal(result)
+    assert exit_code(result) == ExitCode.SUBSET
+
+
+class EstopRobot(MiniRobot):
+    """MiniRobot with a software emergency stop (GetStatus reports it)."""
+
+    COMMANDS = (*MiniRobot.COMMANDS, C.EMERGENCY_STOP, C.RESET_EMERGENCY_STOP)
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.estop = False
+        self.estops = 0
+
+    def handle(
+        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
+        if spec.id == C.EMERGENCY_STOP:
+            self.estop, self.estops = True, self.estops + 1
+            return ()
+        if spec.id == C.RESET_EMERGENCY_STOP:
+            self.estop = False
+            return ()
+        if spec.id == C.ROBOT_STATUS:
+            held = session.server.control_holder
+            return (False, self.estop, False, 0, held is session, held is not None, 0, "", 0.0)
+        return super().handle(session, spec, params)
+
+
+def test_emergency_stop_when_full_is_not_confused_with_an_earlier_answer() -> None:
+    """Misattribution 3 of issue 32: on the reserved connection of a full server the harness
+    sent GetStatus and then EmergencyStop; the server's BUSY for GetStatus arrives before
+    EmergencyStop's reply. With a fresh request ID per request, matched by command and ID
+    [RS-3.4], the harness reports the EmergencyStop as executed, which it was."""
+    service = EstopRobot()
+    policy = dataclasses.replace(POLICY, max_clients=3, max_per_address=3)
+    with serving(FramedServer(service, policy=policy)) as address:
+        options = Options(timeout_scale=SCALE, allow_motion=True)
+        result = run(
+            "robot", *address, options, Selection("full", ("robot.emergency_stop_when_full",))
+        )
+    (entry,) = result.results
+    assert entry.outcome is Outcome.PASS, (entry.message, entry.actual)
+    assert service.estops == 1 and not service.estop  # executed once, then reset
+    # The trap was there: the connection that got EmergencyStop got an error for the
+    # GetStatus before it, then the reply; the two requests had different IDs.
+    for conn in sorted({e.conn for e in entry.wire}):
+        answers = _received(entry, conn)
+        stop = [p for p in answers if p.command == C.EMERGENCY_STOP]
+        if stop:
+            break
+    status = [p for p in answers if p.command == C.ROBOT_STATUS]
+    assert status and status[0].error is not None and status[0].error[0] == ErrorCode.BUSY
+    assert stop[0].kind is PacketKind.REPLY and stop[0].request_id != status[0].request_id
+    assert answers.index(status[0]) < answers.index(stop[0])
 
 
 def test_answers_are_matched_by_command_and_fresh_request_id() -> None:
@@ -1247,6 +1404,12 @@ def test_unanswered_ping_is_one_broken_rule_not_a_wall_of_timeouts() -> None:
     timeouts = [r.case.id for r in result.results if r.outcome is Outcome.TIMEOUT]
     assert timeouts == []
     assert got["commands.common.Ping.reply"].outcome is Outcome.BLOCKED
+    # the corpus checks that a connection goes on with the run's probe, not with Ping, so
+    # it is judged on its own (issue 35: 31 corpus cases were blocked behind Ping)
+    corpus = [r for r in result.results if r.case.id.startswith("robustness.corpus.")]
+    assert corpus and all(r.outcome is Outcome.PASS for r in corpus), [
+        (r.case.id, r.outcome, r.message) for r in corpus if r.outcome is not Outcome.PASS
+    ]
     assert list(problems(result)) == ["negotiation.ping.liveness"]  # reported once
     passed = sum(r.outcome is Outcome.PASS for r in result.results)
     assert passed > 50  # everything that does not ride on Ping is judged on its own
@@ -1338,3 +1501,130 @@ def test_summary_states_the_verdict_with_its_scope(
     text = terminal(result)
     assert f"not covered (not offered): {', '.join(not_covered)}" in text
     assert exit_code(result) == ExitCode.SUBSET
+
+
+# --- one self-test server per profile subset [issue 32] --------------------------------------
+
+_ROBOT_PROFILES = [p.name for p in profiles_for("robot")]
+_SUBSETS = [
+    ("core",),
+    ("core", "motion"),
+    ("core", "cartesian"),
+    ("core", "sync"),
+    ("core", "motion", "cartesian"),
+    ("core", "motion", "alter", "alter-queue"),
+    tuple(_ROBOT_PROFILES),
+]
+
+
+def _subset_robot(names: tuple[str, ...]) -> type[MiniRobot]:
+    """A MiniRobot whose Hello lists exactly the commands of ``names`` (crc-off too: the
+    shell always serves SetFrameCrc)."""
+    offered = {int(c) for p in profiles_for("robot") if p.name in names for c in p.commands}
+    common = {int(c) for c in C if c < 0x1000}
+    commands = tuple(C(c) for c in sorted(offered - common))
+    return type(f"Robot_{'_'.join(names)}", (MiniRobot,), {"COMMANDS": commands})
+
+
+@pytest.mark.parametrize("names", _SUBSETS, ids=["+".join(n) for n in _SUBSETS])
+def test_a_robot_claiming_a_profile_subset_is_judged_on_it(names: tuple[str, ...]) -> None:
+    """Each subset of profiles: the claimed ones (and only they) are in the verdict's scope,
+    every case of a command not offered is not-applicable (never a failure), the checks the
+    shell makes for every offered command pass, and the exit code says "a subset" unless
+    every profile is claimed."""
+    service = _subset_robot(names)()
+    select = ("negotiation.*", "commands.robot.*.bad_params", "commands.robot.*.not_in_control")
+    with serving(FramedServer(service, policy=POLICY)) as address:
+        result = check("robot", address, select)
+    claimed, not_covered = result.scope()
+    want = [n for n in _ROBOT_PROFILES if n in (*names, "crc-off")]
+    assert claimed == want and not_covered == [n for n in _ROBOT_PROFILES if n not in want]
+    assert problems(result) == {}, problems(result)
+    offered = set(service.implemented())
+    judged, left_out = 0, 0
+    for r in result.results:
+        needs = set(r.case.commands) - {int(c) for c in C if c < 0x1000}
+        if needs and not needs <= offered:
+            assert r.outcome is Outcome.NOT_APPLICABLE, (r.case.id, r.outcome)
+            left_out += 1
+        elif r.case.id.endswith(".bad_params"):
+            assert r.outcome is Outcome.PASS, (r.case.id, r.outcome, r.message)
+            judged += 1
+    assert judged >= 8 and (left_out > 0) == bool(not_covered)
+    assert exit_code(result) == (ExitCode.OK if not not_covered else ExitCode.SUBSET)
+
+
+class CoreOnlySensor(MiniSensor):
+    """A sensor without UDP triggering: the sensor core profile only."""
+
+    def implemented(self) -> tuple[int, ...]:
+        return tuple(int(c.id) for c in commands_for("sensor") if c.id != C.GET_TRIGGER_ENDPOINT)
+
+
+def test_a_sensor_without_triggering_is_judged_on_its_core() -> None:
+    with serving(FramedServer(CoreOnlySensor(), policy=POLICY)) as address:
+        result = check("sensor", address, ("negotiation.*", "commands.sensor.*"))
+    assert problems(result) == {}, problems(result)
+    assert result.scope() == (["core", "crc-off"], ["sync"])
+    assert outcomes(result)["commands.sensor.GetTriggerEndpoint.reply"] is Outcome.NOT_APPLICABLE
+    assert exit_code(result) == ExitCode.SUBSET
+
+
+# --- the rules that answer the vendor's guesses catch the servers that guessed wrong --------
+
+
+class NanLogRobot(MiniRobot):
+    """1.2 behaviour: GetJointLog since NaN answers an empty log."""
+
+    def handle(
+        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
+        if spec.id == C.GET_JOINT_LOG and math.isnan(float(params[0])):  # type: ignore[arg-type]
+            return (Matrix(0, 7, []), 0.004)
+        return super().handle(session, spec, params)
+
+
+class StickyErrorRobot(MiniRobot):
+    """A refused SetMotionDesc sets GetStatus' last_error (only moves may)."""
+
+    last = (0, "")
+
+    def handle(
+        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
+        if spec.id == C.ROBOT_STATUS:
+            held = session.server.control_holder
+            return (False, False, False, 0, held is session, held is not None, *self.last, 0.0)
+        try:
+            return super().handle(session, spec, params)
+        except ProtocolError as exc:
+            self.last = (int(exc.code), exc.message)
+            raise
+
+
+class HolderFirstServer(FramedServer):
+    """Checks the holder before the watchdog period: BUSY where OUT_OF_RANGE is due."""
+
+    def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
+        holder = self.control_holder
+        if packet.command == C.TAKE_CONTROL and holder is not None and holder is not session:
+            raise ProtocolError("control is held", ErrorCode.BUSY)
+        return super()._execute(session, packet)
+
+
+@pytest.mark.parametrize(
+    ("server_class", "service_class", "case_id", "rule"),
+    [
+        (FramedServer, NanLogRobot, "robot.jointlog.since_nan", "RS-5.58"),
+        (FramedServer, StickyErrorRobot, "robot.last_error.only_moves", "RS-5.51"),
+        (HolderFirstServer, MiniRobot, "control.take_control.order", "RS-7.25"),
+    ],
+)
+def test_a_server_that_guessed_what_1_2_left_open_is_caught(
+    server_class: type[FramedServer], service_class: type[MiniRobot], case_id: str, rule: str
+) -> None:
+    with serving(server_class(service_class(), policy=POLICY)) as address:
+        result = check("robot", address, (case_id,))
+    (entry,) = result.results
+    assert entry.outcome is Outcome.FAIL, (entry.outcome, entry.message)
+    assert f"[{rule}]" in entry.message  # the rule of the case, named in its verdict

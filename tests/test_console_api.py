@@ -267,9 +267,14 @@ def test_job_validation_is_the_job_checks(env: Any) -> None:
         tables = env[1].tables()
         J.loads(checked["xml"], source="demo.xml", has_tool=tables.has_tool,
                 has_frame=tables.has_frame)  # fmt: skip
-    expected = [{"line": p.line, "column": p.column, "message": p.message}
-                for p in err.value.problems]  # fmt: skip
+    expected = [{"line": p.line, "column": p.column, "message": p.text, "where": p.where,
+                 "field": p.field} for p in err.value.problems]  # fmt: skip
     assert checked["problems"] == expected and len(expected) == 2
+    # issue 35 item 5: the operator's names for the place and the field, not only XML's
+    assert {(p["where"], p["field"]) for p in checked["problems"]} == {
+        ("item 1 (via 'approach')", "tool"),
+        ("item 2 (path 'seam')", "velocity"),
+    }
     # a job with problems is not saved
     saved = call(client, "PUT", "/api/jobs/demo.xml", {"job": job}).json()
     assert saved["saved"] is False

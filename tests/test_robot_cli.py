@@ -151,11 +151,31 @@ def test_call_list_and_a_joint_log_one_row_per_line(
     assert done.value.code == 0
     joint_move = next(line for line in out.splitlines() if line.startswith("JointMove"))
     assert "<joints:joints>" in joint_move and joint_move.endswith("control moves")
-    code, out, _ = run(capsys, "call", endpoint, "getjointlog", "-1")
+    code, out, _ = run(capsys, "call", endpoint, "getjointlog", "-1", "--all")
     assert code == 0
     log = json.loads(out)["log"]
     assert len(out.splitlines()) == len(log) + 2  # "{log: [", one line per sample, "]..."
     assert all(len(row) == 7 for row in log)
+
+
+def test_a_long_matrix_reply_is_summarised_unless_all() -> None:
+    from spec.callcli import format_reply, summarised
+
+    # issue 35 item 6: `call … getjointlog -1` printed 15,002 lines
+    log = [[0.004 * k, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0] for k in range(15_002)]
+    short, cut = summarised({"log": log, "period": 0.004})
+    assert cut == ["log"] and short["period"] == 0.004
+    assert short["log"] == {"rows": 15_002, "columns": 7, "first": log[:3], "last": log[-3:]}
+    assert len(format_reply(short).splitlines()) == 1
+    assert summarised({"log": log[:20]}) == ({"log": log[:20]}, [])
+
+
+def test_reals_are_rounded_to_a_nanometre_not_to_float_noise() -> None:
+    from spec.callcli import format_reply
+
+    # issue 35 item 6: herej printed 1.98806763458e-15 for a joint at zero
+    got = format_reply({"joints": [1.98806763458e-15, -2e-12, 59.99999999999999, 3.752000000002]})
+    assert got == '{"joints": [0.0, 0.0, 60.0, 3.752]}'
 
 
 def robot_cli(*argv: str) -> subprocess.CompletedProcess[str]:

@@ -20,6 +20,7 @@ from robotsocket.client import (
     MoveResult,
     NotInControlError,
     NotPoweredError,
+    NotSupportedError,
     OutOfRangeError,
     RobotClient,
     SingularityError,
@@ -167,7 +168,7 @@ def test_motion_errors(client: RobotClient) -> None:
         client.call(CommandId.HERE, Location(0, 0, 0, 0, 0, 0))  # missing frame
     with pytest.raises(UnknownCommandError):
         client.call(0x1FFF)
-    with pytest.raises(UnknownCommandError):
+    with pytest.raises(NotSupportedError):  # [RS-5.62] known, not offered by this robot
         client.call(CommandId.STOP_TRIGGERS)
     client.emergency_stop()
     with pytest.raises(EmergencyStopError):
@@ -366,3 +367,55 @@ def test_client_storm_sees_only_grid_samples() -> None:
     assert np.array_equal(t, k * 0.004)
     logged = {tuple(row) for row in q.tolist()} | {tuple(float(v) for v in HOME)}
     assert len(seen) > 10 and seen <= logged
+
+
+# --- what 1.2 left to guessing (PROTOCOL.md 1.3) --------------------------------------------
+
+
+def test_joint_log_since_nan_is_out_of_range_and_infinities_are_times(client: RobotClient) -> None:
+    """[RS-5.58] NaN is no time; -inf returns the whole buffer and +inf no sample."""
+    with pytest.raises(OutOfRangeError, match="NaN"):
+        client.joint_log(float("nan"))
+    t_all, _ = client.joint_log(float("-inf"))
+    t_none, _ = client.joint_log(float("inf"))
+    assert len(t_all) >= 1 and len(t_none) == 0
+
+
+def test_only_refused_or_failed_moves_set_last_error(client: RobotClient) -> None:
+    """[RS-5.51] a refused SetMotionDesc or WaitEndMove, or a control refusal, leaves
+    last_error alone; a move refused for power sets it; ResetMotion clears it."""
+    with pytest.raises(NotInControlError):
+        client.joint_move(tuple(HOME))
+    client.take_control("s3cret")
+    with pytest.raises(OutOfRangeError):
+        client.set_motion_desc(MotionDesc(joint_speed=150.0))
+    with pytest.raises(OutOfRangeError):
+        client.call(CommandId.WAIT_END_MOVE, 0.0)
+    assert client.status().last_error == 0
+    with pytest.raises(NotPoweredError):
+        client.joint_move(tuple(HOME))
+    st = client.status()
+    assert st.last_error == ErrorCode.NOT_POWERED and "power" in st.last_message
+    client.reset_motion()
+    assert client.status().last_error == 0
+
+
+def test_disable_power_and_restart_move_in_every_state(client: RobotClient) -> None:
+    """[RS-5.52] DisablePower with power off and under an emergency stop replies without
+    error; [RS-5.54] RestartMove without StopMove changes nothing; [RS-5.53] it needs power."""
+    client.take_control("s3cret")
+    client.disable_power()  # power already off
+    with pytest.raises(NotPoweredError):
+        client.restart_move()
+    client.enable_power()
+    client.restart_move()  # nothing held: nothing starts
+    st = client.status()
+    assert st.powered and not st.moving and st.queue == 0
+    client.set_output("gas", True)
+    client.emergency_stop()
+    client.disable_power()  # under the emergency stop
+    st = client.status()
+    assert st.estop and not st.powered
+    assert client.read_io("gas") is False  # [RS-5.20] EmergencyStop switched it off
+    with pytest.raises(EmergencyStopError):
+        client.restart_move()

@@ -127,6 +127,25 @@ def test_call_acquire_and_get_data(call: Callable[..., dict[str, object]]) -> No
     call("SetReadoutWindow", "0", "512")
 
 
+def test_get_data_with_the_laser_off_says_so_and_how_to_switch_it_on(
+    served: Served, run: Callable[..., Ran]
+) -> None:
+    # [SS-5.13] the case: status 2 alone read as "no seam"
+    assert run("call", served.tcp, "SetLaser", "off").returncode == 0
+    try:
+        assert run("call", served.tcp, "Acquire").returncode == 0
+        r = run("call", served.tcp, "GetData")
+        assert r.returncode == 0 and json.loads(r.stdout)["status"] == int(SensorStatus.LASER_OFF)
+        assert r.stderr == (
+            "note: the sensor's laser is off (status LASER_OFF): switch it on with "
+            f"`python -m sensorsocket call {served.tcp} SetLaser on --token-file FILE`\n"
+        )
+    finally:
+        assert run("call", served.tcp, "SetLaser", "on").returncode == 0
+    run("call", served.tcp, "Acquire")
+    assert run("call", served.tcp, "GetData").stderr == ""
+
+
 def test_call_errors(served: Served, run: Callable[..., Ran]) -> None:
     r = run("call", served.tcp, "SetReadoutWindow", "500", "100")
     assert r.returncode == 1 and r.stderr.startswith("error OUT_OF_RANGE")

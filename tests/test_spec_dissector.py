@@ -172,6 +172,17 @@ def test_values_of_every_type(tmp_path: Path) -> None:
 
 
 @needs_tshark
+def test_getdata_status_is_named(tmp_path: Path) -> None:
+    # [SS-5.13] "laser off" reads as such in a capture, not as a bare 2
+    chunks = []
+    for i, status in enumerate(SensorStatus, start=1):
+        reply = (i, int(status), Location(0, 0, 0, 0, 0, 0), 0.0, 1.0, 1.0, 1.0)
+        chunks.append((False, encode_packet(Packet(PacketKind.REPLY, 0x2002, i, reply))))
+    rows = tshark(write_capture(tmp_path / "d.pcapng", chunks, SENSOR), "rsock.param.value")
+    assert [r[0].split("|")[1] for r in rows] == [f"{int(s)} ({s.name})" for s in SensorStatus]
+
+
+@needs_tshark
 def test_every_error_code(tmp_path: Path) -> None:
     chunks = [(False, encode_packet(error_packet(0x1006, int(c), c, f"m{int(c)}")))
               for c in ErrorCode]  # fmt: skip
@@ -278,7 +289,7 @@ def test_hello_whose_version_is_not_its_headers_is_flagged(tmp_path: Path) -> No
     reply[0], reply[1] = "1.0", "robot"
     frame = encode_packet(Packet(PacketKind.REPLY, hello.id, 1, tuple(reply)))
     rows = tshark(write_capture(tmp_path / "h.pcapng", [(False, frame)]), "_ws.expert.message")
-    assert rows == [['Hello version "1.0" differs from the frame header\'s 1.2 [RS-5.31]']]
+    assert rows == [['Hello version "1.0" differs from the frame header\'s 1.3 [RS-5.31]']]
 
 
 @needs_tshark

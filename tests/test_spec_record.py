@@ -189,3 +189,21 @@ def test_bad_arguments_are_one_line_and_exit_2(busy_port: BusyPort, tmp_path: Pa
         assert r.returncode == 2, (args, r.stderr)
         assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr, r.stderr
     assert not list(tmp_path.iterdir())
+
+
+def test_a_background_recorder_ends_on_sigint(robot_server: FramedServer, tmp_path: Path) -> None:
+    # `spec record … &` in a script starts with SIGINT ignored; `kill -INT` must still end it
+    host, port = robot_server.address
+    cmd = [sys.executable, "-m", "spec", "record", "--listen", "0", "--to", f"{host}:{port}",
+           "-o", str(tmp_path / "bg.pcapng")]  # fmt: skip
+    ignore_sigint = lambda: signal.signal(signal.SIGINT, signal.SIG_IGN)  # noqa: E731
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, preexec_fn=ignore_sigint)  # fmt: skip
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().startswith("listening on")
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=20)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    assert (tmp_path / "bg.pcapng").exists() and not partial_path(tmp_path / "bg.pcapng").exists()

@@ -16,6 +16,7 @@ from robotsocket.emulator import RobotEmulator
 from robotsocket.service import RobotService
 from spec.codec import Packet, error_packet
 from spec.errors import ErrorCode
+from spec.exitcodes import ExitCode
 from spec.params import Joints, Value
 from spec.registry import CommandId, CommandSpec
 from spec.replay import compare
@@ -152,3 +153,31 @@ def test_compare_floats_within_the_tolerance() -> None:
         "joints: recorded [1, 2], now [1.1, 2]"
     ]
     assert compare(herej(1.0), herej(1.1), CommandId.HEREJ, 1e-6, frozenset({"Herej.joints"})) == []
+
+
+def conformance(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "conformance", "robot", *args], cwd=ROOT,
+                          capture_output=True, text=True, timeout=300)  # fmt: skip
+
+
+def test_conformance_runs_a_recording_as_a_case(serve: Serve, tmp_path: Path) -> None:
+    path = record(serve(RobotService(RobotEmulator()), None).address, tmp_path / "field.pcapng")
+    same = serve(RobotService(RobotEmulator()), None)
+    only = ("--select", "replay.*", "-v")
+    r = conformance(addr(same), "--replay", str(path), "--allow-motion", *only)
+    # SUBSET: the emulated robot claims every profile but sync (the summary's scope: line)
+    assert r.returncode == ExitCode.SUBSET, r.stdout + r.stderr
+    assert "pass           replay.field" in r.stderr
+    assert "6 requests over 1 connection: every answer as recorded" in r.stdout
+    # a field failure turned into a regression test: the changed answer fails the case
+    r = conformance(addr(serve(Planted(), None)), "--replay", str(path), "--allow-motion", *only)
+    assert r.returncode == ExitCode.FAILED, r.stdout + r.stderr
+    assert "fail           replay.field" in r.stderr
+    assert "#3 Herej id=3: joints: recorded [0, 0, 90, 0, 90, 0], now [0, 0.5" in r.stdout
+    # the recording moves the arm: without --allow-motion the case is skipped, not run
+    r = conformance(addr(same), "--replay", str(path), *only)
+    assert "skipped        replay.field" in r.stderr, r.stdout + r.stderr
+    for bad in (str(tmp_path / "missing.pcapng"), str(ROOT / "README.md")):
+        r = conformance(addr(same), "--replay", bad)
+        assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+        assert r.stderr.startswith("conformance: --replay: "), r.stderr

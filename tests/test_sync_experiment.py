@@ -119,6 +119,11 @@ def test_cli_untrusted_run_exits_untrusted_with_its_reason_on_a_line_of_its_own(
     last = done.stderr.splitlines()[-1]
     # the progress line ended before the reason: the reason is a line of its own
     assert last.startswith("python -m sync: untrusted result: MSE minimum at the edge")
+    # issue 35 item 8: 2 s at 1.5 Hz cannot show a drift: not trusted, the minimum named
+    assert last.endswith(
+        "; too short to judge: ΔT per window needs two windows of full amplitude, a run of "
+        "at least 4.1 s at this frequency (--duration)"
+    )
     assert "Traceback" not in done.stderr
     assert "UNTRUSTED" in done.stdout.splitlines()[0]
     verdict = json.loads(out.read_text())["verdict"]
@@ -246,3 +251,48 @@ def test_cli_a_robot_that_never_answers_is_named_after_a_short_hello(
         f"python -m sync: error: {address} (--robot) accepted the connection but did not"
         f" answer Hello within {HELLO_TIMEOUT_S:g} s (not a RobotSocket server, or a hung one?)"
     ]
+
+
+def test_a_seam_out_of_view_stops_the_run_before_the_arm_moves() -> None:
+    # issue 35 item 4: the README's order left the arm off the seam; the run took its full
+    # length before "0 seam points", now it stops at the end of the rest, nothing moved
+    from cell.cell import EmulatedCell
+    from robotsocket.client import RobotClient
+    from sync.experiment import ExperimentError, run_delay_experiment
+
+    with EmulatedCell(clock="sim", seed=0) as cell, RobotClient(*cell.robot_address) as rc:
+        rc.take_control()
+        rc.enable_power()
+        rc.joint_move([0, -30, 90, 0, 60, 0])
+        assert rc.wait_end_move(30)
+        rc.release_control()
+        before = rc.herej()
+        t0 = rc.get_time()
+        with pytest.raises(ExperimentError, match="no seam point") as err:
+            run_delay_experiment(
+                cell.robot_address, cell.sensor_address, ExperimentSettings(duration_s=5.0)
+            )
+        assert "nothing moved: the sensor does not see a seam (status NOT_FOUND)" in str(err.value)
+        assert rc.get_time() - t0 < 1.0  # robot clock: the rest, not the 5 s sine
+        np.testing.assert_allclose(rc.herej(), before, atol=1e-3)  # deg: it stood
+
+
+def test_a_sensor_laser_that_is_off_is_named_before_anything_starts() -> None:
+    # issue 35 item 1: "laser off" is its own message, with how to switch it on
+    from cell.cell import EmulatedCell
+    from sensorsocket.client import SensorClient
+    from sync.experiment import ExperimentError, run_delay_experiment
+
+    with EmulatedCell(clock="sim", seed=0) as cell:
+        with SensorClient(*cell.sensor_address) as sc:
+            sc.take_control()
+            sc.set_laser(False)
+            sc.release_control()
+        host, port = cell.sensor_address
+        with pytest.raises(ExperimentError) as err:
+            run_delay_experiment(cell.robot_address, cell.sensor_address, ExperimentSettings())
+        assert str(err.value) == (
+            "the sensor's laser is off (status LASER_OFF): switch it on with "
+            f"`python -m sensorsocket call {host}:{port} SetLaser on --token-file FILE`"
+        )
+        assert cell.core.statistics()["sent"] == 0  # no trigger was sent

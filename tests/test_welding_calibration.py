@@ -139,6 +139,16 @@ def _calibrate(session: EmulatedSession, seed: int) -> Loc:
     return est.tool
 
 
+def test_calibration_with_the_sensor_laser_off_says_so() -> None:
+    # issue 35 item 1: not "the sensor does not see the seam at the start pose"
+    with EmulatedSession(seed=3) as session:
+        session.sensor.take_control()
+        session.sensor.set_laser(False)
+        noisy = NoisySeams(session.sensor, 0.010, np.random.default_rng(0))
+        with pytest.raises(CalibrationError, match=r"^the sensor's laser is off .*SetLaser on"):
+            SensorToolCalibration(session.robot, noisy, session.cell.sensor_tool).run()
+
+
 @pytest.mark.slow  # three emulated calibrations
 @settings(
     max_examples=3, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]

@@ -17,6 +17,7 @@ import pytest
 
 from robotsocket.emulator import RobotEmulator
 from robotsocket.service import RobotService
+from spec.exitcodes import ExitCode
 from welding import job as J
 from welding.cli import main
 
@@ -63,11 +64,14 @@ def test_check_names_every_problem_with_its_position(capsys: pytest.CaptureFixtu
     assert main(["job", "check", "bad.xml"]) == 1
     err = capsys.readouterr().err.splitlines()
     assert err == [
-        "bad.xml:2:3: <pause> duration='x': not a number",
-        "bad.xml:3:3: <via> tool='torch': no such tool in the database",
+        "bad.xml:2:3: item 1 (pause 'p'): <pause> duration='x': not a number",
+        "bad.xml:3:3: item 2 (via 'v'): <via> tool='torch': no such tool in the database",
     ]
     assert main(["job", "check", "bad.xml", "--no-tools"]) == 1
     assert len(capsys.readouterr().err.splitlines()) == 1
+    # issue 35 item 5: `job run` names the same problems, before any cell starts
+    assert main(["job", "run", "bad.xml", "--emulate", "--dry-run"]) == 1
+    assert capsys.readouterr().err.splitlines() == err
 
 
 def test_hostile_file_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
@@ -346,3 +350,28 @@ def test_a_server_of_another_protocol_is_a_plain_line(not_a_server: NotAServer) 
         f"python -m welding: error: {address} sent a bad frame: bad magic 4854, expected 5253"
         " (not a RobotSocket or SensorSocket endpoint?)"
     ]
+
+
+def test_deeply_nested_job_is_one_line_not_a_traceback(tmp_path: Path) -> None:
+    # '<a>' * 5000 once took welding job check down with a RecursionError (#29)
+    deep = tmp_path / "deep.xml"
+    deep.write_text('<job name="x" version="1">' + "<a>" * 5000 + "</a>" * 5000 + "</job>")
+    r = subprocess.run([sys.executable, "-m", "welding", "job", "check", str(deep)],
+                       capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert r.returncode == 1, r.stderr
+    assert "Traceback" not in r.stderr and "nested deeper than 32 levels" in r.stderr
+    assert len(r.stderr.strip().splitlines()) <= 2, r.stderr
+
+
+def test_ctrl_c_in_any_command_is_one_line(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # issue 35 item 6: Ctrl-C in calibrate or console printed nothing
+    import welding.cli as cli
+
+    def interrupted(args: object) -> int:
+        raise KeyboardInterrupt
+
+    monkeypatch.setitem(cli.COMMANDS, "calibrate", interrupted)
+    assert main(["calibrate", "sensor-tool", "--emulate"]) == ExitCode.INTERRUPTED
+    assert capsys.readouterr().err == "python -m welding: interrupted\n"

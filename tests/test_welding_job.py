@@ -317,3 +317,23 @@ def test_schema_refuses_what_the_reader_refuses(old: str, new: str) -> None:
     bad = edit(old, new)
     assert problems(bad)
     assert not XSD.is_valid(bad)
+
+
+def test_a_segment_missing_one_attribute_is_that_one_problem_with_its_place() -> None:
+    # issue 35 item 5: a <line> lacking rz also gave the false "needs at least one segment"
+    text = edit(' rz="0"/>\n    <arc>', "/>\n    <arc>")
+    with pytest.raises(J.JobError) as info:
+        J.loads(text)
+    (p,) = info.value.problems
+    assert p.message == "<line>: missing attribute 'rz'" and p.field == "rz"
+    assert p.where == "item 2 (path 'seam'), segment 1 (line)"
+    assert str(p) == f"{p.line}:{p.column}: item 2 (path 'seam'), segment 1 (line): {p.message}"
+
+
+def test_an_item_field_is_named_as_the_operator_sees_it() -> None:
+    text = edit('frame="table" x="0" y="0" z="50"', 'frame="table" speed="-5" x="0" y="0" z="50"')
+    with pytest.raises(J.JobError) as info:
+        J.loads(text)
+    (p,) = info.value.problems
+    assert (p.line, p.field) == (4, "speed")
+    assert p.text == "item 1 (via 'approach'): <via> speed=-5: must be > 0 and <= 100"

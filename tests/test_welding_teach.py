@@ -97,6 +97,19 @@ def test_teaching_refuses_to_start_without_a_seam_in_view() -> None:
             SeamTeacher(s.robot, s.sensor, sensor_tool).teach()
 
 
+def test_teaching_with_the_sensor_laser_off_says_so_not_no_seam() -> None:
+    # issue 35 item 1: a laser left off by a controlled stop read as "does not see a seam"
+    with EmulatedSession("straight") as s:
+        s.sensor.take_control()
+        s.sensor.set_laser(False)
+        with pytest.raises(TeachError) as err:
+            SeamTeacher(s.robot, s.sensor, s.tables.tool("sensor").location).teach()
+        assert str(err.value) == (
+            "the sensor's laser is off (status LASER_OFF): switch it on with "
+            f"`python -m sensorsocket call {s.sensor.address} SetLaser on --token-file FILE`"
+        )
+
+
 def test_manual_teaching_records_the_current_location() -> None:
     with EmulatedSession("straight") as s:
         loc = record_here(s.robot, s.tables, "laser", "workpiece")

@@ -54,6 +54,10 @@ class NoisySeams:
         self.sigma_mm = sigma_mm
         self._rng = rng
 
+    @property
+    def address(self) -> str:
+        return str(self.sensor.address)
+
     def acquire(self) -> int:
         return int(self.sensor.acquire())
 

@@ -55,6 +55,7 @@ from kinematics.transforms import (
     rotvec_from_matrix,
     transform_to_location,
 )
+from spec.wire import SensorStatus
 from welding.tools import Loc
 
 __all__ = [
@@ -452,6 +453,9 @@ class SensorToolCalibration:
             data = self.sensor.get_data()
             if data.index != index:
                 raise CalibrationError(f"GetData returned measurement {data.index}, not {index}")
+            if data.status is SensorStatus.LASER_OFF:  # not a pose off the seam [SS-5.13]
+                where = getattr(self.sensor, "address", "HOST:PORT")
+                raise CalibrationError(data.status.problem(where))
             if data.found and data.seam is not None:
                 pts.append(data.seam[:3])
         if 2 * len(pts) < self.repeats:

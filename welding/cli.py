@@ -361,7 +361,12 @@ def merge_cell_tools(path: str, cell_tables: Tables) -> Tables:
     for e in (*cell_tables.tools.values(), *cell_tables.frames.values()):
         mine = current.frame(e.name) if e.kind == "frame" else current.tool(e.name)
         if not np.allclose(mine.location, e.location, atol=1e-6):
-            print(f"warning: {e.name} in {path} differs from the emulated cell's", file=sys.stderr)
+            print(
+                f"warning: {e.name} in {path} differs from the emulated cell's; this run uses "
+                f"the database's (a calibrated one?). For the cell's: python -m welding tools "
+                f"remove {e.name} --tools {path}, and run again",
+                file=sys.stderr,
+            )
     return current
 
 
@@ -377,6 +382,27 @@ def _load_job(path: str, tables: Tables | None) -> J.Job:
         )
     except OSError as exc:
         raise CliError(f"cannot read {path}: {exc.strerror}") from None
+
+
+def _check_before_cell(args: argparse.Namespace) -> None:
+    """The job's problems as `job check` lists them, tool and frame names included (against
+    the database, and with --emulate the cell's own tools), before anything starts."""
+    try:
+        _load_job(args.job, None)
+    except J.JobError:
+        tables = _read_tables(args.tools)
+        tools: set[str] = set()
+        frames: set[str] = set()
+        if args.emulate:
+            from welding.emulate import CELL_FRAME, CELL_TOOLS
+
+            tools, frames = set(CELL_TOOLS), {CELL_FRAME}
+        J.load(
+            args.job,
+            has_tool=lambda n: n in tools or tables.has_tool(n),
+            has_frame=lambda n: n in frames or tables.has_frame(n),
+        )
+        raise
 
 
 def cmd_job(args: argparse.Namespace) -> int:
@@ -469,8 +495,8 @@ class _ProgressBar:
 
 def cmd_run(args: argparse.Namespace) -> int:
     # A missing or broken file is said before the cell starts, the robot is connected or the
-    # tool database gets the emulated cell's tools; the names are checked once tables exist.
-    _load_job(args.job, None)
+    # tool database gets the emulated cell's tools, with every problem `job check` names.
+    _check_before_cell(args)
     with _cell(args, control=True, sensor=not args.emulate and args.sensor is not None) as cell:
         job = _load_job(args.job, cell.tables)
         emulated = cell.emulated is not None
@@ -796,5 +822,5 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ProtocolError, OSError) as exc:
         print(f"python -m welding: error: {error_text(exc)}", file=sys.stderr)
         return ExitCode.UNREACHABLE
-    except KeyboardInterrupt:
-        return ExitCode.INTERRUPTED
+    except KeyboardInterrupt:  # the safe stops ran on the way out (laser off, motion stopped)
+        return cliargs.interrupted("python -m welding")

@@ -66,6 +66,11 @@ def _loc(values: object) -> Loc:
     return (v[0], v[1], v[2], v[3], v[4], v[5])
 
 
+#: The names of the tools and the frame the emulated cell adds to the database.
+CELL_TOOLS = ("laser", "sensor")
+CELL_FRAME = "workpiece"
+
+
 def cell_tables(cell: EmulatedCell | CellProcess) -> Tables:
     """The cell's tools ``laser``, ``sensor`` and its frame ``workpiece`` (where it should
     be: the cell puts it its ``workpiece_error`` off that)."""
@@ -77,12 +82,12 @@ def cell_tables(cell: EmulatedCell | CellProcess) -> Tables:
         laser, sensor = cell.laser_tool, cell.sensor_tool
         w2b_true, placement = cell.scene.workpiece2base, cell.workpiece_error
     tables = Tables({}, {})
-    tables.add(Entry("laser", "laser", _loc(laser), "^N_L T of the cell"))
-    tables.add(Entry("sensor", "sensor", _loc(sensor), "^N_S T of the cell"))
+    tables.add(Entry(CELL_TOOLS[0], "laser", _loc(laser), "^N_L T of the cell"))
+    tables.add(Entry(CELL_TOOLS[1], "sensor", _loc(sensor), "^N_S T of the cell"))
     # the workpiece as the operator believes it placed: without the placement error
     error = location_to_transform(np.array(placement, dtype=np.float64))
     w2b = _loc(transform_to_location(w2b_true @ invert(error)))
-    tables.add(Entry("workpiece", "frame", w2b, "^B_W T of the cell's workpiece"))
+    tables.add(Entry(CELL_FRAME, "frame", w2b, "^B_W T of the cell's workpiece"))
     return tables
 
 

@@ -215,12 +215,23 @@ def named_location(job: Job, name: str) -> Location:
 
 @dataclass(frozen=True)
 class Problem:
+    """One problem: where it is in the XML (line, column), where it is in the job as an
+    operator names it (``where``: "item 2 (via 'approach')", "item 1 (path 'seam'), segment
+    3 (line)") and the attribute (``field``, "" when the element as a whole is wrong)."""
+
     line: int
     column: int
     message: str
+    where: str = ""
+    field: str = ""
+
+    @property
+    def text(self) -> str:
+        """The problem as an operator reads it: the place in the job, then what is wrong."""
+        return f"{self.where}: {self.message}" if self.where else self.message
 
     def __str__(self) -> str:
-        return f"{self.line}:{self.column}: {self.message}"
+        return f"{self.line}:{self.column}: {self.text}"
 
 
 class JobError(ValueError):
@@ -262,20 +273,26 @@ ITEM_TAGS = ("path", "via", "stitch", "pause")
 class _Reader:
     def __init__(self) -> None:
         self.problems: list[Problem] = []
+        self._where: dict[int, str] = {}  # id(element) -> its place in the job
 
-    def error(self, el: Element, message: str) -> None:
-        self.problems.append(Problem(el.line, el.column, message))
+    def at(self, el: Element, where: str) -> None:
+        """Name ``el``'s place in the job for the problems found on it."""
+        self._where[id(el)] = where
+
+    def error(self, el: Element, message: str, field: str = "") -> None:
+        where = self._where.get(id(el), "")
+        self.problems.append(Problem(el.line, el.column, message, where, field))
 
     def check_element(self, el: Element, *, text: bool = False) -> bool:
         """Unknown/missing attributes and stray text; False when a required one is missing."""
         required, optional = SCHEMA[el.tag]
         for name in el.attrs:
             if name not in required and name not in optional:
-                self.error(el, f"<{el.tag}>: unknown attribute {name!r}")
+                self.error(el, f"<{el.tag}>: unknown attribute {name!r}", name)
         ok = True
         for name in required:
             if name not in el.attrs:
-                self.error(el, f"<{el.tag}>: missing attribute {name!r}")
+                self.error(el, f"<{el.tag}>: missing attribute {name!r}", name)
                 ok = False
         if not text and el.text.strip():
             self.error(el, f"<{el.tag}>: text is not allowed here")
@@ -290,14 +307,14 @@ class _Reader:
         try:
             value = float(raw.strip())
         except ValueError:
-            self.error(el, f"<{el.tag}> {name}={raw!r}: not a number")
+            self.error(el, f"<{el.tag}> {name}={raw!r}: not a number", name)
             return default
         if not math.isfinite(value):
-            self.error(el, f"<{el.tag}> {name}={raw!r}: must be finite")
+            self.error(el, f"<{el.tag}> {name}={raw!r}: must be finite", name)
             return default
         if value < lo or value > hi or (open_lo and value == lo):
             bound = f"> {lo:g}" if open_lo else f">= {lo:g}"
-            self.error(el, f"<{el.tag}> {name}={raw}: must be {bound} and <= {hi:g}")
+            self.error(el, f"<{el.tag}> {name}={raw}: must be {bound} and <= {hi:g}", name)
             return default
         return value
 
@@ -306,7 +323,7 @@ class _Reader:
         if raw is None:
             return default
         if raw not in ("on", "off"):
-            self.error(el, f"<{el.tag}> {name}={raw!r}: expected 'on' or 'off'")
+            self.error(el, f"<{el.tag}> {name}={raw!r}: expected 'on' or 'off'", name)
             return default
         return raw == "on"
 
@@ -317,6 +334,7 @@ class _Reader:
                 el,
                 f"<{el.tag}> {attr}={raw!r}: names are 1-64 letters, digits, '_', '.', '-' "
                 "(not starting with '.' or '-')",
+                attr,
             )
         return raw
 
@@ -360,17 +378,25 @@ class _Reader:
     def path(self, el: Element) -> Path | None:
         start: Location | None = None
         segments: list[Segment] = []
+        # elements present but broken have their own problem: not "needs a <start>" again
+        had_start = had_segment = False
+        where = self._where.get(id(el), "")
         for child in el.children:
             if child.tag not in ("start", "line", "arc"):
                 self.error(child, f"<{child.tag}> is not allowed inside <path>")
                 continue
             if child.tag == "start":
-                if start is not None or segments:
+                self.at(child, f"{where}, start")
+                if had_start or had_segment:
                     self.error(child, "<path>: <start> must come once, first")
+                had_start = True
                 if self.check_element(child):
                     start = self.location(child)
                 self.no_children(child)
-            elif child.tag == "line":
+                continue
+            had_segment = True
+            self.at(child, f"{where}, segment {len(segments) + 1} ({child.tag})")
+            if child.tag == "line":
                 if self.check_element(child):
                     segments.append(Line(self.location(child)))
                 self.no_children(child)
@@ -378,9 +404,9 @@ class _Reader:
                 arc = self.arc(child)
                 if arc is not None:
                     segments.append(arc)
-        if start is None:
+        if not had_start:
             self.error(el, "<path>: needs a <start> location")
-        if not segments:
+        if not had_segment:
             self.error(el, "<path>: needs at least one <line> or <arc> segment")
         path = Path(
             self.name(el),
@@ -401,6 +427,7 @@ class _Reader:
         self.check_element(el)
         found: dict[str, Location] = {}
         for child in el.children:
+            self.at(child, f"{self._where.get(id(el), '')} {child.tag}")
             if child.tag not in ("mid", "end") or child.tag in found:
                 self.error(
                     child, f"<{child.tag}> is not allowed here: <arc> takes <mid> then <end>"
@@ -420,6 +447,7 @@ class _Reader:
         if root.tag != "job":
             self.error(root, f"the root element must be <job>, not <{root.tag}>")
             return None
+        self.at(root, "job")
         self.check_element(root)
         version = root.attrs.get("version")
         if version is not None and version != str(FORMAT_VERSION):
@@ -442,6 +470,8 @@ class _Reader:
             if child.tag not in ITEM_TAGS:
                 self.error(child, f"<{child.tag}> is not allowed inside <job>")
                 continue
+            number = sum(c.tag in ITEM_TAGS for c in root.children[: i + 1])
+            self.at(child, f"item {number} ({child.tag} {child.attrs.get('name', '')!r})")
             item = self.item(child)
             item_name = child.attrs.get("name", "")
             if item_name in seen:
@@ -493,9 +523,13 @@ def _check_names(
     el: Element, reader: _Reader, has_tool: ToolCheck | None, has_frame: ToolCheck | None
 ) -> None:
     if "tool" in el.attrs and has_tool is not None and not has_tool(el.attrs["tool"]):
-        reader.error(el, f"<{el.tag}> tool={el.attrs['tool']!r}: no such tool in the database")
+        reader.error(
+            el, f"<{el.tag}> tool={el.attrs['tool']!r}: no such tool in the database", "tool"
+        )
     if "frame" in el.attrs and has_frame is not None and not has_frame(el.attrs["frame"]):
-        reader.error(el, f"<{el.tag}> frame={el.attrs['frame']!r}: no such frame in the database")
+        reader.error(
+            el, f"<{el.tag}> frame={el.attrs['frame']!r}: no such frame in the database", "frame"
+        )
     for child in el.children:
         _check_names(child, reader, has_tool, has_frame)
 

@@ -36,6 +36,7 @@ import numpy.typing as npt
 from kinematics.transforms import invert, location_to_transform, transform_to_location
 from robotsocket.client import MotionDesc, RobotClient
 from sensorsocket.client import SensorClient
+from spec.wire import SensorStatus
 from welding.job import Arc, Line, Location, Path, Segment
 from welding.tools import Loc, Tables
 
@@ -181,10 +182,9 @@ class SeamTeacher:
         """(^B_G T (4, 4), robot time, quality) of a fresh measurement here, None when the
         sensor does not see the seam."""
         self.measurements += 1
-        index = self.sensor.acquire()
-        data = self.sensor.get_data()
-        if data.index != index:
-            raise TeachError(f"GetData returned measurement {data.index}, expected {index}")
+        data = self.sensor.measure()
+        if data.status is SensorStatus.LASER_OFF:  # not the end of the seam [SS-5.13]
+            raise TeachError(self.sensor.problem(data))
         if not data.found or data.seam is None:
             return None
         sensor2base = location_to_transform(self.robot.here(self.sensor_tool))

@@ -15,10 +15,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from xml.parsers import expat
 
-__all__ = ["MAX_BYTES", "Element", "XmlRefused", "parse"]
+__all__ = ["MAX_BYTES", "MAX_DEPTH", "Element", "XmlRefused", "parse"]
 
 #: Largest XML document accepted (bytes): a job with thousands of points is well below.
 MAX_BYTES = 8 * 1024 * 1024
+#: Deepest element nesting accepted: a job is four levels deep; the bound keeps every
+#: recursive walk of the tree (checks, the console's rendering) far from Python's limit.
+MAX_DEPTH = 32
 
 
 class XmlRefused(ValueError):
@@ -62,6 +65,8 @@ def parse(data: bytes) -> Element:
         raise _Refuse(what)
 
     def start(tag: str, attrs: dict[str, str]) -> None:
+        if len(stack) >= MAX_DEPTH:
+            refuse(f"elements nested deeper than {MAX_DEPTH} levels")
         el = Element(tag, dict(attrs), parser.CurrentLineNumber, parser.CurrentColumnNumber + 1)
         if stack:
             stack[-1].children.append(el)

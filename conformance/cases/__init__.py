@@ -16,5 +16,6 @@ from conformance.cases import (  # noqa: F401  (imported for their registrations
     robustness,
     sensor,
     shapes,
+    state,
     sync,
 )

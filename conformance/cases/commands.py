@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from conformance.cases._util import valid_args, wrong_type
+from conformance.cases._util import NOT_OFFERED, valid_args, wrong_type
 from conformance.connection import Conn
 from conformance.context import Context
 from conformance.model import Case, Fail, Informational, Skip, add_case
@@ -106,7 +106,7 @@ def _reply_case(spec: CommandSpec) -> Callable[[Context], str | None]:
                     f"{spec.name} with correct arguments was refused",
                     "a reply",
                     f"error {code}: {message}",
-                    requirement="RS-5.3" if code == ErrorCode.UNKNOWN_COMMAND else "RS-5.5",
+                    requirement="RS-5.3" if code in NOT_OFFERED else "RS-5.5",
                 )
             # Re-check the reply's parameters against the table (conn.ok does the same check).
             from spec.registry import check_params

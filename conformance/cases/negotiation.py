@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from conformance.cases._util import raw_frame
+from conformance.cases._util import NOT_OFFERED, raw_frame
 from conformance.cases.commands import dummy
 from conformance.context import HELLO_FIELDS, PING_PATIENCE, Context
 from conformance.model import EndpointTimeout, Fail, Informational, case
@@ -129,7 +129,8 @@ def commands_ranges(ctx: Context) -> str:
     order=11,
 )
 def commands_complete(ctx: Context) -> str:
-    """Registry commands not advertised in Hello are answered with UNKNOWN_COMMAND."""
+    """Registry commands not advertised in Hello are answered as not offered: NOT_SUPPORTED
+    [RS-5.62] or UNKNOWN_COMMAND (1.2), never as if offered."""
     conn = ctx.connect()
     advertised = ctx.hello.commands if ctx.hello else frozenset()
     checked = 0
@@ -139,18 +140,19 @@ def commands_complete(ctx: Context) -> str:
         if (spec.moves or spec.id == C.EMERGENCY_STOP) and not ctx.options.allow_motion:
             continue  # it could move, stop or switch something if the server does implement it
         # Without control and with arguments that cannot execute, a server that does implement
-        # the command answers NOT_IN_CONTROL or BAD_PARAMETERS; only UNKNOWN_COMMAND is right.
+        # the command answers NOT_IN_CONTROL or BAD_PARAMETERS; a command not offered gets
+        # NOT_SUPPORTED (1.3) or UNKNOWN_COMMAND (1.2), whatever its arguments [RS-6.4].
         answer = conn.call(spec.id)
         checked += 1
         got = answer.error
-        if got is None or got[0] != ErrorCode.UNKNOWN_COMMAND:
+        if got is None or got[0] not in NOT_OFFERED:
             raise Fail(
                 f"{spec.name} (0x{int(spec.id):04x}) is answered but not listed in Hello",
-                "UNKNOWN_COMMAND for a command missing from Hello's list",
+                "NOT_SUPPORTED or UNKNOWN_COMMAND for a command missing from Hello's list",
                 answer.kind.name if got is None else f"error {ErrorCode(got[0]).name}",
                 requirement="RS-5.3",
             )
-    return f"{checked} unlisted registry commands answered UNKNOWN_COMMAND"
+    return f"{checked} unlisted registry commands answered as not offered"
 
 
 @case(
@@ -296,7 +298,7 @@ def profile_not_offered_answer(ctx: Context) -> str:
             continue
         answer = conn.call(spec.id, *(dummy(p.type) for p in spec.params))
         got = answer.error[0] if answer.error is not None else None
-        if got not in (ErrorCode.NOT_SUPPORTED, ErrorCode.UNKNOWN_COMMAND):
+        if got not in NOT_OFFERED:
             raise Fail(
                 f"{spec.name}, left out of Hello, is answered as if offered",
                 "error NOT_SUPPORTED (or UNKNOWN_COMMAND)",

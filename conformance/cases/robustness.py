@@ -31,6 +31,8 @@ from spec.vectorgen import load
 #: Requirement IDs per corpus vector (the vectors' own names, spec/vectors/frames.json).
 VECTOR_RULES: dict[str, tuple[str, ...]] = {
     "bad-magic": ("RS-3.8", "RS-3.1"),
+    "bad-magic-two-bytes": ("RS-3.19", "RS-3.8"),
+    "bad-magic-second-byte": ("RS-3.19", "RS-3.8"),
     "garbage-http": ("RS-3.8", "RS-3.1"),
     "length-over-max": ("RS-3.5", "RS-3.8"),
     "length-max-u32": ("RS-3.5", "RS-3.8"),
@@ -64,6 +66,7 @@ VECTOR_RULES: dict[str, tuple[str, ...]] = {
     "image-unknown-format": ("RS-4.8",),
     "image-unknown-order": ("RS-4.8",),
     "truncated-1-byte": ("RS-7.9", "RS-2.4"),
+    "truncated-1-wrong-byte": ("RS-3.19", "RS-2.4"),
     "truncated-header": ("RS-7.9", "RS-2.4"),
     "truncated-payload": ("RS-7.9", "RS-2.4"),
     "truncated-crc": ("RS-7.9", "RS-2.4"),
@@ -250,7 +253,7 @@ def fuzz(ctx: Context) -> str:
 
 @case(
     "timeouts.frame",
-    requirements=["RS-7.5"],
+    requirements=["RS-7.5", "RS-3.20"],
     tags=["timeouts"],
     profiles=("core", "full"),
     budget=60.0,
@@ -281,8 +284,14 @@ def frame_timeout(ctx: Context) -> str:
             "closed silently" if not packets else repr(packets[0]),
             requirement="RS-7.5",
         )
-    if packets[0].request_id != 0:
-        raise Fail("TIMEOUT error with a request ID", 0, packets[0].request_id)
+    if packets[0].request_id != 0 or packets[0].command != 0:
+        # [RS-3.20] 10 header bytes arrived (command ID among them): the error answers none.
+        raise Fail(
+            "TIMEOUT error naming a request",
+            "command ID 0 and request ID 0",
+            f"command ID 0x{packets[0].command:04x}, request ID {packets[0].request_id}",
+            requirement="RS-3.20",
+        )
     ctx.measure("frame_timeout", announced_s=ft, observed_s=round(waited, 4))
     return f"closed after {waited:.3f} s (announced {ft:g} s)"
 

@@ -228,6 +228,23 @@ def settings_proportional(ctx: Context) -> str:
 
 
 @case(
+    "sensor.client.laser_off_named",
+    requirements=["SS-5.13"],
+    level="INFO",
+    tags=["sensor", "client-side"],
+    service="sensor",
+    commands=[C.SENSOR_STATUS],
+)
+def laser_off_named(ctx: Context) -> str:
+    """Client-side rule: the harness names a laser that is off as such, with how to switch it
+    on; it reports whether the sensor's laser is on as the run starts."""
+    conn = ctx.connect()
+    if conn.ok(C.SENSOR_STATUS)[0]:
+        return "client-side rule; the sensor's laser is on"
+    raise Informational(SensorStatus.LASER_OFF.problem(f"{ctx.host}:{ctx.port}"))
+
+
+@case(
     "sensor.laser_off",
     requirements=["SS-5.8"],
     tags=["sensor"],

@@ -112,4 +112,7 @@ def job_from_json(d: Any) -> J.Job:
 
 
 def problems_json(exc: J.JobError) -> list[dict[str, Any]]:
-    return [{"line": p.line, "column": p.column, "message": p.message} for p in exc.problems]
+    return [
+        {"line": p.line, "column": p.column, "message": p.text, "where": p.where, "field": p.field}
+        for p in exc.problems
+    ]
