@@ -100,6 +100,19 @@ def test_every_route_and_the_websocket_need_a_session(env: Any) -> None:
     assert c.get("/console.css").status_code == 200
 
 
+def test_favicon_and_the_chart_library_are_served(env: Any) -> None:
+    """Issue 35 item 7: /favicon.ico was a 404 in every browser's console; the vendored
+    chart library and its licence ship with the page (no build step, no download)."""
+    app, _, _ = env
+    c = client(app)
+    icon = c.get("/favicon.ico")
+    assert icon.status_code == 200 and icon.content[:4] == b"\x00\x00\x01\x00"  # ICO
+    lib = c.get("/vendor/chart.umd.min.js")
+    assert lib.status_code == 200 and "Chart.js v4" in lib.text[:300]
+    licence = Path(__file__).parent.parent / "welding/console/static/vendor/chart.js-LICENSE.md"
+    assert "MIT License" in licence.read_text()
+
+
 def test_viewer_sees_but_may_not_act_except_emergency_stop(env: Any) -> None:
     app, console, _ = env
     v = client(app, "vera")

@@ -328,6 +328,34 @@ def test_deadman_stops_a_jog_without_hold_and_on_a_closed_socket(env: Any) -> No
     assert console.stop_jog(None, "test") is False
 
 
+def test_step_jog_moves_exactly_one_step_without_holds(env: Any) -> None:
+    """Issue 35 item 7: a step jog is one bounded move (no hold needed, none sent here); a step
+    past the joint limit or while the arm moves is refused with its reason."""
+    client, console, _ = env
+    _power_on(client)
+    before = status(client)["joints"]
+    with client.websocket_connect(WS) as ws:
+        # 5 deg at 1 %: more than a second, a second step comes while it runs
+        step = {"type": "jog", "mode": "joint", "axis": 2, "direction": -1, "step": 5, "speed": 1}
+        ws.send_json(step)
+        wait_for(client, lambda s: s["moving"])
+        ws.send_json(step)  # it would count from a moving arm
+        assert "still moving" in next_error(ws)["message"]
+        s = wait_for(client, lambda s: not s["moving"])
+        assert s["joints"][1] == pytest.approx(before[1] - 5, abs=0.01)
+        assert s["joints"][0] == pytest.approx(before[0], abs=0.01)
+        assert not s["jogging"]
+        ws.send_json({"type": "jog", "mode": "joint", "axis": 1, "direction": 1, "step": 11})
+        assert "outside 0.001..10" in next_error(ws)["message"]
+        z0 = status(client)["poses"]["flange@world"][2]
+        ws.send_json({"type": "jog", "mode": "cartesian", "axis": "z", "direction": 1,
+                      "step": 1.0})  # fmt: skip
+        s = wait_for(client, lambda s: s["poses"]["flange@world"][2] > z0 + 0.99)
+        s = wait_for(client, lambda s: not s["moving"])
+        assert s["poses"]["flange@world"][2] == pytest.approx(z0 + 1.0, abs=0.01)
+    assert console.stop_jog(None, "test") is False  # a step leaves no jog behind
+
+
 def test_deadman_during_a_slow_jog_start_stops_the_move(
     env: Any, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -385,20 +413,55 @@ def test_dry_run_with_progress_then_abort_laser_off(env: Any) -> None:
     assert r.status_code == 200, r.text
     s = wait_for(client, lambda s: finished(s, "job"), timeout=30)
     assert s["activity"]["state"] == "done" and s["activity"]["total"] == 4
+    assert s["activity"]["message"] == ""  # the page said "done done"
+    assert s["outputs"] == {"laser": False, "crossjet": False, "gas": False}
     # welding this time, aborted while it runs: laser off, motion stopped
     r = call(client, "POST", "/api/jobs/demo.xml/run", {"dry_run": False})
     assert r.status_code == 200, r.text
     wait_for(client, lambda s: (s["activity"] or {}).get("item") == "seam", timeout=30)
+    # the status shows the outputs as `welding status` does: the laser is on along the seam
+    s = wait_for(client, lambda s: s["outputs"]["laser"], timeout=30)
+    assert s["outputs"]["gas"] is True
     # a second job or a jog is refused while one runs
     assert call(client, "POST", "/api/jobs/demo.xml/run", {"dry_run": True}).status_code == 409
     assert call(client, "POST", "/api/abort", {}).status_code == 200
     s = wait_for(client, lambda s: finished(s, "job"))
-    assert s["activity"]["state"] == "aborted" and "cancelled" in s["activity"]["message"]
+    assert s["activity"]["state"] == "aborted"
+    assert s["activity"]["message"] == "cancelled by the operator"  # not "job aborted (…)"
+    s = wait_for(client, lambda s: not any(s["outputs"].values()))
     wait_for(client, lambda s: not s["moving"])
     io_log = cell.io_log  # the real-time child's record
     assert io_log[-1][2] is False or all(not v for _, n, v in io_log[-3:])
     outputs = {n: v for _, n, v in io_log}
     assert outputs == {"laser": False, "crossjet": False, "gas": False}
+
+
+def test_a_refused_calibration_says_what_to_do_and_logs_no_traceback(
+    env: Any, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Issue 35 item 7: from a pose where the sensor does not see the seam the calibration
+    is refused with a hint for the page and one line in the console's log."""
+    client, console, _ = env
+    _power_on(client)
+    here = [float(q) for q in console.control.herej()]
+    away = [here[0] + 40.0, *here[1:]]  # the seam out of the sensor's view
+    console.control.joint_move(away)
+    try:
+        assert console.control.wait_end_move(60)
+        with caplog.at_level("WARNING", logger="welding.console"):
+            r = call(client, "POST", "/api/calibrate", {"poses": 10, "repeats": 2})
+            assert r.status_code == 200, r.text
+            s = wait_for(client, lambda s: finished(s, "calibration"), timeout=60)
+    finally:  # the next tests start where the sensor sees the seam
+        console.control.joint_move(here)
+        console.control.wait_end_move(60)
+    a = s["activity"]
+    assert a["state"] == "failed", a
+    assert a["message"] == "the sensor does not see the seam at the start pose"
+    assert a["hint"] == "move the sensor back over the straight seam and start again"
+    mine = [r for r in caplog.records if r.name == "welding.console"]
+    assert [r.getMessage() for r in mine] == [f"console calibration refused: {a['message']}"]
+    assert not any(r.exc_info for r in mine)
 
 
 def test_estop_gets_through_and_stops(env: Any) -> None:

@@ -35,6 +35,7 @@ pytest.importorskip("starlette", reason="the console extra is not installed")
 from playwright.sync_api import Page, Route, WebSocket, expect, sync_playwright  # noqa: E402
 
 DOCS_SHOTS = Path(__file__).resolve().parent.parent / "docs" / "console"
+VIEWER_PASSWORD = "vera-sees-only-4711"
 ARGS = [
     "--headless",
     "--no-sandbox",
@@ -54,9 +55,15 @@ def console(tmp_path: Path) -> Iterator[tuple[str, Path]]:
     # test: pytest shows it when the test failed, which says what the server saw.
     log_path = tmp_path / "console.log"
     log_file = log_path.open("w")
+    users = tmp_path / "users.json"  # a viewer account besides the sign-in URL's operator
+    subprocess.run(
+        [sys.executable, "-m", "welding", "console", "adduser", str(users), "vera", "--role",
+         "viewer", "--password-stdin"],
+        input=f"{VIEWER_PASSWORD}\n", text=True, check=True, capture_output=True,
+    )  # fmt: skip
     proc = subprocess.Popen(
         [sys.executable, "-m", "welding", "-v", "console", "--emulate", "--port", "0",
-         "--tools", str(tmp_path / "tools.json"), "--jobs", str(jobs)],
+         "--tools", str(tmp_path / "tools.json"), "--jobs", str(jobs), "--users", str(users)],
         stdout=log_file, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
     try:
@@ -110,6 +117,44 @@ def _print_if_error(payload: str) -> None:
         print("console error message:", payload)
 
 
+def _missing(page: Page) -> list[str]:
+    """Every resource of the console's origin that answered 404 (the favicon was one)."""
+    seen: list[str] = []
+    page.on("response", lambda r: seen.append(r.url) if r.status == 404 else None)
+    return seen
+
+
+def _chart(page: Page, canvas: str) -> Any:
+    """What the chart library drew on ``canvas``: legend texts, point counts per series and
+    tick labels per axis (None when no chart is there)."""
+    return page.evaluate(
+        """(id) => {
+            const c = window.Chart && Chart.getChart(id);
+            if (!c) return null;
+            return {
+                legend: c.legend.legendItems.map((i) => i.text),
+                points: c.data.datasets.map((d) => d.data.length),
+                xticks: c.scales.x.ticks.map((t) => t.label),
+                yticks: c.scales.y.ticks.map((t) => t.label),
+                xtitle: c.options.scales.x.title.text,
+                ytitle: c.options.scales.y.title.text,
+            };
+        }""",
+        canvas,
+    )
+
+
+def _drawn(page: Page, canvas: str, legend: list[str]) -> Any:
+    """The chart on ``canvas`` has this legend, data in every series and axes with ticks."""
+    page.wait_for_function("(id) => window.Chart && Chart.getChart(id)", arg=canvas)
+    c = _chart(page, canvas)
+    assert c["legend"] == legend, c["legend"]
+    assert all(n > 0 for n in c["points"]), c
+    assert len(c["xticks"]) >= 3 and len(c["yticks"]) >= 3, c
+    assert "(" in c["xtitle"] and "(" in c["ytitle"], c  # the axis titles carry their units
+    return c
+
+
 def _confirm(page: Page, text: str = "") -> None:
     """Accept the confirmation dialog, after checking it names ``text``."""
     if text:
@@ -151,6 +196,11 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             page = ctx.new_page()
             page.set_default_timeout(15_000)
             _print_console_errors(page)
+            missing = _missing(page)
+            # the sign-in page, before the URL is used
+            page.goto(url.split("/signin")[0] + "/signin")
+            expect(page.locator("input[type=password]")).to_be_visible()
+            _shot(page, "signin")
             # the printed one-time sign-in URL signs the operator in and opens the console
             page.goto(url + "#status")
             expect(page.locator("#user")).to_have_text("token (operator)")
@@ -162,13 +212,40 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             expect(page.locator("#st-time")).not_to_have_text(t0)
             expect(page.locator("#st-rate")).to_have_text(re.compile(r"(1\d|2\d) /s"))
 
+            # laser, gas and crossjet are shown, as `welding status` shows them
+            expect(page.locator("#st-outputs")).to_have_text("laser off, gas off, crossjet off")
+            # nothing that moves can be pressed before control: each button says why
+            jog = page.locator("#jog-j1-plus")
+            for button in ("#power-on", "#move-go", "#estop-reset"):
+                expect(page.locator(button)).to_be_disabled()
+            expect(page.locator("#power-on")).to_have_attribute("title", "take control first")
+            expect(jog).to_be_disabled()
+            expect(page.locator("#estop")).to_be_enabled()
+            # the jog starts slow: 2 %, not the 10 % that turned J1 55 degrees in 1.5 s
+            expect(page.locator("#jog-speed")).to_have_value("2")
+
             # control, then power on after a confirmation
             page.locator("#take").click()
             expect(page.locator("#st-owner")).to_have_text("this console (token)")
+            expect(page.locator("#message")).to_have_text("control taken")
+            expect(page.locator("#take")).to_be_disabled()
+            expect(jog).to_have_attribute("title", "switch arm power on first")
             page.locator("#power-on").click()
             expect(page.locator("#confirm")).to_be_visible()
             _confirm(page)
             expect(page.locator("#st-power")).to_have_text("on")
+            expect(page.locator("#message")).to_have_text("power on")
+            expect(jog).to_be_enabled()
+            expect(page.locator("#power-on")).to_be_disabled()
+
+            # a step jog: one click, one step of exactly 1 degree, no hold
+            page.locator("#jog-step").select_option("1")
+            before = _joints(page)[0]
+            jog.click()
+            expect(page.locator("#st-motion")).to_have_text(re.compile(r"^moving"))
+            expect(page.locator("#st-motion")).to_have_text(re.compile(r"^still"))
+            assert abs(_joints(page)[0] - before - 1.0) < 0.01
+            page.locator("#jog-step").select_option("")
 
             # jog: the arm moves while the button is held and stops on release
             before = _joints(page)[0]
@@ -187,11 +264,15 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             expect(page.locator("#st-motion")).to_contain_text("jogging")
             page.evaluate("document.getElementById('estop').click()")
             expect(page.locator("#st-estop")).to_have_text("ENGAGED")
+            expect(page.locator("#message")).to_have_text("EMERGENCY STOP sent")
             expect(page.locator("#st-motion")).to_have_text(re.compile(r"^still"))
             page.mouse.up()
+            expect(jog).to_be_disabled()  # engaged: no jog until reset and power on
             page.locator("#estop-reset").click()
             _confirm(page)
             expect(page.locator("#st-estop")).to_have_text("clear")
+            # the E-stop's banner went with the E-stop (it stayed after the reset)
+            expect(page.locator("#message")).not_to_contain_text("EMERGENCY STOP")
             page.locator("#power-on").click()
             _confirm(page)
             expect(page.locator("#st-power")).to_have_text("on")
@@ -212,11 +293,12 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             )
             assert tops[0] == tops[1] == tops[2] == tops[3], tops
 
-            # the link drops: a jog press says so (instead of nothing), and the page reconnects
+            # the link drops: the jog buttons say so (instead of doing nothing), and the page
+            # reconnects
             page.evaluate("ws.close()")
-            page.locator("#jog-j1-plus").dispatch_event("pointerdown")
-            expect(page.locator("#message")).to_contain_text("the link to the console is down")
+            expect(jog).to_have_attribute("title", re.compile("the link to the console is down"))
             expect(page.locator("#link")).to_have_text("connected")
+            expect(jog).to_be_enabled()
             expect(page.locator("#st-motion")).to_have_text(re.compile(r"^still"))
 
             # jobs: edit the seam's velocity, validate, save, dry run with progress
@@ -233,8 +315,12 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             page.locator("#job-dry").click()
             _confirm(page)
             expect(page.locator("tr.current")).to_have_count(1)
+            expect(page.locator("#job-dry")).to_be_disabled()  # one job at a time
             _shot(page, "jobs")
             expect(page.locator("#job-progress")).to_have_attribute("data-state", "done")
+            # said once ("done done" before), and the start's banner replaced by the end
+            expect(page.locator("#job-progress")).to_have_text("dry run demo.xml: done")
+            expect(page.locator("#message")).to_have_text("dry run demo.xml: done")
 
             # move to a named location: the stitch, where the sensor sees the seam
             page.locator("nav a[data-page=status]").click()
@@ -268,6 +354,9 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             # sensor view: the live stripe image and profile
             page.locator("nav a[data-page=sensor]").click()
             expect(page.locator("#sensor-index")).to_have_text(re.compile(r"#\d+"))
+            _drawn(page, "sensor-profile", ["stripe profile", "seam point (GetData)"])
+            # frames keep coming (the screenshot then shows the rate, not the first frame's)
+            expect(page.locator("#sensor-rate")).to_have_text(re.compile(r"[1-9]\d*\.\d frames/s"))
             try:
                 expect(page.locator("#sensor-seam")).to_contain_text("seam (S frame)")
             except AssertionError as exc:  # seen once under a full run's load: say where
@@ -283,6 +372,7 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             _confirm(page)
             expect(page.locator("#teach-info")).to_have_attribute("data-state", "done")
             assert int(page.locator("#teach-info").get_attribute("data-count") or 0) >= 3
+            _drawn(page, "teach-plot", ["taught seam points"])
             _shot(page, "teach")
 
             # sensor tool calibration from where teaching ended (over the straight seam). A
@@ -296,6 +386,8 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             expect(page.locator("#cal-info")).to_have_attribute(
                 "data-state", re.compile("done|failed"), timeout=30_000
             )
+            # the start's banner is gone with the run: its end replaced it
+            expect(page.locator("#message")).to_contain_text("sensor tool calibration: ")
             if page.locator("#cal-info").get_attribute("data-state") == "done":
                 expect(page.locator("#cal-result")).to_contain_text("± 1σ")
                 page.locator("#cal-save").click()
@@ -304,10 +396,25 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
                 )
             else:
                 expect(page.locator("#cal-info")).to_contain_text("is uncertain by")
-            _shot(page, "calibration")
-            # the laser tool, with the emulated spot detector (the API test checks a result)
+                expect(page.locator("#cal-save")).to_be_disabled()  # nothing to save
+            # the laser tool, with the emulated spot detector: 20 poses x 4 pass
             page.locator("#cal-which").select_option("laser-tool")
             expect(page.locator("#cal-tool")).to_have_value("laser")
+            page.locator("#cal-poses").fill("20")
+            page.locator("#cal-start").click()
+            _confirm(page)
+            expect(page.locator("#cal-info")).to_have_attribute(
+                "data-state", "done", timeout=60_000
+            )
+            expect(page.locator("#message")).to_contain_text("laser tool calibration: done")
+            # one unit per column in every row, residuals in µm
+            expect(page.locator("#cal-result")).to_contain_text("x (mm)")
+            expect(page.locator("#cal-result")).to_contain_text("rx (°)")
+            expect(page.locator("#cal-result")).to_contain_text(re.compile(r"rms \d+\.\d µm"))
+            _drawn(page, "cal-plot", ["residual per pose"])
+            _shot(page, "calibration")
+            page.locator("#cal-save").click()
+            expect(page.locator("#message")).to_have_text("laser_cal saved in the tool database")
 
             # ΔT (section VI) from where teaching ended, the seam in view: Figs. 6 and 7
             page.locator("nav a[data-page=deltat]").click()
@@ -316,6 +423,12 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             _confirm(page)
             expect(page.locator("#dt-info")).to_have_attribute("data-state", "done", timeout=30_000)
             expect(page.locator("#dt-result")).to_contain_text(re.compile(r"ΔT\s*\d+\.\d+ ms"))
+            _drawn(page, "dt-fig6", ["robot yᴿ (from the joint log)",
+                                     "sensor yˢ (seam points, at trigger time)"])  # fmt: skip
+            shown = re.search(r"ΔT\s*(\d+\.\d+) ms", page.locator("#dt-result").inner_text())
+            assert shown
+            fig7 = _drawn(page, "dt-fig7", ["MSE(ΔT)", f"minimum: ΔT = {shown[1]} ms"])
+            assert fig7["points"][1] == 2
             _shot(page, "deltat")
 
             # a tracked weld on the emulated cell: its tracking error plotted
@@ -323,6 +436,9 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             page.locator("#tr-start").click()
             expect(page.locator("#tr-info")).to_have_attribute("data-state", "done", timeout=60_000)
             expect(page.locator("#tr-result")).to_contain_text("tracking error")
+            _drawn(page, "tr-top", ["true seam", "measured seam points",
+                                    "nominal path (untracked)", "laser"])  # fmt: skip
+            _drawn(page, "tr-error", ["laser − seam, lateral"])
             _shot(page, "track")
 
             # tools and frames: add one through the table, a bad one is refused
@@ -336,7 +452,47 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             page.locator("#new-loc").fill("0, 0, 150")
             page.locator("#new-add").click()
             expect(page.locator("#message")).to_contain_text("expected 6 numbers")
+
+            # a calibrated tool's row saved unedited keeps its full precision (the fields
+            # show it rounded)
+            def laser_cal() -> list[float]:
+                tools = _api(page, "tools")["entries"]
+                return next(e["location"] for e in tools if e["name"] == "laser_cal")
+
+            calibrated = laser_cal()
+            assert any(round(v, 3) != v for v in calibrated), calibrated
+            page.locator("tr[data-name=laser_cal] button.save").click()
+            expect(page.locator("#message")).to_have_text("laser_cal saved")
+            assert laser_cal() == calibrated
+            # locations in their units at 1 µm / 0.001 deg, in full (not cut off)
+            laser = page.locator("tr[data-name=laser_cal] input.coord")
+            expect(laser).to_have_count(6)
+            for i in range(6):
+                value = laser.nth(i).input_value()
+                assert re.fullmatch(r"-?\d+\.\d{3}", value), value
+                assert laser.nth(i).evaluate("e => e.scrollWidth <= e.clientWidth")
             _shot(page, "tools")
+
+            page.locator("nav a[data-page=audit]").click()
+            expect(page.locator("#audit-table")).to_contain_text("jog start")
+            _shot(page, "audit")
+            assert missing == [], missing  # nothing the page loads is a 404 (the favicon was)
+
+            # a viewer (signed in last: the browser keeps one session cookie per console)
+            # sees the same page with every button that acts disabled, the E-stop not
+            page.goto(url.split("/signin")[0] + "/signin")
+            page.locator("#signin-name").fill("vera")
+            page.locator("#signin-password").fill(VIEWER_PASSWORD)
+            page.locator("#signin-go").click()
+            expect(page.locator("#user")).to_have_text("vera (viewer)")
+            expect(page.locator("#link")).to_have_text("connected")
+            page.locator("nav a[data-page=status]").click()
+            for button in ("#take", "#release", "#power-off", "#jog-j1-plus", "#move-go"):
+                expect(page.locator(button)).to_be_disabled()
+                expect(page.locator(button)).to_have_attribute(
+                    "title", "operators only: vera is a viewer"
+                )
+            expect(page.locator("#estop")).to_be_enabled()
         finally:
             ctx.close()
 

@@ -81,10 +81,18 @@ __all__ = [
 Array = npt.NDArray[np.float64]
 IDENTITY: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 COMPONENTS = ("x", "y", "z", "rx", "ry", "rz")
+#: What to do when the sensor tool's run does not see enough of the seam.
+OVER_THE_SEAM = "move the sensor back over the straight seam and start again"
 
 
 class CalibrationError(RuntimeError):
-    """The calibration cannot give a result it can stand behind (message says why)."""
+    """The calibration cannot give a result it can stand behind (message says why).
+    ``hint``: what the operator can do about it, also at the end of the message (the CLI
+    prints the message, the console shows the hint on its own line)."""
+
+    def __init__(self, message: str, hint: str = "") -> None:
+        super().__init__(f"{message}: {hint}" if hint else message)
+        self.hint = hint
 
 
 @dataclass(frozen=True)
@@ -329,7 +337,9 @@ def solve_sensor_tool(
     module docstring). ``direction``: the seam's direction in B roughly (default: the main
     direction of the points under the nominal tool)."""
     if len(obs) < 6:
-        raise CalibrationError(f"{len(obs)} observations: at least 6 are needed")
+        raise CalibrationError(
+            f"{len(obs)} observations: at least 6 are needed", OVER_THE_SEAM + " (its middle)"
+        )
     T0 = location_to_transform(nominal)
     p = np.array([(o.flange2base @ T0 @ np.append(o.point, 1.0))[:3] for o in obs])
     c0 = p.mean(axis=0)
@@ -484,7 +494,9 @@ class SensorToolCalibration:
         flange0 = location_to_transform(start)
         s0 = self.measure()
         if s0 is None:
-            raise CalibrationError("the sensor does not see the seam at the start pose")
+            raise CalibrationError(
+                "the sensor does not see the seam at the start pose", OVER_THE_SEAM
+            )
         sensor0 = flange0 @ location_to_transform(self.nominal)
         seam0 = (sensor0 @ np.append(s0, 1.0))[:3]
         d0 = sensor0[:3, 0]

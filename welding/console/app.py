@@ -45,7 +45,13 @@ from welding.console.access import (
     set_cookie,
 )
 from welding.console.auth import Session, SignInRefused
-from welding.console.backend import STATUS_HZ, Console, ConsoleError
+from welding.console.backend import (
+    JOG_DEFAULT_PCT,
+    JOG_STEP_MAX,
+    STATUS_HZ,
+    Console,
+    ConsoleError,
+)
 from welding.tools import ToolDBError
 
 __all__ = ["Body", "create_app"]
@@ -205,7 +211,9 @@ def create_app(
         return str(request.path_params[key])
 
     def session_json(s: Session) -> dict[str, Any]:
-        return {"user": s.user, "role": s.role, "csrf": s.csrf, "controller": console.controller}
+        return {"user": s.user, "role": s.role, "csrf": s.csrf, "controller": console.controller,
+                # the page's jog: its starting speed and largest step, from the backend's rules
+                "jog": {"speed": JOG_DEFAULT_PCT, "step_max": JOG_STEP_MAX}}  # fmt: skip
 
     def signed_in(request: Request, s: Session, reply: Response) -> Response:
         access.audit.record(s.user, s.address, "sign-in", "ok")
@@ -439,7 +447,8 @@ def _jog(console: Console, client_id: int, msg: dict[str, Any]) -> None:
         mode=str(msg.get("mode")),
         axis=msg.get("axis"),
         direction=msg.get("direction"),
-        speed=msg.get("speed", 10),
+        speed=msg.get("speed", JOG_DEFAULT_PCT),
         tool=str(msg.get("tool", "flange")),
         frame=str(msg.get("frame", "world")),
+        step=msg.get("step"),
     )

@@ -13,10 +13,33 @@ let jobFile = "";
 // Text from the robot, the database or a job file goes into the page as text, never as HTML.
 const esc = (v) => String(v).replace(/[&<>"']/g, (c) => `&#${c.charCodeAt(0)};`);
 
-function say(text, kind = "info") {
+// The banner says what the operator's last action did, and goes when that is no longer
+// true: ``until(status)`` tells whether it still holds (e.g. "EMERGENCY STOP sent" while the
+// E-stop is engaged). It may not hold yet when said (the status comes 20 times a second), so
+// it is dropped once it has held and then stops, or if it never held within 3 s. Without
+// ``until`` it holds while the robot's state (E-stop, power, control, activity) is the one
+// it was said in.
+let banner = null;
+function stateKey(s) {
+  const a = s.activity;
+  return [s.connected, s.estop, s.powered, s.owner, s.controller, a && `${a.kind} ${a.state}`].join("|");
+}
+function say(text, kind = "info", until = null) {
   const m = $("message");
   m.textContent = m.title = text;
   m.className = kind;
+  const key = stateKey(status);
+  banner = { until: until || ((s) => stateKey(s) === key), bound: Boolean(until), held: false, since: performance.now() };
+}
+function clearBanner() {
+  banner = null;
+  $("message").textContent = $("message").title = "";
+  $("message").className = "";
+}
+function clearStaleBanner(s) {
+  if (!banner) return;
+  if (banner.until(s)) banner.held = true;
+  else if (banner.held || performance.now() - banner.since > 3000) clearBanner();
 }
 
 // --- the one way to the console: every request and the WebSocket go through here ----------
@@ -47,10 +70,13 @@ async function loadSession() {
     location.href = "/signin";
     throw new Error("sign in first");
   }
+  const first = session === null;
   session = await r.json();
   $("user").textContent = `${session.user} (${session.role})`;
   document.body.dataset.role = session.role;
   $("nav-audit").hidden = session.role !== "operator";
+  if (first) $("jog-speed").value = session.jog.speed; // the console's starting jog speed
+  updateControls();
 }
 
 function openSocket() {
@@ -86,6 +112,7 @@ function confirmAction(text) {
 
 function showPage() {
   const page = (location.hash || "#status").slice(1);
+  if (banner && !banner.bound) clearBanner(); // it was about the page the operator left
   document.querySelectorAll(".page").forEach((p) => p.classList.toggle("active", p.id === `page-${page}`));
   document.querySelectorAll("nav a").forEach((a) => a.classList.toggle("active", a.dataset.page === page));
   if (page === "tools") loadTools();
@@ -111,6 +138,7 @@ function connect() {
     $("link").textContent = "disconnected";
     $("link").className = "pill bad";
     releaseJog();
+    updateControls();
     loadSession().catch(() => {}); // a refused handshake (session ended): to the sign-in page
     setTimeout(connect, 1000);
   };
@@ -131,6 +159,8 @@ function showStatus(s) {
   updates.push(now);
   while (updates.length && updates[0] < now - 1000) updates.shift();
   $("st-rate").textContent = `${updates.length} /s`;
+  updateControls();
+  clearStaleBanner(s);
   if (!s.connected) {
     $("st-estop").textContent = $("st-estop").title = "robot unreachable: " + (s.error || "");
     return;
@@ -142,11 +172,77 @@ function showStatus(s) {
   const owners = { console: "this console", other: "another client", nobody: "nobody", lost: "LOST (lease ran out)" };
   $("st-owner").textContent = (owners[s.owner] || s.owner) + (s.controller ? ` (${s.controller})` : "");
   $("st-time").textContent = `${s.time.toFixed(3)} s`;
+  // the outputs as `welding status` prints them; the laser on is hard to miss
+  $("st-outputs").innerHTML = Object.entries(s.outputs || {})
+    .map(([n, v]) => (v ? `<span class="${n === "laser" ? "laser-on" : "good"}">${esc(n)} ON</span>` : `${esc(n)} off`))
+    .join(", ") || "–";
   $("st-error").textContent = $("st-error").title = s.last_error ? `${s.last_error}: ${s.last_message}` : "–";
-  $("joints").innerHTML = s.joints.map((q, i) => `<tr><th>J${i + 1}</th><td>${q.toFixed(3)}</td></tr>`).join("");
+  $("joints").innerHTML = s.joints.map((q, i) => `<tr><th>J${i + 1}</th><td class="num">${q.toFixed(3)}°</td></tr>`).join("");
   const pose = s.poses[`${selection.tool}@${selection.frame}`] || s.poses["flange@world"];
-  if (pose) $("pose").innerHTML = pose.map((v, i) => `<tr><th>${AXES[i]}</th><td>${v.toFixed(3)}</td></tr>`).join("");
+  if (pose) $("pose").innerHTML = pose.map((v, i) => `<tr><th>${AXES[i]}</th><td class="num">${fmtCoord(v, i)}</td></tr>`).join("");
   showActivity(s.activity);
+}
+
+// --- which buttons may be pressed now -------------------------------------------------------
+
+// Each button's reason not to be pressed now (the first that applies), from the status, the
+// session and the link: a disabled button says why on hover. E-stop and sign-out: always.
+function reasons(s) {
+  const a = s.activity && s.activity.state === "running" ? s.activity : null;
+  const me = session ? session.user : "";
+  const mine = s.owner === "console" && s.controller === me;
+  const linkUp = ws && ws.readyState === WebSocket.OPEN;
+  const r = {
+    viewer: session && session.role !== "operator" && `operators only: ${me} is a ${session.role}`,
+    link: !linkUp && "the link to the console is down (reconnecting)",
+    robot: !s.connected && "the robot is unreachable",
+    control: !mine && (s.owner === "console" && s.controller ? `${s.controller} holds control`
+      : s.owner === "other" ? "another client holds the robot's control" : "take control first"),
+    estop: s.estop && "the emergency stop is engaged: reset it first",
+    power: !s.powered && "switch arm power on first",
+    idle: a && `a ${a.kind.replace("_", " ")} is running`,
+    still: s.moving && "the arm is moving",
+    sensor: !s.sensor && "no sensor: start the console with --sensor",
+  };
+  const need = (...keys) => keys.map((k) => r[k]).find(Boolean) || "";
+  const running = (kind) => (a && a.kind === kind ? "" : `no ${kind.replace("_", " ")} is running`);
+  const act = need("viewer", "link", "robot", "control", "estop", "power", "idle");
+  return {
+    take: need("viewer", "link", "robot") || (mine && "you hold control") ||
+      (s.owner === "console" && s.controller ? `${s.controller} holds control` : ""),
+    release: need("viewer", "link", "robot") || (!mine && "you do not hold control") || need("idle"),
+    "power-on": need("viewer", "link", "robot", "control", "estop") || (s.powered && "arm power is on"),
+    "power-off": need("viewer", "link", "robot", "control") || (!s.powered && "arm power is off") || need("idle"),
+    "estop-reset": need("viewer", "link", "robot", "control") || (!s.estop && "the emergency stop is not engaged"),
+    jog: act,
+    "move-go": act || need("still") || (!$("move-name").value && "pick a location"),
+    "job-dry": act || (!job && "open a job"),
+    "job-weld": act || (!job && "open a job"),
+    "job-abort": need("viewer") || running("job"),
+    "job-check": need("viewer"), "job-save": need("viewer"), "job-saveas": need("viewer"),
+    "teach-start": act || need("sensor"), "teach-abort": need("viewer") || running("teach"),
+    "cal-start": act || ($("cal-which").value === "sensor-tool" ? need("sensor") : ""),
+    "cal-abort": need("viewer") || running("calibration"),
+    "cal-save": need("viewer") || (!calibrated && "no calibration result to save yet"),
+    "dt-start": act || need("sensor"), "dt-abort": need("viewer") || running("delta_t"),
+    "tr-start": need("viewer", "link", "idle"),
+    "set-apply": need("viewer", "link", "control", "sensor"),
+    tools: need("viewer"),
+  };
+}
+
+function updateControls() {
+  const why = reasons(status);
+  const set = (b, reason) => {
+    b.disabled = Boolean(reason);
+    b.title = reason || b.dataset.help || "";
+  };
+  for (const [id, reason] of Object.entries(why)) {
+    const b = $(id);
+    if (b) set(b, reason);
+  }
+  document.querySelectorAll(".jog button").forEach((b) => set(b, why.jog));
+  document.querySelectorAll("#tools-table button, #new-add").forEach((b) => set(b, why.tools));
 }
 
 // --- control, power, E-stop ----------------------------------------------------------------
@@ -154,18 +250,31 @@ function showStatus(s) {
 $("estop").addEventListener("click", async () => {
   releaseJog();
   await api("POST", "/api/estop");
-  say("EMERGENCY STOP sent", "error");
+  say("EMERGENCY STOP sent", "error", (s) => s.estop);
 });
 $("estop-reset").onclick = async () => {
-  if (await confirmAction("Reset the emergency stop?")) await api("POST", "/api/estop/reset");
+  if (!(await confirmAction("Reset the emergency stop?"))) return;
+  await api("POST", "/api/estop/reset");
+  say("emergency stop reset: switch power on to move", "info", (s) => !s.estop && !s.powered);
 };
-$("take").onclick = async () => { await api("POST", "/api/control", { take: true }); say("control taken"); };
-$("release").onclick = async () => { await api("POST", "/api/control", { take: false }); say("control released"); };
+const holding = (s) => s.owner === "console" && session && s.controller === session.user;
+$("take").onclick = async () => {
+  await api("POST", "/api/control", { take: true });
+  say("control taken", "info", holding);
+};
+$("release").onclick = async () => {
+  await api("POST", "/api/control", { take: false });
+  say("control released", "info", (s) => !holding(s));
+};
 $("power-on").onclick = async () => {
-  if (await confirmAction("Switch arm power ON?")) { await api("POST", "/api/power", { on: true }); say("power on"); }
+  if (!(await confirmAction("Switch arm power ON?"))) return;
+  await api("POST", "/api/power", { on: true });
+  say("power on", "info", (s) => s.powered);
 };
 $("power-off").onclick = async () => {
-  if (await confirmAction("Switch arm power OFF?")) { await api("POST", "/api/power", { on: false }); say("power off"); }
+  if (!(await confirmAction("Switch arm power OFF?"))) return;
+  await api("POST", "/api/power", { on: false });
+  say("power off", "info", (s) => !s.powered);
 };
 
 // --- jog (dead-man) ------------------------------------------------------------------------
@@ -179,11 +288,25 @@ function pressJog(button, msg) {
     return;
   }
   releaseJog();
+  const jog = { type: "jog", speed: Number($("jog-speed").value), ...selection, ...msg };
+  const step = $("jog-step").value;
+  if (step) {
+    // one bounded move of the step: no hold, it runs to its end (E-stop stops it)
+    ws.send(JSON.stringify({ ...jog, step: Number(step) }));
+    return;
+  }
   heldButton = button;
   button.classList.add("held");
-  ws.send(JSON.stringify({ type: "jog", speed: Number($("jog-speed").value), ...selection, ...msg }));
+  ws.send(JSON.stringify(jog));
   holdTimer = setInterval(() => ws.send(JSON.stringify({ type: "hold" })), 100);
 }
+function jogHint() {
+  $("jog-hint").textContent = $("jog-step").value
+    ? `Step: each click moves ${$("jog-step").value} mm (x, y, z) or degrees (joints, rx, ry, rz), once, at the speed below.`
+    : "Press and hold: the arm moves while the button is held and stops on release, when the window loses focus or the connection drops (dead-man).";
+}
+$("jog-step").onchange = jogHint;
+jogHint();
 
 function releaseJog() {
   if (holdTimer === null) return;
@@ -251,13 +374,15 @@ async function loadMoveNames() {
   if ($("move-job").value !== name) return; // another job was chosen meanwhile: its load fills
   const items = j.job ? j.job.items.filter((i) => i.kind !== "pause") : [];
   fillKeepingChoice($("move-name"), items.map((i) => i.name));
+  updateControls();
 }
 $("move-job").onchange = loadMoveNames;
+$("move-name").onchange = updateControls;
 $("move-go").onclick = async () => {
   const name = $("move-name").value;
   if (!name || !(await confirmAction(`Move the arm to ${name}?`))) return;
   await api("POST", "/api/move", { job: $("move-job").value, name, linear: $("move-linear").checked });
-  say(`moving to ${name}`);
+  say(`moving to ${name}`, "info", (s) => s.moving);
 };
 
 // --- sensor --------------------------------------------------------------------------------
@@ -298,30 +423,77 @@ async function showFrame() {
     : `no seam (${f.status || "no data"})`;
 }
 
-function drawPlot(canvas, pts, marks, xlabel, ylabel) {
-  const ctx = canvas.getContext("2d");
-  const W = canvas.width, H = canvas.height, m = 30;
-  ctx.clearRect(0, 0, W, H);
-  const all = pts.concat(marks);
-  if (!all.length) return;
-  let [x0, x1, y0, y1] = [Infinity, -Infinity, Infinity, -Infinity];
-  for (const [x, y] of all) { x0 = Math.min(x0, x); x1 = Math.max(x1, x); y0 = Math.min(y0, y); y1 = Math.max(y1, y); }
-  const span = Math.max(x1 - x0, y1 - y0, 1) * 1.1;
-  const cx = (x0 + x1) / 2, cy = (y0 + y1) / 2;
-  const s = Math.min(W, H) - 2 * m;
-  const X = (x) => W / 2 + ((x - cx) / span) * s;
-  const Y = (y) => H / 2 - ((y - cy) / span) * s;
-  ctx.strokeStyle = "#999"; ctx.fillStyle = "#333"; ctx.font = "11px sans-serif";
-  ctx.fillText(`${xlabel} ${x0.toFixed(1)}…${x1.toFixed(1)} mm`, 4, H - 4);
-  ctx.fillText(`${ylabel} ${y0.toFixed(1)}…${y1.toFixed(1)} mm`, 4, 12);
-  ctx.fillStyle = "#1565c0";
-  for (const [x, y] of pts) ctx.fillRect(X(x) - 2.5, Y(y) - 2.5, 5, 5);
-  ctx.strokeStyle = "#d50000"; ctx.lineWidth = 2;
-  for (const [x, y] of marks) { ctx.beginPath(); ctx.arc(X(x), Y(y), 6, 0, 2 * Math.PI); ctx.stroke(); }
+// --- charts (Chart.js, vendored in vendor/ with its licence) ---------------------------------
+
+const COLORS = { blue: "#1565c0", red: "#d50000", green: "#2e7d32", black: "#222", grey: "#888" };
+const xy = (pts) => pts.map(([x, y]) => ({ x, y }));
+
+// The y range to show: at least ``minSpan`` around the data, so a flat profile or a straight
+// seam is drawn flat, not its micrometre noise blown up to the full height.
+function yRange(datasets, minSpan) {
+  const ys = datasets.flatMap((d) => d.data.map((p) => p.y));
+  if (!minSpan || !ys.length) return { min: undefined, max: undefined };
+  const lo = Math.min(...ys), hi = Math.max(...ys);
+  if (hi - lo >= minSpan) return { min: undefined, max: undefined };
+  const q = minSpan / 4; // ends on round numbers: ticks at -2, -1, 0, 1, 2, not -1.999
+  const mid = (lo + hi) / 2;
+  return { min: Math.floor((mid - minSpan / 2) / q) * q, max: Math.ceil((mid + minSpan / 2) / q) * q };
+}
+
+// One chart per canvas, made on first use and then given new data: ``series`` are
+// { label, pts: [[x, y]...], color, line (default true), points (radius), dash, width },
+// the later drawn over the earlier, the legend in the same order (line or dot, dash shown).
+function plot(canvasId, series, xTitle, yTitle, { yMinSpan = 0 } = {}) {
+  const datasets = series.map((d, i) => ({
+    label: d.label,
+    data: xy(d.pts),
+    borderColor: d.color,
+    backgroundColor: d.color,
+    showLine: d.line !== false,
+    pointRadius: d.points || 0,
+    borderWidth: d.width || 1.5,
+    borderDash: d.dash || [],
+    order: series.length - i,
+  }));
+  const range = yRange(datasets, yMinSpan);
+  const existing = Chart.getChart(canvasId);
+  if (existing) {
+    existing.data.datasets = datasets;
+    Object.assign(existing.options.scales.y, range);
+    existing.update("none");
+    return existing;
+  }
+  const axis = (text) => ({ type: "linear", title: { display: true, text }, grid: { color: "#e3e3e3" }, ticks: { maxTicksLimit: 9 } });
+  const labels = (chart) => Chart.defaults.plugins.legend.labels.generateLabels(chart).map((item) => {
+    const d = chart.data.datasets[item.datasetIndex];
+    return { ...item, pointStyle: d.showLine ? "line" : "circle", lineWidth: d.showLine ? Math.min(d.borderWidth, 4) : 1 };
+  });
+  return new Chart($(canvasId), {
+    type: "scatter",
+    data: { datasets },
+    options: {
+      animation: false,
+      responsive: true,
+      maintainAspectRatio: false,
+      parsing: false,
+      normalized: true,
+      scales: { x: axis(xTitle), y: { ...axis(yTitle), ...range } },
+      plugins: {
+        legend: {
+          position: "top",
+          labels: { usePointStyle: true, generateLabels: labels, sort: (a, b) => a.datasetIndex - b.datasetIndex, font: { size: 13 }, padding: 14 },
+        },
+        tooltip: { enabled: true },
+      },
+    },
+  });
 }
 
 function drawProfile(profile, seam) {
-  drawPlot($("sensor-profile"), profile, seam ? [[seam[1], seam[2]]] : [], "y", "z");
+  plot("sensor-profile", [
+    { label: "stripe profile", pts: profile, color: COLORS.blue, line: false, points: 1.5 },
+    { label: "seam point (GetData)", pts: seam ? [[seam[1], seam[2]]] : [], color: COLORS.red, line: false, points: 6 },
+  ], "y (mm, sensor frame)", "z (mm, sensor frame)", { yMinSpan: 4 });
 }
 
 async function loadSettings() {
@@ -345,23 +517,34 @@ $("set-apply").onclick = async () => {
 
 // --- tools and frames ----------------------------------------------------------------------
 
+// A location's six numbers as the page shows them: 1 µm and 0.001° (the database keeps its
+// full precision: an unedited field is saved as it was read, not rounded).
+const UNITS = ["mm", "mm", "mm", "°", "°", "°"];
+function fmtCoord(v, i) {
+  return `${(Object.is(v, -0) ? 0 : v).toFixed(3)}${i < 3 ? " mm" : "°"}`;
+}
 async function loadTools() {
   const t = await api("GET", "/api/tools");
   $("new-kind").innerHTML = t.kinds.map((k) => `<option>${k}</option>`).join("");
   const rows = t.entries.map((e) => {
-    const loc = e.location.join(", ");
-    if (e.builtin) return `<tr><td>${e.name}</td><td>${e.kind}</td><td>${loc}</td><td>${esc(e.note)}</td><td></td></tr>`;
-    return `<tr data-name="${e.name}"><td>${e.name}</td><td>${e.kind}</td>
-      <td><input class="wide loc" value="${loc}"></td><td><input class="note" value="${esc(e.note)}"></td>
+    if (e.builtin) {
+      return `<tr><td>${e.name}</td><td>${e.kind}</td>${e.location.map((v) => `<td class="num">${v.toFixed(3)}</td>`).join("")}<td>${esc(e.note)}</td><td></td></tr>`;
+    }
+    const coords = e.location.map((v, i) => `<td><input class="coord" type="number" step="any" data-c="${i}" data-raw="${v}" value="${v.toFixed(3)}" title="${v}"></td>`).join("");
+    return `<tr data-name="${e.name}"><td>${e.name}</td><td>${e.kind}</td>${coords}
+      <td><input class="note" value="${esc(e.note)}"></td>
       <td><button class="save">Save</button> <button class="remove">Remove</button></td></tr>`;
   });
-  $("tools-table").innerHTML = `<tr><th>name</th><th>kind</th><th>location x, y, z, rx, ry, rz</th><th>note</th><th></th></tr>${rows.join("")}`;
+  const heads = AXES.map((a, i) => `<th class="num">${a} (${UNITS[i]})</th>`).join("");
+  $("tools-table").innerHTML = `<tr><th>name</th><th>kind</th>${heads}<th>note</th><th></th></tr>${rows.join("")}`;
   $("tools-table").querySelectorAll("tr[data-name]").forEach((tr) => {
     const name = tr.dataset.name;
     tr.querySelector(".save").onclick = async () => {
-      await api("PUT", `/api/tools/${encodeURIComponent(name)}`, {
-        location: parseLoc(tr.querySelector(".loc").value), note: tr.querySelector(".note").value,
+      const location = [...tr.querySelectorAll("input.coord")].map((inp) => {
+        const raw = Number(inp.dataset.raw);
+        return inp.value === raw.toFixed(3) ? raw : inp.value.trim() === "" ? "" : Number(inp.value);
       });
+      await api("PUT", `/api/tools/${encodeURIComponent(name)}`, { location, note: tr.querySelector(".note").value });
       say(`${name} saved`);
       loadTools();
     };
@@ -373,6 +556,7 @@ async function loadTools() {
     };
   });
   loadSelections();
+  updateControls();
 }
 function parseLoc(text) {
   return text.split(",").map((v) => (v.trim() === "" ? NaN : Number(v))).map((v) => (Number.isFinite(v) ? v : String(v)));
@@ -401,6 +585,7 @@ async function openJob(file) {
   $("job-list").querySelectorAll("li").forEach((li) => li.classList.toggle("open", li.dataset.file === file));
   showProblems(j);
   if (j.job) { job = j.job; renderJob(); }
+  updateControls();
 }
 
 const PARAMS = {
@@ -474,61 +659,101 @@ async function runJob(dry) {
   const what = dry ? "Dry run (motion only, every output off)" : "WELD (laser, gas and crossjet on)";
   if (!(await confirmAction(`${what}: ${jobFile}?`))) return;
   await api("POST", `/api/jobs/${encodeURIComponent(jobFile)}/run`, { dry_run: dry });
-  say(`${jobFile}: ${dry ? "dry run" : "weld"} started`);
+  say(`${dry ? "dry run" : "weld"} ${jobFile} started`, "info", runs("job"));
 }
 $("job-dry").onclick = () => runJob(true);
 $("job-weld").onclick = () => runJob(false);
-$("job-abort").onclick = async () => { await api("POST", "/api/abort"); say("abort sent"); };
-$("teach-abort").onclick = async () => { await api("POST", "/api/abort"); say("abort sent"); };
+$("job-abort").onclick = async () => { await api("POST", "/api/abort"); say("abort sent", "info", (s) => Boolean(s.activity && s.activity.state === "running")); };
+$("teach-abort").onclick = async () => { await api("POST", "/api/abort"); say("abort sent", "info", (s) => Boolean(s.activity && s.activity.state === "running")); };
 
+// One line per activity, the same words on every page: what, its state, then only what the
+// state does not say already ("dry run demo.xml: done", "weld demo.xml: aborted, cancelled by
+// the operator"); a refusal's hint on a line of its own.
+function activityName(a) {
+  return {
+    job: () => `${a.dry_run ? "dry run" : "weld"} ${a.file}`,
+    teach: () => "teaching",
+    delta_t: () => "ΔT measurement",
+    calibration: () => `${a.which.replace("-", " ")} calibration`,
+    track: () => `tracked weld (${a.seam}, ${a.speed} mm/s)`,
+  }[a.kind]();
+}
+function activityLine(a) {
+  if (a.state === "running") {
+    const progress = {
+      job: () => `item ${Math.min(a.index + 1, a.total)}/${a.total} ${a.item} (${a.phase})`,
+      teach: () => `${a.count} points`,
+      delta_t: () => `${Math.round(100 * a.fraction)} %`,
+      calibration: () => `${a.measurements} measurements`,
+      track: () => "",
+    }[a.kind]();
+    return `${activityName(a)}: running${progress ? ", " + progress : ""}`;
+  }
+  return `${activityName(a)}: ${a.state}${a.message ? ", " + a.message : ""}`;
+}
+function showLine(el, a) {
+  el.textContent = activityLine(a);
+  if (a.hint && a.state !== "running") {
+    const hint = document.createElement("div");
+    hint.className = "todo";
+    hint.textContent = `→ ${a.hint}`;
+    el.appendChild(hint);
+  }
+  el.dataset.state = a.state;
+}
+
+let lastActivity = null; // the one the page saw last: its end is told once, in the banner
 function showActivity(a) {
   if (!a) return;
+  const seen = lastActivity;
+  lastActivity = a;
+  if (seen && seen.state === "running" && a.state !== "running" && seen.kind === a.kind) {
+    say(activityLine(a) + (a.hint ? ` → ${a.hint}` : ""), a.state === "done" ? "info" : "error");
+  }
   if (a.kind === "job") {
-    $("job-progress").innerHTML = `<b>${a.dry_run ? "dry run" : "weld"} ${a.file}</b>: ${a.state}` +
-      (a.state === "running" ? `, item ${Math.min(a.index + 1, a.total)}/${a.total} ${a.item} (${a.phase})` : ` ${esc(a.message)}`);
-    $("job-progress").dataset.state = a.state;
+    showLine($("job-progress"), a);
     if (a.file === jobFile) {
       const current = a.state === "running" ? a.order[a.index] : null;
       $("job-items").querySelectorAll("tr[data-item]").forEach((tr) => tr.classList.toggle("current", tr.dataset.item === current));
     }
   } else if (a.kind === "calibration") {
-    $("cal-info").textContent = `${a.which}: ${a.measurements} measurements, ${a.state}${a.message ? ": " + a.message : ""}`;
-    $("cal-info").dataset.state = a.state;
+    showLine($("cal-info"), a);
     const shown = `${a.which} ${a.message}`;
     if (a.state === "done" && $("cal-info").dataset.shown !== shown) {
       $("cal-info").dataset.shown = shown;
       loadCalibration();
     }
   } else if (a.kind === "track") {
-    $("tr-info").textContent = `${a.seam} at ${a.speed} mm/s: ${a.state}${a.message ? ", " + a.message : ""}`;
-    $("tr-info").dataset.state = a.state;
+    showLine($("tr-info"), a);
     if (a.state === "done" && $("tr-info").dataset.shown !== a.message) {
       $("tr-info").dataset.shown = a.message;
       loadTrack();
     }
   } else if (a.kind === "delta_t") {
-    $("dt-info").textContent = a.state === "running"
-      ? `running: ${Math.round(100 * a.fraction)} %`
-      : `${a.state}${a.message ? ": " + a.message : ""}`;
-    $("dt-info").dataset.state = a.state;
+    showLine($("dt-info"), a);
     if (a.state === "done" && $("dt-info").dataset.shown !== String(a.delta_t_ms)) {
       $("dt-info").dataset.shown = String(a.delta_t_ms);
       loadDeltaT();
     }
   } else if (a.kind === "teach") {
-    $("teach-info").textContent = `${a.count} points, ${a.state}${a.message ? ": " + a.message : ""}`;
-    $("teach-info").dataset.state = a.state;
+    showLine($("teach-info"), a);
     $("teach-info").dataset.count = a.count;
-    drawPlot($("teach-plot"), a.points.map((p) => [p[0], p[1]]), [], "x", "y");
+    if (location.hash === "#teach" || a.state !== "running") {
+      plot("teach-plot", [{ label: "taught seam points", pts: a.points.map((q) => [q[0], q[1]]), color: COLORS.blue, points: 4 }],
+        "x (mm, base frame)", "y (mm, base frame)", { yMinSpan: 4 });
+    }
   }
 }
+
+// A start's banner holds until that activity runs and then ends (its end replaces it).
+const runs = (kind) => (s) => Boolean(s.activity && s.activity.kind === kind && s.activity.state === "running");
 
 $("teach-start").onclick = async () => {
   if (!(await confirmAction("Start teaching? The arm follows the seam under the sensor."))) return;
   await api("POST", "/api/teach", {
     step: Number($("teach-step").value), length: Number($("teach-length").value), speed: Number($("teach-speed").value),
   });
-  say("teaching started");
+  say("teaching started", "info", runs("teach"));
 };
 
 // --- calibration ---------------------------------------------------------------------------
@@ -536,16 +761,22 @@ $("teach-start").onclick = async () => {
 let calibrated = null;
 async function loadCalibration() {
   const { result } = await api("GET", "/api/result/calibration");
+  $("cal-result-card").hidden = !result;
+  $("cal-none").hidden = Boolean(result);
   if (!result) return;
   calibrated = result;
-  const names = ["x", "y", "z", "rx", "ry", "rz"];
-  const head = `<tr><th></th>${names.map((n) => `<th>${n}</th>`).join("")}</tr>`;
-  const row = (label, vals, digits) => `<tr><th>${label}</th>${vals.map((v) => `<td>${v === null ? "–" : v.toFixed(digits)}</td>`).join("")}</tr>`;
-  $("cal-result").innerHTML = head + row(`nominal (${result.nominal_tool})`, result.nominal, 3) +
-    row("estimate", result.tool, 4) + row("± 1σ", names.map((n) => result.uncertainty[n]), 4) +
+  $("cal-which-shown").textContent = `${result.calibration.replace("-", " ")}, nominal ${result.nominal_tool}`;
+  updateControls();
+  // one unit per column (mm, degrees) in every row; residuals, far smaller, in µm
+  const head = `<tr><th></th>${AXES.map((n, i) => `<th class="num">${n} (${UNITS[i]})</th>`).join("")}</tr>`;
+  const row = (label, vals) => `<tr><th>${label}</th>${vals.map((v) => `<td class="num">${v === null ? "–" : v.toFixed(4)}</td>`).join("")}</tr>`;
+  const um = (mm) => `${(mm * 1e3).toFixed(1)} µm`;
+  $("cal-result").innerHTML = head + row(`nominal (${esc(result.nominal_tool)})`, result.nominal) +
+    row("estimate", result.tool) + row("± 1σ", AXES.map((n) => result.uncertainty[n])) +
     (result.error_vs_true ? `<tr><th>error vs true tool</th><td colspan="6">${result.error_vs_true.position_mm.toFixed(4)} mm, ${result.error_vs_true.orientation_deg.toFixed(4)}°</td></tr>` : "") +
-    `<tr><th>residual</th><td colspan="6">rms ${(result.residual_rms_mm * 1e3).toFixed(1)} µm, max ${(result.residual_max_mm * 1e3).toFixed(1)} µm, ${result.poses} poses, ${result.measurements} measurements</td></tr>`;
-  drawXY($("cal-plot"), [{ pts: result.residuals_mm.map((r, i) => [i, r]), color: "#1565c0" }], "measurement", "residual (mm)");
+    `<tr><th>residual</th><td colspan="6">rms ${um(result.residual_rms_mm)}, max ${um(result.residual_max_mm)}, ${result.poses} poses, ${result.measurements} measurements</td></tr>`;
+  plot("cal-plot", [{ label: "residual per pose", pts: result.residuals_mm.map((r, i) => [i + 1, r * 1e3]), color: COLORS.blue, line: false, points: 3 }],
+    "pose (index)", "residual (µm)");
 }
 $("cal-start").onclick = async () => {
   const which = $("cal-which").value;
@@ -554,15 +785,16 @@ $("cal-start").onclick = async () => {
   await api("POST", "/api/calibrate", {
     which, tool: $("cal-tool").value, poses: Number($("cal-poses").value), repeats: Number($("cal-repeats").value),
   });
-  say("calibration started");
+  say("calibration started", "info", runs("calibration"));
 };
 $("cal-which").onchange = () => {
   const kind = $("cal-which").value === "laser-tool" ? "laser" : "sensor";
   $("cal-tool").value = kind;
   $("cal-poses").min = kind === "laser" ? 4 : 8;
   $("cal-save-name").value = `${kind}_cal`;
+  updateControls();
 };
-$("cal-abort").onclick = async () => { await api("POST", "/api/abort"); say("abort sent"); };
+$("cal-abort").onclick = async () => { await api("POST", "/api/abort"); say("abort sent", "info", (s) => Boolean(s.activity && s.activity.state === "running")); };
 $("cal-save").onclick = async () => {
   if (!calibrated) return;
   const name = $("cal-save-name").value;
@@ -578,34 +810,6 @@ $("cal-save").onclick = async () => {
 
 // --- ΔT ------------------------------------------------------------------------------------
 
-function drawXY(canvas, series, xlabel, ylabel, vline) {
-  const ctx = canvas.getContext("2d");
-  const W = canvas.width, H = canvas.height, m = 40;
-  ctx.clearRect(0, 0, W, H);
-  const all = series.flatMap((s) => s.pts);
-  if (!all.length) return;
-  let [x0, x1, y0, y1] = [Infinity, -Infinity, Infinity, -Infinity];
-  for (const [x, y] of all) { x0 = Math.min(x0, x); x1 = Math.max(x1, x); y0 = Math.min(y0, y); y1 = Math.max(y1, y); }
-  if (x1 === x0) x1 = x0 + 1;
-  if (y1 === y0) y1 = y0 + 1;
-  const X = (x) => m + ((x - x0) / (x1 - x0)) * (W - 1.5 * m);
-  const Y = (y) => H - m + ((y0 - y) / (y1 - y0)) * (H - 1.5 * m);
-  ctx.strokeStyle = "#999"; ctx.lineWidth = 1;
-  ctx.strokeRect(m, m / 2, W - 1.5 * m, H - 1.5 * m);
-  ctx.fillStyle = "#333"; ctx.font = "11px sans-serif";
-  ctx.fillText(`${xlabel}: ${x0.toPrecision(4)} … ${x1.toPrecision(4)}`, m, H - 8);
-  ctx.fillText(`${ylabel}: ${y0.toPrecision(4)} … ${y1.toPrecision(4)}`, m, 12);
-  for (const s of series) {
-    ctx.strokeStyle = s.color; ctx.lineWidth = 1.2;
-    ctx.beginPath();
-    s.pts.forEach(([x, y], i) => (i ? ctx.lineTo(X(x), Y(y)) : ctx.moveTo(X(x), Y(y))));
-    ctx.stroke();
-  }
-  if (vline !== undefined) {
-    ctx.strokeStyle = "#d50000"; ctx.beginPath(); ctx.moveTo(X(vline), m / 2); ctx.lineTo(X(vline), H - m); ctx.stroke();
-  }
-}
-
 async function loadDeltaT() {
   const { result } = await api("GET", "/api/result/delta_t");
   if (!result) return;
@@ -617,8 +821,15 @@ async function loadDeltaT() {
     ["readings", `${result.n_robot} joint samples, ${result.n_sensor} seam points`],
   ];
   $("dt-result").innerHTML = rows.map(([k, v]) => `<tr><th>${k}</th><td>${esc(v)}</td></tr>`).join("");
-  drawXY($("dt-fig6"), [{ pts: result.fig6.robot, color: "#1565c0" }, { pts: result.fig6.sensor, color: "#d50000" }], "t (s)", "y (mm)");
-  drawXY($("dt-fig7"), [{ pts: result.fig7, color: "#1565c0" }], "ΔT (ms)", "MSE (µm²)", result.delta_t_ms);
+  plot("dt-fig6", [
+    { label: "robot yᴿ (from the joint log)", pts: result.fig6.robot, color: COLORS.blue },
+    { label: "sensor yˢ (seam points, at trigger time)", pts: result.fig6.sensor, color: COLORS.red, dash: [5, 3] },
+  ], "t (s)", "lateral position y (mm)");
+  const mse = result.fig7.map((p) => p[1]);
+  plot("dt-fig7", [
+    { label: "MSE(ΔT)", pts: result.fig7, color: COLORS.blue, points: 2 },
+    { label: `minimum: ΔT = ${result.delta_t_ms.toFixed(3)} ms`, pts: [[result.delta_t_ms, Math.min(...mse)], [result.delta_t_ms, Math.max(...mse)]], color: COLORS.red, dash: [4, 4] },
+  ], "ΔT (ms)", "MSE (µm²)");
 }
 
 $("dt-start").onclick = async () => {
@@ -626,9 +837,9 @@ $("dt-start").onclick = async () => {
   await api("POST", "/api/delta-t", {
     frequency: Number($("dt-frequency").value), amplitude: Number($("dt-amplitude").value), duration: Number($("dt-duration").value),
   });
-  say("ΔT measurement started");
+  say("ΔT measurement started", "info", runs("delta_t"));
 };
-$("dt-abort").onclick = async () => { await api("POST", "/api/abort"); say("abort sent"); };
+$("dt-abort").onclick = async () => { await api("POST", "/api/abort"); say("abort sent", "info", (s) => Boolean(s.activity && s.activity.state === "running")); };
 
 // --- tracked weld --------------------------------------------------------------------------
 
@@ -645,17 +856,21 @@ async function loadTrack() {
   ];
   $("tr-result").innerHTML = rows.map(([k, v]) => `<tr><th>${k}</th><td>${esc(v)}</td></tr>`).join("");
   const t = result.top;
-  drawXY($("tr-top"), [
-    { pts: t.seam, color: "#2e7d32" }, { pts: t.nominal, color: "#000" },
-    { pts: t.laser, color: "#d50000" }, { pts: t.measured, color: "#1565c0" },
-  ], "x (mm)", "y (mm)");
-  drawXY($("tr-error"), [{ pts: result.error_um, color: "#d50000" }], "x (mm)", "error (µm)");
+  // the four curves lie within micrometres of each other at this scale: told apart by width,
+  // dash and marks (the error plot below shows the difference)
+  plot("tr-top", [
+    { label: "true seam", pts: t.seam, color: COLORS.green, width: 6 },
+    { label: "measured seam points", pts: t.measured, color: COLORS.blue, line: false, points: 1.5 },
+    { label: "nominal path (untracked)", pts: t.nominal, color: COLORS.black, dash: [6, 4] },
+    { label: "laser", pts: t.laser, color: COLORS.red, width: 1.5 },
+  ], "x (mm, workpiece)", "y (mm, workpiece)");
+  plot("tr-error", [{ label: "laser − seam, lateral", pts: result.error_um, color: COLORS.red }], "x (mm, workpiece)", "tracking error (µm)");
 }
 $("tr-start").onclick = async () => {
   await api("POST", "/api/track", {
     seam: $("tr-seam").value, speed: Number($("tr-speed").value), tracked: $("tr-tracked").checked,
   });
-  say("tracked weld started");
+  say("tracked weld started", "info", runs("track"));
 };
 
 // --- audit log (operators) -----------------------------------------------------------------
@@ -666,7 +881,8 @@ async function loadAudit() {
   const cols = ["time", "user", "address", "action", "outcome"];
   const rows = entries.reverse().map((e) => {
     const rest = Object.fromEntries(Object.entries(e).filter(([k]) => !cols.includes(k)));
-    return `<tr>${cols.map((c) => `<td>${esc(e[c] ?? "")}</td>`).join("")}<td>${esc(JSON.stringify(rest))}</td></tr>`;
+    const cell = (c) => (c === "time" ? String(e.time).replace("T", " ").replace(/\+00:00$/, " UTC") : e[c] ?? "");
+    return `<tr>${cols.map((c) => `<td>${esc(cell(c))}</td>`).join("")}<td class="detail">${esc(JSON.stringify(rest))}</td></tr>`;
   });
   $("audit-table").innerHTML = `<tr>${[...cols, "detail"].map((c) => `<th>${c}</th>`).join("")}</tr>${rows.join("")}`;
 }
