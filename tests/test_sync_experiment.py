@@ -84,7 +84,7 @@ def test_cli_emulate_writes_json_with_the_truth_and_says_what_apply_set(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "d.json"
-    argv = ["delay", "--emulate", "-q", "--duration", "2", "--json", str(out), "--apply"]
+    argv = ["delay", "--emulate", "-q", "--duration", "5", "--json", str(out), "--apply"]
     assert main([*argv, "--encoder-latency-ms", "3.8"]) == 0
     j = json.loads(out.read_text())
     assert j["true_delta_t_ms"] == pytest.approx(5.9)
