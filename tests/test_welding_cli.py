@@ -264,7 +264,9 @@ def test_track_on_the_real_clock_reports_its_cycles() -> None:
     argv = ["track", "--emulate", "--clock", "real", "--true-delta-t", "--speed", "100",
             "--length", "20", "--json", "rt.json"]  # fmt: skip
     before = set(_children(os.getpid()))  # this worker's other tests' processes, if any
-    assert main(argv) in (0, 1)  # 1: the weld stopped (the loop stalled); the laser is off
+    # 3: out of tolerance by the tracker's own verdict (a late correction on a busy machine,
+    # or the weld stopped); the laser is off either way
+    assert main(argv) in (0, 3)
     data = json.loads(Path("rt.json").read_text())
     assert data["clock"] == "real" and data["cycles"] > 0
     assert data["cell"] == "real-time child"
