@@ -16,7 +16,19 @@ import numpy as np
 
 from robotsocket.interface import Array
 
-__all__ = ["Decel", "Hold", "Law", "Trapezoid"]
+__all__ = ["TIME_EPS_S", "Decel", "Hold", "Law", "Trapezoid", "ended"]
+
+#: Times on the cycle grid compare within this (s): a cycle's k·period and a law's end
+#: summed another way (t0 + ta + tc + td) differ in the last bits, and a move whose end falls
+#: on a cycle must end on it, not one cycle later (which shifts the next move by 4 ms: a
+#: timed path's corrections then land a cycle off). Far below a cycle, far above the
+#: rounding of a day of robot time (1e-11 s).
+TIME_EPS_S = 1e-9
+
+
+def ended(t: float, t_end: float) -> bool:
+    """Whether a law ending at ``t_end`` has ended at the cycle time ``t``."""
+    return t >= t_end - TIME_EPS_S
 
 
 class Law(Protocol):

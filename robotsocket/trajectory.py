@@ -22,7 +22,7 @@ import numpy as np
 
 from robotsocket.interface import Array
 from robotsocket.paths import JointPath, Move
-from robotsocket.profiles import Decel, Hold, Law, Trapezoid
+from robotsocket.profiles import TIME_EPS_S, Decel, Hold, Law, Trapezoid, ended
 
 #: Controller cycle T_r in seconds (paper section V).
 PERIOD = 0.004
@@ -207,7 +207,7 @@ class TrajectoryGenerator:
                         2.0 * front.move.blend_mm / (law.dec * front.move.length_mm)
                     )
                     overlap = min(overlap, t_blend)
-                if t_prev >= law.t_end - overlap and t_prev >= self._blend_start(
+                if t_prev >= law.t_end - overlap - TIME_EPS_S and t_prev >= self._blend_start(
                     front, nxt, t_prev
                 ):
                     self.queue.popleft()
@@ -263,15 +263,15 @@ class TrajectoryGenerator:
     def _retire(self, t: float, q: Array) -> None:
         active = self.active
         if all(s.cancelled for s in active):
-            if all(t >= s.law.t_end for s in active):
+            if all(ended(t, s.law.t_end) for s in active):
                 self.hold_q = self._reset_point if self._reset_point is not None else q
                 self._reset_point = None
                 active.clear()
             return
         for seg in active:
-            if isinstance(seg.law, Decel) and t >= seg.law.t_end:
+            if isinstance(seg.law, Decel) and ended(t, seg.law.t_end):
                 seg.law = Hold(seg.law.s_end)
-        while active and isinstance(active[0].law, Trapezoid) and t >= active[0].law.t_end:
+        while active and isinstance(active[0].law, Trapezoid) and ended(t, active[0].law.t_end):
             done = active.pop(0)
             if not active:
                 self.hold_q = done.move.target

@@ -113,3 +113,23 @@ def test_speed_and_acceleration_limits_are_checked_on_the_controller_grid() -> N
     step[2, 1, 3] += 0.5
     with pytest.raises(OutOfRangeError, match="acceleration limit"):
         plan_timed(1, MODEL, Q0, np.array([0.0, 0.004, 0.008]), step, TOOL)
+
+
+@pytest.mark.parametrize("k0", range(100, 200))
+def test_a_path_queued_behind_a_stand_starts_on_the_cycle_the_stand_ends(k0: int) -> None:
+    """The tracker's start (welding/track_loop.py): a 48 ms stand, then the path. The stand's
+    end, k0·T + 0.048 summed in floats, is k0·T + 12·T to the last bit or one ulp past it
+    (k0 = 136, 168, 174, …); the path must start on that cycle either way, not 4 ms later."""
+    hold_s = 12 * PERIOD
+    gen = TrajectoryGenerator(Q0)
+    for k in range(1, k0 + 1):
+        gen.step(k)
+    stand = plan_timed(1, MODEL, Q0, np.array([0.0, hold_s]), np.array([F0, F0]), TOOL)
+    times, poses = sine_path(seconds=0.2)
+    path = plan_timed(2, MODEL, Q0, times, poses, TOOL)
+    gen.enqueue(stand)
+    gen.enqueue(path)
+    setpoints = [gen.step(k) for k in range(k0 + 1, k0 + 12 + len(times))]
+    # cycle k0 + 12 + j is the path's location j (as cycle 1 + j is a lone path's)
+    reached = MODEL.flange2base(np.array(setpoints[11:]))
+    np.testing.assert_allclose(reached[:, :3, 3], poses[:, :3, 3], atol=1e-6)
