@@ -53,6 +53,7 @@ def env(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Any, Console
     add_user(users, "bob", "operator", "bob-password")
     add_user(users, "vera", "viewer", "vera-password")
     console = Console(cell.robot_address, cell.sensor_address, tools=tools, jobs=tmp, cell=cell)
+    console.open()  # the clients below are not all opened as context managers (no lifespan)
     access = Access(Sessions(load_users(users)), AuditLog(tmp / "audit.jsonl"))
     app = create_app(console, access)
     try:

@@ -176,6 +176,9 @@ class SeamTeacher:
     move_timeout_s: float = 30.0
     corners: bool = True
     clock: Callable[[], float] = time.monotonic
+    #: Told each measurement's ^B_G T (None: no seam seen) as it is made; what it raises
+    #: (a TeachError: "cancelled by the operator") ends the teaching there.
+    on_measure: Callable[[Array | None], None] | None = None
     measurements: int = field(default=0, init=False)
 
     def measure(self) -> tuple[Array, float, float] | None:
@@ -186,9 +189,13 @@ class SeamTeacher:
         if data.status is SensorStatus.LASER_OFF:  # not the end of the seam [SS-5.13]
             raise TeachError(self.sensor.problem(data))
         if not data.found or data.seam is None:
+            if self.on_measure is not None:
+                self.on_measure(None)
             return None
         sensor2base = location_to_transform(self.robot.here(self.sensor_tool))
         seam2base: Array = sensor2base @ location_to_transform(data.seam)
+        if self.on_measure is not None:
+            self.on_measure(seam2base)
         return seam2base, data.t_exposure_start, data.quality
 
     def _go(self, pose: Array) -> None:

@@ -19,7 +19,7 @@ import itertools
 import json
 import logging
 import math
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import AsyncIterator, Awaitable, Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -200,12 +200,13 @@ def create_app(
     announce: Callable[[str], None] = log.info,
     base_url: str = "",
 ) -> Starlette:
-    """The application over ``console`` (which the caller starts and closes), behind the
+    """The application over ``console`` (opened when the application starts unless it is
+    already, closed when it stops: its lifespan), behind the
     access control of ``access``. ``announce`` is told each new sign-in URL (``base_url``
     + ``/signin?token=…``) after the last one was used."""
     ids = itertools.count(1)
     sessions = access.sessions
-    access.holder = lambda: console.controller if console.in_control else None
+    access.holder = console.holder
 
     def p(request: Request, key: str) -> str:
         return str(request.path_params[key])
@@ -427,7 +428,7 @@ def create_app(
         ApiRoute("/api/track", _api(lambda r, b: console.track(b), B["track"]), methods=post,
                  rule=act("track")),
         ApiRoute("/api/result/{kind}",
-                 _api(lambda r, b: {"result": console.results.get(p(r, "kind"))}), rule=viewer),
+                 _api(lambda r, b: {"result": console.result(p(r, "kind"))}), rule=viewer),
         ApiRoute("/api/sensor/frame", frame, rule=viewer),
         ApiRoute("/api/sensor/settings", _api(lambda r, b: console.sensor_settings()),
                  rule=viewer),
@@ -438,7 +439,17 @@ def create_app(
         Mount("/", StaticFiles(directory=STATIC, html=False), name="static"),
     ]  # fmt: skip
     middleware = [Middleware(AccessControl, access=access, rule=_rule_for(routes))]
-    return Starlette(routes=routes, middleware=middleware)
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: Starlette) -> AsyncIterator[None]:
+        # the console's connections and threads live as long as the application serves
+        await run_in_threadpool(console.open)
+        try:
+            yield
+        finally:
+            await run_in_threadpool(console.close)
+
+    return Starlette(routes=routes, middleware=middleware, lifespan=lifespan)
 
 
 def _jog(console: Console, client_id: int, msg: dict[str, Any]) -> None:

@@ -24,7 +24,7 @@ import re
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -36,13 +36,23 @@ from sensorsocket.client import SensorClient
 from spec.callcli import unreachable
 from spec.errors import ProtocolError, RemoteError
 from welding import job as J
+from welding.console.activities import (
+    Activity,
+    CountedDetector,
+    CountedSensor,
+    run_calibration,
+    run_delta_t,
+    run_job,
+    run_teach,
+    run_track,
+)
 from welding.console.jobjson import JobJsonError, job_from_json, job_to_json, problems_json
 from welding.console.png import grey_png
-from welding.process import JobAborted, JobRunner, PlanError, Progress, plan, steps_summary
+from welding.process import JobAborted, JobRunner, PlanError, plan, steps_summary
 from welding.teach import SeamTeacher, TeachError
 from welding.tools import TOOL_KINDS, Entry, Tables, ToolDB, ToolDBError, check_location
 
-__all__ = ["Console", "ConsoleError"]
+__all__ = ["Activity", "Console", "ConsoleError"]
 
 log = logging.getLogger("welding.console")
 
@@ -72,24 +82,6 @@ class ConsoleError(Exception):
     def __init__(self, message: str, status: int = 400) -> None:
         super().__init__(message)
         self.status = status
-
-
-@dataclass
-class Activity:
-    """A long-running action (job run or teaching) the status stream reports."""
-
-    kind: str  # "job" | "teach" | "delta_t" | "calibration" | "track"
-    state: str = "running"  # running | done | aborted | failed
-    #: What the state alone does not say (never the state's own word again).
-    message: str = ""
-    #: What the operator can do about a refusal, one line ("" when nothing to add).
-    hint: str = ""
-    detail: dict[str, Any] = field(default_factory=dict)
-    cancel: Callable[[], None] | None = None
-
-    def to_json(self) -> dict[str, Any]:
-        return {"kind": self.kind, "state": self.state, "message": self.message,
-                "hint": self.hint, **self.detail}  # fmt: skip
 
 
 @dataclass
@@ -136,13 +128,45 @@ class Console:
         cell: Any = None,
     ) -> None:
         self.robot_address = robot
+        self.sensor_address = sensor
         self.token = token
+        self.timeout = timeout
         self.tools = ToolDB(tools)
         self.jobs_dir = Path(jobs)
         self.emulated = emulated
         #: The emulated cell (``--emulate``): its spot detector and true tools.
         self.cell = cell
         self._laser_runs = 0  # seeds the emulated spot detector's noise: a session repeats
+        self.in_control = False
+        self.sensor_in_control = False
+        #: The signed-in operator on whose behalf the console holds control (None: nobody).
+        self.controller: str | None = None
+        self._lock = threading.Lock()  # guards control, jog, activity, selections, results
+        # Held while a jog starts or stops: a stop (the dead-man's too) waits for a start to
+        # finish, so it stops what the start began, never just before the move goes out.
+        self._jog_lock = threading.RLock()
+        self._jog: Jog | None = None
+        self.activity: Activity | None = None
+        #: The last result of each measurement ("delta_t", "calibration", "track"), served
+        #: on its own (large for the status stream, which goes out 20 times a second).
+        self._results: dict[str, dict[str, Any]] = {}
+        self._selections: dict[int, tuple[str, str]] = {}
+        self._snapshot: dict[str, Any] = {"seq": 0, "connected": False}
+        self._tables_ok = Tables({}, {})
+        self._outputs: list[str] | None = None  # the robot's output names, read once
+        self._seq = 0
+        self._stop = threading.Event()
+        self.status_reads = 0
+        self._threads: list[threading.Thread] = []
+        self._opened = self._closed = False
+
+    def open(self) -> Console:
+        """Connect (ConnectionError naming the robot or sensor and its address) and start the
+        status and dead-man threads. The application's lifespan calls it unless its caller
+        did (the CLI does, to say "unreachable" before it prints a sign-in URL)."""
+        if self._opened:
+            return self
+        robot, sensor, timeout = self.robot_address, self.sensor_address, self.timeout
         try:
             self.control = RobotClient(*robot, timeout=timeout, client_name="welding-console")
             self.poll = RobotClient(*robot, timeout=timeout, client_name="welding-console-status")
@@ -160,40 +184,32 @@ class Console:
             for c in (self.control, self.poll, self.stopper):
                 c.close()
             raise ConnectionError(f"sensor: {unreachable(*sensor, exc)}") from None
-        self.in_control = False
-        self.sensor_in_control = False
-        #: The signed-in operator on whose behalf the console holds control (None: nobody).
-        self.controller: str | None = None
-        self._lock = threading.Lock()  # guards jog, activity, selections
-        # Held while a jog starts or stops: a stop (the dead-man's too) waits for a start to
-        # finish, so it stops what the start began, never just before the move goes out.
-        self._jog_lock = threading.RLock()
-        self._jog: Jog | None = None
-        self.activity: Activity | None = None
-        #: The last result of each measurement ("delta_t", "calibration"), served on its own
-        #: (large for the status stream, which goes out 20 times a second).
-        self.results: dict[str, dict[str, Any]] = {}
-        self._selections: dict[int, tuple[str, str]] = {}
-        self._snapshot: dict[str, Any] = {"seq": 0, "connected": False}
-        self._tables_ok = Tables({}, {})
-        self._outputs: list[str] | None = None  # the robot's output names, read once
-        self._seq = 0
-        self._stop = threading.Event()
-        self.status_reads = 0
         self._threads = [
             threading.Thread(target=self._status_loop, name="console-status", daemon=True),
             threading.Thread(target=self._deadman_loop, name="console-deadman", daemon=True),
         ]
         for t in self._threads:
             t.start()
+        self._opened = True
+        return self
+
+    def __enter__(self) -> Console:
+        return self.open()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     # --- lifecycle ---------------------------------------------------------------------------
 
     def close(self) -> None:
+        """Stop what runs (jog, activity), release control, close the connections; once."""
+        if not self._opened or self._closed:
+            return
+        self._closed = True
         self._stop.set()
         self.stop_jog(None, "console closed")
         act = self.activity
-        if act is not None and act.state == "running" and act.cancel is not None:
+        if act is not None and act.running and act.cancel is not None:
             act.cancel()
         for t in self._threads:
             t.join(2.0)
@@ -310,6 +326,11 @@ class Console:
 
     # --- control, power, E-stop -------------------------------------------------------------
 
+    def holder(self) -> str | None:
+        """The operator on whose behalf the console holds control now (None: nobody)."""
+        with self._lock:
+            return self.controller if self.in_control else None
+
     def take_control(self, user: str = "console") -> None:
         """Control for ``user``: one operator holds it at a time (issue 28 item 2)."""
         with self._lock:
@@ -344,7 +365,7 @@ class Console:
 
     def _check_idle(self) -> None:
         act = self.activity
-        if act is not None and act.state == "running":
+        if act is not None and act.running:
             raise ConsoleError(f"a {act.kind} is running: abort it first", 409)
 
     def power(self, on: bool) -> None:
@@ -366,7 +387,7 @@ class Console:
         with self._lock:
             self._jog = None
             act = self.activity
-        if act is not None and act.state == "running" and act.cancel is not None:
+        if act is not None and act.running and act.cancel is not None:
             act.cancel()
 
     def reset_emergency_stop(self) -> None:
@@ -654,75 +675,72 @@ class Console:
         def dwell(seconds: float) -> None:
             cancelled.wait(seconds)  # real time; ends at once on abort
 
-        runner = JobRunner(
-            self.control,
-            tables,
-            dry_run=dry_run,
-            dwell=dwell,
-            poll=0.2,
-        )
+        runner = JobRunner(self.control, tables, dry_run=dry_run, dwell=dwell, poll=0.2)
         act = Activity("job", detail={"file": name, "dry_run": dry_run, "index": 0,
                                       "total": len(job.sequence()), "item": "", "phase": "",
                                       "order": [i.name for i in job.sequence()]})  # fmt: skip
 
         def cancel() -> None:
-            cancelled.set()
+            cancelled.set()  # ends a dwell at once
             runner.cancel()
 
-        def progress(p: Progress) -> None:
-            act.detail.update(index=p.index, item=p.item, phase=p.phase)
-
-        runner.on_progress = progress
         act.cancel = cancel
+        self.start(act, partial(run_job, act, cancelled, runner, job), cancelled,
+                   aborts=(JobAborted,))  # fmt: skip
 
-        def work() -> None:
-            runner.run(job)
-            act.state = "done"
-
-        self._start(act, work, cancelled, aborts=(JobAborted,))
-
-    def _start(
+    def start(
         self,
         act: Activity,
-        work: Callable[[], None],
-        cancelled: threading.Event | None = None,
+        work: Callable[[], dict[str, Any] | None],
+        cancelled: threading.Event,
         *,
         expected: tuple[type[Exception], ...] = (),
         aborts: tuple[type[Exception], ...] = (),
         stop_arm: bool = False,
     ) -> None:
-        """Run ``work`` as the one activity, in its own thread. Whatever it raises is the
-        activity's message, never a dead thread: "aborted" when the operator cancelled it or
-        it raised one of ``aborts``, else "failed" (logged with its traceback unless it is one
-        of the ``expected`` refusals). ``stop_arm``: a motion left behind is reset."""
+        """Run ``work`` (an action of :mod:`welding.console.activities`) as the one activity,
+        in its own thread; what it returns is the result of ``act.kind``. Whatever it raises
+        is the activity's message, never a dead thread: "aborted" when the operator cancelled
+        it or it raised one of ``aborts``, else "failed" (logged with its traceback unless it
+        is one of the ``expected`` refusals). ``stop_arm``: a motion left behind is reset."""
+        if act.cancel is None:
+            act.cancel = cancelled.set
 
         def run() -> None:
             try:
-                work()
-            except Exception as exc:
-                was_cancelled = cancelled is not None and cancelled.is_set()
-                act.message = _activity_message(exc)
-                act.hint = getattr(exc, "hint", "")
-                act.state = "aborted" if was_cancelled or isinstance(exc, aborts) else "failed"
-                if act.state == "failed" and not isinstance(exc, expected):
+                result = work()
+            except Exception as exc:  # the activity's end, never a dead thread
+                aborted = cancelled.is_set() or isinstance(exc, aborts)
+                state = "aborted" if aborted else "failed"
+                act.finish(state, _activity_message(exc), getattr(exc, "hint", ""))
+                if state == "failed" and not isinstance(exc, expected):
                     log.exception("console %s", act.kind)
-                elif act.state == "failed":  # a refusal: one line, its reason is on the page
+                elif state == "failed":  # a refusal: one line, its reason is on the page
                     log.warning("console %s refused: %s", act.kind, act.message)
                 if stop_arm:
                     with contextlib.suppress(OSError, ProtocolError, RemoteError):
                         self.control.reset_motion()
+                return
+            if result is not None:
+                with self._lock:
+                    self._results[act.kind] = result
 
         with self._jog_lock, self._lock:  # not beside a jog that is starting
-            if self.activity is not None and self.activity.state == "running":
+            if self.activity is not None and self.activity.running:
                 raise ConsoleError(f"a {self.activity.kind} is running: abort it first", 409)
             if self._jog is not None:
                 raise ConsoleError("a jog is running", 409)
             self.activity = act
         threading.Thread(target=run, name=f"console-{act.kind}", daemon=True).start()
 
+    def result(self, kind: str) -> dict[str, Any] | None:
+        """The last result of a measurement (``delta_t``, ``calibration``, ``track``)."""
+        with self._lock:
+            return self._results.get(kind)
+
     def abort(self) -> None:
         act = self.activity
-        if act is None or act.state != "running" or act.cancel is None:
+        if act is None or not act.running or act.cancel is None:
             raise ConsoleError("nothing is running", 409)
         act.cancel()
 
@@ -744,23 +762,8 @@ class Console:
             raise ConsoleError(str(exc)) from None
         act = Activity("teach", detail={"points": [], "count": 0})
         cancelled = threading.Event()
-        console = self
-
-        class LiveTeacher(SeamTeacher):
-            """Shows each measured seam point as it comes, and stops on abort."""
-
-            def measure(self) -> tuple[Any, float, float] | None:
-                if cancelled.is_set():
-                    raise TeachError("cancelled by the operator")
-                got = super().measure()
-                if got is not None:
-                    p = [round(float(v), 3) for v in got[0][:3, 3]]
-                    act.detail["points"] = [*act.detail["points"], p]
-                    act.detail["count"] = len(act.detail["points"])
-                return got
-
         assert self.sensor is not None
-        teacher = LiveTeacher(
+        teacher = SeamTeacher(
             self.control,
             self.sensor,
             sensor_tool,
@@ -772,29 +775,19 @@ class Console:
 
         def cancel() -> None:
             cancelled.set()
-            try:
-                console.control.reset_motion()
-            except (OSError, ProtocolError, RemoteError):
-                pass
+            with contextlib.suppress(OSError, ProtocolError, RemoteError):
+                self.control.reset_motion()
 
         act.cancel = cancel
-
-        def work() -> None:
-            result = teacher.teach()
-            act.detail["points"] = [[round(float(v), 3) for v in q.position] for q in result.points]
-            act.detail["count"] = len(result.points)
-            act.detail["length_mm"] = round(result.length_mm, 3)
-            act.state, act.message = "done", result.stop_reason
-
-        self._start(act, work, cancelled, expected=(TeachError, RemoteError))
+        self.start(act, partial(run_teach, act, cancelled, teacher), cancelled,
+                   expected=(TeachError, RemoteError))  # fmt: skip
 
     # --- ΔT (section VI) ---------------------------------------------------------------------
 
     def delta_t(self, body: Any) -> None:
         """Run the ΔT measurement: a sine perpendicular to the seam, from where the arm is (the
         seam in the middle of the sensor's view, as in the paper)."""
-        from sync.experiment import ExperimentError, ExperimentSettings, analyse, record_sine
-        from welding.console.deltat import result_json
+        from sync.experiment import ExperimentError, ExperimentSettings
 
         self._need_control()
         if self.sensor is None:
@@ -808,25 +801,8 @@ class Console:
         )
         act = Activity("delta_t", detail={"fraction": 0.0})
         cancelled = threading.Event()
-        sensor = self.sensor
-
-        def progress(fraction: float, text: str) -> None:
-            if cancelled.is_set():
-                raise ExperimentError("cancelled by the operator")
-            act.detail["fraction"] = round(fraction, 3)
-
-        act.cancel = cancelled.set
-
-        def work() -> None:
-            data = record_sine(self.control, sensor, settings, progress)
-            result = result_json(analyse(data, settings))
-            self.results["delta_t"] = result
-            act.detail.update(
-                fraction=1.0, delta_t_ms=result["delta_t_ms"], trusted=result["trusted"]
-            )
-            act.state, act.message = "done", "; ".join(result["reasons"])
-
-        self._start(act, work, cancelled, expected=(ExperimentError, RemoteError), stop_arm=True)
+        work = partial(run_delta_t, act, cancelled, self.control, self.sensor, settings)
+        self.start(act, work, cancelled, expected=(ExperimentError, RemoteError), stop_arm=True)
 
     # --- tool calibrations ---------------------------------------------------------------------
 
@@ -835,7 +811,6 @@ class Console:
         over a straight seam, or ``laser-tool``, the emulated cell's spot detector): the
         estimate with its 1σ, the residuals and, on the emulated cell, its error vs the
         true tool."""
-        from welding.calibrate_cli import result_json
         from welding.calibration import (
             CalibrationError,
             EmulatedSpotDetector,
@@ -867,48 +842,25 @@ class Console:
             """Each reading: counted for the page; the run stops here on abort."""
             if cancelled.is_set():
                 raise CalibrationError("cancelled by the operator")
-            act.detail["measurements"] += 1
+            act.count("measurements")
 
         cal: SensorToolCalibration | LaserToolCalibration
         if laser:
             rng = np.random.default_rng(np.random.SeedSequence([18, self._laser_runs]))
             self._laser_runs += 1
-
-            class WatchedDetector(EmulatedSpotDetector):
-                def measure(self) -> Any:
-                    count()
-                    return super().measure()
-
             truth = self.cell.true_laser_tool
-            detector = WatchedDetector(self.cell, rng)
+            detector = CountedDetector(EmulatedSpotDetector(self.cell, rng), count)
             cal = LaserToolCalibration(
                 self.control, detector, nominal.location, poses=poses, repeats=repeats
             )
         else:
-            sensor = self._need_sensor()
-
-            class WatchedSensor:
-                def acquire(self) -> int:
-                    count()
-                    return sensor.acquire()
-
-                def get_data(self) -> Any:
-                    return sensor.get_data()
-
+            sensor = CountedSensor(self._need_sensor(), count)
             truth = self.cell.true_sensor_tool if self.cell is not None else None
             cal = SensorToolCalibration(
-                self.control, WatchedSensor(), nominal.location, poses=poses, repeats=repeats
+                self.control, sensor, nominal.location, poses=poses, repeats=repeats
             )
-        act.cancel = cancelled.set
-
-        def work() -> None:
-            est = cal.run()
-            self.results["calibration"] = result_json(
-                which, est, truth, nominal.name, beam_only=laser
-            )
-            act.state, act.message = "done", f"residual rms {est.residual_rms_mm * 1e3:.1f} µm"
-
-        self._start(act, work, cancelled, expected=(CalibrationError, RemoteError), stop_arm=True)
+        work = partial(run_calibration, act, cancelled, cal, which, truth, nominal.name)
+        self.start(act, work, cancelled, expected=(CalibrationError, RemoteError), stop_arm=True)
 
     # --- tracked weld (emulated cell only) ----------------------------------------------------
 
@@ -918,7 +870,6 @@ class Console:
         live cell is the ``welding track`` path's job once it has one)."""
         if not self.emulated:
             raise ConsoleError("the tracked weld runs on the emulated cell only (--emulate)", 409)
-        from welding.emulate import run_tracking
         from welding.track_options import TRACK_SEAMS
 
         b = body if isinstance(body, dict) else {}
@@ -930,22 +881,8 @@ class Console:
         if not isinstance(tracked, bool):
             raise ConsoleError("tracked: expected true or false")
         act = Activity("track", detail={"seam": seam, "speed": speed})
-
-        def work() -> None:
-            run = run_tracking(str(seam), speed, track=tracked)
-            laser, true = run.plot["laser"], run.plot["seam"]
-            self.results["track"] = run.summary() | {
-                "top": {k: np.round(v[:, :2], 4).tolist() for k, v in run.plot.items()},
-                "error_um": np.round(
-                    np.column_stack([laser[:, 0], (laser[:, 1] - true[:, 1]) * 1e3]), 3
-                ).tolist(),
-            }
-            act.state = "done"
-            act.message = f"max {run.tracking_error_max_mm * 1e3:.1f} µm" + (
-                f"; STOPPED: {run.stopped}" if run.stopped else ""
-            )
-
-        self._start(act, work)
+        cancelled = threading.Event()
+        self.start(act, partial(run_track, act, cancelled, str(seam), speed, tracked), cancelled)
 
     # --- sensor ------------------------------------------------------------------------------
 
@@ -960,7 +897,7 @@ class Console:
         s = self._need_sensor()
         act = self.activity
         try:
-            if self.sensor_in_control and (act is None or act.state != "running"):
+            if self.sensor_in_control and (act is None or not act.running):
                 s.acquire()  # a lost lease (NOT_IN_CONTROL) is shown, not a server error
             index, image = s.get_image()
             _, profile = s.get_profile()

@@ -244,7 +244,7 @@ def cmd_console(args: argparse.Namespace) -> int:
                 timeout=args.timeout,
                 emulated=args.emulate,
                 cell=cell,
-            )
+            ).open()  # before the sign-in URL: an unreachable cell is said first
         except OSError as exc:
             raise CliError(
                 str(exc), ExitCode.UNREACHABLE
