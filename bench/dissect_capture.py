@@ -24,6 +24,7 @@ import numpy as np
 
 from spec import dissector
 from spec.codec import Packet, encode_packet
+from spec.exitcodes import ExitCode
 from spec.params import Image, Joints
 from spec.pcapng import PcapngWriter, TcpFlow
 from spec.registry import CommandId
@@ -72,7 +73,7 @@ def main() -> int:
     tshark = shutil.which("tshark")
     if tshark is None:
         print("tshark is not installed (apt-get install tshark)", file=sys.stderr)
-        return 2
+        return ExitCode.USAGE  # nothing was started
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(args.keep) if args.keep else Path(tmp) / "big.pcapng"
         frames = build(path, args.mb)
@@ -89,7 +90,7 @@ def main() -> int:
             times[label] = time.perf_counter() - start
             if r.returncode:
                 print(r.stderr, file=sys.stderr)
-                return 1
+                return ExitCode.FAILED
             if label == "dissector":
                 statuses = r.stdout.split()
                 good = sum(s.split(",").count("1") for s in statuses)

@@ -15,6 +15,7 @@ import pytest
 from cell.__main__ import main
 from robotsocket.__main__ import main as robot_main
 from sensorsocket.__main__ import main as sensor_main
+from spec.exitcodes import ExitCode
 
 if TYPE_CHECKING:
     from tests.conftest import BusyPort
@@ -88,9 +89,9 @@ def test_demo_runs_end_to_end(tmp_path: Path) -> None:
     )  # fmt: skip
     text = out.stdout
     # A real-clock run on a busy machine may be untrusted: then the demo says so and why
-    # (exit 3), it never prints a plausible wrong ΔT as if it were fine.
-    assert out.returncode in (0, 3), out.stderr[-2000:]
-    assert ("verdict: UNTRUSTED" in text) == (out.returncode == 3), text
+    # (exit 4, UNTRUSTED), it never prints a plausible wrong ΔT as if it were fine.
+    assert out.returncode in (ExitCode.OK, ExitCode.UNTRUSTED), out.stderr[-2000:]
+    assert ("verdict: UNTRUSTED" in text) == (out.returncode == ExitCode.UNTRUSTED), text
     assert "EnablePower, Herej()" in text and "ΔT measured (ms)" in text and "verdict:" in text
     assert any(p.suffix == ".pgm" for p in tmp_path.iterdir())
 

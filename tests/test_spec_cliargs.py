@@ -179,7 +179,7 @@ def test_numeric_options_are_usable_or_one_line_errors(
         lines = err.getvalue().strip().splitlines()
         assert len(lines) == 1 and "error" in lines[0], err.getvalue()
         return
-    except ConformanceUsage as exc:  # the harness's usage errors exit 3 (its documented code)
+    except ConformanceUsage as exc:  # the harness's usage errors: exit 2 (USAGE)
         assert "\n" not in str(exc)
         return
     got = getattr(args, attr)

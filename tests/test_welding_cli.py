@@ -204,14 +204,15 @@ def test_track_writes_the_json_fields(tmp_path: Path, capsys: pytest.CaptureFixt
     assert data["verdict"]["line"] == out_lines[-1] and data["verdict"]["within_tolerance"]
 
 
-def test_track_out_of_tolerance_exits_3_with_the_reason(
+def test_track_out_of_tolerance_exits_1_with_the_reason(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """[issue 30] The untracked nominal path is 2 mm off the sine: the tracker's own estimate
-    says so, exit 3, the reason on the last line and in the JSON."""
+    says so, exit 1 (FAILED: out of tolerance, spec/exitcodes.py), the reason on the last
+    line and in the JSON."""
     out = tmp_path / "track.json"
     argv = ["track", "--emulate", "--seam", "sine", "--length", "40", "--untracked"]
-    assert main([*argv, "--true-delta-t", "--json", str(out)]) == 3
+    assert main([*argv, "--true-delta-t", "--json", str(out)]) == ExitCode.FAILED
     last = capsys.readouterr().out.splitlines()[-1]
     assert last.startswith("OUT OF TOLERANCE 0.1 mm: estimated error")
     data = json.loads(out.read_text())
@@ -264,9 +265,9 @@ def test_track_on_the_real_clock_reports_its_cycles() -> None:
     argv = ["track", "--emulate", "--clock", "real", "--true-delta-t", "--speed", "100",
             "--length", "20", "--json", "rt.json"]  # fmt: skip
     before = set(_children(os.getpid()))  # this worker's other tests' processes, if any
-    # 3: out of tolerance by the tracker's own verdict (a late correction on a busy machine,
-    # or the weld stopped); the laser is off either way
-    assert main(argv) in (0, 3)
+    # 1 (FAILED): out of tolerance by the tracker's own verdict (a late correction on a busy
+    # machine, or the weld stopped); the laser is off either way
+    assert main(argv) in (ExitCode.OK, ExitCode.FAILED)
     data = json.loads(Path("rt.json").read_text())
     assert data["clock"] == "real" and data["cycles"] > 0
     assert data["cell"] == "real-time child"

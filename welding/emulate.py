@@ -34,6 +34,7 @@ from sensorsocket.client import SensorClient
 from sensorsocket.scene import Scene
 from spec.client import FramedClient
 from spec.errors import ProtocolError
+from spec.exitcodes import ExitCode
 from spec.files import write_atomically
 from spec.params import Location, Value
 from spec.realtime import realtime_threads
@@ -57,8 +58,9 @@ log = logging.getLogger(__name__)
 #: SCHED_FIFO priority of the real-clock tracker's process: below the real-time child's
 #: command (40) and timing (50) threads, above everything else.
 TRACKER_PRIORITY = 30
-#: Exit code of a tracked weld out of its tolerance (or stopped early), as ``welding track``.
-EXIT_OUT_OF_TOLERANCE = 3
+#: Exit code of a tracked weld out of its tolerance (or stopped early), as ``welding track``:
+#: a result out of its tolerance is FAILED in the one table (docs/CLI.md, "Exit codes").
+EXIT_OUT_OF_TOLERANCE = ExitCode.FAILED
 
 
 def _loc(values: object) -> Loc:
@@ -644,8 +646,8 @@ def _true_seam(
 
 def cmd_track(args: argparse.Namespace) -> int:
     """Run one tracked weld; print and optionally write the result and end with the
-    tracker's own verdict: exit 0 within ``--tolerance``, 3 (with the reason) when not,
-    including a weld that stopped early (the laser is off)."""
+    tracker's own verdict: exit 0 within ``--tolerance``, 1 (``ExitCode.FAILED``, with the
+    reason) when not, including a weld that stopped early (the laser is off)."""
     run = run_tracking(
         args.seam,
         args.speed,
@@ -686,7 +688,7 @@ def cmd_track(args: argparse.Namespace) -> int:
             + ("" if run.start_on_grid else "; the move's start cycle was not known exactly")
         )
     print(run.verdict.get("line", "no verdict"))
-    return 0 if run.within_tolerance else EXIT_OUT_OF_TOLERANCE
+    return ExitCode.OK if run.within_tolerance else EXIT_OUT_OF_TOLERANCE
 
 
 def _plot(run: TrackingRun, out_dir: Path) -> None:

@@ -482,7 +482,7 @@ class Verdict:
     """What a tracked weld can say about itself on a real cell: the laser's error estimated
     from the robot's measured joints (the laser's path) against the seam the sensor measured
     ahead of it, and the corrections the robot did not get in time. ``within``: exit 0;
-    else ``reason`` (exit 3)."""
+    else ``reason`` (exit 1, FAILED)."""
 
     within: bool
     reason: str
