@@ -149,7 +149,11 @@ def cmd_serve(args: argparse.Namespace) -> int:
         sys.stdout.flush()
 
     serve_until_signal([], on_stop=cell.close, ready=announce)
-    return 0
+    # serve_until_signal returns only after SIGINT or SIGTERM, the cell closed: one line
+    # saying so and exit 130, as every tool ends on Ctrl-C (docs/CLI.md, "Exit codes")
+    return cliargs.interrupted(
+        "python -m cell", "the emulated cell stopped (robot, sensor), its servers closed"
+    )
 
 
 def _fmt(loc: Any) -> str:

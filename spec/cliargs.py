@@ -285,9 +285,11 @@ def program_name(argv0: str) -> str:
     return f"python -m {path.parent.name}" if path.name == "__main__.py" else path.name
 
 
-def interrupted(prog: str) -> ExitCode:
-    """Ctrl-C (or SIGTERM) ended a command: the one line every tool prints, and its code."""
-    print(f"{prog}: interrupted", file=sys.stderr)
+def interrupted(prog: str, stopped: str = "") -> ExitCode:
+    """Ctrl-C (or SIGTERM) ended a command: the one line every tool prints, and its code.
+    ``stopped`` says what the tool's controlled stop ended and in which state it left things
+    (``"the emulated cell stopped, its servers closed"``): ``PROG: interrupted: STOPPED``."""
+    print(f"{prog}: interrupted" + (f": {stopped}" if stopped else ""), file=sys.stderr)
     return ExitCode.INTERRUPTED
 
 

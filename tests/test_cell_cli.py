@@ -71,8 +71,13 @@ def test_serve_answers_a_robot_and_a_sensor_call_then_stops_on_sigint(
             assert client_main(["call", endpoint, "Hello", "1", "2", "test"]) == 0
             assert json.loads(capsys.readouterr().out)["frame_timeout"] == 1.5
         proc.send_signal(signal.SIGINT)
-        proc.communicate(timeout=30)
-        assert proc.returncode == 0
+        _, err = proc.communicate(timeout=30)
+        # issue 35: the stop printed nothing and exited 0; now one line and 130, as every tool
+        assert proc.returncode == ExitCode.INTERRUPTED, err
+        assert err.splitlines() == [
+            "python -m cell: interrupted: the emulated cell stopped (robot, sensor), its servers "
+            "closed"
+        ]
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -375,6 +375,33 @@ def test_ctrl_c_in_any_command_is_one_line(
     def interrupted(args: object) -> int:
         raise KeyboardInterrupt
 
-    monkeypatch.setitem(cli.COMMANDS, "calibrate", interrupted)
-    assert main(["calibrate", "sensor-tool", "--emulate"]) == ExitCode.INTERRUPTED
+    monkeypatch.setitem(cli.COMMANDS, "tools", interrupted)
+    assert main(["tools", "list"]) == ExitCode.INTERRUPTED
     assert capsys.readouterr().err == "python -m welding: interrupted\n"
+
+
+def test_ctrl_c_in_calibrate_says_what_it_stopped(tmp_path: Path) -> None:
+    """[issue 35 item 6] Ctrl-C in a real ``welding calibrate`` process: one line naming
+    what stopped (the calibration, nothing saved, the robot's controlled stop), exit 130."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "welding", "calibrate", "sensor-tool", "--emulate",
+         "--save", "calibrated", "--tools", str(tmp_path / "tools.json")],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+        env=dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1])),
+    )  # fmt: skip
+    try:
+        assert proc.stderr is not None
+        line = proc.stderr.readline()  # printed as the emulated cell's tools are added
+        assert line.startswith("added the emulated cell's"), line
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == ExitCode.INTERRUPTED, err
+    assert err.splitlines() == [
+        "python -m welding: interrupted: calibration stopped, nothing saved; control dropped, "
+        "the robot stops in a controlled way (laser off)"
+    ]
+    assert "calibrated" not in (tmp_path / "tools.json").read_text()

@@ -794,6 +794,20 @@ def cmd_ilc(args: argparse.Namespace) -> int:
 # --- main ------------------------------------------------------------------------------------
 
 
+#: What Ctrl-C stopped, for the one line a command ends with (cliargs.interrupted). The
+#: clients close without giving control back: the robot and the sensor see a lost
+#: controller and make their controlled stop (laser off first, motion stopped) [RS-7.10].
+_CONTROLLED_STOP = "control dropped, the robot stops in a controlled way (laser off)"
+_STOPPED = {
+    "calibrate": f"calibration stopped, nothing saved; {_CONTROLLED_STOP}",
+    "teach": f"teaching stopped, the job not written; {_CONTROLLED_STOP}",
+    "track": "tracked weld stopped: laser off, motion reset",
+    "ilc": "ILC trials stopped: laser off, motion reset",
+    "jog": f"jog stopped; {_CONTROLLED_STOP}",
+    "move": f"move stopped; {_CONTROLLED_STOP}",
+    "job run": f"job stopped; {_CONTROLLED_STOP}",
+}
+
 COMMANDS = {
     "job": cmd_job,
     "tools": cmd_tools,
@@ -836,4 +850,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"python -m welding: error: {error_text(exc)}", file=sys.stderr)
         return ExitCode.UNREACHABLE
     except KeyboardInterrupt:  # the safe stops ran on the way out (laser off, motion stopped)
-        return cliargs.interrupted("python -m welding")
+        command = " ".join([args.command, getattr(args, "action", "") or ""]).strip()
+        stopped = _STOPPED.get(command, _STOPPED.get(args.command, ""))
+        return cliargs.interrupted("python -m welding", stopped)
