@@ -32,6 +32,7 @@ from cell.options import (
     timing_kwargs,
 )
 from cell.rtcell import CellProcess
+from cell.seams import SEAM_NAMES, cell_seam
 from robotsocket.rtprocess import ChildStartError
 from sensorsocket.pgm import write_pgm
 from spec import cliargs
@@ -65,7 +66,7 @@ def _parser() -> cliargs.Parser:
         s.add_argument("--clock", choices=("real", "sim"), default="real")
         s.add_argument("--model", default="RX90B")
         s.add_argument("--joint", choices=("butt", "fillet", "lap"), default="butt")
-        s.add_argument("--seam", choices=("straight", "sine", "corner"), default="straight")
+        s.add_argument("--seam", choices=SEAM_NAMES, default="straight", help="(cell/seams.py)")
         s.add_argument("--seed", type=cliargs.seed, default=0)
         s.add_argument("-v", "--verbose", action="store_true")
         add_dynamics_option(s)
@@ -115,7 +116,8 @@ def _cell_kwargs(args: argparse.Namespace) -> dict[str, Any]:
         "model": args.model,
         "dynamics": args.dynamics,
         "joint": args.joint,
-        "seam": args.seam,
+        "seam": cell_seam(args.seam)[0],
+        "workpiece_error": cell_seam(args.seam)[1],
         "seed": args.seed,
         "sensor_tool_error": args.sensor_tool_error,
         "laser_tool_error": args.laser_tool_error,

@@ -52,14 +52,18 @@ from welding.console import cli as console_cli
 from welding.process import JobAborted, JobRunner, PlanError, Progress, plan, steps_summary
 from welding.teach import SeamTeacher, TeachError, record_here, seam_path
 from welding.tools import TOOL_KINDS, Entry, Tables, ToolDB, ToolDBError, check_location
-from welding.track_options import add_dynamics_option, add_ilc_options, add_track_options
+from welding.track_options import (
+    add_dynamics_option,
+    add_ilc_options,
+    add_seam_option,
+    add_track_options,
+)
 
 __all__ = ["main"]
 
 log = logging.getLogger("welding")
 
 DEFAULT_TOOLS = "welding-tools.json"
-SEAMS = ("straight", "sine", "corner", "jog")
 
 
 class CliError(Exception):
@@ -111,12 +115,7 @@ def _add_cell_options(
     )
     if sensor:
         cliargs.add_endpoint(p, "sensor", ", with --robot" + sensor_help)
-    p.add_argument(
-        "--seam",
-        choices=SEAMS,
-        default="straight",
-        help="the emulated cell's seam (with --emulate)",
-    )
+    add_seam_option(p, "straight", " (with --emulate)")
     p.add_argument("--seed", type=int, default=0, help="the emulated cell's seed")
     add_dynamics_option(p)
     for which in ("sensor", "laser"):

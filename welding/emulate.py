@@ -26,8 +26,10 @@ import numpy.typing as npt
 from cell.cell import CellTiming, EmulatedCell
 from cell.options import timing_kwargs
 from cell.rtcell import CellProcess
+from cell.seams import cell_seam
 from cell.truth import WeldRecorder, WeldTruth
 from kinematics.transforms import invert, location_to_transform, transform_to_location
+from kinematics.types import IDENTITY_LOC
 from robotsocket.client import RobotClient
 from robotsocket.rtprocess import ChildStartError
 from sensorsocket.client import SensorClient
@@ -48,7 +50,6 @@ from welding.track_loop import (
     laser_path,
     weld_tracked,
 )
-from welding.track_options import TRACK_SEAMS
 from welding.tracking import TOLERANCE_MM, NominalWeld, Tracker, seam_error
 
 __all__ = ["EmulatedSession", "cell_tables", "realtime_cell"]
@@ -98,15 +99,16 @@ def realtime_cell(seam: str = "straight", *, seed: int = 0, dynamics: str = "off
     (the operator console's ``--emulate``: an operator watches and jogs it at the speed a
     real arm moves; the console's web server and status threads cannot starve its 4 ms
     loop). Raises ValueError when the child cannot start."""
+    shape, placement = cell_seam(seam)
     try:
-        cell = CellProcess(seam=seam, seed=seed, dynamics=dynamics)
+        cell = CellProcess(seam=shape, workpiece_error=placement, seed=seed, dynamics=dynamics)
     except ChildStartError as exc:
         raise ValueError(f"the real-time cell did not start: {exc}") from None
     return cell.start()
 
 
 class EmulatedSession:
-    """A started simulated cell (``seam``: straight|sine|corner|jog), a robot client holding
+    """A started simulated cell (``seam``: a name of :mod:`cell.seams`), a robot client holding
     control with the arm powered, a sensor client, and tables naming its tools (``laser``,
     ``sensor``) and the workpiece frame (``workpiece``: where it should be; the cell puts it
     ``workpiece_error`` off that)."""
@@ -121,14 +123,15 @@ class EmulatedSession:
         workpiece_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
         dynamics: str = "off",
     ) -> None:
+        shape, placement = cell_seam(seam, workpiece_error)
         self.cell = EmulatedCell(
             clock="sim",
-            seam=seam,
+            seam=shape,
             seed=seed,
             dynamics=dynamics,
             sensor_tool_error=sensor_tool_error,
             laser_tool_error=laser_tool_error,
-            workpiece_error=workpiece_error,
+            workpiece_error=placement,
         )
         # the ΔT in force: the cell's true one stands for what the section VI procedure
         # measures (tracked paths use it)
@@ -269,13 +272,11 @@ def run_tracking(
     the errors against the truth stand beside it. ``load``: a context entered with the
     robot server's address around the weld on the real clock (a benchmark's load).
     ``dynamics``: the emulated arm's (``off`` or ``elastic``, :class:`EmulatedCell`)."""
-    if seam not in TRACK_SEAMS:
-        raise ValueError(f"seam must be one of {', '.join(TRACK_SEAMS)}, got {seam!r}")
-    shape, placement = TRACK_SEAMS[seam]
+    shape, placement = cell_seam(seam, workpiece_error or IDENTITY_LOC)
     config: dict[str, Any] = {
         "timing": timing or CellTiming(),
         "seam": shape,
-        "workpiece_error": workpiece_error or placement,
+        "workpiece_error": placement,
         "seed": seed,
         "sensor_tool_error": sensor_tool_error,
         "laser_tool_error": laser_tool_error,
