@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spec import dissector
+from spec import cliargs, dissector
 from spec.codec import Packet, encode_packet
 from spec.exitcodes import ExitCode
 from spec.params import Image, Joints
@@ -68,7 +68,9 @@ def build(path: Path, megabytes: float) -> int:
 def main() -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.dissect_capture")
     parser.add_argument("--mb", type=float, default=100.0, help="size of the capture, MB")
-    parser.add_argument("--keep", metavar="FILE", help="keep the capture here")
+    parser.add_argument(
+        "--keep", metavar="FILE", type=cliargs.output_file, help="keep the capture here"
+    )
     args = parser.parse_args()
     tshark = shutil.which("tshark")
     if tshark is None:

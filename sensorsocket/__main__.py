@@ -112,7 +112,13 @@ def _parser() -> cliargs.Parser:
     _token_file(c)
     n = sub.add_parser("snapshot", help="save the latest frame as PGM (or PNG)")
     n.add_argument("endpoint", metavar="HOST:PORT")
-    n.add_argument("-o", "--output", required=True, help="frame.pgm or frame.png")
+    n.add_argument(
+        "-o",
+        "--output",
+        type=cliargs.output_file,
+        required=True,
+        help="frame.pgm or frame.png (a missing folder is created)",
+    )
     n.add_argument("--acquire", action="store_true", help="take control and acquire first")
     n.add_argument("--timeout", type=cliargs.timeout, default=5.0, help="reply timeout (s)")
     _token_file(n)
@@ -234,8 +240,6 @@ def cmd_snapshot(args: argparse.Namespace) -> int:
     suffix = out.suffix.lower()
     if suffix not in (".pgm", ".png"):
         raise _UsageError(f"output must end in .pgm or .png, got {args.output!r}")
-    if not out.parent.is_dir():
-        raise _UsageError(f"output directory {str(out.parent)!r} does not exist")
     token: str | None = args.token
     try:
         host, port = parse_endpoint(args.endpoint, DEFAULT_PORT)

@@ -14,7 +14,7 @@ from typing import Any, NoReturn
 from spec import wire
 from spec.auth import Network, read_token_file
 from spec.exitcodes import ExitCode
-from spec.files import prepare_output_path
+from spec.files import prepare_output_dir, prepare_output_path
 from spec.server import ServerPolicy, parse_networks
 
 
@@ -268,14 +268,10 @@ def output_file(text: str) -> str:
 
 def output_dir(text: str) -> str:
     """A directory the tool will write files into (created now if missing)."""
-    path = Path(text)
-    if path.exists() and not path.is_dir():
-        raise argparse.ArgumentTypeError(f"{text} exists and is not a directory")
     try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        msg = f"cannot create directory {text}: {exc.strerror}"
-        raise argparse.ArgumentTypeError(msg) from None
+        prepare_output_dir(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
     return text
 
 

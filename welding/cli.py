@@ -235,7 +235,13 @@ def _parser() -> argparse.ArgumentParser:
     p = sub.add_parser("record", help="manual teaching: save the current location as a via")
     _add_cell_options(p)
     p.add_argument("name", type=_name)
-    p.add_argument("--job", required=True, metavar="JOB.xml", help="created when missing")
+    p.add_argument(
+        "--job",
+        required=True,
+        type=cliargs.output_file,
+        metavar="JOB.xml",
+        help="created when missing",
+    )
     p.add_argument("--tool", default="flange")
     p.add_argument("--frame", default="world")
     p.add_argument("--replace", action="store_true", help="replace an item of that name")
@@ -248,7 +254,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--max-points", type=cliargs.positive_int, default=100)
     p.add_argument("--speed", type=cliargs.positive_float, default=50.0, help="mm/s")
     p.add_argument("--json", type=cliargs.output_file, metavar="OUT.json")
-    p.add_argument("--job", metavar="JOB.xml", help="add the seam as a path to this job")
+    p.add_argument(
+        "--job",
+        metavar="JOB.xml",
+        type=cliargs.output_file,
+        help="add the seam as a path to this job",
+    )
     p.add_argument("--name", type=_name, default="seam", help="the path's name")
     p.add_argument("--tool", default="laser", help="the path's tool (default laser)")
     p.add_argument("--frame", default="world", help="the path's frame (default world)")

@@ -84,7 +84,9 @@ def add_track_options(p: argparse.ArgumentParser) -> None:
         help="send one Alter per cycle instead of timed corrections ahead (AlterQueue)",
     )
     p.add_argument("--json", type=cliargs.output_file, metavar="OUT.json")
-    p.add_argument("--plot", metavar="DIR", help="write track.png (needs matplotlib)")
+    p.add_argument(
+        "--plot", metavar="DIR", type=cliargs.output_dir, help="write track.png (needs matplotlib)"
+    )
     p.add_argument(
         "--sensor-tool",
         metavar="NAME",
@@ -141,12 +143,16 @@ def add_ilc_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--table",
         metavar="PATH",
+        type=cliargs.output_file,
         help="the learned table: reused when the file exists, written after every trial",
     )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", type=cliargs.output_file, metavar="OUT.json")
     p.add_argument(
-        "--plot", metavar="DIR", help="write ilc_trials.png, ilc_convergence.png (matplotlib)"
+        "--plot",
+        metavar="DIR",
+        type=cliargs.output_dir,
+        help="write ilc_trials.png, ilc_convergence.png (matplotlib)",
     )
     add_dynamics_option(p)
     add_timing_options(p)
