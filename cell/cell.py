@@ -39,7 +39,6 @@ from dataclasses import dataclass, field
 from typing import TypeVar
 
 import numpy as np
-from numpy.typing import NDArray
 
 from cell.delta_t import DeltaTBook
 from cell.motion import TrueMotion
@@ -48,6 +47,7 @@ from cell.sim_link import SimulatedLink
 from cell.timing import CellError, CellTiming
 from kinematics.dynamics import dynamics_named
 from kinematics.transforms import location_to_transform, transform_to_location
+from kinematics.types import FloatArray, Loc
 from robotsocket.emulator import RobotEmulator
 from robotsocket.service import RobotService
 from robotsocket.sync_service import SyncService, flange2base_for
@@ -90,11 +90,8 @@ def bound(what: str, option: str, host: str, port: int, make: Callable[[], _T]) 
         raise CellError(msg) from None
 
 
-FloatArray = NDArray[np.float64]
-
 #: Longest wait of the real-time camera for the robot's setpoints to cover an exposure (s).
 TRUTH_WAIT_S = 0.5
-Loc = tuple[float, float, float, float, float, float]
 
 #: ^N_S T: the sensor's measuring point 200 mm out along the flange axis, 40 mm ahead of the
 #: laser focus in the welding direction (mm, deg).

@@ -1,5 +1,7 @@
-"""The project's one declaration of each numeric type name (issue 33): a float64 array, the
-VAL3 location and its identity. Every package above ``spec`` imports them from here.
+"""The project's numeric type names, one declaration each (issue 33): a float64 array, the
+VAL3 location and its identity. Every package above ``spec`` imports them from here; the
+location and its identity are declared in :mod:`spec.params` (a plain tuple, no numpy, beside
+the wire's ``Location``) and re-exported.
 
 Why a location is a tuple and not an array: it is a record of two units (mm, degrees) whose
 angles do not add as a vector's components do, it is hashable and immutable, and it is what
@@ -14,14 +16,12 @@ from typing import SupportsFloat
 import numpy as np
 import numpy.typing as npt
 
+from spec.params import IDENTITY_LOC, Loc
+
 __all__ = ["IDENTITY_LOC", "FloatArray", "Loc", "as_loc"]
 
 #: Any float64 array: joints (6,), transforms (4, 4) or (N, 4, 4), point sets (N, 3), ...
 FloatArray = npt.NDArray[np.float64]
-#: A VAL3 location: x, y, z (mm), rx, ry, rz (degrees), R = Rx(rx)·Ry(ry)·Rz(rz).
-Loc = tuple[float, float, float, float, float, float]
-#: The identity location: a tool at the flange, a frame at the base.
-IDENTITY_LOC: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 def as_loc(values: Iterable[SupportsFloat]) -> Loc:

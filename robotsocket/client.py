@@ -40,8 +40,9 @@ from typing import NamedTuple
 
 import numpy as np
 
+from kinematics.types import IDENTITY_LOC, FloatArray, Loc
 from robotsocket import interface
-from robotsocket.interface import IDENTITY_LOC, Array, Loc, MotionDesc
+from robotsocket.interface import MotionDesc
 from spec import wire
 from spec.client import (
     ClientTimeout,
@@ -143,8 +144,8 @@ class Status:
 class JointLog(NamedTuple):
     """GetJointLog reply: ``times`` (N,) s on the robot clock, ``joints`` (N, 6) degrees."""
 
-    times: Array
-    joints: Array
+    times: FloatArray
+    joints: FloatArray
 
 
 class IoNames(NamedTuple):
@@ -178,7 +179,7 @@ class RobotClient(FramedClient):
         v = self.call(CommandId.ROBOT_STATUS)
         return Status(*v)  # type: ignore[arg-type]
 
-    def herej(self) -> Array:
+    def herej(self) -> FloatArray:
         """Measured joints (6,) in degrees."""
         (j,) = self.call(_HEREJ)
         assert isinstance(j, Joints)
@@ -194,7 +195,7 @@ class RobotClient(FramedClient):
         assert isinstance(loc, Location)
         return loc.as_tuple()
 
-    def joint_limits(self) -> Array:
+    def joint_limits(self) -> FloatArray:
         """(6, 2) degrees, [lower, upper]."""
         (m,) = self.call(CommandId.GET_JOINT_LIMITS)
         assert isinstance(m, Matrix)

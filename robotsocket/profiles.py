@@ -14,7 +14,7 @@ from typing import Protocol
 
 import numpy as np
 
-from robotsocket.interface import Array
+from kinematics.types import FloatArray
 
 __all__ = ["Decel", "Hold", "Law", "Trapezoid"]
 
@@ -29,7 +29,7 @@ class Law(Protocol):
         """(s, ds/dt) at time t (s)."""
         ...
 
-    def s_array(self, t: Array) -> Array: ...
+    def s_array(self, t: FloatArray) -> FloatArray: ...
 
 
 @dataclass(frozen=True)
@@ -79,7 +79,7 @@ class Trapezoid:
         r = self.t_end - t  # time left
         return 1.0 - 0.5 * self.dec * r * r, self.dec * r
 
-    def s_array(self, t: Array) -> Array:
+    def s_array(self, t: FloatArray) -> FloatArray:
         return np.array([self.at(float(x))[0] for x in t])
 
 
@@ -107,7 +107,7 @@ class Decel:
             self.dec * tau
         )
 
-    def s_array(self, t: Array) -> Array:
+    def s_array(self, t: FloatArray) -> FloatArray:
         return np.array([self.at(float(x))[0] for x in t])
 
 
@@ -121,5 +121,5 @@ class Hold:
     def at(self, t: float) -> tuple[float, float]:
         return self.s, 0.0
 
-    def s_array(self, t: Array) -> Array:
+    def s_array(self, t: FloatArray) -> FloatArray:
         return np.full(len(t), self.s)

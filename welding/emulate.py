@@ -29,7 +29,7 @@ from cell.rtcell import CellProcess
 from cell.seams import cell_seam
 from cell.truth import WeldRecorder, WeldTruth
 from kinematics.transforms import invert, location_to_transform, transform_to_location
-from kinematics.types import IDENTITY_LOC
+from kinematics.types import IDENTITY_LOC, Loc
 from robotsocket.client import RobotClient
 from robotsocket.rtprocess import ChildStartError
 from sensorsocket.client import SensorClient
@@ -41,7 +41,7 @@ from spec.files import write_atomically
 from spec.params import Location, Value
 from spec.realtime import realtime_threads
 from spec.registry import CommandId
-from welding.tools import Entry, Loc, Tables
+from welding.tools import Entry, Tables
 from welding.track_loop import (
     QueueState,
     RobotLink,

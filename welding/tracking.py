@@ -19,11 +19,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 
+from kinematics.types import FloatArray
 from robotsocket.alter import MAX_OFFSET_MM
-
-FloatArray = NDArray[np.float64]
 
 #: Half width of the seam fit around the laser point (mm): several points at 250 mm/s and
 #: 200 Hz (one per 1.25 mm) while short against the seam's curvature (R ≈ 32 mm).
