@@ -37,6 +37,7 @@ from robotsocket.rtprocess import ChildStartError
 from sensorsocket.pgm import write_pgm
 from spec import cliargs
 from spec.client import FramedClient, wait_end_move
+from spec.clocks import CLOCK_KINDS
 from spec.errors import ProtocolError, error_text
 from spec.exitcodes import ExitCode
 from spec.params import Image, Joints, Location
@@ -63,7 +64,7 @@ def _parser() -> cliargs.Parser:
         s.add_argument("--robot-port", type=cliargs.port, default=default_ports[0])
         s.add_argument("--sensor-port", type=cliargs.port, default=default_ports[1])
         s.add_argument("--udp-port", type=cliargs.port, default=default_ports[2])
-        s.add_argument("--clock", choices=("real", "sim"), default="real")
+        s.add_argument("--clock", choices=CLOCK_KINDS, default="real")
         s.add_argument("--model", default="RX90B")
         s.add_argument("--joint", choices=("butt", "fillet", "lap"), default="butt")
         s.add_argument("--seam", choices=SEAM_NAMES, default="straight", help="(cell/seams.py)")

@@ -57,6 +57,7 @@ from sensorsocket.sensor import Sensor
 from sensorsocket.service import SensorService
 from sensorsocket.timing import TimingModel
 from sensorsocket.udp import TriggerListener
+from spec.clocks import CLOCK_KINDS, ClockKind, is_clock_kind
 from spec.server import FramedServer, ServerPolicy
 from sync.network import DelayLink
 from sync.udp import RobotSyncCore, UdpSyncEndpoint
@@ -130,7 +131,7 @@ class EmulatedCell:
             :attr:`sensor_service`.
     """
 
-    clock: str = "sim"
+    clock: ClockKind = "sim"
     timing: CellTiming = field(default_factory=CellTiming)
     model: str = "RX90B"
     sensor_tool: Loc = DEFAULT_SENSOR_TOOL
@@ -152,8 +153,8 @@ class EmulatedCell:
     policy: ServerPolicy | None = None  # the TCP servers' (None: the spec's defaults)
 
     def __post_init__(self) -> None:
-        if self.clock not in ("sim", "real"):
-            raise CellError(f"clock must be 'sim' or 'real', got {self.clock!r}")
+        if not is_clock_kind(self.clock):
+            raise CellError(f"clock must be one of {', '.join(CLOCK_KINDS)}, got {self.clock!r}")
         t = self.timing
         try:
             params = dynamics_named(self.dynamics, self.model)

@@ -67,6 +67,7 @@ from robotsocket.service import error_code
 from robotsocket.shared_state import Snapshot
 from robotsocket.timed_path import plan_timed
 from robotsocket.trajectory import PERIOD, TrajectoryGenerator
+from spec.clocks import ClockKind, check_clock_kind
 from spec.wire import MoveOutcome
 from sync.joint_buffer import JointBuffer
 
@@ -117,7 +118,7 @@ class RobotEmulator(RobotInterface):
         self,
         model: str | RobotModel = "RX90B",
         *,
-        clock: str = "sim",
+        clock: ClockKind = "sim",
         period: float = PERIOD,
         encoder_latency: float = 0.0,
         noise_deg: float = 0.0,
@@ -128,8 +129,7 @@ class RobotEmulator(RobotInterface):
         dynamics: ElasticParams | None = None,
     ) -> None:
         self.model = model if isinstance(model, RobotModel) else get_model(model)
-        if clock not in ("sim", "real"):
-            raise ValueError(f"clock must be 'sim' or 'real', got {clock!r}")
+        check_clock_kind(clock)
         if not (math.isfinite(encoder_latency) and encoder_latency >= 0.0):
             raise ValueError(f"encoder_latency must be >= 0 s, got {encoder_latency}")
         if noise_deg < 0.0 or (noise_deg > 0.0 and rng is None):

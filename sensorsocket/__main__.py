@@ -27,6 +27,7 @@ from spec.callcli import (
     unreachable,
 )
 from spec.cliargs import parse_endpoint, run_cli
+from spec.clocks import CLOCK_KINDS
 from spec.errors import ErrorCode, ProtocolError, RemoteError
 from spec.exitcodes import ExitCode
 from spec.files import atomic_path
@@ -50,13 +51,7 @@ class _UsageError(Exception):
 
 
 def _token_file(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--token-file",
-        dest="token",
-        type=cliargs.token_file,
-        metavar="FILE",
-        help="file holding the TakeControl token (one line)",
-    )
+    cliargs.add_token_file(parser, "the TakeControl")
 
 
 def _parser() -> cliargs.Parser:
@@ -76,7 +71,7 @@ def _parser() -> cliargs.Parser:
     s.add_argument(
         "--motion", default="fixed", help="fixed | sine:AMP_MM:FREQ_HZ | scan:SPEED_MM_S"
     )
-    s.add_argument("--clock", choices=("real", "sim"), default="real")
+    s.add_argument("--clock", choices=CLOCK_KINDS, default="real")
     s.add_argument(
         "--allow",
         nargs="+",

@@ -160,6 +160,20 @@ def token_file(text: str) -> str:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def add_token_file(parser: Any, whose: str, *, dest: str = "token") -> None:
+    """``--token-file FILE`` on ``parser``: the one declaration every command line shares. The
+    token is read (and a missing or empty file refused) when the option is parsed
+    (:func:`token_file`); a file, not the token itself, so ``ps`` does not show it. ``whose``
+    names it in the help line: "the robot's", "the endpoint's", "the TakeControl"."""
+    parser.add_argument(
+        "--token-file",
+        dest=dest,
+        type=token_file,
+        metavar="FILE",
+        help=f"file holding {whose} control token (one line; not shown by ps)",
+    )
+
+
 def network(text: str) -> Network:
     """One network of an allow-list (``10.0.0.0/24``, ``127.0.0.1``, ``::1``)."""
     try:

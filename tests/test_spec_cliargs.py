@@ -286,7 +286,7 @@ def test_help_names_each_options_default_once() -> None:
         ("--robot-port ROBOT_PORT", "4000"),
         ("--sensor-port SENSOR_PORT", "2000"),
         ("--udp-port UDP_PORT", "2001"),
-        ("--clock {real,sim}", "real"),
+        ("--clock {sim,real}", "real"),
         ("--model MODEL", "RX90B"),
     ]:
         assert f"{option} default {default} " in text, option

@@ -126,12 +126,7 @@ def _add_cell_options(
             metavar="DX,DY,DZ,RX,RY,RZ",
             help=f"the emulated cell's true {which} tool = nominal · this (mm, deg)",
         )
-    p.add_argument(
-        "--token-file",
-        metavar="PATH",
-        type=cliargs.token_file,
-        help="control token for the robot (one line)",
-    )
+    cliargs.add_token_file(p, "the robot's", dest="token_file")
     p.add_argument(
         "--enable-power",
         action="store_true",

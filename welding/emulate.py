@@ -35,6 +35,7 @@ from robotsocket.rtprocess import ChildStartError
 from sensorsocket.client import SensorClient
 from sensorsocket.scene import Scene
 from spec.client import FramedClient
+from spec.clocks import ClockKind
 from spec.errors import ProtocolError
 from spec.exitcodes import ExitCode
 from spec.files import write_atomically
@@ -206,7 +207,7 @@ class TrackingRun:
     height_max_mm: float
     nominal_error_max_mm: float  # the untracked nominal path against the same seam
     laser_on_at_end: bool
-    clock: str = "sim"
+    clock: ClockKind = "sim"
     cycles: int = 0  # controller cycles of the move
     corrections: int = 0  # corrections sent during it: one per cycle when the loop keeps up
     start_on_grid: bool = True  # the cycle the move started on is known exactly
@@ -244,7 +245,7 @@ def run_tracking(
     sensor_tool_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
     laser_tool_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
     sensor_tool: Loc | None = None,
-    clock: str = "sim",
+    clock: ClockKind = "sim",
     tolerance_mm: float = TOLERANCE_MM,
     timed: bool = True,
     load: Callable[[tuple[str, int]], contextlib.AbstractContextManager[object]] | None = None,
@@ -374,7 +375,7 @@ class _ChildSide:
 
     def __init__(self, child: CellProcess, sensor_tool: Loc | None) -> None:
         self.child = child
-        self.clock = "real"
+        self.clock: ClockKind = "real"
         self.period = float(child.child.facts["period"])
         self.laser_tool: Loc = tuple(child.child.facts["laser_tool"])
         self.robot_address = child.robot_address
@@ -404,7 +405,7 @@ class _ChildSide:
 
 
 class _CellSide(Protocol):
-    clock: str
+    clock: ClockKind
     period: float
     laser_tool: Loc
 

@@ -10,6 +10,7 @@ from cell.options import add_dynamics_option, add_timing_options, add_tool_error
 from cell.seams import SEAM_NAMES, SEAMS
 from kinematics.types import Loc
 from spec import cliargs
+from spec.clocks import CLOCK_KINDS
 
 __all__ = [
     "SEAM_NAMES",
@@ -64,7 +65,7 @@ def add_track_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
         "--clock",
-        choices=("sim", "real"),
+        choices=CLOCK_KINDS,
         default="sim",
         help="sim: the cell's simulated clock (deterministic); real: its 4 ms cycle on the "
         "wall clock in a real-time child process, the tracker a client that keeps pace "
