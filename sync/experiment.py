@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from kinematics.robot import get_model
+from kinematics.robot import RobotModel, get_model
 from kinematics.transforms import location_to_transform
 from kinematics.types import FloatArray
 from spec import params as wire_params
@@ -305,18 +305,11 @@ def _check_service(client: FramedClient, info: dict[str, Value], wanted: str) ->
         )
 
 
-def record_sine(
-    robot: FramedClient,
-    sensor: FramedClient | None,
-    settings: ExperimentSettings,
-    progress: Progress | None = None,
-) -> ExperimentData:
-    """Run the sine motion with triggering and collect y^R and y^S (see module docstring).
-
-    ``sensor`` is used only to ask for its trigger endpoint; with ``None`` the robot must
-    already know it (SetSensorEndpoint).
-    """
-    s = settings
+def _check_endpoints(
+    robot: FramedClient, sensor: FramedClient | None, s: ExperimentSettings
+) -> RobotModel:
+    """Hello to both, the sensor's laser on, the robot's kinematic model known and the
+    commands the run needs offered: each problem one ExperimentError before anything moves."""
     info = _hello(robot, "robot")
     if sensor is not None:
         _hello(sensor, "sensor")
@@ -333,6 +326,22 @@ def record_sine(
         missing = [c.name for c in needed if int(c) not in commands.values]
         if missing:
             raise ExperimentError(f"the robot does not implement {', '.join(missing)}")
+    return model
+
+
+def record_sine(
+    robot: FramedClient,
+    sensor: FramedClient | None,
+    settings: ExperimentSettings,
+    progress: Progress | None = None,
+) -> ExperimentData:
+    """Run the sine motion with triggering and collect y^R and y^S (see module docstring).
+
+    ``sensor`` is used only to ask for its trigger endpoint; with ``None`` the robot must
+    already know it (SetSensorEndpoint).
+    """
+    s = settings
+    model = _check_endpoints(robot, sensor, s)
     robot.take_control(s.token)
     if sensor is not None:
         host, port = _endpoint(sensor)

@@ -143,7 +143,9 @@ class TrackOutcome:
     rows: FloatArray = field(default_factory=lambda: np.zeros((0, 17)))
 
 
-def weld_tracked(
+# C901 allowed: the 4 ms tracking loop shares its state between phases in locals; splitting it
+# is a refactoring of its own, not a lint fix
+def weld_tracked(  # noqa: C901
     link: TrackLink, weld: TrackedWeld, *, sensor_silent_after_mm: float | None = None
 ) -> TrackOutcome:
     """Run ``weld`` on ``link``; ``sensor_silent_after_mm`` stops the triggers once the laser
