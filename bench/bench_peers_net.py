@@ -56,7 +56,7 @@ def _throughput(
             while not stop.is_set():
                 call()
                 counts[i] += 1
-        except Exception as exc:
+        except Exception as exc:  # noqa: BLE001  a load thread's failure, reported by the run
             failed.append(str(exc))
         finally:
             close()

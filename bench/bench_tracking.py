@@ -31,6 +31,7 @@ import numpy as np
 
 from bench.bench_realtime import _load
 from bench.common import Result, percentile, result
+from spec import cliargs
 from spec.exitcodes import ExitCode
 
 HOGS = 2
@@ -238,7 +239,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seeds", type=int, default=SEEDS)
     p.add_argument("--cases", nargs="*", help="SEAM:SPEED, e.g. sine:250 (default: all six)")
     p.add_argument("--no-transport", action="store_true", help="skip the AlterQueue timing")
-    p.add_argument("--json", help="write the per-run figures here")
+    p.add_argument("--json", type=cliargs.output_file, help="write the per-run figures here")
     args = p.parse_args(argv)
     cases = CASES
     if args.cases:

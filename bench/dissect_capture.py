@@ -22,8 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from spec import dissector
+from spec import cliargs, dissector
 from spec.codec import Packet, encode_packet
+from spec.exitcodes import ExitCode
 from spec.params import Image, Joints
 from spec.pcapng import PcapngWriter, TcpFlow
 from spec.registry import CommandId
@@ -67,12 +68,14 @@ def build(path: Path, megabytes: float) -> int:
 def main() -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.dissect_capture")
     parser.add_argument("--mb", type=float, default=100.0, help="size of the capture, MB")
-    parser.add_argument("--keep", metavar="FILE", help="keep the capture here")
+    parser.add_argument(
+        "--keep", metavar="FILE", type=cliargs.output_file, help="keep the capture here"
+    )
     args = parser.parse_args()
     tshark = shutil.which("tshark")
     if tshark is None:
         print("tshark is not installed (apt-get install tshark)", file=sys.stderr)
-        return 2
+        return ExitCode.USAGE  # nothing was started
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(args.keep) if args.keep else Path(tmp) / "big.pcapng"
         frames = build(path, args.mb)
@@ -89,7 +92,7 @@ def main() -> int:
             times[label] = time.perf_counter() - start
             if r.returncode:
                 print(r.stderr, file=sys.stderr)
-                return 1
+                return ExitCode.FAILED
             if label == "dissector":
                 statuses = r.stdout.split()
                 good = sum(s.split(",").count("1") for s in statuses)

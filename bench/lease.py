@@ -33,6 +33,7 @@ import numpy as np
 from robotsocket.client import RobotClient
 from robotsocket.emulator import RobotEmulator
 from robotsocket.service import RobotService
+from spec.exitcodes import ExitCode
 from spec.server import FramedServer, ServerPolicy
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -166,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
         r = soak(args.lease, args.soak, args.hogs, args.clients)
         ok &= r["false_trips"] == 0 and r["held_at_end"] == 1.0
         print(json.dumps({"soak": r}), flush=True)
-    return 0 if ok else 1
+    return ExitCode.OK if ok else ExitCode.FAILED
 
 
 if __name__ == "__main__":

@@ -32,10 +32,12 @@ from cell.options import (
     timing_kwargs,
 )
 from cell.rtcell import CellProcess
+from cell.seams import SEAM_NAMES, cell_seam
 from robotsocket.rtprocess import ChildStartError
 from sensorsocket.pgm import write_pgm
 from spec import cliargs
 from spec.client import FramedClient, wait_end_move
+from spec.clocks import CLOCK_KINDS
 from spec.errors import ProtocolError, error_text
 from spec.exitcodes import ExitCode
 from spec.params import Image, Joints, Location
@@ -62,10 +64,10 @@ def _parser() -> cliargs.Parser:
         s.add_argument("--robot-port", type=cliargs.port, default=default_ports[0])
         s.add_argument("--sensor-port", type=cliargs.port, default=default_ports[1])
         s.add_argument("--udp-port", type=cliargs.port, default=default_ports[2])
-        s.add_argument("--clock", choices=("real", "sim"), default="real")
+        s.add_argument("--clock", choices=CLOCK_KINDS, default="real")
         s.add_argument("--model", default="RX90B")
         s.add_argument("--joint", choices=("butt", "fillet", "lap"), default="butt")
-        s.add_argument("--seam", choices=("straight", "sine", "corner"), default="straight")
+        s.add_argument("--seam", choices=SEAM_NAMES, default="straight", help="(cell/seams.py)")
         s.add_argument("--seed", type=cliargs.seed, default=0)
         s.add_argument("-v", "--verbose", action="store_true")
         add_dynamics_option(s)
@@ -115,7 +117,8 @@ def _cell_kwargs(args: argparse.Namespace) -> dict[str, Any]:
         "model": args.model,
         "dynamics": args.dynamics,
         "joint": args.joint,
-        "seam": args.seam,
+        "seam": cell_seam(args.seam)[0],
+        "workpiece_error": cell_seam(args.seam)[1],
         "seed": args.seed,
         "sensor_tool_error": args.sensor_tool_error,
         "laser_tool_error": args.laser_tool_error,
@@ -149,7 +152,11 @@ def cmd_serve(args: argparse.Namespace) -> int:
         sys.stdout.flush()
 
     serve_until_signal([], on_stop=cell.close, ready=announce)
-    return 0
+    # serve_until_signal returns only after SIGINT or SIGTERM, the cell closed: one line
+    # saying so and exit 130, as every tool ends on Ctrl-C (docs/CLI.md, "Exit codes")
+    return cliargs.interrupted(
+        "python -m cell", "the emulated cell stopped (robot, sensor), its servers closed"
+    )
 
 
 def _fmt(loc: Any) -> str:

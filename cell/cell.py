@@ -39,7 +39,6 @@ from dataclasses import dataclass, field
 from typing import TypeVar
 
 import numpy as np
-from numpy.typing import NDArray
 
 from cell.delta_t import DeltaTBook
 from cell.motion import TrueMotion
@@ -48,6 +47,7 @@ from cell.sim_link import SimulatedLink
 from cell.timing import CellError, CellTiming
 from kinematics.dynamics import dynamics_named
 from kinematics.transforms import location_to_transform, transform_to_location
+from kinematics.types import FloatArray, Loc
 from robotsocket.emulator import RobotEmulator
 from robotsocket.service import RobotService
 from robotsocket.sync_service import SyncService, flange2base_for
@@ -57,6 +57,7 @@ from sensorsocket.sensor import Sensor
 from sensorsocket.service import SensorService
 from sensorsocket.timing import TimingModel
 from sensorsocket.udp import TriggerListener
+from spec.clocks import CLOCK_KINDS, ClockKind, is_clock_kind
 from spec.server import FramedServer, ServerPolicy
 from sync.network import DelayLink
 from sync.udp import RobotSyncCore, UdpSyncEndpoint
@@ -90,11 +91,8 @@ def bound(what: str, option: str, host: str, port: int, make: Callable[[], _T]) 
         raise CellError(msg) from None
 
 
-FloatArray = NDArray[np.float64]
-
 #: Longest wait of the real-time camera for the robot's setpoints to cover an exposure (s).
 TRUTH_WAIT_S = 0.5
-Loc = tuple[float, float, float, float, float, float]
 
 #: ^N_S T: the sensor's measuring point 200 mm out along the flange axis, 40 mm ahead of the
 #: laser focus in the welding direction (mm, deg).
@@ -133,7 +131,7 @@ class EmulatedCell:
             :attr:`sensor_service`.
     """
 
-    clock: str = "sim"
+    clock: ClockKind = "sim"
     timing: CellTiming = field(default_factory=CellTiming)
     model: str = "RX90B"
     sensor_tool: Loc = DEFAULT_SENSOR_TOOL
@@ -155,8 +153,8 @@ class EmulatedCell:
     policy: ServerPolicy | None = None  # the TCP servers' (None: the spec's defaults)
 
     def __post_init__(self) -> None:
-        if self.clock not in ("sim", "real"):
-            raise CellError(f"clock must be 'sim' or 'real', got {self.clock!r}")
+        if not is_clock_kind(self.clock):
+            raise CellError(f"clock must be one of {', '.join(CLOCK_KINDS)}, got {self.clock!r}")
         t = self.timing
         try:
             params = dynamics_named(self.dynamics, self.model)

@@ -17,14 +17,12 @@ import threading
 from collections.abc import Callable, Sequence
 
 import numpy as np
-from numpy.typing import NDArray
 
+from kinematics.types import FloatArray
 from sync.interpolate import InterpStatus, interpolate_joints
 from sync.joint_buffer import JointBuffer
 
 __all__ = ["TrueMotion"]
-
-FloatArray = NDArray[np.float64]
 
 
 class TrueMotion:

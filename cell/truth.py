@@ -16,16 +16,14 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import NDArray
 
+from kinematics.types import FloatArray
 from sensorsocket.scene import Scene
 
 if TYPE_CHECKING:
     from cell.cell import EmulatedCell
 
 __all__ = ["WeldRecorder", "WeldTruth"]
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

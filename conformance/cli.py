@@ -144,13 +144,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     token = p.add_mutually_exclusive_group()
     token.add_argument("--token", default="", help="the endpoint's control token")
-    token.add_argument(
-        "--token-file",
-        dest="token",
-        type=cliargs.token_file,
-        metavar="FILE",
-        help="file holding the endpoint's control token (one line; not shown by ps)",
-    )
+    cliargs.add_token_file(token, "the endpoint's")
     p.add_argument(
         "--fuzz",
         type=cliargs.int_in(0, 10**9),

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from conformance.model import EndpointGone, EndpointTimeout, Fail, WireEntry
 from spec import wire
 from spec.codec import FrameDecoder, Packet, Rejected, encode_packet, request
-from spec.errors import ErrorCode, PeerError
+from spec.errors import ErrorCode, PeerError, ProtocolError
 from spec.params import Value
 from spec.registry import BY_ID, CommandId, check_params
 from spec.wire import PacketKind
@@ -60,6 +60,19 @@ def _not_a_frame(exc: PeerError) -> Fail:
 
 class Closed(Exception):
     """The endpoint closed the connection (EOF or reset)."""
+
+
+#: What a :class:`Conn` call raises when the endpoint (not the harness) misbehaves: the
+#: socket's errors, a close, no answer in time, a broken answer. Cleanup and liveness code
+#: catches these, never a blind ``Exception`` that would hide a harness bug.
+ENDPOINT_ERRORS: tuple[type[Exception], ...] = (
+    OSError,
+    Closed,
+    EndpointTimeout,
+    EndpointGone,
+    Fail,
+    ProtocolError,
+)
 
 
 class Conn:

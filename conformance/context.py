@@ -11,7 +11,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
-from conformance.connection import Closed, Conn, UdpConn, WireLog
+from conformance.connection import ENDPOINT_ERRORS, Closed, Conn, UdpConn, WireLog
 from conformance.model import (
     Blocked,
     EndpointGone,
@@ -220,7 +220,10 @@ class Context:
         try:
             with socket.create_connection((self.host, self.port), timeout=self.timeout) as sock:
                 return probe_answered(Conn(sock, WireLog(), 0, self.timeout), self.shared)
-        except Exception:
+        # OSError: no connection (refused, reset, unreachable, timed out); the rest of
+        # ENDPOINT_ERRORS: connected, but the probe not answered as it must be (closed, no
+        # answer in time, a wrong answer). A harness bug (TypeError, ...) is not "not alive".
+        except ENDPOINT_ERRORS:
             return False
 
     def probe(self) -> None:

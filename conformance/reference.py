@@ -39,7 +39,7 @@ def start(service: str) -> Reference:
             f"no endpoint given and the reference {service} implementation is not importable"
             f" ({exc}); pass HOST:PORT"
         ) from None
-    except Exception as exc:
+    except Exception as exc:  # noqa: BLE001  fault barrier: any start failure is one message
         raise ReferenceUnavailable(
             f"the reference {service} server failed to start: {type(exc).__name__}: {exc}"
         ) from None

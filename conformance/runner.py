@@ -294,7 +294,7 @@ def run_case(case: Case, ctx: Context) -> CaseResult:
     def work() -> None:
         try:
             box["note"] = case.fn(ctx)
-        except BaseException as exc:
+        except BaseException as exc:  # noqa: BLE001  fault barrier: the case's outcome, any cause
             box["exc"] = exc
             box["tb"] = traceback.format_exc()
 
@@ -410,6 +410,26 @@ def alive(
         ctx.close_all()
 
 
+def _blocked_if_it_rode_on_ping(result: CaseResult) -> None:
+    """Ping is a failed case's vehicle, not its rule: the one broken rule is reported by
+    PING_CASE, not again by every case that rides on it."""
+    if result.is_problem and _sends_ping(result):
+        result.outcome = Outcome.BLOCKED
+        result.message = (
+            f"blocked: precondition Ping answered failed (see {PING_CASE});"
+            f" the case sends Ping. It ended: {result.message}"
+        )
+        result.details["precondition"] = "Ping answered"
+
+
+def _mark_expected(result: CaseResult) -> None:
+    """A case the user expects to fail (``--expect``): a failure is known, a pass news."""
+    if result.outcome in (Outcome.FAIL, Outcome.NON_STRICT):
+        result.known_failure = True
+    elif result.outcome is Outcome.PASS:
+        result.unexpected_pass = True
+
+
 def run(
     service: str,
     host: str,
@@ -467,30 +487,15 @@ def run(
                 result.details["precondition"] = "Ping answered"
             else:
                 result = run_case(case, ctx)
-                if (
-                    ping_failed
-                    and case.id != PING_CASE
-                    and result.is_problem
-                    and _sends_ping(result)
-                ):
-                    # Ping is the case's vehicle, not its rule: the one broken rule is
-                    # reported by PING_CASE, not again by every case that rides on it.
-                    result.outcome = Outcome.BLOCKED
-                    result.message = (
-                        f"blocked: precondition Ping answered failed (see {PING_CASE});"
-                        f" the case sends Ping. It ended: {result.message}"
-                    )
-                    result.details["precondition"] = "Ping answered"
+                if ping_failed and case.id != PING_CASE:
+                    _blocked_if_it_rode_on_ping(result)
                 if result.outcome in (Outcome.TIMEOUT, Outcome.ERROR) and service != "sync":
                     # One dead endpoint must not cost every remaining case its full budget.
                     dead_outcome, dead = alive(host, port, options, shared.probe_command)
                     if dead:
                         dead = f"stopped answering after {case.id} ({dead})"
         if case.id in expect:
-            if result.outcome in (Outcome.FAIL, Outcome.NON_STRICT):
-                result.known_failure = True
-            elif result.outcome is Outcome.PASS:
-                result.unexpected_pass = True
+            _mark_expected(result)
         if result.details.get("harness_error"):
             run_result.harness_errors += 1
         run_result.results.append(result)

@@ -15,7 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from kinematics.errors import KinematicsError
-from kinematics.transforms import Array
+from kinematics.types import FloatArray
 
 BoolArray = npt.NDArray[np.bool_]
 
@@ -34,8 +34,8 @@ class ArmGeometry:
     lateral_offset_mm: float
     joint_offsets_deg: tuple[float, ...]
     #: Joint limits (6, 2) and offsets (6,) in degrees as read-only arrays.
-    _limits: Array
-    _offsets: Array
+    _limits: FloatArray
+    _offsets: FloatArray
     #: Shoulder offset, lateral offset, upper arm, forearm, wrist to flange (mm).
     _lengths: tuple[float, ...]
 
@@ -59,7 +59,7 @@ def vector6(q: Any, name: str = "joints") -> list[float]:
     return vals
 
 
-def batch6(q: Any, name: str = "joints") -> Array:
+def batch6(q: Any, name: str = "joints") -> FloatArray:
     """Joints (N, 6) as a finite float64 array, else KinematicsError naming ``name``."""
     try:
         arr = np.asarray(q, dtype=np.float64)

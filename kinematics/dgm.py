@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from kinematics.arm import ArmGeometry, batch6, vector6
-from kinematics.transforms import Array
+from kinematics.types import FloatArray
 
 #: Up to this many configurations flange2base_batch runs its arithmetic on Python floats.
 _SMALL_BATCH = 12
@@ -61,7 +61,7 @@ def _flange_rows(s: Any, c: Any, lengths: tuple[float, ...]) -> tuple[tuple[Any,
 class DgmMixin(ArmGeometry):
     """flange2base of one configuration or of a batch."""
 
-    def flange2base(self, q_deg: Any) -> Array:
+    def flange2base(self, q_deg: Any) -> FloatArray:
         """DGM (paper eq. 3): VAL3 joints (6,) deg -> flange2base (4, 4), or (N, 6) -> (N, 4, 4).
 
         Joint limits are not checked here (see ``check_joints``).
@@ -84,7 +84,7 @@ class DgmMixin(ArmGeometry):
         )
         return np.array((row0, row1, row2, (0.0, 0.0, 0.0, 1.0)))
 
-    def flange2base_batch(self, q_deg: Any) -> Array:
+    def flange2base_batch(self, q_deg: Any) -> FloatArray:
         """Vectorised DGM: VAL3 joints (N, 6) deg -> flange2base (N, 4, 4)."""
         q = batch6(q_deg)
         n = q.shape[0]

@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from kinematics.transforms import Array
+from kinematics.types import FloatArray
 
 __all__ = [
     "DYNAMICS",
@@ -90,7 +90,7 @@ class ElasticParams:
             raise ValueError(f"payload must be in [0, 100] kg, got {kg}")
         return replace(self, payload_kg=kg)
 
-    def gains(self) -> tuple[Array, Array, Array]:
+    def gains(self) -> tuple[FloatArray, FloatArray, FloatArray]:
         """(Kp N m/rad, Kd N m s/rad, Ki N m/(rad s)) per axis (6,): a PD with velocity
         feedforward placing the rigid loop's poles at ``servo_hz`` with ``servo_zeta``,
         plus an integral at ``servo_integral`` of the bandwidth."""
@@ -155,7 +155,7 @@ def dynamics_named(name: str, model: str) -> ElasticParams | None:
     return _PARAMS[model]
 
 
-def link_inertia(model: Any, q_deg: Array, params: ElasticParams) -> Array:
+def link_inertia(model: Any, q_deg: FloatArray, params: ElasticParams) -> FloatArray:
     """Inertia (6,) kg m² of everything beyond each joint about its axis at joints (6,) deg:
     the lumped masses at their distances from the axis (``model.joint_axes``), plus each
     part's own inertia. ``model`` is a :class:`~kinematics.robot.RobotModel`."""
@@ -176,7 +176,7 @@ def link_inertia(model: Any, q_deg: Array, params: ElasticParams) -> Array:
     return out
 
 
-def axis_matrices(params: ElasticParams, jl: Array) -> tuple[Array, Array]:
+def axis_matrices(params: ElasticParams, jl: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Continuous state space of the six closed loops at link inertias ``jl`` (6,): ``A``
     (6, 5, 5) and ``B`` (6, 5, 2) for the state (θm, θm', θl, θl', ∫e) and the input
     (r, r'). For analysis and tests; :func:`simulate` integrates the same equations."""
@@ -203,12 +203,12 @@ def axis_matrices(params: ElasticParams, jl: Array) -> tuple[Array, Array]:
     return A, B
 
 
-def first_resonance_hz(params: ElasticParams, jl: Array) -> Array:
+def first_resonance_hz(params: ElasticParams, jl: FloatArray) -> FloatArray:
     """Undamped two-mass resonance (6,) Hz of each axis at link inertias ``jl`` (6,) with
     the servo off: sqrt(k (1/Jm + 1/Jl)) / 2π (the servo shifts it a little)."""
     jm = np.array(params.motor_inertia)
     k = np.array(params.stiffness)
-    out: Array = np.sqrt(k * (1.0 / jm + 1.0 / jl)) / (2.0 * math.pi)
+    out: FloatArray = np.sqrt(k * (1.0 / jm + 1.0 / jl)) / (2.0 * math.pi)
     return out
 
 
@@ -222,7 +222,7 @@ class _Coefficients:
         self.d = np.array(params.damping, dtype=np.float64)
         self.b = np.array(params.friction, dtype=np.float64)
 
-    def deriv(self, x: Array, r: Array, rd: Array, jl: Array) -> Array:
+    def deriv(self, x: FloatArray, r: FloatArray, rd: FloatArray, jl: FloatArray) -> FloatArray:
         """dx/dt of states x (..., 5, 6) at setpoint r, r' (..., 6), link inertia jl."""
         th_m, w_m, th_l, w_l, z = (x[..., i, :] for i in range(5))
         e = r - th_m
@@ -230,7 +230,9 @@ class _Coefficients:
         spring = self.k * (th_m - th_l) + self.d * (w_m - w_l)
         return np.stack([w_m, (tau - spring - self.b * w_m) / self.jm, w_l, spring / jl, e], -2)
 
-    def cycle(self, x: Array, r0: Array, r1: Array, jl: Array, period: float, n: int) -> Array:
+    def cycle(
+        self, x: FloatArray, r0: FloatArray, r1: FloatArray, jl: FloatArray, period: float, n: int
+    ) -> FloatArray:
         """States after one cycle of ``period`` s in ``n`` RK4 substeps, the setpoint ramped
         from r0 to r1 (..., 6) rad."""
         h = period / n
@@ -247,7 +249,7 @@ class _Coefficients:
         return x
 
 
-def rest_state(q_rad: Array) -> Array:
+def rest_state(q_rad: FloatArray) -> FloatArray:
     """The state (..., 5, 6) of an arm standing at ``q_rad`` (..., 6): motor = link = q."""
     q = np.asarray(q_rad, dtype=np.float64)
     x = np.zeros((*q.shape[:-1], 5, 6))
@@ -258,13 +260,13 @@ def rest_state(q_rad: Array) -> Array:
 
 def simulate(
     params: ElasticParams,
-    jl: Array,
-    setpoints_rad: Array,
+    jl: FloatArray,
+    setpoints_rad: FloatArray,
     *,
     period: float,
     substeps: int = 8,
-    initial: Array | None = None,
-) -> tuple[Array, Array]:
+    initial: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray]:
     """Run the arm over setpoints (..., N + 1, 6) rad, starting at rest at the first one
     (or in the state ``initial`` (..., 5, 6): θm, θm', θl, θl', ∫e), with link inertias
     ``jl`` (N, 6) per cycle (or (6,) throughout). Returns (motor, link) (..., N, 6) rad at
@@ -296,7 +298,7 @@ class ElasticArm:
         self,
         model: Any,
         params: ElasticParams,
-        q0_deg: Array,
+        q0_deg: FloatArray,
         period: float,
         substeps: int = 8,
     ) -> None:
@@ -313,7 +315,7 @@ class ElasticArm:
         self.motor_deg = np.degrees(q0)
         self.link_deg = self.motor_deg.copy()
 
-    def cycle(self, setpoint_deg: Array) -> None:
+    def cycle(self, setpoint_deg: FloatArray) -> None:
         """One cycle towards ``setpoint_deg`` (6,) (ramped from the previous setpoint);
         :attr:`motor_deg` and :attr:`link_deg` (6,) are the new sides (new arrays)."""
         r1 = np.radians(np.asarray(setpoint_deg, dtype=np.float64))

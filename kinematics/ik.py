@@ -23,7 +23,8 @@ from kinematics.config import (
     ConfigRequest,
 )
 from kinematics.errors import JointLimitError, KinematicsError, SingularityError, UnreachableError
-from kinematics.transforms import RIGID_TOL, Array, check_transform
+from kinematics.transforms import RIGID_TOL, check_transform
+from kinematics.types import FloatArray
 
 #: Below this, the closed form degenerates and the free joint takes the preferred value.
 _DEGENERATE = 1e-12
@@ -34,7 +35,7 @@ class IkSolution(NamedTuple):
     singularities. A named tuple: up to eight are built per ik() call, and a frozen
     dataclass costs three times as much to build."""
 
-    joints_deg: Array
+    joints_deg: FloatArray
     config: Config
     singularities: tuple[str, ...] = ()
 
@@ -65,7 +66,7 @@ class IkBatch:
     singular: (N, 8, 3) flags for (wrist, elbow, shoulder).
     """
 
-    joints_deg: Array
+    joints_deg: FloatArray
     valid: BoolArray
     reachable: BoolArray
     singular: BoolArray
@@ -327,7 +328,7 @@ class IkMixin(ConfigMixin):
             raise KinematicsError(f"flange2base: expected shape (N, 4, 4), got {T.shape}")
         return self._ik_batch(T, near)
 
-    def _ik_batch(self, T: Array, near: Any) -> IkBatch:
+    def _ik_batch(self, T: FloatArray, near: Any) -> IkBatch:
         ref = None
         if near is not None:
             nr = np.asarray(near, dtype=np.float64)
@@ -344,7 +345,7 @@ class IkMixin(ConfigMixin):
         q[~valid] = np.nan
         return IkBatch(joints_deg=q, valid=valid, reachable=reach, singular=sing)
 
-    def _pick_turn(self, q: Array, ref: Array | None) -> Array:
+    def _pick_turn(self, q: FloatArray, ref: FloatArray | None) -> FloatArray:
         """Per joint, the value q + 360k (k in -1, 0, 1) inside the limits with the least
         :func:`_turn_cost` to ref."""
         cand = _base_turn(q, np.round)[..., None] + np.array([0.0, -360.0, 360.0])  # (N, 8, 6, 3)
@@ -358,7 +359,9 @@ class IkMixin(ConfigMixin):
         ok = np.take_along_axis(dist, k[..., None], axis=-1)[..., 0] < np.inf
         return np.where(ok, best, np.nan)
 
-    def _ik_core(self, T: Array, ref: Array | None) -> tuple[Array, BoolArray, BoolArray]:
+    def _ik_core(
+        self, T: FloatArray, ref: FloatArray | None
+    ) -> tuple[FloatArray, BoolArray, BoolArray]:
         """Model angles θ (N, 8, 6) rad, reachable (N, 8), singular flags (N, 8, 3)."""
         n = T.shape[0]
         g, xp = self._ik_geometry, _NUMPY

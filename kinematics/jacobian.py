@@ -10,13 +10,14 @@ import numpy as np
 from kinematics.arm import vector6
 from kinematics.dgm import DgmMixin
 from kinematics.errors import KinematicsError
-from kinematics.transforms import Array, check_transform
+from kinematics.transforms import check_transform
+from kinematics.types import FloatArray
 
 
 class JacobianMixin(DgmMixin):
     """Jacobian (6, 6) of the tool centre point, in the base or the tool frame."""
 
-    def joint_axes(self, q_deg: Any) -> tuple[Array, Array, Array]:
+    def joint_axes(self, q_deg: Any) -> tuple[FloatArray, FloatArray, FloatArray]:
         """(axes (6, 3) unit vectors, points (6, 3) mm on each axis, ^B_N T (4, 4)) at
         joints (6,) deg, base frame: the joint axes the Jacobian and the arm's dynamics
         (:mod:`kinematics.dynamics`, link inertias about each axis) are built on. Points 4-6
@@ -47,7 +48,7 @@ class JacobianMixin(DgmMixin):
 
     def jacobian(
         self, q_deg: Any, frame: Literal["base", "tool"] = "base", tool: Any = None
-    ) -> Array:
+    ) -> FloatArray:
         """Geometric Jacobian (6, 6) at joints (6,) deg: rows (vx, vy, vz) mm/rad and
         (wx, wy, wz) rad/rad, columns per joint (per radian).
 

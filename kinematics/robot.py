@@ -22,7 +22,7 @@ from kinematics.arm import LIMIT_SLACK_DEG, BoolArray, vector6
 from kinematics.errors import JointLimitError, KinematicsError, UnknownModelError
 from kinematics.ik import IkMixin
 from kinematics.jacobian import JacobianMixin
-from kinematics.transforms import Array
+from kinematics.types import FloatArray
 
 MODELS_DIR = Path(__file__).with_name("models")
 DEFAULT_MODEL = "RX90B"
@@ -46,8 +46,8 @@ class RobotModel(IkMixin, JacobianMixin):
     floor_to_axis2_mm: float = 0.0
     joint_offsets_deg: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     description: str = ""
-    _limits: Array = field(init=False, repr=False, compare=False)
-    _offsets: Array = field(init=False, repr=False, compare=False)
+    _limits: FloatArray = field(init=False, repr=False, compare=False)
+    _offsets: FloatArray = field(init=False, repr=False, compare=False)
     #: The DGM's lengths in the order ``_flange_rows`` takes them.
     _lengths: tuple[float, ...] = field(init=False, repr=False, compare=False)
 
@@ -118,7 +118,7 @@ class RobotModel(IkMixin, JacobianMixin):
         }
 
     @property
-    def limits(self) -> Array:
+    def limits(self) -> FloatArray:
         """Joint limits (6, 2) in degrees, [lower, upper] (read-only array)."""
         return self._limits
 
@@ -133,7 +133,7 @@ class RobotModel(IkMixin, JacobianMixin):
         res = np.all(inside, axis=-1)
         return bool(res) if res.ndim == 0 else res
 
-    def check_joints(self, q_deg: Any) -> Array:
+    def check_joints(self, q_deg: Any) -> FloatArray:
         """Validate joints (6,): finite and inside the limits, else JointLimitError."""
         q = np.array(vector6(q_deg))
         for i in range(6):

@@ -20,17 +20,15 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
 from kinematics.errors import KinematicsError
-
-Array = npt.NDArray[np.float64]
+from kinematics.types import FloatArray
 
 #: Default tolerance of ``check_transform`` on orthonormality and the last row.
 RIGID_TOL = 1e-6
 
 
-def _float_array(value: Any, name: str) -> Array:
+def _float_array(value: Any, name: str) -> FloatArray:
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -38,12 +36,12 @@ def _float_array(value: Any, name: str) -> Array:
     return arr
 
 
-def _check_finite(arr: Array, name: str) -> None:
+def _check_finite(arr: FloatArray, name: str) -> None:
     if not np.all(np.isfinite(arr)):
         raise KinematicsError(f"{name}: contains NaN or infinity")
 
 
-def check_transform(T: Any, *, tol: float = RIGID_TOL, name: str = "transform") -> Array:
+def check_transform(T: Any, *, tol: float = RIGID_TOL, name: str = "transform") -> FloatArray:
     """Validate a rigid transform, (4, 4) or (N, 4, 4); return it as float64.
 
     Raises ``KinematicsError`` on a wrong shape, NaN/inf, a last row other than (0, 0, 0, 1),
@@ -62,7 +60,7 @@ def check_transform(T: Any, *, tol: float = RIGID_TOL, name: str = "transform") 
     return arr
 
 
-def transform_from(R: Any, p: Any) -> Array:
+def transform_from(R: Any, p: Any) -> FloatArray:
     """Assemble (..., 4, 4) from a rotation (..., 3, 3) and a translation (..., 3) in mm."""
     Rm = _float_array(R, "rotation")
     pv = _float_array(p, "translation")
@@ -74,7 +72,7 @@ def transform_from(R: Any, p: Any) -> Array:
     return T
 
 
-def invert(T: Any) -> Array:
+def invert(T: Any) -> FloatArray:
     """Inverse of a rigid transform, (4, 4) or (N, 4, 4): a2b -> b2a (no general inverse)."""
     arr = check_transform(T)
     R = arr[..., :3, :3]
@@ -86,7 +84,7 @@ def invert(T: Any) -> Array:
     return out
 
 
-def concat(*Ts: Any) -> Array:
+def concat(*Ts: Any) -> FloatArray:
     """Product of transforms in the order given (broadcasts over batches).
 
     ``concat(flange2base, sensor2flange, seam2sensor)`` is seam2base (paper eq. 2).
@@ -102,7 +100,7 @@ def concat(*Ts: Any) -> Array:
 # --- VAL3 locations ---------------------------------------------------------------------------
 
 
-def _rot_xyz(rx: Array, ry: Array, rz: Array) -> Array:
+def _rot_xyz(rx: FloatArray, ry: FloatArray, rz: FloatArray) -> FloatArray:
     """Rx(rx)·Ry(ry)·Rz(rz) for angles in radians of any (equal) shape -> (..., 3, 3)."""
     sa, ca = np.sin(rx), np.cos(rx)
     sb, cb = np.sin(ry), np.cos(ry)
@@ -120,7 +118,7 @@ def _rot_xyz(rx: Array, ry: Array, rz: Array) -> Array:
     return R
 
 
-def _xyz_from_rot(R: Array) -> tuple[Array, Array, Array]:
+def _xyz_from_rot(R: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Inverse of ``_rot_xyz``: (rx, ry, rz) in radians for (..., 3, 3) rotations.
 
     rz is computed from the rx actually chosen, so the triple reproduces R exactly even at
@@ -136,13 +134,13 @@ def _xyz_from_rot(R: Array) -> tuple[Array, Array, Array]:
     return rx, ry, rz
 
 
-def _wrap_deg(a: Array) -> Array:
+def _wrap_deg(a: FloatArray) -> FloatArray:
     """Angles in degrees into (-180, 180]."""
     w = np.asarray(-((180.0 - a) % 360.0) + 180.0)
     return np.where(w == -180.0, 180.0, w)
 
 
-def location_to_transform(loc: Sequence[float] | Array) -> Array:
+def location_to_transform(loc: Sequence[float] | FloatArray) -> FloatArray:
     """VAL3 location (6,) = (x, y, z mm, rx, ry, rz degrees) -> transform (4, 4)."""
     arr = _float_array(loc, "location")
     if arr.shape != (6,):
@@ -168,7 +166,7 @@ def location_to_transform(loc: Sequence[float] | Array) -> Array:
     )
 
 
-def transform_to_location(T: Any) -> Array:
+def transform_to_location(T: Any) -> FloatArray:
     """Transform (4, 4) -> VAL3 location (6,): mm and degrees, rx, rz in (-180, 180].
 
     One transform in plain float arithmetic (~5x cheaper than the batch form on one
@@ -217,7 +215,7 @@ def _wrap_deg_float(a: float) -> float:
     return 180.0 if w == -180.0 else w
 
 
-def locations_to_transforms(locs: Any) -> Array:
+def locations_to_transforms(locs: Any) -> FloatArray:
     """Batch of VAL3 locations (N, 6) -> transforms (N, 4, 4)."""
     arr = _float_array(locs, "locations")
     if arr.ndim != 2 or arr.shape[1] != 6:
@@ -227,7 +225,7 @@ def locations_to_transforms(locs: Any) -> Array:
     return transform_from(_rot_xyz(ang[:, 0], ang[:, 1], ang[:, 2]), arr[:, :3])
 
 
-def transforms_to_locations(Ts: Any) -> Array:
+def transforms_to_locations(Ts: Any) -> FloatArray:
     """Batch of transforms (N, 4, 4) -> VAL3 locations (N, 6)."""
     arr = check_transform(Ts)
     if arr.ndim != 3:
@@ -244,7 +242,7 @@ def transforms_to_locations(Ts: Any) -> Array:
 # --- quaternions and rotation vectors ------------------------------------------------------
 
 
-def _check_rotation(R: Any, name: str = "rotation") -> Array:
+def _check_rotation(R: Any, name: str = "rotation") -> FloatArray:
     arr = _float_array(R, name)
     if arr.ndim < 2 or arr.shape[-2:] != (3, 3):
         raise KinematicsError(f"{name}: expected shape (..., 3, 3), got {arr.shape}")
@@ -252,7 +250,7 @@ def _check_rotation(R: Any, name: str = "rotation") -> Array:
     return arr
 
 
-def quaternion_from_matrix(R: Any) -> Array:
+def quaternion_from_matrix(R: Any) -> FloatArray:
     """Rotation (..., 3, 3) -> unit quaternion (..., 4) as (w, x, y, z) with w >= 0."""
     M = _check_rotation(R)
     tr = M[..., 0, 0] + M[..., 1, 1] + M[..., 2, 2]
@@ -273,11 +271,11 @@ def quaternion_from_matrix(R: Any) -> Array:
     choice = np.argmax(np.stack([tr, M[..., 0, 0], M[..., 1, 1], M[..., 2, 2]], axis=-1), axis=-1)
     q = np.take_along_axis(cand, choice[..., None, None], axis=-2)[..., 0, :]
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    out: Array = np.where(q[..., :1] < 0.0, -q, q)
+    out: FloatArray = np.where(q[..., :1] < 0.0, -q, q)
     return out
 
 
-def matrix_from_quaternion(q: Any) -> Array:
+def matrix_from_quaternion(q: Any) -> FloatArray:
     """Quaternion (..., 4) as (w, x, y, z) -> rotation (..., 3, 3); q is normalised first."""
     arr = _float_array(q, "quaternion")
     if arr.ndim < 1 or arr.shape[-1] != 4:
@@ -300,7 +298,7 @@ def matrix_from_quaternion(q: Any) -> Array:
     return R
 
 
-def rotvec_from_matrix(R: Any) -> Array:
+def rotvec_from_matrix(R: Any) -> FloatArray:
     """Rotation (..., 3, 3) -> rotation vector (..., 3): unit axis times angle in [0, π] rad."""
     q = quaternion_from_matrix(R)
     w = q[..., 0]
@@ -313,7 +311,7 @@ def rotvec_from_matrix(R: Any) -> Array:
     return v * scale[..., None]
 
 
-def matrix_from_rotvec(v: Any) -> Array:
+def matrix_from_rotvec(v: Any) -> FloatArray:
     """Rotation vector (..., 3) in radians -> rotation (..., 3, 3) (Rodrigues)."""
     arr = _float_array(v, "rotation vector")
     if arr.ndim < 1 or arr.shape[-1] != 3:
@@ -330,23 +328,23 @@ def matrix_from_rotvec(v: Any) -> Array:
     K[..., 0, 1], K[..., 0, 2] = -z, y
     K[..., 1, 0], K[..., 1, 2] = z, -x
     K[..., 2, 0], K[..., 2, 1] = -y, x
-    out: Array = np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
+    out: FloatArray = np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
     return out
 
 
-def slerp(q0: Any, q1: Any, s: Any) -> Array:
+def slerp(q0: Any, q1: Any, s: Any) -> FloatArray:
     """Spherical interpolation of unit quaternions (4,) along the shorter arc; s scalar or (N,)."""
     R0 = matrix_from_quaternion(q0)
     R1 = matrix_from_quaternion(q1)
     return quaternion_from_matrix(_rot_interp(R0, R1, _float_array(s, "s")))
 
 
-def _rot_interp(R0: Array, R1: Array, s: Array) -> Array:
+def _rot_interp(R0: FloatArray, R1: FloatArray, s: FloatArray) -> FloatArray:
     rel = rotvec_from_matrix(np.swapaxes(R0, -1, -2) @ R1)
     return R0 @ matrix_from_rotvec(np.multiply.outer(s, rel))
 
 
-def interpolate(T0: Any, T1: Any, s: Any) -> Array:
+def interpolate(T0: Any, T1: Any, s: Any) -> FloatArray:
     """Pose between T0 (s=0) and T1 (s=1): linear position, slerp orientation.
 
     T0, T1: (4, 4). s: scalar -> (4, 4), or (N,) -> (N, 4, 4). s outside [0, 1] extrapolates.

@@ -25,6 +25,7 @@ from typing import Any
 
 from spec import callcli, cliargs, wire
 from spec.auth import Network
+from spec.clocks import CLOCK_KINDS
 from spec.errors import ProtocolError, RemoteError, error_text
 from spec.exitcodes import ExitCode
 from spec.server import FramedServer, ServerPolicy, listen, serve_until_signal
@@ -213,7 +214,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--model", default="RX90B", help="RX90B (default), RX130B, RX160, TX90")
     s.add_argument("--host", default="127.0.0.1", help="listen address (default loopback)")
     s.add_argument("--port", type=cliargs.port, default=4000)
-    s.add_argument("--clock", choices=("real", "sim"), default="real")
+    s.add_argument("--clock", choices=CLOCK_KINDS, default="real")
     s.add_argument(
         "--in-process",
         action="store_true",
@@ -227,13 +228,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="CIDR",
         help="networks allowed to connect (TCP) and to send datagrams (UDP); default any",
     )
-    s.add_argument(
-        "--token-file",
-        dest="token",
-        type=cliargs.token_file,
-        metavar="FILE",
-        help="file holding the TakeControl token (one line)",
-    )
+    cliargs.add_token_file(s, "the TakeControl")
     s.add_argument(
         "--encoder-latency-ms",
         type=cliargs.number_in(0.0, 1000.0),
@@ -276,13 +271,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("endpoint", metavar="HOST:PORT")
     c.add_argument("command", help="command name, case-insensitive (e.g. herej)")
     c.add_argument("args", nargs="*", help="parameters (joints as 0,-30,90,0,60,0)")
-    c.add_argument(
-        "--token-file",
-        dest="token",
-        type=cliargs.token_file,
-        metavar="FILE",
-        help="file holding the TakeControl token (one line)",
-    )
+    cliargs.add_token_file(c, "the TakeControl")
     c.add_argument("--timeout", type=cliargs.timeout, default=5.0, help="reply timeout (s)")
     c.add_argument("--wait", type=cliargs.timeout, default=60.0, help="max wait for a move (s)")
     c.add_argument("--no-wait", action="store_true", help="do not wait for a move to end")

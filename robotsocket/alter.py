@@ -20,8 +20,9 @@ import math
 import numpy as np
 
 from kinematics.transforms import invert
+from kinematics.types import FloatArray
 from robotsocket.alter_queue import CorrectionQueue, QueueReport, check_batch
-from robotsocket.interface import Array, BadStateError, OutOfRangeError
+from robotsocket.interface import BadStateError, OutOfRangeError
 
 #: [RS-5.33] Largest correction: translation (mm) and rotation (deg).
 MAX_OFFSET_MM = 10.0
@@ -38,7 +39,7 @@ MAX_TIMEOUT = 1.0
 _EPS = 1e-9
 
 
-def check_correction(correction: Array) -> Array:
+def check_correction(correction: FloatArray) -> FloatArray:
     """The correction (6,) ``dx, dy, dz, rx, ry, rz`` (mm, deg), or OutOfRangeError [RS-5.33]."""
     c = np.asarray(correction, dtype=np.float64)
     if c.shape != (6,) or not np.all(np.isfinite(c)):
@@ -54,18 +55,20 @@ def check_correction(correction: Array) -> Array:
     return c
 
 
-def _rotvec_matrix(r_deg: Array) -> Array:
+def _rotvec_matrix(r_deg: FloatArray) -> FloatArray:
     """Rotation matrix (3, 3) of a rotation vector in degrees (Rodrigues)."""
     theta = math.radians(float(np.linalg.norm(r_deg)))
     if theta < 1e-12:
         return np.eye(3)
     k = np.radians(r_deg) / theta
     K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    out: Array = np.eye(3) + math.sin(theta) * K + (1.0 - math.cos(theta)) * (K @ K)
+    out: FloatArray = np.eye(3) + math.sin(theta) * K + (1.0 - math.cos(theta)) * (K @ K)
     return out
 
 
-def corrected_flange(flange2base: Array, tool2flange: Array, correction: Array) -> Array:
+def corrected_flange(
+    flange2base: FloatArray, tool2flange: FloatArray, correction: FloatArray
+) -> FloatArray:
     """Flange pose (4, 4) that puts the tool where ``correction`` (6,) moves it: the tool
     point translated by correction[:3] (base frame) and the tool turned about its own point
     by the rotation vector correction[3:] (deg, base frame)."""
@@ -73,11 +76,13 @@ def corrected_flange(flange2base: Array, tool2flange: Array, correction: Array) 
     moved = np.eye(4)
     moved[:3, :3] = _rotvec_matrix(correction[3:]) @ tool2base[:3, :3]
     moved[:3, 3] = tool2base[:3, 3] + correction[:3]
-    out: Array = moved @ invert(tool2flange)
+    out: FloatArray = moved @ invert(tool2flange)
     return out
 
 
-def _limit(error: Array, v: Array, v_ff: Array, vmax: float, amax: float, dt: float) -> Array:
+def _limit(
+    error: FloatArray, v: FloatArray, v_ff: FloatArray, vmax: float, amax: float, dt: float
+) -> FloatArray:
     """Velocity (n,) for the next cycle: the target's own velocity ``v_ff`` (n,) plus a
     velocity towards what remains of ``error`` (n,), braking in time to stop at the target;
     no faster than vmax and with a speed change of at most amax * dt."""
@@ -98,7 +103,7 @@ def _limit(error: Array, v: Array, v_ff: Array, vmax: float, amax: float, dt: fl
     n = float(np.linalg.norm(dv))
     if n > amax * dt:
         dv = dv * (amax * dt / n)
-    out: Array = v + dv
+    out: FloatArray = v + dv
     return out
 
 
@@ -132,7 +137,7 @@ class AlterState:
             or max(map(abs, self._v.tolist())) > _EPS
         )
 
-    def begin(self, tool: Array, timeout: float, now: float) -> None:
+    def begin(self, tool: FloatArray, timeout: float, now: float) -> None:
         """[RS-5.32] Start alter mode for ``tool`` (4, 4) with the stream ``timeout`` (s)."""
         if self.active:
             raise BadStateError("alter mode already active: AlterEnd first")
@@ -150,7 +155,7 @@ class AlterState:
         self.queue.clear()
         self.queue.applied_until = now  # entries for this cycle or before are late
 
-    def command(self, correction: Array, now: float) -> Array:
+    def command(self, correction: FloatArray, now: float) -> FloatArray:
         """[RS-5.33] A new correction in force; returns the applied correction (6,)."""
         if not self.active:
             raise BadStateError("alter mode is not active: AlterBegin first")
@@ -161,7 +166,7 @@ class AlterState:
         self._last_rx = now
         return self.applied.copy()
 
-    def enqueue(self, times: Array, corrections: Array) -> QueueReport:
+    def enqueue(self, times: FloatArray, corrections: FloatArray) -> QueueReport:
         """[RS-5.39] Queue timed corrections ``corrections`` (N, 6) for the robot-clock
         ``times`` (N,); an empty batch only reports the queue's state."""
         if not self.active:

@@ -35,7 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from robotsocket.interface import Array, BusyError, OutOfRangeError
+from kinematics.types import FloatArray
+from robotsocket.interface import BusyError, OutOfRangeError
 
 __all__ = ["MAX_BATCH", "MAX_ENTRIES", "CorrectionQueue", "QueueReport", "check_batch"]
 
@@ -61,7 +62,9 @@ class QueueReport:
     held_total: int
 
 
-def check_batch(times: Array, corrections: Array, limit_mm: float, limit_deg: float) -> None:
+def check_batch(
+    times: FloatArray, corrections: FloatArray, limit_mm: float, limit_deg: float
+) -> None:
     """OutOfRangeError unless ``times`` (N,) are finite, strictly increasing and at most
     :data:`MAX_BATCH`, and ``corrections`` (N, 6) are finite and within the RS-5.33 limits
     (``limit_mm`` translation, ``limit_deg`` rotation) [RS-5.40]."""
@@ -136,7 +139,7 @@ class CorrectionQueue:
             self.held_total,
         )
 
-    def insert(self, times: Array, corrections: Array) -> QueueReport:
+    def insert(self, times: FloatArray, corrections: FloatArray) -> QueueReport:
         """Merge a checked batch (:func:`check_batch`): late entries dropped [RS-5.42], the
         queued entries inside the batch's span replaced [RS-5.41]; BusyError when the
         result would exceed the capacity, the queue then unchanged [RS-5.43]."""
@@ -163,7 +166,7 @@ class CorrectionQueue:
         self._c = np.concatenate([self._c[before], c, self._c[after]])
         return self.report(len(t), late)
 
-    def due(self, t: float) -> Array | None:
+    def due(self, t: float) -> FloatArray | None:
         """The correction (6,) in force at the cycle of time ``t`` [RS-5.44]: interpolated
         between the entries around ``t``, the last one held past the end (a held cycle),
         None before the first entry. Entries before the left one are dropped; the cycle
@@ -179,7 +182,7 @@ class CorrectionQueue:
         if len(ts) == 1 or t >= ts[-1]:
             if t > ts[-1]:
                 self.held_total += 1
-            out: Array = self._c[-1].copy()
+            out: FloatArray = self._c[-1].copy()
             return out
         w = (t - ts[0]) / (ts[1] - ts[0])
         out = self._c[0] + w * (self._c[1] - self._c[0])

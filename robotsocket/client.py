@@ -9,6 +9,23 @@ Example::
         robot.wait_end_move(30.0)
         print(robot.herej())
 
+Results, one type per kind of value (the same rule in :class:`sensorsocket.client.SensorClient`
+and in :class:`robotsocket.interface.RobotInterface`, so code runs against either):
+
+* a VAL3 **location** (``here()``) is a :data:`kinematics.types.Loc`: a tuple of six Python
+  floats (x, y, z mm; rx, ry, rz deg), immutable and hashable, what the tool database and job
+  files hold; its angles do not add like a vector's components, so it is no array;
+* **joints, matrices and point sets** (``herej()``, ``joint_limits()``, ``joint_log()``) are
+  float64 numpy arrays: joints (6,) degrees, limits (6, 2), a log's times (N,) and joints (N, 6);
+* a reply of **several values** is a named result: a frozen dataclass (``status()``,
+  ``motion_desc()``), or a :class:`~typing.NamedTuple` where unpacking it is the natural use
+  (``times, joints = robot.joint_log()`` or ``log.times``; ``list_io()``); a measurement's
+  data with its index is an ``(index, data)`` pair (the sensor's ``get_image()``);
+* one number, flag or name is a Python ``int``, ``float``, ``bool`` or ``str``.
+
+Values are the wire's float64 as the server computed them, not rounded:
+``here()`` may show ``59.99999999999999`` for 60; round for display, not for computing.
+
 Every error packet raises a :class:`RobotRemoteError` subclass chosen by its error code
 (``NotPoweredError``, ``NotInControlError``, ...) carrying ``code`` and ``message``. Where the
 robot API has the same failure, the class is also that :mod:`robotsocket.interface` error
@@ -19,11 +36,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
+from kinematics.types import IDENTITY_LOC, FloatArray, Loc
 from robotsocket import interface
-from robotsocket.interface import IDENTITY_LOC, Array, Loc, MotionDesc
+from robotsocket.interface import MotionDesc
 from spec import wire
 from spec.client import (
     ClientTimeout,
@@ -122,6 +141,20 @@ class Status:
     time: float
 
 
+class JointLog(NamedTuple):
+    """GetJointLog reply: ``times`` (N,) s on the robot clock, ``joints`` (N, 6) degrees."""
+
+    times: FloatArray
+    joints: FloatArray
+
+
+class IoNames(NamedTuple):
+    """ListIO reply: the names of the outputs and of the inputs."""
+
+    outputs: list[str]
+    inputs: list[str]
+
+
 def _location(values: Sequence[float] | Location) -> Location:
     return values if isinstance(values, Location) else Location.of(values)
 
@@ -146,11 +179,11 @@ class RobotClient(FramedClient):
         v = self.call(CommandId.ROBOT_STATUS)
         return Status(*v)  # type: ignore[arg-type]
 
-    def herej(self) -> Array:
+    def herej(self) -> FloatArray:
         """Measured joints (6,) in degrees."""
         (j,) = self.call(_HEREJ)
         assert isinstance(j, Joints)
-        return np.array(j.values)
+        return np.array(j.values, dtype=np.float64)
 
     def here(
         self,
@@ -162,18 +195,18 @@ class RobotClient(FramedClient):
         assert isinstance(loc, Location)
         return loc.as_tuple()
 
-    def joint_limits(self) -> Array:
+    def joint_limits(self) -> FloatArray:
         """(6, 2) degrees, [lower, upper]."""
         (m,) = self.call(CommandId.GET_JOINT_LIMITS)
         assert isinstance(m, Matrix)
-        return np.array(m.values).reshape(m.rows, m.cols)
+        return np.array(m.values, dtype=np.float64).reshape(m.rows, m.cols)
 
-    def joint_log(self, since: float = -1.0) -> tuple[Array, Array]:
+    def joint_log(self, since: float = -1.0) -> JointLog:
         """Samples with t_k > since (s): times (N,) robot clock, measured joints (N, 6)."""
         m, _period = self.call(CommandId.GET_JOINT_LOG, float(since))
         assert isinstance(m, Matrix)
-        rows = np.array(m.values).reshape(m.rows, m.cols)
-        return rows[:, 0].copy(), rows[:, 1:].copy()
+        rows = np.array(m.values, dtype=np.float64).reshape(m.rows, m.cols)
+        return JointLog(rows[:, 0].copy(), rows[:, 1:].copy())
 
     # --- power and motion --------------------------------------------------------------------
 
@@ -260,10 +293,10 @@ class RobotClient(FramedClient):
         assert isinstance(value, bool)
         return value
 
-    def list_io(self) -> tuple[list[str], list[str]]:
+    def list_io(self) -> IoNames:
         outputs, inputs = self.call(CommandId.LIST_IO)
         assert isinstance(outputs, str) and isinstance(inputs, str)
-        return [n for n in outputs.split(",") if n], [n for n in inputs.split(",") if n]
+        return IoNames([n for n in outputs.split(",") if n], [n for n in inputs.split(",") if n])
 
 
 # Enum members as ints: an enum attribute look-up is slow in Python 3.11 (~10x a global).
@@ -278,6 +311,8 @@ __all__ = [
     "ClientTimeout",
     "ConnectionClosed",
     "EmergencyStopError",
+    "IoNames",
+    "JointLog",
     "MotionDesc",
     "MoveResult",
     "NotInControlError",

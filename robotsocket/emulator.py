@@ -44,17 +44,15 @@ from kinematics.transforms import (
     locations_to_transforms,
     transform_to_location,
 )
+from kinematics.types import IDENTITY_LOC, FloatArray, Loc
 from robotsocket.alter import AlterState, corrected_flange
 from robotsocket.alter_queue import QueueReport
 from robotsocket.clock import RealTimeLoop, SimLoop, lateness_summary
 from robotsocket.interface import (
-    IDENTITY_LOC,
-    Array,
     BadStateError,
     BusyError,
     EmergencyStopError,
     InvalidArgumentError,
-    Loc,
     MotionDesc,
     NotPoweredError,
     OutOfRangeError,
@@ -69,6 +67,7 @@ from robotsocket.service import error_code
 from robotsocket.shared_state import Snapshot
 from robotsocket.timed_path import plan_timed
 from robotsocket.trajectory import PERIOD, TrajectoryGenerator
+from spec.clocks import ClockKind, check_clock_kind
 from spec.wire import MoveOutcome
 from sync.joint_buffer import JointBuffer
 
@@ -85,17 +84,19 @@ IO_LOG_LENGTH = 10_000
 #: Cycles a held simulated arm advances per lock hold (~4 ms of CPU).
 _SIM_SLICE = 250
 
-CycleHook = Callable[[float, Array, Array], None]
+CycleHook = Callable[[float, FloatArray, FloatArray], None]
 
 
-def _loc(values: Sequence[float], what: str) -> Array:
+def _loc(values: Sequence[float], what: str) -> FloatArray:
     arr = np.asarray(values, dtype=np.float64)
     if arr.shape != (6,) or not np.all(np.isfinite(arr)):
         raise InvalidArgumentError(f"{what}: expected 6 finite numbers (x, y, z, rx, ry, rz)")
     return location_to_transform(arr)
 
 
-def here_at(model: RobotModel, q: Array, tool: Array | Loc, frame: Array | Loc) -> Loc:
+def here_at(
+    model: RobotModel, q: FloatArray, tool: FloatArray | Loc, frame: FloatArray | Loc
+) -> Loc:
     """[RS-5.16] Here: the tool's location in ``frame`` at joints ``q`` (6,) deg; ``tool`` and
     ``frame`` as 4x4 transforms or VAL3 locations (checked: BAD_PARAMETERS)."""
     tool_T = tool if isinstance(tool, np.ndarray) else _loc(tool, "tool")
@@ -117,7 +118,7 @@ class RobotEmulator(RobotInterface):
         self,
         model: str | RobotModel = "RX90B",
         *,
-        clock: str = "sim",
+        clock: ClockKind = "sim",
         period: float = PERIOD,
         encoder_latency: float = 0.0,
         noise_deg: float = 0.0,
@@ -128,8 +129,7 @@ class RobotEmulator(RobotInterface):
         dynamics: ElasticParams | None = None,
     ) -> None:
         self.model = model if isinstance(model, RobotModel) else get_model(model)
-        if clock not in ("sim", "real"):
-            raise ValueError(f"clock must be 'sim' or 'real', got {clock!r}")
+        check_clock_kind(clock)
         if not (math.isfinite(encoder_latency) and encoder_latency >= 0.0):
             raise ValueError(f"encoder_latency must be >= 0 s, got {encoder_latency}")
         if noise_deg < 0.0 or (noise_deg > 0.0 and rng is None):
@@ -158,7 +158,7 @@ class RobotEmulator(RobotInterface):
         self._inputs = dict.fromkeys(INPUTS, True)
         self._lag_cycles = math.ceil(encoder_latency / period) + 2
         # what the encoders read each cycle (the setpoints of a rigid arm), before the latency
-        self._setpoints: deque[tuple[float, Array]] = deque(maxlen=self._lag_cycles + 1)
+        self._setpoints: deque[tuple[float, FloatArray]] = deque(maxlen=self._lag_cycles + 1)
         self._setpoints.append((0.0, q0))
         self._measured = q0.copy()
         self._arm = None if dynamics is None else ElasticArm(self.model, dynamics, q0, period)
@@ -299,7 +299,7 @@ class RobotEmulator(RobotInterface):
             and self._settled()
         )
 
-    def _altered(self, t: float, q_nominal: Array) -> Array:
+    def _altered(self, t: float, q_nominal: FloatArray) -> FloatArray:
         """[RS-5.32] The nominal setpoint with the alter correction of this cycle applied
         (IK re-solved next to the nominal joints). A stream that stopped [RS-5.36] switches the
         laser off and stops the motion along its path; a correction the arm cannot follow
@@ -319,7 +319,7 @@ class RobotEmulator(RobotInterface):
             self.model.flange2base(q_nominal), alter.tool2flange, alter.applied
         )
         try:
-            q: Array = self.model.ik(flange, near=q_nominal)[0].joints_deg
+            q: FloatArray = self.model.ik(flange, near=q_nominal)[0].joints_deg
         except KinematicsError as exc:
             self._last_error = robot_error(exc)
             self._switch_off("laser", "alter correction unreachable")
@@ -370,7 +370,7 @@ class RobotEmulator(RobotInterface):
             self._gen.hold_q = self._setpoint.copy()
             self._alter.fold()
 
-    def _delayed(self, t: float) -> Array:
+    def _delayed(self, t: float) -> FloatArray:
         hist = self._setpoints
         if self.encoder_latency == 0.0 or t <= hist[0][0]:
             return hist[-1][1] if self.encoder_latency == 0.0 else hist[0][1]
@@ -407,7 +407,7 @@ class RobotEmulator(RobotInterface):
         """The elastic arm's parameters; None for a rigid arm."""
         return None if self._arm is None else self._arm.params
 
-    def true_joints(self) -> Array:
+    def true_joints(self) -> FloatArray:
         """The link side (6,) deg at the latest cycle: where the arm truly is (the setpoint
         of a rigid arm). The emulator's truth, not part of the robot API; a new array each
         cycle, never written into."""
@@ -457,7 +457,7 @@ class RobotEmulator(RobotInterface):
                 outcome_reason=why,
             )
 
-    def herej(self) -> Array:
+    def herej(self) -> FloatArray:
         self.catch_up()
         # No lock: the tick replaces _measured with a new array (never writes into it), so
         # one reference read is a consistent sample; a reader holding the lock while it
@@ -469,7 +469,7 @@ class RobotEmulator(RobotInterface):
         values: list[float] = self._measured.tolist()  # no lock and no copy, as in herej
         return values
 
-    def setpoint(self) -> Array:
+    def setpoint(self) -> FloatArray:
         """Latest commanded joints (6,) degrees."""
         self.catch_up()
         with self._lock:
@@ -481,7 +481,7 @@ class RobotEmulator(RobotInterface):
         q = np.array(self._measured)  # no lock, as in herej
         return here_at(self.model, q, tool_T, frame_T)
 
-    def joint_limits(self) -> Array:
+    def joint_limits(self) -> FloatArray:
         return np.array(self.model.limits)
 
     def enable_power(self) -> None:
@@ -509,7 +509,7 @@ class RobotEmulator(RobotInterface):
         if len(self._gen.queue) >= MAX_QUEUE:
             raise BusyError(f"motion queue full ({MAX_QUEUE} moves)")
 
-    def _queue(self, plan: Callable[[int, Array], object]) -> int:
+    def _queue(self, plan: Callable[[int, FloatArray], object]) -> int:
         self.catch_up()  # the move starts after now, not after a late tick's cycle
         with self._lock:
             try:
@@ -534,13 +534,13 @@ class RobotEmulator(RobotInterface):
             log.debug("queued %s move %d", move.kind, move_id)
             return move_id
 
-    def joint_move(self, joints: Array) -> int:
+    def joint_move(self, joints: FloatArray) -> int:
         q = np.asarray(joints, dtype=np.float64)
         if q.shape != (6,) or not np.all(np.isfinite(q)):
             raise InvalidArgumentError(f"joints: expected 6 finite values, got shape {q.shape}")
         return self._queue(lambda i, start: plan_joint(i, self.model, start, q, self._desc))
 
-    def _tool_target(self, loc: Loc, tool: Loc, frame: Loc) -> tuple[Array, Array]:
+    def _tool_target(self, loc: Loc, tool: Loc, frame: Loc) -> tuple[FloatArray, FloatArray]:
         tool_T = _loc(tool, "tool")
         target = _loc(frame, "frame") @ _loc(loc, "location")
         return target, tool_T
@@ -549,7 +549,7 @@ class RobotEmulator(RobotInterface):
         target, tool_T = self._tool_target(loc, tool, frame)
         flange = target @ invert(tool_T)
 
-        def plan(i: int, start: Array) -> object:
+        def plan(i: int, start: FloatArray) -> object:
             sols = self.model.ik(flange, near=start)
             return plan_joint(i, self.model, start, sols[0].joints_deg, self._desc)
 
@@ -561,7 +561,9 @@ class RobotEmulator(RobotInterface):
             lambda i, start: plan_linear(i, self.model, start, target, tool_T, self._desc)
         )
 
-    def tool_move_trajectory(self, times: Array, locations: Array, tool: Loc, frame: Loc) -> int:
+    def tool_move_trajectory(
+        self, times: FloatArray, locations: FloatArray, tool: Loc, frame: Loc
+    ) -> int:
         t = np.asarray(times, dtype=np.float64)
         locs = np.asarray(locations, dtype=np.float64)
         if locs.ndim != 2 or locs.shape[1] != 6:
@@ -729,7 +731,7 @@ class RobotEmulator(RobotInterface):
                 self._loop.wake()
             log.info("alter mode on (stream timeout %.0f ms)", timeout * 1000)
 
-    def alter(self, correction: Sequence[float] | Array) -> Array:
+    def alter(self, correction: Sequence[float] | FloatArray) -> FloatArray:
         self.catch_up()
         with self._lock:
             return self._alter.command(np.asarray(correction, dtype=np.float64), self.time())
@@ -740,7 +742,9 @@ class RobotEmulator(RobotInterface):
             self._alter.end()
             log.info("alter mode off: the correction ramps back to zero")
 
-    def alter_queue(self, times: Array, corrections: Array) -> tuple[QueueReport, Array, float]:
+    def alter_queue(
+        self, times: FloatArray, corrections: FloatArray
+    ) -> tuple[QueueReport, FloatArray, float]:
         self.catch_up()
         with self._lock:
             report = self._alter.enqueue(times, corrections)
@@ -748,12 +752,12 @@ class RobotEmulator(RobotInterface):
                 self._loop.wake()
             return report, self._alter.applied.copy(), self._gen.k * self.period
 
-    def alter_applied(self) -> Array:
+    def alter_applied(self) -> FloatArray:
         """The correction (6,) applied at the last cycle (mm, deg, base frame)."""
         with self._lock:
             return self._alter.applied.copy()
 
-    def joint_log(self, since: float) -> tuple[Array, Array]:
+    def joint_log(self, since: float) -> tuple[FloatArray, FloatArray]:
         self.catch_up()
         with self._lock:
             times, joints = self._buffer.since(since)

@@ -19,19 +19,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-import numpy as np
-import numpy.typing as npt
-
 from kinematics import errors as kin
+from kinematics.types import IDENTITY_LOC, FloatArray, Loc
 from spec.wire import MoveOutcome
 
 if TYPE_CHECKING:
     from robotsocket.alter_queue import QueueReport
 
-Array = npt.NDArray[np.float64]
-#: A VAL3 location: x, y, z (mm), rx, ry, rz (degrees), R = Rx(rx)·Ry(ry)·Rz(rz).
-Loc = tuple[float, float, float, float, float, float]
-IDENTITY_LOC: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 #: s the default controlled stop waits for the arm to stand before power goes off [RS-7.22].
 STOP_WAIT_S = 10.0
 
@@ -165,7 +159,7 @@ class RobotInterface(ABC):
     def status(self) -> RobotStatus: ...
 
     @abstractmethod
-    def herej(self) -> Array:
+    def herej(self) -> FloatArray:
         """Measured joints (6,) in degrees."""
 
     def herej_values(self) -> list[float]:
@@ -180,7 +174,7 @@ class RobotInterface(ABC):
         the base)."""
 
     @abstractmethod
-    def joint_limits(self) -> Array:
+    def joint_limits(self) -> FloatArray:
         """Joint limits (6, 2) in degrees, [lower, upper]."""
 
     @abstractmethod
@@ -191,7 +185,7 @@ class RobotInterface(ABC):
         """Stop at once, empty the queue, switch power off."""
 
     @abstractmethod
-    def joint_move(self, joints: Array) -> int:
+    def joint_move(self, joints: FloatArray) -> int:
         """Queue a joint-interpolated move to ``joints`` (6,) degrees; return its move ID."""
 
     @abstractmethod
@@ -254,10 +248,12 @@ class RobotInterface(ABC):
         """(output names, input names)."""
 
     @abstractmethod
-    def joint_log(self, since: float) -> tuple[Array, Array]:
+    def joint_log(self, since: float) -> tuple[FloatArray, FloatArray]:
         """Logged samples with t_k > ``since`` (s): times (N,) and measured joints (N, 6)."""
 
-    def tool_move_trajectory(self, times: Array, locations: Array, tool: Loc, frame: Loc) -> int:
+    def tool_move_trajectory(
+        self, times: FloatArray, locations: FloatArray, tool: Loc, frame: Loc
+    ) -> int:
         """Queue a timed path: ``tool`` passes location k of ``locations`` (N, 6) (mm, deg,
         in ``frame``) at ``times[k]`` (N,) s after the move starts [RS-5.23]. Optional:
         a robot without it answers NOT_SUPPORTED [RS-5.62]."""
@@ -269,7 +265,7 @@ class RobotInterface(ABC):
         [RS-5.62]."""
         raise NotImplementedError
 
-    def alter(self, correction: Sequence[float] | Array) -> Array:
+    def alter(self, correction: Sequence[float] | FloatArray) -> FloatArray:
         """[RS-5.33] The whole correction in force (6,): dx, dy, dz (mm), rx, ry, rz (deg),
         base frame; returns the correction applied at the last cycle (6,)."""
         raise NotImplementedError
@@ -278,7 +274,9 @@ class RobotInterface(ABC):
         """[RS-5.37] End alter mode; the correction ramps back to zero within the limits."""
         raise NotImplementedError
 
-    def alter_queue(self, times: Array, corrections: Array) -> tuple[QueueReport, Array, float]:
+    def alter_queue(
+        self, times: FloatArray, corrections: FloatArray
+    ) -> tuple[QueueReport, FloatArray, float]:
         """[RS-5.39] Queue timed corrections (N, 6) for the robot-clock ``times`` (N,);
         (the queue's report, the correction applied at the last cycle (6,), that cycle's
         time). Optional (1.3): a robot without it answers NOT_SUPPORTED [RS-5.62]."""

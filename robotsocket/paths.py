@@ -21,8 +21,8 @@ from kinematics.arm import BoolArray
 from kinematics.config import CONFIGS
 from kinematics.errors import KinematicsError
 from kinematics.robot import RobotModel
+from kinematics.types import FloatArray
 from robotsocket.interface import (
-    Array,
     MotionDesc,
     OutOfRangeError,
     SingularityError,
@@ -53,7 +53,7 @@ MAX_GRID_STEP_DEG = 10.0
 MIN_SPEED_FRACTION = 1e-3
 
 
-def nominal_limits(model: str) -> tuple[Array, Array]:
+def nominal_limits(model: str) -> tuple[FloatArray, FloatArray]:
     """(speed (6,) deg/s, acceleration (6,) deg/s^2) at 100 % for a model name."""
     speed = np.array(NOMINAL_JOINT_SPEED.get(model.upper(), NOMINAL_JOINT_SPEED["RX90B"]))
     return speed, ACCEL_FACTOR * speed
@@ -61,12 +61,12 @@ def nominal_limits(model: str) -> tuple[Array, Array]:
 
 class Path(Protocol):
     @property
-    def start(self) -> Array: ...
+    def start(self) -> FloatArray: ...
 
     @property
-    def target(self) -> Array: ...
+    def target(self) -> FloatArray: ...
 
-    def q_at(self, s: Array, q_prev: Array) -> Array:
+    def q_at(self, s: FloatArray, q_prev: FloatArray) -> FloatArray:
         """Joints (N, 6) at path parameters s (N,), continuing from q_prev (6,)."""
         ...
 
@@ -75,26 +75,26 @@ class Path(Protocol):
 class JointPath:
     """Straight line in joint space from start (6,) to target (6,) degrees."""
 
-    start: Array
-    target: Array
+    start: FloatArray
+    target: FloatArray
 
-    def q_at(self, s: Array, q_prev: Array) -> Array:
+    def q_at(self, s: FloatArray, q_prev: FloatArray) -> FloatArray:
         q = self.start + np.multiply.outer(s, self.target - self.start)
         q[s >= 1.0] = self.target
         q[s <= 0.0] = self.start
         return q
 
 
-def _rodrigues(axis: Array, angles: Array) -> Array:
+def _rodrigues(axis: FloatArray, angles: FloatArray) -> FloatArray:
     """Rotations (N, 3, 3) by ``angles`` (N,) rad about the unit ``axis`` (3,)."""
     x, y, z = axis
     K = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
     s, c = np.sin(angles), np.cos(angles)
-    R: Array = np.eye(3) + s[:, None, None] * K + (1.0 - c)[:, None, None] * (K @ K)
+    R: FloatArray = np.eye(3) + s[:, None, None] * K + (1.0 - c)[:, None, None] * (K @ K)
     return R
 
 
-def wrap180(a: Array) -> Array:
+def wrap180(a: FloatArray) -> FloatArray:
     """Angles (deg) wrapped into [-180, 180)."""
     return np.asarray((a + 180.0) % 360.0 - 180.0)
 
@@ -105,15 +105,15 @@ class CartesianPath:
     in one fixed configuration branch, unwrapped continuously from the start joints."""
 
     model: RobotModel
-    start: Array  # (6,) deg
-    T0: Array  # tool2base (4, 4) at s = 0
-    T1: Array  # tool2base (4, 4) at s = 1
-    flange2tool: Array  # inverse of tool2flange (4, 4)
+    start: FloatArray  # (6,) deg
+    T0: FloatArray  # tool2base (4, 4) at s = 0
+    T1: FloatArray  # tool2base (4, 4) at s = 1
+    flange2tool: FloatArray  # inverse of tool2flange (4, 4)
     branch: int  # index into kinematics.config.CONFIGS
-    target: Array = field(default_factory=lambda: np.zeros(6))  # set by plan_linear
+    target: FloatArray = field(default_factory=lambda: np.zeros(6))  # set by plan_linear
     length_mm: float = field(init=False)
     angle_deg: float = field(init=False)
-    _axis: Array = field(init=False, repr=False)
+    _axis: FloatArray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         rel = self.T0[:3, :3].T @ self.T1[:3, :3]
@@ -134,7 +134,7 @@ class CartesianPath:
         )
         object.__setattr__(self, "angle_deg", math.degrees(angle))
 
-    def tool_poses(self, s: Array) -> Array:
+    def tool_poses(self, s: FloatArray) -> FloatArray:
         """tool2base (N, 4, 4) at path parameters s (N,)."""
         n = len(s)
         T = np.zeros((n, 4, 4))
@@ -143,7 +143,7 @@ class CartesianPath:
         T[:, 3, 3] = 1.0
         return T
 
-    def solve(self, s: Array, q_prev: Array) -> tuple[Array, BoolArray, BoolArray]:
+    def solve(self, s: FloatArray, q_prev: FloatArray) -> tuple[FloatArray, BoolArray, BoolArray]:
         """(joints (N, 6) unwrapped from q_prev, valid (N,), reachable (N,))."""
         F = self.tool_poses(s) @ self.flange2tool
         batch = self.model.ik_batch(F, near=q_prev)
@@ -155,7 +155,7 @@ class CartesianPath:
             q = q_prev + np.cumsum(steps, axis=0)
         return q, valid, reach
 
-    def q_at(self, s: Array, q_prev: Array) -> Array:
+    def q_at(self, s: FloatArray, q_prev: FloatArray) -> FloatArray:
         q, valid, _ = self.solve(s, q_prev)
         if not np.all(valid):
             raise UnreachableError("Cartesian path left the workspace during the move")
@@ -177,21 +177,23 @@ class Move:
     length_mm: float  # flange (joint) or tool (linear) path length, for blending
     blend_mm: float
     #: Joint acceleration limits (6,) deg/s^2 of the motion descriptor, for blending.
-    joint_acc: Array | None = None
+    joint_acc: FloatArray | None = None
 
     @property
-    def start(self) -> Array:
+    def start(self) -> FloatArray:
         return self.path.start
 
     @property
-    def target(self) -> Array:
+    def target(self) -> FloatArray:
         return self.path.target
 
     def law(self, t0: float, s0: float = 0.0) -> Trapezoid:
         return Trapezoid(t0, s0, self.vmax, self.acc, self.dec)
 
 
-def _s_limits(dq: Array, vmax: Array, amax: Array, dmax: Array) -> tuple[float, float, float]:
+def _s_limits(
+    dq: FloatArray, vmax: FloatArray, amax: FloatArray, dmax: FloatArray
+) -> tuple[float, float, float]:
     moving = np.abs(dq) > 1e-12
     if not np.any(moving):
         return math.inf, math.inf, math.inf
@@ -203,14 +205,16 @@ def _s_limits(dq: Array, vmax: Array, amax: Array, dmax: Array) -> tuple[float, 
     )
 
 
-def joint_limits_of(model: RobotModel, desc: MotionDesc) -> tuple[Array, Array, Array]:
+def joint_limits_of(
+    model: RobotModel, desc: MotionDesc
+) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Joint (speed, accel, decel) limits (6,) deg/s, deg/s^2 under ``desc``."""
     v, a = nominal_limits(model.name)
     return v * desc.joint_speed / 100.0, a * desc.joint_accel / 100.0, a * desc.joint_decel / 100.0
 
 
 def plan_joint(
-    move_id: int, model: RobotModel, start: Array, target: Array, desc: MotionDesc
+    move_id: int, model: RobotModel, start: FloatArray, target: FloatArray, desc: MotionDesc
 ) -> Move:
     """Plan a synchronised joint move; raises OutOfRangeError outside the joint limits."""
     try:
@@ -235,7 +239,9 @@ def plan_joint(
     )
 
 
-def singular_measures(model: RobotModel, q: Array) -> tuple[Array, Array, Array]:
+def singular_measures(
+    model: RobotModel, q: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
     """|sin θ5|, |sin θ3| and |r| / reach (N,) of joints (N, 6) deg: the distances from
     the wrist, elbow and shoulder singularities that ``SINGULAR_MARGIN`` bounds."""
     t = np.radians(q + np.asarray(model.joint_offsets_deg))
@@ -250,9 +256,9 @@ def singular_measures(model: RobotModel, q: Array) -> tuple[Array, Array, Array]
 def plan_linear(
     move_id: int,
     model: RobotModel,
-    start: Array,
-    tool2base_target: Array,
-    tool2flange: Array,
+    start: FloatArray,
+    tool2base_target: FloatArray,
+    tool2flange: FloatArray,
     desc: MotionDesc,
 ) -> Move:
     """Plan a straight-line tool move from joints ``start`` (6,) to ``tool2base_target``.

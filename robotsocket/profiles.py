@@ -14,7 +14,7 @@ from typing import Protocol
 
 import numpy as np
 
-from robotsocket.interface import Array
+from kinematics.types import FloatArray
 
 __all__ = ["TIME_EPS_S", "Decel", "Hold", "Law", "Trapezoid", "ended"]
 
@@ -41,7 +41,7 @@ class Law(Protocol):
         """(s, ds/dt) at time t (s)."""
         ...
 
-    def s_array(self, t: Array) -> Array: ...
+    def s_array(self, t: FloatArray) -> FloatArray: ...
 
 
 @dataclass(frozen=True)
@@ -91,7 +91,7 @@ class Trapezoid:
         r = self.t_end - t  # time left
         return 1.0 - 0.5 * self.dec * r * r, self.dec * r
 
-    def s_array(self, t: Array) -> Array:
+    def s_array(self, t: FloatArray) -> FloatArray:
         return np.array([self.at(float(x))[0] for x in t])
 
 
@@ -119,7 +119,7 @@ class Decel:
             self.dec * tau
         )
 
-    def s_array(self, t: Array) -> Array:
+    def s_array(self, t: FloatArray) -> FloatArray:
         return np.array([self.at(float(x))[0] for x in t])
 
 
@@ -133,5 +133,5 @@ class Hold:
     def at(self, t: float) -> tuple[float, float]:
         return self.s, 0.0
 
-    def s_array(self, t: Array) -> Array:
+    def s_array(self, t: FloatArray) -> FloatArray:
         return np.full(len(t), self.s)

@@ -18,12 +18,12 @@ from collections.abc import Callable
 
 import numpy as np
 
+from kinematics.types import Loc
 from robotsocket.interface import (
     BadStateError,
     BusyError,
     EmergencyStopError,
     InvalidArgumentError,
-    Loc,
     MotionDesc,
     NotPoweredError,
     OutOfRangeError,

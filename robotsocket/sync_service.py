@@ -19,7 +19,8 @@ import numpy as np
 from kinematics.errors import KinematicsError
 from kinematics.robot import get_model
 from kinematics.transforms import location_to_transform, transform_to_location
-from robotsocket.interface import BadStateError, Loc, OutOfRangeError, RobotInterface
+from kinematics.types import Loc
+from robotsocket.interface import BadStateError, OutOfRangeError, RobotInterface
 from robotsocket.service import RobotService
 from spec.params import FloatArray, Location, Matrix, Value
 from spec.registry import BY_ID, SEAM_POINT_COLUMNS, CommandId

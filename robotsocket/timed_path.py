@@ -23,7 +23,8 @@ import numpy as np
 
 from kinematics.config import CONFIGS
 from kinematics.robot import RobotModel
-from robotsocket.interface import Array, OutOfRangeError, SingularityError, UnreachableError
+from kinematics.types import FloatArray
+from robotsocket.interface import OutOfRangeError, SingularityError, UnreachableError
 from robotsocket.paths import (
     MAX_GRID_STEP_DEG,
     SINGULAR_MARGIN,
@@ -44,44 +45,44 @@ START_TOLERANCE_DEG = 0.01
 class TimedPath:
     """Joints (N, 6) deg at times (N,) s; s in [0, 1] maps to t = s · times[-1]."""
 
-    times: Array
-    joints: Array
+    times: FloatArray
+    joints: FloatArray
 
     @property
-    def start(self) -> Array:
-        out: Array = self.joints[0]
+    def start(self) -> FloatArray:
+        out: FloatArray = self.joints[0]
         return out
 
     @property
-    def target(self) -> Array:
-        out: Array = self.joints[-1]
+    def target(self) -> FloatArray:
+        out: FloatArray = self.joints[-1]
         return out
 
     @property
     def duration(self) -> float:
         return float(self.times[-1])
 
-    def at_times(self, t: Array) -> Array:
+    def at_times(self, t: FloatArray) -> FloatArray:
         """Joints (M, 6) at times t (M,) s, clamped to the path's ends."""
         tt = np.clip(np.asarray(t, dtype=np.float64), 0.0, self.duration)
         times = self.times
         k = np.clip(np.searchsorted(times, tt, side="right") - 1, 0, len(times) - 2)
         t0, t1 = times[k], times[k + 1]
         w = ((tt - t0) / (t1 - t0))[:, None]
-        out: Array = (1.0 - w) * self.joints[k] + w * self.joints[k + 1]
+        out: FloatArray = (1.0 - w) * self.joints[k] + w * self.joints[k + 1]
         return out
 
-    def q_at(self, s: Array, q_prev: Array) -> Array:
+    def q_at(self, s: FloatArray, q_prev: FloatArray) -> FloatArray:
         return self.at_times(np.asarray(s, dtype=np.float64) * self.duration)
 
 
 def plan_timed(
     move_id: int,
     model: RobotModel,
-    start: Array,
-    times: Array,
-    tool2base: Array,
-    tool2flange: Array,
+    start: FloatArray,
+    times: FloatArray,
+    tool2base: FloatArray,
+    tool2flange: FloatArray,
     *,
     period: float = PERIOD,
 ) -> Move:

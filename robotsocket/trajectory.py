@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from robotsocket.interface import Array
+from kinematics.types import FloatArray
 from robotsocket.paths import JointPath, Move
 from robotsocket.profiles import TIME_EPS_S, Decel, Hold, Law, Trapezoid, ended
 
@@ -37,19 +37,19 @@ class Segment:
 
     move: Move
     law: Law
-    last_q: Array
+    last_q: FloatArray
     cancelled: bool = False
     _cache_law: Law | None = None
     _cache_k0: int = 0
-    _cache_q: Array | None = None
+    _cache_q: FloatArray | None = None
 
-    def q(self, k: int, period: float) -> Array:
+    def q(self, k: int, period: float) -> FloatArray:
         """Joints (6,) of this segment's path at cycle k."""
         path = self.move.path
         if isinstance(path, JointPath):
             s, _ = self.law.at(k * period)
             if s >= 1.0:
-                out: Array = path.target
+                out: FloatArray = path.target
             elif s <= 0.0:
                 out = path.start
             else:
@@ -67,7 +67,7 @@ class Segment:
         self.last_q = out
         return out
 
-    def q_at_s(self, s: float) -> Array:
+    def q_at_s(self, s: float) -> FloatArray:
         return np.asarray(self.move.path.q_at(np.array([s]), self.last_q)[0], dtype=np.float64)
 
 
@@ -78,7 +78,7 @@ class TrajectoryGenerator:
     cycle k already moves (its law starts at t_{k-1}, where the arm was).
     """
 
-    def __init__(self, q0: Array, period: float = PERIOD) -> None:
+    def __init__(self, q0: FloatArray, period: float = PERIOD) -> None:
         self.period = period
         self.hold_q = np.array(q0, dtype=np.float64)
         self.last_q = self.hold_q.copy()
@@ -86,7 +86,7 @@ class TrajectoryGenerator:
         self.active: list[Segment] = []
         self.held = False  # StopMove in force
         self.k = 0
-        self._reset_point: Array | None = None
+        self._reset_point: FloatArray | None = None
         self._blend_plan: tuple[tuple[int, int], float] | None = None
 
     # --- state -------------------------------------------------------------------------------
@@ -108,7 +108,7 @@ class TrajectoryGenerator:
         """Moves queued, including the ones executing."""
         return len(self.queue) + sum(1 for s in self.active if not s.cancelled)
 
-    def planned_end(self) -> Array:
+    def planned_end(self) -> FloatArray:
         """Joints where the last queued move ends: the start of the next one."""
         if self.queue:
             return self.queue[-1].target
@@ -162,7 +162,7 @@ class TrajectoryGenerator:
 
     # --- the cycle ---------------------------------------------------------------------------
 
-    def step(self, k: int) -> Array:
+    def step(self, k: int) -> FloatArray:
         """Setpoint joints (6,) degrees at t_k = k * period."""
         period = self.period
         t_prev = self.k * period
@@ -260,7 +260,7 @@ class TrajectoryGenerator:
                 allowed = np.maximum(allowed, limit * period * period)
         return bool(np.all(acc_sum <= allowed * (1.0 + 1e-6) + 1e-12))
 
-    def _retire(self, t: float, q: Array) -> None:
+    def _retire(self, t: float, q: FloatArray) -> None:
         active = self.active
         if all(s.cancelled for s in active):
             if all(ended(t, s.law.t_end) for s in active):

@@ -27,6 +27,7 @@ from spec.callcli import (
     unreachable,
 )
 from spec.cliargs import parse_endpoint, run_cli
+from spec.clocks import CLOCK_KINDS
 from spec.errors import ErrorCode, ProtocolError, RemoteError
 from spec.exitcodes import ExitCode
 from spec.files import atomic_path
@@ -50,13 +51,7 @@ class _UsageError(Exception):
 
 
 def _token_file(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--token-file",
-        dest="token",
-        type=cliargs.token_file,
-        metavar="FILE",
-        help="file holding the TakeControl token (one line)",
-    )
+    cliargs.add_token_file(parser, "the TakeControl")
 
 
 def _parser() -> cliargs.Parser:
@@ -76,7 +71,7 @@ def _parser() -> cliargs.Parser:
     s.add_argument(
         "--motion", default="fixed", help="fixed | sine:AMP_MM:FREQ_HZ | scan:SPEED_MM_S"
     )
-    s.add_argument("--clock", choices=("real", "sim"), default="real")
+    s.add_argument("--clock", choices=CLOCK_KINDS, default="real")
     s.add_argument(
         "--allow",
         nargs="+",
@@ -112,7 +107,13 @@ def _parser() -> cliargs.Parser:
     _token_file(c)
     n = sub.add_parser("snapshot", help="save the latest frame as PGM (or PNG)")
     n.add_argument("endpoint", metavar="HOST:PORT")
-    n.add_argument("-o", "--output", required=True, help="frame.pgm or frame.png")
+    n.add_argument(
+        "-o",
+        "--output",
+        type=cliargs.output_file,
+        required=True,
+        help="frame.pgm or frame.png (a missing folder is created)",
+    )
     n.add_argument("--acquire", action="store_true", help="take control and acquire first")
     n.add_argument("--timeout", type=cliargs.timeout, default=5.0, help="reply timeout (s)")
     _token_file(n)
@@ -234,8 +235,6 @@ def cmd_snapshot(args: argparse.Namespace) -> int:
     suffix = out.suffix.lower()
     if suffix not in (".pgm", ".png"):
         raise _UsageError(f"output must end in .pgm or .png, got {args.output!r}")
-    if not out.parent.is_dir():
-        raise _UsageError(f"output directory {str(out.parent)!r} does not exist")
     token: str | None = args.token
     try:
         host, port = parse_endpoint(args.endpoint, DEFAULT_PORT)

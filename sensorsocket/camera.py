@@ -20,10 +20,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from kinematics.types import FloatArray
 from sensorsocket.columns import ColumnStats, ReferenceColumns, SubColumns
 from sensorsocket.exposure import Exposure, RenderSettings
 from sensorsocket.geometry import CameraError, CameraGeometry
-from sensorsocket.scene import FloatArray, PoseProvider, Scene
+from sensorsocket.scene import PoseProvider, Scene
 from sensorsocket.straight_seam import StraightSeamColumns
 
 __all__ = [

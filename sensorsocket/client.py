@@ -1,5 +1,11 @@
 """SensorClient: one typed method per SensorSocket command (PROTOCOL.md section 5.4).
 
+Results follow the rule of :mod:`robotsocket.client`: a seam pose (``SeamData.seam``) is a
+VAL3 location, :data:`kinematics.types.Loc` (a tuple of six floats); images and point sets are
+numpy arrays (an image (rows, columns) uint8 or uint16, a profile (N, 3) float64 mm); a reply
+of several values is a frozen dataclass, and a measurement's data comes with its index as an
+``(index, data)`` pair: ``index, image = sensor.get_image()``.
+
 Errors arrive as :class:`spec.errors.RemoteError` with the wire code (e.g. NO_DATA before the
 first measurement, OUT_OF_RANGE, NOT_IN_CONTROL).
 """
@@ -11,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from kinematics.types import Loc
 from spec import wire
 from spec.client import FramedClient
 from spec.errors import PeerError
@@ -37,7 +44,7 @@ class SeamData:
 
     index: int
     status: SensorStatus
-    seam: tuple[float, float, float, float, float, float] | None
+    seam: Loc | None
     quality: float
     t_arrival: float
     t_exposure_start: float

@@ -23,8 +23,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from kinematics.types import FloatArray
 from sensorsocket.geometry import CameraError, CameraGeometry
-from sensorsocket.scene import FloatArray, Piece, PoseProvider, Scene
+from sensorsocket.scene import Piece, PoseProvider, Scene
 
 #: A column whose lit sub-columns' rows spread (rms) by at most this is drawn as one
 #: Gaussian with their mean and variance: against the sum of the K Gaussians (σ = 1.4 px)

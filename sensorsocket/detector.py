@@ -31,8 +31,9 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
+from kinematics.types import FloatArray
 from sensorsocket.geometry import CameraGeometry
-from sensorsocket.scene import FloatArray, JointType
+from sensorsocket.scene import JointType
 from sensorsocket.stripe import MAD_TO_SIGMA, StripeFinder, StripeProfile, median_of_copy, to_dn
 
 _EYE4 = np.eye(4)

@@ -15,9 +15,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from kinematics.types import FloatArray
 from sensorsocket.camera import CameraGeometry, RenderSettings, RenderTruth, StripeRenderer
 from sensorsocket.detector import DetectorConfig, SeamDetector, SeamStatus
-from sensorsocket.scene import FloatArray, PoseProvider, Scene
+from sensorsocket.scene import PoseProvider, Scene
 from sensorsocket.timing import Acquisition, TimingModel
 
 

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from kinematics.types import FloatArray
 from sensorsocket.geometry import CameraError, CameraGeometry
-from sensorsocket.scene import FloatArray
 
 U8Array = NDArray[np.uint8]
 

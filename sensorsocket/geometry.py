@@ -35,7 +35,8 @@ from typing import Any, TypeVar, overload
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-FloatArray = NDArray[np.float64]
+from kinematics.types import FloatArray
+
 # float or array: each formula is written once and runs on either
 _N = TypeVar("_N", float, FloatArray)
 # "all nonzero" as a count: ndarray.all() goes through a Python wrapper, and a count costs

@@ -42,9 +42,10 @@ from enum import StrEnum
 from typing import Protocol, cast
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-FloatArray = NDArray[np.float64]
+from kinematics.types import FloatArray
+
 PoseProvider = Callable[[FloatArray], FloatArray]
 """``sensor2base(times (N,) seconds) -> (N, 4, 4)`` homogeneous transforms in mm."""
 NodePoses = Callable[[FloatArray], "tuple[FloatArray, FloatArray] | None"]

@@ -24,17 +24,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from kinematics.transforms import transform_to_location
+from kinematics.types import FloatArray
 from sensorsocket.detector import SeamStatus
 from sensorsocket.emulator import CameraEmulator, Frame, SettingsError
-from sensorsocket.scene import (
-    FloatArray,
-    Joint,
-    PoseProvider,
-    Scene,
-    SeamPath,
-    fixed_pose,
-    scripted_pose,
-)
+from sensorsocket.scene import Joint, PoseProvider, Scene, SeamPath, fixed_pose, scripted_pose
 from sensorsocket.timing import TimingModel
 from spec.wire import SensorStatus
 

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from kinematics.types import FloatArray
 from sensorsocket.columns import (
     SIMPLE_SPREAD_PX,
     UNLIT_ROW,
@@ -35,7 +36,7 @@ from sensorsocket.columns import (
     shadowed,
 )
 from sensorsocket.geometry import CameraError
-from sensorsocket.scene import FloatArray, Piece, PoseProvider, Scene, node_poses_of
+from sensorsocket.scene import Piece, PoseProvider, Scene, node_poses_of
 
 
 class _Layout:

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from sensorsocket.scene import FloatArray
+from kinematics.types import FloatArray
 
 #: Gaussian noise: σ = 1.4826 · median absolute deviation (robust against the stripe's tail).
 MAD_TO_SIGMA = 1.4826

@@ -24,9 +24,8 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from kinematics.types import FloatArray
 
 
 class TimingError(ValueError):

@@ -320,6 +320,18 @@ def main_call(
     except (OSError, ProtocolError) as exc:
         print(f"error: {unreachable(host, port, exc)}", file=sys.stderr)
         return ExitCode.UNREACHABLE
+    return _print_reply(reply, notes, result, wait, all_rows=all_rows)
+
+
+def _print_reply(
+    reply: dict[str, Any],
+    notes: list[str],
+    result: MoveResult | None,
+    wait: float | None,
+    *,
+    all_rows: bool,
+) -> int:
+    """Print a call's reply and notes; the exit code of the move it waited for, if any."""
     if not all_rows:
         reply, cut = summarised(reply)
         for name in cut:
@@ -334,7 +346,7 @@ def main_call(
         # [RS-5.50] stopped short or failed: a script must not take it for done.
         print(f"error: the move was {result.outcome.value}: {result.reason}", file=sys.stderr)
         return ExitCode.FAILED
-    return 0
+    return ExitCode.OK
 
 
 def unreachable(host: str, port: int, exc: OSError | ProtocolError) -> str:

@@ -14,7 +14,7 @@ from typing import Any, NoReturn
 from spec import wire
 from spec.auth import Network, read_token_file
 from spec.exitcodes import ExitCode
-from spec.files import prepare_output_path
+from spec.files import prepare_output_dir, prepare_output_path
 from spec.server import ServerPolicy, parse_networks
 
 
@@ -160,6 +160,20 @@ def token_file(text: str) -> str:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def add_token_file(parser: Any, whose: str, *, dest: str = "token") -> None:
+    """``--token-file FILE`` on ``parser``: the one declaration every command line shares. The
+    token is read (and a missing or empty file refused) when the option is parsed
+    (:func:`token_file`); a file, not the token itself, so ``ps`` does not show it. ``whose``
+    names it in the help line: "the robot's", "the endpoint's", "the TakeControl"."""
+    parser.add_argument(
+        "--token-file",
+        dest=dest,
+        type=token_file,
+        metavar="FILE",
+        help=f"file holding {whose} control token (one line; not shown by ps)",
+    )
+
+
 def network(text: str) -> Network:
     """One network of an allow-list (``10.0.0.0/24``, ``127.0.0.1``, ``::1``)."""
     try:
@@ -268,14 +282,10 @@ def output_file(text: str) -> str:
 
 def output_dir(text: str) -> str:
     """A directory the tool will write files into (created now if missing)."""
-    path = Path(text)
-    if path.exists() and not path.is_dir():
-        raise argparse.ArgumentTypeError(f"{text} exists and is not a directory")
     try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        msg = f"cannot create directory {text}: {exc.strerror}"
-        raise argparse.ArgumentTypeError(msg) from None
+        prepare_output_dir(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
     return text
 
 
@@ -285,9 +295,11 @@ def program_name(argv0: str) -> str:
     return f"python -m {path.parent.name}" if path.name == "__main__.py" else path.name
 
 
-def interrupted(prog: str) -> ExitCode:
-    """Ctrl-C (or SIGTERM) ended a command: the one line every tool prints, and its code."""
-    print(f"{prog}: interrupted", file=sys.stderr)
+def interrupted(prog: str, stopped: str = "") -> ExitCode:
+    """Ctrl-C (or SIGTERM) ended a command: the one line every tool prints, and its code.
+    ``stopped`` says what the tool's controlled stop ended and in which state it left things
+    (``"the emulated cell stopped, its servers closed"``): ``PROG: interrupted: STOPPED``."""
+    print(f"{prog}: interrupted" + (f": {stopped}" if stopped else ""), file=sys.stderr)
     return ExitCode.INTERRUPTED
 
 

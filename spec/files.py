@@ -1,5 +1,11 @@
 """Atomic file output for every tool of the project: a reader (a user, a CI system) sees the
-old file or the whole new one, never half of it; nothing is left behind on failure."""
+old file or the whole new one, never half of it; nothing is left behind on failure.
+
+One rule for the folders of an output (docs/CLI.md, "Output files"): a missing folder is
+created, as ``mkdir -p`` would, by :func:`prepare_output_path` (a file) or
+:func:`prepare_output_dir` (a folder of files); command lines call them when they parse the
+option (``spec.cliargs.output_file`` / ``output_dir``), so a path that cannot be written is
+refused before any work, and :func:`atomic_path` applies the same rule to every write."""
 
 from __future__ import annotations
 
@@ -24,6 +30,22 @@ def prepare_output_path(path: str | os.PathLike[str]) -> Path:
         raise ValueError(f"cannot create directory {parent}: {exc.strerror}") from None
     if not os.access(parent, os.W_OK):
         raise ValueError(f"directory {parent} is not writable")
+    return target
+
+
+def prepare_output_dir(path: str | os.PathLike[str]) -> Path:
+    """Make sure ``path`` is a folder files can be written into (created if missing) and
+    return it; ValueError naming the problem otherwise (the rule of
+    :func:`prepare_output_path`)."""
+    target = Path(path)
+    if target.exists() and not target.is_dir():
+        raise ValueError(f"{target} exists and is not a directory")
+    try:
+        target.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"cannot create directory {target}: {exc.strerror}") from None
+    if not os.access(target, os.W_OK):
+        raise ValueError(f"directory {target} is not writable")
     return target
 
 
@@ -75,6 +97,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     of the old one.
     """
     target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)  # the one rule: a missing folder is made
     sweep_stale_temporaries(target)
     tmp = _temporary_name(target, os.getpid())
     try:

@@ -99,6 +99,13 @@ class Joints:
         object.__setattr__(self, "values", vals)
 
 
+#: A VAL3 location as a plain value: x, y, z (mm), rx, ry, rz (degrees),
+#: R = Rx(rx)·Ry(ry)·Rz(rz): the one declaration (kinematics.types re-exports it for numpy code).
+Loc = tuple[float, float, float, float, float, float]
+#: The identity location: a tool at the flange, a frame at the base.
+IDENTITY_LOC: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
 @dataclass(frozen=True, slots=True)
 class Location:
     """A VAL3 location: x, y, z in mm, rx, ry, rz in degrees, R = Rx(rx)·Ry(ry)·Rz(rz)."""
@@ -124,12 +131,12 @@ class Location:
             raise UsageError(f"Location: 6 values (x, y, z, rx, ry, rz), got {len(vals)}")
         return cls(*vals)
 
-    def as_tuple(self) -> tuple[float, float, float, float, float, float]:
+    def as_tuple(self) -> Loc:
         return (self.x, self.y, self.z, self.rx, self.ry, self.rz)
 
 
 #: A frame on itself: the zero location, and the identity transform (16 values, row-major).
-IDENTITY_LOCATION = Location(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+IDENTITY_LOCATION = Location(*IDENTITY_LOC)
 IDENTITY_MATRIX = (1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0)
 
 

@@ -206,27 +206,38 @@ def compare(
         label = p.name if p else f"#{i}"
         if (p is not None and _clock_reading(p)) or f"{cmd}.{label}" in ignore:
             continue
-        if type(a) is not type(b):
-            out.append(f"{label}: recorded {type(a).__name__}, now {type(b).__name__}")
-        elif isinstance(a, float) and isinstance(b, float):
-            if not _close(a, b, tolerance):
-                out.append(f"{label}: recorded {_show(a)}, now {_show(b)}")
-        elif (fa := _floats(a)) is not None:
-            fb = _floats(b)
-            assert fb is not None
-            if len(fa) != len(fb) or not all(
-                _close(x, y, tolerance) for x, y in zip(fa, fb, strict=True)
-            ):
-                out.append(f"{label}: recorded {_show(a)}, now {_show(b)}")
-        elif isinstance(a, Image) and isinstance(b, Image):
-            if (a.width, a.height, a.format, a.order) != (b.width, b.height, b.format, b.order):
-                out.append(f"{label}: recorded {_show(a)}, now {_show(b)}")
-            elif a.data != b.data:
-                n = sum(x != y for x, y in zip(a.data, b.data, strict=True))
-                out.append(f"{label}: {n} of {len(a.data)} pixel bytes differ")
-        elif isinstance(a, IntArray | bytes | str | int | bool) and a != b:
-            out.append(f"{label}: recorded {_show(a)}, now {_show(b)}")
+        if (difference := _param_difference(label, a, b, tolerance)) is not None:
+            out.append(difference)
     return out
+
+
+def _param_difference(label: str, a: Value, b: Value, tolerance: float) -> str | None:
+    """How one reply parameter differs from its recording (None: it does not)."""
+
+    def differs() -> str:
+        return f"{label}: recorded {_show(a)}, now {_show(b)}"
+
+    if type(a) is not type(b):
+        return f"{label}: recorded {type(a).__name__}, now {type(b).__name__}"
+    if isinstance(a, float) and isinstance(b, float):
+        return None if _close(a, b, tolerance) else differs()
+    if (fa := _floats(a)) is not None:
+        fb = _floats(b)
+        assert fb is not None
+        same = len(fa) == len(fb) and all(
+            _close(x, y, tolerance) for x, y in zip(fa, fb, strict=True)
+        )
+        return None if same else differs()
+    if isinstance(a, Image) and isinstance(b, Image):
+        if (a.width, a.height, a.format, a.order) != (b.width, b.height, b.format, b.order):
+            return differs()
+        if a.data != b.data:
+            n = sum(x != y for x, y in zip(a.data, b.data, strict=True))
+            return f"{label}: {n} of {len(a.data)} pixel bytes differ"
+        return None
+    if isinstance(a, IntArray | bytes | str | int | bool) and a != b:
+        return differs()
+    return None
 
 
 def _what(p: Packet | None) -> str:

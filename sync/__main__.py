@@ -105,13 +105,7 @@ def _parser() -> cliargs.Parser:
         d.add_argument("--model", help="robot model for the DGM (default: from Hello)")
         token = d.add_mutually_exclusive_group()
         token.add_argument("--token", default="", help="control token of the robot")
-        token.add_argument(
-            "--token-file",
-            dest="token",
-            type=cliargs.token_file,
-            metavar="FILE",
-            help="file holding the robot's control token (one line; not shown by ps)",
-        )
+        cliargs.add_token_file(token, "the robot's")
         d.add_argument("--apply", action="store_true", help="SetSyncDelay to the estimate")
         d.add_argument(
             "--frequencies",

@@ -29,15 +29,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
-from kinematics.robot import get_model
+from kinematics.robot import RobotModel, get_model
 from kinematics.transforms import location_to_transform
+from kinematics.types import FloatArray
+from spec import params as wire_params
 from spec.client import ClientTimeout, FramedClient, wait_end_move
 from spec.errors import RemoteError
 from spec.exitcodes import ExitCode
 from spec.files import atomic_path, prepare_output_path, write_atomically
-from spec.params import IDENTITY_LOCATION, FloatArray, IntArray, Location, Matrix, Value
+from spec.params import IDENTITY_LOCATION, IntArray, Location, Matrix, Value
 from spec.registry import BY_ID, SEAM_POINT_COLUMNS, CommandId
 from spec.wire import SensorStatus
 from sync.delay import (
@@ -68,7 +69,6 @@ __all__ = [
     "write_plots",
 ]
 
-F64 = NDArray[np.float64]
 Progress = Callable[[float, str], None]
 
 #: Frequencies of the sweep (Fig. 8), Hz.
@@ -136,7 +136,7 @@ class ExperimentSettings:
         return self.duration_s + 2 * self.rest_s
 
 
-def sine_path(s: ExperimentSettings) -> tuple[F64, F64]:
+def sine_path(s: ExperimentSettings) -> tuple[FloatArray, FloatArray]:
     """The commanded lateral displacement: times (N,) s on the 4 ms grid from 0, y (N,) mm."""
     n = math.ceil(s.total_s / s.sample_period_s - 1e-9)
     t = np.arange(n + 1) * s.sample_period_s
@@ -145,7 +145,9 @@ def sine_path(s: ExperimentSettings) -> tuple[F64, F64]:
     r = s.ramp
     w = np.clip(np.minimum(tau, s.duration_s - tau) / r, 0.0, 1.0)
     w = 0.5 - 0.5 * np.cos(np.pi * w)
-    y: F64 = np.where(inside, s.amplitude_mm * w * np.sin(2 * np.pi * s.frequency_hz * tau), 0.0)
+    y: FloatArray = np.where(
+        inside, s.amplitude_mm * w * np.sin(2 * np.pi * s.frequency_hz * tau), 0.0
+    )
     return t.astype(np.float64), y
 
 
@@ -153,10 +155,10 @@ def sine_path(s: ExperimentSettings) -> tuple[F64, F64]:
 class ExperimentData:
     """Recorded signals: robot (K,) times s and y^R mm; sensor (I,) t_i^T s and y^S mm."""
 
-    t_robot: F64
-    y_robot: F64
-    t_trigger: F64
-    y_sensor: F64
+    t_robot: FloatArray
+    y_robot: FloatArray
+    t_trigger: FloatArray
+    y_sensor: FloatArray
     t_start: float
     model: str
     statistics: dict[str, int] = field(default_factory=dict)
@@ -213,7 +215,7 @@ def _f(v: Value) -> float:
     return v
 
 
-def _matrix(v: Value) -> F64:
+def _matrix(v: Value) -> FloatArray:
     assert isinstance(v, Matrix)
     return np.array(v.values, dtype=np.float64).reshape(v.rows, v.cols)
 
@@ -303,18 +305,11 @@ def _check_service(client: FramedClient, info: dict[str, Value], wanted: str) ->
         )
 
 
-def record_sine(
-    robot: FramedClient,
-    sensor: FramedClient | None,
-    settings: ExperimentSettings,
-    progress: Progress | None = None,
-) -> ExperimentData:
-    """Run the sine motion with triggering and collect y^R and y^S (see module docstring).
-
-    ``sensor`` is used only to ask for its trigger endpoint; with ``None`` the robot must
-    already know it (SetSensorEndpoint).
-    """
-    s = settings
+def _check_endpoints(
+    robot: FramedClient, sensor: FramedClient | None, s: ExperimentSettings
+) -> RobotModel:
+    """Hello to both, the sensor's laser on, the robot's kinematic model known and the
+    commands the run needs offered: each problem one ExperimentError before anything moves."""
     info = _hello(robot, "robot")
     if sensor is not None:
         _hello(sensor, "sensor")
@@ -331,6 +326,22 @@ def record_sine(
         missing = [c.name for c in needed if int(c) not in commands.values]
         if missing:
             raise ExperimentError(f"the robot does not implement {', '.join(missing)}")
+    return model
+
+
+def record_sine(
+    robot: FramedClient,
+    sensor: FramedClient | None,
+    settings: ExperimentSettings,
+    progress: Progress | None = None,
+) -> ExperimentData:
+    """Run the sine motion with triggering and collect y^R and y^S (see module docstring).
+
+    ``sensor`` is used only to ask for its trigger endpoint; with ``None`` the robot must
+    already know it (SetSensorEndpoint).
+    """
+    s = settings
+    model = _check_endpoints(robot, sensor, s)
     robot.take_control(s.token)
     if sensor is not None:
         host, port = _endpoint(sensor)
@@ -359,13 +370,13 @@ def record_sine(
     try:
         robot.call(
             CommandId.TOOL_MOVE_TRAJECTORY,
-            FloatArray(times.tolist()),
+            wire_params.FloatArray(times.tolist()),
             Matrix(times.size, 6, locs.ravel().tolist()),
             tool,
             loc0,
         )
-        logs: list[F64] = []
-        points: list[F64] = []
+        logs: list[FloatArray] = []
+        points: list[FloatArray] = []
         since_index = first - 1
         done = False
         # the first wait ends with the rest before the sine: no seam by then, and the run

@@ -15,6 +15,7 @@ import pytest
 from cell.__main__ import main
 from robotsocket.__main__ import main as robot_main
 from sensorsocket.__main__ import main as sensor_main
+from spec.exitcodes import ExitCode
 
 if TYPE_CHECKING:
     from tests.conftest import BusyPort
@@ -70,8 +71,13 @@ def test_serve_answers_a_robot_and_a_sensor_call_then_stops_on_sigint(
             assert client_main(["call", endpoint, "Hello", "1", "2", "test"]) == 0
             assert json.loads(capsys.readouterr().out)["frame_timeout"] == 1.5
         proc.send_signal(signal.SIGINT)
-        proc.communicate(timeout=30)
-        assert proc.returncode == 0
+        _, err = proc.communicate(timeout=30)
+        # issue 35: the stop printed nothing and exited 0; now one line and 130, as every tool
+        assert proc.returncode == ExitCode.INTERRUPTED, err
+        assert err.splitlines() == [
+            "python -m cell: interrupted: the emulated cell stopped (robot, sensor), its servers "
+            "closed"
+        ]
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -88,9 +94,9 @@ def test_demo_runs_end_to_end(tmp_path: Path) -> None:
     )  # fmt: skip
     text = out.stdout
     # A real-clock run on a busy machine may be untrusted: then the demo says so and why
-    # (exit 3), it never prints a plausible wrong ΔT as if it were fine.
-    assert out.returncode in (0, 3), out.stderr[-2000:]
-    assert ("verdict: UNTRUSTED" in text) == (out.returncode == 3), text
+    # (exit 4, UNTRUSTED), it never prints a plausible wrong ΔT as if it were fine.
+    assert out.returncode in (ExitCode.OK, ExitCode.UNTRUSTED), out.stderr[-2000:]
+    assert ("verdict: UNTRUSTED" in text) == (out.returncode == ExitCode.UNTRUSTED), text
     assert "EnablePower, Herej()" in text and "ΔT measured (ms)" in text and "verdict:" in text
     assert any(p.suffix == ".pgm" for p in tmp_path.iterdir())
 

@@ -113,7 +113,7 @@ def test_emulator_adds_the_correction_to_a_running_move() -> None:
     robot = _robot()
     start = _tool_point(robot)
     target = (*(start + np.array([0.0, 100.0, 0.0])), *robot.here(TOOL)[3:])
-    robot.tool_move_l(target, TOOL)  # type: ignore[arg-type]
+    robot.tool_move_l(target, TOOL)
     robot.alter_begin(TOOL, 0.1)
     correction = np.array([0.0, 0.0, 3.0, 0.0, 0.0, 0.0])
     for _ in range(60):
@@ -141,7 +141,7 @@ def test_emulator_stopped_stream_switches_the_laser_off_and_stops_the_motion() -
     robot = _robot()
     start = _tool_point(robot)
     target = (*(start + np.array([0.0, 200.0, 0.0])), *robot.here(TOOL)[3:])
-    robot.tool_move_l(target, TOOL)  # type: ignore[arg-type]
+    robot.tool_move_l(target, TOOL)
     robot.set_output("laser", True)
     robot.alter_begin(TOOL, 0.02)
     for _ in range(25):

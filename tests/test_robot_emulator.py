@@ -166,11 +166,11 @@ def test_tool_moves_reach_their_location() -> None:
     tool = (0.0, 0.0, 100.0, 0.0, 0.0, 0.0)
     start = np.array(robot.here(tool))
     goal = tuple(start + np.array([100.0, 50.0, -50.0, 0.0, 0.0, 10.0]))
-    robot.tool_move_l(goal, tool)  # type: ignore[arg-type]
+    robot.tool_move_l(goal, tool)
     assert robot.wait_end_move(30.0)
     same_pose(robot.here(tool), goal)
     goal2 = tuple(start + np.array([-50.0, -150.0, 20.0, 0.0, 0.0, 0.0]))
-    robot.tool_move_j(goal2, tool)  # type: ignore[arg-type]
+    robot.tool_move_j(goal2, tool)
     assert robot.wait_end_move(30.0)
     same_pose(robot.here(tool), goal2)
     with pytest.raises(UnreachableError):

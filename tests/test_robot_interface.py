@@ -7,6 +7,7 @@ import math
 import pytest
 
 from kinematics import errors as kin
+from kinematics.types import IDENTITY_LOC
 from robotsocket import client, interface
 from robotsocket.interface import (
     BadStateError,
@@ -81,4 +82,4 @@ def test_client_errors_are_robot_errors() -> None:
     for code in (ErrorCode.NOT_IN_CONTROL, ErrorCode.AUTH_FAILED, ErrorCode.UNKNOWN_COMMAND):
         assert not issubclass(client._ERRORS[code], RobotError)
     assert client.MotionDesc is interface.MotionDesc
-    assert client.RobotClient.here.__defaults__ == (interface.IDENTITY_LOC,) * 2
+    assert client.RobotClient.here.__defaults__ == (IDENTITY_LOC,) * 2

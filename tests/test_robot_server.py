@@ -287,8 +287,8 @@ def test_raw_frames_get_the_request_id_echoed(server: FramedServer) -> None:
         while len(got) < 2:
             dec.feed(s.recv(4096))
             got.extend(dec.events())
-    assert [p.request_id for p in got] == [77, 78]  # type: ignore[union-attr]
-    assert got[1].error[0] == ErrorCode.NOT_IN_CONTROL  # type: ignore[union-attr]
+    assert [p.request_id for p in got] == [77, 78]
+    assert got[1].error[0] == ErrorCode.NOT_IN_CONTROL
 
 
 def test_long_simulated_wait_of_a_bystander_does_not_freeze_the_server(

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from kinematics.types import FloatArray
 from sensorsocket.camera import (
     CameraError,
     CameraGeometry,
@@ -18,15 +19,7 @@ from sensorsocket.camera import (
 from sensorsocket.detector import SeamDetector, SeamStatus
 from sensorsocket.emulator import CameraEmulator, SettingsError
 from sensorsocket.pgm import PgmError, parse_pgm, read_frame, read_pgm, write_frame
-from sensorsocket.scene import (
-    FloatArray,
-    Joint,
-    Scene,
-    SeamPath,
-    fixed_pose,
-    rot_x,
-    scripted_pose,
-)
+from sensorsocket.scene import Joint, Scene, SeamPath, fixed_pose, rot_x, scripted_pose
 from sensorsocket.timing import TimingModel
 
 CAM = CameraGeometry()

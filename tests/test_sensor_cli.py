@@ -164,6 +164,17 @@ def test_snapshot_writes_the_frame(served: Served, tmp_path: Path, run: Callable
     assert "readout window" not in r.stdout
 
 
+def test_snapshot_creates_a_missing_folder(
+    served: Served, tmp_path: Path, run: Callable[..., Ran]
+) -> None:
+    """[issue 35 item 8] ``snapshot -o sub/f.pgm`` refused a missing folder while ``sync
+    delay --json nodir/d.json`` created it: one rule now (spec/files.py), the folder made."""
+    out = tmp_path / "sub" / "deeper" / "frame.pgm"
+    r = run("snapshot", served.tcp, "-o", str(out), "--acquire")
+    assert r.returncode == 0, r.stderr
+    assert read_pgm(out).shape == (256, 512)
+
+
 def test_snapshot_a_file_that_cannot_be_written_is_one_line(served: Served) -> None:
     # /proc takes no new files: refused before the call (not writable) or when writing
     done = cli("snapshot", served.tcp, "-o", "/proc/frame.pgm")

@@ -179,7 +179,7 @@ def test_numeric_options_are_usable_or_one_line_errors(
         lines = err.getvalue().strip().splitlines()
         assert len(lines) == 1 and "error" in lines[0], err.getvalue()
         return
-    except ConformanceUsage as exc:  # the harness's usage errors exit 3 (its documented code)
+    except ConformanceUsage as exc:  # the harness's usage errors: exit 2 (USAGE)
         assert "\n" not in str(exc)
         return
     got = getattr(args, attr)
@@ -286,7 +286,7 @@ def test_help_names_each_options_default_once() -> None:
         ("--robot-port ROBOT_PORT", "4000"),
         ("--sensor-port SENSOR_PORT", "2000"),
         ("--udp-port UDP_PORT", "2001"),
-        ("--clock {real,sim}", "real"),
+        ("--clock {sim,real}", "real"),
         ("--model MODEL", "RX90B"),
     ]:
         assert f"{option} default {default} " in text, option

@@ -13,6 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from kinematics.transforms import invert, location_to_transform, transform_to_location
+from kinematics.types import Loc
 from spec.params import Location, Matrix
 from spec.registry import CommandId
 from spec.wire import SensorStatus
@@ -37,7 +38,7 @@ from welding.calibration import (
 from welding.cli import main
 from welding.emulate import EmulatedSession, run_tracking
 from welding.teach import SeamTeacher
-from welding.tools import Loc, ToolDB
+from welding.tools import ToolDB
 
 NOMINAL: Loc = (40.0, 0.0, 200.0, 0.0, 0.0, 0.0)
 SEAM_POINT = np.array([570.0, 0.0, 15.0])

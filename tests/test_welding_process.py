@@ -445,7 +445,7 @@ def _runner(s: EmulatedSession) -> JobRunner:
 
 def test_tracked_job_follows_the_misplaced_jog_seam_within_target() -> None:
     # workpiece 1.5 mm and 0.5 deg off where the job says; the path has two 15 deg corners
-    with EmulatedSession("jog", seed=1, workpiece_error=(0.0, 1.5, 0.0, 0.0, 0.0, 0.5)) as s:
+    with EmulatedSession("arc", seed=1, workpiece_error=(0.0, 1.5, 0.0, 0.0, 0.0, 0.5)) as s:
         points = [(0.0, 0.0), *_jog_polyline()]
         points.append((points[-1][0] + 60.0, points[-1][1]))
         job = tracked(*points, velocity=250.0, z=_laser_z(s))

@@ -98,7 +98,7 @@ def cmd_calibrate(args: argparse.Namespace, open_cell: Any) -> int:
         raise CalibrationError("--poses: at most 30 poses per procedure")
     if args.which == "laser-tool":
         return _laser(args, open_cell)
-    if args.emulate and args.seam != "straight":
+    if args.emulate and args.seam not in ("straight", "offset"):
         raise CalibrationError("sensor-tool calibrates on a straight seam: --seam straight")
     with open_cell(args, control=True, sensor=True) as cell:
         assert cell.sensor is not None

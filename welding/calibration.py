@@ -47,7 +47,6 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
-import numpy.typing as npt
 
 from kinematics.transforms import (
     location_to_transform,
@@ -55,8 +54,8 @@ from kinematics.transforms import (
     rotvec_from_matrix,
     transform_to_location,
 )
+from kinematics.types import IDENTITY_LOC, FloatArray, Loc
 from spec.wire import SensorStatus
-from welding.tools import Loc
 
 __all__ = [
     "CalibrationError",
@@ -78,8 +77,6 @@ __all__ = [
     "spot_on_plate",
 ]
 
-Array = npt.NDArray[np.float64]
-IDENTITY: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 COMPONENTS = ("x", "y", "z", "rx", "ry", "rz")
 #: What to do when the sensor tool's run does not see enough of the seam.
 OVER_THE_SEAM = "move the sensor back over the straight seam and start again"
@@ -111,9 +108,9 @@ class Limits:
 
 @dataclass(frozen=True)
 class Solution:
-    x: Array
-    jacobian: Array  # (m, n) at x
-    residuals: Array  # (m,)
+    x: FloatArray
+    jacobian: FloatArray  # (m, n) at x
+    residuals: FloatArray  # (m,)
 
     @property
     def sigma(self) -> float:
@@ -129,17 +126,19 @@ class Solution:
         s = np.linalg.svd(self.jacobian / norms, compute_uv=False)
         return math.inf if s[-1] <= 0 else float(s[0] / s[-1])
 
-    def covariance(self) -> Array:
-        out: Array = np.asarray(np.linalg.pinv(self.jacobian.T @ self.jacobian), dtype=np.float64)
+    def covariance(self) -> FloatArray:
+        out: FloatArray = np.asarray(
+            np.linalg.pinv(self.jacobian.T @ self.jacobian), dtype=np.float64
+        )
         out *= self.sigma**2
         return out
 
 
 def least_squares(
-    residuals: Callable[[Array], Array],
-    x0: Array,
+    residuals: Callable[[FloatArray], FloatArray],
+    x0: FloatArray,
     *,
-    steps: Array | None = None,
+    steps: FloatArray | None = None,
     iterations: int = 30,
     tolerance: float = 1e-12,
 ) -> Solution:
@@ -148,7 +147,7 @@ def least_squares(
     x = np.array(x0, dtype=np.float64)
     h = np.full(len(x), 1e-6) if steps is None else np.asarray(steps, dtype=np.float64)
 
-    def jac(x: Array) -> Array:
+    def jac(x: FloatArray) -> FloatArray:
         cols = []
         for i in range(len(x)):
             d = np.zeros_like(x)
@@ -180,21 +179,21 @@ def least_squares(
     return Solution(x, jac(x), r)
 
 
-def _tool(nominal: Array, p: Array) -> Array:
+def _tool(nominal: FloatArray, p: FloatArray) -> FloatArray:
     """nominal (4, 4) · [R(w) | v] for p = (v mm, w rad)."""
     delta = np.eye(4)
     delta[:3, :3] = matrix_from_rotvec(p[3:6])
     delta[:3, 3] = p[:3]
-    out: Array = nominal @ delta
+    out: FloatArray = nominal @ delta
     return out
 
 
-def _loc(T: Array) -> Loc:
+def _loc(T: FloatArray) -> Loc:
     v = [float(x) for x in transform_to_location(T)]
     return (v[0], v[1], v[2], v[3], v[4], v[5])
 
 
-def _perpendicular_basis(d: Array) -> tuple[Array, Array]:
+def _perpendicular_basis(d: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Two unit vectors perpendicular to the unit vector ``d`` and to each other."""
     a = np.eye(3)[int(np.argmin(np.abs(d)))]
     e1 = np.cross(d, a)
@@ -298,18 +297,18 @@ def _check(sol: Solution, n_tool: int, names: Sequence[str], limits: Limits) -> 
 class SensorObservation:
     """A flange pose ^B_N T (4, 4) mm and the seam point it saw, (3,) mm in S."""
 
-    flange2base: Array
-    point: Array
+    flange2base: FloatArray
+    point: FloatArray
 
 
 def _sensor_residuals(
-    obs: Sequence[SensorObservation], nominal: Array, c0: Array, d0: Array
-) -> Callable[[Array], Array]:
+    obs: Sequence[SensorObservation], nominal: FloatArray, c0: FloatArray, d0: FloatArray
+) -> Callable[[FloatArray], FloatArray]:
     F = np.stack([o.flange2base for o in obs])
     s = np.stack([o.point for o in obs])
     e1, e2 = _perpendicular_basis(d0)
 
-    def fun(x: Array) -> Array:
+    def fun(x: FloatArray) -> FloatArray:
         T = _tool(nominal, x)
         local = s @ T[:3, :3].T + T[:3, 3]
         p = np.einsum("kij,kj->ki", F[:, :3, :3], local) + F[:, :3, 3]
@@ -320,7 +319,7 @@ def _sensor_residuals(
         u1 = e1 - (e1 @ d) * d
         u1 /= np.linalg.norm(u1)
         u2 = np.cross(d, u1)
-        out: Array = np.stack([q @ u1, q @ u2], axis=1).reshape(-1)
+        out: FloatArray = np.stack([q @ u1, q @ u2], axis=1).reshape(-1)
         return out
 
     return fun
@@ -330,7 +329,7 @@ def solve_sensor_tool(
     obs: Sequence[SensorObservation],
     nominal: Loc,
     *,
-    direction: Sequence[float] | Array | None = None,
+    direction: Sequence[float] | FloatArray | None = None,
     limits: Limits = Limits(),
 ) -> ToolEstimate:
     """^N_S T from seam points of one straight seam seen from several flange poses (see the
@@ -420,10 +419,10 @@ class Robot(Protocol):
     def wait_end_move(self, timeout: float = ...) -> bool: ...
 
 
-def _rot(axis: int, deg: float) -> Array:
+def _rot(axis: int, deg: float) -> FloatArray:
     r = np.zeros(3)
     r[axis] = math.radians(deg)
-    out: Array = matrix_from_rotvec(r)
+    out: FloatArray = matrix_from_rotvec(r)
     return out
 
 
@@ -444,7 +443,7 @@ class SensorToolCalibration:
     move_timeout_s: float = 60.0
     skipped: int = field(default=0, init=False)
 
-    def measure(self) -> Array | None:
+    def measure(self) -> FloatArray | None:
         """The seam point (3,) mm in S, averaged over ``repeats`` acquisitions; None when
         fewer than half of them found the seam."""
         pts = []
@@ -460,16 +459,16 @@ class SensorToolCalibration:
                 pts.append(data.seam[:3])
         if 2 * len(pts) < self.repeats:
             return None
-        out: Array = np.mean(np.array(pts, dtype=np.float64), axis=0)
+        out: FloatArray = np.mean(np.array(pts, dtype=np.float64), axis=0)
         return out
 
-    def _go(self, sensor2base: Array, tool: Loc) -> None:
-        self.robot.tool_move_j(_loc(sensor2base), tool, IDENTITY)
+    def _go(self, sensor2base: FloatArray, tool: Loc) -> None:
+        self.robot.tool_move_j(_loc(sensor2base), tool, IDENTITY_LOC)
         if not self.robot.wait_end_move(self.move_timeout_s):
             raise CalibrationError(f"a move did not end within {self.move_timeout_s:g} s")
 
     def _observe(
-        self, plan: list[PlanPose], tool: Loc, flange0: Array, seam: Array, d: Array
+        self, plan: list[PlanPose], tool: Loc, flange0: FloatArray, seam: FloatArray, d: FloatArray
     ) -> list[SensorObservation]:
         """Go to each pose of ``plan`` relative to the start orientation (sensor frame of
         ``tool`` on ``flange0``), the seam ``seam`` (3,) in B along ``d``, and measure."""
@@ -485,12 +484,14 @@ class SensorToolCalibration:
             if point is None:
                 self.skipped += 1
                 continue
-            out.append(SensorObservation(location_to_transform(self.robot.here(IDENTITY)), point))
+            out.append(
+                SensorObservation(location_to_transform(self.robot.here(IDENTITY_LOC)), point)
+            )
         return out
 
     def run(self) -> ToolEstimate:
         self.skipped = 0
-        start = self.robot.here(IDENTITY)
+        start = self.robot.here(IDENTITY_LOC)
         flange0 = location_to_transform(start)
         s0 = self.measure()
         if s0 is None:
@@ -516,7 +517,7 @@ class SensorToolCalibration:
             plan = sensor_plan(self.poses - 1 - n1)
             obs += self._observe(plan, rough.tool, flange0, seam1, d)
         finally:
-            self.robot.tool_move_j(start, IDENTITY, IDENTITY)
+            self.robot.tool_move_j(start, IDENTITY_LOC, IDENTITY_LOC)
             self.robot.wait_end_move(self.move_timeout_s)
         est = solve_sensor_tool(obs, self.nominal, direction=d0, limits=self.limits)
         details = {**est.details, "repeats": self.repeats, "poses_without_seam": self.skipped}
@@ -539,8 +540,8 @@ class GaussianBeam:
     w0: float = 0.3
     z_r: float = 2.0
 
-    def radius(self, s: Array | float) -> Array:
-        out: Array = self.w0 * np.sqrt(1.0 + (np.asarray(s, dtype=np.float64) / self.z_r) ** 2)
+    def radius(self, s: FloatArray | float) -> FloatArray:
+        out: FloatArray = self.w0 * np.sqrt(1.0 + (np.asarray(s, dtype=np.float64) / self.z_r) ** 2)
         return out
 
 
@@ -556,7 +557,7 @@ class SpotMeasurement:
 
 @dataclass(frozen=True)
 class LaserObservation:
-    flange2base: Array
+    flange2base: FloatArray
     spot: SpotMeasurement
 
 
@@ -564,7 +565,7 @@ class SpotDetector(Protocol):
     """A spot detector fixed in the cell: ``plate2base`` ^B_D T (4, 4) mm (the plate is
     z_D = 0), its ``beam``, the 1σ of its readings, and a reading of the spot now."""
 
-    plate2base: Array
+    plate2base: FloatArray
     beam: GaussianBeam
     sigma_centre_mm: float
     sigma_radius_mm: float
@@ -572,33 +573,33 @@ class SpotDetector(Protocol):
     def measure(self) -> SpotMeasurement: ...
 
 
-def spot_on_plate(laser2base: Array, plate2base: Array) -> tuple[Array, float]:
+def spot_on_plate(laser2base: FloatArray, plate2base: FloatArray) -> tuple[FloatArray, float]:
     """Where the beam (z axis of ``laser2base``, from its origin, the focus) meets the plate
     (z = 0 of ``plate2base``): (x, y) in the plate frame and the distance s from the focus."""
     n, o = plate2base[:3, 2], plate2base[:3, 3]
     f, b = laser2base[:3, 3], laser2base[:3, 2]
     s = float(n @ (o - f) / (n @ b))
     p = plate2base[:3, :3].T @ (f + s * b - o)
-    out: Array = p[:2]
+    out: FloatArray = p[:2]
     return out, s
 
 
 def _laser_residuals(
-    obs: Sequence[LaserObservation], nominal: Array, det: SpotDetector
-) -> Callable[[Array], Array]:
+    obs: Sequence[LaserObservation], nominal: FloatArray, det: SpotDetector
+) -> Callable[[FloatArray], FloatArray]:
     F = np.stack([o.flange2base for o in obs])
     meas = np.array([(o.spot.x, o.spot.y, o.spot.radius) for o in obs])
     n, o = det.plate2base[:3, 2], det.plate2base[:3, 3]
     scale = np.array([det.sigma_centre_mm, det.sigma_centre_mm, det.sigma_radius_mm])
 
-    def fun(x: Array) -> Array:
+    def fun(x: FloatArray) -> FloatArray:
         T = _tool(nominal, np.append(x, 0.0))  # the roll about the beam stays nominal
         f = np.einsum("kij,j->ki", F[:, :3, :3], T[:3, 3]) + F[:, :3, 3]
         b = F[:, :3, :3] @ T[:3, 2]
         s = ((o - f) @ n) / (b @ n)
         p = (f + s[:, None] * b - o) @ det.plate2base[:3, :3]
         model = np.stack([p[:, 0], p[:, 1], det.beam.radius(s)], axis=1)
-        out: Array = ((model - meas) / scale).reshape(-1)
+        out: FloatArray = ((model - meas) / scale).reshape(-1)
         return out
 
     return fun
@@ -667,7 +668,7 @@ class LaserToolCalibration:
     move_timeout_s: float = 60.0
 
     def run(self) -> ToolEstimate:
-        start = self.robot.here(IDENTITY)
+        start = self.robot.here(IDENTITY_LOC)
         plate = self.detector.plate2base
         r0 = plate[:3, :3] @ np.diag([1.0, -1.0, -1.0])  # beam into the plate
         obs = []
@@ -681,7 +682,7 @@ class LaserToolCalibration:
                 pose = np.eye(4)
                 pose[:3, :3] = R
                 pose[:3, 3] = spot - depth * b
-                self.robot.tool_move_j(_loc(pose), self.nominal, IDENTITY)
+                self.robot.tool_move_j(_loc(pose), self.nominal, IDENTITY_LOC)
                 if not self.robot.wait_end_move(self.move_timeout_s):
                     raise CalibrationError(f"a move did not end within {self.move_timeout_s:g} s")
                 m = [self.detector.measure() for _ in range(self.repeats)]
@@ -690,10 +691,10 @@ class LaserToolCalibration:
                     float(np.mean([v.y for v in m])),
                     float(np.mean([v.radius for v in m])),
                 )
-                flange = location_to_transform(self.robot.here(IDENTITY))
+                flange = location_to_transform(self.robot.here(IDENTITY_LOC))
                 obs.append(LaserObservation(flange, avg))
         finally:
-            self.robot.tool_move_j(start, IDENTITY, IDENTITY)
+            self.robot.tool_move_j(start, IDENTITY_LOC, IDENTITY_LOC)
             self.robot.wait_end_move(self.move_timeout_s)
         det = _Averaged(self.detector, self.repeats)
         est = solve_laser_tool(obs, self.nominal, det, limits=self.limits)

@@ -52,14 +52,18 @@ from welding.console import cli as console_cli
 from welding.process import JobAborted, JobRunner, PlanError, Progress, plan, steps_summary
 from welding.teach import SeamTeacher, TeachError, record_here, seam_path
 from welding.tools import TOOL_KINDS, Entry, Tables, ToolDB, ToolDBError, check_location
-from welding.track_options import add_dynamics_option, add_ilc_options, add_track_options
+from welding.track_options import (
+    add_dynamics_option,
+    add_ilc_options,
+    add_seam_option,
+    add_track_options,
+)
 
 __all__ = ["main"]
 
 log = logging.getLogger("welding")
 
 DEFAULT_TOOLS = "welding-tools.json"
-SEAMS = ("straight", "sine", "corner", "jog")
 
 
 class CliError(Exception):
@@ -111,12 +115,7 @@ def _add_cell_options(
     )
     if sensor:
         cliargs.add_endpoint(p, "sensor", ", with --robot" + sensor_help)
-    p.add_argument(
-        "--seam",
-        choices=SEAMS,
-        default="straight",
-        help="the emulated cell's seam (with --emulate)",
-    )
+    add_seam_option(p, "straight", " (with --emulate)")
     p.add_argument("--seed", type=int, default=0, help="the emulated cell's seed")
     add_dynamics_option(p)
     for which in ("sensor", "laser"):
@@ -127,12 +126,7 @@ def _add_cell_options(
             metavar="DX,DY,DZ,RX,RY,RZ",
             help=f"the emulated cell's true {which} tool = nominal · this (mm, deg)",
         )
-    p.add_argument(
-        "--token-file",
-        metavar="PATH",
-        type=cliargs.token_file,
-        help="control token for the robot (one line)",
-    )
+    cliargs.add_token_file(p, "the robot's", dest="token_file")
     p.add_argument(
         "--enable-power",
         action="store_true",
@@ -236,7 +230,13 @@ def _parser() -> argparse.ArgumentParser:
     p = sub.add_parser("record", help="manual teaching: save the current location as a via")
     _add_cell_options(p)
     p.add_argument("name", type=_name)
-    p.add_argument("--job", required=True, metavar="JOB.xml", help="created when missing")
+    p.add_argument(
+        "--job",
+        required=True,
+        type=cliargs.output_file,
+        metavar="JOB.xml",
+        help="created when missing",
+    )
     p.add_argument("--tool", default="flange")
     p.add_argument("--frame", default="world")
     p.add_argument("--replace", action="store_true", help="replace an item of that name")
@@ -249,7 +249,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--max-points", type=cliargs.positive_int, default=100)
     p.add_argument("--speed", type=cliargs.positive_float, default=50.0, help="mm/s")
     p.add_argument("--json", type=cliargs.output_file, metavar="OUT.json")
-    p.add_argument("--job", metavar="JOB.xml", help="add the seam as a path to this job")
+    p.add_argument(
+        "--job",
+        metavar="JOB.xml",
+        type=cliargs.output_file,
+        help="add the seam as a path to this job",
+    )
     p.add_argument("--name", type=_name, default="seam", help="the path's name")
     p.add_argument("--tool", default="laser", help="the path's tool (default laser)")
     p.add_argument("--frame", default="world", help="the path's frame (default world)")
@@ -794,6 +799,20 @@ def cmd_ilc(args: argparse.Namespace) -> int:
 # --- main ------------------------------------------------------------------------------------
 
 
+#: What Ctrl-C stopped, for the one line a command ends with (cliargs.interrupted). The
+#: clients close without giving control back: the robot and the sensor see a lost
+#: controller and make their controlled stop (laser off first, motion stopped) [RS-7.10].
+_CONTROLLED_STOP = "control dropped, the robot stops in a controlled way (laser off)"
+_STOPPED = {
+    "calibrate": f"calibration stopped, nothing saved; {_CONTROLLED_STOP}",
+    "teach": f"teaching stopped, the job not written; {_CONTROLLED_STOP}",
+    "track": "tracked weld stopped: laser off, motion reset",
+    "ilc": "ILC trials stopped: laser off, motion reset",
+    "jog": f"jog stopped; {_CONTROLLED_STOP}",
+    "move": f"move stopped; {_CONTROLLED_STOP}",
+    "job run": f"job stopped; {_CONTROLLED_STOP}",
+}
+
 COMMANDS = {
     "job": cmd_job,
     "tools": cmd_tools,
@@ -836,4 +855,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"python -m welding: error: {error_text(exc)}", file=sys.stderr)
         return ExitCode.UNREACHABLE
     except KeyboardInterrupt:  # the safe stops ran on the way out (laser off, motion stopped)
-        return cliargs.interrupted("python -m welding")
+        command = " ".join([args.command, getattr(args, "action", "") or ""]).strip()
+        stopped = _STOPPED.get(command, _STOPPED.get(args.command, ""))
+        return cliargs.interrupted("python -m welding", stopped)

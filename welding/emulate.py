@@ -26,19 +26,23 @@ import numpy.typing as npt
 from cell.cell import CellTiming, EmulatedCell
 from cell.options import timing_kwargs
 from cell.rtcell import CellProcess
+from cell.seams import cell_seam
 from cell.truth import WeldRecorder, WeldTruth
 from kinematics.transforms import invert, location_to_transform, transform_to_location
+from kinematics.types import IDENTITY_LOC, Loc
 from robotsocket.client import RobotClient
 from robotsocket.rtprocess import ChildStartError
 from sensorsocket.client import SensorClient
 from sensorsocket.scene import Scene
 from spec.client import FramedClient
+from spec.clocks import ClockKind
 from spec.errors import ProtocolError
+from spec.exitcodes import ExitCode
 from spec.files import write_atomically
 from spec.params import Location, Value
 from spec.realtime import realtime_threads
 from spec.registry import CommandId
-from welding.tools import Entry, Loc, Tables
+from welding.tools import Entry, Tables
 from welding.track_loop import (
     QueueState,
     RobotLink,
@@ -47,7 +51,6 @@ from welding.track_loop import (
     laser_path,
     weld_tracked,
 )
-from welding.track_options import TRACK_SEAMS
 from welding.tracking import TOLERANCE_MM, NominalWeld, Tracker, seam_error
 
 __all__ = ["EmulatedSession", "cell_tables", "realtime_cell"]
@@ -57,8 +60,9 @@ log = logging.getLogger(__name__)
 #: SCHED_FIFO priority of the real-clock tracker's process: below the real-time child's
 #: command (40) and timing (50) threads, above everything else.
 TRACKER_PRIORITY = 30
-#: Exit code of a tracked weld out of its tolerance (or stopped early), as ``welding track``.
-EXIT_OUT_OF_TOLERANCE = 3
+#: Exit code of a tracked weld out of its tolerance (or stopped early), as ``welding track``:
+#: a result out of its tolerance is FAILED in the one table (docs/CLI.md, "Exit codes").
+EXIT_OUT_OF_TOLERANCE = ExitCode.FAILED
 
 
 def _loc(values: object) -> Loc:
@@ -96,15 +100,16 @@ def realtime_cell(seam: str = "straight", *, seed: int = 0, dynamics: str = "off
     (the operator console's ``--emulate``: an operator watches and jogs it at the speed a
     real arm moves; the console's web server and status threads cannot starve its 4 ms
     loop). Raises ValueError when the child cannot start."""
+    shape, placement = cell_seam(seam)
     try:
-        cell = CellProcess(seam=seam, seed=seed, dynamics=dynamics)
+        cell = CellProcess(seam=shape, workpiece_error=placement, seed=seed, dynamics=dynamics)
     except ChildStartError as exc:
         raise ValueError(f"the real-time cell did not start: {exc}") from None
     return cell.start()
 
 
 class EmulatedSession:
-    """A started simulated cell (``seam``: straight|sine|corner|jog), a robot client holding
+    """A started simulated cell (``seam``: a name of :mod:`cell.seams`), a robot client holding
     control with the arm powered, a sensor client, and tables naming its tools (``laser``,
     ``sensor``) and the workpiece frame (``workpiece``: where it should be; the cell puts it
     ``workpiece_error`` off that)."""
@@ -119,14 +124,15 @@ class EmulatedSession:
         workpiece_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
         dynamics: str = "off",
     ) -> None:
+        shape, placement = cell_seam(seam, workpiece_error)
         self.cell = EmulatedCell(
             clock="sim",
-            seam=seam,
+            seam=shape,
             seed=seed,
             dynamics=dynamics,
             sensor_tool_error=sensor_tool_error,
             laser_tool_error=laser_tool_error,
-            workpiece_error=workpiece_error,
+            workpiece_error=placement,
         )
         # the ΔT in force: the cell's true one stands for what the section VI procedure
         # measures (tracked paths use it)
@@ -201,7 +207,7 @@ class TrackingRun:
     height_max_mm: float
     nominal_error_max_mm: float  # the untracked nominal path against the same seam
     laser_on_at_end: bool
-    clock: str = "sim"
+    clock: ClockKind = "sim"
     cycles: int = 0  # controller cycles of the move
     corrections: int = 0  # corrections sent during it: one per cycle when the loop keeps up
     start_on_grid: bool = True  # the cycle the move started on is known exactly
@@ -239,7 +245,7 @@ def run_tracking(
     sensor_tool_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
     laser_tool_error: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
     sensor_tool: Loc | None = None,
-    clock: str = "sim",
+    clock: ClockKind = "sim",
     tolerance_mm: float = TOLERANCE_MM,
     timed: bool = True,
     load: Callable[[tuple[str, int]], contextlib.AbstractContextManager[object]] | None = None,
@@ -267,13 +273,11 @@ def run_tracking(
     the errors against the truth stand beside it. ``load``: a context entered with the
     robot server's address around the weld on the real clock (a benchmark's load).
     ``dynamics``: the emulated arm's (``off`` or ``elastic``, :class:`EmulatedCell`)."""
-    if seam not in TRACK_SEAMS:
-        raise ValueError(f"seam must be one of {', '.join(TRACK_SEAMS)}, got {seam!r}")
-    shape, placement = TRACK_SEAMS[seam]
+    shape, placement = cell_seam(seam, workpiece_error or IDENTITY_LOC)
     config: dict[str, Any] = {
         "timing": timing or CellTiming(),
         "seam": shape,
-        "workpiece_error": workpiece_error or placement,
+        "workpiece_error": placement,
         "seed": seed,
         "sensor_tool_error": sensor_tool_error,
         "laser_tool_error": laser_tool_error,
@@ -371,7 +375,7 @@ class _ChildSide:
 
     def __init__(self, child: CellProcess, sensor_tool: Loc | None) -> None:
         self.child = child
-        self.clock = "real"
+        self.clock: ClockKind = "real"
         self.period = float(child.child.facts["period"])
         self.laser_tool: Loc = tuple(child.child.facts["laser_tool"])
         self.robot_address = child.robot_address
@@ -401,7 +405,7 @@ class _ChildSide:
 
 
 class _CellSide(Protocol):
-    clock: str
+    clock: ClockKind
     period: float
     laser_tool: Loc
 
@@ -644,8 +648,8 @@ def _true_seam(
 
 def cmd_track(args: argparse.Namespace) -> int:
     """Run one tracked weld; print and optionally write the result and end with the
-    tracker's own verdict: exit 0 within ``--tolerance``, 3 (with the reason) when not,
-    including a weld that stopped early (the laser is off)."""
+    tracker's own verdict: exit 0 within ``--tolerance``, 1 (``ExitCode.FAILED``, with the
+    reason) when not, including a weld that stopped early (the laser is off)."""
     run = run_tracking(
         args.seam,
         args.speed,
@@ -686,7 +690,7 @@ def cmd_track(args: argparse.Namespace) -> int:
             + ("" if run.start_on_grid else "; the move's start cycle was not known exactly")
         )
     print(run.verdict.get("line", "no verdict"))
-    return 0 if run.within_tolerance else EXIT_OUT_OF_TOLERANCE
+    return ExitCode.OK if run.within_tolerance else EXIT_OUT_OF_TOLERANCE
 
 
 def _plot(run: TrackingRun, out_dir: Path) -> None:

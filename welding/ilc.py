@@ -31,9 +31,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
 from kinematics.dynamics import ElasticParams, link_inertia, simulate
+from kinematics.types import FloatArray
 from spec.files import write_atomically
 
 __all__ = [
@@ -46,7 +46,6 @@ __all__ = [
     "q_filter",
 ]
 
-Array = npt.NDArray[np.float64]
 
 #: Version of the table file.
 TABLE_VERSION = 1
@@ -57,8 +56,8 @@ class LearningDiverges(ValueError):
 
 
 def axis_pulse_responses(
-    params: ElasticParams, jl: Array, n: int, period: float, *, latency_s: float = 0.0
-) -> tuple[Array, Array]:
+    params: ElasticParams, jl: FloatArray, n: int, period: float, *, latency_s: float = 0.0
+) -> tuple[FloatArray, FloatArray]:
     """Responses (n, 6) of the link and of the measured motor (delayed by ``latency_s``,
     linearly between cycles as the robot's joint log is) of each axis to a setpoint pulse
     of 1 rad in the first cycle, at the end of each cycle from that one on."""
@@ -77,14 +76,14 @@ def axis_pulse_responses(
 def lifted_model(
     params: ElasticParams,
     model: Any,
-    q_deg: Array,
-    laser2flange: Array,
+    q_deg: FloatArray,
+    laser2flange: FloatArray,
     n: int,
     period: float,
     *,
     side: str = "link",
     latency_s: float = 0.0,
-) -> Array:
+) -> FloatArray:
     """G (3N, 3N), rows and columns ordered (cycle, axis x/y/z): the laser's translation
     (mm, base frame) at each cycle of the pass for a unit translation correction at each
     cycle, linearised at joints ``q_deg`` (6,) (a :class:`~kinematics.robot.RobotModel`
@@ -107,7 +106,7 @@ def lifted_model(
     return G
 
 
-def _toeplitz(h: Array) -> Array:
+def _toeplitz(h: FloatArray) -> FloatArray:
     """Lower-triangular Toeplitz matrices (6, n, n) of the responses h (n, 6)."""
     n = h.shape[0]
     k = np.arange(n)
@@ -116,7 +115,7 @@ def _toeplitz(h: Array) -> Array:
     return T
 
 
-def q_filter(n: int, cutoff_hz: float, period: float, channels: int = 3) -> Array:
+def q_filter(n: int, cutoff_hz: float, period: float, channels: int = 3) -> FloatArray:
     """The zero-phase Q (channels·N square, same ordering as :func:`lifted_model`): a
     critically damped second-order low-pass of ``cutoff_hz`` run forward, then backward
     (Fᵀ F): no phase, |Q| = |F|² <= 1, unit gain at 0 Hz away from the pass's end."""
@@ -139,13 +138,13 @@ def q_filter(n: int, cutoff_hz: float, period: float, channels: int = 3) -> Arra
     return np.kron(F.T @ F, np.eye(channels))
 
 
-def learning_matrix(G: Array, gain: float, weights: Array, beta: float) -> Array:
+def learning_matrix(G: FloatArray, gain: float, weights: FloatArray, beta: float) -> FloatArray:
     """L = γ (GᵀWG + βI)⁻¹ GᵀW for cycle weights ``weights`` (3N,) (1 measured, 0 not)."""
     if not (math.isfinite(gain) and gain > 0.0):
         raise ValueError(f"the learning gain must be > 0, got {gain}")
     GW = G.T * weights[None, :]
     A = GW @ G + beta * np.eye(G.shape[1])
-    out: Array = np.asarray(gain * np.linalg.solve(A, GW), dtype=np.float64)
+    out: FloatArray = np.asarray(gain * np.linalg.solve(A, GW), dtype=np.float64)
     return out
 
 
@@ -173,7 +172,9 @@ class Convergence:
         }
 
 
-def check_convergence(Q: Array, L: Array, G: Array, channels: int = 3) -> Convergence:
+def check_convergence(
+    Q: FloatArray, L: FloatArray, G: FloatArray, channels: int = 3
+) -> Convergence:
     """The convergence of u_{j+1} = Q (u_j + L (r − G u_j)) (see :class:`Convergence`) for
     lifted matrices of ``channels`` interleaved channels."""
     M = Q @ (np.eye(G.shape[0]) - L @ G)
@@ -182,7 +183,7 @@ def check_convergence(Q: Array, L: Array, G: Array, channels: int = 3) -> Conver
     return Convergence(norm, radius, _frequency_max(M, channels))
 
 
-def _frequency_max(M: Array, c: int) -> float:
+def _frequency_max(M: FloatArray, c: int) -> float:
     """max over frequencies of the gain of M around the middle of the pass: the response
     of M's middle columns to e^{iωk}, per channel (the LTI reading of the lifted matrix)."""
     n = M.shape[0]
@@ -209,12 +210,12 @@ class IlcTable:
 
     period: float
     speed_mm_s: float
-    correction: Array
-    seam: Array
+    correction: FloatArray
+    seam: FloatArray
     source: str
     trials: int
 
-    def offsets(self, s: Array) -> Array:
+    def offsets(self, s: FloatArray) -> FloatArray:
         """The taught seam's offsets (M, 3) at arc lengths ``s`` (M,), linear between its
         rows, its ends held; zero without a taught seam."""
         s = np.asarray(s, dtype=np.float64)

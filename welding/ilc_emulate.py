@@ -20,6 +20,7 @@ import numpy as np
 
 from cell.cell import CellTiming, EmulatedCell
 from cell.options import timing_kwargs
+from cell.seams import cell_seam
 from cell.truth import WeldRecorder
 from spec.client import FramedClient
 from spec.errors import ProtocolError
@@ -28,7 +29,6 @@ from spec.files import write_atomically
 from welding.ilc import IlcTable, LearningDiverges
 from welding.ilc_loop import IlcSettings, IlcTrial, PassGeometry, run_ilc
 from welding.track_loop import TrackOutcome
-from welding.track_options import TRACK_SEAMS
 from welding.tracking import seam_error
 
 __all__ = ["cmd_ilc", "run_ilc_emulated"]
@@ -51,7 +51,7 @@ def run_ilc_emulated(
     result as the JSON of ``welding ilc`` (trials in order, each with ``error_max_mm``
     against the truth), plus ``"profiles"`` (per trial (arc length, error) arrays) and
     ``"table"`` (the learned :class:`IlcTable`), which the JSON leaves out."""
-    shape, placement = TRACK_SEAMS[seam]
+    shape, placement = cell_seam(seam)
     cell = EmulatedCell(
         clock="sim",
         timing=timing or CellTiming(),

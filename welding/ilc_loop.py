@@ -31,11 +31,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-import numpy.typing as npt
 
 from kinematics.dynamics import RX90B, ElasticParams
 from kinematics.robot import RobotModel, get_model
 from kinematics.transforms import location_to_transform
+from kinematics.types import FloatArray, Loc
 from spec import wire
 from spec.client import FramedClient
 from spec.params import IDENTITY_LOCATION, Joints, Location, Matrix
@@ -49,7 +49,6 @@ from welding.ilc import (
     lifted_model,
     q_filter,
 )
-from welding.tools import Loc
 from welding.track_loop import RobotLink, TrackedWeld, TrackOutcome, laser_path, weld_tracked
 from welding.tracking import NominalWeld, SeamModel, Tracker, TrackingError
 
@@ -57,7 +56,6 @@ __all__ = ["IlcSettings", "IlcTrial", "PassGeometry", "run_ilc"]
 
 log = logging.getLogger(__name__)
 
-Array = npt.NDArray[np.float64]
 
 SOURCES = ("seam", "joints")
 #: The control lease (s, RS-7.13) the trials take: between two passes the arm stands while
@@ -106,7 +104,7 @@ class IlcTrial:
     measured_max_mm: float
     correction_max_mm: float
     stopped: str
-    profile: Array = field(default_factory=lambda: np.zeros((0, 2)), repr=False)
+    profile: FloatArray = field(default_factory=lambda: np.zeros((0, 2)), repr=False)
 
     def summary(self) -> dict[str, object]:
         return {
@@ -126,14 +124,14 @@ class PassGeometry:
 
     weld: NominalWeld
     laser_tool: Loc
-    sensor2base: Array
+    sensor2base: FloatArray
     look_ahead_mm: float
     laser_from_mm: float
     laser_to_mm: float
-    times: Array  # (N,) s since the move's start, one per cycle
+    times: FloatArray  # (N,) s since the move's start, one per cycle
 
     @property
-    def frame(self) -> Array:
+    def frame(self) -> FloatArray:
         """(3, 3) columns: along the seam, across it (lateral), the third (height)."""
         d = self.weld.direction
         up = self.sensor2base[:3, 2]
@@ -141,13 +139,13 @@ class PassGeometry:
         lat /= np.linalg.norm(lat)
         return np.column_stack([d, lat, np.cross(d, lat)])
 
-    def window(self) -> Array:
+    def window(self) -> FloatArray:
         """(N,) bool: the cycles with the laser on."""
         s = self.weld.s_at(self.times)
         return np.asarray((s >= self.laser_from_mm) & (s <= self.laser_to_mm))
 
 
-Judge = Callable[[TrackOutcome, PassGeometry], tuple[float, float, Array]]
+Judge = Callable[[TrackOutcome, PassGeometry], tuple[float, float, FloatArray]]
 
 
 def run_ilc(
@@ -313,21 +311,21 @@ def _back_to_start(client: FramedClient, g: PassGeometry) -> None:
 
 
 def _joints_at(
-    model: RobotModel, g: PassGeometry, laser2flange: Array, near: Array, fraction: float
-) -> Array:
+    model: RobotModel, g: PassGeometry, laser2flange: FloatArray, near: FloatArray, fraction: float
+) -> FloatArray:
     """The joints (6,) with the laser at ``fraction`` of the nominal pass."""
     p = g.weld.point(fraction * g.weld.length_mm)
     loc = np.concatenate([p, g.weld.angles])
     flange = location_to_transform(loc) @ np.linalg.inv(laser2flange)
-    q: Array = model.ik(flange, near=near)[0].joints_deg
+    q: FloatArray = model.ik(flange, near=near)[0].joints_deg
     return q
 
 
-def _feedforward(times: Array, table: Array) -> Callable[[float], Array]:
+def _feedforward(times: FloatArray, table: FloatArray) -> Callable[[float], FloatArray]:
     """The correction (6,) at a time since the move's start: the table (N, 3) linear
     between its cycles, its ends held."""
 
-    def at(t: float) -> Array:
+    def at(t: float) -> FloatArray:
         out = np.zeros(6)
         for c in range(3):
             out[c] = np.interp(t, times, table[:, c])
@@ -336,11 +334,11 @@ def _feedforward(times: Array, table: Array) -> Callable[[float], Array]:
     return at
 
 
-def _tracked_offsets(tracker: Tracker) -> Callable[[Array], Array]:
+def _tracked_offsets(tracker: Tracker) -> Callable[[FloatArray], FloatArray]:
     """This trial's seam as the tracker measured it, as offsets from the nominal line."""
     model = tracker.model
 
-    def at(s: Array) -> Array:
+    def at(s: FloatArray) -> FloatArray:
         out = np.zeros((len(s), 3))
         for i, si in enumerate(s):
             with contextlib.suppress(TrackingError):
@@ -350,7 +348,7 @@ def _tracked_offsets(tracker: Tracker) -> Callable[[Array], Array]:
     return at
 
 
-def _teach(link: RobotLink, g: PassGeometry, settings: IlcSettings) -> Array:
+def _teach(link: RobotLink, g: PassGeometry, settings: IlcSettings) -> FloatArray:
     """A dry pass at the teaching speed with the sensor measuring the seam (the laser off):
     the seam taught, rows (arc length, offset (3,)) every 0.5 mm where it was measured."""
     slow = NominalWeld(
@@ -387,7 +385,7 @@ def _teach(link: RobotLink, g: PassGeometry, settings: IlcSettings) -> Array:
 LEAD_IN_MM = 20.0
 
 
-def _lead_in(rows: Array) -> list[list[float]]:
+def _lead_in(rows: FloatArray) -> list[list[float]]:
     """Rows before ``rows`` (arc length, offset (3,)): a parabola from a standstill offset
     LEAD_IN_MM before the first row to its offset and slope there."""
     s0, e0 = rows[0, 0], rows[0, 1:]
@@ -400,8 +398,11 @@ def _lead_in(rows: Array) -> list[list[float]]:
 
 
 def _seam_error(
-    g: PassGeometry, outcome: TrackOutcome, offsets: Callable[[Array], Array], latency_s: float
-) -> Array:
+    g: PassGeometry,
+    outcome: TrackOutcome,
+    offsets: Callable[[FloatArray], FloatArray],
+    latency_s: float,
+) -> FloatArray:
     """(N, 3) reference − actual of the laser, base frame, from the sensor's ^S_G T: what it
     read against what it would read with the tool on the reference (the tool keeps its
     orientation, so the laser moved as the sensor did); zero where it read nothing.
@@ -425,20 +426,20 @@ def _seam_error(
     return out
 
 
-def _tracker_part(outcome: TrackOutcome, g: PassGeometry, u: Array) -> Array:
+def _tracker_part(outcome: TrackOutcome, g: PassGeometry, u: FloatArray) -> FloatArray:
     """(N, 3) the tracker's share of the corrections sent for the move's cycles."""
     sent = outcome.sent
     if not len(sent):
         return np.zeros((len(g.times), 3))
     t = sent[:, 0] - outcome.t0
     total = np.column_stack([np.interp(g.times, t, sent[:, 1 + c]) for c in range(3)])
-    out: Array = total - u
+    out: FloatArray = total - u
     return out
 
 
 def _joint_error(
-    client: FramedClient, model: RobotModel, g: PassGeometry, outcome: TrackOutcome, ref: Array
-) -> Array:
+    client: FramedClient, model: RobotModel, g: PassGeometry, outcome: TrackOutcome, ref: FloatArray
+) -> FloatArray:
     """(N, 3) reference − the laser's path from the measured joints (GetJointLog), base."""
     m = client.call(CommandId.GET_JOINT_LOG, float(outcome.t0 - 0.01))[0]
     assert isinstance(m, Matrix)
@@ -447,5 +448,5 @@ def _joint_error(
     laser = laser_path(model, rows[:, 1:], g.laser_tool)
     actual = np.column_stack([np.interp(g.times, t, laser[:, c]) for c in range(3)])
     desired = g.weld.point(g.weld.s_at(g.times)) + ref
-    out: Array = desired - actual
+    out: FloatArray = desired - actual
     return out

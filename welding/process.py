@@ -47,6 +47,7 @@ from kinematics.transforms import (
     rotvec_from_matrix,
     transform_to_location,
 )
+from kinematics.types import IDENTITY_LOC, Loc
 from robotsocket.client import MotionDesc, RobotClient
 from spec.client import ConnectionClosed
 from spec.errors import ProtocolError, RemoteError, error_text
@@ -85,8 +86,6 @@ __all__ = [
     "steps_summary",
 ]
 
-Loc = tuple[float, float, float, float, float, float]
-IDENTITY: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 #: Largest distance (mm) between an arc and the chords it is run as.
 ARC_TOLERANCE_MM = 0.005
 OUTPUTS = ("laser", "crossjet", "gas")
@@ -303,7 +302,7 @@ def _item_steps(
     else:  # to the lead-in's start, in the base frame
         p0 = track.weld.point(0.0)
         start = (*(float(v) for v in p0), *(float(v) for v in track.weld.angles))
-        yield MoveJ(_loc6(start), track.tool, IDENTITY, speed)
+        yield MoveJ(_loc6(start), track.tool, IDENTITY_LOC, speed)
     yield Wait()
     yield Mark(index, item.name, "preflow")
     yield from out("gas", True, item.gas)

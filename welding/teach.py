@@ -31,14 +31,14 @@ from itertools import pairwise
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
 from kinematics.transforms import invert, location_to_transform, transform_to_location
+from kinematics.types import IDENTITY_LOC, FloatArray, Loc
 from robotsocket.client import MotionDesc, RobotClient
 from sensorsocket.client import SensorClient
 from spec.wire import SensorStatus
 from welding.job import Arc, Line, Location, Path, Segment
-from welding.tools import Loc, Tables
+from welding.tools import Tables
 
 __all__ = [
     "SeamTeacher",
@@ -49,8 +49,6 @@ __all__ = [
     "seam_path",
 ]
 
-Array = npt.NDArray[np.float64]
-IDENTITY: Loc = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 #: Three taught points become an arc when the middle one is this far (mm) off the line
 #: through the others: well above the teaching's few-µm noise, so straight stretches of a
 #: taught seam stay lines instead of arcs of kilometre radius.
@@ -66,14 +64,14 @@ class TaughtPoint:
     """A seam point: ``seam2base`` ^B_G T (4, 4) mm with x along the seam's tangent and z
     into the material; ``t`` robot time (s) of the measurement (NaN for a computed corner)."""
 
-    seam2base: Array
+    seam2base: FloatArray
     t: float
     quality: float
     corner: bool = False
 
     @property
-    def position(self) -> Array:
-        out: Array = self.seam2base[:3, 3]
+    def position(self) -> FloatArray:
+        out: FloatArray = self.seam2base[:3, 3]
         return out
 
     def to_json(self) -> dict[str, Any]:
@@ -105,15 +103,15 @@ class TeachResult:
         return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) if len(p) > 1 else 0.0
 
 
-def _unit(v: Array) -> Array:
+def _unit(v: FloatArray) -> FloatArray:
     n = float(np.linalg.norm(v))
     if n < 1e-12:
         raise TeachError("degenerate direction (two taught points coincide)")
-    out: Array = v / n
+    out: FloatArray = v / n
     return out
 
 
-def _frame(p: Array, tangent: Array, z_hint: Array) -> Array:
+def _frame(p: FloatArray, tangent: FloatArray, z_hint: FloatArray) -> FloatArray:
     """A pose (4, 4): origin ``p``, x along ``tangent``, z as close to ``z_hint`` as x allows."""
     x = _unit(tangent)
     z = _unit(z_hint - float(z_hint @ x) * x)
@@ -122,7 +120,9 @@ def _frame(p: Array, tangent: Array, z_hint: Array) -> Array:
     return T
 
 
-def _predict(points: list[Array], step: float, tangent: Array) -> tuple[Array, Array]:
+def _predict(
+    points: list[FloatArray], step: float, tangent: FloatArray
+) -> tuple[FloatArray, FloatArray]:
     """Next point and tangent ``step`` mm on along the points of the current leg."""
     if len(points) == 1:
         return points[0] + step * tangent, tangent
@@ -146,7 +146,9 @@ def _predict(points: list[Array], step: float, tangent: Array) -> tuple[Array, A
     return w @ p, _unit(dw @ p)
 
 
-def _closest_between_lines(a0: Array, a1: Array, b0: Array, b1: Array) -> Array:
+def _closest_between_lines(
+    a0: FloatArray, a1: FloatArray, b0: FloatArray, b1: FloatArray
+) -> FloatArray:
     """Midpoint of the shortest segment between the line a0-a1 and the line b0-b1."""
     u, v, w = a1 - a0, b1 - b0, a0 - b0
     a, b, c, d, e = u @ u, u @ v, v @ v, u @ w, v @ w
@@ -154,7 +156,7 @@ def _closest_between_lines(a0: Array, a1: Array, b0: Array, b1: Array) -> Array:
     if abs(den) < 1e-12 * a * c:
         raise TeachError("the legs of the corner are parallel")
     sa, sb = (b * e - c * d) / den, (a * e - b * d) / den
-    out: Array = 0.5 * ((a0 + sa * u) + (b0 + sb * v))
+    out: FloatArray = 0.5 * ((a0 + sa * u) + (b0 + sb * v))
     return out
 
 
@@ -178,10 +180,10 @@ class SeamTeacher:
     clock: Callable[[], float] = time.monotonic
     #: Told each measurement's ^B_G T (None: no seam seen) as it is made; what it raises
     #: (a TeachError: "cancelled by the operator") ends the teaching there.
-    on_measure: Callable[[Array | None], None] | None = None
+    on_measure: Callable[[FloatArray | None], None] | None = None
     measurements: int = field(default=0, init=False)
 
-    def measure(self) -> tuple[Array, float, float] | None:
+    def measure(self) -> tuple[FloatArray, float, float] | None:
         """(^B_G T (4, 4), robot time, quality) of a fresh measurement here, None when the
         sensor does not see the seam."""
         self.measurements += 1
@@ -193,18 +195,20 @@ class SeamTeacher:
                 self.on_measure(None)
             return None
         sensor2base = location_to_transform(self.robot.here(self.sensor_tool))
-        seam2base: Array = sensor2base @ location_to_transform(data.seam)
+        seam2base: FloatArray = sensor2base @ location_to_transform(data.seam)
         if self.on_measure is not None:
             self.on_measure(seam2base)
         return seam2base, data.t_exposure_start, data.quality
 
-    def _go(self, pose: Array) -> None:
+    def _go(self, pose: FloatArray) -> None:
         loc = transform_to_location(pose)
-        self.robot.tool_move_l(tuple(float(v) for v in loc), self.sensor_tool, IDENTITY)
+        self.robot.tool_move_l(tuple(float(v) for v in loc), self.sensor_tool, IDENTITY_LOC)
         if not self.robot.wait_end_move(self.move_timeout_s):
             raise TeachError(f"the move did not end within {self.move_timeout_s:g} s")
 
-    def _try(self, p: Array, tangent: Array, z_hint: Array) -> tuple[Array, float, float] | None:
+    def _try(
+        self, p: FloatArray, tangent: FloatArray, z_hint: FloatArray
+    ) -> tuple[FloatArray, float, float] | None:
         self._go(_frame(p, tangent, z_hint))
         return self.measure()
 
@@ -261,8 +265,8 @@ class SeamTeacher:
             step = self.step_mm
 
     def _turn(
-        self, out: list[TaughtPoint], leg: list[Array], tangent: Array, z_hint: Array
-    ) -> list[Array] | None:
+        self, out: list[TaughtPoint], leg: list[FloatArray], tangent: FloatArray, z_hint: FloatArray
+    ) -> list[FloatArray] | None:
         """Look for the seam 90° to either side of the last point; on success append the
         corner (computed) and the points found on the new leg, return the new leg."""
         if len(leg) < 2:
@@ -289,7 +293,7 @@ class SeamTeacher:
         return None
 
 
-def _tangents(points: list[TaughtPoint]) -> list[Array]:
+def _tangents(points: list[TaughtPoint]) -> list[FloatArray]:
     """Tangent at each point from its neighbours on the same leg (corners split legs)."""
     p = [q.position for q in points]
     out = []

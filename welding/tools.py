@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from kinematics.types import IDENTITY_LOC, Loc
 from spec.files import write_atomically
 from welding.job import NAME_RE
 
@@ -50,10 +51,8 @@ FORMAT_VERSION = 1
 BUILTIN_TOOL = "flange"
 BUILTIN_FRAME = "world"
 TOOL_KINDS = ("laser", "sensor", "tool")
-IDENTITY = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 #: Largest database file read (bytes): thousands of entries are far below.
 MAX_BYTES = 4 * 1024 * 1024
-Loc = tuple[float, float, float, float, float, float]
 
 
 class ToolDBError(ValueError):
@@ -105,14 +104,14 @@ class Tables:
 
     def tool(self, name: str) -> Entry:
         if name == BUILTIN_TOOL:
-            return Entry(BUILTIN_TOOL, "tool", IDENTITY, "the flange itself (identity)")
+            return Entry(BUILTIN_TOOL, "tool", IDENTITY_LOC, "the flange itself (identity)")
         if name not in self.tools:
             raise ToolDBError(f"no tool named {name!r}")
         return self.tools[name]
 
     def frame(self, name: str) -> Entry:
         if name == BUILTIN_FRAME:
-            return Entry(BUILTIN_FRAME, "frame", IDENTITY, "the robot base (identity)")
+            return Entry(BUILTIN_FRAME, "frame", IDENTITY_LOC, "the robot base (identity)")
         if name not in self.frames:
             raise ToolDBError(f"no frame named {name!r}")
         return self.frames[name]

@@ -25,15 +25,15 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
-import numpy.typing as npt
 
 from kinematics.robot import RobotModel, get_model
 from kinematics.transforms import location_to_transform
+from kinematics.types import FloatArray, Loc
+from spec import params as wire_params
 from spec import wire
 from spec.errors import RemoteError
-from spec.params import IDENTITY_LOCATION, FloatArray, IntArray, Location, Matrix, Value
+from spec.params import IDENTITY_LOCATION, IntArray, Location, Matrix, Value
 from spec.registry import CommandId
-from welding.tools import Loc
 from welding.tracking import (
     FIT_HALF_WIDTH_MM,
     MIN_FIT_POINTS,
@@ -44,8 +44,6 @@ from welding.tracking import (
     estimate_errors,
     judge,
 )
-
-Array = npt.NDArray[np.float64]
 
 __all__ = ["QueueState", "RobotLink", "TrackLink", "TrackOutcome", "TrackedWeld", "weld_tracked"]
 
@@ -88,12 +86,12 @@ class TrackLink(Protocol):
     def start(self, tool: Loc, rate_hz: float) -> int: ...
     def time(self) -> float: ...
     def next_cycle(self) -> float: ...
-    def points(self, since: int) -> Array: ...
-    def alter(self, correction: Array) -> None: ...
-    def queue(self, times: Array, corrections: Array) -> QueueState: ...
-    def laser_points(self, tool: Loc, since: float) -> Array: ...
+    def points(self, since: int) -> FloatArray: ...
+    def alter(self, correction: FloatArray) -> None: ...
+    def queue(self, times: FloatArray, corrections: FloatArray) -> QueueState: ...
+    def laser_points(self, tool: Loc, since: float) -> FloatArray: ...
     def step(self) -> None: ...
-    def move(self, times: Array, locs: Array, tool: Loc) -> tuple[float, bool]: ...
+    def move(self, times: FloatArray, locs: FloatArray, tool: Loc) -> tuple[float, bool]: ...
     def queued(self) -> int: ...
     def set_laser(self, on: bool) -> None: ...
     def reset_motion(self) -> None: ...
@@ -120,7 +118,7 @@ class TrackedWeld:
     laser: bool = True
     settle_s: float = 0.25
     tolerance_mm: float = TOLERANCE_MM
-    feedforward: Callable[[float], Array] | None = None
+    feedforward: Callable[[float], FloatArray] | None = None
 
 
 @dataclass(frozen=True)
@@ -135,17 +133,19 @@ class TrackOutcome:
     start_on_grid: bool
     verdict: Verdict | None = None
     #: timed mode: the table sent, rows (robot time s, correction 6); else empty
-    sent: Array = field(default_factory=lambda: np.zeros((0, 7)))
+    sent: FloatArray = field(default_factory=lambda: np.zeros((0, 7)))
     timed: bool = False
     #: the verdict's estimate along the weld: rows (arc length mm, estimated error mm)
-    estimate: Array = field(default_factory=lambda: np.zeros((0, 2)))
+    estimate: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
     #: robot time (s) the move's law started at
     t0: float = math.nan
     #: the seam points of the weld as GetSeamPoints gave them (M, 17)
-    rows: Array = field(default_factory=lambda: np.zeros((0, 17)))
+    rows: FloatArray = field(default_factory=lambda: np.zeros((0, 17)))
 
 
-def weld_tracked(
+# C901 allowed: the 4 ms tracking loop shares its state between phases in locals; splitting it
+# is a refactoring of its own, not a lint fix
+def weld_tracked(  # noqa: C901
     link: TrackLink, weld: TrackedWeld, *, sensor_silent_after_mm: float | None = None
 ) -> TrackOutcome:
     """Run ``weld`` on ``link``; ``sensor_silent_after_mm`` stops the triggers once the laser
@@ -163,7 +163,7 @@ def weld_tracked(
     laser_on = False
     track = weld.track
     ff = weld.feedforward or (lambda _t: np.zeros(6))
-    seen: list[Array] = []
+    seen: list[FloatArray] = []
 
     def fetch() -> None:
         nonlocal last_index
@@ -180,7 +180,7 @@ def weld_tracked(
     on_grid = False
     corrections = 0
     sent_t: list[float] = []
-    sent_c: list[Array] = []
+    sent_c: list[FloatArray] = []
     state = QueueState(0, 0, -1.0, t0)
     try:
         # the arm stands still while the sensor measures the seam's start and the laser is
@@ -390,23 +390,23 @@ class RobotLink:
             return self.time() + self.period  # the simulated clock stands on a cycle
         return (self._cycle_of(self.time()) + 1) * self.period
 
-    def points(self, since: int) -> Array:
+    def points(self, since: int) -> FloatArray:
         m = self._call(CommandId.GET_SEAM_POINTS, since)[0]
         assert isinstance(m, Matrix)
         return np.array(m.values, dtype=np.float64).reshape(m.rows, m.cols)
 
-    def alter(self, correction: Array) -> None:
+    def alter(self, correction: FloatArray) -> None:
         self._call(CommandId.ALTER, Location(*(float(v) for v in correction)))
 
-    def queue(self, times: Array, corrections: Array) -> QueueState:
+    def queue(self, times: FloatArray, corrections: FloatArray) -> QueueState:
         r = self._call(
             CommandId.ALTER_QUEUE,
-            FloatArray(times.tolist()),
+            wire_params.FloatArray(times.tolist()),
             Matrix(len(times), 6, corrections.ravel().tolist()),
         )
         return QueueState(int(r[4]), int(r[5]), float(r[3]), float(r[7]))  # type: ignore[arg-type]
 
-    def laser_points(self, tool: Loc, since: float) -> Array:
+    def laser_points(self, tool: Loc, since: float) -> FloatArray:
         """The laser tool's points (N, 3), base frame, from the measured joints logged
         after ``since`` (GetJointLog and the arm's model of Hello)."""
         m = self._call(CommandId.GET_JOINT_LOG, float(since))[0]
@@ -425,7 +425,7 @@ class RobotLink:
         while (left := deadline - time.monotonic()) > 0:
             time.sleep(left)
 
-    def move(self, times: Array, locs: Array, tool: Loc) -> tuple[float, bool]:
+    def move(self, times: FloatArray, locs: FloatArray, tool: Loc) -> tuple[float, bool]:
         """Queue the timed path; (the robot time its law starts at, whether that is
         certain). The robot starts a queued move's law at the cycle during which it takes
         it, and a long path takes it longer than a cycle to receive and plan. So on the real
@@ -447,10 +447,10 @@ class RobotLink:
         self._end = t0 + float(times[-1])
         return t0, certain
 
-    def _send_path(self, times: Array, locs: Array, tool: Loc) -> None:
+    def _send_path(self, times: FloatArray, locs: FloatArray, tool: Loc) -> None:
         self._call(
             CommandId.TOOL_MOVE_TRAJECTORY,
-            FloatArray(times.tolist()),
+            wire_params.FloatArray(times.tolist()),
             Matrix(len(locs), 6, locs.ravel().tolist()),
             Location(*tool),
             IDENTITY_LOCATION,
@@ -481,12 +481,12 @@ class RobotLink:
         pass
 
 
-def laser_path(model: RobotModel, joints: Array, tool: Loc) -> Array:
+def laser_path(model: RobotModel, joints: FloatArray, tool: Loc) -> FloatArray:
     """Points (N, 3) of ``tool`` (flange, mm, deg), base frame, at the joints (N, 6) deg."""
     if not len(joints):
         return np.zeros((0, 3))
     f2b = model.flange2base_batch(joints)
-    out: Array = (f2b @ location_to_transform(np.array(tool, dtype=np.float64)))[:, :3, 3]
+    out: FloatArray = (f2b @ location_to_transform(np.array(tool, dtype=np.float64)))[:, :3, 3]
     return out
 
 

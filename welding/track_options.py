@@ -7,20 +7,35 @@ from __future__ import annotations
 import argparse
 
 from cell.options import add_dynamics_option, add_timing_options, add_tool_error_options
+from cell.seams import SEAM_NAMES, SEAMS
+from kinematics.types import Loc
 from spec import cliargs
-from welding.tools import Loc
+from spec.clocks import CLOCK_KINDS
 
-__all__ = ["TRACK_SEAMS", "add_dynamics_option", "add_ilc_options", "add_track_options"]
+__all__ = [
+    "SEAM_NAMES",
+    "TRACK_SEAMS",
+    "add_dynamics_option",
+    "add_ilc_options",
+    "add_seam_option",
+    "add_track_options",
+]
 
-#: Seams of the tracking benchmark: the cell's seam shape and the workpiece placement error
-#: (location in the workpiece frame, mm, deg) that puts it off the nominal path.
-TRACK_SEAMS: dict[str, tuple[str, Loc]] = {
-    "straight": ("straight", (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)),
-    "offset": ("straight", (0.0, 5.0, 0.0, 0.0, 0.0, 0.0)),
-    "sine": ("sine", (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)),
-    # R = 32 mm arcs (the paper's sine radius) turning 15 deg: a 4.9 mm jog off the path
-    "arc": ("jog", (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)),
-}
+#: The cell's seam catalogue (:mod:`cell.seams`) as (shape, placement) pairs: the view the
+#: console reads. Every command takes the same names (``add_seam_option``).
+TRACK_SEAMS: dict[str, tuple[str, Loc]] = {n: (s.shape, s.placement) for n, s in SEAMS.items()}
+
+
+def add_seam_option(p: argparse.ArgumentParser, default: str, note: str = "") -> None:
+    """``--seam`` with the names of the cell's seam catalogue: one option, one set of names,
+    in every command that builds an emulated cell."""
+    p.add_argument(
+        "--seam",
+        choices=SEAM_NAMES,
+        default=default,
+        help=f"the emulated cell's seam{note}: "
+        + "; ".join(f"{n}: {s.description}" for n, s in SEAMS.items()),
+    )
 
 
 def add_track_options(p: argparse.ArgumentParser) -> None:
@@ -32,7 +47,7 @@ def add_track_options(p: argparse.ArgumentParser) -> None:
         help="track on an emulated cell (--clock sim: in this process; real: its real-time "
         "part in a child process); required",
     )
-    p.add_argument("--seam", choices=tuple(TRACK_SEAMS), default="sine")
+    add_seam_option(p, "sine")
     p.add_argument("--speed", type=cliargs.number_in(1.0, 500.0), default=250.0, help="mm/s")
     p.add_argument(
         "--delta-t-ms",
@@ -50,7 +65,7 @@ def add_track_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
         "--clock",
-        choices=("sim", "real"),
+        choices=CLOCK_KINDS,
         default="sim",
         help="sim: the cell's simulated clock (deterministic); real: its 4 ms cycle on the "
         "wall clock in a real-time child process, the tracker a client that keeps pace "
@@ -70,7 +85,9 @@ def add_track_options(p: argparse.ArgumentParser) -> None:
         help="send one Alter per cycle instead of timed corrections ahead (AlterQueue)",
     )
     p.add_argument("--json", type=cliargs.output_file, metavar="OUT.json")
-    p.add_argument("--plot", metavar="DIR", help="write track.png (needs matplotlib)")
+    p.add_argument(
+        "--plot", metavar="DIR", type=cliargs.output_dir, help="write track.png (needs matplotlib)"
+    )
     p.add_argument(
         "--sensor-tool",
         metavar="NAME",
@@ -90,7 +107,7 @@ def add_ilc_options(p: argparse.ArgumentParser) -> None:
         required=True,
         help="learn on the emulated cell (simulated clock, through its servers); required",
     )
-    p.add_argument("--seam", choices=tuple(TRACK_SEAMS), default="sine")
+    add_seam_option(p, "sine")
     p.add_argument("--speed", type=cliargs.number_in(1.0, 500.0), default=250.0, help="mm/s")
     p.add_argument("--length", type=cliargs.number_in(10.0, 200.0), default=200.0, help="mm")
     p.add_argument("--trials", type=cliargs.int_in(1, 100), default=5, help="passes (default 5)")
@@ -127,12 +144,16 @@ def add_ilc_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--table",
         metavar="PATH",
+        type=cliargs.output_file,
         help="the learned table: reused when the file exists, written after every trial",
     )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", type=cliargs.output_file, metavar="OUT.json")
     p.add_argument(
-        "--plot", metavar="DIR", help="write ilc_trials.png, ilc_convergence.png (matplotlib)"
+        "--plot",
+        metavar="DIR",
+        type=cliargs.output_dir,
+        help="write ilc_trials.png, ilc_convergence.png (matplotlib)",
     )
     add_dynamics_option(p)
     add_timing_options(p)

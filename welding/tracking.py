@@ -19,11 +19,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 
+from kinematics.types import FloatArray
 from robotsocket.alter import MAX_OFFSET_MM
-
-FloatArray = NDArray[np.float64]
 
 #: Half width of the seam fit around the laser point (mm): several points at 250 mm/s and
 #: 200 Hz (one per 1.25 mm) while short against the seam's curvature (R ≈ 32 mm).
@@ -482,7 +480,7 @@ class Verdict:
     """What a tracked weld can say about itself on a real cell: the laser's error estimated
     from the robot's measured joints (the laser's path) against the seam the sensor measured
     ahead of it, and the corrections the robot did not get in time. ``within``: exit 0;
-    else ``reason`` (exit 3)."""
+    else ``reason`` (exit 1, FAILED)."""
 
     within: bool
     reason: str

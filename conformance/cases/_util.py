@@ -7,7 +7,7 @@ import struct
 import time
 import zlib
 
-from conformance.connection import Closed, Conn
+from conformance.connection import ENDPOINT_ERRORS, Closed, Conn
 from conformance.context import Context
 from conformance.model import EndpointTimeout, Fail, NotApplicable, Skip
 from spec import wire
@@ -137,7 +137,7 @@ def still_answers(conn: Conn, what: str) -> None:
             exc.actual if exc.actual is not None else exc.message,
             requirement="RS-3.9",
         ) from None
-    except Exception as exc:
+    except ENDPOINT_ERRORS as exc:
         raise Fail(
             f"the connection does not go on after {what}",
             expected,
@@ -158,21 +158,39 @@ def io_names(conn: Conn) -> tuple[list[str], list[str]]:
     )
 
 
+#: Neutral arguments that are the same for every endpoint.
+_FIXED_ARGS: dict[int, tuple[Value, ...]] = {
+    C.HELLO: (1, 0, "conformance"),
+    C.PING: (b"\x00\x01conformance\xff",),
+    C.SET_FRAME_CRC: (True,),  # on: what every connection starts with
+    C.HERE: (IDENTITY_LOCATION, IDENTITY_LOCATION),
+    C.WAIT_END_MOVE: (0.05,),
+    C.GET_IMAGE: (),
+    C.GET_SEAM_POINTS: (-1,),
+}
+#: Setters given their current values: the getter and the part of its reply they take.
+_CURRENT_ARGS: dict[int, tuple[int, slice]] = {
+    C.JOINT_MOVE: (C.HEREJ, slice(0, 1)),
+    C.SET_MOTION_DESC: (C.GET_MOTION_DESC, slice(0, 6)),
+    C.SET_LASER: (C.SENSOR_STATUS, slice(0, 1)),
+    C.SET_EXPOSURE: (C.GET_SETTINGS, slice(1, 2)),
+    C.SET_READOUT_WINDOW: (C.GET_SETTINGS, slice(2, 4)),
+    C.SET_SENSOR_ENDPOINT: (C.GET_SYNC_CONFIG, slice(0, 2)),
+    C.SET_SYNC_DELAY: (C.GET_SYNC_CONFIG, slice(2, 3)),
+    C.SET_SENSOR_TOOL: (C.GET_SYNC_CONFIG, slice(3, 4)),
+}
+
+
 def valid_args(ctx: Context, conn: Conn, spec: CommandSpec) -> tuple[Value, ...]:
     """Correct arguments for ``spec`` that change nothing (current values where possible)."""
     c = spec.id
-    if c == C.HELLO:
-        return (1, 0, "conformance")
-    if c == C.PING:
-        return (b"\x00\x01conformance\xff",)
+    if c in _FIXED_ARGS:
+        return _FIXED_ARGS[c]
+    if c in _CURRENT_ARGS:
+        getter, part = _CURRENT_ARGS[c]
+        return conn.ok(getter)[part]
     if c == C.TAKE_CONTROL:
         return (ctx.options.token,)
-    if c == C.SET_FRAME_CRC:
-        return (True,)  # on: what every connection starts with
-    if c == C.HERE:
-        return (IDENTITY_LOCATION, IDENTITY_LOCATION)
-    if c == C.JOINT_MOVE:
-        return conn.ok(C.HEREJ)[:1]
     if c in (C.TOOL_MOVE_J, C.TOOL_MOVE_L):
         here = conn.ok(C.HERE, IDENTITY_LOCATION, IDENTITY_LOCATION)[0]
         return (here, IDENTITY_LOCATION, IDENTITY_LOCATION)
@@ -185,45 +203,28 @@ def valid_args(ctx: Context, conn: Conn, spec: CommandSpec) -> tuple[Value, ...]
             IDENTITY_LOCATION,
             IDENTITY_LOCATION,
         )
-    if c == C.SET_MOTION_DESC:
-        return conn.ok(C.GET_MOTION_DESC)[:6]
-    if c == C.WAIT_END_MOVE:
-        return (0.05,)
     if c in (C.SET_OUTPUT, C.READ_IO):
-        outputs, inputs = io_names(conn) if C.LIST_IO in ctx.advertised else ([], [])
-        names = outputs if c == C.SET_OUTPUT else outputs + inputs
-        if not names:
-            raise NotApplicable("the robot lists no digital I/O")
-        if c == C.READ_IO:
-            return (names[0],)
-        value = conn.ok(C.READ_IO, names[0])[0]
-        return (names[0], value)
+        return _io_args(ctx, conn, c)
     if c == C.GET_JOINT_LOG:
         now = conn.ok(C.GET_TIME)[0]
         assert isinstance(now, float)
         return (now - 0.1,)
-    if c == C.GET_IMAGE:
-        return ()
-    if c == C.SET_LASER:
-        return conn.ok(C.SENSOR_STATUS)[:1]
-    if c == C.SET_EXPOSURE:
-        return conn.ok(C.GET_SETTINGS)[1:2]
-    if c == C.SET_READOUT_WINDOW:
-        return conn.ok(C.GET_SETTINGS)[2:4]
-    if c == C.SET_SENSOR_ENDPOINT:
-        cfg = conn.ok(C.GET_SYNC_CONFIG)
-        return cfg[0:2]
-    if c == C.SET_SYNC_DELAY:
-        return conn.ok(C.GET_SYNC_CONFIG)[2:3]
-    if c == C.SET_SENSOR_TOOL:
-        return conn.ok(C.GET_SYNC_CONFIG)[3:4]
     if c in (C.START_TRIGGERS, C.SCHEDULE_TRIGGERS):
         raise Skip("covered by the sync cases (needs a UDP sink)")
-    if c == C.GET_SEAM_POINTS:
-        return (-1,)
     if spec.params:
         raise Skip(f"no neutral arguments known for {spec.name}")
     return ()
+
+
+def _io_args(ctx: Context, conn: Conn, c: int) -> tuple[Value, ...]:
+    outputs, inputs = io_names(conn) if C.LIST_IO in ctx.advertised else ([], [])
+    names = outputs if c == C.SET_OUTPUT else outputs + inputs
+    if not names:
+        raise NotApplicable("the robot lists no digital I/O")
+    if c == C.READ_IO:
+        return (names[0],)
+    value = conn.ok(C.READ_IO, names[0])[0]
+    return (names[0], value)
 
 
 def wrong_type(spec_type: wire.ParamType) -> Value:

@@ -16,10 +16,10 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from conformance.cases._util import NOT_OFFERED, valid_args, wrong_type
-from conformance.connection import Conn
+from conformance.connection import ENDPOINT_ERRORS, Conn
 from conformance.context import Context
 from conformance.model import Case, Fail, Informational, Skip, add_case
-from spec.errors import ErrorCode
+from spec.errors import ErrorCode, ProtocolError
 from spec.params import (
     FloatArray,
     Image,
@@ -113,7 +113,7 @@ def _reply_case(spec: CommandSpec) -> Callable[[Context], str | None]:
 
             try:
                 check_params(spec.reply, answer.params, f"{spec.name} reply", allow_extra=True)
-            except Exception as exc:
+            except ProtocolError as exc:  # ParameterError: the reply breaks its table
                 raise Fail(
                     f"{spec.name} reply does not match the reply table",
                     ", ".join(f"{p.name}:{p.type.name}" for p in spec.reply) or "no parameters",
@@ -161,7 +161,7 @@ def _settle(conn: Conn) -> None:
 def _release(conn: Conn) -> None:
     try:
         conn.call(C.RELEASE_CONTROL)
-    except Exception:
+    except ENDPOINT_ERRORS:  # cleanup: the case's verdict is already made
         pass
 
 
