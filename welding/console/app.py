@@ -204,67 +204,12 @@ def create_app(
     already, closed when it stops: its lifespan), behind the
     access control of ``access``. ``announce`` is told each new sign-in URL (``base_url``
     + ``/signin?token=…``) after the last one was used."""
-    ids = itertools.count(1)
-    sessions = access.sessions
     access.holder = console.holder
 
     def p(request: Request, key: str) -> str:
         return str(request.path_params[key])
 
-    def session_json(s: Session) -> dict[str, Any]:
-        return {"user": s.user, "role": s.role, "csrf": s.csrf, "controller": console.controller,
-                # the page's jog: its starting speed and largest step, from the backend's rules
-                "jog": {"speed": JOG_DEFAULT_PCT, "step_max": JOG_STEP_MAX}}  # fmt: skip
-
-    def signed_in(request: Request, s: Session, reply: Response) -> Response:
-        access.audit.record(s.user, s.address, "sign-in", "ok")
-        return set_cookie(
-            reply,
-            cookie_header(request.scope, s, tls=access.tls, max_age=sessions.lifetime),
-        )
-
-    def refused(request: Request, user: str, exc: SignInRefused) -> None:
-        address = request.client.host if request.client else "?"
-        log.warning("sign-in refused for %r from %s: %s", user, address, exc)
-        access.audit.record(user, address, "sign-in", f"refused ({exc.status})", error=str(exc))
-
-    async def signin_page(request: Request) -> Response:
-        token = request.query_params.get("token")
-        if token is None:
-            return FileResponse(STATIC / "signin.html")
-        address = request.client.host if request.client else "?"
-        try:
-            s = sessions.sign_in_token(token, address, access.clock())
-        except SignInRefused as exc:
-            await run_in_threadpool(refused, request, "token", exc)
-            return RedirectResponse("/signin?failed=1", 303)
-        announce(f"console: the sign-in URL was used from {address}; the next one: "
-                 f"{base_url}/signin?token={sessions.token}")  # fmt: skip
-        return await run_in_threadpool(signed_in, request, s, RedirectResponse("/", 303))
-
-    async def signin(request: Request) -> Response:
-        try:
-            b = await _body(request, BODIES["signin"])
-        except ConsoleError as exc:
-            return _error(str(exc), exc.status)
-        address = request.client.host if request.client else "?"
-        try:
-            s = await run_in_threadpool(
-                sessions.sign_in_password, b["name"], b["password"], address, access.clock()
-            )
-        except SignInRefused as exc:
-            await run_in_threadpool(refused, request, b["name"], exc)
-            headers = {"Retry-After": str(math.ceil(exc.retry_after))} if exc.retry_after else {}
-            return JSONResponse({"error": str(exc)}, exc.status, headers=headers)
-        return await run_in_threadpool(signed_in, request, s, JSONResponse(session_json(s)))
-
-    async def signout(request: Request) -> Response:
-        s = session_of(request.scope)
-        sessions.end(s.sid)
-        return set_cookie(JSONResponse({"ok": True}), expired_cookie(request.scope))
-
-    async def session(request: Request) -> Response:
-        return JSONResponse(session_json(session_of(request.scope)))
+    sign = SignIn(console, access, announce, base_url)
 
     async def index(request: Request) -> Response:
         return FileResponse(STATIC / "index.html")
@@ -279,82 +224,6 @@ def create_app(
         png = data.pop("png")
         data["image"] = None if png is None else base64.b64encode(png).decode("ascii")
         return JSONResponse(data)
-
-    async def status_ws(ws: WebSocket) -> None:
-        s = session_of(ws.scope)
-        address = ws.client.host if ws.client else "?"
-        await ws.accept()
-        client_id = next(ids)
-        console.select(client_id, "flange", "world")
-
-        async def send() -> None:
-            seq = -1
-            while True:
-                snap = console.snapshot()
-                if snap.get("seq") != seq:
-                    seq = snap.get("seq", -1)
-                    await ws.send_json({"type": "status", **snap})
-                await asyncio.sleep(0.5 / STATUS_HZ)
-
-        def may_move() -> None:
-            # the middleware's rules for a route, applied to the jog messages
-            if s.role != "operator":
-                raise ConsoleError(f"operators only: {s.user} is a {s.role}", 403)
-            holder = access.holder()
-            if holder is not None and holder != s.user:
-                raise ConsoleError(f"{holder} holds control", 409)
-
-        def jog(msg: dict[str, Any]) -> None:
-            try:
-                may_move()
-                _jog(console, client_id, msg)
-            except (ConsoleError, RemoteError, ProtocolError, OSError) as exc:
-                access.audit.record(s.user, address, "jog start", "refused", error=str(exc))
-                raise
-            access.audit.record(s.user, address, "jog start", "ok", request=msg)
-
-        def release() -> None:
-            if console.stop_jog(client_id, "released"):
-                access.audit.record(s.user, address, "jog stop", "ok")
-
-        async def receive() -> None:
-            while True:
-                msg = await ws.receive_json()
-                kind = msg.get("type") if isinstance(msg, dict) else None
-                try:
-                    if kind == "hold":
-                        console.hold_jog(client_id)
-                    elif kind == "jog":
-                        await run_in_threadpool(jog, msg)
-                    elif kind == "release":
-                        await run_in_threadpool(release)
-                    elif kind == "select":
-                        tool, frame = str(msg.get("tool")), str(msg.get("frame"))
-                        await run_in_threadpool(console.select, client_id, tool, frame)
-                    else:
-                        raise ConsoleError(f"unknown message type {kind!r}")
-                except (ConsoleError, RemoteError, ProtocolError, OSError) as exc:
-                    await ws.send_json({"type": "error", "message": str(exc)})
-
-        tasks = [asyncio.create_task(send()), asyncio.create_task(receive())]
-        try:
-            await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
-        finally:
-            for t in tasks:
-                t.cancel()
-            # dead-man: a lost browser stops its jog
-            await run_in_threadpool(console.forget, client_id)
-        ended_by_client = False
-        for t in tasks:
-            if t.done() and not t.cancelled():
-                exc = t.exception()
-                ended_by_client |= isinstance(exc, WebSocketDisconnect)
-                if exc is not None and not isinstance(exc, WebSocketDisconnect | RuntimeError):
-                    log.warning("status websocket ended: %r", exc, exc_info=exc)
-        if not ended_by_client:
-            # the stream ended on our side: close it, so no client waits on it forever
-            with contextlib.suppress(Exception):
-                await ws.close(code=1011)
 
     def control(r: Request, b: dict[str, Any]) -> None:
         if b["take"]:
@@ -383,10 +252,10 @@ def create_app(
     post, put, delete = ["POST"], ["PUT"], ["DELETE"]
     B = BODIES
     routes: list[BaseRoute] = [
-        Route("/signin", signin_page),
-        Route("/api/signin", signin, methods=post),
-        ApiRoute("/api/signout", signout, methods=post, rule=Rule("viewer", action="sign-out")),
-        ApiRoute("/api/session", session, rule=viewer),
+        Route("/signin", sign.page),
+        Route("/api/signin", sign.password, methods=post),
+        ApiRoute("/api/signout", sign.out, methods=post, rule=Rule("viewer", action="sign-out")),
+        ApiRoute("/api/session", sign.session, rule=viewer),
         ApiRoute("/api/audit", _api(audit), rule=operator),
         ApiRoute("/", index, rule=viewer),
         ApiRoute("/index.html", index, rule=viewer),
@@ -435,7 +304,7 @@ def create_app(
         ApiRoute("/api/sensor/settings",
                  _api(lambda r, b: console.set_sensor_settings(b), B["sensor_settings"]),
                  methods=post, rule=act("sensor settings", True)),
-        WebSocketRoute("/ws", status_ws),
+        WebSocketRoute("/ws", StatusSocket(console, access).handle),
         Mount("/", StaticFiles(directory=STATIC, html=False), name="static"),
     ]  # fmt: skip
     middleware = [Middleware(AccessControl, access=access, rule=_rule_for(routes))]
@@ -450,6 +319,170 @@ def create_app(
             await run_in_threadpool(console.close)
 
     return Starlette(routes=routes, middleware=middleware, lifespan=lifespan)
+
+
+def _address(request: Request) -> str:
+    return request.client.host if request.client else "?"
+
+
+class SignIn:
+    """Sign-in by the one-time URL's token or by name and password, sign-out, the session
+    the page reads; every sign-in and refusal in the audit log."""
+
+    def __init__(
+        self, console: Console, access: Access, announce: Callable[[str], None], base_url: str
+    ) -> None:
+        self.console, self.access = console, access
+        self.sessions = access.sessions
+        self.announce, self.base_url = announce, base_url
+
+    def _json(self, s: Session) -> dict[str, Any]:
+        return {"user": s.user, "role": s.role, "csrf": s.csrf,
+                "controller": self.console.controller,
+                # the page's jog: its starting speed and largest step, from the backend's rules
+                "jog": {"speed": JOG_DEFAULT_PCT, "step_max": JOG_STEP_MAX}}  # fmt: skip
+
+    def _signed_in(self, request: Request, s: Session, reply: Response) -> Response:
+        self.access.audit.record(s.user, s.address, "sign-in", "ok")
+        cookie = cookie_header(
+            request.scope, s, tls=self.access.tls, max_age=self.sessions.lifetime
+        )
+        return set_cookie(reply, cookie)
+
+    def _refused(self, request: Request, user: str, exc: SignInRefused) -> None:
+        address = _address(request)
+        log.warning("sign-in refused for %r from %s: %s", user, address, exc)
+        self.access.audit.record(
+            user, address, "sign-in", f"refused ({exc.status})", error=str(exc)
+        )
+
+    async def page(self, request: Request) -> Response:
+        token = request.query_params.get("token")
+        if token is None:
+            return FileResponse(STATIC / "signin.html")
+        address = _address(request)
+        try:
+            s = self.sessions.sign_in_token(token, address, self.access.clock())
+        except SignInRefused as exc:
+            await run_in_threadpool(self._refused, request, "token", exc)
+            return RedirectResponse("/signin?failed=1", 303)
+        self.announce(f"console: the sign-in URL was used from {address}; the next one: "
+                      f"{self.base_url}/signin?token={self.sessions.token}")  # fmt: skip
+        return await run_in_threadpool(self._signed_in, request, s, RedirectResponse("/", 303))
+
+    async def password(self, request: Request) -> Response:
+        try:
+            b = await _body(request, BODIES["signin"])
+        except ConsoleError as exc:
+            return _error(str(exc), exc.status)
+        try:
+            s = await run_in_threadpool(
+                self.sessions.sign_in_password,
+                b["name"],
+                b["password"],
+                _address(request),
+                self.access.clock(),
+            )
+        except SignInRefused as exc:
+            await run_in_threadpool(self._refused, request, b["name"], exc)
+            headers = {"Retry-After": str(math.ceil(exc.retry_after))} if exc.retry_after else {}
+            return JSONResponse({"error": str(exc)}, exc.status, headers=headers)
+        return await run_in_threadpool(self._signed_in, request, s, JSONResponse(self._json(s)))
+
+    async def out(self, request: Request) -> Response:
+        s = session_of(request.scope)
+        self.sessions.end(s.sid)
+        return set_cookie(JSONResponse({"ok": True}), expired_cookie(request.scope))
+
+    async def session(self, request: Request) -> Response:
+        return JSONResponse(self._json(session_of(request.scope)))
+
+
+class StatusSocket:
+    """The ``/ws`` WebSocket: the status stream out, the jog's messages in (jog, hold,
+    release, select). A lost browser stops its jog (dead-man)."""
+
+    def __init__(self, console: Console, access: Access) -> None:
+        self.console, self.access = console, access
+        self._ids = itertools.count(1)
+
+    async def handle(self, ws: WebSocket) -> None:
+        s = session_of(ws.scope)
+        address = ws.client.host if ws.client else "?"
+        await ws.accept()
+        client_id = next(self._ids)
+        self.console.select(client_id, "flange", "world")
+        tasks = [
+            asyncio.create_task(self._send(ws)),
+            asyncio.create_task(self._receive(ws, s, address, client_id)),
+        ]
+        try:
+            await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for t in tasks:
+                t.cancel()
+            await run_in_threadpool(self.console.forget, client_id)
+        if not self._ended_by_client(tasks):
+            # the stream ended on our side: close it, so no client waits on it forever
+            with contextlib.suppress(Exception):
+                await ws.close(code=1011)
+
+    @staticmethod
+    def _ended_by_client(tasks: list[asyncio.Task[None]]) -> bool:
+        ended = False
+        for t in tasks:
+            if t.done() and not t.cancelled():
+                exc = t.exception()
+                ended |= isinstance(exc, WebSocketDisconnect)
+                if exc is not None and not isinstance(exc, WebSocketDisconnect | RuntimeError):
+                    log.warning("status websocket ended: %r", exc, exc_info=exc)
+        return ended
+
+    async def _send(self, ws: WebSocket) -> None:
+        seq = -1
+        while True:
+            snap = self.console.snapshot()
+            if snap.get("seq") != seq:
+                seq = snap.get("seq", -1)
+                await ws.send_json({"type": "status", **snap})
+            await asyncio.sleep(0.5 / STATUS_HZ)
+
+    def _jog(self, s: Session, address: str, client_id: int, msg: dict[str, Any]) -> None:
+        try:
+            # the middleware's rules for a route, applied to the jog messages
+            if s.role != "operator":
+                raise ConsoleError(f"operators only: {s.user} is a {s.role}", 403)
+            holder = self.access.holder()
+            if holder is not None and holder != s.user:
+                raise ConsoleError(f"{holder} holds control", 409)
+            _jog(self.console, client_id, msg)
+        except (ConsoleError, RemoteError, ProtocolError, OSError) as exc:
+            self.access.audit.record(s.user, address, "jog start", "refused", error=str(exc))
+            raise
+        self.access.audit.record(s.user, address, "jog start", "ok", request=msg)
+
+    def _release(self, s: Session, address: str, client_id: int) -> None:
+        if self.console.stop_jog(client_id, "released"):
+            self.access.audit.record(s.user, address, "jog stop", "ok")
+
+    async def _receive(self, ws: WebSocket, s: Session, address: str, client_id: int) -> None:
+        while True:
+            msg = await ws.receive_json()
+            kind = msg.get("type") if isinstance(msg, dict) else None
+            try:
+                if kind == "hold":
+                    self.console.hold_jog(client_id)
+                elif kind == "jog":
+                    await run_in_threadpool(self._jog, s, address, client_id, msg)
+                elif kind == "release":
+                    await run_in_threadpool(self._release, s, address, client_id)
+                elif kind == "select":
+                    tool, frame = str(msg.get("tool")), str(msg.get("frame"))
+                    await run_in_threadpool(self.console.select, client_id, tool, frame)
+                else:
+                    raise ConsoleError(f"unknown message type {kind!r}")
+            except (ConsoleError, RemoteError, ProtocolError, OSError) as exc:
+                await ws.send_json({"type": "error", "message": str(exc)})
 
 
 def _jog(console: Console, client_id: int, msg: dict[str, Any]) -> None:
