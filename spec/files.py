@@ -23,13 +23,7 @@ def prepare_output_path(path: str | os.PathLike[str]) -> Path:
     target = Path(path)
     if target.is_dir():
         raise ValueError(f"{target} is a directory; give a file name")
-    parent = target.parent
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ValueError(f"cannot create directory {parent}: {exc.strerror}") from None
-    if not os.access(parent, os.W_OK):
-        raise ValueError(f"directory {parent} is not writable")
+    prepare_output_dir(target.parent)
     return target
 
 
