@@ -146,6 +146,7 @@ class Console:
         # finish, so it stops what the start began, never just before the move goes out.
         self._jog_lock = threading.RLock()
         self._jog: Jog | None = None
+        self._jog_starts = 0  # jogs being started: shown as jogging, as a job is refused then
         self.activity: Activity | None = None
         #: The last result of each measurement ("delta_t", "calibration", "track"), served
         #: on its own (large for the status stream, which goes out 20 times a second).
@@ -268,7 +269,7 @@ class Console:
             poses[f"{tool}@{frame}"] = [round(v, 4) for v in r.here(t, f)]
         with self._lock:  # read under the lock take/release write them under
             in_control, controller = self.in_control, self.controller
-            jog = self._jog is not None
+            jog = self._jog is not None or self._jog_starts > 0
             act = self.activity.to_json() if self.activity is not None else None
         owner = "console" if in_control else ("other" if st.controlled else "nobody")
         if in_control and not st.controlled:
@@ -416,9 +417,27 @@ class Console:
         pct = _num(speed, "speed", 1.0, 100.0)
         if direction not in (1, -1):
             raise ConsoleError("direction: expected 1 or -1")
-        if step is not None:
-            self._step_jog(mode, axis, direction, pct, tool, frame, step)
-            return
+        with self._lock:
+            self._jog_starts += 1
+        try:
+            if step is not None:
+                self._step_jog(mode, axis, direction, pct, tool, frame, step)
+            else:
+                self._held_jog(client_id, mode, axis, direction, pct, tool, frame)
+        finally:
+            with self._lock:
+                self._jog_starts -= 1
+
+    def _held_jog(
+        self,
+        client_id: int,
+        mode: str,
+        axis: Any,
+        direction: int,
+        pct: float,
+        tool: str,
+        frame: str,
+    ) -> None:
         with self._jog_lock:
             self._check_idle()  # under the lock: a job cannot start beside this jog
             if self._jog is not None:
