@@ -97,6 +97,8 @@ def track_case(seam: str, speed: float, seeds: int) -> dict[str, Any]:
                 "held": v.get("held_cycles", 0),
                 "misapplied": run.misapplied_cycles,
                 "stopped": run.stopped,
+                "stopped_at_s": run.stopped_at_s,
+                "late_at_s": run.late_at_s,
                 "timed": run.timed,
             }
         )

@@ -436,8 +436,12 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             page.locator("#tr-start").click()
             expect(page.locator("#tr-info")).to_have_attribute("data-state", "done", timeout=60_000)
             expect(page.locator("#tr-result")).to_contain_text("tracking error")
-            _drawn(page, "tr-top", ["true seam", "measured seam points",
-                                    "nominal path (untracked)", "laser"])  # fmt: skip
+            # on the real clock in its own real-time child, with the verdict a real cell has
+            expect(page.locator("#tr-result")).to_contain_text("real (real-time child)")
+            expect(page.locator("#tr-result")).to_contain_text("WITHIN TOLERANCE 0.1 mm")
+            # the measured points drawn last, over the lines
+            _drawn(page, "tr-top", ["true seam", "nominal path (untracked)", "laser",
+                                    "measured seam points"])  # fmt: skip
             _drawn(page, "tr-error", ["laser − seam, lateral"])
             _shot(page, "track")
 

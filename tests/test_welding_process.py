@@ -456,6 +456,7 @@ def test_tracked_job_follows_the_misplaced_jog_seam_within_target() -> None:
         err = _seam_error(s, q)
         assert not s.cell.robot.read_io("laser")[0]
     assert entry.detail["corrections"] == entry.detail["cycles"]  # one per cycle
+    assert entry.detail["verdict"].startswith("WITHIN TOLERANCE 0.1 mm")  # the tracker's own
     welded = len(q) * 0.004 * 250.0
     assert welded == pytest.approx(points[-1][0], abs=3.0)  # the 15 deg legs add 0.4 mm
     assert err.max() <= 0.1
@@ -481,3 +482,25 @@ def test_tracked_job_that_loses_the_seam_stops_with_the_laser_off() -> None:
     assert not any(on for t, on in laser if t > t_off)
     assert 0 < len(q_on) * 0.004 * 250.0 < 200.0  # welded part of the way, tracked well
     assert err.max() <= 0.1
+
+
+def test_tracked_job_out_of_its_tolerance_aborts_with_the_verdict() -> None:
+    """A tracked path whose own verdict is outside the tolerance (here a 2 µm one no weld
+    meets) stops the job there, as a lost seam does: the later items do not run."""
+    with EmulatedSession("straight", seed=3) as s:
+        job = tracked((0.0, 0.0), (80.0, 0.0), velocity=250.0, z=_laser_z(s))
+        runner = JobRunner(
+            s.robot, s.tables, dwell=s.dwell, sensor_endpoint=s.cell.udp_address,
+            real_time=False, tolerance_mm=0.002,
+        )  # fmt: skip
+        with pytest.raises(JobAborted) as info:
+            runner.run(job)
+        laser_on = s.cell.robot.read_io("laser")[0]
+    assert info.value.reason == "out of tolerance"
+    assert info.value.message.startswith("OUT OF TOLERANCE 0.002 mm: estimated error")
+    (entry,) = [e for e in info.value.log if e.event == "tracked"]
+    assert entry.detail["verdict"] == info.value.message
+    assert not laser_on
+    events = [e.event for e in info.value.log]
+    after = events[events.index("tracked") + 1 :]
+    assert after[0] == "abort" and set(after[1:]) == {"safe stop"}  # no later item ran

@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -175,3 +177,51 @@ def test_polyline_refuses_a_rounding_that_does_not_fit() -> None:
     v = np.array([[0.0, 0.0, 0.0], [50.0, 0.0, 0.0], [50.0, 20.0, 0.0]])
     with pytest.raises(CornerError, match=r"from point 1 to point 2 is 20\.0 mm long"):
         PolylineWeld(v, np.zeros(3), 100.0)
+
+
+def _stall_queue(monkeypatch: pytest.MonkeyPatch, at_call: int, cycles: int) -> list[int]:
+    """The tracker's ``at_call``-th AlterQueue reaches the robot ``cycles`` cycles late (a
+    stalled PC, on the simulated clock): its first entries are then for cycles already run."""
+    from welding import emulate
+
+    calls = [0]
+    original = emulate._DirectLink.queue
+
+    def late_queue(self: Any, times: Any, corrections: Any) -> Any:
+        calls[0] += 1
+        if calls[0] == at_call:
+            for _ in range(cycles):
+                self.robot.step()
+        return original(self, times, corrections)
+
+    monkeypatch.setattr(emulate._DirectLink, "queue", late_queue)
+    return calls
+
+
+def test_late_corrections_before_the_laser_do_not_fail_the_verdict(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The first batch 3 cycles late: its first entries are for the run-up before the laser
+    (the sensor looks 40 mm ahead), where a late correction welds nothing. They are counted
+    and timed in the run, but the verdict, which judges the laser's cycles, passes."""
+    _stall_queue(monkeypatch, 1, 3)
+    run = run_tracking("sine", 250.0, seed=1)
+    assert run.timed and len(run.late_at_s) >= 3
+    assert max(run.late_at_s) < 0.16  # before the laser: 40 mm at 250 mm/s
+    assert run.verdict["within_tolerance"] and run.verdict["late_corrections"] == 0
+    assert run.tracking_error_max_mm <= 0.1
+
+
+def test_late_corrections_under_the_laser_fail_the_verdict(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A batch in the middle of the weld arrives 45 cycles (180 ms) late, past the sensor's
+    ~140 ms lead but inside the stream's 0.1 s timeout after it: the robot held the
+    correction meanwhile and dropped the late entries. The verdict
+    names them (or the error they caused), and the run keeps their times."""
+    calls = _stall_queue(monkeypatch, 120, 45)
+    run = run_tracking("sine", 250.0, seed=1)
+    assert calls[0] > 120
+    assert run.late_at_s and not run.verdict["within_tolerance"]
+    assert int(run.verdict["late_corrections"]) > 0  # type: ignore[call-overload]
+    assert any(t > 0.16 for t in run.late_at_s)

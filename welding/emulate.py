@@ -218,6 +218,10 @@ class TrackingRun:
     #: laser cycles whose applied correction is not the table's entry for that cycle
     #: (timed mode; the emulator's truth)
     misapplied_cycles: int = 0
+    #: timed mode: when (s into the move) corrections reached the robot after their cycle
+    late_at_s: list[float] = field(default_factory=list)
+    #: when the weld stopped early: s into the move (None when it ran to its end)
+    stopped_at_s: float | None = None
     plot: dict[str, npt.NDArray[np.float64]] = field(default_factory=dict, repr=False)
 
     def summary(self) -> dict[str, object]:
@@ -250,6 +254,7 @@ def run_tracking(
     timed: bool = True,
     load: Callable[[tuple[str, int]], contextlib.AbstractContextManager[object]] | None = None,
     dynamics: str = "off",
+    cancelled: Callable[[], bool] | None = None,
 ) -> TrackingRun:
     """Weld ``weld_mm`` of ``seam`` (``straight|offset|sine``) at ``speed_mm_s`` on the
     simulated cell, correcting the laser every cycle from the synchronised seam points.
@@ -272,7 +277,8 @@ def run_tracking(
     ``corrections`` < ``cycles`` shows). The verdict is the tracker's own (``tolerance_mm``);
     the errors against the truth stand beside it. ``load``: a context entered with the
     robot server's address around the weld on the real clock (a benchmark's load).
-    ``dynamics``: the emulated arm's (``off`` or ``elastic``, :class:`EmulatedCell`)."""
+    ``dynamics``: the emulated arm's (``off`` or ``elastic``, :class:`EmulatedCell`).
+    ``cancelled``: asked every cycle; true stops the weld (laser off, motion reset)."""
     shape, placement = cell_seam(seam, workpiece_error or IDENTITY_LOC)
     config: dict[str, Any] = {
         "timing": timing or CellTiming(),
@@ -299,7 +305,7 @@ def run_tracking(
                 with load(side.robot_address) if load else contextlib.nullcontext():
                     return _track_on(side, seam, speed_mm_s, delta_t_ms, weld_mm, rate_hz,
                                      track, sensor_silent_after_mm, measure_delta_t, True,
-                                     tolerance_mm, timed)  # fmt: skip
+                                     tolerance_mm, timed, cancelled)  # fmt: skip
         finally:
             child.close()
     cell = EmulatedCell(clock=clock, **config)
@@ -322,6 +328,7 @@ def run_tracking(
             over_sockets,
             tolerance_mm,
             timed,
+            cancelled,
         )
     finally:
         if servers:
@@ -436,6 +443,7 @@ def _track_on(
     over_sockets: bool,
     tolerance_mm: float,
     timed: bool,
+    cancelled: Callable[[], bool] | None = None,
 ) -> TrackingRun:
     period = cell.period
     true_dt = cell.true_delta_t_s()
@@ -479,7 +487,9 @@ def _track_on(
             tracker, laser_tool, look_ahead, look_ahead + weld_mm, rate_hz, track,
             tolerance_mm=tolerance_mm,
         )  # fmt: skip
-        outcome = weld_tracked(link, plan, sensor_silent_after_mm=sensor_silent_after_mm)
+        outcome = weld_tracked(
+            link, plan, sensor_silent_after_mm=sensor_silent_after_mm, cancelled=cancelled
+        )
         stopped = outcome.stopped
     finally:
         if over_sockets:
@@ -516,6 +526,10 @@ def _track_on(
         verdict=outcome.verdict.summary() if outcome.verdict is not None else {},
         timed=outcome.timed,
         misapplied_cycles=_misapplied(outcome.sent, truth.times, corr) if outcome.timed else 0,
+        late_at_s=np.round(outcome.late_times - outcome.t0, 4).tolist(),
+        stopped_at_s=round(outcome.stopped_at_s, 4)
+        if math.isfinite(outcome.stopped_at_s)
+        else None,
         plot={
             "laser": _to_w(laser_pts, b2w),
             "nominal": _to_w(laser_pts - corr, b2w),
@@ -581,7 +595,7 @@ class _DirectLink:
         self, times: npt.NDArray[np.float64], corrections: npt.NDArray[np.float64]
     ) -> QueueState:
         report, _, now = self.robot.alter_queue(times, corrections)
-        return QueueState(report.late_total, report.held_total, report.horizon, now)
+        return QueueState(report.late_total, report.held_total, report.horizon, now, report.late)
 
     def laser_points(self, tool: Loc, since: float) -> npt.NDArray[np.float64]:
         _, joints = self.robot.joint_log(since)

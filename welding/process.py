@@ -58,6 +58,7 @@ from welding.tools import Tables, ToolDBError
 from welding.track_loop import RobotLink, TrackedWeld, weld_tracked
 from welding.tracking import (
     MIN_AHEAD_MM,
+    TOLERANCE_MM,
     CornerError,
     PolylineWeld,
     Tracker,
@@ -391,10 +392,15 @@ class SeamLost(Exception):
     """A tracked weld stopped: the tracker lost the seam (the laser is already off)."""
 
 
+class OutOfTolerance(Exception):
+    """A tracked weld ended, but the tracker's own verdict is that it is not within the
+    tolerance (the laser is already off): the job stops there, as for a lost seam."""
+
+
 class JobAborted(Exception):
     """The job stopped before its end: ``reason`` ("interrupted", "cancelled", "connection
-    lost", "error reply", "timeout", "seam lost" or "error"), ``log`` up to and including the
-    safe stop."""
+    lost", "error reply", "timeout", "seam lost", "out of tolerance" or "error"), ``log`` up
+    to and including the safe stop."""
 
     def __init__(self, reason: str, message: str, log: list[LogEntry]) -> None:
         super().__init__(f"job aborted ({reason}): {message}")
@@ -417,7 +423,8 @@ class JobRunner:
     piece (the client sends one request at a time; a whole wait would hold it). Tracked
     paths: ``sensor_endpoint`` is the sensor's trigger address (None: as configured on the
     robot), ``real_time`` whether the robot runs on the wall clock (False: a simulated clock
-    advanced by WaitEndMove), ``rate_hz`` the trigger rate."""
+    advanced by WaitEndMove), ``rate_hz`` the trigger rate, ``tolerance_mm`` the tracked
+    weld's (its verdict outside it stops the job)."""
 
     def __init__(
         self,
@@ -432,8 +439,10 @@ class JobRunner:
         real_time: bool = True,
         rate_hz: float = 200.0,
         poll: float | None = None,
+        tolerance_mm: float = TOLERANCE_MM,
     ) -> None:
         self.robot = robot
+        self.tolerance_mm = tolerance_mm
         self.sensor_endpoint = sensor_endpoint
         self.real_time = real_time
         self.rate_hz = rate_hz
@@ -517,9 +526,11 @@ class JobRunner:
         tracker = Tracker(step.weld, step.look_ahead_mm, seam_end_mm=step.laser_to_mm)
         link = RobotLink(self.robot, self.sensor_endpoint, real_time=self.real_time)
         weld = TrackedWeld(
-            tracker, step.tool, step.laser_from_mm, step.laser_to_mm, self.rate_hz, laser=step.laser
-        )
-        outcome = weld_tracked(link, weld)
+            tracker, step.tool, step.laser_from_mm, step.laser_to_mm, self.rate_hz,
+            laser=step.laser, tolerance_mm=self.tolerance_mm,
+        )  # fmt: skip
+        outcome = weld_tracked(link, weld, cancelled=self._cancel.is_set)
+        verdict = outcome.verdict
         self._note(
             "tracked",
             item,
@@ -527,9 +538,14 @@ class JobRunner:
             corrections=outcome.corrections,
             seam_points=tracker.model.count,
             delta_t_ms=link.delta_t() * 1e3,
+            verdict=verdict.line() if verdict is not None else "",
         )
+        if self._cancel.is_set():
+            raise JobCancelled("cancelled by the operator")
         if outcome.stopped:
             raise SeamLost(outcome.stopped)
+        if verdict is not None and not verdict.within and step.laser:
+            raise OutOfTolerance(verdict.line())
 
     def _wait_end_move(self) -> bool:
         if self.poll is None:
@@ -601,6 +617,8 @@ def _reason(exc: BaseException) -> str:
         return "timeout"
     if isinstance(exc, SeamLost):
         return "seam lost"
+    if isinstance(exc, OutOfTolerance):
+        return "out of tolerance"
     return "error"
 
 

@@ -73,6 +73,8 @@ class QueueState:
     held_total: int
     horizon: float
     time: float
+    #: entries of this batch dropped as late: its first ones (the times increase)
+    late: int = 0
 
 
 class TrackLink(Protocol):
@@ -141,15 +143,25 @@ class TrackOutcome:
     t0: float = math.nan
     #: the seam points of the weld as GetSeamPoints gave them (M, 17)
     rows: FloatArray = field(default_factory=lambda: np.zeros((0, 17)))
+    #: timed mode: robot times (s) of the corrections that reached the robot after their
+    #: cycle, the laser's cycles or not (the verdict counts those of the laser's cycles)
+    late_times: FloatArray = field(default_factory=lambda: np.zeros(0))
+    #: when the weld stopped early: seconds into the move (robot clock); else nan
+    stopped_at_s: float = math.nan
 
 
 # C901 allowed: the 4 ms tracking loop shares its state between phases in locals; splitting it
 # is a refactoring of its own, not a lint fix
 def weld_tracked(  # noqa: C901
-    link: TrackLink, weld: TrackedWeld, *, sensor_silent_after_mm: float | None = None
+    link: TrackLink,
+    weld: TrackedWeld,
+    *,
+    sensor_silent_after_mm: float | None = None,
+    cancelled: Callable[[], bool] | None = None,
 ) -> TrackOutcome:
     """Run ``weld`` on ``link``; ``sensor_silent_after_mm`` stops the triggers once the laser
-    is that far past ``laser_from_mm`` (a dropped sensor, for tests).
+    is that far past ``laser_from_mm`` (a dropped sensor, for tests); ``cancelled`` true (the
+    operator's abort, asked every cycle) stops the weld as a lost seam does.
 
     A robot that takes timed corrections (AlterQueue, RS-5.39) gets each cycle's correction
     ahead of its cycle, as soon as the seam around its laser point is measured (the sensor
@@ -160,6 +172,7 @@ def weld_tracked(  # noqa: C901
     period = link.period
     last_index = -1
     stopped = ""
+    stopped_at = math.nan
     laser_on = False
     track = weld.track
     ff = weld.feedforward or (lambda _t: np.zeros(6))
@@ -181,19 +194,23 @@ def weld_tracked(  # noqa: C901
     corrections = 0
     sent_t: list[float] = []
     sent_c: list[FloatArray] = []
+    late_t: list[float] = []
     state = QueueState(0, 0, -1.0, t0)
     try:
         # the arm stands still while the sensor measures the seam's start and the laser is
         # brought onto it
         t_go = t0 + weld.settle_s
         while link.time() < t_go - 1e-9:
+            _check_cancelled(cancelled)
             fetch()
             ready = track and tracker.model.count >= MIN_FIT_POINTS
             link.alter((tracker.correction(0.0) if ready else np.zeros(6)) + ff(0.0))
             link.step()
         times, locs = nominal.timed_path(period)
+        t_send = link.time()
         t0, on_grid = link.move(times, locs, weld.laser_tool)  # the law's start, a cycle
-        log.info("tracked move queued: %d cycles (%s corrections)", len(times),
+        log.info("tracked move queued in %.1f ms: %d cycles (%s corrections)",
+                 (link.time() - t_send) * 1e3, len(times),
                  "timed" if timed else "per-cycle")  # fmt: skip
         held = np.zeros(6)
         n = 0
@@ -205,6 +222,7 @@ def weld_tracked(  # noqa: C901
             k_next += 2
         k_last = math.ceil((t0 + float(times[-1]) + TAIL_S) / period)
         while link.queued():
+            _check_cancelled(cancelled)
             t_cycle = link.next_cycle()
             t_move = t_cycle - t0  # the correction applies at the next cycle
             s = float(nominal.s_at(t_move))
@@ -243,6 +261,7 @@ def weld_tracked(  # noqa: C901
                 if batch_t:
                     sent_t.extend(batch_t)
                     state = link.queue(np.array(batch_t), np.array(sent_c[-len(batch_t) :]))
+                    late_t.extend(batch_t[: state.late])
             else:
                 if s <= weld.laser_to_mm:
                     held = tracker.correction(t_move) if track else np.zeros(6)
@@ -267,6 +286,8 @@ def weld_tracked(  # noqa: C901
         link.reset_motion()
         laser_on = False
         stopped = str(exc) if isinstance(exc, TrackingError) else f"the robot refused: {exc}"
+        stopped_at = link.time() - t0
+        log.warning("the weld stopped %.3f s into the move: %s", stopped_at, stopped)
     except KeyboardInterrupt:  # Ctrl-C, a stop signal: the same safe stop, then out
         with contextlib.suppress(Exception):
             link.set_laser(False)
@@ -288,7 +309,16 @@ def weld_tracked(  # noqa: C901
         stopped = stopped or f"the robot's joint log is not available: {exc}"
         laser = np.zeros((0, 3))
     s_est, err = estimate_errors(tracker.model, laser, weld.laser_from_mm, weld.laser_to_mm)
-    late, missed = (state.late_total, state.held_total) if timed else (0, cycles - corrections)
+    late_arr = np.array(late_t)
+    # a late correction of the stand or of the run-out costs nothing: the laser is off there
+    s_late = nominal.s_at(late_arr - t0) if len(late_arr) else late_arr
+    late_on = int(np.count_nonzero((s_late >= weld.laser_from_mm) & (s_late <= weld.laser_to_mm)))
+    if len(late_arr):
+        log.info(
+            "%d corrections late (%d of laser cycles), at %s s of the move",
+            len(late_arr), late_on, np.round(late_arr - t0, 3).tolist()[:20],
+        )  # fmt: skip
+    late, missed = (late_on, state.held_total) if timed else (0, cycles - corrections)
     verdict = judge(
         err,
         late=late,
@@ -303,8 +333,24 @@ def weld_tracked(  # noqa: C901
     estimate = np.column_stack([s_est, err])
     rows_seen = np.vstack(seen) if seen else np.zeros((0, 17))
     return TrackOutcome(
-        stopped, cycles, corrections, on_grid, verdict, sent, timed, estimate, t0, rows_seen
+        stopped,
+        cycles,
+        corrections,
+        on_grid,
+        verdict,
+        sent,
+        timed,
+        estimate,
+        t0,
+        rows_seen,
+        late_arr,
+        stopped_at,
     )
+
+
+def _check_cancelled(cancelled: Callable[[], bool] | None) -> None:
+    if cancelled is not None and cancelled():
+        raise TrackingError("cancelled by the operator")
 
 
 class RobotLink:
@@ -404,7 +450,7 @@ class RobotLink:
             wire_params.FloatArray(times.tolist()),
             Matrix(len(times), 6, corrections.ravel().tolist()),
         )
-        return QueueState(int(r[4]), int(r[5]), float(r[3]), float(r[7]))  # type: ignore[arg-type]
+        return QueueState(int(r[4]), int(r[5]), float(r[3]), float(r[7]), int(r[1]))  # type: ignore[arg-type]
 
     def laser_points(self, tool: Loc, since: float) -> FloatArray:
         """The laser tool's points (N, 3), base frame, from the measured joints logged

@@ -175,10 +175,13 @@ def run_calibration(
 def run_track(
     act: Activity, cancelled: threading.Event, seam: str, speed: float, tracked: bool
 ) -> dict[str, Any]:
-    """A tracked weld on a simulated copy of the emulated cell, scored against its truth."""
+    """A tracked weld on the real clock, on a copy of the emulated cell in its own real-time
+    child (as ``welding track --emulate --clock real``): the tracker's own verdict, and the
+    error against the copy's true seam beside it. The operator's abort stops it (laser off,
+    motion reset) and keeps what it welded."""
     from welding.emulate import run_tracking
 
-    run = run_tracking(seam, speed, track=tracked)
+    run = run_tracking(seam, speed, track=tracked, clock="real", cancelled=cancelled.is_set)
     laser, true = run.plot["laser"], run.plot["seam"]
     result = run.summary() | {
         "top": {k: np.round(v[:, :2], 4).tolist() for k, v in run.plot.items()},
@@ -186,6 +189,10 @@ def run_track(
             np.column_stack([laser[:, 0], (laser[:, 1] - true[:, 1]) * 1e3]), 3
         ).tolist(),
     }
+    if cancelled.is_set():
+        act.finish("aborted", "cancelled by the operator")
+        return result
+    verdict = run.verdict.get("line") or run.verdict.get("reason") or ""
     stopped = f"; STOPPED: {run.stopped}" if run.stopped else ""
-    act.finish("done", f"max {run.tracking_error_max_mm * 1e3:.1f} µm{stopped}")
+    act.finish("done", f"max {run.tracking_error_max_mm * 1e3:.1f} µm{stopped}; {verdict}")
     return result

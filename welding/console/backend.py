@@ -884,9 +884,10 @@ class Console:
     # --- tracked weld (emulated cell only) ----------------------------------------------------
 
     def track(self, body: Any) -> None:
-        """A tracked weld (:func:`welding.emulate.run_tracking`) on a simulated copy of the
-        emulated cell, scored against its true seam: only with ``--emulate`` (tracking on a
-        live cell is the ``welding track`` path's job once it has one)."""
+        """A tracked weld (:func:`welding.emulate.run_tracking`, real clock) on a copy of the
+        emulated cell in its own real-time child, with the tracker's verdict and the error
+        against its true seam: only with ``--emulate`` (on a live cell a tracked weld is a
+        job's ``tracked="on"`` path)."""
         if not self.emulated:
             raise ConsoleError("the tracked weld runs on the emulated cell only (--emulate)", 409)
         from welding.track_options import TRACK_SEAMS

@@ -853,16 +853,20 @@ async function loadTrack() {
     ["tracking error", `max ${um(result.tracking_error_max_mm)}, rms ${um(result.tracking_error_rms_mm)}`],
     ["nominal path off the seam", `max ${um(result.nominal_error_max_mm)}`],
     ["welded", `${result.welded_mm} mm${result.stopped ? ", STOPPED: " + result.stopped : ""}`],
+    // what a real cell would say: the tracker's own estimate, without the truth
+    ["verdict (tracker's own)", (result.verdict && result.verdict.line) || "none"],
+    ["clock", `${result.clock} (${result.cell})`],
   ];
   $("tr-result").innerHTML = rows.map(([k, v]) => `<tr><th>${k}</th><td>${esc(v)}</td></tr>`).join("");
   const t = result.top;
   // the four curves lie within micrometres of each other at this scale: told apart by width,
   // dash and marks (the error plot below shows the difference)
+  // the measured points last: drawn under the lines they hid over the weld
   plot("tr-top", [
     { label: "true seam", pts: t.seam, color: COLORS.green, width: 6 },
-    { label: "measured seam points", pts: t.measured, color: COLORS.blue, line: false, points: 1.5 },
     { label: "nominal path (untracked)", pts: t.nominal, color: COLORS.black, dash: [6, 4] },
     { label: "laser", pts: t.laser, color: COLORS.red, width: 1.5 },
+    { label: "measured seam points", pts: t.measured, color: COLORS.blue, line: false, points: 2 },
   ], "x (mm, workpiece)", "y (mm, workpiece)");
   plot("tr-error", [{ label: "laser − seam, lateral", pts: result.error_um, color: COLORS.red }], "x (mm, workpiece)", "tracking error (µm)");
 }
