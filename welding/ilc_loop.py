@@ -50,7 +50,7 @@ from welding.ilc import (
     q_filter,
 )
 from welding.track_loop import RobotLink, TrackedWeld, TrackOutcome, laser_path, weld_tracked
-from welding.tracking import NominalWeld, SeamModel, Tracker, TrackingError
+from welding.tracking import NominalWeld, OffsetWeld, SeamModel, Tracker, TrackingError
 
 __all__ = ["IlcSettings", "IlcTrial", "PassGeometry", "run_ilc"]
 
@@ -81,6 +81,9 @@ class IlcSettings:
     rate_hz: float = 200.0
     teach_speed_mm_s: float = 50.0
     track: bool = False
+    #: after the trials, a tracked weld with the learned table: the half width (mm) of the
+    #: tracker's fit of the workpiece's deviation from the taught seam
+    track_fit_mm: float = 25.0
     model_payload_kg: float = RX90B.payload_kg
     latency_s: float = 0.0028
     params: ElasticParams = RX90B
@@ -105,15 +108,18 @@ class IlcTrial:
     correction_max_mm: float
     stopped: str
     profile: FloatArray = field(default_factory=lambda: np.zeros((0, 2)), repr=False)
+    #: the tracked weld with the learned table after the learning (``track``): not learned
+    tracked: bool = False
 
     def summary(self) -> dict[str, object]:
         return {
             "trial": self.trial,
             "error_max_mm": self.error_max_mm,
             "error_rms_mm": self.error_rms_mm,
-            "measured_max_mm": self.measured_max_mm,
+            "measured_max_mm": None if math.isnan(self.measured_max_mm) else self.measured_max_mm,
             "correction_max_mm": self.correction_max_mm,
             "stopped": self.stopped,
+            "tracked": self.tracked,
         }
 
 
@@ -213,7 +219,7 @@ def run_ilc(
     client.take_control(watchdog=LEASE_S)
     client.call(CommandId.ENABLE_POWER)
     if table is None:
-        taught = np.zeros((0, 4)) if settings.track else _teach(link, geometry, settings)
+        taught = _teach(link, geometry, settings)
         u = np.zeros((n, 3))
         done = 0
     seam_of = IlcTable(period, settings.speed_mm_s, u, taught, settings.source, done)
@@ -230,17 +236,16 @@ def run_ilc(
             geometry.laser_from_mm,
             geometry.laser_to_mm,
             settings.rate_hz,
-            settings.track,
+            False,
             feedforward=_feedforward(geometry.times, reference + u),
         )
         outcome = weld_tracked(link, plan)
         truth_max, truth_rms, profile = judge(outcome, geometry)
         if settings.source == "seam":
-            offsets = _tracked_offsets(tracker) if settings.track else seam_of.offsets
-            e_base = _seam_error(geometry, outcome, offsets, settings.latency_s)
+            ref_at = _along(geometry, seam_of.offsets)
+            e_base = _seam_error(geometry, outcome, seam_of.offsets, ref_at, settings.latency_s)
         else:
-            ref = reference + (_tracker_part(outcome, geometry, u) if settings.track else 0.0)
-            e_base = _joint_error(client, model, geometry, outcome, ref)
+            e_base = _joint_error(client, model, geometry, outcome, reference)
         e_path = e_base @ R  # rows in (along, lateral, height)
         seen = mask * np.repeat(np.any(e_base != 0.0, axis=1), 3)
         window = np.repeat(geometry.window(), 3) * seen
@@ -265,10 +270,56 @@ def run_ilc(
         learned = IlcTable(period, settings.speed_mm_s, u, taught, settings.source, done + j)
         if save is not None:
             save(learned)
+    if settings.track and trials and not trials[-1].stopped:
+        _back_to_start(client, geometry)
+        if record is not None:
+            record()
+        outcome = weld_tracked(link, _tracked_plan(geometry, settings, taught, u, sensor_tool))
+        truth_max, truth_rms, profile = judge(outcome, geometry)
+        trial = IlcTrial(
+            done + len(trials) + 1,
+            truth_max,
+            truth_rms,
+            math.nan,
+            float(np.linalg.norm(u, axis=1).max()),
+            outcome.stopped,
+            profile,
+            tracked=True,
+        )
+        trials.append(trial)
+        if progress is not None:
+            progress(trial)
+    learned_trials = sum(1 for t in trials if not t.tracked)
     return (
         trials,
         conv,
-        IlcTable(period, settings.speed_mm_s, u, taught, settings.source, done + len(trials)),
+        IlcTable(period, settings.speed_mm_s, u, taught, settings.source, done + learned_trials),
+    )
+
+
+def _tracked_plan(
+    g: PassGeometry, settings: IlcSettings, taught: FloatArray, u: FloatArray, sensor_tool: Loc
+) -> TrackedWeld:
+    """A tracked weld with the learned table: the tracker follows the workpiece's deviation
+    from the taught seam (a wide fit: a placement error is smooth, the arm's fast error is
+    the table's), from the sensor's readings placed on the sensor's reference pose; the
+    correction sent is the taught seam, that deviation and the table."""
+    tracker = Tracker(
+        g.weld,
+        g.look_ahead_mm,
+        fit_half_width_mm=settings.track_fit_mm,
+        taught=OffsetWeld(g.weld, taught),
+    )
+    return TrackedWeld(
+        tracker,
+        g.laser_tool,
+        g.laser_from_mm,
+        g.laser_to_mm,
+        settings.rate_hz,
+        True,
+        feedforward=_feedforward(g.times, u),
+        sensor_tool=sensor_tool,
+        exposure_lag_s=settings.latency_s,
     )
 
 
@@ -334,16 +385,14 @@ def _feedforward(times: FloatArray, table: FloatArray) -> Callable[[float], Floa
     return at
 
 
-def _tracked_offsets(tracker: Tracker) -> Callable[[FloatArray], FloatArray]:
-    """This trial's seam as the tracker measured it, as offsets from the nominal line."""
-    model = tracker.model
+def _along(
+    g: PassGeometry, offsets: Callable[[FloatArray], FloatArray]
+) -> Callable[[FloatArray], FloatArray]:
+    """The laser's reference offsets (M, 3) at times (M,) s since the move's start: the
+    seam ``offsets`` at the laser's nominal arc length."""
 
-    def at(s: FloatArray) -> FloatArray:
-        out = np.zeros((len(s), 3))
-        for i, si in enumerate(s):
-            with contextlib.suppress(TrackingError):
-                out[i] = model.offset_at(float(si))
-        return out
+    def at(t: FloatArray) -> FloatArray:
+        return offsets(g.weld.s_at(t))
 
     return at
 
@@ -401,11 +450,14 @@ def _seam_error(
     g: PassGeometry,
     outcome: TrackOutcome,
     offsets: Callable[[FloatArray], FloatArray],
+    reference: Callable[[FloatArray], FloatArray],
     latency_s: float,
 ) -> FloatArray:
     """(N, 3) reference − actual of the laser, base frame, from the sensor's ^S_G T: what it
-    read against what it would read with the tool on the reference (the tool keeps its
-    orientation, so the laser moved as the sensor did); zero where it read nothing.
+    read of the seam ``offsets`` (taught) against what it would read with the laser on its
+    ``reference`` (offsets (M, 3) from the nominal line at times (M,) since the move's
+    start; the tool keeps its orientation, so the laser moved as the sensor did); zero
+    where it read nothing.
     ``latency_s``: the joint log's lag; a seam point's time (t_sync = trigger + ΔT) is where
     the *measured* joints saw the image, the exposure itself was that much earlier."""
     rows = outcome.rows[(outcome.rows[:, 3] == 0) & (outcome.rows[:, 2] >= outcome.t0)]
@@ -416,24 +468,13 @@ def _seam_error(
     s_l = g.weld.s_at(t)
     s_s = s_l + g.look_ahead_mm
     a = g.sensor2base[:3, 3] - g.weld.start  # laser -> sensor, base frame
-    expected = g.weld.point(s_s) + offsets(s_s) - g.weld.point(s_l) - offsets(s_l) - a
+    expected = g.weld.point(s_s) + offsets(s_s) - g.weld.point(s_l) - reference(t) - a
     measured = rows[:, 5:8] @ g.sensor2base[:3, :3].T
     deviation = expected - measured  # actual - reference
     out = np.zeros((n, 3))
     inside = (g.times >= t.min()) & (g.times <= t.max())
     for c in range(3):
         out[inside, c] = -np.interp(g.times[inside], t, deviation[:, c])
-    return out
-
-
-def _tracker_part(outcome: TrackOutcome, g: PassGeometry, u: FloatArray) -> FloatArray:
-    """(N, 3) the tracker's share of the corrections sent for the move's cycles."""
-    sent = outcome.sent
-    if not len(sent):
-        return np.zeros((len(g.times), 3))
-    t = sent[:, 0] - outcome.t0
-    total = np.column_stack([np.interp(g.times, t, sent[:, 1 + c]) for c in range(3)])
-    out: FloatArray = total - u
     return out
 
 
