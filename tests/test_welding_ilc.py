@@ -158,3 +158,27 @@ def test_ilc_over_the_sockets_lowers_the_truth_error_every_trial(tmp_path: Path)
     (trial,) = again["trials"]
     assert trial["trial"] == 4
     assert trial["error_max_mm"] < errors[0] / 3
+
+
+def test_ilc_track_ends_with_one_tracked_weld_in_the_json(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """``--track``: the learned trials, then one tracked weld with the learned table, listed
+    last and marked ``tracked`` (the ILC measures nothing on it: ``measured_max_mm`` null);
+    on the workpiece it learned, that weld stays within 0.1 mm of the truth."""
+    out = tmp_path / "ilc.json"
+    code = main(["ilc", "--emulate", "--dynamics", "elastic", "--length", "60", "--trials",
+                 "3", "--track", "--json", str(out)])  # fmt: skip
+    stdout, _ = capsys.readouterr()
+    assert code == 0
+    result = json.loads(out.read_text())
+    trials = result["trials"]
+    assert [(t["trial"], t["tracked"]) for t in trials] == [
+        (1, False), (2, False), (3, False), (4, True)
+    ]  # fmt: skip
+    learned, tracked = trials[:3], trials[3]
+    assert all(isinstance(t["measured_max_mm"], float) for t in learned)
+    assert tracked["measured_max_mm"] is None and not tracked["stopped"]
+    assert tracked["error_max_mm"] < 0.1
+    assert "trial 4 (tracked, with the table)" in stdout
+    assert f"tracked with the table {tracked['error_max_mm']:.4f} mm" in stdout

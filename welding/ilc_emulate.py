@@ -115,11 +115,18 @@ def run_ilc_emulated(
 
 
 def _line(trial: IlcTrial) -> str:
+    truth = (
+        f"error against the truth max {trial.error_max_mm:.4f} mm, rms {trial.error_rms_mm:.4f} mm"
+    )
+    stopped = f"; STOPPED: {trial.stopped}" if trial.stopped else ""
+    if trial.tracked:
+        return (
+            f"trial {trial.trial} (tracked, with the table): {truth}; table up to "
+            f"{trial.correction_max_mm:.3f} mm{stopped}"
+        )
     return (
-        f"trial {trial.trial}: error against the truth max {trial.error_max_mm:.4f} mm, rms "
-        f"{trial.error_rms_mm:.4f} mm; the ILC measured {trial.measured_max_mm:.4f} mm; "
-        f"correction up to {trial.correction_max_mm:.3f} mm"
-        + (f"; STOPPED: {trial.stopped}" if trial.stopped else "")
+        f"trial {trial.trial}: {truth}; the ILC measured {trial.measured_max_mm:.4f} mm; "
+        f"correction up to {trial.correction_max_mm:.3f} mm{stopped}"
     )
 
 
@@ -166,8 +173,16 @@ def cmd_ilc(args: argparse.Namespace) -> int:
     trials = result["trials"]
     if any(t["stopped"] for t in trials):
         return ExitCode.FAILED
-    first, last = trials[0]["error_max_mm"], trials[-1]["error_max_mm"]
-    print(f"error max {first:.4f} -> {last:.4f} mm over {len(trials)} trials")
+    learned = [t["error_max_mm"] for t in trials if not t["tracked"]]
+    tracked = [t["error_max_mm"] for t in trials if t["tracked"]]
+    line = (
+        f"error max {learned[0]:.4f} -> {learned[-1]:.4f} mm over {len(learned)} trials"
+        if learned
+        else "no trial learned"
+    )
+    if tracked:
+        line += f"; tracked with the table {tracked[0]:.4f} mm"
+    print(line)
     return ExitCode.OK
 
 

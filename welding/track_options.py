@@ -133,7 +133,8 @@ def add_ilc_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--track",
         action="store_true",
-        help="track the seam live as well; the table learns the arm's error on top",
+        help="after the trials, one tracked weld with the learned table (the tracker follows "
+        "the workpiece's deviation from the taught seam; the JSON's last trial, tracked)",
     )
     p.add_argument(
         "--model-payload-kg",
