@@ -182,3 +182,30 @@ def test_ilc_track_ends_with_one_tracked_weld_in_the_json(
     assert tracked["error_max_mm"] < 0.1
     assert "trial 4 (tracked, with the table)" in stdout
     assert f"tracked with the table {tracked['error_max_mm']:.4f} mm" in stdout
+
+
+def test_the_tracked_weld_with_the_table_follows_a_workpiece_placed_otherwise() -> None:
+    """ILC + tracking over the sockets, simulated clock: the table learned on one workpiece
+    (elastic arm, sine seam, 250 mm/s), then the next one placed 0.5 mm to the side and
+    turned 0.3°. Welded with the table alone it is off by that placement; tracked with the
+    table (``--trials 0 --track``) it stays within 0.1 mm of the truth."""
+    learned = run_ilc_emulated(IlcSettings(weld_mm=60.0, trials=3))
+    table = learned["table"]
+    moved = (0.0, 0.5, 0.0, 0.0, 0.0, 0.3)
+    untracked = run_ilc_emulated(
+        IlcSettings(weld_mm=60.0, trials=1), table=table, workpiece_error=moved
+    )
+    tracked = run_ilc_emulated(
+        IlcSettings(weld_mm=60.0, trials=0, track=True), table=table, workpiece_error=moved
+    )
+    (plain,) = untracked["trials"]
+    (weld,) = tracked["trials"]
+    assert not plain["tracked"] and weld["tracked"] and not weld["stopped"]
+    assert plain["error_max_mm"] > 0.3  # the table alone follows the seam it was taught
+    assert weld["error_max_mm"] < 0.1
+    assert weld["error_max_mm"] < plain["error_max_mm"] / 5
+
+
+def test_no_trial_and_no_tracked_weld_is_refused() -> None:
+    with pytest.raises(ValueError, match="0 trials weld nothing without track"):
+        IlcSettings(trials=0).check()

@@ -22,6 +22,7 @@ from cell.cell import CellTiming, EmulatedCell
 from cell.options import timing_kwargs
 from cell.seams import cell_seam
 from cell.truth import WeldRecorder
+from kinematics.types import IDENTITY_LOC, Loc
 from spec.client import FramedClient
 from spec.errors import ProtocolError
 from spec.exitcodes import ExitCode
@@ -43,6 +44,7 @@ def run_ilc_emulated(
     dynamics: str = "elastic",
     timing: CellTiming | None = None,
     seed: int = 0,
+    workpiece_error: Loc | None = None,
     table: IlcTable | None = None,
     save: Any = None,
     progress: Any = None,
@@ -50,8 +52,10 @@ def run_ilc_emulated(
     """The trials on a simulated cell (``seam`` of ``welding track``, ``dynamics``); the
     result as the JSON of ``welding ilc`` (trials in order, each with ``error_max_mm``
     against the truth), plus ``"profiles"`` (per trial (arc length, error) arrays) and
-    ``"table"`` (the learned :class:`IlcTable`), which the JSON leaves out."""
-    shape, placement = cell_seam(seam)
+    ``"table"`` (the learned :class:`IlcTable`), which the JSON leaves out.
+    ``workpiece_error`` lies on top of the seam's own placement (:func:`cell.seams.cell_seam`):
+    a workpiece placed otherwise than the one a ``table`` was learned on."""
+    shape, placement = cell_seam(seam, workpiece_error or IDENTITY_LOC)
     cell = EmulatedCell(
         clock="sim",
         timing=timing or CellTiming(),

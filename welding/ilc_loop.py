@@ -91,8 +91,10 @@ class IlcSettings:
     def check(self) -> None:
         if self.source not in SOURCES:
             raise ValueError(f"source must be {' or '.join(SOURCES)}, got {self.source!r}")
-        if not (1 <= self.trials <= 100):
-            raise ValueError(f"trials must be 1..100, got {self.trials}")
+        if not (0 <= self.trials <= 100):
+            raise ValueError(f"trials must be 0..100, got {self.trials}")
+        if self.trials == 0 and not self.track:
+            raise ValueError("0 trials weld nothing without track (the tracked weld)")
 
 
 @dataclass
@@ -170,10 +172,10 @@ def run_ilc(
     """Run the trials on the robot of ``client`` (its sensor's trigger address
     ``sensor_endpoint``): refuse a learning that diverges (:class:`LearningDiverges`,
     before control is taken), take control, teach the seam unless ``table`` brings it, then
-    ``trials``
-    passes, each judged by ``judge(outcome, geometry)`` -> (truth max, truth rms, profile)
-    after ``record()`` was called before it; the table is handed to ``save`` after every
-    trial."""
+    ``trials`` passes, each judged by ``judge(outcome, geometry)`` -> (truth max, truth rms,
+    profile) after ``record()`` was called before it; the table is handed to ``save`` after
+    every trial. With ``track``, one tracked weld with the learned table follows (none after
+    a stopped trial), the last of the trials returned."""
     settings.check()
     period = 0.004
     link = RobotLink(client, sensor_endpoint, period=period)
@@ -270,7 +272,7 @@ def run_ilc(
         learned = IlcTable(period, settings.speed_mm_s, u, taught, settings.source, done + j)
         if save is not None:
             save(learned)
-    if settings.track and trials and not trials[-1].stopped:
+    if settings.track and not (trials and trials[-1].stopped):
         _back_to_start(client, geometry)
         if record is not None:
             record()

@@ -110,7 +110,13 @@ def add_ilc_options(p: argparse.ArgumentParser) -> None:
     add_seam_option(p, "sine")
     p.add_argument("--speed", type=cliargs.number_in(1.0, 500.0), default=250.0, help="mm/s")
     p.add_argument("--length", type=cliargs.number_in(10.0, 200.0), default=200.0, help="mm")
-    p.add_argument("--trials", type=cliargs.int_in(1, 100), default=5, help="passes (default 5)")
+    p.add_argument(
+        "--trials",
+        type=cliargs.int_in(0, 100),
+        default=5,
+        help="passes learned (default 5; 0 with --track: only the tracked weld, e.g. with a "
+        "--table learned before)",
+    )
     p.add_argument(
         "--source",
         choices=("seam", "joints"),
