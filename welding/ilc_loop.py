@@ -34,12 +34,13 @@ import numpy as np
 
 from kinematics.dynamics import RX90B, ElasticParams
 from kinematics.robot import RobotModel, get_model
-from kinematics.transforms import location_to_transform
+from kinematics.transforms import location_to_transform, transform_to_location
 from kinematics.types import FloatArray, Loc
 from spec import wire
 from spec.client import FramedClient
 from spec.params import IDENTITY_LOCATION, Joints, Location, Matrix
 from spec.registry import CommandId
+from welding import job as J
 from welding.ilc import (
     Convergence,
     IlcTable,
@@ -49,10 +50,19 @@ from welding.ilc import (
     lifted_model,
     q_filter,
 )
+from welding.tools import Tables
 from welding.track_loop import RobotLink, TrackedWeld, TrackOutcome, laser_path, weld_tracked
 from welding.tracking import NominalWeld, OffsetWeld, SeamModel, Tracker, TrackingError
 
-__all__ = ["IlcSettings", "IlcTrial", "PassGeometry", "run_ilc"]
+__all__ = [
+    "IlcSettings",
+    "IlcTrial",
+    "LinePass",
+    "PassGeometry",
+    "job_path",
+    "line_pass",
+    "run_ilc",
+]
 
 log = logging.getLogger(__name__)
 
@@ -153,6 +163,62 @@ class PassGeometry:
         return np.asarray((s >= self.laser_from_mm) & (s <= self.laser_to_mm))
 
 
+@dataclass(frozen=True)
+class LinePass:
+    """A job's path to learn: the laser from ``start`` to ``end`` (3,) (base frame, mm) with
+    the tool's ``angles`` (3,) (deg) at ``speed_mm_s``."""
+
+    start: FloatArray
+    end: FloatArray
+    angles: FloatArray
+    speed_mm_s: float
+
+    @property
+    def length_mm(self) -> float:
+        return float(np.linalg.norm(self.end - self.start))
+
+    @property
+    def key(self) -> str:
+        """What a table learned on this pass is for (:attr:`IlcTable.key`): 0.01 mm, deg."""
+        nums = [*self.start, *self.end, *self.angles, self.speed_mm_s]
+        return "line " + " ".join(f"{v:.2f}" for v in nums)
+
+
+def job_path(job: J.Job, name: str | None) -> J.Path:
+    """The path ``name`` of ``job``, default its only path; ValueError naming the paths."""
+    paths = [it for it in job.items if isinstance(it, J.Path)]
+    found = paths if name is None else [p for p in paths if p.name == name]
+    if len(found) != 1:
+        names = ", ".join(p.name for p in paths) or "none"
+        what = "name the path to learn (--path)" if name is None else f"no path {name!r}"
+        raise ValueError(f"job {job.name!r}: {what}; its paths: {names}")
+    return found[0]
+
+
+def line_pass(path: J.Path, tables: Tables) -> LinePass:
+    """A job's ``path`` as a :class:`LinePass`, its tool and frame from ``tables``;
+    ValueError when it is not one straight line with one tool and orientation (the pass the
+    ILC learns: its lifted model is of one line)."""
+    if len(path.segments) != 1 or not isinstance(path.segments[0], J.Line):
+        raise ValueError(f"path {path.name!r}: the ILC learns a path of one <line>")
+    end = path.segments[0].to
+    if end.tool != path.start.tool:
+        raise ValueError(f"path {path.name!r}: the ILC learns a path of one tool")
+    poses = [
+        location_to_transform(np.array(tables.frame(loc.frame).location, dtype=np.float64))
+        @ location_to_transform(np.array(loc.values, dtype=np.float64))
+        for loc in (path.start, end)
+    ]
+    turn = poses[0][:3, :3].T @ poses[1][:3, :3]
+    if math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(turn) - 1.0) / 2.0)))) > 0.01:
+        raise ValueError(f"path {path.name!r}: the ILC learns a path that keeps the orientation")
+    angles = transform_to_location(poses[0])[3:]
+    line = LinePass(poses[0][:3, 3], poses[1][:3, 3], np.asarray(angles), path.velocity)
+    if line.length_mm < 1.0:
+        raise ValueError(f"path {path.name!r}: {line.length_mm:.2f} mm is no pass to learn")
+    return line
+
+
 Judge = Callable[[TrackOutcome, PassGeometry], tuple[float, float, FloatArray]]
 
 
@@ -168,6 +234,7 @@ def run_ilc(
     save: Callable[[IlcTable], None] | None = None,
     progress: Callable[[IlcTrial], None] | None = None,
     record: Callable[[], None] | None = None,
+    line: LinePass | None = None,
 ) -> tuple[list[IlcTrial], Convergence, IlcTable]:
     """Run the trials on the robot of ``client`` (its sensor's trigger address
     ``sensor_endpoint``): refuse a learning that diverges (:class:`LearningDiverges`,
@@ -175,13 +242,16 @@ def run_ilc(
     ``trials`` passes, each judged by ``judge(outcome, geometry)`` -> (truth max, truth rms,
     profile) after ``record()`` was called before it; the table is handed to ``save`` after
     every trial. With ``track``, one tracked weld with the learned table follows (none after
-    a stopped trial), the last of the trials returned."""
+    a stopped trial), the last of the trials returned. ``line``: a job's path (its speed and
+    length, not ``settings``'); without it, the cell's pass from where the arm stands."""
     settings.check()
     period = 0.004
     link = RobotLink(client, sensor_endpoint, period=period)
     info = client.call(CommandId.HELLO, wire.VERSION_MAJOR, wire.VERSION_MINOR, "ilc")
     model = get_model(str(info[3]))
-    geometry = _geometry(link, laser_tool, sensor_tool, settings, model)
+    geometry = _geometry(link, laser_tool, sensor_tool, settings, line)
+    key = "" if line is None else line.key
+    speed = geometry.weld.speed_mm_s
     n = len(geometry.times)
     q_start = client.call(CommandId.HEREJ)[0]
     assert isinstance(q_start, Joints)
@@ -209,22 +279,18 @@ def run_ilc(
             f" (gain {settings.gain:g}, Q {settings.q_hz:g} Hz): lower --gain"
         )
     if table is not None:
-        if table.correction.shape != (n, 3) or not math.isclose(
-            table.speed_mm_s, settings.speed_mm_s
-        ):
-            raise ValueError(
-                f"the table is for {len(table.correction)} cycles at {table.speed_mm_s:g} mm/s,"
-                f" this pass has {n} at {settings.speed_mm_s:g} mm/s"
-            )
+        _check_table(table, n, speed, key)
         taught, u = table.seam, table.correction.copy()
         done = table.trials
     client.take_control(watchdog=LEASE_S)
     client.call(CommandId.ENABLE_POWER)
+    if line is not None:
+        _back_to_start(client, geometry)  # the cell's pass starts where the arm stands
     if table is None:
         taught = _teach(link, geometry, settings)
         u = np.zeros((n, 3))
         done = 0
-    seam_of = IlcTable(period, settings.speed_mm_s, u, taught, settings.source, done)
+    seam_of = IlcTable(period, speed, u, taught, settings.source, done, key)
     reference = seam_of.offsets(geometry.weld.s_at(geometry.times))
     trials: list[IlcTrial] = []
     for j in range(1, settings.trials + 1):
@@ -269,7 +335,7 @@ def run_ilc(
         up = (u @ R).ravel()
         up = Q @ (up + L @ (e_path.ravel() * seen))
         u = up.reshape(n, 3) @ R.T
-        learned = IlcTable(period, settings.speed_mm_s, u, taught, settings.source, done + j)
+        learned = IlcTable(period, speed, u, taught, settings.source, done + j, key)
         if save is not None:
             save(learned)
     if settings.track and not (trials and trials[-1].stopped):
@@ -295,8 +361,23 @@ def run_ilc(
     return (
         trials,
         conv,
-        IlcTable(period, settings.speed_mm_s, u, taught, settings.source, done + learned_trials),
+        IlcTable(period, speed, u, taught, settings.source, done + learned_trials, key),
     )
+
+
+def _check_table(table: IlcTable, n: int, speed_mm_s: float, key: str) -> None:
+    """ValueError when ``table`` is not for this pass (``n`` cycles at ``speed_mm_s``,
+    ``key``)."""
+    if table.correction.shape != (n, 3) or not math.isclose(table.speed_mm_s, speed_mm_s):
+        raise ValueError(
+            f"the table is for {len(table.correction)} cycles at {table.speed_mm_s:g} mm/s,"
+            f" this pass has {n} at {speed_mm_s:g} mm/s"
+        )
+    if table.key != key:
+        raise ValueError(
+            f"the table was learned on {table.key or 'the cell pass'}, this pass is"
+            f" {key or 'the cell pass'}: remove it to learn this one"
+        )
 
 
 def _tracked_plan(
@@ -326,28 +407,46 @@ def _tracked_plan(
 
 
 def _geometry(
-    link: RobotLink, laser_tool: Loc, sensor_tool: Loc, settings: IlcSettings, model: RobotModel
+    link: RobotLink,
+    laser_tool: Loc,
+    sensor_tool: Loc,
+    settings: IlcSettings,
+    line: LinePass | None = None,
 ) -> PassGeometry:
-    """The ``track`` pass from where the arm stands (as :func:`welding.emulate._track_on`)."""
-    start = np.array(link.here(laser_tool))
-    flange = location_to_transform(start) @ np.linalg.inv(
-        location_to_transform(np.array(laser_tool, dtype=np.float64))
+    """The ``track`` pass from where the arm stands (as :func:`welding.emulate._track_on`),
+    or a job's ``line``: the motion starts the sensor's look-ahead before the path's start,
+    so the sensor has seen the seam where the laser starts."""
+    if line is None:
+        start = np.array(link.here(laser_tool))
+    else:
+        start = np.concatenate([line.start, line.angles])
+    laser2flange = location_to_transform(np.array(laser_tool, dtype=np.float64))
+    sensor2laser = np.linalg.inv(laser2flange) @ location_to_transform(
+        np.array(sensor_tool, dtype=np.float64)
     )
-    s2b = flange @ location_to_transform(np.array(sensor_tool, dtype=np.float64))
-    direction = s2b[:3, 0]
+    s2b = location_to_transform(start) @ sensor2laser
+    direction = s2b[:3, 0] if line is None else (line.end - line.start) / line.length_mm
     look_ahead = float((s2b[:3, 3] - start[:3]) @ direction)
-    ramp_mm = settings.speed_mm_s**2 / (2.0 * 2500.0)
+    weld_mm, speed = settings.weld_mm, settings.speed_mm_s
+    if line is not None:
+        if look_ahead < 10.0:
+            raise ValueError(
+                f"the sensor is {look_ahead:.1f} mm ahead of the laser along the path: the"
+                " ILC learns a path the sensor looks ahead on (10 mm at least)"
+            )
+        weld_mm, speed = line.length_mm, line.speed_mm_s
+        start = np.concatenate([line.start - look_ahead * direction, line.angles])
+        s2b = location_to_transform(start) @ sensor2laser
+    ramp_mm = speed**2 / (2.0 * 2500.0)
     weld = NominalWeld(
         start=start[:3],
         direction=direction,
         angles=start[3:],
-        length_mm=look_ahead + settings.weld_mm + ramp_mm + 1.0,
-        speed_mm_s=settings.speed_mm_s,
+        length_mm=look_ahead + weld_mm + ramp_mm + 1.0,
+        speed_mm_s=speed,
     )
     times, _ = weld.timed_path(link.period)
-    return PassGeometry(
-        weld, laser_tool, s2b, look_ahead, look_ahead, look_ahead + settings.weld_mm, times
-    )
+    return PassGeometry(weld, laser_tool, s2b, look_ahead, look_ahead, look_ahead + weld_mm, times)
 
 
 def _back_to_start(client: FramedClient, g: PassGeometry) -> None:

@@ -102,6 +102,15 @@ def add_track_options(p: argparse.ArgumentParser) -> None:
 def add_ilc_options(p: argparse.ArgumentParser) -> None:
     """Options of ``python -m welding ilc`` (docs/ILC.md)."""
     p.add_argument(
+        "job",
+        nargs="?",
+        metavar="JOB.xml",
+        help="learn a path of this job (one <line>, tools laser/sensor, frame workpiece of the "
+        "cell); its table is kept beside it (JOB.PATH.ilc.json) and reused; default: the "
+        "cell's pass, as track",
+    )
+    p.add_argument("--path", metavar="NAME", help="the job's path to learn (default: its only)")
+    p.add_argument(
         "--emulate",
         action="store_true",
         required=True,
