@@ -14,11 +14,13 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from kinematics import get_model, location_to_transform
+from cell.cell import EmulatedCell
+from kinematics import get_model, location_to_transform, transform_to_location
 from kinematics.dynamics import RX90B, link_inertia, simulate
+from welding import job as J
 from welding.__main__ import main
 from welding.ilc import IlcTable, check_convergence, learning_matrix, lifted_model, q_filter
-from welding.ilc_emulate import run_ilc_emulated
+from welding.ilc_emulate import job_table, run_ilc_emulated
 from welding.ilc_loop import IlcSettings
 
 PERIOD = 0.004
@@ -158,3 +160,102 @@ def test_ilc_over_the_sockets_lowers_the_truth_error_every_trial(tmp_path: Path)
     (trial,) = again["trials"]
     assert trial["trial"] == 4
     assert trial["error_max_mm"] < errors[0] / 3
+
+
+def test_ilc_track_ends_with_one_tracked_weld_in_the_json(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """``--track``: the learned trials, then one tracked weld with the learned table, listed
+    last and marked ``tracked`` (the ILC measures nothing on it: ``measured_max_mm`` null);
+    on the workpiece it learned, that weld stays within 0.1 mm of the truth."""
+    out = tmp_path / "ilc.json"
+    code = main(["ilc", "--emulate", "--dynamics", "elastic", "--length", "60", "--trials",
+                 "3", "--track", "--json", str(out)])  # fmt: skip
+    stdout, _ = capsys.readouterr()
+    assert code == 0
+    result = json.loads(out.read_text())
+    trials = result["trials"]
+    assert [(t["trial"], t["tracked"]) for t in trials] == [
+        (1, False), (2, False), (3, False), (4, True)
+    ]  # fmt: skip
+    learned, tracked = trials[:3], trials[3]
+    assert all(isinstance(t["measured_max_mm"], float) for t in learned)
+    assert tracked["measured_max_mm"] is None and not tracked["stopped"]
+    assert tracked["error_max_mm"] < 0.1
+    assert "trial 4 (tracked, with the table)" in stdout
+    assert f"tracked with the table {tracked['error_max_mm']:.4f} mm" in stdout
+
+
+def test_the_tracked_weld_with_the_table_follows_a_workpiece_placed_otherwise() -> None:
+    """ILC + tracking over the sockets, simulated clock: the table learned on one workpiece
+    (elastic arm, sine seam, 250 mm/s), then the next one placed 0.5 mm to the side and
+    turned 0.3°. Welded with the table alone it is off by that placement; tracked with the
+    table (``--trials 0 --track``) it stays within 0.1 mm of the truth."""
+    learned = run_ilc_emulated(IlcSettings(weld_mm=60.0, trials=3))
+    table = learned["table"]
+    moved = (0.0, 0.5, 0.0, 0.0, 0.0, 0.3)
+    untracked = run_ilc_emulated(
+        IlcSettings(weld_mm=60.0, trials=1), table=table, workpiece_error=moved
+    )
+    tracked = run_ilc_emulated(
+        IlcSettings(weld_mm=60.0, trials=0, track=True), table=table, workpiece_error=moved
+    )
+    (plain,) = untracked["trials"]
+    (weld,) = tracked["trials"]
+    assert not plain["tracked"] and weld["tracked"] and not weld["stopped"]
+    assert plain["error_max_mm"] > 0.3  # the table alone follows the seam it was taught
+    assert weld["error_max_mm"] < 0.1
+    assert weld["error_max_mm"] < plain["error_max_mm"] / 5
+
+
+def test_no_trial_and_no_tracked_weld_is_refused() -> None:
+    with pytest.raises(ValueError, match="0 trials weld nothing without track"):
+        IlcSettings(trials=0).check()
+
+
+def _cell_pass_job(path: Path, shift_mm: float = 0.0) -> None:
+    """A job of one path: the cell's 60 mm pass along the sensor's x axis at 250 mm/s (tool
+    ``laser``, base frame), starting where the sensor stands at the ready pose (``shift_mm``
+    further along)."""
+    cell = EmulatedCell(clock="sim", seam="sine")
+    laser2base = cell.ready_flange2base() @ location_to_transform(np.array(cell.laser_tool))
+    s2b = cell.ready_sensor2base()
+    d = s2b[:3, 0]
+    start = laser2base[:3, 3] + ((s2b[:3, 3] - laser2base[:3, 3]) @ d + shift_mm) * d
+    angles = transform_to_location(laser2base)[3:]
+
+    def at(p: np.ndarray) -> J.Location:
+        return J.Location(*(float(v) for v in (*p, *angles)), tool="laser", frame="world")
+
+    seam = J.Path("seam", at(start), (J.Line(at(start + 60.0 * d)),), 250.0, tracked=False)
+    J.save(J.Job("ilc-pass", (seam,)), path)
+
+
+def test_ilc_learns_a_jobs_path_and_keeps_the_table_beside_the_job(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """``welding ilc JOB.xml``: the job's path learned, its table written beside the job and
+    reused by the next run (the trials go on from there); a table learned on the path
+    before it moved is refused, not welded with."""
+    job = tmp_path / "pass.xml"
+    _cell_pass_job(job)
+    table = job_table(job, "seam")
+    assert table == tmp_path / "pass.seam.ilc.json"
+    args = ["ilc", str(job), "--emulate", "--dynamics", "elastic"]
+    out = tmp_path / "first.json"
+    assert main([*args, "--trials", "2", "--json", str(out)]) == 0
+    first = json.loads(out.read_text())
+    assert (first["job"], first["path"], first["speed_mm_s"]) == ("ilc-pass", "seam", 250.0)
+    e1, e2 = (t["error_max_mm"] for t in first["trials"])
+    assert e2 < e1 / 3
+    assert IlcTable.load(table).trials == 2
+    capsys.readouterr()
+    out = tmp_path / "again.json"
+    assert main([*args, "--trials", "1", "--json", str(out)]) == 0
+    assert f"reusing the table of {table} (2 trials learned)" in capsys.readouterr().out
+    (again,) = json.loads(out.read_text())["trials"]
+    assert again["trial"] == 3 and again["error_max_mm"] < e1 / 3
+    assert IlcTable.load(table).trials == 3
+    _cell_pass_job(job, shift_mm=5.0)
+    assert main([*args, "--trials", "1"]) == 2
+    assert "the table was learned on line" in capsys.readouterr().err

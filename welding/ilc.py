@@ -206,7 +206,9 @@ class IlcTable:
     """The learned correction of one pass: ``correction`` (N, 3) mm, base frame, at cycle k
     of the move (k·``period`` s after its start); ``seam`` the seam taught, rows (arc
     length along the nominal line mm, offset from it (3,) mm, base frame), which the laser
-    follows (empty: the nominal line, a tracked pass); and what it was learned for."""
+    follows (empty: the nominal line, a tracked pass); and what it was learned for: ``key``
+    names a job's pass (its line in the base frame, ``""`` the cell's own pass), so a table
+    is not reused on a path that moved."""
 
     period: float
     speed_mm_s: float
@@ -214,6 +216,7 @@ class IlcTable:
     seam: FloatArray
     source: str
     trials: int
+    key: str = ""
 
     def offsets(self, s: FloatArray) -> FloatArray:
         """The taught seam's offsets (M, 3) at arc lengths ``s`` (M,), linear between its
@@ -235,6 +238,7 @@ class IlcTable:
             "trials": self.trials,
             "correction": np.round(self.correction, 9).tolist(),
             "seam": np.round(self.seam, 9).tolist(),
+            "pass": self.key,
         }
         write_atomically(path, json.dumps(data) + "\n")
 
@@ -252,6 +256,7 @@ class IlcTable:
                 np.array(data["seam"], dtype=np.float64).reshape(-1, 4),
                 str(data["source"]),
                 int(data["trials"]),
+                str(data.get("pass", "")),
             )
         except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
             raise ValueError(f"{path}: not an ILC table ({exc})") from None

@@ -13,6 +13,7 @@ import json
 import logging
 import math
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -22,16 +23,20 @@ from cell.cell import CellTiming, EmulatedCell
 from cell.options import timing_kwargs
 from cell.seams import cell_seam
 from cell.truth import WeldRecorder
+from kinematics.types import IDENTITY_LOC, Loc
 from spec.client import FramedClient
 from spec.errors import ProtocolError
 from spec.exitcodes import ExitCode
 from spec.files import write_atomically
+from welding import job as J
+from welding.emulate import CELL_FRAME, CELL_TOOLS, cell_tables
 from welding.ilc import IlcTable, LearningDiverges
-from welding.ilc_loop import IlcSettings, IlcTrial, PassGeometry, run_ilc
+from welding.ilc_loop import IlcSettings, IlcTrial, PassGeometry, job_path, line_pass, run_ilc
+from welding.tools import BUILTIN_FRAME, BUILTIN_TOOL
 from welding.track_loop import TrackOutcome
 from welding.tracking import seam_error
 
-__all__ = ["cmd_ilc", "run_ilc_emulated"]
+__all__ = ["cmd_ilc", "job_table", "run_ilc_emulated"]
 
 log = logging.getLogger(__name__)
 
@@ -43,6 +48,9 @@ def run_ilc_emulated(
     dynamics: str = "elastic",
     timing: CellTiming | None = None,
     seed: int = 0,
+    workpiece_error: Loc | None = None,
+    job: J.Job | None = None,
+    path: str | None = None,
     table: IlcTable | None = None,
     save: Any = None,
     progress: Any = None,
@@ -50,8 +58,13 @@ def run_ilc_emulated(
     """The trials on a simulated cell (``seam`` of ``welding track``, ``dynamics``); the
     result as the JSON of ``welding ilc`` (trials in order, each with ``error_max_mm``
     against the truth), plus ``"profiles"`` (per trial (arc length, error) arrays) and
-    ``"table"`` (the learned :class:`IlcTable`), which the JSON leaves out."""
-    shape, placement = cell_seam(seam)
+    ``"table"`` (the learned :class:`IlcTable`), which the JSON leaves out.
+    ``workpiece_error`` lies on top of the seam's own placement (:func:`cell.seams.cell_seam`):
+    a workpiece placed otherwise than the one a ``table`` was learned on. ``job``: learn its
+    ``path`` (:func:`welding.ilc_loop.job_path`; tools ``laser``, ``sensor`` and frame
+    ``workpiece`` of :func:`welding.emulate.cell_tables`) at its velocity instead of the
+    cell's pass at ``settings.speed_mm_s``."""
+    shape, placement = cell_seam(seam, workpiece_error or IDENTITY_LOC)
     cell = EmulatedCell(
         clock="sim",
         timing=timing or CellTiming(),
@@ -75,6 +88,9 @@ def run_ilc_emulated(
         profile = np.column_stack([g.weld.project(truth.laser) - g.laser_from_mm, err])
         return float(err.max()), float(np.sqrt(np.mean(err**2))), profile
 
+    line = None if job is None else line_pass(job_path(job, path), cell_tables(cell))
+    if line is not None:
+        settings = replace(settings, speed_mm_s=line.speed_mm_s, weld_mm=line.length_mm)
     cell.start()
     try:
         client = FramedClient(*cell.robot_address, timeout=30.0, client_name="ilc")
@@ -90,6 +106,7 @@ def run_ilc_emulated(
                 save=save,
                 progress=progress,
                 record=recorder.start,
+                line=line,
             )
         finally:
             with contextlib.suppress(OSError, ProtocolError):  # not held, or gone
@@ -99,6 +116,8 @@ def run_ilc_emulated(
         cell.close()
     return {
         "seam": seam,
+        "job": None if job is None else job.name,
+        "path": None if job is None else job_path(job, path).name,
         "dynamics": dynamics,
         "speed_mm_s": settings.speed_mm_s,
         "source": settings.source,
@@ -115,11 +134,18 @@ def run_ilc_emulated(
 
 
 def _line(trial: IlcTrial) -> str:
+    truth = (
+        f"error against the truth max {trial.error_max_mm:.4f} mm, rms {trial.error_rms_mm:.4f} mm"
+    )
+    stopped = f"; STOPPED: {trial.stopped}" if trial.stopped else ""
+    if trial.tracked:
+        return (
+            f"trial {trial.trial} (tracked, with the table): {truth}; table up to "
+            f"{trial.correction_max_mm:.3f} mm{stopped}"
+        )
     return (
-        f"trial {trial.trial}: error against the truth max {trial.error_max_mm:.4f} mm, rms "
-        f"{trial.error_rms_mm:.4f} mm; the ILC measured {trial.measured_max_mm:.4f} mm; "
-        f"correction up to {trial.correction_max_mm:.3f} mm"
-        + (f"; STOPPED: {trial.stopped}" if trial.stopped else "")
+        f"trial {trial.trial}: {truth}; the ILC measured {trial.measured_max_mm:.4f} mm; "
+        f"correction up to {trial.correction_max_mm:.3f} mm{stopped}"
     )
 
 
@@ -135,14 +161,31 @@ def cmd_ilc(args: argparse.Namespace) -> int:
         track=args.track,
         model_payload_kg=args.model_payload_kg,
     )
-    table = None
-    if args.table and Path(args.table).exists():
+    job = None
+    table_path = args.table
+    if args.job:
+        job = J.load(
+            args.job,
+            has_tool=lambda n: n in (*CELL_TOOLS, BUILTIN_TOOL),
+            has_frame=lambda n: n in (CELL_FRAME, BUILTIN_FRAME),
+        )
         try:
-            table = IlcTable.load(args.table)
+            name = job_path(job, args.path).name
         except ValueError as exc:
             print(f"python -m welding: error: {exc}", file=sys.stderr)
             return ExitCode.USAGE
-        print(f"reusing the table of {args.table} ({table.trials} trials learned)")
+        table_path = table_path or str(job_table(Path(args.job), name))
+    elif args.path:
+        print("python -m welding: error: --path names a path of a JOB.xml", file=sys.stderr)
+        return ExitCode.USAGE
+    table = None
+    if table_path and Path(table_path).exists():
+        try:
+            table = IlcTable.load(table_path)
+        except ValueError as exc:
+            print(f"python -m welding: error: {exc}", file=sys.stderr)
+            return ExitCode.USAGE
+        print(f"reusing the table of {table_path} ({table.trials} trials learned)")
     try:
         result = run_ilc_emulated(
             settings,
@@ -150,8 +193,10 @@ def cmd_ilc(args: argparse.Namespace) -> int:
             dynamics=args.dynamics,
             timing=CellTiming(**timing_kwargs(args)),
             seed=args.seed,
+            job=job,
+            path=args.path,
             table=table,
-            save=(lambda t: t.save(args.table)) if args.table else None,
+            save=(lambda t: t.save(table_path)) if table_path else None,
             progress=lambda t: print(_line(t), flush=True),
         )
     except (LearningDiverges, ValueError) as exc:
@@ -166,9 +211,23 @@ def cmd_ilc(args: argparse.Namespace) -> int:
     trials = result["trials"]
     if any(t["stopped"] for t in trials):
         return ExitCode.FAILED
-    first, last = trials[0]["error_max_mm"], trials[-1]["error_max_mm"]
-    print(f"error max {first:.4f} -> {last:.4f} mm over {len(trials)} trials")
+    learned = [t["error_max_mm"] for t in trials if not t["tracked"]]
+    tracked = [t["error_max_mm"] for t in trials if t["tracked"]]
+    line = (
+        f"error max {learned[0]:.4f} -> {learned[-1]:.4f} mm over {len(learned)} trials"
+        if learned
+        else "no trial learned"
+    )
+    if tracked:
+        line += f"; tracked with the table {tracked[0]:.4f} mm"
+    print(line)
     return ExitCode.OK
+
+
+def job_table(job_file: Path, path: str) -> Path:
+    """Where the table learned on ``path`` of the job in ``job_file`` is kept: beside the
+    job, ``JOB.PATH.ilc.json``."""
+    return job_file.with_name(f"{job_file.stem}.{path}.ilc.json")
 
 
 def plot_trials(result: dict[str, Any], profiles: list[np.ndarray], out_dir: Path) -> None:

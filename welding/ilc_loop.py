@@ -34,12 +34,13 @@ import numpy as np
 
 from kinematics.dynamics import RX90B, ElasticParams
 from kinematics.robot import RobotModel, get_model
-from kinematics.transforms import location_to_transform
+from kinematics.transforms import location_to_transform, transform_to_location
 from kinematics.types import FloatArray, Loc
 from spec import wire
 from spec.client import FramedClient
 from spec.params import IDENTITY_LOCATION, Joints, Location, Matrix
 from spec.registry import CommandId
+from welding import job as J
 from welding.ilc import (
     Convergence,
     IlcTable,
@@ -49,10 +50,19 @@ from welding.ilc import (
     lifted_model,
     q_filter,
 )
+from welding.tools import Tables
 from welding.track_loop import RobotLink, TrackedWeld, TrackOutcome, laser_path, weld_tracked
-from welding.tracking import NominalWeld, SeamModel, Tracker, TrackingError
+from welding.tracking import NominalWeld, OffsetWeld, SeamModel, Tracker, TrackingError
 
-__all__ = ["IlcSettings", "IlcTrial", "PassGeometry", "run_ilc"]
+__all__ = [
+    "IlcSettings",
+    "IlcTrial",
+    "LinePass",
+    "PassGeometry",
+    "job_path",
+    "line_pass",
+    "run_ilc",
+]
 
 log = logging.getLogger(__name__)
 
@@ -81,6 +91,9 @@ class IlcSettings:
     rate_hz: float = 200.0
     teach_speed_mm_s: float = 50.0
     track: bool = False
+    #: after the trials, a tracked weld with the learned table: the half width (mm) of the
+    #: tracker's fit of the workpiece's deviation from the taught seam
+    track_fit_mm: float = 25.0
     model_payload_kg: float = RX90B.payload_kg
     latency_s: float = 0.0028
     params: ElasticParams = RX90B
@@ -88,8 +101,10 @@ class IlcSettings:
     def check(self) -> None:
         if self.source not in SOURCES:
             raise ValueError(f"source must be {' or '.join(SOURCES)}, got {self.source!r}")
-        if not (1 <= self.trials <= 100):
-            raise ValueError(f"trials must be 1..100, got {self.trials}")
+        if not (0 <= self.trials <= 100):
+            raise ValueError(f"trials must be 0..100, got {self.trials}")
+        if self.trials == 0 and not self.track:
+            raise ValueError("0 trials weld nothing without track (the tracked weld)")
 
 
 @dataclass
@@ -105,15 +120,18 @@ class IlcTrial:
     correction_max_mm: float
     stopped: str
     profile: FloatArray = field(default_factory=lambda: np.zeros((0, 2)), repr=False)
+    #: the tracked weld with the learned table after the learning (``track``): not learned
+    tracked: bool = False
 
     def summary(self) -> dict[str, object]:
         return {
             "trial": self.trial,
             "error_max_mm": self.error_max_mm,
             "error_rms_mm": self.error_rms_mm,
-            "measured_max_mm": self.measured_max_mm,
+            "measured_max_mm": None if math.isnan(self.measured_max_mm) else self.measured_max_mm,
             "correction_max_mm": self.correction_max_mm,
             "stopped": self.stopped,
+            "tracked": self.tracked,
         }
 
 
@@ -145,6 +163,62 @@ class PassGeometry:
         return np.asarray((s >= self.laser_from_mm) & (s <= self.laser_to_mm))
 
 
+@dataclass(frozen=True)
+class LinePass:
+    """A job's path to learn: the laser from ``start`` to ``end`` (3,) (base frame, mm) with
+    the tool's ``angles`` (3,) (deg) at ``speed_mm_s``."""
+
+    start: FloatArray
+    end: FloatArray
+    angles: FloatArray
+    speed_mm_s: float
+
+    @property
+    def length_mm(self) -> float:
+        return float(np.linalg.norm(self.end - self.start))
+
+    @property
+    def key(self) -> str:
+        """What a table learned on this pass is for (:attr:`IlcTable.key`): 0.01 mm, deg."""
+        nums = [*self.start, *self.end, *self.angles, self.speed_mm_s]
+        return "line " + " ".join(f"{v:.2f}" for v in nums)
+
+
+def job_path(job: J.Job, name: str | None) -> J.Path:
+    """The path ``name`` of ``job``, default its only path; ValueError naming the paths."""
+    paths = [it for it in job.items if isinstance(it, J.Path)]
+    found = paths if name is None else [p for p in paths if p.name == name]
+    if len(found) != 1:
+        names = ", ".join(p.name for p in paths) or "none"
+        what = "name the path to learn (--path)" if name is None else f"no path {name!r}"
+        raise ValueError(f"job {job.name!r}: {what}; its paths: {names}")
+    return found[0]
+
+
+def line_pass(path: J.Path, tables: Tables) -> LinePass:
+    """A job's ``path`` as a :class:`LinePass`, its tool and frame from ``tables``;
+    ValueError when it is not one straight line with one tool and orientation (the pass the
+    ILC learns: its lifted model is of one line)."""
+    if len(path.segments) != 1 or not isinstance(path.segments[0], J.Line):
+        raise ValueError(f"path {path.name!r}: the ILC learns a path of one <line>")
+    end = path.segments[0].to
+    if end.tool != path.start.tool:
+        raise ValueError(f"path {path.name!r}: the ILC learns a path of one tool")
+    poses = [
+        location_to_transform(np.array(tables.frame(loc.frame).location, dtype=np.float64))
+        @ location_to_transform(np.array(loc.values, dtype=np.float64))
+        for loc in (path.start, end)
+    ]
+    turn = poses[0][:3, :3].T @ poses[1][:3, :3]
+    if math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(turn) - 1.0) / 2.0)))) > 0.01:
+        raise ValueError(f"path {path.name!r}: the ILC learns a path that keeps the orientation")
+    angles = transform_to_location(poses[0])[3:]
+    line = LinePass(poses[0][:3, 3], poses[1][:3, 3], np.asarray(angles), path.velocity)
+    if line.length_mm < 1.0:
+        raise ValueError(f"path {path.name!r}: {line.length_mm:.2f} mm is no pass to learn")
+    return line
+
+
 Judge = Callable[[TrackOutcome, PassGeometry], tuple[float, float, FloatArray]]
 
 
@@ -160,20 +234,24 @@ def run_ilc(
     save: Callable[[IlcTable], None] | None = None,
     progress: Callable[[IlcTrial], None] | None = None,
     record: Callable[[], None] | None = None,
+    line: LinePass | None = None,
 ) -> tuple[list[IlcTrial], Convergence, IlcTable]:
     """Run the trials on the robot of ``client`` (its sensor's trigger address
     ``sensor_endpoint``): refuse a learning that diverges (:class:`LearningDiverges`,
     before control is taken), take control, teach the seam unless ``table`` brings it, then
-    ``trials``
-    passes, each judged by ``judge(outcome, geometry)`` -> (truth max, truth rms, profile)
-    after ``record()`` was called before it; the table is handed to ``save`` after every
-    trial."""
+    ``trials`` passes, each judged by ``judge(outcome, geometry)`` -> (truth max, truth rms,
+    profile) after ``record()`` was called before it; the table is handed to ``save`` after
+    every trial. With ``track``, one tracked weld with the learned table follows (none after
+    a stopped trial), the last of the trials returned. ``line``: a job's path (its speed and
+    length, not ``settings``'); without it, the cell's pass from where the arm stands."""
     settings.check()
     period = 0.004
     link = RobotLink(client, sensor_endpoint, period=period)
     info = client.call(CommandId.HELLO, wire.VERSION_MAJOR, wire.VERSION_MINOR, "ilc")
     model = get_model(str(info[3]))
-    geometry = _geometry(link, laser_tool, sensor_tool, settings, model)
+    geometry = _geometry(link, laser_tool, sensor_tool, settings, line)
+    key = "" if line is None else line.key
+    speed = geometry.weld.speed_mm_s
     n = len(geometry.times)
     q_start = client.call(CommandId.HEREJ)[0]
     assert isinstance(q_start, Joints)
@@ -201,22 +279,18 @@ def run_ilc(
             f" (gain {settings.gain:g}, Q {settings.q_hz:g} Hz): lower --gain"
         )
     if table is not None:
-        if table.correction.shape != (n, 3) or not math.isclose(
-            table.speed_mm_s, settings.speed_mm_s
-        ):
-            raise ValueError(
-                f"the table is for {len(table.correction)} cycles at {table.speed_mm_s:g} mm/s,"
-                f" this pass has {n} at {settings.speed_mm_s:g} mm/s"
-            )
+        _check_table(table, n, speed, key)
         taught, u = table.seam, table.correction.copy()
         done = table.trials
     client.take_control(watchdog=LEASE_S)
     client.call(CommandId.ENABLE_POWER)
+    if line is not None:
+        _back_to_start(client, geometry)  # the cell's pass starts where the arm stands
     if table is None:
-        taught = np.zeros((0, 4)) if settings.track else _teach(link, geometry, settings)
+        taught = _teach(link, geometry, settings)
         u = np.zeros((n, 3))
         done = 0
-    seam_of = IlcTable(period, settings.speed_mm_s, u, taught, settings.source, done)
+    seam_of = IlcTable(period, speed, u, taught, settings.source, done, key)
     reference = seam_of.offsets(geometry.weld.s_at(geometry.times))
     trials: list[IlcTrial] = []
     for j in range(1, settings.trials + 1):
@@ -230,17 +304,16 @@ def run_ilc(
             geometry.laser_from_mm,
             geometry.laser_to_mm,
             settings.rate_hz,
-            settings.track,
+            False,
             feedforward=_feedforward(geometry.times, reference + u),
         )
         outcome = weld_tracked(link, plan)
         truth_max, truth_rms, profile = judge(outcome, geometry)
         if settings.source == "seam":
-            offsets = _tracked_offsets(tracker) if settings.track else seam_of.offsets
-            e_base = _seam_error(geometry, outcome, offsets, settings.latency_s)
+            ref_at = _along(geometry, seam_of.offsets)
+            e_base = _seam_error(geometry, outcome, seam_of.offsets, ref_at, settings.latency_s)
         else:
-            ref = reference + (_tracker_part(outcome, geometry, u) if settings.track else 0.0)
-            e_base = _joint_error(client, model, geometry, outcome, ref)
+            e_base = _joint_error(client, model, geometry, outcome, reference)
         e_path = e_base @ R  # rows in (along, lateral, height)
         seen = mask * np.repeat(np.any(e_base != 0.0, axis=1), 3)
         window = np.repeat(geometry.window(), 3) * seen
@@ -262,39 +335,118 @@ def run_ilc(
         up = (u @ R).ravel()
         up = Q @ (up + L @ (e_path.ravel() * seen))
         u = up.reshape(n, 3) @ R.T
-        learned = IlcTable(period, settings.speed_mm_s, u, taught, settings.source, done + j)
+        learned = IlcTable(period, speed, u, taught, settings.source, done + j, key)
         if save is not None:
             save(learned)
+    if settings.track and not (trials and trials[-1].stopped):
+        _back_to_start(client, geometry)
+        if record is not None:
+            record()
+        outcome = weld_tracked(link, _tracked_plan(geometry, settings, taught, u, sensor_tool))
+        truth_max, truth_rms, profile = judge(outcome, geometry)
+        trial = IlcTrial(
+            done + len(trials) + 1,
+            truth_max,
+            truth_rms,
+            math.nan,
+            float(np.linalg.norm(u, axis=1).max()),
+            outcome.stopped,
+            profile,
+            tracked=True,
+        )
+        trials.append(trial)
+        if progress is not None:
+            progress(trial)
+    learned_trials = sum(1 for t in trials if not t.tracked)
     return (
         trials,
         conv,
-        IlcTable(period, settings.speed_mm_s, u, taught, settings.source, done + len(trials)),
+        IlcTable(period, speed, u, taught, settings.source, done + learned_trials, key),
+    )
+
+
+def _check_table(table: IlcTable, n: int, speed_mm_s: float, key: str) -> None:
+    """ValueError when ``table`` is not for this pass (``n`` cycles at ``speed_mm_s``,
+    ``key``)."""
+    if table.correction.shape != (n, 3) or not math.isclose(table.speed_mm_s, speed_mm_s):
+        raise ValueError(
+            f"the table is for {len(table.correction)} cycles at {table.speed_mm_s:g} mm/s,"
+            f" this pass has {n} at {speed_mm_s:g} mm/s"
+        )
+    if table.key != key:
+        raise ValueError(
+            f"the table was learned on {table.key or 'the cell pass'}, this pass is"
+            f" {key or 'the cell pass'}: remove it to learn this one"
+        )
+
+
+def _tracked_plan(
+    g: PassGeometry, settings: IlcSettings, taught: FloatArray, u: FloatArray, sensor_tool: Loc
+) -> TrackedWeld:
+    """A tracked weld with the learned table: the tracker follows the workpiece's deviation
+    from the taught seam (a wide fit: a placement error is smooth, the arm's fast error is
+    the table's), from the sensor's readings placed on the sensor's reference pose; the
+    correction sent is the taught seam, that deviation and the table."""
+    tracker = Tracker(
+        g.weld,
+        g.look_ahead_mm,
+        fit_half_width_mm=settings.track_fit_mm,
+        taught=OffsetWeld(g.weld, taught),
+    )
+    return TrackedWeld(
+        tracker,
+        g.laser_tool,
+        g.laser_from_mm,
+        g.laser_to_mm,
+        settings.rate_hz,
+        True,
+        feedforward=_feedforward(g.times, u),
+        sensor_tool=sensor_tool,
+        exposure_lag_s=settings.latency_s,
     )
 
 
 def _geometry(
-    link: RobotLink, laser_tool: Loc, sensor_tool: Loc, settings: IlcSettings, model: RobotModel
+    link: RobotLink,
+    laser_tool: Loc,
+    sensor_tool: Loc,
+    settings: IlcSettings,
+    line: LinePass | None = None,
 ) -> PassGeometry:
-    """The ``track`` pass from where the arm stands (as :func:`welding.emulate._track_on`)."""
-    start = np.array(link.here(laser_tool))
-    flange = location_to_transform(start) @ np.linalg.inv(
-        location_to_transform(np.array(laser_tool, dtype=np.float64))
+    """The ``track`` pass from where the arm stands (as :func:`welding.emulate._track_on`),
+    or a job's ``line``: the motion starts the sensor's look-ahead before the path's start,
+    so the sensor has seen the seam where the laser starts."""
+    if line is None:
+        start = np.array(link.here(laser_tool))
+    else:
+        start = np.concatenate([line.start, line.angles])
+    laser2flange = location_to_transform(np.array(laser_tool, dtype=np.float64))
+    sensor2laser = np.linalg.inv(laser2flange) @ location_to_transform(
+        np.array(sensor_tool, dtype=np.float64)
     )
-    s2b = flange @ location_to_transform(np.array(sensor_tool, dtype=np.float64))
-    direction = s2b[:3, 0]
+    s2b = location_to_transform(start) @ sensor2laser
+    direction = s2b[:3, 0] if line is None else (line.end - line.start) / line.length_mm
     look_ahead = float((s2b[:3, 3] - start[:3]) @ direction)
-    ramp_mm = settings.speed_mm_s**2 / (2.0 * 2500.0)
+    weld_mm, speed = settings.weld_mm, settings.speed_mm_s
+    if line is not None:
+        if look_ahead < 10.0:
+            raise ValueError(
+                f"the sensor is {look_ahead:.1f} mm ahead of the laser along the path: the"
+                " ILC learns a path the sensor looks ahead on (10 mm at least)"
+            )
+        weld_mm, speed = line.length_mm, line.speed_mm_s
+        start = np.concatenate([line.start - look_ahead * direction, line.angles])
+        s2b = location_to_transform(start) @ sensor2laser
+    ramp_mm = speed**2 / (2.0 * 2500.0)
     weld = NominalWeld(
         start=start[:3],
         direction=direction,
         angles=start[3:],
-        length_mm=look_ahead + settings.weld_mm + ramp_mm + 1.0,
-        speed_mm_s=settings.speed_mm_s,
+        length_mm=look_ahead + weld_mm + ramp_mm + 1.0,
+        speed_mm_s=speed,
     )
     times, _ = weld.timed_path(link.period)
-    return PassGeometry(
-        weld, laser_tool, s2b, look_ahead, look_ahead, look_ahead + settings.weld_mm, times
-    )
+    return PassGeometry(weld, laser_tool, s2b, look_ahead, look_ahead, look_ahead + weld_mm, times)
 
 
 def _back_to_start(client: FramedClient, g: PassGeometry) -> None:
@@ -334,16 +486,14 @@ def _feedforward(times: FloatArray, table: FloatArray) -> Callable[[float], Floa
     return at
 
 
-def _tracked_offsets(tracker: Tracker) -> Callable[[FloatArray], FloatArray]:
-    """This trial's seam as the tracker measured it, as offsets from the nominal line."""
-    model = tracker.model
+def _along(
+    g: PassGeometry, offsets: Callable[[FloatArray], FloatArray]
+) -> Callable[[FloatArray], FloatArray]:
+    """The laser's reference offsets (M, 3) at times (M,) s since the move's start: the
+    seam ``offsets`` at the laser's nominal arc length."""
 
-    def at(s: FloatArray) -> FloatArray:
-        out = np.zeros((len(s), 3))
-        for i, si in enumerate(s):
-            with contextlib.suppress(TrackingError):
-                out[i] = model.offset_at(float(si))
-        return out
+    def at(t: FloatArray) -> FloatArray:
+        return offsets(g.weld.s_at(t))
 
     return at
 
@@ -401,11 +551,14 @@ def _seam_error(
     g: PassGeometry,
     outcome: TrackOutcome,
     offsets: Callable[[FloatArray], FloatArray],
+    reference: Callable[[FloatArray], FloatArray],
     latency_s: float,
 ) -> FloatArray:
     """(N, 3) reference − actual of the laser, base frame, from the sensor's ^S_G T: what it
-    read against what it would read with the tool on the reference (the tool keeps its
-    orientation, so the laser moved as the sensor did); zero where it read nothing.
+    read of the seam ``offsets`` (taught) against what it would read with the laser on its
+    ``reference`` (offsets (M, 3) from the nominal line at times (M,) since the move's
+    start; the tool keeps its orientation, so the laser moved as the sensor did); zero
+    where it read nothing.
     ``latency_s``: the joint log's lag; a seam point's time (t_sync = trigger + ΔT) is where
     the *measured* joints saw the image, the exposure itself was that much earlier."""
     rows = outcome.rows[(outcome.rows[:, 3] == 0) & (outcome.rows[:, 2] >= outcome.t0)]
@@ -416,24 +569,13 @@ def _seam_error(
     s_l = g.weld.s_at(t)
     s_s = s_l + g.look_ahead_mm
     a = g.sensor2base[:3, 3] - g.weld.start  # laser -> sensor, base frame
-    expected = g.weld.point(s_s) + offsets(s_s) - g.weld.point(s_l) - offsets(s_l) - a
+    expected = g.weld.point(s_s) + offsets(s_s) - g.weld.point(s_l) - reference(t) - a
     measured = rows[:, 5:8] @ g.sensor2base[:3, :3].T
     deviation = expected - measured  # actual - reference
     out = np.zeros((n, 3))
     inside = (g.times >= t.min()) & (g.times <= t.max())
     for c in range(3):
         out[inside, c] = -np.interp(g.times[inside], t, deviation[:, c])
-    return out
-
-
-def _tracker_part(outcome: TrackOutcome, g: PassGeometry, u: FloatArray) -> FloatArray:
-    """(N, 3) the tracker's share of the corrections sent for the move's cycles."""
-    sent = outcome.sent
-    if not len(sent):
-        return np.zeros((len(g.times), 3))
-    t = sent[:, 0] - outcome.t0
-    total = np.column_stack([np.interp(g.times, t, sent[:, 1 + c]) for c in range(3)])
-    out: FloatArray = total - u
     return out
 
 

@@ -41,6 +41,7 @@ from welding.tracking import (
     Tracker,
     TrackingError,
     Verdict,
+    WeldPath,
     estimate_errors,
     judge,
 )
@@ -121,6 +122,16 @@ class TrackedWeld:
     settle_s: float = 0.25
     tolerance_mm: float = TOLERANCE_MM
     feedforward: Callable[[float], FloatArray] | None = None
+    #: None: the seam points are the robot's (^B_G T from its measured joints, columns
+    #: 11-13 of GetSeamPoints). A sensor tool (flange, mm, deg): the sensor's own reading
+    #: ^S_G T placed on the pose the path asks of the sensor at the exposure (the nominal
+    #: path plus the tracker's own correction, not the feedforward): on an elastic arm the
+    #: motor encoders miss the gearbox's deflection, and a feedforward that makes the arm
+    #: follow its reference (a learned table) makes that pose the one the sensor had.
+    sensor_tool: Loc | None = None
+    #: the exposure is this long (s) before a seam point's t_sync (the joint log's latency:
+    #: t_sync is where the measured joints saw the image); with ``sensor_tool`` only
+    exposure_lag_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -176,14 +187,45 @@ def weld_tracked(  # noqa: C901
     laser_on = False
     track = weld.track
     ff = weld.feedforward or (lambda _t: np.zeros(6))
+    margin = tracker.model.half_width_mm - FIT_HALF_WIDTH_MM  # a wider fit waits for more
     seen: list[FloatArray] = []
+    # the tracker's own correction (3,) by the robot time of the cycle it applies at, and
+    # the robot time the move's law starts at (unknown during the stand): the sensor's
+    # reference pose (``weld.sensor_tool``)
+    hist_t: list[float] = []
+    hist_c: list[FloatArray] = []
+    t_law = math.inf
+    to_sensor = (
+        None
+        if weld.sensor_tool is None
+        else np.linalg.inv(location_to_transform(np.array(weld.laser_tool, dtype=np.float64)))
+        @ location_to_transform(np.array(weld.sensor_tool, dtype=np.float64))
+    )
+
+    def own(t: float, correction: FloatArray) -> None:
+        if not hist_t or t > hist_t[-1]:
+            hist_t.append(t)
+            hist_c.append(correction[:3].copy())
+
+    def seam_points(rows: FloatArray) -> FloatArray:
+        if to_sensor is None:
+            out: FloatArray = rows[:, 11:14]
+            return out
+        t = rows[:, 2] - weld.exposure_lag_s
+        # the first half of the stand brings the arm onto the seam: it is not on its
+        # reference pose yet
+        keep = t >= t_first + 0.5 * weld.settle_s
+        t = t[keep]
+        return reference_points(
+            nominal, to_sensor, t - t_law, rows[keep, 5:8], _own_at(t, hist_t, hist_c)
+        )
 
     def fetch() -> None:
         nonlocal last_index
         rows = link.points(last_index)
         if len(rows):
             last_index = int(rows[-1, 0])
-            tracker.model.add(rows[:, 11:14])
+            tracker.model.add(seam_points(rows))
             seen.append(rows)
 
     # points of earlier runs (the ΔT measurement, another weld) are not this seam's
@@ -204,11 +246,14 @@ def weld_tracked(  # noqa: C901
             _check_cancelled(cancelled)
             fetch()
             ready = track and tracker.model.count >= MIN_FIT_POINTS
-            link.alter((tracker.correction(0.0) if ready else np.zeros(6)) + ff(0.0))
+            c_stand = tracker.correction(0.0) if ready else tracker.base_correction(0.0)
+            own(link.next_cycle(), c_stand)
+            link.alter(c_stand + ff(0.0))
             link.step()
         times, locs = nominal.timed_path(period)
         t_send = link.time()
         t0, on_grid = link.move(times, locs, weld.laser_tool)  # the law's start, a cycle
+        t_law = t0
         log.info("tracked move queued in %.1f ms: %d cycles (%s corrections)",
                  (link.time() - t_send) * 1e3, len(times),
                  "timed" if timed else "per-cycle")  # fmt: skip
@@ -234,7 +279,7 @@ def weld_tracked(  # noqa: C901
             if timed:
                 if track and s <= weld.laser_to_mm:
                     tracker.check_ahead(t_move)  # a silent sensor stops the weld
-                ready_s = tracker.model.furthest - FINAL_MARGIN_MM
+                ready_s = tracker.model.furthest - FINAL_MARGIN_MM - margin
                 batch_t: list[float] = []
                 while k_next <= k_last:
                     t_k = k_next * period
@@ -256,6 +301,7 @@ def weld_tracked(  # noqa: C901
                         with contextlib.suppress(TrackingError):
                             held = tracker.correction_at(s_k)
                     batch_t.append(t_k)
+                    own(t_k, held)
                     sent_c.append(held + ff(t_k - t0))
                     k_next += 1
                 if batch_t:
@@ -265,6 +311,7 @@ def weld_tracked(  # noqa: C901
             else:
                 if s <= weld.laser_to_mm:
                     held = tracker.correction(t_move) if track else np.zeros(6)
+                own(t_cycle, held)
                 link.alter(held + ff(t_move))
                 corrections += t_move > 0.0  # the stand before a real-clock move is no cycle
             want_on = weld.laser and weld.laser_from_mm <= s <= weld.laser_to_mm
@@ -525,6 +572,34 @@ class RobotLink:
 
     def close(self) -> None:
         pass
+
+
+def reference_points(
+    nominal: WeldPath,
+    laser2sensor: FloatArray,
+    t_move: FloatArray,
+    seen: FloatArray,
+    correction: FloatArray,
+) -> FloatArray:
+    """Seam points (M, 3), base frame: the sensor's readings ``seen`` (M, 3) (^S_G T's
+    translation) placed on the sensor's reference pose at ``t_move`` (M,) s since the move's
+    start (the stand before it: its start), the laser on the nominal path plus
+    ``correction`` (M, 3) with the path's orientation, the sensor ``laser2sensor`` (4, 4)
+    from it."""
+    rot = location_to_transform(np.concatenate([np.zeros(3), nominal.angles]))[:3, :3]
+    laser = nominal.point(nominal.s_at(t_move)) + correction
+    r_s = rot @ laser2sensor[:3, :3]
+    out: FloatArray = laser + rot @ laser2sensor[:3, 3] + seen @ r_s.T
+    return out
+
+
+def _own_at(t: FloatArray, hist_t: list[float], hist_c: list[FloatArray]) -> FloatArray:
+    """(M, 3) the correction at the robot times ``t``, linear between the recorded cycles,
+    the ends held; zero before any."""
+    if not hist_t:
+        return np.zeros((len(t), 3))
+    c = np.array(hist_c)
+    return np.column_stack([np.interp(t, hist_t, c[:, k]) for k in range(3)])
 
 
 def laser_path(model: RobotModel, joints: FloatArray, tool: Loc) -> FloatArray:

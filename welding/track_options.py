@@ -102,6 +102,15 @@ def add_track_options(p: argparse.ArgumentParser) -> None:
 def add_ilc_options(p: argparse.ArgumentParser) -> None:
     """Options of ``python -m welding ilc`` (docs/ILC.md)."""
     p.add_argument(
+        "job",
+        nargs="?",
+        metavar="JOB.xml",
+        help="learn a path of this job (one <line>, tools laser/sensor, frame workpiece of the "
+        "cell); its table is kept beside it (JOB.PATH.ilc.json) and reused; default: the "
+        "cell's pass, as track",
+    )
+    p.add_argument("--path", metavar="NAME", help="the job's path to learn (default: its only)")
+    p.add_argument(
         "--emulate",
         action="store_true",
         required=True,
@@ -110,7 +119,13 @@ def add_ilc_options(p: argparse.ArgumentParser) -> None:
     add_seam_option(p, "sine")
     p.add_argument("--speed", type=cliargs.number_in(1.0, 500.0), default=250.0, help="mm/s")
     p.add_argument("--length", type=cliargs.number_in(10.0, 200.0), default=200.0, help="mm")
-    p.add_argument("--trials", type=cliargs.int_in(1, 100), default=5, help="passes (default 5)")
+    p.add_argument(
+        "--trials",
+        type=cliargs.int_in(0, 100),
+        default=5,
+        help="passes learned (default 5; 0 with --track: only the tracked weld, e.g. with a "
+        "--table learned before)",
+    )
     p.add_argument(
         "--source",
         choices=("seam", "joints"),
@@ -133,7 +148,8 @@ def add_ilc_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--track",
         action="store_true",
-        help="track the seam live as well; the table learns the arm's error on top",
+        help="after the trials, one tracked weld with the learned table (the tracker follows "
+        "the workpiece's deviation from the taught seam; the JSON's last trial, tracked)",
     )
     p.add_argument(
         "--model-payload-kg",

@@ -211,6 +211,47 @@ class SeamModel:
         return float(np.sqrt(np.sum(w * r**2) / np.sum(w) * n / (n - 3)))
 
 
+@dataclass(frozen=True)
+class OffsetWeld(WeldPath):
+    """``base`` moved by a taught seam: rows (arc length mm, offset (3,) mm, base frame)
+    ``seam``, linear between them, its ends held; the law and the tool's angles are the
+    base's, and so is the arc length (:meth:`project` is the base's: the offsets are
+    across the path). A tracker on it measures the workpiece's deviation from the taught
+    seam, not the seam itself."""
+
+    base: WeldPath
+    seam: FloatArray
+    angles: FloatArray = field(init=False)
+    length_mm: float = field(init=False)
+    speed_mm_s: float = field(init=False)
+    accel_mm_s2: float = field(init=False)
+
+    def __post_init__(self) -> None:
+        for name in ("angles", "length_mm", "speed_mm_s", "accel_mm_s2"):
+            object.__setattr__(self, name, getattr(self.base, name))
+        seam = np.asarray(self.seam, dtype=np.float64).reshape(-1, 4)
+        if len(seam) and not np.all(np.diff(seam[:, 0]) > 0):
+            raise ValueError("the taught seam's arc lengths must increase")
+        object.__setattr__(self, "seam", seam)
+
+    def offsets(self, s: FloatArray | float) -> FloatArray:
+        """The taught offsets (..., 3) at arc lengths ``s``; zero without a seam."""
+        ss = np.asarray(s, dtype=np.float64)
+        if not len(self.seam):
+            return np.zeros((*ss.shape, 3))
+        out: FloatArray = np.stack(
+            [np.interp(ss, self.seam[:, 0], self.seam[:, 1 + c]) for c in range(3)], axis=-1
+        )
+        return out
+
+    def point(self, s: FloatArray | float) -> FloatArray:
+        out: FloatArray = self.base.point(s) + self.offsets(s)
+        return out
+
+    def project(self, points: FloatArray) -> FloatArray:
+        return self.base.project(points)
+
+
 @dataclass
 class Tracker:
     """The correction each cycle: the seam offset at the laser's nominal arc length at the
@@ -223,10 +264,22 @@ class Tracker:
     #: arc length (mm) where the seam may end (the weld's end): the sensor need not see
     #: beyond it; default the path's end
     seam_end_mm: float | None = None
+    #: the half width of the seam fit (mm, :class:`SeamModel`)
+    fit_half_width_mm: float = FIT_HALF_WIDTH_MM
+    #: a taught seam on ``weld`` (its base): the model measures the workpiece's deviation
+    #: from it and the correction is the taught offset plus that deviation
+    taught: OffsetWeld | None = None
     model: SeamModel = field(init=False)
 
     def __post_init__(self) -> None:
-        self.model = SeamModel(self.weld)
+        self.model = SeamModel(self.taught or self.weld, self.fit_half_width_mm)
+
+    def base_correction(self, s: float) -> FloatArray:
+        """The correction (6,) before any seam point: the taught offset at ``s`` (zero
+        without a taught seam)."""
+        if self.taught is None:
+            return np.zeros(6)
+        return np.concatenate([self.taught.offsets(s), np.zeros(3)])
 
     def correction(self, t_move: float) -> FloatArray:
         """Correction (6,) (mm, deg; base frame) for the laser at ``t_move`` s after the move
@@ -251,6 +304,8 @@ class Tracker:
         """Correction (6,) for the laser at arc length ``s`` from the seam measured there;
         TrackingError when it is not measured or needs more than the robot may correct."""
         e = self.model.offset_at(s)
+        if self.taught is not None:
+            e = e + self.taught.offsets(s)
         if float(np.linalg.norm(e)) > self.max_correction_mm:
             raise TrackingError(
                 f"the seam is {np.linalg.norm(e):.2f} mm off the path: more than"
