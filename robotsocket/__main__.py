@@ -124,7 +124,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         log.info("statistics: %s", json.dumps(server.statistics()))
 
     serve_until_signal([server], on_stop, ready=lambda: _announce(server))
-    return 0
+    return _stopped()
 
 
 def _serve_child(args: argparse.Namespace, allow: tuple[Network, ...], sock: socket.socket) -> int:
@@ -162,7 +162,15 @@ def _serve_child(args: argparse.Namespace, allow: tuple[Network, ...], sock: soc
         log.info("statistics: %s", json.dumps(server.statistics()))
 
     serve_until_signal([server], on_stop, ready=lambda: _announce(server))
-    return 0
+    return _stopped()
+
+
+def _stopped() -> int:
+    # serve_until_signal returns only after SIGINT or SIGTERM: one line and exit 130, as
+    # every tool ends on Ctrl-C (docs/CLI.md, "Exit codes")
+    return cliargs.interrupted(
+        "python -m robotsocket", "robot stopped (laser off, motion stopped), server closed"
+    )
 
 
 # --- call -------------------------------------------------------------------------------------

@@ -192,7 +192,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
         )  # fmt: skip
 
     serve_until_signal([server], on_stop=stop, ready=announce)
-    return 0
+    # only after SIGINT or SIGTERM: one line and exit 130, as every tool (docs/CLI.md)
+    return cliargs.interrupted("python -m sensorsocket", "laser off, server closed")
 
 
 def _require_matplotlib() -> None:

@@ -111,8 +111,9 @@ def test_serve_runs_until_sigint(capsys: pytest.CaptureFixture[str]) -> None:
         assert code == 0 and json.loads(out) == {"time": 0.0}
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=15)
-        assert proc.returncode == 0
+        assert proc.returncode == 130, err  # as every tool ends on Ctrl-C (docs/CLI.md)
         assert "simulated" in err and "statistics" in err
+        assert err.rstrip().splitlines()[-1].startswith("python -m robotsocket: interrupted: ")
     finally:
         if proc.poll() is None:
             proc.kill()

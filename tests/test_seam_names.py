@@ -51,9 +51,6 @@ def test_teach_takes_a_name_it_refused_before(capsys: pytest.CaptureFixture[str]
     assert args.seam == "arc"
 
 
-@pytest.mark.xfail(
-    strict=True, reason="welding/console/cli.py still lists its own seams (being refactored)"
-)
 def test_the_console_takes_the_catalogues_seam_names() -> None:
     """For the console's change: ``add_seam_option`` of welding.track_options gives it these."""
     assert _seam_choices(welding_parser())["console"] == SEAM_NAMES

@@ -28,6 +28,7 @@ from spec import cliargs
 from spec.exitcodes import ExitCode
 from spec.server import listen
 from welding import job as J
+from welding.track_options import add_seam_option
 
 __all__ = ["add_parser", "cmd_console", "demo_job"]
 
@@ -49,15 +50,8 @@ def add_parser(sub: Any, add_tools_option: Any) -> None:
         "--emulate", action="store_true", help="start an emulated cell (real-time clock)"
     )
     cliargs.add_endpoint(p, "sensor", ", with --robot")
-    p.add_argument(
-        "--token-file",
-        metavar="PATH",
-        type=cliargs.token_file,
-        help="file holding the robot's control token (one line)",
-    )
-    p.add_argument(
-        "--seam", choices=("straight", "sine", "corner"), default="straight", help="--emulate"
-    )
+    cliargs.add_token_file(p, "the robot's", dest="token_file")
+    add_seam_option(p, "straight", " (with --emulate)")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default loopback)")
     p.add_argument("--port", type=int, default=DEFAULT_PORT, help="default %(default)s")
     p.add_argument("--jobs", metavar="DIR", default=".", help="folder of job files (default: here)")
