@@ -297,6 +297,49 @@ def watchdog(ctx: Context) -> str:
     return f"lease {period:g} s kept by Pings, lost after silence"
 
 
+#: [RS-7.13] the longest default lease a server may grant a TakeControl without a period.
+MAX_DEFAULT_LEASE_S = 1.0
+
+
+@case(
+    "control.watchdog.default",
+    requirements=["RS-7.13", "RS-7.10"],
+    tags=["control", "safety"],
+    budget=20.0,  # ~1.5 s at most; scaled down in the harness's self-tests
+)
+def watchdog_default(ctx: Context) -> str:
+    """A 1.0/1.1 TakeControl (no watchdog parameter) gets the server's default lease, at most
+    1 s; a controller that then stays silent for longer than it loses control."""
+    probe = _control_probe(ctx)
+    conn = ctx.connect()
+    ctx.take_control(conn, watchdog=None)
+    try:
+        lease = conn.lease
+        if lease is None:
+            raise NotApplicable("the endpoint grants no control lease (a 1.0/1.1 TakeControl)")
+        if not 0.0 < lease <= MAX_DEFAULT_LEASE_S:
+            raise Fail(
+                "the default lease of a TakeControl without a period",
+                f"0 < lease <= {MAX_DEFAULT_LEASE_S:g} s",
+                f"{lease:g} s",
+                requirement="RS-7.13",
+            )
+        silence = lease * 1.5 + 0.2
+        time.sleep(silence)
+        answer = conn.call(probe)
+    finally:
+        conn.call(C.RELEASE_CONTROL)
+    if answer.error is None or answer.error[0] != ErrorCode.NOT_IN_CONTROL:
+        raise Fail(
+            f"a 1.0-style controller silent for {silence:.2f} s (default lease {lease:g} s)"
+            " kept control",
+            "NOT_IN_CONTROL",
+            answer.error or "executed",
+            requirement="RS-7.13",
+        )
+    return f"default lease {lease:g} s; lost after {silence:.2f} s of silence"
+
+
 @case(
     "connections.per_address_limit",
     requirements=["RS-7.24"],
