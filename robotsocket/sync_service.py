@@ -104,8 +104,10 @@ class SyncService:
     # --- plain API (also used by the emulated cell) ------------------------------------------
 
     def set_endpoint(self, host: str, port: int) -> None:
-        """Where triggers go; ("", 0), what GetSyncConfig reports before, clears it."""
+        """Where triggers go; ("", 0), what GetSyncConfig reports before, clears it and stops
+        the triggering [SY-5.8]."""
         if host == "" and port == 0:
+            self.core.stop()
             self.endpoint = None
             self.transport.set_target("", 0)
             return

@@ -71,6 +71,8 @@ def valid_frames() -> list[tuple[str, str, Packet]]:
         ("request-jointmove", "JointMove request", request(C.JOINT_MOVE, 2, Joints([0, 0, 90, 0, 90, 0]))),
         ("error-not-powered", "error packet NOT_POWERED", error_packet(C.JOINT_MOVE, 2, ErrorCode.NOT_POWERED, "arm power is off")),
         ("error-request-id-0", "error answering no request (BUSY)", error_packet(0, 0, ErrorCode.BUSY, "client limit reached")),
+        ("error-frame-too-large", "the answer to length-over-max: command ID 0 and request ID 0, although the header was readable [RS-3.20]", error_packet(0, 0, ErrorCode.FRAME_TOO_LARGE, "payload length 16777217 is over the limit 16777216")),
+        ("error-timeout-partial-header", "the answer to a frame stopped after 10 of its 16 header bytes: TIMEOUT with command ID 0 and request ID 0 [RS-3.20] [RS-7.5]", error_packet(0, 0, ErrorCode.TIMEOUT, "frame stopped after 10 bytes")),
         ("event-bool", "event packet with a BOOL", Packet(PacketKind.EVENT, C.ROBOT_STATUS, 0, (True,))),
         ("request-here", "Here(tool, frame) with two locations", request(C.HERE, 3, Location(0, 0, 120, 0, 0, 0), Location(500, 0, 0, 0, 0, 90))),
         ("reply-here", "Here reply", _reply(C.HERE, 3, Location(450.5, -12.25, 300, 180, 0, -90))),

@@ -1612,9 +1612,21 @@ class HolderFirstServer(FramedServer):
         return super()._execute(session, packet)
 
 
+class ParamsBeforeOfferedServer(FramedServer):
+    """Checks the parameters of a registry command it does not offer before saying so:
+    BAD_PARAMETERS where NOT_SUPPORTED is due (step 8 of RS-6.4 before step 10)."""
+
+    def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
+        spec = BY_ID.get(packet.command)
+        if spec is not None and packet.command not in self._specs:
+            check_params(spec.params, packet.params, spec.name)
+        return super()._execute(session, packet)
+
+
 @pytest.mark.parametrize(
     ("server_class", "service_class", "case_id", "rule"),
     [
+        (ParamsBeforeOfferedServer, CoreOnlyRobot, "errors.precedence", "RS-6.4"),
         (FramedServer, NanLogRobot, "robot.jointlog.since_nan", "RS-5.58"),
         (FramedServer, StickyErrorRobot, "robot.last_error.only_moves", "RS-5.51"),
         (HolderFirstServer, MiniRobot, "control.take_control.order", "RS-7.25"),
@@ -1628,6 +1640,13 @@ def test_a_server_that_guessed_what_1_2_left_open_is_caught(
     (entry,) = result.results
     assert entry.outcome is Outcome.FAIL, (entry.outcome, entry.message)
     assert f"[{rule}]" in entry.message  # the rule of the case, named in its verdict
+
+
+def test_the_precedence_case_passes_a_robot_that_does_not_offer_every_command() -> None:
+    with serving(FramedServer(CoreOnlyRobot(), policy=POLICY)) as address:
+        (entry,) = check("robot", address, ("errors.precedence",)).results
+    assert entry.outcome is Outcome.PASS, (entry.outcome, entry.message)
+    assert "offered<types<control" in entry.message
 
 
 class SlowWaitRobot(MiniRobot):

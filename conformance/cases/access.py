@@ -138,8 +138,8 @@ def foreign_data(ctx: Context) -> str:
         points = conn.ok(C.GET_SEAM_POINTS, first - 1)[0]
     finally:
         conn.call(C.STOP_TRIGGERS)
-        if cfg["port"]:
-            conn.call(C.SET_SENSOR_ENDPOINT, cfg["host"], cfg["port"])
+        # As it was, also when none was set: ("", 0) clears it [SY-5.8].
+        conn.call(C.SET_SENSOR_ENDPOINT, cfg["host"], cfg["port"])
         conn.call(C.RELEASE_CONTROL)
         sink.close()
         stranger.close()

@@ -14,6 +14,10 @@ from spec.registry import CommandId as C
 
 #: A refused (reserved) connection is closed within this many seconds [RS-7.2].
 RESERVED_CLOSE_S = 5.0
+#: A robot keeps a refused connection open (reserved) at least this long [RS-7.14] ...
+RESERVED_OPEN_S = 1.0
+#: ... measured from the BUSY frame's arrival, which follows the accept by a little.
+RESERVED_SLACK_S = 0.05
 
 
 def _read_only(ctx: Context) -> int:
@@ -130,14 +134,15 @@ def several_clients(ctx: Context) -> None:
 
 @case(
     "connections.max_clients",
-    requirements=["RS-7.2"],
+    requirements=["RS-7.2", "RS-7.14"],
     tags=["concurrency", "limits"],
     profiles=("full",),
     budget=30.0,
     order=65,
 )
 def max_clients(ctx: Context) -> str:
-    """Connections beyond max_clients get BUSY with request ID 0 and are closed."""
+    """Connections beyond max_clients get BUSY with request ID 0 and are closed within 5 s; a
+    robot keeps such a connection open (reserved for EmergencyStop) for at least 1 s."""
     limit = int(ctx.hello.number("max_clients", 0)) if ctx.hello else 0
     if not 0 < limit <= 256:
         raise Skip(f"max_clients {limit} is not in 1..256; not tried")
@@ -160,6 +165,7 @@ def max_clients(ctx: Context) -> str:
                 continue
             if answer.error[0] != ErrorCode.BUSY or answer.request_id != 0:
                 raise Fail("wrong refusal over the limit", "BUSY with request ID 0", answer.error)
+            busy_at = time.monotonic()
             try:
                 # A reserved connection [RS-7.14] answers BUSY until it closes (<= 5 s).
                 later = conn.expect_closed(RESERVED_CLOSE_S + ctx.timeout)
@@ -170,6 +176,14 @@ def max_clients(ctx: Context) -> str:
                     "open",
                     requirement="RS-7.2",
                 ) from None
+            open_s = time.monotonic() - busy_at
+            if ctx.service == "robot" and open_s < RESERVED_OPEN_S - RESERVED_SLACK_S:
+                raise Fail(
+                    "a robot's refused connection closed before EmergencyStop had its chance",
+                    f"open at least {RESERVED_OPEN_S:g} s after the BUSY frame (reserved)",
+                    f"closed after {open_s:.3f} s",
+                    requirement="RS-7.14",
+                )
             for packet in later:
                 if packet.error is None or packet.error[0] != ErrorCode.BUSY:
                     raise Fail(
@@ -295,6 +309,49 @@ def watchdog(ctx: Context) -> str:
         )
     conn.call(C.RELEASE_CONTROL)
     return f"lease {period:g} s kept by Pings, lost after silence"
+
+
+#: [RS-7.13] the longest default lease a server may grant a TakeControl without a period.
+MAX_DEFAULT_LEASE_S = 1.0
+
+
+@case(
+    "control.watchdog.default",
+    requirements=["RS-7.13", "RS-7.10"],
+    tags=["control", "safety"],
+    budget=20.0,  # ~1.5 s at most; scaled down in the harness's self-tests
+)
+def watchdog_default(ctx: Context) -> str:
+    """A 1.0/1.1 TakeControl (no watchdog parameter) gets the server's default lease, at most
+    1 s; a controller that then stays silent for longer than it loses control."""
+    probe = _control_probe(ctx)
+    conn = ctx.connect()
+    ctx.take_control(conn, watchdog=None)
+    try:
+        lease = conn.lease
+        if lease is None:
+            raise NotApplicable("the endpoint grants no control lease (a 1.0/1.1 TakeControl)")
+        if not 0.0 < lease <= MAX_DEFAULT_LEASE_S:
+            raise Fail(
+                "the default lease of a TakeControl without a period",
+                f"0 < lease <= {MAX_DEFAULT_LEASE_S:g} s",
+                f"{lease:g} s",
+                requirement="RS-7.13",
+            )
+        silence = lease * 1.5 + 0.2
+        time.sleep(silence)
+        answer = conn.call(probe)
+    finally:
+        conn.call(C.RELEASE_CONTROL)
+    if answer.error is None or answer.error[0] != ErrorCode.NOT_IN_CONTROL:
+        raise Fail(
+            f"a 1.0-style controller silent for {silence:.2f} s (default lease {lease:g} s)"
+            " kept control",
+            "NOT_IN_CONTROL",
+            answer.error or "executed",
+            requirement="RS-7.13",
+        )
+    return f"default lease {lease:g} s; lost after {silence:.2f} s of silence"
 
 
 @case(

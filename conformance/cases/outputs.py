@@ -91,7 +91,7 @@ def off_on_close(ctx: Context) -> str:
 
 @case(
     "robot.outputs.off_on_estop",
-    requirements=["RS-7.21", "RS-5.20", "RS-5.53"],
+    requirements=["RS-7.21", "RS-5.55", "RS-5.20", "RS-5.53"],
     tags=["robot", "safety", "io"],
     service="robot",
     motion=True,
@@ -100,7 +100,7 @@ def off_on_close(ctx: Context) -> str:
 def off_on_estop(ctx: Context) -> str:
     """EmergencyStop switches every process output off while control stays; under the
     engaged stop SetOutput to on is EMERGENCY_STOP and to off is executed; after
-    ResetEmergencyStop an output can be switched on again (no arm power needed)."""
+    ResetEmergencyStop an output can be switched on and off again (no arm power needed)."""
     conn = ctx.connect()
     names = _process_outputs(conn)
     ctx.take_control(conn)
@@ -123,15 +123,17 @@ def off_on_estop(ctx: Context) -> str:
                 "SetOutput under an engaged emergency stop",
                 "on: EMERGENCY_STOP, off: executed",
                 f"on: {on.error or 'executed'}, off: {off.error or 'executed'}",
-                requirement="RS-7.21",
+                requirement="RS-5.55",
             )
+        # [RS-5.55] with power off (EmergencyStop switched it off) both directions work.
         again = conn.call(C.SET_OUTPUT, names[-1], True)
-        if again.error is not None:
+        off_again = conn.call(C.SET_OUTPUT, names[-1], False)
+        if again.error is not None or off_again.error is not None:
             raise Fail(
                 "SetOutput after ResetEmergencyStop (power is off; outputs need none)",
-                "executed",
-                again.error,
-                requirement="RS-5.53",
+                "on: executed, off: executed",
+                f"on: {again.error or 'executed'}, off: {off_again.error or 'executed'}",
+                requirement="RS-5.55",
             )
     finally:
         conn.call(C.RELEASE_CONTROL)  # the outputs go off with control [RS-7.21]

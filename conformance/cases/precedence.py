@@ -4,7 +4,7 @@ request probed is refused before it could execute."""
 
 from __future__ import annotations
 
-from conformance.cases._util import seal
+from conformance.cases._util import NOT_OFFERED, seal
 from conformance.context import Context
 from conformance.model import Fail, case
 from spec import wire
@@ -12,6 +12,7 @@ from spec.codec import encode_packet, request
 from spec.errors import ErrorCode
 from spec.params import Joints
 from spec.registry import CommandId as C
+from spec.registry import commands_for
 
 #: An ID in the experimental range that no endpoint of this document implements.
 UNKNOWN = 0xFFF0
@@ -29,8 +30,9 @@ def _expect(answer_error: tuple[int, str] | None, code: ErrorCode, what: str) ->
 
 @case("errors.precedence", requirements=["RS-6.4"], tags=["errors"])
 def precedence(ctx: Context) -> str:
-    """Parameter decoding before the command ID; the command ID before parameter types;
-    parameter types before control; control before the command's own checks."""
+    """Parameter decoding before the command ID; the command ID (unknown, or not offered)
+    before parameter types; parameter types before control; control before the command's
+    own checks."""
     conn = ctx.connect()
     checked = []
     # 7 before 8: an unknown command whose parameter list does not decode.
@@ -42,6 +44,21 @@ def precedence(ctx: Context) -> str:
     # 8 before 10: an unknown command with (decodable) parameters of any type.
     _expect(conn.call(UNKNOWN, "x", 1.5).error, ErrorCode.UNKNOWN_COMMAND, "an unknown command")
     checked.append("command<types")
+    # 8 before 10 and 11: a registry command the endpoint does not offer (left out of Hello),
+    # with a wrong parameter count and without control, is NOT_SUPPORTED (1.2: UNKNOWN_COMMAND).
+    listed = ctx.hello.commands if ctx.hello is not None else frozenset()
+    unoffered = [s for s in commands_for(ctx.service) if listed and s.id not in listed]
+    if unoffered:
+        spec = unoffered[0]
+        answer = conn.call(spec.id, *(["not-a-value"] * (len(spec.params) + 1)))
+        if answer.error is None or answer.error[0] not in NOT_OFFERED:
+            raise Fail(
+                f"wrong error for {spec.name} (not offered) with wrong parameters, no control",
+                "NOT_SUPPORTED (or a 1.2 endpoint's UNKNOWN_COMMAND)",
+                answer.error or "executed",
+                requirement="RS-6.4",
+            )
+        checked.append("offered<types<control")
     # 10 before 11: a control command with wrong parameter types, sent without control.
     probe = C.JOINT_MOVE if ctx.service == "robot" else C.SET_LASER
     if probe in ctx.advertised:

@@ -509,6 +509,51 @@ def motion_queued(ctx: Context) -> str:
 
 
 @case(
+    "robot.motion.release_keeps_moves",
+    requirements=["RS-7.11", "RS-7.22"],
+    tags=["robot", "motion", "control"],
+    service="robot",
+    motion=True,
+    budget=60.0,
+    commands=[*MOTION, C.ROBOT_STATUS, C.HEREJ],
+)
+def release_keeps_moves(ctx: Context) -> str:
+    """JointMove (+2 degrees on joint 1), then ReleaseControl at once: the queued move goes on
+    to its target (a release hands the arm over, it does not stop it) and power stays on;
+    the arm comes back."""
+    with _Motion(ctx) as m:
+        conn = m.conn
+        m.power()
+        start = _joints(conn)
+        target = [start[0] + STEP_DEG, *start[1:]]
+        conn.ok(C.JOINT_MOVE, Joints(target))
+        conn.ok(C.RELEASE_CONTROL)
+        released = _status(conn)
+        # WaitEndMove needs no control: the former controller waits for its move's end.
+        done = _wait_still(conn, 30.0)
+        after = _status(conn)
+        reached = _joints(conn)
+        ctx.take_control(conn)
+        conn.ok(C.JOINT_MOVE, Joints(start))
+        _wait_still(conn, 30.0)
+    was_moving = bool(released.get("moving")) or released.get("queue") != 0
+    if not was_moving:
+        raise Informational("the move was over before ReleaseControl was answered")
+    if not done or abs(reached[0] - target[0]) > 0.05:
+        raise Fail(
+            "a move queued before ReleaseControl did not reach its target",
+            f"joint 1 at {target[0]:.3f} deg, WaitEndMove done",
+            f"joint 1 at {reached[0]:.3f} deg, done {done}",
+            requirement="RS-7.11",
+        )
+    if not after.get("powered"):
+        raise Fail(
+            "arm power went off after ReleaseControl", "powered", after, requirement="RS-7.22"
+        )
+    return "the move went on to its target after the release; power stayed on"
+
+
+@case(
     "robot.motion.control_lost",
     requirements=["RS-7.10", "RS-7.22"],
     tags=["robot", "motion", "control"],

@@ -30,12 +30,12 @@ from spec.vectorgen import load
 
 #: Requirement IDs per corpus vector (the vectors' own names, spec/vectors/frames.json).
 VECTOR_RULES: dict[str, tuple[str, ...]] = {
-    "bad-magic": ("RS-3.8", "RS-3.1"),
-    "bad-magic-two-bytes": ("RS-3.19", "RS-3.8"),
-    "bad-magic-second-byte": ("RS-3.19", "RS-3.8"),
-    "garbage-http": ("RS-3.8", "RS-3.1"),
-    "length-over-max": ("RS-3.5", "RS-3.8"),
-    "length-max-u32": ("RS-3.5", "RS-3.8"),
+    "bad-magic": ("RS-3.8", "RS-3.1", "RS-3.20"),
+    "bad-magic-two-bytes": ("RS-3.19", "RS-3.8", "RS-3.20"),
+    "bad-magic-second-byte": ("RS-3.19", "RS-3.8", "RS-3.20"),
+    "garbage-http": ("RS-3.8", "RS-3.1", "RS-3.20"),
+    "length-over-max": ("RS-3.5", "RS-3.8", "RS-3.20"),
+    "length-max-u32": ("RS-3.5", "RS-3.8", "RS-3.20"),
     "bad-crc": ("RS-3.6", "RS-3.9"),
     "bad-crc-payload": ("RS-3.6", "RS-3.9"),
     "version-2": ("RS-3.11", "RS-3.9"),

@@ -4,13 +4,13 @@ RestartMove in every state (PROTOCOL.md sections 5.3 and 7)."""
 
 from __future__ import annotations
 
-from conformance.cases.robot import STEP_DEG, _joints, _Motion, _status, _wait_still
+from conformance.cases.robot import SLOW, STEP_DEG, _joints, _Motion, _status, _wait_still
 from conformance.connection import Conn
 from conformance.context import Context
 from conformance.model import Fail, Informational, Skip, case
 from spec.codec import Packet
 from spec.errors import ErrorCode
-from spec.params import Joints
+from spec.params import Joints, Matrix
 from spec.registry import CommandId as C
 
 
@@ -306,3 +306,110 @@ def queued_behind_wait(ctx: Context) -> str:
             requirement="RS-7.27",
         )
     return f"{count - len(busy)} queued, {len(busy)} BUSY"
+
+
+#: [RS-5.57] the joint speeds of the two moves (% of nominal): low, so 2 degrees cruise.
+SPEED_PCTS = (1.0, 2.0)
+#: The part of the travel where both moves cruise (fractions of the 2 degrees).
+CRUISE_BAND = (0.3, 0.7)
+
+
+def _crossing(ts: list[float], qs: list[float], level: float) -> float | None:
+    """The time joint 1 first passes ``level``, interpolated between samples."""
+    for k in range(1, len(qs)):
+        a, b = qs[k - 1] - level, qs[k] - level
+        if a == 0.0:
+            return ts[k - 1]
+        if a * b < 0.0 or b == 0.0:
+            return ts[k - 1] + (ts[k] - ts[k - 1]) * a / (a - b)
+    return None
+
+
+def _cruise_speeds(log: Matrix, q_from: float, q_to: float) -> tuple[float, float] | None:
+    """Joint 1's mean speed (deg/s) over the first and the second half of CRUISE_BAND of its
+    travel from ``q_from`` to ``q_to``; None when the log does not cover the band."""
+    rows = log.to_rows()
+    ts, qs = [r[0] for r in rows], [r[1] for r in rows]
+    lo, hi = CRUISE_BAND
+    levels = [q_from + (q_to - q_from) * f for f in (lo, (lo + hi) / 2, hi)]
+    times = [_crossing(ts, qs, level) for level in levels]
+    if any(t is None for t in times):
+        return None
+    t0, t1, t2 = (float(t) for t in times)  # type: ignore[arg-type]
+    half = abs(q_to - q_from) * (hi - lo) / 2
+    if t1 <= t0 or t2 <= t1:
+        return None
+    return half / (t1 - t0), half / (t2 - t1)
+
+
+@case(
+    "robot.motiondesc.joint_speed_scales",
+    requirements=["RS-5.57"],
+    tags=["robot", "motion"],
+    service="robot",
+    motion=True,
+    budget=60.0,
+    commands=[*MOTION, C.JOINT_MOVE, C.WAIT_END_MOVE, C.GET_JOINT_LOG, C.GET_TIME, C.HEREJ],
+)
+def joint_speed_scales(ctx: Context) -> str:
+    """Joint 1 turns +2 degrees at 1 % joint speed and back at 2 % (5 % acceleration): in the
+    middle of its travel it cruises twice as fast on the way back. The nominal speed the
+    cruise implies is reported; the descriptor and the power state are restored."""
+    with _Motion(ctx) as m:
+        conn = m.conn
+        was_powered = bool(_status(conn).get("powered"))
+        m.power()
+        start = _joints(conn)
+        legs = (
+            (SPEED_PCTS[0], start[0], start[0] + STEP_DEG),
+            (SPEED_PCTS[1], start[0] + STEP_DEG, start[0]),
+        )
+        logs: list[tuple[float, Matrix, float, float]] = []
+        try:  # both moves first, so the arm is back before anything is judged
+            for pct, q_from, q_to in legs:
+                conn.ok(C.SET_MOTION_DESC, pct, SLOW, SLOW, 50.0, 20.0, 0.0)
+                since = conn.ok(C.GET_TIME)[0]
+                assert isinstance(since, float)
+                conn.ok(C.JOINT_MOVE, Joints([q_to, *start[1:]]))
+                if not _wait_still(conn, 30.0):
+                    raise Fail(f"a 2 degree move at {pct:g} % did not end within 30 s", True, False)
+                log = conn.ok(C.GET_JOINT_LOG, since - 0.01)[0]
+                assert isinstance(log, Matrix)
+                logs.append((pct, log, q_from, q_to))
+        finally:
+            if not was_powered and not conn.closed:
+                conn.call(C.DISABLE_POWER)
+    cruise: list[float] = []
+    for pct, log, q_from, q_to in logs:
+        speeds = _cruise_speeds(log, q_from, q_to)
+        if speeds is None:
+            raise Informational(
+                f"the joint log does not show joint 1 crossing the middle of its travel at"
+                f" {pct:g} %; the speed is not judged"
+            )
+        first, second = speeds
+        if abs(first - second) > 0.05 * max(first, second):
+            raise Informational(
+                f"joint 1 does not cruise at {pct:g} % in the middle of a 2 degree move"
+                f" ({first:.3f} then {second:.3f} deg/s); the speed is not judged"
+            )
+        cruise.append((first + second) / 2)
+    ratio = cruise[1] / cruise[0]
+    want = SPEED_PCTS[1] / SPEED_PCTS[0]
+    ctx.measure(
+        "joint_speed_scales",
+        cruise_deg_s=[round(v, 4) for v in cruise],
+        implied_nominal_deg_s=round(cruise[0] * 100.0 / SPEED_PCTS[0], 2),
+    )
+    if abs(ratio - want) > 0.075 * want:
+        raise Fail(
+            f"joint 1's cruise speed does not scale with joint_speed ({SPEED_PCTS[0]:g} % and"
+            f" {SPEED_PCTS[1]:g} %)",
+            f"ratio {want:g}",
+            f"ratio {ratio:.3f} ({cruise[0]:.3f} and {cruise[1]:.3f} deg/s)",
+            requirement="RS-5.57",
+        )
+    return (
+        f"{cruise[0]:.3f} and {cruise[1]:.3f} deg/s (ratio {ratio:.3f}); nominal joint 1 speed"
+        f" implied: {cruise[0] * 100.0 / SPEED_PCTS[0]:.1f} deg/s"
+    )

@@ -390,18 +390,65 @@ def _sink(ctx: Context, local_host: str) -> socket.socket:
     order=5,
 )
 def before_endpoint(ctx: Context) -> None:
-    """StartTriggers before SetSensorEndpoint gives BAD_STATE (only on a fresh robot)."""
+    """StartTriggers without a sensor endpoint gives BAD_STATE: on a fresh robot, or after
+    SetSensorEndpoint("", 0) cleared one [SY-5.8]; an endpoint found set is set again."""
     conn = ctx.connect()
-    cfg = dict(zip(CONFIG_FIELDS, conn.ok(C.GET_SYNC_CONFIG), strict=False))
-    if cfg["port"] != 0:
-        raise NotApplicable(f"a sensor endpoint is already set ({cfg['host']!r}:{cfg['port']!r})")
     ctx.take_control(conn)
+    cfg = dict(zip(CONFIG_FIELDS, conn.ok(C.GET_SYNC_CONFIG), strict=False))
     try:
+        if cfg["port"] != 0:
+            cleared = conn.call(C.SET_SENSOR_ENDPOINT, "", 0)
+            if cleared.error is not None:
+                raise NotApplicable(
+                    f"a sensor endpoint is already set ({cfg['host']!r}:{cfg['port']!r}) and"
+                    f' SetSensorEndpoint("", 0) does not clear it [SY-5.8]: {cleared.error}'
+                )
         conn.error(C.START_TRIGGERS, ErrorCode.BAD_STATE, 10.0, 1)
         if C.SCHEDULE_TRIGGERS in ctx.advertised:
             conn.error(C.SCHEDULE_TRIGGERS, ErrorCode.BAD_STATE, FloatArray([1e9]))
     finally:
+        if cfg["port"] != 0:
+            conn.call(C.SET_SENSOR_ENDPOINT, cfg["host"], cfg["port"])
         conn.call(C.RELEASE_CONTROL)
+
+
+@case(
+    "robot.sync.endpoint_clear",
+    requirements=["SY-5.8"],
+    level="SHOULD",
+    tags=["sync", "robot"],
+    service="robot",
+    commands=ROBOT_SYNC,
+)
+def endpoint_clear(ctx: Context) -> str:
+    """SetSensorEndpoint("", 0) after an endpoint was set: GetSyncConfig reports ("", 0) and
+    StartTriggers is BAD_STATE again; the endpoint in force before is set again."""
+    conn = ctx.connect()
+    ctx.take_control(conn)
+    cfg = dict(zip(CONFIG_FIELDS, conn.ok(C.GET_SYNC_CONFIG), strict=False))
+    sink = _sink(ctx, conn.sock.getsockname()[0])
+    try:
+        conn.ok(C.SET_SENSOR_ENDPOINT, sink.getsockname()[0], sink.getsockname()[1])
+        cleared = conn.call(C.SET_SENSOR_ENDPOINT, "", 0)
+        now = tuple(conn.ok(C.GET_SYNC_CONFIG)[:2])
+        start = conn.call(C.START_TRIGGERS, 10.0, 1)
+    finally:
+        conn.call(C.STOP_TRIGGERS)
+        conn.call(C.SET_SENSOR_ENDPOINT, cfg["host"], cfg["port"])
+        conn.call(C.RELEASE_CONTROL)
+        sink.close()
+    got = (
+        cleared.error or "cleared",
+        now,
+        "a reply" if start.error is None else ErrorCode(start.error[0]).name,
+    )
+    if got != ("cleared", ("", 0), "BAD_STATE"):
+        raise Fail(
+            'SetSensorEndpoint("", 0) does not clear the sensor endpoint',
+            ("cleared", ("", 0), "BAD_STATE"),
+            got,
+        )
+    return "cleared; StartTriggers BAD_STATE until an endpoint is set"
 
 
 @case(
@@ -426,8 +473,8 @@ def sync_ranges(ctx: Context) -> None:
         conn.error(C.SCHEDULE_TRIGGERS, ErrorCode.OUT_OF_RANGE, FloatArray([now + 5, now + 4]))
     finally:
         conn.call(C.STOP_TRIGGERS)
-        if cfg["port"]:
-            conn.call(C.SET_SENSOR_ENDPOINT, cfg["host"], cfg["port"])
+        # As it was, also when none was set: ("", 0) clears it [SY-5.8].
+        conn.call(C.SET_SENSOR_ENDPOINT, cfg["host"], cfg["port"])
         conn.call(C.RELEASE_CONTROL)
         sink.close()
 
@@ -597,8 +644,8 @@ def sync_matching(ctx: Context) -> str:
         delta_t = conn.ok(C.GET_SYNC_CONFIG)[2]
     finally:
         conn.call(C.STOP_TRIGGERS)
-        if cfg["port"]:
-            conn.call(C.SET_SENSOR_ENDPOINT, cfg["host"], cfg["port"])
+        # As it was, also when none was set: ("", 0) clears it [SY-5.8].
+        conn.call(C.SET_SENSOR_ENDPOINT, cfg["host"], cfg["port"])
         conn.call(C.RELEASE_CONTROL)
         sink.close()
     if len(indices) < n:
