@@ -304,6 +304,12 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             # jobs: edit the seam's velocity, validate, save, dry run with progress
             page.locator("nav a[data-page=jobs]").click()
             expect(page.locator("#job-file")).to_have_text("demo.xml")
+            # where each item goes, as the job file says (demo_job's points)
+            where = page.locator("#job-items td.where")
+            expect(where.nth(0)).to_have_text("(-40.0, 0.0, 30.0) mm, laser in workpiece")
+            expect(where.nth(1)).to_have_text(
+                "(-40.0, 0.0, 0.0) mm, laser in workpiece → (0.0, 0.0, 0.0) mm; 1 segment"
+            )
             page.locator("input[data-i='1'][data-k='velocity']").fill("30")
             page.locator("input[data-i='1'][data-k='velocity']").dispatch_event("change")
             page.locator("#job-check").click()

@@ -753,6 +753,14 @@ def close_while_waiting(ctx: Context) -> str:
     return f"stopped {lost.stopped_after_s * 1e3:.0f} ms after the close"
 
 
+def _refused_at_connect(conn: Conn) -> bool:
+    """The server is still full for ``conn``: its first answer is the BUSY of a connection
+    over the limit (request ID 0, [RS-7.2]), not the answer to a GetStatus."""
+    conn.request(C.ROBOT_STATUS)
+    first = conn.recv_packet()
+    return first.error is not None and first.request_id == 0
+
+
 @case(
     "robot.emergency_stop_when_full",
     requirements=["RS-7.14"],
@@ -803,7 +811,7 @@ def emergency_stop_when_full(ctx: Context) -> str:
     deadline = time.monotonic() + RESERVED_WAIT_S
     while True:  # the closed connections may still hold their slots for a moment
         watcher = ctx.connect()
-        if watcher.call(C.ROBOT_STATUS).error is None or time.monotonic() > deadline:
+        if not _refused_at_connect(watcher) or time.monotonic() > deadline:
             break
         watcher.close()
         time.sleep(0.1)

@@ -595,6 +595,21 @@ const PARAMS = {
   pause: [["duration", "s"]],
 };
 
+// Where an item goes, read-only (locations come from teaching and the tool tables): the
+// target point in its frame, or a path's start, end and segments.
+function fmtLoc(l) {
+  const [x, y, z] = l.values;
+  return `(${[x, y, z].map((v) => v.toFixed(1)).join(", ")}) mm, ${l.tool} in ${l.frame}`;
+}
+function where(it) {
+  if (it.kind === "via" || it.kind === "stitch") return fmtLoc(it.at);
+  if (it.kind !== "path") return "";
+  const end = it.segments.length ? it.segments[it.segments.length - 1].to : it.start;
+  const arcs = it.segments.filter((s) => s.kind === "arc").length;
+  const segs = `${it.segments.length} segment${it.segments.length === 1 ? "" : "s"}${arcs ? `, ${arcs} arc${arcs === 1 ? "" : "s"}` : ""}`;
+  return `${fmtLoc(it.start)} → ${fmtLoc(end).split(" mm")[0]} mm; ${segs}`;
+}
+
 function renderJob() {
   $("job-name").value = job.name;
   $("job-desc").value = job.description;
@@ -606,10 +621,10 @@ function renderJob() {
         : `<input type="number" step="any" data-i="${i}" data-k="${k}" value="${v}">`;
       return `<label>${k}${unit ? ` (${unit})` : ""} ${input}</label>`;
     }).join(" ");
-    return `<tr data-item="${it.name}"><td>${i + 1}</td><td><input data-i="${i}" data-k="name" value="${it.name}"></td><td>${it.kind}</td>
-      <td>${params}</td><td><button data-up="${i}">↑</button><button data-down="${i}">↓</button></td></tr>`;
+    return `<tr data-item="${esc(it.name)}"><td>${i + 1}</td><td><input data-i="${i}" data-k="name" value="${esc(it.name)}"></td><td>${it.kind}</td>
+      <td class="where">${esc(where(it))}</td><td>${params}</td><td><button data-up="${i}">↑</button><button data-down="${i}">↓</button></td></tr>`;
   });
-  $("job-items").innerHTML = `<tr><th>#</th><th>item</th><th>kind</th><th>parameters</th><th>order</th></tr>${rows.join("")}`;
+  $("job-items").innerHTML = `<tr><th>#</th><th>item</th><th>kind</th><th>where</th><th>parameters</th><th>order</th></tr>${rows.join("")}`;
   $("job-items").querySelectorAll("input").forEach((inp) => {
     inp.onchange = () => {
       const it = job.items[Number(inp.dataset.i)];
