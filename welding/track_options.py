@@ -76,7 +76,7 @@ def add_track_options(p: argparse.ArgumentParser) -> None:
         type=cliargs.number_in(0.001, 10.0),
         default=0.1,
         metavar="MM",
-        help="the tracker's own error estimate must stay within it: exit 0, else 3 "
+        help="the tracker's own error estimate must stay within it: exit 0, else 1 "
         "(default %(default)s)",
     )
     p.add_argument(
