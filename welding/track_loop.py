@@ -278,7 +278,13 @@ def weld_tracked(  # noqa: C901
                 link.stop_triggers()  # no more seam points: the sensor has dropped out
             if timed:
                 if track and s <= weld.laser_to_mm:
-                    tracker.check_ahead(t_move)  # a silent sensor stops the weld
+                    try:
+                        tracker.check_ahead(t_move)  # a silent sensor stops the weld
+                    except TrackingError:
+                        # not before the points measured meanwhile are read: a loop that
+                        # was late (a stalled PC) judges the sensor by what it measured
+                        fetch()
+                        tracker.check_ahead(t_move)
                 ready_s = tracker.model.furthest - FINAL_MARGIN_MM - margin
                 batch_t: list[float] = []
                 while k_next <= k_last:
