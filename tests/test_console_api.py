@@ -220,6 +220,7 @@ def test_status_stream_that_fails_is_closed_not_left_hanging(
         ("POST", "/api/delta-t", {}, 409, "take control"),
         ("POST", "/api/calibrate", {}, 409, "take control"),
         ("POST", "/api/track", {}, 409, "emulated cell only"),
+        ("POST", "/api/ilc", {}, 409, "emulated cell only"),
     ],
 )
 def test_bad_requests_get_a_clear_error(

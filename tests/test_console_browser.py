@@ -451,6 +451,23 @@ def test_operator_session_in_chromium(console: tuple[str, Path], tmp_path: Path)
             _drawn(page, "tr-error", ["laser − seam, lateral"])
             _shot(page, "track")
 
+            # ILC on the elastic arm: the error falls from trial to trial, plotted as it comes
+            page.locator("nav a[data-page=ilc]").click()
+            page.locator("#ilc-length").fill("40")
+            page.locator("#ilc-trials").fill("3")
+            page.locator("#ilc-start").click()
+            expect(page.locator("#ilc-info")).to_have_attribute(
+                "data-state", "done", timeout=90_000
+            )
+            expect(page.locator("#ilc-result")).to_contain_text("trial 3")
+            conv = _drawn(page, "ilc-conv", ["max error", "rms error"])
+            assert conv["points"] == [3, 3]
+            _drawn(page, "ilc-profiles", ["trial 1", "trial 2", "trial 3"])
+            ilc_text = page.locator("#ilc-result").inner_text()
+            maxes = [float(m) for m in re.findall(r"trial \d\s+max (\d+\.\d) µm", ilc_text)]
+            assert len(maxes) == 3 and maxes[0] > maxes[1] > maxes[2], maxes
+            _shot(page, "ilc")
+
             # tools and frames: add one through the table, a bad one is refused
             page.locator("nav a[data-page=tools]").click()
             page.locator("#new-name").fill("torch2")
@@ -511,7 +528,7 @@ EVIL_PAGE = """<!doctype html><title>evil</title><script>
 const target = "TARGET";
 const routes = ["/api/control", "/api/power", "/api/estop/reset", "/api/move", "/api/tools",
   "/api/jobs/demo.xml/run", "/api/teach", "/api/delta-t", "/api/calibrate", "/api/track",
-  "/api/sensor/settings", "/api/abort"];
+  "/api/ilc", "/api/sensor/settings", "/api/abort"];
 const bodies = { "/api/control": {take: true}, "/api/power": {on: true},
   "/api/jobs/demo.xml/run": {dry_run: false} };
 window.done = (async () => {

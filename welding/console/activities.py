@@ -25,8 +25,10 @@ __all__ = [
     "Activity",
     "CountedDetector",
     "CountedSensor",
+    "IlcCancelled",
     "run_calibration",
     "run_delta_t",
+    "run_ilc",
     "run_job",
     "run_teach",
     "run_track",
@@ -195,4 +197,35 @@ def run_track(
     verdict = run.verdict.get("line") or run.verdict.get("reason") or ""
     stopped = f"; STOPPED: {run.stopped}" if run.stopped else ""
     act.finish("done", f"max {run.tracking_error_max_mm * 1e3:.1f} µm{stopped}; {verdict}")
+    return result
+
+
+class IlcCancelled(Exception):
+    """The operator aborted the ILC between two trials."""
+
+
+def run_ilc(act: Activity, cancelled: threading.Event, seam: str, settings: Any) -> dict[str, Any]:
+    """ILC trials on a copy of the emulated cell with elastic joints (as ``welding ilc
+    --emulate``, simulated clock: the trials repeat one pass exactly); each trial's error
+    against the truth reaches the page as it ends. The operator's abort stops it between
+    two trials."""
+    from welding.ilc_emulate import run_ilc_emulated
+
+    done: list[dict[str, Any]] = []
+
+    def progress(trial: Any) -> None:
+        done.append(trial.summary())
+        act.update(trials=list(done))
+        if cancelled.is_set():
+            raise IlcCancelled("cancelled by the operator")
+
+    run = run_ilc_emulated(settings, seam=seam, progress=progress)
+    result = {k: v for k, v in run.items() if k not in ("profiles", "table")}
+    result["profiles"] = [np.round(p, 4).tolist() for p in run["profiles"]]
+    first, last = run["trials"][0], run["trials"][-1]
+    act.finish(
+        "done",
+        f"{len(run['trials'])} trials: max {first['error_max_mm'] * 1e3:.1f} µm in the first, "
+        f"{last['error_max_mm'] * 1e3:.1f} µm in the last",
+    )
     return result

@@ -127,6 +127,13 @@ BODIES = {
         which=("str", OPT), tool=("str", OPT), poses=("number", OPT), repeats=("number", OPT)
     ),
     "track": _b(seam=("str", OPT), speed=("number", OPT), tracked=("bool", OPT)),
+    "ilc": _b(
+        seam=("str", OPT),
+        speed=("number", OPT),
+        length=("number", OPT),
+        trials=("number", OPT),
+        model_payload_kg=("number", OPT),
+    ),
     "sensor_settings": _b(
         exposure_ms=("number", OPT), first_column=("number", OPT), columns=("number", OPT)
     ),
@@ -296,6 +303,8 @@ def create_app(
                  methods=post, rule=act("calibrate", True)),
         ApiRoute("/api/track", _api(lambda r, b: console.track(b), B["track"]), methods=post,
                  rule=act("track")),
+        ApiRoute("/api/ilc", _api(lambda r, b: console.ilc(b), B["ilc"]), methods=post,
+                 rule=act("ilc")),
         ApiRoute("/api/result/{kind}",
                  _api(lambda r, b: {"result": console.result(p(r, "kind"))}), rule=viewer),
         ApiRoute("/api/sensor/frame", frame, rule=viewer),

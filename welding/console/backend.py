@@ -40,14 +40,17 @@ from welding.console.activities import (
     Activity,
     CountedDetector,
     CountedSensor,
+    IlcCancelled,
     run_calibration,
     run_delta_t,
+    run_ilc,
     run_job,
     run_teach,
     run_track,
 )
 from welding.console.jobjson import JobJsonError, job_from_json, job_to_json, problems_json
 from welding.console.png import grey_png
+from welding.ilc import LearningDiverges
 from welding.process import JobAborted, JobRunner, PlanError, plan, steps_summary
 from welding.teach import SeamTeacher, TeachError
 from welding.tools import TOOL_KINDS, Entry, Tables, ToolDB, ToolDBError, check_location
@@ -903,6 +906,39 @@ class Console:
         act = Activity("track", detail={"seam": seam, "speed": speed})
         cancelled = threading.Event()
         self.start(act, partial(run_track, act, cancelled, str(seam), speed, tracked), cancelled)
+
+    # --- ILC (emulated cell only) -------------------------------------------------------------
+
+    def ilc(self, body: Any) -> None:
+        """ILC trials (:func:`welding.ilc_emulate.run_ilc_emulated`) on a copy of the emulated
+        cell with elastic joints, scored against its truth: only with ``--emulate``."""
+        if not self.emulated:
+            raise ConsoleError("the ILC runs on the emulated cell only (--emulate)", 409)
+        from welding.ilc_loop import IlcSettings
+        from welding.track_options import TRACK_SEAMS
+
+        b = body if isinstance(body, dict) else {}
+        seam = b.get("seam", "sine")
+        if seam not in TRACK_SEAMS:
+            raise ConsoleError(f"seam: one of {', '.join(TRACK_SEAMS)}")
+        trials = b.get("trials", 5)
+        if not isinstance(trials, int) or isinstance(trials, bool) or not 1 <= trials <= 20:
+            raise ConsoleError("trials: expected a whole number 1..20")
+        settings = IlcSettings(
+            speed_mm_s=_num(b.get("speed", 250.0), "speed", 10.0, 500.0),
+            weld_mm=_num(b.get("length", 200.0), "length", 20.0, 200.0),
+            trials=trials,
+            model_payload_kg=_num(b.get("model_payload_kg", 5.0), "model_payload_kg", 0.5, 20.0),
+        )
+        act = Activity("ilc", detail={"seam": seam, "total": trials, "trials": []})
+        cancelled = threading.Event()
+        self.start(
+            act,
+            partial(run_ilc, act, cancelled, str(seam), settings),
+            cancelled,
+            expected=(LearningDiverges,),
+            aborts=(IlcCancelled,),
+        )
 
     # --- sensor ------------------------------------------------------------------------------
 

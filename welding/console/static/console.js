@@ -121,6 +121,7 @@ function showPage() {
   if (page === "deltat") loadDeltaT().catch(() => {});
   if (page === "calibration") loadCalibration().catch(() => {});
   if (page === "track") loadTrack().catch(() => {});
+  if (page === "ilc") loadIlc().catch(() => {});
   if (page === "audit") loadAudit().catch(() => {});
 }
 window.addEventListener("hashchange", showPage);
@@ -225,7 +226,8 @@ function reasons(s) {
     "cal-abort": need("viewer") || running("calibration"),
     "cal-save": need("viewer") || (!calibrated && "no calibration result to save yet"),
     "dt-start": act || need("sensor"), "dt-abort": need("viewer") || running("delta_t"),
-    "tr-start": need("viewer", "link", "idle"),
+    "tr-start": need("viewer", "link", "idle"), "tr-abort": need("viewer") || running("track"),
+    "ilc-start": need("viewer", "link", "idle"), "ilc-abort": need("viewer") || running("ilc"),
     "set-apply": need("viewer", "link", "control", "sensor"),
     tools: need("viewer"),
   };
@@ -691,6 +693,7 @@ function activityName(a) {
     delta_t: () => "ΔT measurement",
     calibration: () => `${a.which.replace("-", " ")} calibration`,
     track: () => `tracked weld (${a.seam}, ${a.speed} mm/s)`,
+    ilc: () => `ILC (${a.seam})`,
   }[a.kind]();
 }
 function activityLine(a) {
@@ -701,6 +704,10 @@ function activityLine(a) {
       delta_t: () => `${Math.round(100 * a.fraction)} %`,
       calibration: () => `${a.measurements} measurements`,
       track: () => "",
+      ilc: () => {
+        const last = a.trials[a.trials.length - 1];
+        return `trial ${a.trials.length}/${a.total}` + (last ? `, the last ${(last.error_max_mm * 1e3).toFixed(1)} µm` : "");
+      },
     }[a.kind]();
     return `${activityName(a)}: running${progress ? ", " + progress : ""}`;
   }
@@ -743,6 +750,13 @@ function showActivity(a) {
     if (a.state === "done" && $("tr-info").dataset.shown !== a.message) {
       $("tr-info").dataset.shown = a.message;
       loadTrack();
+    }
+  } else if (a.kind === "ilc") {
+    showLine($("ilc-info"), a);
+    if (a.trials.length) plotIlcConvergence(a.trials);
+    if (a.state === "done" && $("ilc-info").dataset.shown !== a.message) {
+      $("ilc-info").dataset.shown = a.message;
+      loadIlc();
     }
   } else if (a.kind === "delta_t") {
     showLine($("dt-info"), a);
@@ -881,7 +895,7 @@ async function loadTrack() {
     { label: "true seam", pts: t.seam, color: COLORS.green, width: 6 },
     { label: "nominal path (untracked)", pts: t.nominal, color: COLORS.black, dash: [6, 4] },
     { label: "laser", pts: t.laser, color: COLORS.red, width: 1.5 },
-    { label: "measured seam points", pts: t.measured, color: COLORS.blue, line: false, points: 2 },
+    { label: "measured seam points", pts: t.measured, color: COLORS.blue, line: false, points: 1.5 },
   ], "x (mm, workpiece)", "y (mm, workpiece)");
   plot("tr-error", [{ label: "laser − seam, lateral", pts: result.error_um, color: COLORS.red }], "x (mm, workpiece)", "tracking error (µm)");
 }
@@ -891,6 +905,43 @@ $("tr-start").onclick = async () => {
   });
   say("tracked weld started", "info", runs("track"));
 };
+
+$("tr-abort").onclick = async () => { await api("POST", "/api/abort"); say("abort sent", "info", (s) => Boolean(s.activity && s.activity.state === "running")); };
+
+// --- ILC -----------------------------------------------------------------------------------
+
+function plotIlcConvergence(trials) {
+  plot("ilc-conv", [
+    { label: "max error", pts: trials.map((t) => [t.trial, t.error_max_mm * 1e3]), color: COLORS.red, points: 4 },
+    { label: "rms error", pts: trials.map((t) => [t.trial, t.error_rms_mm * 1e3]), color: COLORS.blue, points: 4 },
+  ], "trial (n)", "error against the true seam (µm)");
+}
+async function loadIlc() {
+  const { result } = await api("GET", "/api/result/ilc");
+  if (!result) return;
+  const t = result.trials;
+  const um = (v) => `${(v * 1e3).toFixed(1)} µm`;
+  const rows = [
+    ["seam, speed", `${result.seam}, ${result.speed_mm_s} mm/s, ${result.dynamics} joints`],
+    ["model payload", `${result.model_payload_kg} kg (the arm carries ${result.arm_payload_kg} kg)`],
+    ["convergence", result.convergence.converges ? `|Q(1 − L·G)| = ${result.convergence.norm.toFixed(3)} < 1` : "diverges"],
+    ...t.map((x) => [`trial ${x.trial}`, `max ${um(x.error_max_mm)}, rms ${um(x.error_rms_mm)}${x.stopped ? ", STOPPED: " + x.stopped : ""}`]),
+  ];
+  $("ilc-result").innerHTML = rows.map(([k, v]) => `<tr><th>${esc(k)}</th><td>${esc(v)}</td></tr>`).join("");
+  plotIlcConvergence(t);
+  const shades = [COLORS.red, COLORS.blue, COLORS.green, COLORS.black];
+  plot("ilc-profiles", result.profiles.map((p, i) => ({
+    label: `trial ${t[i].trial}`, pts: p.map((q) => [q[0], q[1] * 1e3]), color: shades[i % shades.length], dash: i >= shades.length ? [6, 4] : [],
+  })), "arc length (mm)", "error (µm)");
+}
+$("ilc-start").onclick = async () => {
+  await api("POST", "/api/ilc", {
+    seam: $("ilc-seam").value, speed: Number($("ilc-speed").value), length: Number($("ilc-length").value),
+    trials: Number($("ilc-trials").value), model_payload_kg: Number($("ilc-payload").value),
+  });
+  say("ILC started", "info", runs("ilc"));
+};
+$("ilc-abort").onclick = async () => { await api("POST", "/api/abort"); say("abort sent", "info", (s) => Boolean(s.activity && s.activity.state === "running")); };
 
 // --- audit log (operators) -----------------------------------------------------------------
 
