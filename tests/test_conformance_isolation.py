@@ -126,3 +126,17 @@ def test_no_outcome_depends_on_the_order_or_the_subset(
         if outcome is not canonical[cid][0]
     }
     assert changed == {}, (order, changed)
+
+
+def test_stop_restart_catches_a_robot_that_restarts_a_dropped_move(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A robot whose ResetMotion only holds the arm (as StopMove does) lets RestartMove start
+    the dropped move again: robot.motion.stop_restart fails it, naming RS-5.54."""
+    assert outcomes_in(["robot.motion.stop_restart"])["robot.motion.stop_restart"][0] is (
+        Outcome.PASS
+    )
+    monkeypatch.setattr(RobotEmulator, "reset_motion", RobotEmulator.stop_move)
+    outcome, message = outcomes_in(["robot.motion.stop_restart"])["robot.motion.stop_restart"]
+    assert outcome is Outcome.FAIL, message
+    assert "RestartMove after ResetMotion dropped the move" in message and "[RS-5.54]" in message

@@ -454,6 +454,88 @@ def motion_unreachable(ctx: Context) -> None:
             raise Fail("a refused move was queued", 0, _status(conn).get("queue"))
 
 
+def _held_still(conn: Conn, timeout: float) -> dict[str, Value]:
+    """GetStatus once ``moving`` is false (StopMove's hold reached), or the last one seen."""
+    deadline = time.monotonic() + timeout
+    while True:
+        status = _status(conn)
+        if not status.get("moving") or time.monotonic() > deadline:
+            return status
+        time.sleep(0.02)
+
+
+@case(
+    "robot.motion.stop_restart",
+    requirements=["RS-5.59", "RS-5.54"],
+    tags=["robot", "motion"],
+    service="robot",
+    motion=True,
+    budget=90.0,
+    commands=[*MOTION, C.STOP_MOVE, C.RESTART_MOVE, C.RESET_MOTION, C.ROBOT_STATUS],
+)
+def stop_restart(ctx: Context) -> str:
+    """The documented motion (joint 1 by +2 degrees and back) stopped and resumed: StopMove
+    holds the arm short of its target with the move still queued and GetStatus not moving
+    [RS-5.59]; RestartMove resumes it to the target, and a second RestartMove changes
+    nothing [RS-5.54]; the way back stopped and dropped by ResetMotion is not started again
+    by RestartMove [RS-5.54]."""
+    with _Motion(ctx) as m:
+        conn = m.conn
+        m.power()
+        start = _joints(conn)
+        target = list(start)
+        target[0] += STEP_DEG
+        conn.ok(C.JOINT_MOVE, Joints(target))
+        conn.ok(C.STOP_MOVE)
+        held = _held_still(conn, 10.0)
+        at = _joints(conn)
+        if held.get("moving"):
+            raise Fail("GetStatus while StopMove holds the arm", "moving false", held,
+                       requirement="RS-5.59")  # fmt: skip
+        if held.get("queue") != 1 or abs(at[0] - target[0]) < 0.01:
+            raise Fail(
+                "StopMove during a move: held short of the target with the move queued",
+                f"queue 1, joint 1 short of {target[0]:.3f}",
+                f"queue {held.get('queue')!r}, joint 1 at {at[0]:.3f}",
+                requirement="RS-5.59",
+            )
+        conn.ok(C.RESTART_MOVE)
+        again = conn.call(C.RESTART_MOVE)  # already restarted: changes nothing
+        if again.error is not None:
+            raise Fail("a second RestartMove", "a reply", again.error, requirement="RS-5.54")
+        if not _wait_still(conn, 30.0):
+            raise Fail("the restarted move did not end within 30 s", True, False)
+        reached = _joints(conn)
+        if abs(reached[0] - target[0]) > 0.05:
+            raise Fail("RestartMove resumes the held move to its target", target[0],
+                       reached[0], requirement="RS-5.54")  # fmt: skip
+        # the way back: stopped, dropped, and not started again by RestartMove
+        conn.ok(C.JOINT_MOVE, Joints(start))
+        conn.ok(C.STOP_MOVE)
+        _held_still(conn, 10.0)
+        conn.ok(C.RESET_MOTION)
+        dropped = _held_still(conn, 10.0)
+        before = _joints(conn)
+        conn.ok(C.RESTART_MOVE)
+        time.sleep(0.5)
+        after, status = _joints(conn), _status(conn)
+        conn.ok(C.JOINT_MOVE, Joints(start))  # back where the case began
+        _wait_still(conn, 30.0)
+        conn.ok(C.DISABLE_POWER)
+        if dropped.get("queue") != 0 or status.get("moving") or abs(after[0] - before[0]) > 0.01:
+            raise Fail(
+                "RestartMove after ResetMotion dropped the move",
+                "nothing moves, queue 0",
+                f"queue {status.get('queue')!r}, moving {status.get('moving')!r}, joint 1 "
+                f"{before[0]:.3f} -> {after[0]:.3f}",
+                requirement="RS-5.54",
+            )
+    return (
+        f"held at {at[0] - start[0]:+.3f} deg of {STEP_DEG:g}, resumed to the target; "
+        "a dropped move stays dropped"
+    )
+
+
 @case(
     "robot.motion.queued",
     requirements=["RS-5.11", "RS-5.22", "RS-5.59"],
