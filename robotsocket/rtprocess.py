@@ -40,8 +40,7 @@ from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
-from types import SimpleNamespace
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
@@ -57,7 +56,7 @@ from spec.errors import ErrorCode, ProtocolError
 from spec.params import Joints, Location, Value
 from spec.realtime import promote_current_thread
 from spec.registry import CommandId, lookup
-from spec.server import Handler, HandlerService, Identity, Session
+from spec.server import Handler, HandlerService, Identity, SessionView
 from spec.wire import MoveOutcome
 
 __all__ = [
@@ -188,13 +187,21 @@ def build_robot(config: dict[str, Any]) -> ChildParts:
 
 @dataclass(frozen=True)
 class Who:
-    """What a forwarded command's session holds, as the server process sees it."""
+    """A forwarded command's session as the server process saw it when it forwarded the
+    command: the :class:`~spec.server.SessionView` the child's handlers see."""
 
     id: int
     peer: tuple[Any, ...]
     in_control: bool
     #: Some session (this one or another) holds control.
-    held: bool
+    control_held: bool
+    control_lost: str | None = None
+
+    @classmethod
+    def of(cls, session: SessionView) -> Who:
+        return cls(
+            session.id, session.peer, session.in_control, session.control_held, session.control_lost
+        )
 
 
 @dataclass(frozen=True)
@@ -282,21 +289,9 @@ class Failed:
 # --- the child ----------------------------------------------------------------------------------
 
 
-class _RemoteSession:
-    """What a forwarded handler sees of the server's session."""
-
-    def __init__(
-        self, sid: int, peer: tuple[Any, ...], in_control: bool, held: bool, lost: str = ""
-    ) -> None:
-        self.id = sid
-        self.peer = peer
-        self.in_control = in_control
-        self.control_lost = lost or None
-        self.server = SimpleNamespace(control_holder=object() if held else None)
-
-    @classmethod
-    def of(cls, who: Who) -> _RemoteSession:
-        return cls(who.id, who.peer, who.in_control, who.held)
+def _no_session(why: str = "") -> Who:
+    """The session a control hook sees in the child: control ended for ``why``."""
+    return Who(0, ("", 0), False, False, why or None)
 
 
 class _ChildHost:
@@ -347,8 +342,7 @@ class _ChildHost:
         answer: Answer
         try:
             assert spec is not None
-            who = cast(Session, _RemoteSession.of(cmd.who))
-            answer = Ok(service.handle(who, spec, cmd.params))
+            answer = Ok(service.handle(cmd.who, spec, cmd.params))
         except ProtocolError as exc:
             answer = Err(int(exc.code), exc.message)
         except Exception as exc:
@@ -360,7 +354,7 @@ class _ChildHost:
     def _control_ended(self, rid: int, name: str, lost: bool, why: str = "") -> None:
         service = self.parts.services[name]
         hook = service.on_control_lost if lost else service.on_control_released
-        hook(cast(Session, _RemoteSession(0, ("", 0), False, False, why)))
+        hook(_no_session(why))
         self.publish()
         self._send(rid, Ok())
 
@@ -416,9 +410,7 @@ class _ChildHost:
         log.warning("%s: controlled stop", why)
         for service in self.parts.services.values():
             try:
-                service.on_control_lost(
-                    cast(Session, _RemoteSession(0, ("", 0), False, False, why))
-                )
+                service.on_control_lost(_no_session(why))
             except Exception:
                 log.exception("controlled stop failed")
         robot = self.parts.robot
@@ -595,11 +587,9 @@ class RealtimeProcess:
         return reply.value
 
     def command(
-        self, name: str, cid: int, params: tuple[Value, ...], session: Session
+        self, name: str, cid: int, params: tuple[Value, ...], session: SessionView
     ) -> tuple[Value, ...]:
-        held = session.server.control_holder is not None
-        who = Who(session.id, session.peer, session.in_control, held)
-        out: tuple[Value, ...] = self._call(Command(name, cid, params, who))
+        out: tuple[Value, ...] = self._call(Command(name, cid, params, Who.of(session)))
         return out
 
     def control_lost(self, name: str, why: str = "") -> None:
@@ -644,7 +634,7 @@ class ForwardedService(HandlerService):
             self.register(cid, self._forwarder(cid))
 
     def _forwarder(self, cid: int) -> Handler:
-        def handler(session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        def handler(session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
             return self.child.command(self.name, cid, params, session)
 
         return handler
@@ -652,13 +642,13 @@ class ForwardedService(HandlerService):
     def clock(self) -> float:
         return self.child.state.now()
 
-    def on_control_lost(self, session: Session) -> None:
+    def on_control_lost(self, session: SessionView) -> None:
         try:
             self.child.control_lost(self.name, session.control_lost or "")
         except ProtocolError as exc:
             log.error("controlled stop not forwarded: %s", exc.message)
 
-    def on_control_released(self, session: Session) -> None:
+    def on_control_released(self, session: SessionView) -> None:
         try:
             self.child.control_released(self.name)
         except ProtocolError as exc:
@@ -686,21 +676,21 @@ class RobotProcess(ForwardedService):
         self.child.check_alive()
         return self.child.state.read()
 
-    def _herej(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _herej(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         return (Joints(list(self.snapshot().measured)),)
 
-    def _here(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _here(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         tool, frame = params
         assert isinstance(tool, Location) and isinstance(frame, Location)
         q = np.array(self.snapshot().measured)
         return (Location(*here_at(self.model, q, tool.as_tuple(), frame.as_tuple())),)
 
-    def _status(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _status(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         s = self.snapshot()
         st = RobotStatus(s.powered, s.estop, s.moving, s.queue, None, self.child.state.now())
         return status_reply(st, s.error_code, s.error_message, session)
 
-    def _wait_end_move(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _wait_end_move(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         (timeout,) = params
         assert isinstance(timeout, float)
         if not (0.0 < timeout <= 3600.0):

@@ -38,7 +38,7 @@ from collections import Counter, deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from types import FrameType
-from typing import Any
+from typing import Any, Protocol
 
 from spec import wire
 from spec.auth import AuthBackoff, Network, address_allowed, tokens_equal
@@ -156,8 +156,35 @@ class _HotCounts:
         self.frames_in = self.replies = self.bytes_in = self.bytes_out = 0
 
 
+class SessionView(Protocol):
+    """What a service's handlers and hooks see of a connection: who it is and where it stands
+    with control, nothing of the server behind it. :class:`Session` is one; the real-time
+    child's forwarded commands carry another (:class:`robotsocket.rtprocess.Who`)."""
+
+    @property
+    def id(self) -> int: ...
+
+    @property
+    def peer(self) -> tuple[Any, ...]: ...
+
+    @property
+    def in_control(self) -> bool:
+        """This connection holds control."""
+        ...
+
+    @property
+    def control_held(self) -> bool:
+        """Some connection (this one or another) holds control."""
+        ...
+
+    @property
+    def control_lost(self) -> str | None:
+        """Why control was taken from this connection, None when it was not."""
+        ...
+
+
 class Session:
-    """One client connection, as the service sees it."""
+    """One client connection, as the server shell sees it (a :class:`SessionView`)."""
 
     def __init__(
         self,
@@ -191,6 +218,10 @@ class Session:
     @property
     def in_control(self) -> bool:
         return self.server.control_holder is self
+
+    @property
+    def control_held(self) -> bool:
+        return self.server.control_holder is not None
 
     @property
     def busy(self) -> bool:
@@ -276,7 +307,7 @@ class Service:
     blocking: frozenset[int] = frozenset()
 
     def handle(
-        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
     ) -> tuple[Value, ...]:
         """Execute a request whose parameters already match ``spec``; return the reply
         parameters or raise :class:`ProtocolError`."""
@@ -290,19 +321,19 @@ class Service:
         """The service clock in seconds (GetTime, status timestamps)."""
         return time.monotonic()
 
-    def on_control_lost(self, session: Session) -> None:
+    def on_control_lost(self, session: SessionView) -> None:
         """The controller is gone (closed, silent past its watchdog, or the server stops):
         stop what it started in a controlled way, process outputs first [RS-7.10]."""
 
-    def on_control_released(self, session: Session) -> None:
+    def on_control_released(self, session: SessionView) -> None:
         """The controller gave control back (ReleaseControl): what may be on only under
         control goes off, the laser first [RS-7.21]; queued moves go on [RS-7.11]."""
 
-    def on_disconnect(self, session: Session) -> None:
+    def on_disconnect(self, session: SessionView) -> None:
         """A connection closed (after control was released)."""
 
 
-Handler = Callable[[Session, tuple[Value, ...]], tuple[Value, ...]]
+Handler = Callable[[SessionView, tuple[Value, ...]], tuple[Value, ...]]
 
 
 class HandlerService(Service):
@@ -327,7 +358,7 @@ class HandlerService(Service):
         return None
 
     def handle(
-        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
     ) -> tuple[Value, ...]:
         handler = self._handlers.get(spec.id)  # an IntEnum hashes as its int
         if handler is None:  # the shell answers unknown IDs before: only a direct call
@@ -1094,6 +1125,7 @@ __all__ = [
     "ServerPolicy",
     "Service",
     "Session",
+    "SessionView",
     "listen",
     "parse_networks",
     "serve_until_signal",

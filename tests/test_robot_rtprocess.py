@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import pickle
 import re
 import signal
 import subprocess
@@ -33,7 +34,7 @@ from robotsocket.service import RobotService
 from spec.errors import ErrorCode, ProtocolError, RemoteError
 from spec.params import FloatArray, Joints, Location, Value
 from spec.registry import CommandId
-from spec.server import FramedServer
+from spec.server import FramedServer, SessionView
 
 C = CommandId
 TARGET = [20.0, -10.0, 100.0, 5.0, 60.0, 10.0]
@@ -316,3 +317,11 @@ def test_a_request_for_what_the_child_lacks_is_answered_with_an_error(
         child._call(request_, timeout=30.0)
     assert err.value.code is ErrorCode.INTERNAL_ERROR
     assert child.alive and child._call(ControlReleased("robot")) == ()
+
+
+def test_a_forwarded_session_is_a_session_view_with_no_server_behind_it() -> None:
+    """The child's handlers get the session as the server process saw it: a plain value that
+    pickles, typed as the shell's SessionView, with nothing of a server to fake."""
+    view: SessionView = Who(3, ("10.0.0.1", 5000), False, True, "watchdog")
+    assert Who.of(view) == view and pickle.loads(pickle.dumps(view)) == view
+    assert not hasattr(view, "server")
