@@ -38,10 +38,10 @@ from collections import Counter, deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from types import FrameType
-from typing import Any, Protocol
+from typing import Any
 
 from spec import wire
-from spec.auth import AuthBackoff, Network, address_allowed, tokens_equal
+from spec.auth import Network, address_allowed
 from spec.codec import (
     LARGE_FRAME,
     FrameDecoder,
@@ -51,6 +51,7 @@ from spec.codec import (
     encode_reply,
     error_packet,
 )
+from spec.control import ControlState, SessionView, WrongToken
 from spec.errors import ErrorCode, PeerError, ProtocolError
 from spec.params import IntArray, Value
 from spec.registry import CommandId, CommandSpec, check_params, commands_for, lookup
@@ -156,33 +157,6 @@ class _HotCounts:
         self.frames_in = self.replies = self.bytes_in = self.bytes_out = 0
 
 
-class SessionView(Protocol):
-    """What a service's handlers and hooks see of a connection: who it is and where it stands
-    with control, nothing of the server behind it. :class:`Session` is one; the real-time
-    child's forwarded commands carry another (:class:`robotsocket.rtprocess.Who`)."""
-
-    @property
-    def id(self) -> int: ...
-
-    @property
-    def peer(self) -> tuple[Any, ...]: ...
-
-    @property
-    def in_control(self) -> bool:
-        """This connection holds control."""
-        ...
-
-    @property
-    def control_held(self) -> bool:
-        """Some connection (this one or another) holds control."""
-        ...
-
-    @property
-    def control_lost(self) -> str | None:
-        """Why control was taken from this connection, None when it was not."""
-        ...
-
-
 class Session:
     """One client connection, as the server shell sees it (a :class:`SessionView`)."""
 
@@ -205,8 +179,6 @@ class Session:
         self.opened = time.monotonic()
         #: When the last frame arrived: the control lease runs from it [RS-7.13].
         self.alive_at = self.opened
-        #: Control lease (s) in force while this connection holds control [RS-7.13].
-        self.watchdog = server.policy.watchdog
         #: Why control was taken away from this connection, for its next control command.
         self.control_lost: str | None = None
         #: False after SetFrameCrc(false): frames to this client carry NO_CRC [RS-3.16].
@@ -217,11 +189,11 @@ class Session:
 
     @property
     def in_control(self) -> bool:
-        return self.server.control_holder is self
+        return self.server.control.holder is self
 
     @property
     def control_held(self) -> bool:
-        return self.server.control_holder is not None
+        return self.server.control.holder is not None
 
     @property
     def busy(self) -> bool:
@@ -423,13 +395,12 @@ class FramedServer:
         #: Control changes and the watchdog wait on this condition [RS-7.13].
         self._control = threading.Condition()
         self._watchdog_thread: threading.Thread | None = None
-        self.control_holder: Session | None = None
-        self.stopping_for: Session | None = None  # the controlled stop of a lost controller
+        #: Who holds control, the lease, the controlled stop; changed under ``_control``.
+        self.control: ControlState[Session] = ControlState()
         #: (service clock s, session ID, what, last frame) of every control change: "took",
         #: "released", "lost: why", stamped when the server saw it, before the service acted
         #: on it; ``last frame``: when the session's last frame arrived, on the same clock.
         self.control_events: deque[tuple[float, int, str, float]] = deque(maxlen=CONTROL_EVENTS)
-        self._auth = AuthBackoff()  # failed TakeControl attempts per address [RS-7.20]
         self.handler_errors: list[BaseException] = []
         register(self)
         self._implemented = frozenset(service.implemented()) | {int(c) for c in _COMMON}
@@ -767,11 +738,9 @@ class FramedServer:
         what needs an owner (lost: the controlled stop [RS-7.10]; released: the outputs
         [RS-7.21]) before control is free again."""
         with self._control:
-            holder = self.control_holder
-            if holder is None or (session is not None and holder is not session):
+            holder = self.control.end(session)
+            if holder is None:
                 return
-            self.control_holder = None
-            self.stopping_for = holder
             if lost:
                 holder.control_lost = why
             self._note_control(holder, f"lost: {why}" if lost else "released")
@@ -785,7 +754,7 @@ class FramedServer:
             self._guard(hook, holder)
         finally:
             with self._control:
-                self.stopping_for = None
+                self.control.stopped()
                 self._control.notify_all()
 
     def _note_control(self, session: Session, what: str) -> None:
@@ -797,18 +766,27 @@ class FramedServer:
     def control_free(self) -> bool:
         """Nobody holds control and no controlled stop is still running: TakeControl gets it."""
         with self._control:
-            return self.control_holder is None and self.stopping_for is None
+            return self.control.free
+
+    @property
+    def control_holder(self) -> Session | None:
+        """The connection holding control, None when nobody does."""
+        return self.control.holder
+
+    @control_holder.setter
+    def control_holder(self, session: Session | None) -> None:
+        self.control.holder = session
 
     def _watch_control(self) -> None:
         """[RS-7.13] A controller that shows no life for its watchdog period loses control.
         Sleeps until the holder's deadline; a frame in between moves the deadline on."""
         while not self._shutdown.is_set():
             with self._control:
-                holder = self.control_holder
+                holder, lease = self.control.holder, self.control.lease
                 if holder is None:
                     self._control.wait()
                     continue
-                late = time.monotonic() - (holder.alive_at + holder.watchdog)
+                late = time.monotonic() - self.control.expires_at(holder.alive_at)
                 if late < 0:
                     self._control.wait(-late)
                     continue
@@ -818,7 +796,7 @@ class FramedServer:
                     holder.alive_at = time.monotonic()
                     continue
             self._count("watchdog_expired")
-            self._revoke_control(holder, f"watchdog: no frame for {holder.watchdog:g} s")
+            self._revoke_control(holder, f"watchdog: no frame for {lease:g} s")
 
     # --- requests ----------------------------------------------------------------------------
 
@@ -897,13 +875,8 @@ class FramedServer:
             check_params(spec.params, packet.params, spec.name)
         if spec.needs_control and not session.in_control:
             # [RS-7.4] commands that move or switch anything need control.
-            if session.control_lost is not None:
-                holder = f"control was lost: {session.control_lost}"
-            elif self.control_holder is not None:
-                holder = "another client holds control"
-            else:
-                holder = "take control"
-            raise ProtocolError(f"{spec.name} needs control ({holder})", ErrorCode.NOT_IN_CONTROL)
+            why = self.control.refusal(session.control_lost)
+            raise ProtocolError(f"{spec.name} needs control ({why})", ErrorCode.NOT_IN_CONTROL)
         common = _COMMON.get(spec.id)
         if common is not None:
             return common(self, session, packet.params)
@@ -939,56 +912,31 @@ class FramedServer:
         return (data,)
 
     def _take_control(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        token = params[0]
-        expected = self.policy.token
-        if expected is not None:
-            assert isinstance(token, str)  # check_params made sure of it
-            address, now = session.peer[0], time.monotonic()
-            with self._lock:
-                wait = self._auth.wait(address, now)
-                if wait == 0.0:
-                    right = tokens_equal(token, expected)
-                    if right:
-                        self._auth.succeeded(address)
-                    else:
-                        failures, delay = self._auth.failed(address, now)
-            if wait > 0.0:
-                # [RS-7.20] refused without comparing, and not logged: a guesser would fill
-                # the log; its failures that were compared are.
-                raise ProtocolError(
-                    f"too many wrong tokens from {address}: retry in {wait:.2f} s",
-                    ErrorCode.AUTH_FAILED,
-                )
-            if not right:
-                log.warning(
-                    "session %d: wrong control token from %s (%d in a row, back-off %.2f s)",
-                    session.id, address, failures, delay,
-                )  # fmt: skip
-                raise ProtocolError("control token missing or wrong", ErrorCode.AUTH_FAILED)
-        policy = self.policy
-        watchdog = params[1] if len(params) > 1 else policy.watchdog
-        assert isinstance(watchdog, float)
-        if not policy.watchdog_min <= watchdog <= policy.watchdog_max:
-            # [RS-7.13] the lease a client asks for must be within the server's limits.
-            raise ProtocolError(
-                f"watchdog must be within [{policy.watchdog_min:g}, {policy.watchdog_max:g}] s,"
-                f" got {watchdog!r}",
-                ErrorCode.OUT_OF_RANGE,
-            )
+        token, policy = params[0], self.policy
+        assert isinstance(token, str)  # check_params made sure of it
+        address = session.peer[0]
+        try:
+            with self._lock:  # the back-off table is shared by every session's reader
+                self.control.authorize(address, token, policy.token, time.monotonic())
+        except WrongToken as exc:
+            # A refusal during the back-off is not logged (a guesser would fill the log); the
+            # failures that were compared are.
+            log.warning(
+                "session %d: wrong control token from %s (%d in a row, back-off %.2f s)",
+                session.id, address, exc.failures, exc.delay,
+            )  # fmt: skip
+            raise
+        asked = params[1] if len(params) > 1 else None
+        assert asked is None or isinstance(asked, float)
+        watchdog = self.control.check_lease(
+            asked, policy.watchdog, policy.watchdog_min, policy.watchdog_max
+        )
         with self._control:
-            # A new controller starts after the lost one's controlled stop (laser off first),
-            # never in the middle of it [RS-7.10].
-            if not self._control.wait_for(lambda: self.stopping_for is None, CONTROL_STOP_WAIT_S):
-                raise ProtocolError("a controlled stop is still running", ErrorCode.BUSY)
-            holder = self.control_holder
-            if holder is not None and holder is not session:
-                raise ProtocolError(
-                    f"control is held by {holder.peer[0]}:{holder.peer[1]}", ErrorCode.BUSY
-                )
-            session.watchdog = watchdog
+            # The wait for a lost controller's controlled stop is here; the rule is take's.
+            self._control.wait_for(lambda: self.control.stopping_for is None, CONTROL_STOP_WAIT_S)
+            self.control.take(session, watchdog)
             session.alive_at = time.monotonic()
             session.control_lost = None
-            self.control_holder = session
             self._note_control(session, "took")
             self._control.notify_all()
         log.info("session %d took control (watchdog %g s)", session.id, watchdog)

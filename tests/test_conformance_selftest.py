@@ -1102,7 +1102,7 @@ class NoBackoffServer(FramedServer):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self._auth = AuthBackoff(threshold=1 << 30)
+        self.control.backoff = AuthBackoff(threshold=1 << 30)
 
 
 class ExtendingBackoff(AuthBackoff):
@@ -1117,7 +1117,7 @@ class ExtendingBackoff(AuthBackoff):
 class ExtendingBackoffServer(FramedServer):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self._auth = ExtendingBackoff()
+        self.control.backoff = ExtendingBackoff()
 
 
 @pytest.mark.parametrize(
