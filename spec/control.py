@@ -1,5 +1,9 @@
 """Control of an endpoint as a plain object (PROTOCOL.md 7.1), the h11 split of the server.
 
+:class:`Slots` is the connection accounting beside it: who is served, who sits on a reserved
+connection for EmergencyStop only, and which one a newcomer evicts [RS-7.2], [RS-7.14],
+[RS-7.24].
+
 :class:`ControlState` holds who has control, the lease the holder asked for, the controlled
 stop still running for a lost holder, and TakeControl's token back-off; it decides every
 rule about them. It has no socket, thread or clock: times are arguments, and
@@ -9,12 +13,14 @@ service's hooks. A holder is any :class:`~spec.server.SessionView` (the server's
 
 from __future__ import annotations
 
+from collections import deque
+from dataclasses import dataclass
 from typing import Any, Generic, Protocol, TypeVar
 
 from spec.auth import AuthBackoff, tokens_equal
 from spec.errors import ErrorCode, ProtocolError
 
-__all__ = ["ControlState", "SessionView", "WrongToken"]
+__all__ = ["Admission", "ControlState", "SessionView", "Slots", "WrongToken"]
 
 
 class SessionView(Protocol):
@@ -153,3 +159,54 @@ class ControlState(Generic[H]):
         if self.holder is not None:
             return "another client holds control"
         return "take control"
+
+
+@dataclass(frozen=True)
+class Admission:
+    """What :meth:`Slots.admit` decided for a new connection."""
+
+    #: Over the client limit or its address's: BUSY, not served [RS-7.2], [RS-7.24].
+    full: bool
+    #: Over its address's limit [RS-7.24].
+    crowded: bool
+    #: Kept open on a reserved slot, for EmergencyStop only [RS-7.14].
+    reserved: bool
+
+
+class Slots(Generic[H]):
+    """The connections a server holds: the served ones and the reserved ones (over the client
+    limit, kept for EmergencyStop [RS-7.14]), oldest reserved first. The limits are arguments,
+    so a policy replaced while serving applies to the next connection."""
+
+    def __init__(self) -> None:
+        self.served: set[H] = set()
+        self.reserved: deque[H] = deque()
+
+    def admit(self, host: str, max_clients: int, per_address: int, reserved: int) -> Admission:
+        """Decide for a new connection from ``host`` (it is not added: :meth:`add`)."""
+        mine = sum(1 for s in self.served if s.peer[0] == host)
+        crowded = mine >= per_address  # [RS-7.24]
+        full = crowded or len(self.served) >= max_clients
+        return Admission(full, crowded, full and reserved > 0)
+
+    def add(self, session: H, admission: Admission, reserved: int) -> H | None:
+        """Hold ``session`` as ``admission`` says; returns the reserved connection it evicts
+        (the oldest, when all ``reserved`` slots are taken), which the caller closes."""
+        if not admission.full:
+            self.served.add(session)
+            return None
+        if not admission.reserved:
+            return None
+        evicted = self.reserved.popleft() if len(self.reserved) >= reserved else None
+        self.reserved.append(session)
+        return evicted
+
+    def remove(self, session: H) -> None:
+        """``session`` closed (served, reserved or already evicted)."""
+        self.served.discard(session)
+        if session in self.reserved:
+            self.reserved.remove(session)
+
+    def all(self) -> list[H]:
+        """Every connection held, served first."""
+        return [*self.served, *self.reserved]

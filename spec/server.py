@@ -35,7 +35,7 @@ import socket
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from types import FrameType
 from typing import Any
@@ -51,7 +51,7 @@ from spec.codec import (
     encode_reply,
     error_packet,
 )
-from spec.control import ControlState, SessionView, WrongToken
+from spec.control import ControlState, SessionView, Slots, WrongToken
 from spec.errors import ErrorCode, PeerError, ProtocolError
 from spec.params import IntArray, Value
 from spec.registry import CommandId, CommandSpec, check_params, commands_for, lookup
@@ -382,13 +382,13 @@ class FramedServer:
         self.address: tuple[str, int] = self._listener.getsockname()[:2]
         # shutdown() writes a byte here to wake the accept loop at once (no polling).
         self._wake_r, self._wake_w = socket.socketpair()
-        self._sessions: set[Session] = set()
-        self._reserved: deque[Session] = deque()
+        #: The served and the reserved connections; changed under ``_lock``.
+        self.slots: Slots[Session] = Slots()
         self._lock = threading.Lock()
         self._stats: Counter[str] = Counter()
         self._hot = _HotCounts()
         self._rejected: Counter[str] = Counter()
-        self._session_ids = iter(range(1, 1 << 62))
+        self._session_ids: Iterator[int] = iter(range(1, 1 << 62))
         self._shutdown = threading.Event()
         self._stopped = threading.Event()
         self._thread: threading.Thread | None = None
@@ -457,7 +457,7 @@ class FramedServer:
         if self._thread is not None:
             self._stopped.wait(timeout)
         with self._lock:
-            sessions = list(self._sessions) + list(self._reserved)
+            sessions = self.slots.all()
         for s in sessions:
             _close_quietly(s.sock)
         self._listener.close()
@@ -505,7 +505,7 @@ class FramedServer:
             hot = self._hot
             for key in _HotCounts.__slots__:
                 stats[key] += getattr(hot, key)
-            stats["clients"] = len(self._sessions)
+            stats["clients"] = len(self.slots.served)
             stats["rejected_by_code"] = dict(self._rejected)
         return stats
 
@@ -528,20 +528,18 @@ class FramedServer:
             log.warning("refused %s: not in the allow-list", peer[0])
             _close_quietly(sock)
             return
-        evicted: Session | None = None
+        policy = self.policy
         with self._lock:
-            mine = sum(1 for s in self._sessions if s.peer[0] == peer[0])
-            crowded = mine >= self.policy.per_address  # [RS-7.24]
-            full = crowded or len(self._sessions) >= self.policy.max_clients
-            reserved = full and self.policy.reserved_slots > 0
+            admission = self.slots.admit(
+                peer[0], policy.max_clients, policy.per_address, policy.reserved_slots
+            )
+            full, crowded, reserved = admission.full, admission.crowded, admission.reserved
             session = Session(self, sock, peer, reserved=reserved)
+            # the oldest reserved one makes room for a newcomer
+            evicted = self.slots.add(session, admission, policy.reserved_slots)
             if not full:
-                self._sessions.add(session)
                 self._stats["connections"] += 1
             elif reserved:
-                if len(self._reserved) >= self.policy.reserved_slots:
-                    evicted = self._reserved.popleft()  # the oldest reserved one makes room
-                self._reserved.append(session)
                 self._stats["reserved_connections"] += 1
         if evicted is not None:
             _close_quietly(evicted.sock)
@@ -707,9 +705,7 @@ class FramedServer:
     def _end_session(self, session: Session) -> None:
         session.closed = True
         with self._lock:
-            self._sessions.discard(session)
-            if session in self._reserved:
-                self._reserved.remove(session)
+            self.slots.remove(session)
         if session._worker is not None:
             session._worker.wake()
         _close_quietly(session.sock)

@@ -666,7 +666,7 @@ class CrashingServer(FramedServer):
         if seen > self.limit:
             self._shutdown.set()
             self._listener.close()
-            for s in list(self._sessions):
+            for s in list(self.slots.served):
                 try:
                     s.sock.shutdown(socket.SHUT_RDWR)
                 except OSError:

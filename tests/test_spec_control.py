@@ -1,5 +1,6 @@
 """The control state (spec.control) without sockets: holder, lease, controlled-stop ordering,
-token back-off, the refusal messages [RS-7.3], [RS-7.4], [RS-7.10], [RS-7.13], [RS-7.20]."""
+token back-off, the refusal messages [RS-7.3], [RS-7.4], [RS-7.10], [RS-7.13], [RS-7.20]; the
+connection slots [RS-7.2], [RS-7.14], [RS-7.24]."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from spec.auth import AuthBackoff
-from spec.control import ControlState, SessionView, WrongToken
+from spec.control import Admission, ControlState, SessionView, Slots, WrongToken
 from spec.errors import ErrorCode, ProtocolError
 
 
@@ -173,3 +174,62 @@ def test_at_most_one_holder_and_none_during_a_controlled_stop(ops: list[tuple[st
             assert state.stopping_for is None and state.holder is before_holder
         assert state.free == (state.holder is None and state.stopping_for is None)
         assert state.holder is None or state.stopping_for is None
+
+
+def _join(slots: Slots[Conn], conn: Conn, *, clients: int = 2, per: int = 2, res: int = 2) -> Any:
+    admission = slots.admit(conn.peer[0], clients, per, res)
+    return admission, slots.add(conn, admission, res)
+
+
+def test_served_up_to_the_limit_then_reserved_then_the_oldest_reserved_is_evicted() -> None:
+    """[RS-7.2] over the limit is BUSY; [RS-7.14] kept on a reserved slot, the oldest of which
+    makes room for a newcomer."""
+    slots: Slots[Conn] = Slots()
+    a, b, c, d, e = (Conn(i, (f"10.0.0.{i}", 1)) for i in range(5))
+    assert _join(slots, a) == (Admission(False, False, False), None)
+    assert _join(slots, b) == (Admission(False, False, False), None)
+    assert _join(slots, c) == (Admission(True, False, True), None)
+    assert _join(slots, d) == (Admission(True, False, True), None)
+    assert _join(slots, e) == (Admission(True, False, True), c)
+    assert slots.served == {a, b} and list(slots.reserved) == [d, e]
+    slots.remove(c)  # the evicted one's reader ends its session later: nothing to do
+    slots.remove(a)
+    assert slots.all() == [b, d, e]
+    assert _join(slots, c)[0] == Admission(False, False, False)  # a slot came free
+
+
+def test_one_address_cannot_take_every_slot() -> None:
+    """[RS-7.24] an address at its limit is crowded even with slots free."""
+    slots: Slots[Conn] = Slots()
+    one = [Conn(i, ("10.0.0.1", i)) for i in range(3)]
+    for conn in one[:2]:
+        _join(slots, conn, clients=8)
+    assert _join(slots, one[2], clients=8)[0] == Admission(True, True, True)
+    assert _join(slots, Conn(9, ("10.0.0.2", 1)), clients=8)[0].full is False
+
+
+def test_without_reserved_slots_a_full_server_holds_nothing_more() -> None:
+    slots: Slots[Conn] = Slots()
+    _join(slots, Conn(1), clients=1, res=0)
+    late = Conn(2, ("10.0.0.2", 1))
+    assert _join(slots, late, clients=1, res=0) == (Admission(True, False, False), None)
+    assert late not in slots.all()
+
+
+@given(st.lists(st.tuples(st.booleans(), st.integers(0, 3), st.integers(0, 9)), max_size=60))
+def test_slots_never_exceed_their_limits(ops: list[tuple[bool, int, int]]) -> None:
+    """Joins and leaves in any order: served at most the client limit and the per-address
+    limit, reserved at most the reserved slots, no connection in both."""
+    slots: Slots[Conn] = Slots()
+    conns = [Conn(i, (f"10.0.0.{i % 4}", i)) for i in range(10)]
+    for join, host, i in ops:
+        conn = conns[i]
+        if join and conn not in slots.all():
+            conn = conns[i] = Conn(i, (f"10.0.0.{host}", i))
+            _join(slots, conn, clients=5, per=3, res=2)
+        else:
+            slots.remove(conn)
+        assert len(slots.served) <= 5 and len(slots.reserved) <= 2
+        assert not slots.served & set(slots.reserved)
+        for h in range(4):
+            assert sum(1 for c in slots.served if c.peer[0] == f"10.0.0.{h}") <= 3

@@ -687,7 +687,7 @@ def test_requests_that_cannot_block_are_answered_by_the_thread_that_read_them(
         assert [p.request_id for p in read_packets(s, 3)] == [4, 2, 3]
         # the worker counts a request as pending until just after its reply went out
         deadline = time.monotonic() + 5
-        while any(x.busy for x in server._sessions) and time.monotonic() < deadline:
+        while any(x.busy for x in server.slots.served) and time.monotonic() < deadline:
             time.sleep(0.001)
         s.sendall(encode_packet(request(CommandId.HEREJ, 5)))
         read_packets(s, 1)
