@@ -4,8 +4,11 @@ A reader thread per connection reads bytes, feeds the sans-I/O :class:`FrameDeco
 answers each request in order. The shell owns every policy that is not a command's business:
 the allow-list, the client limit, frame size and timeouts, error packets for malformed frames,
 the common commands (Hello, Ping, TakeControl, ReleaseControl, GetTime), control ownership and
-its watchdog, parameter checks against the registry, and statistics. A service implements
-:class:`Service` (or :class:`HandlerService`, a table of handlers).
+its watchdog, parameter checks against the registry, and statistics. The rules of control
+and of the connection slots are plain objects of :mod:`spec.control` (the h11 split); this
+shell holds the locks, the threads and the sockets around them. A service implements
+:class:`Service` (or :class:`HandlerService`, a table of handlers); its handlers and hooks see
+a connection only as a :class:`SessionView`.
 
 Safety of control (PROTOCOL.md 7.1):
 
