@@ -9,7 +9,8 @@ keeps the TCP connections.
 - **Shared memory** (:mod:`robotsocket.shared_state`): the child publishes the joints, the
   status and the motion state every cycle and after every command; the server answers
   Herej, Here, RobotStatus, GetTime and WaitEndMove from it without asking the child.
-- **A pipe** (a socket pair carrying pickled tuples): every other command is forwarded as
+- **A pipe** (a socket pair carrying pickled ``(request ID, message)`` pairs, each message a
+  dataclass of this module): every other command is forwarded as a :class:`Command`
   (service, command ID, parameters, what the session holds) to the child's own
   :class:`~spec.server.HandlerService`, which answers exactly as in-process; its error
   packets come back with their codes. The child runs the service's urgent commands
@@ -39,8 +40,7 @@ from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
-from types import SimpleNamespace
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
@@ -56,15 +56,28 @@ from spec.errors import ErrorCode, ProtocolError
 from spec.params import Joints, Location, Value
 from spec.realtime import promote_current_thread
 from spec.registry import CommandId, lookup
-from spec.server import Handler, HandlerService, Identity, Session
+from spec.server import Handler, HandlerService, Identity, SessionView
 from spec.wire import MoveOutcome
 
 __all__ = [
+    "Answer",
     "ChildParts",
     "ChildStartError",
+    "Close",
+    "Command",
+    "ControlLost",
+    "ControlReleased",
+    "Err",
+    "Failed",
     "ForwardedService",
+    "Ok",
+    "Query",
+    "Ready",
     "RealtimeProcess",
+    "Request",
     "RobotProcess",
+    "Start",
+    "Who",
     "build_robot",
 ]
 
@@ -165,20 +178,120 @@ def build_robot(config: dict[str, Any]) -> ChildParts:
     return ChildParts(robot, {"robot": service}, start, stop, {"jitter": robot.jitter}, facts)
 
 
+# --- the pipe's messages ------------------------------------------------------------------------
+#
+# The parent sends (request ID, request) and the child answers (request ID, Ok | Err), once per
+# request, whatever its kind: a caller never waits out its timeout. Start-up is one Start from
+# the parent and one Ready or Failed from the child, before any request.
+
+
+@dataclass(frozen=True)
+class Who:
+    """A forwarded command's session as the server process saw it when it forwarded the
+    command: the :class:`~spec.server.SessionView` the child's handlers see."""
+
+    id: int
+    peer: tuple[Any, ...]
+    in_control: bool
+    #: Some session (this one or another) holds control.
+    control_held: bool
+    control_lost: str | None = None
+
+    @classmethod
+    def of(cls, session: SessionView) -> Who:
+        return cls(
+            session.id, session.peer, session.in_control, session.control_held, session.control_lost
+        )
+
+
+@dataclass(frozen=True)
+class Command:
+    """Execute command ``cid`` of service ``service`` for the session ``who``."""
+
+    service: str
+    cid: int
+    params: tuple[Value, ...]
+    who: Who
+
+
+@dataclass(frozen=True)
+class ControlLost:
+    """The controller of ``service`` is gone: its controlled stop [RS-7.10]."""
+
+    service: str
+    why: str = ""
+
+
+@dataclass(frozen=True)
+class ControlReleased:
+    """The controller of ``service`` gave control back [RS-7.21]."""
+
+    service: str
+
+
+@dataclass(frozen=True)
+class Query:
+    """Call the builder's named query with ``args``."""
+
+    name: str
+    args: tuple[Any, ...] = ()
+
+
+@dataclass(frozen=True)
+class Close:
+    """Stop the loops and exit; answered once they stopped."""
+
+
+Request = Command | ControlLost | ControlReleased | Query | Close
+
+
+@dataclass(frozen=True)
+class Ok:
+    """A request done; ``value`` is its result (a command's reply parameters)."""
+
+    value: Any = ()
+
+
+@dataclass(frozen=True)
+class Err:
+    """A request refused or failed, with the wire code the server replies with."""
+
+    code: int
+    message: str
+
+
+Answer = Ok | Err
+
+
+@dataclass(frozen=True)
+class Start:
+    """The parent's first message: the builder (``"module:function"``) and its config."""
+
+    target: str
+    config: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class Ready:
+    """The child's first message when it was built: its services and the builder's facts."""
+
+    infos: dict[str, ServiceInfo]
+    facts: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class Failed:
+    """The child's first message when it could not be built (one line)."""
+
+    message: str
+
+
 # --- the child ----------------------------------------------------------------------------------
 
 
-class _RemoteSession:
-    """What a forwarded handler sees of the server's session."""
-
-    def __init__(
-        self, sid: int, peer: tuple[str, int], in_control: bool, held: bool, lost: str = ""
-    ) -> None:
-        self.id = sid
-        self.peer = peer
-        self.in_control = in_control
-        self.control_lost = lost or None
-        self.server = SimpleNamespace(control_holder=object() if held else None)
+def _no_session(why: str = "") -> Who:
+    """The session a control hook sees in the child: control ended for ``why``."""
+    return Who(0, ("", 0), False, False, why or None)
 
 
 class _ChildHost:
@@ -194,9 +307,9 @@ class _ChildHost:
         self.close_rid = 0
         self._rest_published = False
         self._send_lock = threading.Lock()
-        self._queues: dict[str, queue.SimpleQueue[tuple[Any, ...] | None]] = {}
+        self._queues: dict[str, queue.SimpleQueue[tuple[int, Command] | None]] = {}
         for name in parts.services:
-            q: queue.SimpleQueue[tuple[Any, ...] | None] = queue.SimpleQueue()
+            q: queue.SimpleQueue[tuple[int, Command] | None] = queue.SimpleQueue()
             self._queues[name] = q
             threading.Thread(target=self._work, args=(q,), name=f"rt-{name}", daemon=True).start()
 
@@ -211,35 +324,45 @@ class _ChildHost:
             self.publish()
         self._rest_published = rest
 
-    def _send(self, msg: tuple[Any, ...]) -> None:
+    def _send(self, rid: int, answer: Answer) -> None:
         with self._send_lock:
             try:
-                self.conn.send(msg)
+                self.conn.send((rid, answer))
             except OSError:
                 pass  # the parent is gone: serve() notices and stops the arm
 
-    def _work(self, q: queue.SimpleQueue[tuple[Any, ...] | None]) -> None:
+    def _work(self, q: queue.SimpleQueue[tuple[int, Command] | None]) -> None:
         promote_current_thread(COMMAND_PRIORITY)
         while (item := q.get()) is not None:
             self._execute(*item)
 
-    def _execute(
-        self, rid: int, name: str, cid: int, params: tuple[Value, ...], who: tuple[Any, ...]
-    ) -> None:
-        service = self.parts.services[name]
-        spec = lookup(cid, service.identity.service)
+    def _execute(self, rid: int, cmd: Command) -> None:
+        service = self.parts.services[cmd.service]
+        spec = lookup(cmd.cid, service.identity.service)
+        answer: Answer
         try:
             assert spec is not None
-            reply: tuple[Any, ...] = (
-                "ok", rid, service.handle(cast(Session, _RemoteSession(*who)), spec, params)
-            )  # fmt: skip
+            answer = Ok(service.handle(cmd.who, spec, cmd.params))
         except ProtocolError as exc:
-            reply = ("err", rid, int(exc.code), exc.message)
+            answer = Err(int(exc.code), exc.message)
         except Exception as exc:
-            log.exception("forwarded command 0x%04x failed", cid)
-            reply = ("err", rid, int(ErrorCode.INTERNAL_ERROR), f"internal error: {exc!r}")
+            log.exception("forwarded command 0x%04x failed", cmd.cid)
+            answer = Err(int(ErrorCode.INTERNAL_ERROR), f"internal error: {exc!r}")
         self.publish()  # before the reply: a poll after it sees the command's effect
-        self._send(reply)
+        self._send(rid, answer)
+
+    def _control_ended(self, rid: int, name: str, lost: bool, why: str = "") -> None:
+        service = self.parts.services[name]
+        hook = service.on_control_lost if lost else service.on_control_released
+        hook(_no_session(why))
+        self.publish()
+        self._send(rid, Ok())
+
+    def _query(self, rid: int, query: Query) -> None:
+        try:
+            self._send(rid, Ok(self.parts.queries[query.name](*query.args)))
+        except Exception as exc:  # noqa: BLE001 - every query is answered, never a wait
+            self._send(rid, Err(int(ErrorCode.INTERNAL_ERROR), repr(exc)))
 
     def serve(self) -> str:
         """Answer the parent until it says close (returns "close") or is gone."""
@@ -251,33 +374,35 @@ class _ChildHost:
                     if os.getppid() != self.parent:
                         return "the server process is gone (new parent)"
                     continue
-                msg = self.conn.recv()
+                rid, msg = self.conn.recv()
             except (EOFError, OSError):
                 return "the server process is gone (pipe closed)"
-            kind, rid = msg[0], msg[1]
-            if kind == "cmd":
-                _, _, name, cid, params, who = msg
-                if cid in self.parts.services[name].urgent:
-                    self._execute(rid, name, cid, params, who)  # overtakes queued commands
-                else:
-                    self._queues[name].put((rid, name, cid, params, who))
-            elif kind in ("lost", "released"):
-                service = self.parts.services[msg[2]]
-                hook = service.on_control_lost if kind == "lost" else service.on_control_released
-                who = _RemoteSession(0, ("", 0), False, False, *msg[3:4])
-                hook(cast(Session, who))
-                self.publish()
-                self._send(("ok", rid, ()))
-            elif kind == "query":
-                try:
-                    self._send(("ok", rid, self.parts.queries[msg[2]](*msg[3])))
-                except Exception as exc:  # noqa: BLE001 - every query is answered, never a wait
-                    self._send(("err", rid, int(ErrorCode.INTERNAL_ERROR), repr(exc)))
-            elif kind == "close":
+            if isinstance(msg, Close):
                 self.close_rid = rid
                 return "close"
-            else:  # every kind is answered: a caller never waits out its timeout
-                self._send(("err", rid, int(ErrorCode.INTERNAL_ERROR), f"unknown kind {kind!r}"))
+            try:
+                self._dispatch(rid, msg)
+            except Exception as exc:  # every message is answered, never a wait
+                log.exception("pipe message %s failed", type(msg).__name__)
+                self._send(rid, Err(int(ErrorCode.INTERNAL_ERROR), f"internal error: {exc!r}"))
+
+    def _dispatch(self, rid: int, msg: object) -> None:
+        """Answer ``msg`` now, or queue it on its service's worker (which answers it)."""
+        match msg:
+            case Command(service=name, cid=cid) if name in self.parts.services:
+                if cid in self.parts.services[name].urgent:
+                    self._execute(rid, msg)  # overtakes queued commands
+                else:
+                    self._queues[name].put((rid, msg))
+            case ControlLost(service=name, why=why) if name in self.parts.services:
+                self._control_ended(rid, name, True, why)
+            case ControlReleased(service=name) if name in self.parts.services:
+                self._control_ended(rid, name, False)
+            case Query():
+                self._query(rid, msg)
+            case _:  # every message is answered: a caller never waits out its timeout
+                what = f"unknown message {type(msg).__name__} {msg!r:.80}"
+                self._send(rid, Err(int(ErrorCode.INTERNAL_ERROR), what))
 
     def controlled_stop(self, why: str) -> None:
         """[RS-7.10] as for a lost controller: laser off first, the arm decelerates along its
@@ -285,9 +410,7 @@ class _ChildHost:
         log.warning("%s: controlled stop", why)
         for service in self.parts.services.values():
             try:
-                service.on_control_lost(
-                    cast(Session, _RemoteSession(0, ("", 0), False, False, why))
-                )
+                service.on_control_lost(_no_session(why))
             except Exception:
                 log.exception("controlled stop failed")
         robot = self.parts.robot
@@ -304,7 +427,8 @@ def child_main(argv: list[str]) -> int:
     # child (close), a lost server makes it stop the arm; never a KeyboardInterrupt here.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     conn = Connection(int(argv[0]))
-    target, config = conn.recv()
+    start: Start = conn.recv()
+    target, config = start.target, start.config
     logging.basicConfig(
         level=config.get("log_level", logging.INFO),
         format="%(asctime)s %(levelname)-7s %(name)s[rt]: %(message)s",
@@ -316,7 +440,7 @@ def child_main(argv: list[str]) -> int:
     try:
         parts: ChildParts = getattr(importlib.import_module(module), func)(config)
     except (ChildStartError, ValueError, KinematicsError, OSError) as exc:
-        conn.send(("failed", str(exc)))
+        conn.send(Failed(str(exc)))
         return 2
     host = _ChildHost(conn, parts, state, parent)
     parts.robot.cycle_hooks.append(host.on_cycle)
@@ -327,7 +451,7 @@ def child_main(argv: list[str]) -> int:
         name: ServiceInfo(s.identity, s.implemented(), s.urgent, s.blocking)
         for name, s in parts.services.items()
     }
-    conn.send(("ready", infos, parts.facts))
+    conn.send(Ready(infos, parts.facts))
     log.info("real-time process pid %d serving %s", os.getpid(), ", ".join(infos))
     why = host.serve()
     if why != "close":
@@ -336,7 +460,7 @@ def child_main(argv: list[str]) -> int:
     state.close()
     if why == "close":
         try:
-            conn.send(("ok", host.close_rid, ()))
+            conn.send((host.close_rid, Ok()))
         except OSError:
             pass
     log.info("real-time process exits")
@@ -371,23 +495,24 @@ class RealtimeProcess:
         theirs.close()
         # the child logs what this process would log
         config = {"log_level": logging.getLogger().getEffectiveLevel(), **config}
-        self._conn.send((target, config))
-        msg: tuple[Any, ...] = ("failed", "")
+        self._conn.send(Start(target, config))
+        msg: Ready | Failed = Failed("")
         try:
             if self._conn.poll(READY_TIMEOUT_S):
                 msg = self._conn.recv()
         except (EOFError, OSError):
             pass
         self.state.unlink()  # both sides have it mapped: nothing left behind after a crash
-        if msg[0] != "ready":
+        if not isinstance(msg, Ready):
             self._kill()
-            raise ChildStartError(msg[1] or f"real-time process failed (exit {self.proc.poll()})")
-        self.infos: dict[str, ServiceInfo] = msg[1]
-        self.facts: dict[str, Any] = msg[2]
+            why = msg.message or f"real-time process failed (exit {self.proc.poll()})"
+            raise ChildStartError(why)
+        self.infos: dict[str, ServiceInfo] = msg.infos
+        self.facts: dict[str, Any] = msg.facts
         self.pid = self.proc.pid
         self._lock = threading.Lock()
         self._send_lock = threading.Lock()
-        self._pending: dict[int, Future[tuple[Any, ...]]] = {}
+        self._pending: dict[int, Future[Answer]] = {}
         self._ids = itertools.count(1)
         self.dead: str | None = None
         self._closing = False
@@ -405,13 +530,13 @@ class RealtimeProcess:
     def _read(self) -> None:
         while True:
             try:
-                msg = self._conn.recv()
+                rid, answer = self._conn.recv()
             except (EOFError, OSError):
                 break
             with self._lock:
-                waiter = self._pending.pop(msg[1], None)
+                waiter = self._pending.pop(rid, None)
             if waiter is not None:
-                waiter.set_result(msg)
+                waiter.set_result(answer)
         code = self.proc.wait()
         with self._lock:
             if self.dead is None:
@@ -432,15 +557,16 @@ class RealtimeProcess:
         if self.dead is not None:
             raise ProtocolError(f"robot unavailable: {self.dead}", ErrorCode.BAD_STATE)
 
-    def _call(self, kind: str, *body: Any, timeout: float = COMMAND_TIMEOUT_S) -> Any:
-        waiter: Future[tuple[Any, ...]] = Future()
+    def _call(self, request: Request, timeout: float = COMMAND_TIMEOUT_S) -> Any:
+        """Send ``request``, wait for its answer; an :class:`Err` raises as ProtocolError."""
+        waiter: Future[Answer] = Future()
         with self._lock:
             self.check_alive()
             rid = next(self._ids)
             self._pending[rid] = waiter
         try:
             with self._send_lock:
-                self._conn.send((kind, rid, *body))
+                self._conn.send((rid, request))
         except OSError:
             pass  # the reader sees the EOF and fails the waiter
         try:
@@ -452,37 +578,35 @@ class RealtimeProcess:
                 f"robot unavailable: the real-time process did not answer in {timeout:g} s",
                 ErrorCode.BAD_STATE,
             ) from None
-        if reply[0] == "err":
+        if isinstance(reply, Err):
             try:
-                code = ErrorCode(reply[2])
+                code = ErrorCode(reply.code)
             except ValueError:
                 code = ErrorCode.INTERNAL_ERROR
-            raise ProtocolError(reply[3], code)
-        return reply[2]
+            raise ProtocolError(reply.message, code)
+        return reply.value
 
     def command(
-        self, name: str, cid: int, params: tuple[Value, ...], session: Session
+        self, name: str, cid: int, params: tuple[Value, ...], session: SessionView
     ) -> tuple[Value, ...]:
-        held = session.server.control_holder is not None
-        who = (session.id, session.peer, session.in_control, held)
-        out: tuple[Value, ...] = self._call("cmd", name, cid, params, who)
+        out: tuple[Value, ...] = self._call(Command(name, cid, params, Who.of(session)))
         return out
 
     def control_lost(self, name: str, why: str = "") -> None:
-        self._call("lost", name, why)
+        self._call(ControlLost(name, why))
 
     def control_released(self, name: str) -> None:
-        self._call("released", name)
+        self._call(ControlReleased(name))
 
     def query(self, name: str, *args: Any) -> Any:
-        return self._call("query", name, args)
+        return self._call(Query(name, args))
 
     def close(self, timeout: float = 10.0) -> None:
         """Stop the child (its loops stop, it logs its tick jitter) and wait for it."""
         self._closing = True
         if self.dead is None:
             try:
-                self._call("close", timeout=timeout)
+                self._call(Close(), timeout=timeout)
             except ProtocolError:
                 pass
         try:
@@ -510,7 +634,7 @@ class ForwardedService(HandlerService):
             self.register(cid, self._forwarder(cid))
 
     def _forwarder(self, cid: int) -> Handler:
-        def handler(session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        def handler(session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
             return self.child.command(self.name, cid, params, session)
 
         return handler
@@ -518,13 +642,13 @@ class ForwardedService(HandlerService):
     def clock(self) -> float:
         return self.child.state.now()
 
-    def on_control_lost(self, session: Session) -> None:
+    def on_control_lost(self, session: SessionView) -> None:
         try:
             self.child.control_lost(self.name, session.control_lost or "")
         except ProtocolError as exc:
             log.error("controlled stop not forwarded: %s", exc.message)
 
-    def on_control_released(self, session: Session) -> None:
+    def on_control_released(self, session: SessionView) -> None:
         try:
             self.child.control_released(self.name)
         except ProtocolError as exc:
@@ -552,21 +676,21 @@ class RobotProcess(ForwardedService):
         self.child.check_alive()
         return self.child.state.read()
 
-    def _herej(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _herej(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         return (Joints(list(self.snapshot().measured)),)
 
-    def _here(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _here(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         tool, frame = params
         assert isinstance(tool, Location) and isinstance(frame, Location)
         q = np.array(self.snapshot().measured)
         return (Location(*here_at(self.model, q, tool.as_tuple(), frame.as_tuple())),)
 
-    def _status(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _status(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         s = self.snapshot()
         st = RobotStatus(s.powered, s.estop, s.moving, s.queue, None, self.child.state.now())
         return status_reply(st, s.error_code, s.error_message, session)
 
-    def _wait_end_move(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _wait_end_move(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         (timeout,) = params
         assert isinstance(timeout, float)
         if not (0.0 < timeout <= 3600.0):

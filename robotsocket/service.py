@@ -36,7 +36,7 @@ from robotsocket.interface import (
 from spec.errors import ErrorCode, ProtocolError
 from spec.params import FloatArray, Joints, Location, Matrix, Value
 from spec.registry import CommandId
-from spec.server import Handler, HandlerService, Identity, Session
+from spec.server import Handler, HandlerService, Identity, SessionView
 from spec.wire import MoveOutcome
 
 log = logging.getLogger(__name__)
@@ -62,7 +62,9 @@ def error_code(exc: RobotError) -> ErrorCode:
     return ErrorCode.INTERNAL_ERROR
 
 
-def status_reply(st: RobotStatus, code: int, message: str, session: Session) -> tuple[Value, ...]:
+def status_reply(
+    st: RobotStatus, code: int, message: str, session: SessionView
+) -> tuple[Value, ...]:
     """The RobotStatus reply parameters (the last error as its wire code and message)."""
     return (
         st.powered,
@@ -70,7 +72,7 @@ def status_reply(st: RobotStatus, code: int, message: str, session: Session) -> 
         st.moving,
         st.queue,
         session.in_control,
-        session.server.control_holder is not None,
+        session.control_held,
         code,
         message,
         float(st.time),
@@ -152,7 +154,7 @@ class RobotService(HandlerService):
     def clock(self) -> float:
         return self.robot.time()
 
-    def on_control_lost(self, session: Session) -> None:
+    def on_control_lost(self, session: SessionView) -> None:
         # [RS-7.10] the robot first (laser off, controlled stop, outputs safe), then the rest.
         try:
             why = session.control_lost
@@ -164,7 +166,7 @@ class RobotService(HandlerService):
                 except Exception:
                     log.exception("control-lost hook failed")
 
-    def on_control_released(self, session: Session) -> None:
+    def on_control_released(self, session: SessionView) -> None:
         # [RS-7.21] the outputs go off (laser first); queued moves and triggers go on.
         self.robot.on_control_released()
 
@@ -172,47 +174,47 @@ class RobotService(HandlerService):
 
     @staticmethod
     def _simple(fn: Callable[[], None]) -> Handler:
-        def handler(session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+        def handler(session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
             fn()
             return ()
 
         return handler
 
-    def _status(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _status(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         st = self.robot.status()
         err = st.last_error
         code, message = (0, "") if err is None else (int(error_code(err)), str(err))
         return status_reply(st, code, message, session)
 
-    def _herej(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _herej(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         return (Joints(self.robot.herej_values()),)
 
-    def _here(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _here(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         return (Location(*self.robot.here(_loc(params[0]), _loc(params[1]))),)
 
-    def _enable_power(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _enable_power(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         self.robot.enable_power()
         return ()
 
-    def _disable_power(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _disable_power(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         self.robot.disable_power()
         return ()
 
-    def _joint_move(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _joint_move(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         joints = params[0]
         assert isinstance(joints, Joints)
         if len(joints.values) != 6:
             raise InvalidArgumentError(f"JointMove needs 6 joints, got {len(joints.values)}")
         return (self.robot.joint_move(np.array(joints.values)),)
 
-    def _tool_move_j(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _tool_move_j(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         return (self.robot.tool_move_j(_loc(params[0]), _loc(params[1]), _loc(params[2])),)
 
-    def _tool_move_l(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _tool_move_l(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         return (self.robot.tool_move_l(_loc(params[0]), _loc(params[1]), _loc(params[2])),)
 
     def _tool_move_trajectory(
-        self, session: Session, params: tuple[Value, ...]
+        self, session: SessionView, params: tuple[Value, ...]
     ) -> tuple[Value, ...]:
         times, locations, tool, frame = params
         assert isinstance(times, FloatArray) and isinstance(locations, Matrix)
@@ -229,28 +231,28 @@ class RobotService(HandlerService):
             ) from None
         return (move_id,)
 
-    def _alter_begin(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _alter_begin(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         try:
             self.robot.alter_begin(_loc(params[0]), _float(params[1]))
         except NotImplementedError:
             raise ProtocolError("alter mode not implemented", ErrorCode.NOT_SUPPORTED) from None
         return ()
 
-    def _alter(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _alter(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         try:
             applied = self.robot.alter(_loc(params[0]))
         except NotImplementedError:
             raise ProtocolError("alter mode not implemented", ErrorCode.NOT_SUPPORTED) from None
         return (Location(*(float(v) for v in applied)),)
 
-    def _alter_end(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _alter_end(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         try:
             self.robot.alter_end()
         except NotImplementedError:
             raise ProtocolError("alter mode not implemented", ErrorCode.NOT_SUPPORTED) from None
         return ()
 
-    def _alter_queue(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _alter_queue(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         times, table = params
         assert isinstance(times, FloatArray) and isinstance(table, Matrix)
         t = np.array(times.values, dtype=np.float64)
@@ -270,11 +272,11 @@ class RobotService(HandlerService):
             float(now),
         )
 
-    def _set_mdesc(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _set_mdesc(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         self.robot.set_motion_desc(MotionDesc(*(_float(p) for p in params)))
         return ()
 
-    def _get_mdesc(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _get_mdesc(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         d = self.robot.motion_desc()
         return (
             d.joint_speed,
@@ -285,33 +287,33 @@ class RobotService(HandlerService):
             d.blend,
         )
 
-    def _wait_end_move(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _wait_end_move(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         ended = self.robot.wait_end_move(_float(params[0]))
         outcome, why = self.robot.move_outcome() if ended else (MoveOutcome.MOVING, "")
         return wait_reply(outcome, why)
 
-    def _estop(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _estop(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         log.warning("emergency stop requested by session %d (%s)", session.id, session.peer[0])
         self.robot.emergency_stop()
         return ()
 
-    def _set_output(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _set_output(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         name, value = params
         assert isinstance(name, str) and isinstance(value, bool)
         self.robot.set_output(name, value)
         return ()
 
-    def _read_io(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _read_io(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         name = params[0]
         assert isinstance(name, str)
         value, is_output = self.robot.read_io(name)
         return (value, is_output)
 
-    def _list_io(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _list_io(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         outputs, inputs = self.robot.list_io()
         return (",".join(outputs), ",".join(inputs))
 
-    def _joint_log(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _joint_log(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         since = _float(params[0])
         if math.isnan(since):
             # [RS-5.58] NaN is no time; ±inf are (the whole buffer, no sample).
@@ -320,6 +322,6 @@ class RobotService(HandlerService):
         rows = np.column_stack([times, joints]) if len(times) else np.zeros((0, 7))
         return (Matrix(rows.shape[0], 7, rows.ravel().tolist()), float(self.robot.period))
 
-    def _joint_limits(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _joint_limits(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         lim = self.robot.joint_limits()
         return (Matrix(6, 2, lim.ravel().tolist()),)

@@ -24,7 +24,7 @@ from robotsocket.interface import BadStateError, OutOfRangeError, RobotInterface
 from robotsocket.service import RobotService
 from spec.params import FloatArray, Location, Matrix, Value
 from spec.registry import BY_ID, SEAM_POINT_COLUMNS, CommandId
-from spec.server import Handler, Session
+from spec.server import Handler, SessionView
 from sync.seam_chain import FlangeToBase
 from sync.udp import RobotSyncCore, SyncStateError, UdpSyncEndpoint
 
@@ -139,13 +139,13 @@ class SyncService:
 
     # --- handlers ----------------------------------------------------------------------------
 
-    def _set_endpoint(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _set_endpoint(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         host, port = params
         assert isinstance(host, str) and isinstance(port, int)
         self.set_endpoint(host, port)
         return ()
 
-    def _set_delay(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _set_delay(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         (delta_t,) = params
         assert isinstance(delta_t, float)
         if not (math.isfinite(delta_t) and abs(delta_t) <= 1.0):
@@ -153,14 +153,14 @@ class SyncService:
         self.core.set_delay(delta_t)
         return ()
 
-    def _set_tool(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _set_tool(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         (loc,) = params
         assert isinstance(loc, Location)
         with self.core.lock:
             self.core.sensor2flange = location_to_transform(np.array(loc.as_tuple()))
         return ()
 
-    def _get_config(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _get_config(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         host, port = self.endpoint if self.endpoint is not None else ("", 0)
         with self.core.lock:
             s2f = transform_to_location(self.core.sensor2flange)
@@ -175,27 +175,27 @@ class SyncService:
             float(rate),
         )
 
-    def _start(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _start(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         rate, count = params
         assert isinstance(rate, float) and isinstance(count, int)
         return (self.start(rate, count),)
 
-    def _schedule(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _schedule(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         (times,) = params
         assert isinstance(times, FloatArray)
         return (self.schedule(list(times.values)),)
 
-    def _stop(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _stop(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         self.core.stop()
         return ()
 
-    def _points(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _points(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         (since,) = params
         assert isinstance(since, int)
         rows = self.core.points_since(since, MAX_ROWS)
         return (Matrix(rows.shape[0], len(SEAM_POINT_COLUMNS), rows.ravel().tolist()),)
 
-    def _statistics(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _statistics(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         s = self.core.statistics()
         keys = [p.name for p in BY_ID[CommandId.GET_SYNC_STATISTICS].reply]
         return tuple(s[k] for k in keys)

@@ -22,7 +22,7 @@ from spec.codec import PreparedParams, prepare_params
 from spec.errors import ErrorCode, ProtocolError
 from spec.params import Image, Location, Matrix, Value
 from spec.registry import CommandId
-from spec.server import HandlerService, Identity, Session
+from spec.server import HandlerService, Identity, SessionView
 from spec.wire import PixelFormat, PixelOrder, SensorStatus
 
 log = logging.getLogger(__name__)
@@ -70,13 +70,13 @@ class SensorService(HandlerService):
     def error_code(self, exc: Exception) -> ErrorCode | None:
         return ErrorCode.OUT_OF_RANGE if isinstance(exc, SensorError) else None
 
-    def on_control_lost(self, session: Session) -> None:
+    def on_control_lost(self, session: SessionView) -> None:
         # [RS-7.10] [RS-7.23] the laser goes off and stays off until SetLaser switches it on.
         if self.sensor.settings.laser:
             log.warning("controller lost: sensor laser off")
             self.sensor.set_laser(False)
 
-    def on_control_released(self, session: Session) -> None:
+    def on_control_released(self, session: SessionView) -> None:
         """[RS-7.23] A release hands the sensor over as it is: the laser stays as it was."""
 
     # --- read-only --------------------------------------------------------------------------
@@ -88,18 +88,18 @@ class SensorService(HandlerService):
             raise ProtocolError("no measurement yet: trigger or Acquire first", ErrorCode.NO_DATA)
         return reading
 
-    def _status(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _status(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         latest = self.sensor.latest
         return (
             self.sensor.settings.laser,
             self.sensor.frames,
             -1 if latest is None else latest.index,
             session.in_control,
-            session.server.control_holder is not None,
+            session.control_held,
             float(self.sensor.clock()),
         )
 
-    def _get_data(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _get_data(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         r = self._latest()
         found = r.status is SensorStatus.FOUND
         seam = Location(*r.seam) if found else Location(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -115,7 +115,7 @@ class SensorService(HandlerService):
             float(r.t_exposure_end),
         )
 
-    def _get_image(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _get_image(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         r = self._latest()
         if not params:
             return self._full(r)
@@ -153,13 +153,13 @@ class SensorService(HandlerService):
         self._full_reply = (r, reply)
         return reply
 
-    def _get_profile(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _get_profile(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         r = self._latest()
         # [SS-5.9] N x 3 stripe points in S, mm.
         points = np.ascontiguousarray(r.points, dtype=np.float64).reshape(-1, 3)
         return (r.index, Matrix(points.shape[0], 3, points.ravel().tolist()))
 
-    def _get_settings(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _get_settings(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         s = self.sensor.settings
         return (
             s.laser,
@@ -171,30 +171,34 @@ class SensorService(HandlerService):
             self.sensor.height,
         )
 
-    def _trigger_endpoint(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _trigger_endpoint(
+        self, session: SessionView, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
         host, port = self.trigger_endpoint
         return (host, int(port))
 
     # --- need control (checked by the shell) [RS-7.4] ---------------------------------------
 
-    def _set_laser(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _set_laser(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         self.sensor.set_laser(bool(params[0]))
         return ()
 
-    def _set_exposure(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _set_exposure(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         exposure = params[0]
         assert isinstance(exposure, float)
         # [SS-5.6] outside 1e-6..0.01 s: OUT_OF_RANGE (SensorError is mapped in handle).
         self.sensor.set_exposure(exposure if math.isfinite(exposure) else math.nan)
         return ()
 
-    def _set_readout_window(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _set_readout_window(
+        self, session: SessionView, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
         first, columns = params
         assert isinstance(first, int) and isinstance(columns, int)
         # [SS-5.6] [SS-5.7] replies with the acquisition time, proportional to the columns.
         return (float(self.sensor.set_readout_window(first, columns)),)
 
-    def _acquire(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _acquire(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         return (self.sensor.acquire().index,)
 
 

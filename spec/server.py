@@ -4,8 +4,11 @@ A reader thread per connection reads bytes, feeds the sans-I/O :class:`FrameDeco
 answers each request in order. The shell owns every policy that is not a command's business:
 the allow-list, the client limit, frame size and timeouts, error packets for malformed frames,
 the common commands (Hello, Ping, TakeControl, ReleaseControl, GetTime), control ownership and
-its watchdog, parameter checks against the registry, and statistics. A service implements
-:class:`Service` (or :class:`HandlerService`, a table of handlers).
+its watchdog, parameter checks against the registry, and statistics. The rules of control
+and of the connection slots are plain objects of :mod:`spec.control` (the h11 split); this
+shell holds the locks, the threads and the sockets around them. A service implements
+:class:`Service` (or :class:`HandlerService`, a table of handlers); its handlers and hooks see
+a connection only as a :class:`SessionView`.
 
 Safety of control (PROTOCOL.md 7.1):
 
@@ -35,13 +38,13 @@ import socket
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from types import FrameType
 from typing import Any
 
 from spec import wire
-from spec.auth import AuthBackoff, Network, address_allowed, tokens_equal
+from spec.auth import Network, address_allowed
 from spec.codec import (
     LARGE_FRAME,
     FrameDecoder,
@@ -51,6 +54,7 @@ from spec.codec import (
     encode_reply,
     error_packet,
 )
+from spec.control import ControlState, SessionView, Slots, WrongToken
 from spec.errors import ErrorCode, PeerError, ProtocolError
 from spec.params import IntArray, Value
 from spec.registry import CommandId, CommandSpec, check_params, commands_for, lookup
@@ -157,7 +161,7 @@ class _HotCounts:
 
 
 class Session:
-    """One client connection, as the service sees it."""
+    """One client connection, as the server shell sees it (a :class:`SessionView`)."""
 
     def __init__(
         self,
@@ -178,8 +182,6 @@ class Session:
         self.opened = time.monotonic()
         #: When the last frame arrived: the control lease runs from it [RS-7.13].
         self.alive_at = self.opened
-        #: Control lease (s) in force while this connection holds control [RS-7.13].
-        self.watchdog = server.policy.watchdog
         #: Why control was taken away from this connection, for its next control command.
         self.control_lost: str | None = None
         #: False after SetFrameCrc(false): frames to this client carry NO_CRC [RS-3.16].
@@ -190,7 +192,11 @@ class Session:
 
     @property
     def in_control(self) -> bool:
-        return self.server.control_holder is self
+        return self.server.control.holder is self
+
+    @property
+    def control_held(self) -> bool:
+        return self.server.control.holder is not None
 
     @property
     def busy(self) -> bool:
@@ -276,7 +282,7 @@ class Service:
     blocking: frozenset[int] = frozenset()
 
     def handle(
-        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
     ) -> tuple[Value, ...]:
         """Execute a request whose parameters already match ``spec``; return the reply
         parameters or raise :class:`ProtocolError`."""
@@ -290,19 +296,19 @@ class Service:
         """The service clock in seconds (GetTime, status timestamps)."""
         return time.monotonic()
 
-    def on_control_lost(self, session: Session) -> None:
+    def on_control_lost(self, session: SessionView) -> None:
         """The controller is gone (closed, silent past its watchdog, or the server stops):
         stop what it started in a controlled way, process outputs first [RS-7.10]."""
 
-    def on_control_released(self, session: Session) -> None:
+    def on_control_released(self, session: SessionView) -> None:
         """The controller gave control back (ReleaseControl): what may be on only under
         control goes off, the laser first [RS-7.21]; queued moves go on [RS-7.11]."""
 
-    def on_disconnect(self, session: Session) -> None:
+    def on_disconnect(self, session: SessionView) -> None:
         """A connection closed (after control was released)."""
 
 
-Handler = Callable[[Session, tuple[Value, ...]], tuple[Value, ...]]
+Handler = Callable[[SessionView, tuple[Value, ...]], tuple[Value, ...]]
 
 
 class HandlerService(Service):
@@ -327,7 +333,7 @@ class HandlerService(Service):
         return None
 
     def handle(
-        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
     ) -> tuple[Value, ...]:
         handler = self._handlers.get(spec.id)  # an IntEnum hashes as its int
         if handler is None:  # the shell answers unknown IDs before: only a direct call
@@ -379,26 +385,25 @@ class FramedServer:
         self.address: tuple[str, int] = self._listener.getsockname()[:2]
         # shutdown() writes a byte here to wake the accept loop at once (no polling).
         self._wake_r, self._wake_w = socket.socketpair()
-        self._sessions: set[Session] = set()
-        self._reserved: deque[Session] = deque()
+        #: The served and the reserved connections; changed under ``_lock``.
+        self.slots: Slots[Session] = Slots()
         self._lock = threading.Lock()
         self._stats: Counter[str] = Counter()
         self._hot = _HotCounts()
         self._rejected: Counter[str] = Counter()
-        self._session_ids = iter(range(1, 1 << 62))
+        self._session_ids: Iterator[int] = iter(range(1, 1 << 62))
         self._shutdown = threading.Event()
         self._stopped = threading.Event()
         self._thread: threading.Thread | None = None
         #: Control changes and the watchdog wait on this condition [RS-7.13].
         self._control = threading.Condition()
         self._watchdog_thread: threading.Thread | None = None
-        self.control_holder: Session | None = None
-        self.stopping_for: Session | None = None  # the controlled stop of a lost controller
+        #: Who holds control, the lease, the controlled stop; changed under ``_control``.
+        self.control: ControlState[Session] = ControlState()
         #: (service clock s, session ID, what, last frame) of every control change: "took",
         #: "released", "lost: why", stamped when the server saw it, before the service acted
         #: on it; ``last frame``: when the session's last frame arrived, on the same clock.
         self.control_events: deque[tuple[float, int, str, float]] = deque(maxlen=CONTROL_EVENTS)
-        self._auth = AuthBackoff()  # failed TakeControl attempts per address [RS-7.20]
         self.handler_errors: list[BaseException] = []
         register(self)
         self._implemented = frozenset(service.implemented()) | {int(c) for c in _COMMON}
@@ -455,7 +460,7 @@ class FramedServer:
         if self._thread is not None:
             self._stopped.wait(timeout)
         with self._lock:
-            sessions = list(self._sessions) + list(self._reserved)
+            sessions = self.slots.all()
         for s in sessions:
             _close_quietly(s.sock)
         self._listener.close()
@@ -503,7 +508,7 @@ class FramedServer:
             hot = self._hot
             for key in _HotCounts.__slots__:
                 stats[key] += getattr(hot, key)
-            stats["clients"] = len(self._sessions)
+            stats["clients"] = len(self.slots.served)
             stats["rejected_by_code"] = dict(self._rejected)
         return stats
 
@@ -526,20 +531,18 @@ class FramedServer:
             log.warning("refused %s: not in the allow-list", peer[0])
             _close_quietly(sock)
             return
-        evicted: Session | None = None
+        policy = self.policy
         with self._lock:
-            mine = sum(1 for s in self._sessions if s.peer[0] == peer[0])
-            crowded = mine >= self.policy.per_address  # [RS-7.24]
-            full = crowded or len(self._sessions) >= self.policy.max_clients
-            reserved = full and self.policy.reserved_slots > 0
+            admission = self.slots.admit(
+                peer[0], policy.max_clients, policy.per_address, policy.reserved_slots
+            )
+            full, crowded, reserved = admission.full, admission.crowded, admission.reserved
             session = Session(self, sock, peer, reserved=reserved)
+            # the oldest reserved one makes room for a newcomer
+            evicted = self.slots.add(session, admission, policy.reserved_slots)
             if not full:
-                self._sessions.add(session)
                 self._stats["connections"] += 1
             elif reserved:
-                if len(self._reserved) >= self.policy.reserved_slots:
-                    evicted = self._reserved.popleft()  # the oldest reserved one makes room
-                self._reserved.append(session)
                 self._stats["reserved_connections"] += 1
         if evicted is not None:
             _close_quietly(evicted.sock)
@@ -705,9 +708,7 @@ class FramedServer:
     def _end_session(self, session: Session) -> None:
         session.closed = True
         with self._lock:
-            self._sessions.discard(session)
-            if session in self._reserved:
-                self._reserved.remove(session)
+            self.slots.remove(session)
         if session._worker is not None:
             session._worker.wake()
         _close_quietly(session.sock)
@@ -736,11 +737,9 @@ class FramedServer:
         what needs an owner (lost: the controlled stop [RS-7.10]; released: the outputs
         [RS-7.21]) before control is free again."""
         with self._control:
-            holder = self.control_holder
-            if holder is None or (session is not None and holder is not session):
+            holder = self.control.end(session)
+            if holder is None:
                 return
-            self.control_holder = None
-            self.stopping_for = holder
             if lost:
                 holder.control_lost = why
             self._note_control(holder, f"lost: {why}" if lost else "released")
@@ -754,7 +753,7 @@ class FramedServer:
             self._guard(hook, holder)
         finally:
             with self._control:
-                self.stopping_for = None
+                self.control.stopped()
                 self._control.notify_all()
 
     def _note_control(self, session: Session, what: str) -> None:
@@ -766,18 +765,27 @@ class FramedServer:
     def control_free(self) -> bool:
         """Nobody holds control and no controlled stop is still running: TakeControl gets it."""
         with self._control:
-            return self.control_holder is None and self.stopping_for is None
+            return self.control.free
+
+    @property
+    def control_holder(self) -> Session | None:
+        """The connection holding control, None when nobody does."""
+        return self.control.holder
+
+    @control_holder.setter
+    def control_holder(self, session: Session | None) -> None:
+        self.control.holder = session
 
     def _watch_control(self) -> None:
         """[RS-7.13] A controller that shows no life for its watchdog period loses control.
         Sleeps until the holder's deadline; a frame in between moves the deadline on."""
         while not self._shutdown.is_set():
             with self._control:
-                holder = self.control_holder
+                holder, lease = self.control.holder, self.control.lease
                 if holder is None:
                     self._control.wait()
                     continue
-                late = time.monotonic() - (holder.alive_at + holder.watchdog)
+                late = time.monotonic() - self.control.expires_at(holder.alive_at)
                 if late < 0:
                     self._control.wait(-late)
                     continue
@@ -787,7 +795,7 @@ class FramedServer:
                     holder.alive_at = time.monotonic()
                     continue
             self._count("watchdog_expired")
-            self._revoke_control(holder, f"watchdog: no frame for {holder.watchdog:g} s")
+            self._revoke_control(holder, f"watchdog: no frame for {lease:g} s")
 
     # --- requests ----------------------------------------------------------------------------
 
@@ -866,13 +874,8 @@ class FramedServer:
             check_params(spec.params, packet.params, spec.name)
         if spec.needs_control and not session.in_control:
             # [RS-7.4] commands that move or switch anything need control.
-            if session.control_lost is not None:
-                holder = f"control was lost: {session.control_lost}"
-            elif self.control_holder is not None:
-                holder = "another client holds control"
-            else:
-                holder = "take control"
-            raise ProtocolError(f"{spec.name} needs control ({holder})", ErrorCode.NOT_IN_CONTROL)
+            why = self.control.refusal(session.control_lost)
+            raise ProtocolError(f"{spec.name} needs control ({why})", ErrorCode.NOT_IN_CONTROL)
         common = _COMMON.get(spec.id)
         if common is not None:
             return common(self, session, packet.params)
@@ -908,56 +911,31 @@ class FramedServer:
         return (data,)
 
     def _take_control(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        token = params[0]
-        expected = self.policy.token
-        if expected is not None:
-            assert isinstance(token, str)  # check_params made sure of it
-            address, now = session.peer[0], time.monotonic()
-            with self._lock:
-                wait = self._auth.wait(address, now)
-                if wait == 0.0:
-                    right = tokens_equal(token, expected)
-                    if right:
-                        self._auth.succeeded(address)
-                    else:
-                        failures, delay = self._auth.failed(address, now)
-            if wait > 0.0:
-                # [RS-7.20] refused without comparing, and not logged: a guesser would fill
-                # the log; its failures that were compared are.
-                raise ProtocolError(
-                    f"too many wrong tokens from {address}: retry in {wait:.2f} s",
-                    ErrorCode.AUTH_FAILED,
-                )
-            if not right:
-                log.warning(
-                    "session %d: wrong control token from %s (%d in a row, back-off %.2f s)",
-                    session.id, address, failures, delay,
-                )  # fmt: skip
-                raise ProtocolError("control token missing or wrong", ErrorCode.AUTH_FAILED)
-        policy = self.policy
-        watchdog = params[1] if len(params) > 1 else policy.watchdog
-        assert isinstance(watchdog, float)
-        if not policy.watchdog_min <= watchdog <= policy.watchdog_max:
-            # [RS-7.13] the lease a client asks for must be within the server's limits.
-            raise ProtocolError(
-                f"watchdog must be within [{policy.watchdog_min:g}, {policy.watchdog_max:g}] s,"
-                f" got {watchdog!r}",
-                ErrorCode.OUT_OF_RANGE,
-            )
+        token, policy = params[0], self.policy
+        assert isinstance(token, str)  # check_params made sure of it
+        address = session.peer[0]
+        try:
+            with self._lock:  # the back-off table is shared by every session's reader
+                self.control.authorize(address, token, policy.token, time.monotonic())
+        except WrongToken as exc:
+            # A refusal during the back-off is not logged (a guesser would fill the log); the
+            # failures that were compared are.
+            log.warning(
+                "session %d: wrong control token from %s (%d in a row, back-off %.2f s)",
+                session.id, address, exc.failures, exc.delay,
+            )  # fmt: skip
+            raise
+        asked = params[1] if len(params) > 1 else None
+        assert asked is None or isinstance(asked, float)
+        watchdog = self.control.check_lease(
+            asked, policy.watchdog, policy.watchdog_min, policy.watchdog_max
+        )
         with self._control:
-            # A new controller starts after the lost one's controlled stop (laser off first),
-            # never in the middle of it [RS-7.10].
-            if not self._control.wait_for(lambda: self.stopping_for is None, CONTROL_STOP_WAIT_S):
-                raise ProtocolError("a controlled stop is still running", ErrorCode.BUSY)
-            holder = self.control_holder
-            if holder is not None and holder is not session:
-                raise ProtocolError(
-                    f"control is held by {holder.peer[0]}:{holder.peer[1]}", ErrorCode.BUSY
-                )
-            session.watchdog = watchdog
+            # The wait for a lost controller's controlled stop is here; the rule is take's.
+            self._control.wait_for(lambda: self.control.stopping_for is None, CONTROL_STOP_WAIT_S)
+            self.control.take(session, watchdog)
             session.alive_at = time.monotonic()
             session.control_lost = None
-            self.control_holder = session
             self._note_control(session, "took")
             self._control.notify_all()
         log.info("session %d took control (watchdog %g s)", session.id, watchdog)
@@ -1094,6 +1072,7 @@ __all__ = [
     "ServerPolicy",
     "Service",
     "Session",
+    "SessionView",
     "listen",
     "parse_networks",
     "serve_until_signal",

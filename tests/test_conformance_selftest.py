@@ -38,7 +38,7 @@ from spec.exitcodes import ExitCode
 from spec.params import Image, Joints, Location, Matrix, Value
 from spec.registry import BY_ID, CommandSpec, check_params, commands_for, profiles_for
 from spec.registry import CommandId as C
-from spec.server import FramedServer, Identity, ServerPolicy, Service, Session
+from spec.server import FramedServer, Identity, ServerPolicy, Service, Session, SessionView
 from spec.wire import PacketKind, SensorStatus
 
 SCALE = 0.1  # --timeout-scale of these tests: answers within 0.2 s, budgets a tenth
@@ -84,12 +84,12 @@ class MiniRobot(Service):
         return location_to_transform([400 + q[0], q[1], 600 + q[2], q[3], q[4] + 90, q[5]])
 
     def handle(  # noqa: C901  a fake server: one branch per command it answers
-        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
     ) -> tuple[Value, ...]:
         c, now = spec.id, self.clock()
         if c == C.ROBOT_STATUS:
-            held = session.server.control_holder
-            return (False, False, False, 0, held is session, held is not None, 0, "", now)
+            mine, held = session.in_control, session.control_held
+            return (False, False, False, 0, mine, held, 0, "", now)
         if c == C.HEREJ:
             return (Joints(self.q),)
         if c == C.HERE:
@@ -163,23 +163,22 @@ class MiniSensor(Service):
     def acq_time(self) -> float:
         return 3.5e-3 * self.window[1] / self.W
 
-    def on_control_lost(self, session: Session) -> None:
+    def on_control_lost(self, session: SessionView) -> None:
         with self.lock:
             self.laser = False  # [RS-7.23] a lost controller's laser goes off
 
     def handle(  # noqa: C901  a fake server: one branch per command it answers
-        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
     ) -> tuple[Value, ...]:
         c = spec.id
         with self.lock:
             if c == C.SENSOR_STATUS:
-                held = session.server.control_holder
                 return (
                     self.laser,
                     self.index + 1,
                     self.index,
-                    held is session,
-                    held is not None,
+                    session.in_control,
+                    session.control_held,
                     self.clock(),
                 )
             if c == C.ACQUIRE:
@@ -667,7 +666,7 @@ class CrashingServer(FramedServer):
         if seen > self.limit:
             self._shutdown.set()
             self._listener.close()
-            for s in list(self._sessions):
+            for s in list(self.slots.served):
                 try:
                     s.sock.shutdown(socket.SHUT_RDWR)
                 except OSError:
@@ -1011,7 +1010,7 @@ class MiniSyncRobot(MiniRobot):
             ]
 
     def handle(
-        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
     ) -> tuple[Value, ...]:
         c = spec.id
         with self.lock:
@@ -1103,7 +1102,7 @@ class NoBackoffServer(FramedServer):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self._auth = AuthBackoff(threshold=1 << 30)
+        self.control.backoff = AuthBackoff(threshold=1 << 30)
 
 
 class ExtendingBackoff(AuthBackoff):
@@ -1118,7 +1117,7 @@ class ExtendingBackoff(AuthBackoff):
 class ExtendingBackoffServer(FramedServer):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self._auth = ExtendingBackoff()
+        self.control.backoff = ExtendingBackoff()
 
 
 @pytest.mark.parametrize(
@@ -1213,7 +1212,7 @@ class NoKinematicsRobot(MiniRobot):
     COMMANDS = (*MiniRobot.COMMANDS, C.TOOL_MOVE_J, C.TOOL_MOVE_L, C.TOOL_MOVE_TRAJECTORY)
 
     def handle(
-        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
     ) -> tuple[Value, ...]:
         if spec.id == C.HERE:
             raise ProtocolError("no kinematics", ErrorCode.NOT_SUPPORTED)
@@ -1322,7 +1321,7 @@ class EstopRobot(MiniRobot):
         self.estops = 0
 
     def handle(
-        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
     ) -> tuple[Value, ...]:
         if spec.id == C.EMERGENCY_STOP:
             self.estop, self.estops = True, self.estops + 1
@@ -1331,8 +1330,8 @@ class EstopRobot(MiniRobot):
             self.estop = False
             return ()
         if spec.id == C.ROBOT_STATUS:
-            held = session.server.control_holder
-            return (False, self.estop, False, 0, held is session, held is not None, 0, "", 0.0)
+            mine, held = session.in_control, session.control_held
+            return (False, self.estop, False, 0, mine, held, 0, "", 0.0)
         return super().handle(session, spec, params)
 
 
@@ -1577,7 +1576,7 @@ class NanLogRobot(MiniRobot):
     """1.2 behaviour: GetJointLog since NaN answers an empty log."""
 
     def handle(
-        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
     ) -> tuple[Value, ...]:
         if spec.id == C.GET_JOINT_LOG and math.isnan(float(params[0])):  # type: ignore[arg-type]
             return (Matrix(0, 7, []), 0.004)
@@ -1590,11 +1589,11 @@ class StickyErrorRobot(MiniRobot):
     last = (0, "")
 
     def handle(
-        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
     ) -> tuple[Value, ...]:
         if spec.id == C.ROBOT_STATUS:
-            held = session.server.control_holder
-            return (False, False, False, 0, held is session, held is not None, *self.last, 0.0)
+            mine, held = session.in_control, session.control_held
+            return (False, False, False, 0, mine, held, *self.last, 0.0)
         try:
             return super().handle(session, spec, params)
         except ProtocolError as exc:
@@ -1657,7 +1656,7 @@ class SlowWaitRobot(MiniRobot):
     blocking = frozenset({int(C.WAIT_END_MOVE)})
 
     def handle(
-        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
     ) -> tuple[Value, ...]:
         if spec.id in (C.ENABLE_POWER, C.DISABLE_POWER):
             return ()

@@ -5,25 +5,36 @@ from __future__ import annotations
 
 import json
 import os
+import pickle
 import re
 import signal
 import subprocess
 import sys
 import threading
 from collections.abc import Callable, Iterator
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pytest
 
 from robotsocket.client import RobotClient
 from robotsocket.emulator import HOME, RobotEmulator
-from robotsocket.rtprocess import ChildStartError, RealtimeProcess, RobotProcess
+from robotsocket.rtprocess import (
+    ChildStartError,
+    Command,
+    ControlLost,
+    ControlReleased,
+    Query,
+    RealtimeProcess,
+    Request,
+    RobotProcess,
+    Who,
+)
 from robotsocket.service import RobotService
 from spec.errors import ErrorCode, ProtocolError, RemoteError
 from spec.params import FloatArray, Joints, Location, Value
 from spec.registry import CommandId
-from spec.server import FramedServer
+from spec.server import FramedServer, SessionView
 
 C = CommandId
 TARGET = [20.0, -10.0, 100.0, 5.0, 60.0, 10.0]
@@ -282,6 +293,35 @@ def test_an_unknown_pipe_message_is_answered_not_left_to_time_out(child: Realtim
     """Every kind the child receives gets an answer: an unknown one an error, at once (the
     caller's timeout here is 30 s; a missing answer would fail the test by its timeout)."""
     with pytest.raises(ProtocolError) as err:
-        child._call("no-such-kind", timeout=30.0)
+        child._call(cast(Any, "no-such-kind"), timeout=30.0)
     assert err.value.code is ErrorCode.INTERNAL_ERROR and "no-such-kind" in err.value.message
-    assert child._call("released", "robot") == ()  # the pipe still serves
+    assert child._call(ControlReleased("robot")) == ()  # the pipe still serves
+
+
+@pytest.mark.parametrize(
+    "request_",
+    [
+        Command("no-such-service", int(C.PING), (), Who(1, ("", 0), False, False)),
+        ControlLost("no-such-service", "test"),
+        ControlReleased("no-such-service"),
+        Query("no-such-query"),
+    ],
+    ids=["command", "lost", "released", "query"],
+)
+def test_a_request_for_what_the_child_lacks_is_answered_with_an_error(
+    child: RealtimeProcess, request_: Request
+) -> None:
+    """A service or query the child does not have is an INTERNAL_ERROR answer, at once; the
+    child goes on serving (it used to die of the KeyError and leave the caller waiting)."""
+    with pytest.raises(ProtocolError) as err:
+        child._call(request_, timeout=30.0)
+    assert err.value.code is ErrorCode.INTERNAL_ERROR
+    assert child.alive and child._call(ControlReleased("robot")) == ()
+
+
+def test_a_forwarded_session_is_a_session_view_with_no_server_behind_it() -> None:
+    """The child's handlers get the session as the server process saw it: a plain value that
+    pickles, typed as the shell's SessionView, with nothing of a server to fake."""
+    view: SessionView = Who(3, ("10.0.0.1", 5000), False, True, "watchdog")
+    assert Who.of(view) == view and pickle.loads(pickle.dumps(view)) == view
+    assert not hasattr(view, "server")

@@ -16,11 +16,11 @@ from robotsocket.sync_service import MAX_ROWS, SyncService, flange2base_for
 from spec.errors import ErrorCode, ProtocolError
 from spec.params import FloatArray, Location, Matrix, Value
 from spec.registry import BY_ID, SEAM_POINT_COLUMNS, CommandId
-from spec.server import Session
+from spec.server import SessionView
 from sync.udp import RobotSyncCore
 
 C = CommandId
-SESSION = cast(Session, None)  # the handlers do not look at the session
+SESSION = cast(SessionView, None)  # the handlers do not look at the session
 
 
 class Transport:

@@ -20,7 +20,7 @@ from spec.exitcodes import ExitCode
 from spec.params import Joints, Value
 from spec.registry import CommandId, CommandSpec
 from spec.replay import compare
-from spec.server import FramedServer, Session
+from spec.server import FramedServer, SessionView
 from spec.wire import PacketKind
 
 if TYPE_CHECKING:
@@ -37,7 +37,7 @@ class Planted(RobotService):
         self.offset, self.delay = offset, delay
 
     def handle(
-        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
     ) -> tuple[Value, ...]:
         reply = super().handle(session, spec, params)
         if spec.id != CommandId.HEREJ:

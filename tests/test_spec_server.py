@@ -24,6 +24,7 @@ from spec.server import (
     ServerPolicy,
     Service,
     Session,
+    SessionView,
     _sendmsg_all,
     parse_networks,
 )
@@ -55,7 +56,7 @@ class EchoRobot(Service):
         )
 
     def handle(
-        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
     ) -> tuple[Value, ...]:
         if spec.id == CommandId.HEREJ:
             return (Joints([1, 2, 3, 4, 5, 6]),)
@@ -70,7 +71,7 @@ class EchoRobot(Service):
             return ()
         raise ZeroDivisionError("deliberate handler bug")
 
-    def on_control_lost(self, session: Session) -> None:
+    def on_control_lost(self, session: SessionView) -> None:
         self.lost_control.append(session.id)
 
 
@@ -183,7 +184,7 @@ class SlowStopRobot(EchoRobot):
         self.stop_started = threading.Event()
         self.stop_may_end = threading.Event()
 
-    def on_control_lost(self, session: Session) -> None:
+    def on_control_lost(self, session: SessionView) -> None:
         self.stop_started.set()
         self.stop_may_end.wait(10.0)
         super().on_control_lost(session)
@@ -661,7 +662,7 @@ class ThreadNotingRobot(EchoRobot):
         self.threads: list[tuple[int, str]] = []
 
     def handle(
-        self, session: Session, spec: CommandSpec, params: tuple[Value, ...]
+        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
     ) -> tuple[Value, ...]:
         self.threads.append((int(spec.id), threading.current_thread().name))
         return super().handle(session, spec, params)
@@ -686,7 +687,7 @@ def test_requests_that_cannot_block_are_answered_by_the_thread_that_read_them(
         assert [p.request_id for p in read_packets(s, 3)] == [4, 2, 3]
         # the worker counts a request as pending until just after its reply went out
         deadline = time.monotonic() + 5
-        while any(x.busy for x in server._sessions) and time.monotonic() < deadline:
+        while any(x.busy for x in server.slots.served) and time.monotonic() < deadline:
             time.sleep(0.001)
         s.sendall(encode_packet(request(CommandId.HEREJ, 5)))
         read_packets(s, 1)
