@@ -13,6 +13,7 @@ parameter count, which a conforming server rejects before anything executes.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable
 
 from conformance.cases._util import NOT_OFFERED, valid_args, wrong_type
@@ -124,6 +125,10 @@ def _reply_case(spec: CommandSpec) -> Callable[[Context], str | None]:
                 ctx.take_control(conn)
                 conn.ok(C.RESET_EMERGENCY_STOP)
         finally:
+            if spec.id == C.STOP_MOVE and C.RESET_MOTION in ctx.advertised:
+                # StopMove holds the moves queued after it too: leave the robot as found
+                with contextlib.suppress(*ENDPOINT_ERRORS):
+                    conn.call(C.RESET_MOTION)
             if spec.needs_control:
                 _release(conn)
         return None
