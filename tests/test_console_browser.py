@@ -34,6 +34,10 @@ pytest.importorskip("starlette", reason="the console extra is not installed")
 
 from playwright.sync_api import Page, Route, WebSocket, expect, sync_playwright  # noqa: E402
 
+#: expect()'s own default is 5 s, apart from the page's: a loaded CI machine (the clean
+#: clone's make test) once took longer than that to serve the console after sign-in
+expect.set_options(timeout=15_000)
+
 DOCS_SHOTS = Path(__file__).resolve().parent.parent / "docs" / "console"
 VIEWER_PASSWORD = "vera-sees-only-4711"
 ARGS = [
