@@ -884,6 +884,19 @@ class Console:
         work = partial(run_calibration, act, cancelled, cal, which, truth, nominal.name)
         self.start(act, work, cancelled, expected=(CalibrationError, RemoteError), stop_arm=True)
 
+    def _emulated_seam(self, body: Any, what: str) -> tuple[dict[str, Any], str]:
+        """The request's fields and its seam (default sine) for an action on a copy of the
+        emulated cell; ConsoleError without ``--emulate`` or for a seam the cell lacks."""
+        if not self.emulated:
+            raise ConsoleError(f"{what} on the emulated cell only (--emulate)", 409)
+        from welding.track_options import TRACK_SEAMS
+
+        b = body if isinstance(body, dict) else {}
+        seam = b.get("seam", "sine")
+        if seam not in TRACK_SEAMS:
+            raise ConsoleError(f"seam: one of {', '.join(TRACK_SEAMS)}")
+        return b, str(seam)
+
     # --- tracked weld (emulated cell only) ----------------------------------------------------
 
     def track(self, body: Any) -> None:
@@ -891,14 +904,7 @@ class Console:
         emulated cell in its own real-time child, with the tracker's verdict and the error
         against its true seam: only with ``--emulate`` (on a live cell a tracked weld is a
         job's ``tracked="on"`` path)."""
-        if not self.emulated:
-            raise ConsoleError("the tracked weld runs on the emulated cell only (--emulate)", 409)
-        from welding.track_options import TRACK_SEAMS
-
-        b = body if isinstance(body, dict) else {}
-        seam = b.get("seam", "sine")
-        if seam not in TRACK_SEAMS:
-            raise ConsoleError(f"seam: one of {', '.join(TRACK_SEAMS)}")
+        b, seam = self._emulated_seam(body, "the tracked weld runs")
         speed = _num(b.get("speed", 250.0), "speed", 1.0, 500.0)
         tracked = b.get("tracked", True)
         if not isinstance(tracked, bool):
@@ -912,15 +918,9 @@ class Console:
     def ilc(self, body: Any) -> None:
         """ILC trials (:func:`welding.ilc_emulate.run_ilc_emulated`) on a copy of the emulated
         cell with elastic joints, scored against its truth: only with ``--emulate``."""
-        if not self.emulated:
-            raise ConsoleError("the ILC runs on the emulated cell only (--emulate)", 409)
         from welding.ilc_loop import IlcSettings
-        from welding.track_options import TRACK_SEAMS
 
-        b = body if isinstance(body, dict) else {}
-        seam = b.get("seam", "sine")
-        if seam not in TRACK_SEAMS:
-            raise ConsoleError(f"seam: one of {', '.join(TRACK_SEAMS)}")
+        b, seam = self._emulated_seam(body, "the ILC runs")
         trials = b.get("trials", 5)
         if not isinstance(trials, int) or isinstance(trials, bool) or not 1 <= trials <= 20:
             raise ConsoleError("trials: expected a whole number 1..20")
