@@ -10,6 +10,7 @@ the motion descriptor, control, the back-off...): that is a bug of the case's is
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 
@@ -18,11 +19,12 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from conformance.context import Context, Options, Shared
-from conformance.model import Case, Outcome, all_cases
+from conformance.model import Case, Outcome, Skip, all_cases
 from conformance.runner import negotiate, run_case
 from robotsocket.emulator import RobotEmulator
 from robotsocket.service import RobotService
 from robotsocket.sync_service import attach_udp_sync
+from spec.registry import CommandId
 from spec.server import FramedServer, ServerPolicy
 
 #: Sections whose cases change or read the robot's state (the framing and corpus cases use
@@ -140,3 +142,35 @@ def test_stop_restart_catches_a_robot_that_restarts_a_dropped_move(
     outcome, message = outcomes_in(["robot.motion.stop_restart"])["robot.motion.stop_restart"]
     assert outcome is Outcome.FAIL, message
     assert "RestartMove after ResetMotion dropped the move" in message and "[RS-5.54]" in message
+
+
+def test_take_control_waits_for_a_holder_that_is_going_away() -> None:
+    """The CI failure of 2026-12-06: a case's controlling connection, just closed, still held
+    control when the next case's TakeControl arrived, and that case was skipped. The harness
+    asks again while the endpoint answers BUSY, for one reply timeout; a holder that stays
+    still ends the case as skipped, naming the holder."""
+    with robot_server() as (host, port):
+        reachable, hello, why = negotiate("robot", host, port, OPTIONS)
+        assert reachable, why
+        ctx = Context("robot", host, port, OPTIONS, hello, Shared(next_index=1000))
+        holder, taker = ctx.connect(), ctx.connect()
+        ctx.take_control(holder)
+        leaving = threading.Timer(0.3, holder.close)
+        leaving.start()
+        ctx.take_control(taker)  # answered once the holder's close has been read
+        leaving.join()
+        taker.ok(CommandId.RELEASE_CONTROL)
+
+        ctx.take_control(holder := ctx.connect())
+        patient = Context(
+            "robot",
+            host,
+            port,
+            Options(token=TOKEN, reply_timeout=0.3),
+            hello,
+            Shared(next_index=2000),
+        )
+        with pytest.raises(Skip, match="control is held by"):
+            patient.take_control(patient.connect())
+        ctx.close_all()
+        patient.close_all()
