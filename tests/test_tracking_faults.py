@@ -16,8 +16,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import pytest
-
 ROOT = Path(__file__).resolve().parent.parent
 QUEUED = "tracked move queued"
 #: After the queued line: the 48 ms stand and 160 ms of run-up (the sensor's 40 mm look-ahead
@@ -68,11 +66,14 @@ def test_a_tracker_frozen_for_2_s_ends_in_laser_off_and_a_stop(tmp_path: Path) -
     code, run, err = _frozen_weld(tmp_path, 2.0)
     assert code == 1, err  # FAILED: the weld stopped early
     assert "Traceback" not in err, err
-    if not run:
-        # Seen once under make test's load: the tool ended with its one line but wrote no
-        # JSON (issue 30's note: the lease may expire first; the JSON must still be written)
-        pytest.xfail("no JSON written after a 2 s freeze under load:\n" + err[-2000:])
-    assert "alter mode is not active" in run["stopped"], run["stopped"]
+    # The cell's server runs in the frozen process too, so which comes first when it wakes
+    # is a race: its watchdog takes control away (a robot on its own controller does so
+    # 0.25 s into the freeze), or the tracker's next correction is refused as the alter
+    # stream is lost. Either way the weld is judged and its JSON written (under load, a lost
+    # control once made the laser-off raise: no JSON).
+    assert run, "no JSON written:\n" + err[-2000:]
+    stop = run["stopped"]
+    assert "alter mode is not active" in stop or "control was lost" in stop, stop
     assert not run["verdict"]["within_tolerance"]
     assert run["verdict"]["reason"].startswith("the weld stopped")
     assert not run["laser_on_at_end"]

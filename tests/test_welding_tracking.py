@@ -225,3 +225,34 @@ def test_late_corrections_under_the_laser_fail_the_verdict(
     assert run.late_at_s and not run.verdict["within_tolerance"]
     assert int(run.verdict["late_corrections"]) > 0  # type: ignore[call-overload]
     assert any(t > 0.16 for t in run.late_at_s)
+
+
+def test_a_tracker_that_loses_control_mid_weld_still_judges_and_reports(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Over sockets: the tracker stalls mid-weld past its 0.25 s lease (its keep-alive
+    stalled with it), so the robot takes control away and makes its controlled stop
+    [RS-7.10]. The next correction is refused NOT_IN_CONTROL; so are the tracker's own laser
+    off and reset: the robot made them. The run is still judged from the robot's logs (it
+    once raised instead, and `welding track` wrote no JSON)."""
+    import time
+
+    from welding.track_loop import RobotLink
+
+    calls = [0]
+    original = RobotLink.queue
+
+    def stalled_queue(self: RobotLink, times: Any, corrections: Any) -> Any:
+        calls[0] += 1
+        if calls[0] == 60:
+            self.client._stop_keeper()  # type: ignore[attr-defined]
+            time.sleep(1.0)  # four leases
+        return original(self, times, corrections)
+
+    monkeypatch.setattr(RobotLink, "queue", stalled_queue)
+    run = run_tracking("sine", 250.0, seed=1, over_sockets=True)
+    assert calls[0] == 60  # the stalled batch was the last
+    assert "NOT_IN_CONTROL" in run.stopped and "control was lost" in run.stopped, run.stopped
+    assert not run.within_tolerance and str(run.verdict["reason"]).startswith("the weld stopped")
+    assert not run.laser_on_at_end
+    assert 0.0 < run.welded_mm < 200.0

@@ -31,7 +31,7 @@ from kinematics.transforms import location_to_transform
 from kinematics.types import FloatArray, Loc
 from spec import params as wire_params
 from spec import wire
-from spec.errors import RemoteError
+from spec.errors import ErrorCode, RemoteError
 from spec.params import IDENTITY_LOCATION, IntArray, Location, Matrix, Value
 from spec.registry import CommandId
 from welding.tracking import (
@@ -334,13 +334,12 @@ def weld_tracked(  # noqa: C901
             state = link.queue(np.zeros(0), np.zeros((0, 6)))  # the counts of the weld
     except (TrackingError, RemoteError) as exc:
         # the seam is lost, or the robot refused a correction (it ends alter mode when the
-        # stream goes silent): laser off first, then the arm stops along its path
-        link.set_laser(False)
-        link.reset_motion()
-        laser_on = False
+        # stream goes silent, and takes control from a client silent past its lease)
         stopped = str(exc) if isinstance(exc, TrackingError) else f"the robot refused: {exc}"
         stopped_at = link.time() - t0
         log.warning("the weld stopped %.3f s into the move: %s", stopped_at, stopped)
+        _stop_safely(link)
+        laser_on = False
     except KeyboardInterrupt:  # Ctrl-C, a stop signal: the same safe stop, then out
         with contextlib.suppress(Exception):
             link.set_laser(False)
@@ -399,6 +398,20 @@ def weld_tracked(  # noqa: C901
         late_arr,
         stopped_at,
     )
+
+
+def _stop_safely(link: TrackLink) -> None:
+    """Laser off first, then the arm stops along its path and drops its queue. A robot that
+    has taken control from this client (its lease ran out: a stalled PC) made that stop
+    itself [RS-7.10] and refuses these commands: that is logged, not raised, so the weld's
+    result is still judged and written."""
+    try:
+        link.set_laser(False)
+        link.reset_motion()
+    except RemoteError as exc:
+        if exc.code is not ErrorCode.NOT_IN_CONTROL:
+            raise
+        log.warning("control was lost: the robot made its controlled stop itself (%s)", exc)
 
 
 def _check_cancelled(cancelled: Callable[[], bool] | None) -> None:
@@ -573,8 +586,14 @@ class RobotLink:
         # alter mode may have ended already (the robot stopped a stream that went silent)
         with contextlib.suppress(RemoteError):
             self._call(CommandId.ALTER_END)
-        self._call(CommandId.STOP_TRIGGERS)
-        self._call(CommandId.WAIT_END_MOVE, 5.0)
+        try:
+            self._call(CommandId.STOP_TRIGGERS)
+            self._call(CommandId.WAIT_END_MOVE, 5.0)
+        except RemoteError as exc:
+            # a robot that took control away stopped the triggers and the arm itself
+            # [RS-7.10]; what the weld did is still read from its logs
+            if exc.code is not ErrorCode.NOT_IN_CONTROL:
+                raise
 
     def close(self) -> None:
         pass
