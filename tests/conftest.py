@@ -170,7 +170,7 @@ def _slices(
     ``short`` to the sizes worksteal cuts (``xdist.scheduler.worksteal``: slice ``j`` holds
     ``remaining // (workers - j)`` items), so every worker starts with its share of long ones."""
     total = len(long) + len(short)
-    sizes = []
+    sizes: list[int] = []
     for j in range(workers):
         sizes.append((total - sum(sizes)) // (workers - j))
     dealt: list[list[pytest.Item]] = [[] for _ in range(workers)]

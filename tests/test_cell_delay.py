@@ -12,6 +12,7 @@ import pytest
 from cell.cell import CellTiming, EmulatedCell
 from cell.rtcell import CellProcess
 from sensorsocket.camera import StripeRenderer
+from sensorsocket.scene import node_poses_of
 from spec.client import FramedClient
 from spec.errors import ErrorCode, RemoteError
 from spec.params import FloatArray, Location, Matrix
@@ -212,12 +213,14 @@ def test_node_poses_hook_matches_column_poses() -> None:
         rng = np.random.default_rng(5)
         emu = cell.sensor.emulator
         provider = emu.sensor2base
+        hook = node_poses_of(provider)
+        assert hook is not None
         for _ in range(20):
             t0 = rng.uniform(buf_t[0], buf_t[-1] - 4e-3)
             t = t0 + np.arange(512) * 3.5e-3 / 512 + rng.uniform(0.0, 1e-4)
             if rng.random() < 0.3:
                 t = rng.permutation(t)  # any order of times
-            nw = provider.node_poses(t)
+            nw = hook(t)
             assert nw is not None
             nodes, w = nw
             assert nodes.shape == (w.shape[0], 16) and w.shape == (nodes.shape[0], 512)
@@ -238,5 +241,5 @@ def test_node_poses_hook_matches_column_poses() -> None:
                                atol=1e-9, equal_nan=True)  # fmt: skip
             assert np.isfinite(frames[0][1].center_row).sum() > 100
         # outside the known setpoints the hook declines
-        assert provider.node_poses(np.array([buf_t[-1] + 1e-3])) is None
-        assert provider.node_poses(np.array([buf_t[0] - 1.0])) is None
+        assert hook(np.array([buf_t[-1] + 1e-3])) is None
+        assert hook(np.array([buf_t[0] - 1.0])) is None

@@ -75,7 +75,7 @@ def client(app: Any, who: str | None = None) -> TestClient:
 
 def routes(app: Any) -> list[tuple[str, str]]:
     """(method, path) of every API route, path parameters filled in."""
-    out = []
+    out: list[tuple[str, str]] = []
     for r in app.routes:
         if isinstance(r, ApiRoute) and r.path.startswith("/api/") and r.path != "/api/signin":
             path = r.path.replace("{name}", "demo.xml").replace("{kind}", "delta_t")
@@ -320,8 +320,8 @@ def test_the_issues_curl_lines_are_refused_and_the_robot_has_no_owner(tmp_path: 
              "-H", "Origin: http://evil.example", "--data", '{"on":true}', f"{url}/api/power"],
         ]  # fmt: skip
         replies = [subprocess.run(c, capture_output=True, text=True, timeout=30) for c in lines]
-        for r in replies:
-            print(r.stdout)
+        for reply in replies:
+            print(reply.stdout)
         assert replies[0].stdout.startswith("HTTP/1.1 400")
         assert "Host evil.example is not served here" in replies[0].stdout
         assert replies[1].stdout.startswith("HTTP/1.1 403")

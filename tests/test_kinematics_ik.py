@@ -18,6 +18,7 @@ from kinematics import (
     list_models,
     location_to_transform,
 )
+from kinematics.config import Config
 
 MODELS = list_models()
 SETTINGS = settings(max_examples=200, deadline=None, derandomize=True)
@@ -316,7 +317,7 @@ def test_single_ik_equals_the_batch_ik_on_random_poses(
         return
     # the reference: valid branches in CONFIGS order, a duplicate at a singularity once,
     # sorted by distance to the start
-    expected: list[tuple[np.ndarray, object]] = []
+    expected: list[tuple[np.ndarray, Config]] = []
     for k, cfg in enumerate(CONFIGS):
         joints = batch.joints_deg[0, k]
         if batch.valid[0, k] and not any(np.max(np.abs(joints - e)) <= 1e-9 for e, _ in expected):

@@ -231,7 +231,7 @@ def test_emulator_applies_a_timed_table_at_its_cycles() -> None:
     robot.alter_begin(TOOL, 0.05)
     start = _tool_point(robot)
     t0 = robot.time()
-    times = t0 + np.arange(1, 101) * PERIOD
+    times = t0 + np.arange(1, 101, dtype=np.float64) * PERIOD
     c = np.zeros((100, 6))
     c[:, 2] = np.linspace(0.0, 1.0, 100) ** 2  # 1 mm, within RS-5.34 at every cycle
     report, applied, now = robot.alter_queue(times, c)

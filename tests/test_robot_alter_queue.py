@@ -38,7 +38,8 @@ def reference(times: list[float], values: list[np.ndarray], t: float) -> np.ndar
         return values[-1]
     i = bisect.bisect_right(times, t) - 1
     w = (t - times[i]) / (times[i + 1] - times[i])
-    return values[i] + w * (values[i + 1] - values[i])
+    out: np.ndarray = values[i] + w * (values[i + 1] - values[i])
+    return out
 
 
 @st.composite
@@ -196,7 +197,11 @@ def test_a_bad_batch_is_refused_whole() -> None:
         (np.array([0.3]), np.zeros((2, 6)), "1 x 6"),
         (np.array([0.3]), np.array([[0.0, 10.5, 0, 0, 0, 0]]), "translation"),
         (np.array([0.3]), np.array([[0.0, 0, 0, 0, 2.5, 0]]), "rotation"),
-        (np.arange(MAX_BATCH + 1) * 0.004 + 1.0, np.zeros((MAX_BATCH + 1, 6)), "at most"),
+        (
+            np.arange(MAX_BATCH + 1, dtype=np.float64) * 0.004 + 1.0,
+            np.zeros((MAX_BATCH + 1, 6)),
+            "at most",
+        ),
     ]
     for t, c, why in bad:
         with pytest.raises(OutOfRangeError, match=why):
@@ -208,14 +213,15 @@ def test_a_full_queue_refuses_the_batch_and_keeps_what_it_has() -> None:
     """[RS-5.43] A batch that would overflow is refused whole (BUSY); once the queue has
     drained the same batch is accepted; a batch replacing its own span needs no room."""
     state = _begin(queue_capacity=10)
-    state.enqueue(np.arange(1, 9) * 0.004, np.zeros((8, 6)))
+    state.enqueue(np.arange(1, 9, dtype=np.float64) * 0.004, np.zeros((8, 6)))
     with pytest.raises(BusyError, match="full"):
-        state.enqueue(np.arange(9, 12) * 0.004, np.ones((3, 6)) * 0.1)
+        state.enqueue(np.arange(9, 12, dtype=np.float64) * 0.004, np.ones((3, 6)) * 0.1)
     assert state.queue.depth == 8
-    state.enqueue(np.arange(1, 9) * 0.004, np.ones((8, 6)) * 0.1)  # same span: replaced
+    # the same span: replaced
+    state.enqueue(np.arange(1, 9, dtype=np.float64) * 0.004, np.ones((8, 6)) * 0.1)
     for k in range(1, 6):
         state.step(k * PERIOD)
-    report = state.enqueue(np.arange(9, 12) * 0.004, np.ones((3, 6)) * 0.1)
+    report = state.enqueue(np.arange(9, 12, dtype=np.float64) * 0.004, np.ones((3, 6)) * 0.1)
     assert report.accepted == 3 and report.depth <= 10
 
 
@@ -237,9 +243,9 @@ def test_queue_held_past_its_end_then_the_stream_is_lost() -> None:
     the correction ramps back to zero."""
     state = AlterState(PERIOD)
     state.begin(np.eye(4), 0.04, 0.0)
-    ramp = np.arange(1, 26) * PERIOD
+    ramp = np.arange(1, 26, dtype=np.float64) * PERIOD
     c = np.zeros((25, 6))
-    c[:, 1] = np.minimum(np.arange(1, 26) * 0.01, 0.2)
+    c[:, 1] = np.minimum(np.arange(1, 26, dtype=np.float64) * 0.01, 0.2)
     state.enqueue(ramp, c)
     k = 0
     lost_at = None
@@ -261,7 +267,7 @@ def test_a_whole_table_sent_ahead_keeps_the_stream_alive_to_its_end() -> None:
     MAX_BATCH, with a 0.1 s timeout and no message afterwards: no loss before its end."""
     state = AlterState(PERIOD)
     state.begin(np.eye(4), 0.1, 0.0)
-    t = np.arange(1, 501) * PERIOD
+    t = np.arange(1, 501, dtype=np.float64) * PERIOD
     c = np.zeros((500, 6))
     c[:, 0] = 2.0 * np.sin(2 * np.pi * t) * np.minimum(t / 0.5, 1.0) ** 2
     for a in reversed(range(0, 500, 128)):  # the frames in reverse order

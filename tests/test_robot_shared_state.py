@@ -5,6 +5,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import threading
+from collections.abc import Iterator
 
 import pytest
 
@@ -36,7 +37,7 @@ def _consistent(s: Snapshot) -> bool:
 
 
 @pytest.fixture
-def state() -> SharedState:
+def state() -> Iterator[SharedState]:
     s = SharedState.create(start_ns=123)
     yield s
     s.unlink()

@@ -50,7 +50,8 @@ def test_joint_move_ends_exactly_on_target_with_synchronised_axes() -> None:
 def _line_deviation(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     d = (b - a) / np.linalg.norm(b - a)
     v = points - a
-    return np.linalg.norm(v - np.outer(v @ d, d), axis=1)
+    out: np.ndarray = np.linalg.norm(v - np.outer(v @ d, d), axis=1)
+    return out
 
 
 @pytest.mark.parametrize(
@@ -152,7 +153,8 @@ def test_blending_does_not_stop_and_keeps_joint_speed_limits() -> None:
 
 def _joint_acc(q: np.ndarray) -> np.ndarray:
     """Peak |second difference| per joint, deg/s^2."""
-    return np.abs(np.diff(q, 2, axis=0)).max(axis=0) / PERIOD**2
+    out: np.ndarray = np.abs(np.diff(q, 2, axis=0)).max(axis=0) / PERIOD**2
+    return out
 
 
 def test_blending_a_reversal_never_exceeds_the_acceleration_limit() -> None:

@@ -88,7 +88,7 @@ def test_motion_during_readout_shows_in_the_image() -> None:
     """Columns are exposed one after another: column u shows the pose at its own time."""
     scene = Scene(Joint.lap(1.0))
     pose = scene.sensor_over_seam(0.0, seam_y_mm=-8.0)
-    times = np.arange(512) * 3.5e-3 / 512
+    times = np.arange(512, dtype=np.float64) * 3.5e-3 / 512
     r = StripeRenderer(scene, rng=np.random.default_rng(4))
     away = pose[:3, 2] * -1000.0  # the sensor moves away from the plate at 1 m/s
     _, t_move = r.render(0, times, scripted_pose(pose, velocity_mm_s=away))
@@ -139,7 +139,7 @@ def test_node_pose_hook_renders_the_same_frames(joint: Joint, seed: int) -> None
     poses given per column (mean rows within 1e-9 px); readout windows included."""
     scene = Scene(joint)
     for first, n in ((0, 512), (100, 300)):
-        times = 0.5e-3 + np.arange(n) * 3.5e-3 / 512
+        times = 0.5e-3 + np.arange(n, dtype=np.float64) * 3.5e-3 / 512
         out = []
         for hook in (True, False):
             provider = _NodeProvider(scene, np.random.default_rng(seed), hook=hook)
@@ -162,7 +162,7 @@ def test_node_pose_hook_shapes_are_checked() -> None:
     provider.nodes = provider.nodes[:, :12]
     r = StripeRenderer(scene, rng=np.random.default_rng(0))
     with pytest.raises(CameraError, match="node pose provider"):
-        r.render(0, np.arange(512) * 1e-5, provider)
+        r.render(0, np.arange(512, dtype=np.float64) * 1e-5, provider)
 
 
 def test_pgm_round_trip(tmp_path: Path) -> None:

@@ -20,7 +20,7 @@ def test_hits_of_any_column_set_match_the_full_window() -> None:
         scene.sensor_over_seam(3.0, 0.8, -0.4, 10.0), velocity_mm_s=(50.0, 0.0, 0.0)
     )
     renderer = StripeRenderer(scene, rng=np.random.default_rng(0))
-    times = np.arange(512) * 6.8e-6
+    times = np.arange(512, dtype=np.float64) * 6.8e-6
     hit_all, rows_all = renderer.hits(np.arange(512), times, pose)
     pick = np.array([3, 17, 200, 255, 256, 400, 511])
     hit, rows = renderer.hits(pick, times[pick], pose)
@@ -40,7 +40,7 @@ def test_skipped_shadow_tests_change_nothing(joint: Joint, monkeypatch: pytest.M
     """The renderer skips shadow tests a flat piece cannot pass (it is not above the lit one);
     with every test run the hits and the straight-seam statistics are the same."""
     scene = Scene(joint, SeamPath.straight())
-    times = np.arange(512) * 6.8e-6
+    times = np.arange(512, dtype=np.float64) * 6.8e-6
     for roll in (-12.0, 0.0, 12.0):
         pose = scripted_pose(
             scene.sensor_over_seam(0.0, 0.3, -0.4, roll), velocity_mm_s=(50.0, 0.0, 0.0)

@@ -308,6 +308,7 @@ def test_fillet_sides_as_slices_equal_the_masks(
     left, right = _beside(y, True, lo, hi)
     mask_l, mask_r = _beside(y, False, lo, hi)
     assert isinstance(left, slice) and isinstance(right, slice)
+    assert isinstance(mask_l, np.ndarray) and isinstance(mask_r, np.ndarray)
     np.testing.assert_array_equal(np.arange(y.size)[left], np.flatnonzero(mask_l))
     np.testing.assert_array_equal(np.arange(y.size)[right], np.flatnonzero(mask_r))
     assert _same(left, _beside(y, True, lo, hi)[0]) and _same(mask_r, y > hi)

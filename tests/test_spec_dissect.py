@@ -13,7 +13,7 @@ from spec import vectorgen, wire
 from spec.codec import Packet, encode_packet, error_packet, request
 from spec.datagrams import SensorData, encode_data
 from spec.dissect import broken_rules, datagram_rules, packet_rules
-from spec.params import IntArray, Joints
+from spec.params import IntArray, Joints, Value
 from spec.registry import BY_ID, CommandId
 from spec.wire import PacketKind, SensorStatus
 
@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def hello_reply(version: str, service: str = "robot") -> Packet:
     spec = BY_ID[CommandId.HELLO]
-    values = [version, service, "v", "m", "s", "1", IntArray((1,)), 1024, 1, 1.0, 1.0]
+    values: list[Value] = [version, service, "v", "m", "s", "1", IntArray((1,)), 1024, 1, 1.0, 1.0]
     assert len(values) == len(spec.reply)
     return Packet(PacketKind.REPLY, CommandId.HELLO, 1, tuple(values))
 

@@ -12,6 +12,7 @@ import os
 import shutil
 import subprocess
 from collections.abc import Iterable
+from ipaddress import IPv4Address, IPv6Address
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -44,11 +45,12 @@ from tests.test_sensor_service import make_sensor
 
 if TYPE_CHECKING:
     from tests.conftest import Serve
-from spec.wire import PacketKind, ParamType, SensorStatus
+from spec.wire import PacketKind, ParamType, PixelFormat, SensorStatus
 
 TSHARK = shutil.which("tshark")
 LUA = str(dissector.LUA_PATH)
 CLIENT = (ipaddress.ip_address("10.1.1.1"), 41000)
+IpAddress = IPv4Address | IPv6Address
 ROBOT = (ipaddress.ip_address("10.1.1.2"), 4000)
 SENSOR = (ipaddress.ip_address("10.1.1.3"), 2000)
 
@@ -88,7 +90,9 @@ def tshark(
     return [line.split("\t") for line in r.stdout.splitlines()]
 
 
-def write_capture(path: Path, chunks: Iterable[tuple[bool, bytes]], server: tuple = ROBOT) -> Path:
+def write_capture(
+    path: Path, chunks: Iterable[tuple[bool, bytes]], server: tuple[IpAddress, int] = ROBOT
+) -> Path:
     """A pcapng of one TCP connection: each chunk one write, from the client or the server."""
     with PcapngWriter(path, "test") as w:
         flow = TcpFlow(CLIENT, server)
@@ -151,7 +155,7 @@ def test_values_of_every_type(tmp_path: Path) -> None:
         IntArray((-1, 2**40)), Joints((10.0, -20.0, 90.0, 0.0, 45.0, 0.0)),
         Location(100.0, -5.0, 985.0, 0.0, 90.0, 180.0),
         Transform((1.0, 0, 0, 5, 0, 1, 0, 6, 0, 0, 1, 7, 0, 0, 0, 1)),
-        Matrix(1, 3, (1.0, 2.0, 3.0)), Image(2, 2, bytes(8), format=2),
+        Matrix(1, 3, (1.0, 2.0, 3.0)), Image(2, 2, bytes(8), format=PixelFormat(2)),
     )  # fmt: skip
     frame = encode_packet(Packet(PacketKind.EVENT, 0x8001, 0, params))
     (row,) = tshark(write_capture(tmp_path / "v.pcapng", [(False, frame)]),
@@ -210,14 +214,14 @@ def test_every_datagram_kind_and_status(tmp_path: Path) -> None:
                   "_ws.expert.message", display="rssync")  # fmt: skip
     assert len(rows) == 2 * len(SensorStatus)
     for i, status in enumerate(SensorStatus):
-        trigger, data = rows[2 * i], rows[2 * i + 1]
+        trigger, reply = rows[2 * i], rows[2 * i + 1]
         assert trigger[:2] == ["1", str(i)] and float(trigger[2]) == 100.0 + i
         assert trigger[5] == "1"
-        assert data[:2] == ["2", str(i)] and float(data[2]) == 100.0 + i
-        assert data[3] == str(int(status)) and data[5] == "1"
-        assert data[4] == ("2" if status is SensorStatus.FOUND else "0")
-        assert data[6] == str(2 * i + 1)  # the trigger's packet number
-        assert data[7] == "0.000500000" and data[8] == ""
+        assert reply[:2] == ["2", str(i)] and float(reply[2]) == 100.0 + i
+        assert reply[3] == str(int(status)) and reply[5] == "1"
+        assert reply[4] == ("2" if status is SensorStatus.FOUND else "0")
+        assert reply[6] == str(2 * i + 1)  # the trigger's packet number
+        assert reply[7] == "0.000500000" and reply[8] == ""
 
 
 @needs_tshark

@@ -84,7 +84,7 @@ def proxy(
            "-o", str(tmp_path / "proxy.pcapng")]  # fmt: skip
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)  # fmt: skip
-    assert proc.stdout is not None
+    assert proc.stdout is not None and proc.stderr is not None
     first = proc.stdout.readline()
     assert first.startswith("listening on 127.0.0.1:"), first + proc.stderr.read()
     listen_port = int(first.split()[2].rsplit(":", 1)[1].rstrip(","))

@@ -202,7 +202,12 @@ def test_a_new_controller_waits_for_the_lost_ones_controlled_stop() -> None:
         assert srv.control_holder is None and not srv.control_free
         took = threading.Event()
         with FramedClient(*srv.address) as b:
-            t = threading.Thread(target=lambda: (b.take_control(), took.set()))
+
+            def take() -> None:
+                b.take_control()
+                took.set()
+
+            t = threading.Thread(target=take)
             t.start()
             assert not took.wait(0.3)  # a wait with a timeout: it must not happen at all
             service.stop_may_end.set()

@@ -11,6 +11,7 @@ import math
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -405,12 +406,12 @@ def test_mse_curve_with_samples_that_snap_onto_one_grid_point() -> None:
     once, and the curve is still the plain per-shift mean."""
     rng = np.random.default_rng(3)
     step = DEFAULT_GRID_STEP_S
-    t_r = np.arange(120) * 4e-3
-    y_r = np.sin(2 * np.pi * 3.0 * t_r)
+    t_r = np.arange(120, dtype=np.float64) * 4e-3
+    y_r: npt.NDArray[np.float64] = np.sin(2 * np.pi * 3.0 * t_r)
     t_s = np.sort(np.concatenate([rng.uniform(0.01, 0.45, 60), np.arange(5, 2000, 400) * step]))
     t_s = np.insert(t_s, np.searchsorted(t_s, 805 * step) + 1, 805 * step * (1 + 1e-15))
     assert np.min(np.diff(t_s)) < 1e-12 * step
-    y_s = np.sin(2 * np.pi * 3.0 * (t_s + 0.005))
+    y_s: npt.NDArray[np.float64] = np.sin(2 * np.pi * 3.0 * (t_s + 0.005))
     shifts = np.arange(-20, 40, dtype=np.int64)
     mse, overlap = mse_curve((t_s, y_s), (t_r, y_r), shifts, step)
     jr, yr = upsample(t_r, y_r, step)

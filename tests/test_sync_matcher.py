@@ -224,6 +224,7 @@ def test_location_tuple_of_floats_as_any_location() -> None:
         (p,) = m.poll(trig_time(7) + 0.01, buf)
         points.append(p)
     for p in points:
+        assert p.seam2base is not None and points[0].seam2base is not None
         assert np.array_equal(p.seam2sensor, location_to_transform(np.array(loc)))
         assert np.array_equal(p.seam2base, points[0].seam2base)
     for bad in ((0.0, 0.0, float("nan"), 0.0, 0.0, 0.0), (float("inf"), 0.0, 0.0, 0.0, 0.0, 0.0)):

@@ -179,8 +179,9 @@ def _tracked_error(session: EmulatedSession, tool: Loc) -> float:
     r.tool_move_l(_loc(transform_to_location(end)), tool)
     assert r.wait_end_move(30.0)
     r.call(CommandId.STOP_TRIGGERS)
+    assert isinstance(first, int)
     (m,) = r.call(CommandId.GET_SEAM_POINTS, first - 1)
-    assert isinstance(m, Matrix) and isinstance(first, int)
+    assert isinstance(m, Matrix)
     rows = np.array(m.values).reshape(m.rows, m.cols)
     rows = rows[rows[:, 3] == int(SensorStatus.FOUND)]
     assert len(rows) >= 20

@@ -25,8 +25,8 @@ percent = st.floats(1e-3, 100)
 
 @st.composite
 def locations(draw: st.DrawFn) -> J.Location:
-    c = [draw(coords) for _ in range(6)]
-    return J.Location(*c, tool=draw(names), frame=draw(names))
+    x, y, z, rx, ry, rz = (draw(coords) for _ in range(6))
+    return J.Location(x, y, z, rx, ry, rz, tool=draw(names), frame=draw(names))
 
 
 segments = st.one_of(st.builds(J.Line, locations()), st.builds(J.Arc, locations(), locations()))

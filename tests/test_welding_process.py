@@ -177,7 +177,8 @@ def distance_to_welds(p: np.ndarray) -> np.ndarray:
     arc = np.stack([-10 + R * np.cos(th), 10 + R * np.sin(th), 0 * th], axis=1)
     d_arc = np.min(np.linalg.norm(p[:, None, :] - arc[None, ::20, :], axis=2), axis=1)
     d_spot = np.linalg.norm(p - np.array([10.0, 10, 0]), axis=1)
-    return np.minimum(np.minimum(d_line, d_arc), d_spot)
+    out: np.ndarray = np.minimum(np.minimum(d_line, d_arc), d_spot)
+    return out
 
 
 def test_laser_is_on_only_on_welding_paths(session: EmulatedSession) -> None:
@@ -203,7 +204,8 @@ def test_laser_is_on_only_on_welding_paths(session: EmulatedSession) -> None:
     assert speed.min() > 0.8 * SEAM.velocity and speed.max() < 1.01 * SEAM.velocity
     # gas from pre-flow before the laser to post-flow after it; crossjet with the laser
     gases, jets = on_intervals(io, "gas"), on_intervals(io, "crossjet")
-    for (l0, l1), (g0, g1), (c0, c1), item in zip(lasers, gases, jets, (SEAM, SPOT), strict=True):
+    items: tuple[J.Path | J.Stitch, ...] = (SEAM, SPOT)
+    for (l0, l1), (g0, g1), (c0, c1), item in zip(lasers, gases, jets, items, strict=True):
         assert l0 - g0 == pytest.approx(item.preflow)
         assert g1 - l1 == pytest.approx(item.postflow)
         assert c0 <= l0 and c1 >= l1
