@@ -113,7 +113,7 @@ _GENERATED = re.compile(
 _ACRONYMS = frozenset({"IO"})
 #: Names the message base classes use: no field may take one.
 _RESERVED = frozenset(
-    {"command", "table", "side", "what", "allow_extra", "decode", "encode", "reply_type"}
+    {"command", "table", "side", "what", "allow_extra", "decode", "encode", "as_dict", "reply_type"}
 )
 
 

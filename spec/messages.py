@@ -145,6 +145,10 @@ class Message:
             return [*values[:k], tuple(values[k:])]
         return values + [None] * (len(table) - len(values))  # optional ones left off
 
+    def as_dict(self) -> dict[str, Any]:
+        """The fields by name, in table order (e.g. for a JSON report)."""
+        return {p.name: getattr(self, p.name) for p in self.table}
+
     def encode(self) -> tuple[Value, ...]:
         """The parameter tuple of this message, in table order; trailing optional fields that
         are None are left off (as an older peer sends them)."""
