@@ -35,6 +35,7 @@ from spec.codec import FrameDecoder, Packet, Rejected, decode_packet, encode_pac
 from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data, encode_trigger
 from spec.errors import DatagramError, ErrorCode, ProtocolError
 from spec.exitcodes import ExitCode
+from spec.messages import RobotStatusReply
 from spec.params import Image, Joints, Location, Matrix, Value
 from spec.registry import BY_ID, CommandSpec, check_params, commands_for, profiles_for
 from spec.registry import CommandId as C
@@ -89,7 +90,7 @@ class MiniRobot(Service):
         c, now = spec.id, self.clock()
         if c == C.ROBOT_STATUS:
             mine, held = session.in_control, session.control_held
-            return (False, False, False, 0, mine, held, 0, "", now)
+            return RobotStatusReply(False, False, False, 0, mine, held, 0, "", now).encode()
         if c == C.HEREJ:
             return (Joints(self.q),)
         if c == C.HERE:
