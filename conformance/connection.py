@@ -13,14 +13,18 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 from conformance.model import EndpointGone, EndpointTimeout, Fail, WireEntry
 from spec import wire
 from spec.codec import FrameDecoder, Packet, Rejected, encode_packet, request
 from spec.errors import ErrorCode, PeerError, ProtocolError
+from spec.messages import REPLIES, MessageError, Reply, Request
 from spec.params import Value
-from spec.registry import BY_ID, CommandId, check_params
+from spec.registry import BY_ID, CommandId
 from spec.wire import PacketKind
+
+R = TypeVar("R", bound=Reply)
 
 MAX_LOG_ENTRIES = 200  # per case
 MAX_LOG_BYTES = 4096  # bytes kept of one send or receive
@@ -256,28 +260,31 @@ class Conn:
         return answer
 
     def ok(self, command: int, *params: Value, timeout: float | None = None) -> tuple[Value, ...]:
-        """Call and require a reply whose parameters match the command's reply table [RS-5.5]."""
+        """Call and require a reply whose parameters match the command's reply table [RS-5.5];
+        :meth:`ask` gives the reply as its typed message."""
+        answer = self._replied(command, params, timeout)
+        cls = REPLIES.get(command)
+        if cls is not None:
+            typed_reply(cls, answer.params)
+        return answer.params
+
+    def ask(self, message: Request[R], timeout: float | None = None) -> R:
+        """Send a typed request and return its typed reply: a refusal is a Fail, and so is a
+        reply whose parameters do not match the command's reply table [RS-5.5]."""
+        answer = self._replied(message.command, message.encode(), timeout)
+        return typed_reply(message.reply_type(), answer.params)
+
+    def _replied(self, command: int, params: tuple[Value, ...], timeout: float | None) -> Packet:
         answer = self.call(command, *params, timeout=timeout)
-        name = BY_ID[command].name if command in BY_ID else f"0x{command:04x}"
         if answer.kind is PacketKind.ERROR:
+            name = BY_ID[command].name if command in BY_ID else f"0x{command:04x}"
             code, message = answer.error or (0, "")
             raise Fail(
                 f"{name} was refused",
                 "a reply",
                 f"error {_code_name(code)}: {message}",
             )
-        spec = BY_ID.get(command)
-        if spec is not None:
-            try:
-                check_params(spec.reply, answer.params, f"{spec.name} reply", allow_extra=True)
-            except PeerError as exc:
-                raise Fail(
-                    f"{name} reply parameters do not match the reply table",
-                    ", ".join(f"{p.name}:{p.type.name}" for p in spec.reply) or "none",
-                    exc.message,
-                    requirement="RS-5.5",
-                ) from None
-        return answer.params
+        return answer
 
     def error(
         self,
@@ -299,6 +306,21 @@ class Conn:
             self.sock.close()
         except OSError:
             pass
+
+
+def typed_reply(cls: type[R], params: tuple[Value, ...]) -> R:
+    """The reply message ``cls`` of ``params``; parameters that do not match the command's
+    reply table (count, or a field's type) are the endpoint's Fail of [RS-5.5], never a
+    harness fault."""
+    try:
+        return cls.decode(params)
+    except MessageError as exc:
+        raise Fail(
+            f"{cls.what} parameters do not match the reply table",
+            ", ".join(f"{p.name}:{p.type.name}" for p in cls.table) or "none",
+            exc.message,
+            requirement="RS-5.5",
+        ) from None
 
 
 def _code_name(code: int) -> str:
@@ -344,21 +366,14 @@ def check_echo(answer: Packet, command: int, request_id: int) -> None:
 def check_error_shape(packet: Packet) -> None:
     """[RS-6.1] an error frame carries exactly (INT code, STRING message) with a known code."""
     p = packet.params
-    shape_ok = (
-        len(p) == 2
-        and isinstance(p[0], int)
-        and not isinstance(p[0], bool)
-        and isinstance(p[1], str)
-    )
-    if not shape_ok:
+    code = p[0] if p and type(p[0]) is not bool and isinstance(p[0], int) else None
+    if code is None or len(p) != 2 or not isinstance(p[1], str):
         raise Fail(
             "an error frame does not carry (INT code, STRING message)",
             "2 parameters: INT, STRING",
             f"{len(p)} parameter(s): {[type(v).__name__ for v in p]}",
             requirement="RS-6.1",
         )
-    code = p[0]
-    assert isinstance(code, int)
     if code not in set(int(c) for c in ErrorCode):
         raise Fail(
             "an error frame carries a code outside the error table",

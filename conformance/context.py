@@ -26,19 +26,8 @@ from spec.params import IntArray, Value
 from spec.registry import BY_ID, CommandId, commands_for
 from spec.wire import PacketKind
 
-HELLO_FIELDS = (
-    "version",
-    "service",
-    "vendor",
-    "model",
-    "serial",
-    "software",
-    "commands",
-    "max_payload",
-    "max_clients",
-    "idle_timeout",
-    "frame_timeout",
-)
+#: Hello's reply fields, in order (the registry's table).
+HELLO_FIELDS = tuple(p.name for p in BY_ID[CommandId.HELLO].reply)
 
 
 #: Lease the harness asks for at TakeControl (s): its cases pause for seconds at a time.

@@ -19,6 +19,7 @@ from conformance.model import CaseResult, Outcome
 from conformance.runner import RunResult, exit_code
 from spec import wire
 from spec.files import write_atomically
+from spec.messages import Message
 
 SCHEMA_VERSION = 1
 ORDER = [o.value for o in Outcome]
@@ -42,6 +43,8 @@ def _plain(value: object) -> Any:
         return value if math.isfinite(value) else repr(value)
     if isinstance(value, bytes):
         return {"hex": value.hex()}
+    if isinstance(value, Message):
+        value = value.as_dict()  # a typed reply: its fields by name
     if isinstance(value, dict):
         return {str(k): _plain(v) for k, v in value.items()}
     if isinstance(value, list | tuple | set | frozenset):

@@ -35,7 +35,6 @@ robot API has the same failure, the class is also that :mod:`robotsocket.interfa
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
@@ -53,7 +52,20 @@ from spec.client import (
     wait_move,
 )
 from spec.errors import ErrorCode, RemoteError
-from spec.params import Joints, Location, Matrix
+from spec.messages import (
+    GetJointLimitsReply,
+    GetJointLogReply,
+    GetMotionDescReply,
+    HerejReply,
+    HereReply,
+    JointMoveReply,
+    ListIOReply,
+    ReadIOReply,
+    RobotStatusReply,
+    ToolMoveJReply,
+    ToolMoveLReply,
+)
+from spec.params import Joints, Location
 from spec.registry import CommandId
 
 
@@ -126,19 +138,9 @@ _ERRORS: dict[int, type[RobotRemoteError]] = {
 }
 
 
-@dataclass(frozen=True, slots=True)
-class Status:
-    """GetStatus reply; ``time`` on the robot clock (s)."""
-
-    powered: bool
-    estop: bool
-    moving: bool
-    queue: int
-    in_control: bool
-    controlled: bool
-    last_error: int
-    last_message: str
-    time: float
+#: GetStatus reply (powered, estop, moving, queue, in_control, controlled, last_error,
+#: last_message, time on the robot clock in s): the registry's message class.
+Status = RobotStatusReply
 
 
 class JointLog(NamedTuple):
@@ -176,14 +178,11 @@ class RobotClient(FramedClient):
     # --- state -------------------------------------------------------------------------------
 
     def status(self) -> Status:
-        v = self.call(CommandId.ROBOT_STATUS)
-        return Status(*v)  # type: ignore[arg-type]
+        return RobotStatusReply.decode(self.call(_ROBOT_STATUS))
 
     def herej(self) -> FloatArray:
         """Measured joints (6,) in degrees."""
-        (j,) = self.call(_HEREJ)
-        assert isinstance(j, Joints)
-        return np.array(j.values, dtype=np.float64)
+        return np.array(HerejReply.decode(self.call(_HEREJ)).joints.values, dtype=np.float64)
 
     def here(
         self,
@@ -191,20 +190,17 @@ class RobotClient(FramedClient):
         frame: Sequence[float] | Location = IDENTITY_LOC,
     ) -> Loc:
         """Location of ``tool`` (relative to the flange) in ``frame`` (relative to the base)."""
-        (loc,) = self.call(_HERE, _location(tool), _location(frame))
-        assert isinstance(loc, Location)
-        return loc.as_tuple()
+        reply = HereReply.decode(self.call(_HERE, _location(tool), _location(frame)))
+        return reply.location.as_tuple()
 
     def joint_limits(self) -> FloatArray:
         """(6, 2) degrees, [lower, upper]."""
-        (m,) = self.call(CommandId.GET_JOINT_LIMITS)
-        assert isinstance(m, Matrix)
+        m = GetJointLimitsReply.decode(self.call(CommandId.GET_JOINT_LIMITS)).limits
         return np.array(m.values, dtype=np.float64).reshape(m.rows, m.cols)
 
     def joint_log(self, since: float = -1.0) -> JointLog:
         """Samples with t_k > since (s): times (N,) robot clock, measured joints (N, 6)."""
-        m, _period = self.call(CommandId.GET_JOINT_LOG, float(since))
-        assert isinstance(m, Matrix)
+        m = GetJointLogReply.decode(self.call(CommandId.GET_JOINT_LOG, float(since))).log
         rows = np.array(m.values, dtype=np.float64).reshape(m.rows, m.cols)
         return JointLog(rows[:, 0].copy(), rows[:, 1:].copy())
 
@@ -218,9 +214,7 @@ class RobotClient(FramedClient):
 
     def joint_move(self, joints: Sequence[float]) -> int:
         """Queue a joint move to ``joints`` (6,) degrees; returns the move ID at once."""
-        (mid,) = self.call(CommandId.JOINT_MOVE, Joints(joints))
-        assert isinstance(mid, int)
-        return mid
+        return JointMoveReply.decode(self.call(CommandId.JOINT_MOVE, Joints(joints))).move_id
 
     def tool_move_j(
         self,
@@ -228,9 +222,8 @@ class RobotClient(FramedClient):
         tool: Sequence[float] | Location = IDENTITY_LOC,
         frame: Sequence[float] | Location = IDENTITY_LOC,
     ) -> int:
-        (mid,) = self.call(CommandId.TOOL_MOVE_J, _location(loc), _location(tool), _location(frame))
-        assert isinstance(mid, int)
-        return mid
+        reply = self.call(CommandId.TOOL_MOVE_J, _location(loc), _location(tool), _location(frame))
+        return ToolMoveJReply.decode(reply).move_id
 
     def tool_move_l(
         self,
@@ -238,9 +231,8 @@ class RobotClient(FramedClient):
         tool: Sequence[float] | Location = IDENTITY_LOC,
         frame: Sequence[float] | Location = IDENTITY_LOC,
     ) -> int:
-        (mid,) = self.call(CommandId.TOOL_MOVE_L, _location(loc), _location(tool), _location(frame))
-        assert isinstance(mid, int)
-        return mid
+        reply = self.call(CommandId.TOOL_MOVE_L, _location(loc), _location(tool), _location(frame))
+        return ToolMoveLReply.decode(reply).move_id
 
     def set_motion_desc(self, desc: MotionDesc) -> None:
         self.call(
@@ -254,7 +246,10 @@ class RobotClient(FramedClient):
         )
 
     def motion_desc(self) -> MotionDesc:
-        return MotionDesc(*self.call(CommandId.GET_MOTION_DESC))  # type: ignore[arg-type]
+        d = GetMotionDescReply.decode(self.call(CommandId.GET_MOTION_DESC))
+        return MotionDesc(
+            d.joint_speed, d.joint_accel, d.joint_decel, d.tool_speed, d.tool_rot_speed, d.blend
+        )
 
     def wait_end_move(self, timeout: float = 60.0) -> bool:
         """True only when the last move reached its target and the arm settled; False when
@@ -289,18 +284,17 @@ class RobotClient(FramedClient):
         self.call(CommandId.SET_OUTPUT, name, bool(value))
 
     def read_io(self, name: str) -> bool:
-        value, _is_output = self.call(CommandId.READ_IO, name)
-        assert isinstance(value, bool)
-        return value
+        return ReadIOReply.decode(self.call(CommandId.READ_IO, name)).value
 
     def list_io(self) -> IoNames:
-        outputs, inputs = self.call(CommandId.LIST_IO)
-        assert isinstance(outputs, str) and isinstance(inputs, str)
+        names = ListIOReply.decode(self.call(CommandId.LIST_IO))
+        outputs, inputs = names.outputs, names.inputs
         return IoNames([n for n in outputs.split(",") if n], [n for n in inputs.split(",") if n])
 
 
 # Enum members as ints: an enum attribute look-up is slow in Python 3.11 (~10x a global).
 _HEREJ, _HERE = int(CommandId.HEREJ), int(CommandId.HERE)
+_ROBOT_STATUS = int(CommandId.ROBOT_STATUS)
 
 
 __all__ = [

@@ -34,6 +34,15 @@ from robotsocket.interface import (
     UnreachableError,
 )
 from spec.errors import ErrorCode, ProtocolError
+from spec.messages import (
+    AlterQueueReply,
+    GetJointLogReply,
+    GetMotionDescReply,
+    ListIOReply,
+    ReadIOReply,
+    RobotStatusReply,
+    WaitEndMoveReply,
+)
 from spec.params import FloatArray, Joints, Location, Matrix, Value
 from spec.registry import CommandId
 from spec.server import Handler, HandlerService, Identity, SessionView
@@ -66,7 +75,7 @@ def status_reply(
     st: RobotStatus, code: int, message: str, session: SessionView
 ) -> tuple[Value, ...]:
     """The RobotStatus reply parameters (the last error as its wire code and message)."""
-    return (
+    return RobotStatusReply(
         st.powered,
         st.estop,
         st.moving,
@@ -76,12 +85,12 @@ def status_reply(
         code,
         message,
         float(st.time),
-    )
+    ).encode()
 
 
 def wait_reply(outcome: MoveOutcome, why: str) -> tuple[Value, ...]:
     """[RS-5.50] WaitEndMove's reply: done only for a move that reached its target."""
-    return (outcome is MoveOutcome.REACHED, outcome.value, why)
+    return WaitEndMoveReply(outcome is MoveOutcome.REACHED, outcome.value, why).encode()
 
 
 def _loc(value: Value) -> Loc:
@@ -261,7 +270,7 @@ class RobotService(HandlerService):
             report, applied, now = self.robot.alter_queue(t, c)
         except NotImplementedError:
             raise ProtocolError("AlterQueue not implemented", ErrorCode.NOT_SUPPORTED) from None
-        return (
+        return AlterQueueReply(
             report.accepted,
             report.late,
             report.depth,
@@ -270,7 +279,7 @@ class RobotService(HandlerService):
             report.held_total,
             Location(*(float(v) for v in applied)),
             float(now),
-        )
+        ).encode()
 
     def _set_mdesc(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         self.robot.set_motion_desc(MotionDesc(*(_float(p) for p in params)))
@@ -278,14 +287,14 @@ class RobotService(HandlerService):
 
     def _get_mdesc(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         d = self.robot.motion_desc()
-        return (
+        return GetMotionDescReply(
             d.joint_speed,
             d.joint_accel,
             d.joint_decel,
             d.tool_speed,
             d.tool_rot_speed,
             d.blend,
-        )
+        ).encode()
 
     def _wait_end_move(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         ended = self.robot.wait_end_move(_float(params[0]))
@@ -307,11 +316,11 @@ class RobotService(HandlerService):
         name = params[0]
         assert isinstance(name, str)
         value, is_output = self.robot.read_io(name)
-        return (value, is_output)
+        return ReadIOReply(value, is_output).encode()
 
     def _list_io(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         outputs, inputs = self.robot.list_io()
-        return (",".join(outputs), ",".join(inputs))
+        return ListIOReply(",".join(outputs), ",".join(inputs)).encode()
 
     def _joint_log(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         since = _float(params[0])
@@ -320,7 +329,8 @@ class RobotService(HandlerService):
             raise ProtocolError("GetJointLog since must be a time, got NaN", ErrorCode.OUT_OF_RANGE)
         times, joints = self.robot.joint_log(since)
         rows = np.column_stack([times, joints]) if len(times) else np.zeros((0, 7))
-        return (Matrix(rows.shape[0], 7, rows.ravel().tolist()), float(self.robot.period))
+        log = Matrix(rows.shape[0], 7, rows.ravel().tolist())
+        return GetJointLogReply(log, float(self.robot.period)).encode()
 
     def _joint_limits(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         lim = self.robot.joint_limits()

@@ -22,6 +22,7 @@ from kinematics.transforms import location_to_transform, transform_to_location
 from kinematics.types import Loc
 from robotsocket.interface import BadStateError, OutOfRangeError, RobotInterface
 from robotsocket.service import RobotService
+from spec.messages import GetSyncConfigReply
 from spec.params import FloatArray, Location, Matrix, Value
 from spec.registry import BY_ID, SEAM_POINT_COLUMNS, CommandId
 from spec.server import Handler, SessionView
@@ -166,14 +167,14 @@ class SyncService:
             s2f = transform_to_location(self.core.sensor2flange)
             triggering = self.core.scheduler.active
             rate = self.core.scheduler.rate
-        return (
+        return GetSyncConfigReply(
             host,
             port,
             float(self.core.delta_t_s),
             Location(*(float(v) for v in s2f)),
             triggering,
             float(rate),
-        )
+        ).encode()
 
     def _start(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         rate, count = params

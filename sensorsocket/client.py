@@ -21,21 +21,23 @@ from kinematics.types import Loc
 from spec import wire
 from spec.client import FramedClient
 from spec.errors import PeerError
-from spec.params import Image, Location, Matrix, Value
+from spec.messages import (
+    AcquireReply,
+    GetDataReply,
+    GetImageReply,
+    GetProfileReply,
+    GetSettingsReply,
+    GetTriggerEndpointReply,
+    SensorStatusReply,
+    SetReadoutWindowReply,
+)
+from spec.params import Image
 from spec.registry import CommandId
 from spec.wire import PixelFormat, PixelOrder, SensorStatus
 
-
-@dataclass(frozen=True)
-class SensorState:
-    """GetStatus reply; ``time`` on the sensor clock (s)."""
-
-    laser: bool
-    frames: int
-    last_index: int
-    in_control: bool
-    controlled: bool
-    time: float
+#: GetStatus reply (laser, frames, last_index, in_control, controlled, time on the sensor
+#: clock in s): the registry's message class.
+SensorState = SensorStatusReply
 
 
 @dataclass(frozen=True)
@@ -55,35 +57,9 @@ class SeamData:
         return self.status is SensorStatus.FOUND
 
 
-@dataclass(frozen=True)
-class Settings:
-    """GetSettings reply; times in s, columns in px."""
-
-    laser: bool
-    exposure: float
-    first_column: int
-    columns: int
-    acquisition_time: float
-    width: int
-    height: int
-
-
-def _f(v: Value) -> float:
-    if not isinstance(v, float):
-        raise PeerError(f"expected FLOAT in reply, got {type(v).__name__}")
-    return v
-
-
-def _i(v: Value) -> int:
-    if not isinstance(v, int) or isinstance(v, bool):
-        raise PeerError(f"expected INT in reply, got {type(v).__name__}")
-    return v
-
-
-def _b(v: Value) -> bool:
-    if not isinstance(v, bool):
-        raise PeerError(f"expected BOOL in reply, got {type(v).__name__}")
-    return v
+#: GetSettings reply (laser, exposure, first_column, columns, acquisition_time, width,
+#: height; times in s, columns in px): the registry's message class.
+Settings = GetSettingsReply
 
 
 def image_to_array(image: Image) -> NDArray[np.uint8] | NDArray[np.uint16]:
@@ -109,18 +85,16 @@ class SensorClient(FramedClient):
         return self
 
     def status(self) -> SensorState:
-        v = self.call(CommandId.SENSOR_STATUS)
-        return SensorState(_b(v[0]), _i(v[1]), _i(v[2]), _b(v[3]), _b(v[4]), _f(v[5]))
+        return SensorStatusReply.decode(self.call(CommandId.SENSOR_STATUS))
 
     def get_data(self) -> SeamData:
         """The latest measurement (paper: data = GetData())."""
-        v = self.call(_GET_DATA)
-        status = SensorStatus(_i(v[1]))
-        loc = v[2]
-        if not isinstance(loc, Location):
-            raise PeerError("GetData: seam must be a LOCATION")
-        seam = loc.as_tuple() if status is SensorStatus.FOUND else None
-        return SeamData(_i(v[0]), status, seam, _f(v[3]), _f(v[4]), _f(v[5]), _f(v[6]))
+        d = GetDataReply.decode(self.call(_GET_DATA))
+        status = SensorStatus(d.status)
+        seam = d.seam.as_tuple() if status is SensorStatus.FOUND else None
+        return SeamData(
+            d.index, status, seam, d.quality, d.t_arrival, d.t_exposure_start, d.t_exposure_end
+        )
 
     def get_image_raw(self, region: tuple[int, ...] | None = None) -> tuple[int, Image]:
         """(index, IMAGE) of the latest frame; ``region`` = (column, row, width, height),
@@ -129,10 +103,8 @@ class SensorClient(FramedClient):
             v = self.call(_GET_IMAGE)
         else:
             v = self.call(_GET_IMAGE, *(int(x) for x in region))
-        image = v[1]
-        if not isinstance(image, Image):
-            raise PeerError("GetImage: expected an IMAGE")
-        return _i(v[0]), image
+        reply = GetImageReply.decode(v)
+        return reply.index, reply.image
 
     def get_image(
         self, region: tuple[int, ...] | None = None
@@ -143,11 +115,9 @@ class SensorClient(FramedClient):
 
     def get_profile(self) -> tuple[int, NDArray[np.float64]]:
         """(index, stripe points (N, 3) mm in the sensor frame)."""
-        v = self.call(CommandId.GET_PROFILE)
-        m = v[1]
-        if not isinstance(m, Matrix):
-            raise PeerError("GetProfile: expected a MATRIX")
-        return _i(v[0]), np.asarray(m.values, dtype=np.float64).reshape(m.rows, m.cols)
+        reply = GetProfileReply.decode(self.call(CommandId.GET_PROFILE))
+        m = reply.points
+        return reply.index, np.asarray(m.values, dtype=np.float64).reshape(m.rows, m.cols)
 
     def set_laser(self, on: bool) -> None:
         self.call(CommandId.SET_LASER, bool(on))
@@ -157,16 +127,15 @@ class SensorClient(FramedClient):
 
     def set_readout_window(self, first_column: int, columns: int) -> float:
         """Returns the resulting acquisition time (s)."""
-        (t,) = self.call(CommandId.SET_READOUT_WINDOW, int(first_column), int(columns))[:1]
-        return _f(t)
+        reply = self.call(CommandId.SET_READOUT_WINDOW, int(first_column), int(columns))
+        return SetReadoutWindowReply.decode(reply).acquisition_time
 
     def get_settings(self) -> Settings:
-        v = self.call(CommandId.GET_SETTINGS)
-        return Settings(_b(v[0]), _f(v[1]), _i(v[2]), _i(v[3]), _f(v[4]), _i(v[5]), _i(v[6]))
+        return GetSettingsReply.decode(self.call(CommandId.GET_SETTINGS))
 
     def acquire(self) -> int:
         """Software trigger; returns the index of the new measurement (needs control)."""
-        return _i(self.call(CommandId.ACQUIRE)[0])
+        return AcquireReply.decode(self.call(CommandId.ACQUIRE)).index
 
     def measure(self) -> SeamData:
         """Acquire (needs control) and return that measurement, checked to be the new one."""
@@ -182,11 +151,8 @@ class SensorClient(FramedClient):
         return data.status.problem(self.address)
 
     def get_trigger_endpoint(self) -> tuple[str, int]:
-        v = self.call(CommandId.GET_TRIGGER_ENDPOINT)
-        host = v[0]
-        if not isinstance(host, str):
-            raise PeerError("GetTriggerEndpoint: host must be a STRING")
-        return host, _i(v[1])
+        reply = GetTriggerEndpointReply.decode(self.call(CommandId.GET_TRIGGER_ENDPOINT))
+        return reply.host, reply.port
 
 
 # Enum members as ints: an enum attribute look-up is slow in Python 3.11.

@@ -20,6 +20,12 @@ import numpy as np
 from sensorsocket.sensor import Reading, Sensor, SensorError
 from spec.codec import PreparedParams, prepare_params
 from spec.errors import ErrorCode, ProtocolError
+from spec.messages import (
+    GetDataReply,
+    GetSettingsReply,
+    GetTriggerEndpointReply,
+    SensorStatusReply,
+)
 from spec.params import Image, Location, Matrix, Value
 from spec.registry import CommandId
 from spec.server import HandlerService, Identity, SessionView
@@ -90,14 +96,14 @@ class SensorService(HandlerService):
 
     def _status(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         latest = self.sensor.latest
-        return (
+        return SensorStatusReply(
             self.sensor.settings.laser,
             self.sensor.frames,
             -1 if latest is None else latest.index,
             session.in_control,
             session.control_held,
             float(self.sensor.clock()),
-        )
+        ).encode()
 
     def _get_data(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         r = self._latest()
@@ -105,7 +111,7 @@ class SensorService(HandlerService):
         seam = Location(*r.seam) if found else Location(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         # [SS-5.1] index, status, ^S_G T, quality, and the three sensor-clock times, which
         # satisfy t_arrival <= t_exposure_start <= t_exposure_end [SS-5.5].
-        return (
+        return GetDataReply(
             r.index,
             int(r.status),
             seam,
@@ -113,7 +119,7 @@ class SensorService(HandlerService):
             float(r.t_arrival),
             float(r.t_exposure_start),
             float(r.t_exposure_end),
-        )
+        ).encode()
 
     def _get_image(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         r = self._latest()
@@ -161,7 +167,7 @@ class SensorService(HandlerService):
 
     def _get_settings(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
         s = self.sensor.settings
-        return (
+        return GetSettingsReply(
             s.laser,
             float(s.exposure_s),
             s.first_column,
@@ -169,13 +175,13 @@ class SensorService(HandlerService):
             float(self.sensor.acquisition_time()),
             self.sensor.width,
             self.sensor.height,
-        )
+        ).encode()
 
     def _trigger_endpoint(
         self, session: SessionView, params: tuple[Value, ...]
     ) -> tuple[Value, ...]:
         host, port = self.trigger_endpoint
-        return (host, int(port))
+        return GetTriggerEndpointReply(host, int(port)).encode()
 
     # --- need control (checked by the shell) [RS-7.4] ---------------------------------------
 

@@ -3,7 +3,7 @@
 python -m spec decode HEX|FILE|-     dissect a frame or datagram field by field
 python -m spec vectors [--generate]  decode every test vector (or write them, maintainers)
 python -m spec requirements [--json] list the requirement IDs of PROTOCOL.md
-python -m spec doc --check|--write   compare/regenerate PROTOCOL.md's tables from the registry
+python -m spec doc --check|--write   compare/regenerate PROTOCOL.md's tables and spec/messages.py
 python -m spec fuzz --count N --seed S   fuzz the decoders
 python -m spec replay FILE --robot HOST:PORT   replay a recording, report differing answers
 python -m spec dissector --check|--write|--path   the Wireshark dissector (robotsocket.lua)
@@ -136,13 +136,20 @@ def cmd_requirements(args: argparse.Namespace) -> int:
 def cmd_doc(args: argparse.Namespace) -> int:
     if args.write:
         changed = doc.write()
-        print("PROTOCOL.md updated" if changed else "PROTOCOL.md already up to date")
+        print(
+            "PROTOCOL.md / spec/messages.py updated"
+            if changed
+            else "PROTOCOL.md and spec/messages.py already up to date"
+        )
         return 0
     diff = doc.differences()
     if diff:
-        print(f"PROTOCOL.md differs from the registry in: {', '.join(diff)}", file=sys.stderr)
+        print(
+            f"PROTOCOL.md or spec/messages.py differs from the registry in: {', '.join(diff)}",
+            file=sys.stderr,
+        )
         return ExitCode.FAILED
-    print("PROTOCOL.md matches the registry")
+    print("PROTOCOL.md and spec/messages.py match the registry")
     return 0
 
 
@@ -335,7 +342,7 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("requirements", help="list the requirements of PROTOCOL.md")
     p.add_argument("--json", action="store_true")
     p.set_defaults(fn=cmd_requirements)
-    p = sub.add_parser("doc", help="check or regenerate PROTOCOL.md's tables")
+    p = sub.add_parser("doc", help="check or regenerate PROTOCOL.md's tables and spec/messages.py")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--check", action="store_true", default=True)
     g.add_argument("--write", action="store_true")

@@ -18,12 +18,21 @@ import threading
 import time
 from dataclasses import dataclass
 from types import TracebackType
-from typing import NoReturn
+from typing import NoReturn, TypeVar
 
 from spec import wire
 from spec.codec import FrameDecoder, Packet, encode_request
 from spec.errors import ErrorCode, PeerError, ProtocolError, RemoteError
-from spec.params import IntArray, Value
+from spec.messages import (
+    GetTimeReply,
+    HelloReply,
+    PingReply,
+    Reply,
+    Request,
+    TakeControlReply,
+    WaitEndMoveReply,
+)
+from spec.params import Value
 from spec.realtime import promote_current_thread
 from spec.record import SessionRecorder
 from spec.registry import BY_ID, CommandId, check_params, exact_classes
@@ -33,6 +42,8 @@ from spec.wire import MoveOutcome, PacketKind
 #: SCHED_FIFO priority of the control-lease keeper: below the robot's own timing threads (50)
 #: and command threads (40) when both run on one host.
 KEEPER_PRIORITY = 30
+
+R = TypeVar("R", bound=Reply)
 
 
 class ClientTimeout(ProtocolError, TimeoutError):
@@ -378,18 +389,18 @@ class FramedClient:
             CommandId.HELLO, wire.VERSION_MAJOR, wire.VERSION_MINOR, self.client_name,
             timeout=timeout,
         )  # fmt: skip
-        names = [p.name for p in BY_ID[CommandId.HELLO].reply]
-        info = dict(zip(names, values, strict=False))
-        commands = info.get("commands")
-        if isinstance(commands, IntArray):
-            info["commands"] = commands
+        info: dict[str, Value] = HelloReply.decode(values).as_dict()
         self.server_info = info
         return info
 
     def ping(self, data: bytes = b"") -> bytes:
-        (echo,) = self.call(_PING, data)
-        assert isinstance(echo, bytes)
-        return echo
+        return PingReply.decode(self.call(_PING, data)).data
+
+    def ask(self, request: Request[R], timeout: float | None = None) -> R:
+        """Send a typed request (a class of :mod:`spec.messages`) and return its typed reply:
+        every command of the registry, also one without a method of its own here."""
+        reply = self.call(request.command, *request.encode(), timeout=timeout)
+        return request.reply_type().decode(reply)
 
     def take_control(self, token: str = "", watchdog: float | None = None) -> float | None:
         """Take control; ``watchdog`` (s) asks for a lease period, else the server's default.
@@ -406,7 +417,7 @@ class FramedClient:
                 raise
             time.sleep(wait)
             reply = self.call(CommandId.TAKE_CONTROL, *params)
-        lease = reply[0] if reply and isinstance(reply[0], float) else None
+        lease = TakeControlReply.decode(reply).watchdog  # None from a 1.0 server
         self.lease = lease
         if lease is not None and self.keepalive:
             self._start_keeper(lease)
@@ -467,9 +478,7 @@ class FramedClient:
                 return  # the connection is gone; the next request will say so
 
     def get_time(self) -> float:
-        (t,) = self.call(CommandId.GET_TIME)
-        assert isinstance(t, float)
-        return t
+        return GetTimeReply.decode(self.call(CommandId.GET_TIME)).time
 
 
 # Enum members as constants: an enum attribute look-up is slow in Python 3.11 and these are
@@ -497,14 +506,15 @@ class MoveResult:
     @classmethod
     def from_reply(cls, reply: tuple[Value, ...]) -> MoveResult:
         """WaitEndMove's reply; a 1.2 server sends ``done`` only (reached or still moving)."""
-        done = bool(reply[:1] == (True,))
-        if len(reply) < 2 or not isinstance(reply[1], str):
+        r = WaitEndMoveReply.decode(reply)
+        done = r.done
+        if r.outcome is None:
             return cls(MoveOutcome.REACHED if done else MoveOutcome.MOVING)
-        reason = reply[2] if len(reply) > 2 and isinstance(reply[2], str) else ""
+        reason = r.reason or ""
         try:
-            outcome = MoveOutcome(reply[1])
+            outcome = MoveOutcome(r.outcome)
         except ValueError:
-            return cls(MoveOutcome.FAILED, f"unknown outcome {reply[1]!r}: {reason}".rstrip(": "))
+            return cls(MoveOutcome.FAILED, f"unknown outcome {r.outcome!r}: {reason}".rstrip(": "))
         if outcome is MoveOutcome.REACHED and not done:  # contradicts itself: not reached
             return cls(MoveOutcome.FAILED, "outcome reached but done false")
         return cls(outcome, reason)

@@ -1,7 +1,7 @@
-"""Generate PROTOCOL.md's command and error tables from the registry, and check them.
+"""Generate PROTOCOL.md's tables and spec/messages.py's classes from the registry; check them.
 
-``python -m spec doc --check`` exits 1 when the document and the registry disagree;
-``--write`` rewrites the generated blocks in place (atomically).
+``python -m spec doc --check`` exits 1 when the document or the message classes and the
+registry disagree; ``--write`` rewrites the generated blocks in place (atomically).
 """
 
 from __future__ import annotations
@@ -11,7 +11,8 @@ from pathlib import Path
 
 from spec.errors import ERROR_MEANINGS, ErrorCode
 from spec.files import write_atomically
-from spec.registry import BY_ID, COMMANDS, PROFILES, CommandSpec, ParamSpec
+from spec.params import CLASS_OF
+from spec.registry import BY_ID, COMMANDS, PROFILES, CommandId, CommandSpec, ParamSpec
 from spec.requirements import PROTOCOL_MD
 
 _BLOCK = re.compile(r"(<!-- registry:(?P<name>\w+) -->\n)(?P<body>.*?)(<!-- /registry -->)", re.S)
@@ -76,17 +77,99 @@ def render(text: str) -> str:
     return _BLOCK.sub(lambda m: m[1] + generated(m["name"]) + m[4], text)
 
 
-def differences(path: Path = PROTOCOL_MD) -> list[str]:
-    """Names of the generated blocks that differ from the registry."""
+def differences(path: Path = PROTOCOL_MD, messages: Path | None = None) -> list[str]:
+    """Names of the generated blocks that differ from the registry (``"messages"``: the
+    classes of spec/messages.py, or of ``messages``)."""
     text = path.read_text(encoding="utf-8")
-    return [m["name"] for m in _BLOCK.finditer(text) if m["body"] != generated(m["name"])]
+    names = [m["name"] for m in _BLOCK.finditer(text) if m["body"] != generated(m["name"])]
+    source = (messages or MESSAGES_PY).read_text(encoding="utf-8")
+    if render_messages(source) != source:
+        names.append("messages")
+    return names
 
 
-def write(path: Path = PROTOCOL_MD) -> bool:
-    """Rewrite the generated blocks; True when the file changed."""
-    text = path.read_text(encoding="utf-8")
-    new = render(text)
-    if new == text:
-        return False
-    write_atomically(path, new)
-    return True
+def write(path: Path = PROTOCOL_MD, messages: Path | None = None) -> bool:
+    """Rewrite the generated blocks of PROTOCOL.md and spec/messages.py; True when a file
+    changed."""
+    changed = False
+    for target, rendering in ((path, render), (messages or MESSAGES_PY, render_messages)):
+        text = target.read_text(encoding="utf-8")
+        new = rendering(text)
+        if new != text:
+            write_atomically(target, new)
+            changed = True
+    return changed
+
+
+# --- the message classes of spec/messages.py ---------------------------------------------------
+
+MESSAGES_PY = Path(__file__).with_name("messages.py")
+_GENERATED = re.compile(
+    r"(# --- generated from spec/registry.py [^\n]*\n)(?P<body>.*?)"
+    r"(# --- end of generated code ---)",
+    re.S,
+)
+#: Words of CommandId names kept in capitals in class names (READ_IO -> ReadIORequest).
+_ACRONYMS = frozenset({"IO"})
+#: Names the message base classes use: no field may take one.
+_RESERVED = frozenset(
+    {"command", "table", "side", "what", "allow_extra", "decode", "encode", "as_dict", "reply_type"}
+)
+
+
+def class_name(command: CommandId) -> str:
+    """The stem of a command's message classes: ``ROBOT_STATUS`` -> ``RobotStatus``."""
+    return "".join(w if w in _ACRONYMS else w.capitalize() for w in command.name.split("_"))
+
+
+def _field(p: ParamSpec) -> str:
+    kind = CLASS_OF[p.type].__name__
+    if p.name in _RESERVED or not p.name.isidentifier():
+        raise ValueError(f"parameter name {p.name!r} cannot be a message field")
+    if p.repeated:
+        line = f"    {p.name}: tuple[{kind}, ...] = ()"
+    elif p.optional:
+        line = f"    {p.name}: {kind} | None = None"
+    else:
+        line = f"    {p.name}: {kind}"
+    return f"{line}  # {p.unit}" if p.unit else line
+
+
+def _message_class(c: CommandSpec, side: str) -> list[str]:
+    stem = class_name(c.id)
+    base = f'Request["{stem}Reply"]' if side == "request" else "Reply"
+    table = c.params if side == "request" else c.reply
+    return [
+        "",
+        "",
+        "@dataclass(frozen=True, slots=True)",
+        f"class {stem}{side.capitalize()}({base}):",
+        f'    """{c.name} (0x{int(c.id):04X}, {c.service}) {side}."""',
+        "",
+        f"    command: ClassVar[CommandId] = CommandId.{c.id.name}",
+        *(_field(p) for p in table),
+    ]
+
+
+def messages_code() -> str:
+    """The generated part of spec/messages.py: two classes per command and their tables."""
+    lines: list[str] = []
+    for c in COMMANDS:
+        lines += _message_class(c, "request") + _message_class(c, "reply")
+    for side, table, base in (
+        ("request", "REQUESTS", "Request[Any]"),
+        ("reply", "REPLIES", "Reply"),
+    ):
+        lines += ["", "", f"#: Each command's {side} class, by command ID."]
+        lines.append(f"{table}: dict[int, type[{base}]] = {{")
+        suffix = side.capitalize()
+        lines += [f"    CommandId.{c.id.name}: {class_name(c.id)}{suffix}," for c in COMMANDS]
+        lines.append("}")
+    return "\n".join(lines) + "\n\n\n"
+
+
+def render_messages(source: str) -> str:
+    """``source`` (spec/messages.py) with its generated part made from the current registry."""
+    if _GENERATED.search(source) is None:
+        raise ValueError("spec/messages.py has lost its generated-code markers")
+    return _GENERATED.sub(lambda m: m[1] + messages_code() + m[3], source)

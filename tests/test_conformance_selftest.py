@@ -35,6 +35,7 @@ from spec.codec import FrameDecoder, Packet, Rejected, decode_packet, encode_pac
 from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data, encode_trigger
 from spec.errors import DatagramError, ErrorCode, ProtocolError
 from spec.exitcodes import ExitCode
+from spec.messages import RobotStatusReply
 from spec.params import Image, Joints, Location, Matrix, Value
 from spec.registry import BY_ID, CommandSpec, check_params, commands_for, profiles_for
 from spec.registry import CommandId as C
@@ -89,7 +90,7 @@ class MiniRobot(Service):
         c, now = spec.id, self.clock()
         if c == C.ROBOT_STATUS:
             mine, held = session.in_control, session.control_held
-            return (False, False, False, 0, mine, held, 0, "", now)
+            return RobotStatusReply(False, False, False, 0, mine, held, 0, "", now).encode()
         if c == C.HEREJ:
             return (Joints(self.q),)
         if c == C.HERE:
@@ -495,6 +496,51 @@ def test_command_missing_from_hello_is_caught() -> None:
     with serving(UnlistedServer(UnlistedCommandService(), policy=POLICY)) as address:
         result = check("robot", address, ("negotiation.hello.commands_complete",))
     _caught(result, "negotiation.hello.commands_complete")
+
+
+class WrongStatusTypeRobot(MiniRobot):
+    """Answers GetStatus with ``powered`` as the INT 1 instead of a BOOL."""
+
+    def handle(
+        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
+        reply = super().handle(session, spec, params)
+        return (1, *reply[1:]) if spec.id == C.ROBOT_STATUS else reply
+
+
+def test_a_reply_field_of_the_wrong_type_is_a_fail_of_its_requirement() -> None:
+    """The harness reads replies as typed messages: a wrong field type is the endpoint's FAIL
+    of RS-5.5 naming the command and the field, not a harness fault (an AssertionError)."""
+    with serving(FramedServer(WrongStatusTypeRobot(), policy=POLICY)) as address:
+        result = check("robot", address, ("robot.here.frames", "commands.robot.GetStatus.reply"))
+    _caught(result, "robot.here.frames", "commands.robot.GetStatus.reply")
+    for case_id, message in problems(result).items():
+        assert message.startswith("fail: GetStatus reply parameters do not match"), case_id
+        assert message.endswith("[RS-5.5]"), case_id
+        assert "harness fault" not in message
+    (judged,) = [r for r in result.results if r.case.id == "robot.here.frames"]
+    assert judged.actual == "GetStatus reply parameter 0 (powered) must be BOOL, got INT"
+
+
+class ShortImageSensor(MiniSensor):
+    """Answers GetImage of a region with the index alone, the image left out."""
+
+    def handle(
+        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
+    ) -> tuple[Value, ...]:
+        reply = super().handle(session, spec, params)
+        return reply[:1] if spec.id == C.GET_IMAGE and params else reply
+
+
+def test_a_reply_missing_a_field_is_a_fail_not_a_harness_fault() -> None:
+    """A case that reads an answer it asked for with ``call`` decodes it too: a reply one
+    parameter short fails RS-5.5 (it was an IndexError, a harness fault)."""
+    with serving(FramedServer(ShortImageSensor(), policy=POLICY)) as address:
+        result = check("sensor", address, ("sensor.acquire.data", "sensor.shapes.image_defaults"))
+    _caught(result, "sensor.shapes.image_defaults")
+    message = problems(result)["sensor.shapes.image_defaults"]
+    assert message.startswith("fail: GetImage reply parameters do not match"), message
+    assert message.endswith("[RS-5.5]"), message
 
 
 class BadCrcClosesServer(FramedServer):

@@ -10,10 +10,11 @@ import zlib
 from conformance.connection import ENDPOINT_ERRORS, Closed, Conn
 from conformance.context import Context
 from conformance.model import EndpointTimeout, Fail, NotApplicable, Skip
+from spec import messages as M
 from spec import wire
 from spec.codec import Packet
 from spec.errors import ErrorCode
-from spec.params import IDENTITY_LOCATION, FloatArray, Location, Matrix, Value, encode_params
+from spec.params import IDENTITY_LOCATION, FloatArray, Matrix, Value, encode_params
 from spec.registry import CommandId as C
 from spec.registry import CommandSpec
 from spec.wire import PacketKind
@@ -150,11 +151,10 @@ def still_answers(conn: Conn, what: str) -> None:
 
 def io_names(conn: Conn) -> tuple[list[str], list[str]]:
     """(outputs, inputs) from ListIO."""
-    outputs, inputs = conn.ok(C.LIST_IO)[:2]
-    assert isinstance(outputs, str) and isinstance(inputs, str)
+    names = conn.ask(M.ListIORequest())
     return (
-        [n.strip() for n in outputs.split(",") if n.strip()],
-        [n.strip() for n in inputs.split(",") if n.strip()],
+        [n.strip() for n in names.outputs.split(",") if n.strip()],
+        [n.strip() for n in names.inputs.split(",") if n.strip()],
     )
 
 
@@ -195,8 +195,7 @@ def valid_args(ctx: Context, conn: Conn, spec: CommandSpec) -> tuple[Value, ...]
         here = conn.ok(C.HERE, IDENTITY_LOCATION, IDENTITY_LOCATION)[0]
         return (here, IDENTITY_LOCATION, IDENTITY_LOCATION)
     if c == C.TOOL_MOVE_TRAJECTORY:
-        here = conn.ok(C.HERE, IDENTITY_LOCATION, IDENTITY_LOCATION)[0]
-        assert isinstance(here, Location)
+        here = conn.ask(M.HereRequest(IDENTITY_LOCATION, IDENTITY_LOCATION)).location
         return (
             FloatArray([0.0, 0.5]),
             Matrix(2, 6, here.as_tuple() * 2),
@@ -206,9 +205,7 @@ def valid_args(ctx: Context, conn: Conn, spec: CommandSpec) -> tuple[Value, ...]
     if c in (C.SET_OUTPUT, C.READ_IO):
         return _io_args(ctx, conn, c)
     if c == C.GET_JOINT_LOG:
-        now = conn.ok(C.GET_TIME)[0]
-        assert isinstance(now, float)
-        return (now - 0.1,)
+        return (conn.ask(M.GetTimeRequest()).time - 0.1,)
     if c in (C.START_TRIGGERS, C.SCHEDULE_TRIGGERS):
         raise Skip("covered by the sync cases (needs a UDP sink)")
     if spec.params:

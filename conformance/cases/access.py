@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import time
 
-from conformance.cases.sync import CONFIG_FIELDS, ROBOT_SYNC, STAT_FIELDS, _int, _sink
+from conformance.cases.sync import ROBOT_SYNC, _int, _sink
 from conformance.connection import UdpConn
 from conformance.context import Context
 from conformance.model import Fail, Informational, NotApplicable, case
+from spec import messages as M
 from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data
 from spec.errors import DatagramError, ErrorCode
-from spec.params import Matrix
 from spec.registry import CommandId as C
 from spec.wire import PacketKind, SensorStatus
 
@@ -92,7 +92,7 @@ def foreign_data(ctx: Context) -> str:
     from the sensor endpoint. Only the second may become a seam point."""
     conn = ctx.connect()
     ctx.take_control(conn)
-    cfg = dict(zip(CONFIG_FIELDS, conn.ok(C.GET_SYNC_CONFIG), strict=False))
+    cfg = conn.ask(M.GetSyncConfigRequest())
     host = conn.sock.getsockname()[0]
     sink, stranger = _sink(ctx, host), _sink(ctx, host)
     u = UdpConn(sink, ("", 0), ctx.log, 98)
@@ -100,9 +100,8 @@ def foreign_data(ctx: Context) -> str:
     answered: list[int] = []
     try:
         conn.ok(C.SET_SENSOR_ENDPOINT, sink.getsockname()[0], sink.getsockname()[1])
-        before = dict(zip(STAT_FIELDS, conn.ok(C.GET_SYNC_STATISTICS), strict=False))
-        first = conn.ok(C.START_TRIGGERS, 50.0, 2)[0]
-        assert isinstance(first, int)
+        before = conn.ask(M.GetSyncStatisticsRequest()).as_dict()
+        first = conn.ask(M.StartTriggersRequest(50.0, 2)).first_index
         deadline = time.monotonic() + ctx.scaled(2.0)
         while len(answered) < 2 and time.monotonic() < deadline:
             got = u.recv(0.05)
@@ -134,18 +133,17 @@ def foreign_data(ctx: Context) -> str:
             )
             answered.append(trig.index)
         time.sleep(0.3)  # the robot matches data once the joint samples around t_S are in
-        after = dict(zip(STAT_FIELDS, conn.ok(C.GET_SYNC_STATISTICS), strict=False))
-        points = conn.ok(C.GET_SEAM_POINTS, first - 1)[0]
+        after = conn.ask(M.GetSyncStatisticsRequest()).as_dict()
+        points = conn.ask(M.GetSeamPointsRequest(first - 1)).points
     finally:
         conn.call(C.STOP_TRIGGERS)
         # As it was, also when none was set: ("", 0) clears it [SY-5.8].
-        conn.call(C.SET_SENSOR_ENDPOINT, cfg["host"], cfg["port"])
+        conn.call(C.SET_SENSOR_ENDPOINT, cfg.host, cfg.port)
         conn.call(C.RELEASE_CONTROL)
         sink.close()
         stranger.close()
     if len(answered) < 2:
         raise Informational(f"the robot sent {len(answered)} of 2 triggers; cannot judge")
-    assert isinstance(points, Matrix)
     got_idx = {int(r[0]) for r in points.to_rows()}
     ctx.details["received_delta"] = _int(after["received"]) - _int(before["received"])
     if answered[0] in got_idx:

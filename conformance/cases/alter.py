@@ -13,8 +13,9 @@ from conformance.cases.robot import MOTION, _Motion, _status, _wait_still
 from conformance.connection import Conn
 from conformance.context import Context
 from conformance.model import Fail, case
+from spec import messages as M
 from spec.errors import ErrorCode
-from spec.params import IDENTITY_LOCATION, Location
+from spec.params import IDENTITY_LOCATION, Location, Value
 from spec.registry import CommandId as C
 
 ALTER = [*MOTION, C.HERE, C.ROBOT_STATUS, C.RESET_MOTION, C.ALTER_BEGIN, C.ALTER, C.ALTER_END]
@@ -23,15 +24,13 @@ SETTLE_S = 2.0
 
 
 def _here(conn: Conn) -> tuple[float, ...]:
-    loc = conn.ok(C.HERE, IDENTITY_LOCATION, IDENTITY_LOCATION)[0]
-    assert isinstance(loc, Location)
-    return loc.as_tuple()
+    return conn.ask(M.HereRequest(IDENTITY_LOCATION, IDENTITY_LOCATION)).location.as_tuple()
 
 
-def _expect(conn: Conn, code: ErrorCode, what: str, requirement: str, *args: object) -> None:
-    command, *params = args
-    assert isinstance(command, int)
-    answer = conn.call(command, *params)  # type: ignore[arg-type]
+def _expect(
+    conn: Conn, code: ErrorCode, what: str, requirement: str, command: int, *params: Value
+) -> None:
+    answer = conn.call(command, *params)
     if answer.error is None or answer.error[0] != code:
         raise Fail(
             f"{what} is not refused",
@@ -46,9 +45,7 @@ def _stream(conn: Conn, dz: float, seconds: float) -> float:
     applied = 0.0
     end = time.monotonic() + seconds
     while time.monotonic() < end:
-        reply = conn.ok(C.ALTER, Location(0.0, 0.0, dz, 0.0, 0.0, 0.0))[0]
-        assert isinstance(reply, Location)
-        applied = reply.z
+        applied = conn.ask(M.AlterRequest(Location(0.0, 0.0, dz, 0.0, 0.0, 0.0))).applied.z
         time.sleep(0.02)
     return applied
 
@@ -145,7 +142,7 @@ def alter_stream_lost(ctx: Context) -> None:
                 "accepted" if answer.error is None else answer.error,
                 requirement="RS-5.36",
             )
-        last = _status(conn).get("last_error")
+        last = _status(conn).last_error
         if last != ErrorCode.BAD_STATE:
             raise Fail("the lost stream is not reported", "BAD_STATE", last, requirement="RS-5.36")
         _ramped_back(conn, "RS-5.36")
@@ -172,13 +169,11 @@ def alter_limits(ctx: Context) -> str:
         conn.ok(C.ALTER_BEGIN, IDENTITY_LOCATION, 1.0)
         fastest = 0.0
         try:
-            t0 = conn.ok(C.GET_TIME)[0]
-            assert isinstance(t0, float)
+            t0 = conn.ask(M.GetTimeRequest()).time
             end = time.monotonic() + SETTLE_S
             while time.monotonic() < end:
-                applied = conn.ok(C.ALTER, step)[0]
-                now = conn.ok(C.GET_TIME)[0]
-                assert isinstance(applied, Location) and isinstance(now, float)
+                applied = conn.ask(M.AlterRequest(step)).applied
+                now = conn.ask(M.GetTimeRequest()).time
                 # the reply's correction was applied at a cycle no later than `now`
                 allowed = 100.0 * (now - t0) + 100.0 * 0.004 + 1e-6
                 if applied.z > allowed or applied.z > 5.0 + 1e-6:
@@ -211,7 +206,7 @@ def alter_control_lost(ctx: Context) -> None:
     goes back to zero (a new controller finds it not active and the tool back)."""
     first = ctx.connect()
     ctx.take_control(first)
-    if _status(first).get("moving"):
+    if _status(first).moving:
         first.close()
         raise Fail("the arm is already moving", "still", "moving")
     first.ok(C.ENABLE_POWER)

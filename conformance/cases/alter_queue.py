@@ -16,6 +16,7 @@ from conformance.cases.robot import MOTION, _Motion, _status
 from conformance.connection import Conn
 from conformance.context import Context
 from conformance.model import Fail, case
+from spec import messages as M
 from spec.errors import ErrorCode
 from spec.params import IDENTITY_LOCATION, FloatArray, Location, Matrix
 from spec.registry import CommandId as C
@@ -37,23 +38,14 @@ MAX_BATCH = 4096
 MIN_CAPACITY = 16384
 
 
-def _queue(conn: Conn, times: list[float], dz: list[float]) -> dict[str, float]:
-    """AlterQueue of z corrections ``dz`` at ``times``; the reply by name."""
+def _queue(conn: Conn, times: list[float], dz: list[float]) -> M.AlterQueueReply:
+    """AlterQueue of z corrections ``dz`` at ``times``."""
     rows = [v for z in dz for v in (0.0, 0.0, z, 0.0, 0.0, 0.0)]
-    r = conn.ok(C.ALTER_QUEUE, FloatArray(times), Matrix(len(times), 6, rows))
-    applied = r[6]
-    assert isinstance(applied, Location)
-    names = ("accepted", "late", "depth", "horizon", "late_total", "held_total")
-    out = {n: float(v) for n, v in zip(names, r[:6], strict=True)}  # type: ignore[arg-type]
-    out["applied_z"] = applied.z
-    out["time"] = float(r[7])  # type: ignore[arg-type]
-    return out
+    return conn.ask(M.AlterQueueRequest(FloatArray(times), Matrix(len(times), 6, rows)))
 
 
 def _now(conn: Conn) -> float:
-    t = conn.ok(C.GET_TIME)[0]
-    assert isinstance(t, float)
-    return t
+    return conn.ask(M.GetTimeRequest()).time
 
 
 def _grid(t0: float, n: int) -> list[float]:
@@ -91,11 +83,11 @@ def alter_queue_rules(ctx: Context) -> str:
         try:
             far = _now(conn) + 30.0  # far ahead: nothing of this case is due while it runs
             base = _queue(conn, [far, far + 0.1], [0.0, 0.0])
-            if (base["accepted"], base["depth"]) != (2, 2):
+            if (base.accepted, base.depth) != (2, 2):
                 raise Fail(
                     "a batch of two is not queued",
                     "accepted 2, depth 2",
-                    f"{base['accepted']:g}, {base['depth']:g}",
+                    f"{base.accepted:g}, {base.depth:g}",
                     requirement="RS-5.39",
                 )
             z6 = [0.0] * 6
@@ -120,11 +112,11 @@ def alter_queue_rules(ctx: Context) -> str:
                     Matrix(len(times), 6, rows),
                 )
             late = _queue(conn, [_now(conn) - 1.0, far + 0.2], [0.0, 0.0])
-            if (late["late"], late["accepted"]) != (1, 1):
+            if (late.late, late.accepted) != (1, 1):
                 raise Fail(
                     "an entry a second in the past is not dropped as late",
                     "late 1, accepted 1",
-                    f"late {late['late']:g}, accepted {late['accepted']:g}",
+                    f"late {late.late:g}, accepted {late.accepted:g}",
                     requirement="RS-5.42",
                 )
             _expect(
@@ -136,14 +128,14 @@ def alter_queue_rules(ctx: Context) -> str:
                 Location(0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
             )
             # fill the queue to the capacity every robot has, then one more batch
-            depth = late["depth"]
+            depth = late.depth
             t = far + 1.0
             while depth < MIN_CAPACITY:
                 n = int(min(MAX_BATCH, MIN_CAPACITY - depth))
-                depth = _queue(conn, [t + k * PERIOD for k in range(n)], [0.0] * n)["depth"]
+                depth = _queue(conn, [t + k * PERIOD for k in range(n)], [0.0] * n).depth
                 t += n * PERIOD
             over = conn.call(C.ALTER_QUEUE, FloatArray([t]), Matrix(1, 6, z6))
-            held = _queue(conn, [], [])["depth"]
+            held = _queue(conn, [], []).depth
             if over.error is None:
                 capacity = f"holds more than {MIN_CAPACITY:.0f} entries"
             elif over.error[0] != ErrorCode.BUSY or held != depth:
@@ -193,27 +185,27 @@ def alter_queue_applied(ctx: Context) -> str:
             worst = 0.0
             while True:
                 r = _queue(conn, [], [])
-                t = r["time"]
+                t = r.time
                 if t > t1 + 0.1:
                     break
                 if t0 <= t:
                     want = _interp(times, dz, t)
-                    worst = max(worst, abs(r["applied_z"] - want))
+                    worst = max(worst, abs(r.applied.z - want))
                     checked += 1
-                    if abs(r["applied_z"] - want) > 1e-6:
+                    if abs(r.applied.z - want) > 1e-6:
                         raise Fail(
                             "the correction applied at a cycle is not the table's "
                             f"interpolation at its time {t:.3f} s",
                             f"{want:.6f} mm",
-                            f"{r['applied_z']:.6f} mm",
+                            f"{r.applied.z:.6f} mm",
                             requirement="RS-5.44",
                         )
                 time.sleep(0.007)
-            if r["held_total"] < 1:
+            if r.held_total < 1:
                 raise Fail(
                     "cycles past the last entry are not counted as held",
                     ">= 1",
-                    r["held_total"],
+                    r.held_total,
                     requirement="RS-5.44",
                 )
             time.sleep(0.5)  # past the 0.2 s timeout after the last entry
@@ -225,7 +217,7 @@ def alter_queue_applied(ctx: Context) -> str:
                     "accepted" if answer.error is None else answer.error,
                     requirement="RS-5.45",
                 )
-            last = _status(conn).get("last_error")
+            last = _status(conn).last_error
             if last != ErrorCode.BAD_STATE:
                 raise Fail(
                     "the lost stream is not reported", "BAD_STATE", last, requirement="RS-5.45"

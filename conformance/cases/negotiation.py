@@ -4,12 +4,12 @@ from __future__ import annotations
 
 from conformance.cases._util import NOT_OFFERED, raw_frame
 from conformance.cases.commands import dummy
-from conformance.context import HELLO_FIELDS, PING_PATIENCE, Context
+from conformance.context import PING_PATIENCE, Context
 from conformance.model import EndpointTimeout, Fail, Informational, case
+from spec import messages as M
 from spec import wire
 from spec.codec import Packet
 from spec.errors import ErrorCode
-from spec.params import IntArray
 from spec.registry import BY_ID, commands_for, profiles_for
 from spec.registry import CommandId as C
 
@@ -57,17 +57,14 @@ def ping_liveness(ctx: Context) -> str:
 def hello_reply(ctx: Context) -> str:
     """Hello returns version, service, identity, commands and limits with the table's types."""
     conn = ctx.connect()
-    params = conn.ok(C.HELLO, 1, 0, "conformance")
-    fields = dict(zip(HELLO_FIELDS, params, strict=False))
-    version = fields["version"]
-    assert isinstance(version, str)
+    hello = conn.ask(M.HelloRequest(1, 0, "conformance"))
+    version = hello.version
     if not version.startswith(f"{wire.VERSION_MAJOR}."):
         raise Fail("Hello reports another major version", "1.x", version, requirement="RS-5.2")
-    if fields["service"] != ctx.service:
-        raise Fail("Hello names another service", ctx.service, fields["service"])
-    ctx.details["hello"] = {k: repr(v) for k, v in fields.items()}
-    ident = " ".join(str(fields[k]) for k in ("vendor", "model"))
-    return f"{ident} serial {fields['serial']!s} version {version}"
+    if hello.service != ctx.service:
+        raise Fail("Hello names another service", ctx.service, hello.service)
+    ctx.details["hello"] = {k: repr(v) for k, v in hello.as_dict().items()}
+    return f"{hello.vendor} {hello.model} serial {hello.serial} version {version}"
 
 
 @case(
@@ -93,12 +90,7 @@ def hello_major_mismatch(ctx: Context) -> None:
 def commands_ranges(ctx: Context) -> str:
     """Advertised command IDs lie in the common, own-service, vendor or experimental ranges."""
     conn = ctx.connect()
-    params = conn.ok(C.HELLO, 1, 0, "conformance")
-    fields = dict(zip(HELLO_FIELDS, params, strict=False))
-    from spec.params import IntArray
-
-    cmds = fields["commands"]
-    assert isinstance(cmds, IntArray)
+    cmds = conn.ask(M.HelloRequest(1, 0, "conformance")).commands
     own = [wire.COMMON_RANGE, wire.VENDOR_RANGE, wire.EXPERIMENTAL_RANGE]
     own += [wire.ROBOT_RANGE, wire.SYNC_RANGE] if ctx.service == "robot" else [wire.SENSOR_RANGE]
     bad = [c for c in cmds.values if not any(c in r for r in own)]
@@ -165,11 +157,8 @@ def commands_complete(ctx: Context) -> str:
 def hello_limits(ctx: Context) -> str:
     """Hello's limits are sane: 0 < max_payload <= 16 MiB, clients >= 1, timeouts > 0."""
     conn = ctx.connect()
-    params = conn.ok(C.HELLO, 1, 0, "conformance")
-    f = dict(zip(HELLO_FIELDS, params, strict=False))
-    mp, mc, idle, ft = f["max_payload"], f["max_clients"], f["idle_timeout"], f["frame_timeout"]
-    assert isinstance(mp, int) and isinstance(mc, int)
-    assert isinstance(idle, float) and isinstance(ft, float)
+    f = conn.ask(M.HelloRequest(1, 0, "conformance"))
+    mp, mc, idle, ft = f.max_payload, f.max_clients, f.idle_timeout, f.frame_timeout
     if not 0 < mp <= wire.MAX_PAYLOAD:
         raise Fail("max_payload out of range", f"1..{wire.MAX_PAYLOAD}", mp, requirement="RS-3.5")
     if mc < 1:
@@ -261,10 +250,7 @@ def request_id_max(ctx: Context) -> None:
 def profile_core(ctx: Context) -> str:
     """Hello lists every command of the service's core profile."""
     conn = ctx.connect()
-    listed = conn.ok(C.HELLO, 1, 0, "conformance")[6:7]
-    offered = frozenset(listed[0].values) if listed and isinstance(listed[0], IntArray) else None
-    if offered is None:
-        raise Fail("Hello carries no command list", "commands INT_ARRAY", listed)
+    offered = frozenset(conn.ask(M.HelloRequest(1, 0, "conformance")).commands.values)
     core = profiles_for(ctx.service)[0]
     missing = [BY_ID[c].name for c in core.commands if c not in offered]
     if missing:

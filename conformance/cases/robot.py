@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from conformance.connection import ENDPOINT_ERRORS, Conn
 from conformance.context import Context
 from conformance.model import Fail, Informational, NotApplicable, Skip, case
+from spec import messages as M
 from spec.errors import ErrorCode
 from spec.params import IDENTITY_LOCATION, FloatArray, Joints, Location, Matrix, Value
 from spec.registry import CommandId as C
@@ -73,30 +74,21 @@ def max_diff(a: Mat, b: Mat) -> tuple[float, float]:
 
 
 def _joints(conn: Conn) -> list[float]:
-    j = conn.ok(C.HEREJ)[0]
-    assert isinstance(j, Joints)
-    return list(j.values)
+    return list(conn.ask(M.HerejRequest()).joints.values)
 
 
 def _limits(conn: Conn) -> list[tuple[float, float]]:
-    m = conn.ok(C.GET_JOINT_LIMITS)[0]
-    assert isinstance(m, Matrix)
+    m = conn.ask(M.GetJointLimitsRequest()).limits
     return [(r[0], r[1]) for r in m.to_rows()] if m.cols >= 2 else []
 
 
-def _status(conn: Conn) -> dict[str, Value]:
-    names = (
-        "powered",
-        "estop",
-        "moving",
-        "queue",
-        "in_control",
-        "controlled",
-        "last_error",
-        "last_message",
-        "time",
-    )
-    return dict(zip(names, conn.ok(C.ROBOT_STATUS), strict=False))
+def _status(conn: Conn) -> M.RobotStatusReply:
+    return conn.ask(M.RobotStatusRequest())
+
+
+def _flange(conn: Conn) -> Location:
+    """Here(flange, world): where the flange is in the base frame."""
+    return conn.ask(M.HereRequest(IDENTITY_LOCATION, IDENTITY_LOCATION)).location
 
 
 @case(
@@ -140,13 +132,12 @@ def herej_six_joints(ctx: Context) -> str:
 def here_frames(ctx: Context) -> str:
     """Here(tool, frame) equals frame^-1 · Here(flange, world) · tool, VAL3 RxRyRz angles."""
     conn = ctx.connect()
-    if _status(conn).get("moving"):
+    if _status(conn).moving:
         raise Skip("the arm is moving; Here would change between the calls")
     tool = Location(10.0, -20.0, 100.0, 30.0, -45.0, 60.0)
     frame = Location(500.0, -200.0, 50.0, 10.0, 20.0, 30.0)
-    flange = conn.ok(C.HERE, IDENTITY_LOCATION, IDENTITY_LOCATION)[0]
-    got = conn.ok(C.HERE, tool, frame)[0]
-    assert isinstance(flange, Location) and isinstance(got, Location)
+    flange = _flange(conn)
+    got = conn.ask(M.HereRequest(tool, frame)).location
     want = mul(mul(inv(loc_to_matrix(frame)), loc_to_matrix(flange)), loc_to_matrix(tool))
     dp, dr = max_diff(loc_to_matrix(got), want)
     if dp > 0.01 or dr > 1e-4:
@@ -169,12 +160,11 @@ def here_frames(ctx: Context) -> str:
 def jointlog_order(ctx: Context) -> str:
     """GetJointLog(since) gives samples with t > since, increasing, on the GetTime clock."""
     conn = ctx.connect()
-    t0 = conn.ok(C.GET_TIME)[0]
-    assert isinstance(t0, float)
+    t0 = conn.ask(M.GetTimeRequest()).time
     time.sleep(0.05)
-    log, period = conn.ok(C.GET_JOINT_LOG, t0 - 0.2)[:2]
-    t1 = conn.ok(C.GET_TIME)[0]
-    assert isinstance(log, Matrix) and isinstance(period, float) and isinstance(t1, float)
+    reply = conn.ask(M.GetJointLogRequest(t0 - 0.2))
+    log, period = reply.log, reply.period
+    t1 = conn.ask(M.GetTimeRequest()).time
     if log.rows == 0:
         raise Fail("the joint log has no samples for the last 0.2 s", "samples", "none")
     if log.cols != 7:
@@ -206,8 +196,8 @@ def jointlog_order(ctx: Context) -> str:
 def jointlog_capacity(ctx: Context) -> str:
     """The joint buffer spans at least 10 s (informational while the server is younger)."""
     conn = ctx.connect()
-    log, period = conn.ok(C.GET_JOINT_LOG, -1.0)[:2]
-    assert isinstance(log, Matrix) and isinstance(period, float)
+    reply = conn.ask(M.GetJointLogRequest(-1.0))
+    log, period = reply.log, reply.period
     if log.rows < 2:
         raise Informational("fewer than two samples in the buffer")
     span = log.values[(log.rows - 1) * log.cols] - log.values[0]
@@ -283,9 +273,9 @@ class _Motion:
         conn = self.conn
         self.ctx.take_control(conn)
         status = _status(conn)
-        if status.get("moving"):
+        if status.moving:
             raise Skip("the arm is already moving")
-        if status.get("estop"):
+        if status.estop:
             conn.ok(C.RESET_EMERGENCY_STOP)
         self.saved = conn.ok(C.GET_MOTION_DESC)[:6]
         conn.ok(C.SET_MOTION_DESC, SLOW, SLOW, SLOW, 50.0, 20.0, 0.0)
@@ -335,7 +325,7 @@ def motion_not_powered(ctx: Context) -> None:
         q[0] += STEP_DEG
         conn.error(C.JOINT_MOVE, ErrorCode.NOT_POWERED, Joints(q))
         status = _status(conn)
-        if status.get("queue") != 0 or status.get("moving"):
+        if status.queue != 0 or status.moving:
             raise Fail(
                 "a refused move was queued", "queue 0, not moving", status, requirement="RS-5.12"
             )
@@ -358,7 +348,7 @@ def motion_estop(ctx: Context) -> None:
         other = ctx.connect()
         other.ok(C.EMERGENCY_STOP)  # no control needed [RS-5.20]
         status = _status(conn)
-        if not status.get("estop") or status.get("powered") or status.get("queue") != 0:
+        if not status.estop or status.powered or status.queue != 0:
             raise Fail(
                 "EmergencyStop did not engage, power off and empty the queue",
                 "estop true, powered false, queue 0",
@@ -370,7 +360,7 @@ def motion_estop(ctx: Context) -> None:
         conn.error(C.JOINT_MOVE, ErrorCode.EMERGENCY_STOP, Joints(q))
         conn.ok(C.RESET_EMERGENCY_STOP)
         status = _status(conn)
-        if status.get("estop") or status.get("powered"):
+        if status.estop or status.powered:
             raise Fail("after ResetEmergencyStop", "estop false, powered false", status)
 
 
@@ -424,8 +414,8 @@ def motion_out_of_range(ctx: Context) -> None:
         q = _joints(conn)
         q[0] = limits[0][1] + 5.0
         conn.error(C.JOINT_MOVE, ErrorCode.OUT_OF_RANGE, Joints(q))
-        if _status(conn).get("queue") != 0:
-            raise Fail("a refused move was queued", 0, _status(conn).get("queue"))
+        if _status(conn).queue != 0:
+            raise Fail("a refused move was queued", 0, _status(conn).queue)
 
 
 @case(
@@ -450,16 +440,16 @@ def motion_unreachable(ctx: Context) -> None:
             IDENTITY_LOCATION,
             IDENTITY_LOCATION,
         )
-        if _status(conn).get("queue") != 0:
-            raise Fail("a refused move was queued", 0, _status(conn).get("queue"))
+        if _status(conn).queue != 0:
+            raise Fail("a refused move was queued", 0, _status(conn).queue)
 
 
-def _held_still(conn: Conn, timeout: float) -> dict[str, Value]:
+def _held_still(conn: Conn, timeout: float) -> M.RobotStatusReply:
     """GetStatus once ``moving`` is false (StopMove's hold reached), or the last one seen."""
     deadline = time.monotonic() + timeout
     while True:
         status = _status(conn)
-        if not status.get("moving") or time.monotonic() > deadline:
+        if not status.moving or time.monotonic() > deadline:
             return status
         time.sleep(0.02)
 
@@ -489,14 +479,14 @@ def stop_restart(ctx: Context) -> str:
         conn.ok(C.STOP_MOVE)
         held = _held_still(conn, 10.0)
         at = _joints(conn)
-        if held.get("moving"):
+        if held.moving:
             raise Fail("GetStatus while StopMove holds the arm", "moving false", held,
                        requirement="RS-5.59")  # fmt: skip
-        if held.get("queue") != 1 or abs(at[0] - target[0]) < 0.01:
+        if held.queue != 1 or abs(at[0] - target[0]) < 0.01:
             raise Fail(
                 "StopMove during a move: held short of the target with the move queued",
                 f"queue 1, joint 1 short of {target[0]:.3f}",
-                f"queue {held.get('queue')!r}, joint 1 at {at[0]:.3f}",
+                f"queue {held.queue!r}, joint 1 at {at[0]:.3f}",
                 requirement="RS-5.59",
             )
         conn.ok(C.RESTART_MOVE)
@@ -522,11 +512,11 @@ def stop_restart(ctx: Context) -> str:
         conn.ok(C.JOINT_MOVE, Joints(start))  # back where the case began
         _wait_still(conn, 30.0)
         conn.ok(C.DISABLE_POWER)
-        if dropped.get("queue") != 0 or status.get("moving") or abs(after[0] - before[0]) > 0.01:
+        if dropped.queue != 0 or status.moving or abs(after[0] - before[0]) > 0.01:
             raise Fail(
                 "RestartMove after ResetMotion dropped the move",
                 "nothing moves, queue 0",
-                f"queue {status.get('queue')!r}, moving {status.get('moving')!r}, joint 1 "
+                f"queue {status.queue!r}, moving {status.moving!r}, joint 1 "
                 f"{before[0]:.3f} -> {after[0]:.3f}",
                 requirement="RS-5.54",
             )
@@ -558,8 +548,8 @@ def motion_queued(ctx: Context) -> str:
         conn.ok(C.JOINT_MOVE, Joints(target))
         reply_s = time.monotonic() - t0
         status = _status(conn)
-        queue = status.get("queue")
-        still_moving = bool(status.get("moving")) or (isinstance(queue, int) and queue > 0)
+        queue = status.queue
+        still_moving = bool(status.moving) or (isinstance(queue, int) and queue > 0)
         early = conn.ok(C.WAIT_END_MOVE, 0.001)[0] if still_moving else None
         if not _wait_still(conn, 30.0):
             raise Fail("WaitEndMove(30 s) did not see the end of a 2 degree move", True, False)
@@ -570,11 +560,11 @@ def motion_queued(ctx: Context) -> str:
             raise Fail("the arm did not reach the target", target[0], reached[0])
         conn.ok(C.JOINT_MOVE, Joints(start))
         _wait_still(conn, 30.0)
-        if settled.get("moving") or settled.get("queue") != 0:
+        if settled.moving or settled.queue != 0:
             raise Fail(
                 "GetStatus after WaitEndMove said done",
                 "moving false, queue 0",
-                {k: settled.get(k) for k in ("moving", "queue")},
+                {"moving": settled.moving, "queue": settled.queue},
                 requirement="RS-5.59",
             )
         if not still_moving:
@@ -618,7 +608,7 @@ def release_keeps_moves(ctx: Context) -> str:
         ctx.take_control(conn)
         conn.ok(C.JOINT_MOVE, Joints(start))
         _wait_still(conn, 30.0)
-    was_moving = bool(released.get("moving")) or released.get("queue") != 0
+    was_moving = bool(released.moving) or released.queue != 0
     if not was_moving:
         raise Informational("the move was over before ReleaseControl was answered")
     if not done or abs(reached[0] - target[0]) > 0.05:
@@ -628,7 +618,7 @@ def release_keeps_moves(ctx: Context) -> str:
             f"joint 1 at {reached[0]:.3f} deg, done {done}",
             requirement="RS-7.11",
         )
-    if not after.get("powered"):
+    if not after.powered:
         raise Fail(
             "arm power went off after ReleaseControl", "powered", after, requirement="RS-7.22"
         )
@@ -660,7 +650,7 @@ def motion_control_lost(ctx: Context) -> str:
 
 @dataclass
 class _Lost:
-    status: dict[str, Value]
+    status: M.RobotStatusReply
     stopped_after_s: float
     ran_to_the_end: bool
     #: Power still on a second after the arm stood [RS-7.22].
@@ -688,7 +678,7 @@ def _lose_controller_mid_move(ctx: Context, *, wait_pending: bool, requirement: 
     status = _status(watcher)
     while time.monotonic() < closed + 10.0:
         status = _status(watcher)
-        if not status.get("moving") and status.get("queue") == 0:
+        if not status.moving and status.queue == 0:
             break
         time.sleep(0.01)
     else:
@@ -701,10 +691,10 @@ def _lose_controller_mid_move(ctx: Context, *, wait_pending: bool, requirement: 
     stopped_after = time.monotonic() - closed
     ran_to_the_end = abs(_joints(watcher)[0] - start[0]) < 0.05
     stood = time.monotonic()
-    powered = bool(status.get("powered"))
+    powered = bool(status.powered)
     while powered and time.monotonic() < stood + 1.0:
         time.sleep(0.01)
-        powered = bool(_status(watcher).get("powered"))
+        powered = bool(_status(watcher).powered)
     # Bring joint 1 back to where it started.
     ctx.take_control(watcher)
     watcher.ok(C.ENABLE_POWER)
@@ -728,9 +718,7 @@ def trajectory_refused(ctx: Context) -> None:
     with _Motion(ctx) as m:
         conn = m.conn
         m.power()
-        here = conn.ok(C.HERE, IDENTITY_LOCATION, IDENTITY_LOCATION)[0]
-        assert isinstance(here, Location)
-        p = here.as_tuple()
+        p = _flange(conn).as_tuple()
         away = (p[0], p[1], p[2] - 50.0, *p[3:])  # reachable, but not in 4 ms
         far = (20000.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         bad: list[tuple[str, list[float], list[tuple[float, ...]], tuple[int, ...]]] = [
@@ -766,7 +754,7 @@ def trajectory_refused(ctx: Context) -> None:
                     requirement="RS-5.23",
                 )
         status = _status(conn)
-        if status.get("queue") != 0 or status.get("moving"):
+        if status.queue != 0 or status.moving:
             raise Fail("a refused path was queued", "queue 0", status, requirement="RS-5.23")
 
 
@@ -786,9 +774,7 @@ def trajectory_tracking(ctx: Context) -> str:
     with _Motion(ctx) as m:
         conn = m.conn
         m.power()
-        here = conn.ok(C.HERE, IDENTITY_LOCATION, IDENTITY_LOCATION)[0]
-        assert isinstance(here, Location)
-        p = here.as_tuple()
+        p = _flange(conn).as_tuple()
         times = [0.1 * k for k in range(21)]
         # x(t) = 2 mm * sin^2(pi t / T): starts and ends at rest.
         locs = [(p[0] + 2.0 * math.sin(math.pi * t / 2.0) ** 2, *p[1:]) for t in times]
@@ -801,8 +787,7 @@ def trajectory_tracking(ctx: Context) -> str:
         )
         if not _wait_still(conn, 30.0):
             raise Fail("the timed path did not end", True, False)
-        end = conn.ok(C.HERE, IDENTITY_LOCATION, IDENTITY_LOCATION)[0]
-        assert isinstance(end, Location)
+        end = _flange(conn)
         err = math.dist(end.as_tuple()[:3], locs[-1][:3])
         if err > 0.01:
             raise Fail(
@@ -901,6 +886,6 @@ def emergency_stop_when_full(ctx: Context) -> str:
     ctx.take_control(watcher)
     watcher.ok(C.RESET_EMERGENCY_STOP)
     watcher.call(C.RELEASE_CONTROL)
-    if not status.get("estop"):
+    if not status.estop:
         raise Fail("EmergencyStop replied but is not engaged", "estop", status)
     return f"EmergencyStop on a full server in {latency * 1e3:.1f} ms"

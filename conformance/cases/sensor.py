@@ -8,44 +8,23 @@ import math
 from conformance.connection import Conn
 from conformance.context import Context
 from conformance.model import Fail, Informational, NotApplicable, case
+from spec import messages as M
 from spec.errors import ErrorCode
-from spec.params import Image, Location, Matrix, Value
 from spec.registry import CommandId as C
 from spec.wire import BYTES_PER_PIXEL, PixelFormat, PixelOrder, SensorStatus
 
-GET_DATA_FIELDS = (
-    "index",
-    "status",
-    "seam",
-    "quality",
-    "t_arrival",
-    "t_exposure_start",
-    "t_exposure_end",
-)
-SETTINGS_FIELDS = (
-    "laser",
-    "exposure",
-    "first_column",
-    "columns",
-    "acquisition_time",
-    "width",
-    "height",
-)
+
+def _data(conn: Conn) -> M.GetDataReply:
+    return conn.ask(M.GetDataRequest())
 
 
-def _data(conn: Conn) -> dict[str, Value]:
-    return dict(zip(GET_DATA_FIELDS, conn.ok(C.GET_DATA), strict=False))
-
-
-def _settings(conn: Conn) -> dict[str, Value]:
-    return dict(zip(SETTINGS_FIELDS, conn.ok(C.GET_SETTINGS), strict=False))
+def _settings(conn: Conn) -> M.GetSettingsReply:
+    return conn.ask(M.GetSettingsRequest())
 
 
 def _acquire(ctx: Context, conn: Conn) -> int:
     ctx.take_control(conn)
-    index = conn.ok(C.ACQUIRE, timeout=ctx.timeout * 2)[0]
-    assert isinstance(index, int)
-    return index
+    return conn.ask(M.AcquireRequest(), timeout=ctx.timeout * 2).index
 
 
 @case(
@@ -59,7 +38,7 @@ def _acquire(ctx: Context, conn: Conn) -> int:
 def getdata_no_data(ctx: Context) -> None:
     """Before the first measurement GetData gives NO_DATA (only checkable on a fresh sensor)."""
     conn = ctx.connect()
-    last_index = conn.ok(C.SENSOR_STATUS)[2]
+    last_index = conn.ask(M.SensorStatusRequest()).last_index
     if last_index != -1:
         raise NotApplicable(f"the sensor has measured already (last_index {last_index!r})")
     conn.error(C.GET_DATA, ErrorCode.NO_DATA)
@@ -78,23 +57,20 @@ def acquire_data(ctx: Context) -> str:
     sensor-clock times no later than GetTime."""
     conn = ctx.connect()
     try:
-        t0 = conn.ok(C.GET_TIME)[0]
+        t0 = conn.ask(M.GetTimeRequest()).time
         index = _acquire(ctx, conn)
         d = _data(conn)
-        t1 = conn.ok(C.GET_TIME)[0]
+        t1 = conn.ask(M.GetTimeRequest()).time
     finally:
         conn.call(C.RELEASE_CONTROL)
-    assert isinstance(t0, float) and isinstance(t1, float)
-    if d["index"] != index:
-        raise Fail("GetData is not the latest measurement", index, d["index"], requirement="SS-5.1")
-    status, quality = d["status"], d["quality"]
+    if d.index != index:
+        raise Fail("GetData is not the latest measurement", index, d.index, requirement="SS-5.1")
+    status, quality = d.status, d.quality
     if status not in {int(s) for s in SensorStatus}:
         raise Fail("unknown measurement status", "0..4", status, requirement="SS-5.1")
-    assert isinstance(quality, float)
     if not 0.0 <= quality <= 1.0:
         raise Fail("quality outside 0..1", "0..1", quality, requirement="SS-5.1")
-    ta, ts, te = d["t_arrival"], d["t_exposure_start"], d["t_exposure_end"]
-    assert isinstance(ta, float) and isinstance(ts, float) and isinstance(te, float)
+    ta, ts, te = d.t_arrival, d.t_exposure_start, d.t_exposure_end
     if not ta <= ts <= te:
         raise Fail(
             "timestamps out of order",
@@ -124,14 +100,14 @@ def image_full(ctx: Context) -> str:
     finally:
         conn.call(C.RELEASE_CONTROL)
     s = _settings(conn)
-    got_index, image = conn.ok(C.GET_IMAGE, timeout=ctx.timeout * 3)[:2]
-    assert isinstance(image, Image)
+    reply = conn.ask(M.GetImageRequest(), timeout=ctx.timeout * 3)
+    got_index, image = reply.index, reply.image
     if got_index != index:
         raise Fail("GetImage is not the latest acquisition", index, got_index, requirement="SS-5.3")
-    if (image.width, image.height) != (s["width"], s["height"]):
+    if (image.width, image.height) != (s.width, s.height):
         raise Fail(
             "GetImage is not the full frame",
-            (s["width"], s["height"]),
+            (s.width, s.height),
             (image.width, image.height),
             requirement="SS-5.3",
         )
@@ -158,10 +134,8 @@ def image_region(ctx: Context) -> None:
     finally:
         conn.call(C.RELEASE_CONTROL)
     s = _settings(conn)
-    w, h = s["width"], s["height"]
-    assert isinstance(w, int) and isinstance(h, int)
-    image = conn.ok(C.GET_IMAGE, 0, 0, 16, 8)[1]
-    assert isinstance(image, Image)
+    w, h = s.width, s.height
+    image = conn.ask(M.GetImageRequest(0, 0, 16, 8)).image
     if (image.width, image.height) != (16, 8):
         raise Fail("a 16 x 8 region has another size", (16, 8), (image.width, image.height))
     for region in ((w - 8, 0, 16, 8), (0, h, 4, 4), (-1, 0, 4, 4), (0, 0, w + 1, h)):
@@ -181,20 +155,18 @@ def settings_range(ctx: Context) -> str:
     conn = ctx.connect()
     ctx.take_control(conn)
     before = _settings(conn)
-    w = before["width"]
-    assert isinstance(w, int)
+    w = before.width
     try:
         for bad in (0.0, -1e-3, 10.0):
             conn.error(C.SET_EXPOSURE, ErrorCode.OUT_OF_RANGE, bad)
         for first, cols in ((0, 0), (w - 10, 20), (-1, 10), (0, w + 1)):
             conn.error(C.SET_READOUT_WINDOW, ErrorCode.OUT_OF_RANGE, first, cols)
-        acq = conn.ok(C.SET_READOUT_WINDOW, 0, w // 2)[0]
-        assert isinstance(acq, float)
+        acq = conn.ask(M.SetReadoutWindowRequest(0, w // 2)).acquisition_time
         if not (math.isfinite(acq) and acq > 0):
             raise Fail("SetReadoutWindow's acquisition time", "> 0 s", acq, requirement="SS-5.6")
     finally:
-        conn.call(C.SET_READOUT_WINDOW, before["first_column"], before["columns"])
-        conn.call(C.SET_EXPOSURE, before["exposure"])
+        conn.call(C.SET_READOUT_WINDOW, before.first_column, before.columns)
+        conn.call(C.SET_EXPOSURE, before.exposure)
         conn.call(C.RELEASE_CONTROL)
     return f"half window: {acq * 1000:.3f} ms"
 
@@ -212,15 +184,13 @@ def settings_proportional(ctx: Context) -> str:
     conn = ctx.connect()
     ctx.take_control(conn)
     before = _settings(conn)
-    w = before["width"]
-    assert isinstance(w, int)
+    w = before.width
     try:
-        full = conn.ok(C.SET_READOUT_WINDOW, 0, w)[0]
-        quarter = conn.ok(C.SET_READOUT_WINDOW, 0, w // 4)[0]
+        full = conn.ask(M.SetReadoutWindowRequest(0, w)).acquisition_time
+        quarter = conn.ask(M.SetReadoutWindowRequest(0, w // 4)).acquisition_time
     finally:
-        conn.call(C.SET_READOUT_WINDOW, before["first_column"], before["columns"])
+        conn.call(C.SET_READOUT_WINDOW, before.first_column, before.columns)
         conn.call(C.RELEASE_CONTROL)
-    assert isinstance(full, float) and isinstance(quarter, float)
     ratio = full / quarter if quarter > 0 else math.inf
     if not 4 * 0.8 <= ratio <= 4 * 1.2:
         raise Fail("acquisition time not proportional to the columns", "ratio 4 (+-20 %)", ratio)
@@ -239,7 +209,7 @@ def laser_off_named(ctx: Context) -> str:
     """Client-side rule: the harness names a laser that is off as such, with how to switch it
     on; it reports whether the sensor's laser is on as the run starts."""
     conn = ctx.connect()
-    if conn.ok(C.SENSOR_STATUS)[0]:
+    if conn.ask(M.SensorStatusRequest()).laser:
         return "client-side rule; the sensor's laser is on"
     raise Informational(SensorStatus.LASER_OFF.problem(f"{ctx.host}:{ctx.port}"))
 
@@ -255,21 +225,19 @@ def laser_off(ctx: Context) -> None:
     """With the laser off a measurement has status LASER_OFF and no seam; laser restored."""
     conn = ctx.connect()
     ctx.take_control(conn)
-    was_on = conn.ok(C.SENSOR_STATUS)[0]
+    was_on = conn.ask(M.SensorStatusRequest()).laser
     try:
         conn.ok(C.SET_LASER, False)
-        index = conn.ok(C.ACQUIRE, timeout=ctx.timeout * 2)[0]
+        index = conn.ask(M.AcquireRequest(), timeout=ctx.timeout * 2).index
         d = _data(conn)
     finally:
-        conn.call(C.SET_LASER, bool(was_on))
+        conn.call(C.SET_LASER, was_on)
         conn.call(C.RELEASE_CONTROL)
-    if d["index"] != index or d["status"] != SensorStatus.LASER_OFF:
+    if d.index != index or d.status != SensorStatus.LASER_OFF:
         raise Fail(
-            "a laser-off measurement", "status LASER_OFF (2)", d["status"], requirement="SS-5.8"
+            "a laser-off measurement", "status LASER_OFF (2)", d.status, requirement="SS-5.8"
         )
-    seam = d["seam"]
-    assert isinstance(seam, Location)
-    values = seam.as_tuple()
+    values = d.seam.as_tuple()
     if not (all(v == 0.0 for v in values) or all(math.isnan(v) for v in values)):
         raise Fail(
             "a laser-off measurement carries a seam",
@@ -293,8 +261,8 @@ def profile(ctx: Context) -> str:
         index = _acquire(ctx, conn)
     finally:
         conn.call(C.RELEASE_CONTROL)
-    got_index, points = conn.ok(C.GET_PROFILE)[:2]
-    assert isinstance(points, Matrix)
+    reply = conn.ask(M.GetProfileRequest())
+    got_index, points = reply.index, reply.points
     if got_index != index:
         raise Fail("GetProfile is not the latest frame", index, got_index, requirement="SS-5.9")
     if points.rows and points.cols != 3:

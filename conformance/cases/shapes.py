@@ -8,14 +8,15 @@ import itertools
 import socket
 import time
 
-from conformance.connection import Conn
+from conformance.connection import Conn, typed_reply
 from conformance.context import Context
 from conformance.model import Fail, Informational, NotApplicable, case
+from spec import messages as M
 from spec import wire
 from spec.codec import Packet
 from spec.datagrams import Trigger, decode_datagram
 from spec.errors import DatagramError, ErrorCode
-from spec.params import FloatArray, Image, Joints, Matrix
+from spec.params import FloatArray, Joints, Matrix
 from spec.registry import SEAM_POINT_COLUMNS
 from spec.registry import CommandId as C
 
@@ -92,9 +93,7 @@ def robot_ranges(ctx: Context) -> None:
         _refused(conn, ErrorCode.OUT_OF_RANGE, "RS-5.29", C.WAIT_END_MOVE, timeout)
     ctx.take_control(conn)
     try:
-        here = conn.ok(C.HEREJ)[0]
-        assert isinstance(here, Joints)
-        q = list(here.values)
+        q = list(conn.ask(M.HerejRequest()).joints.values)
         for joints in (q[:5], [*q, 0.0]):
             _refused(conn, ErrorCode.BAD_PARAMETERS, "RS-5.28", C.JOINT_MOVE, Joints(joints))
     finally:
@@ -147,9 +146,9 @@ def image_defaults(ctx: Context) -> str:
     """GetImage(10, 20) is the rest of the sensor from there; settings are global (another
     connection sees a readout window); out-of-range exposure and windows are refused."""
     conn, other = ctx.connect(), ctx.connect()
-    settings = conn.ok(C.GET_SETTINGS)
-    _laser, exposure, first, columns, _acq, width, height = settings
-    assert isinstance(width, int) and isinstance(height, int)
+    settings = conn.ask(M.GetSettingsRequest())
+    exposure, first, columns = settings.exposure, settings.first_column, settings.columns
+    width, height = settings.width, settings.height
     answer = conn.call(C.GET_IMAGE, 10, 20)
     note = ""
     if answer.error is not None:
@@ -157,9 +156,9 @@ def image_defaults(ctx: Context) -> str:
             raise Fail("GetImage(10, 20) refused", "an image or NO_DATA", answer.error)
         note = "no frame yet (NO_DATA): region defaults not checked"
     else:
-        image = answer.params[1]
-        if not isinstance(image, Image) or (image.width, image.height) != (width - 10, height - 20):
-            got = (image.width, image.height) if isinstance(image, Image) else image
+        image = typed_reply(M.GetImageReply, answer.params).image
+        if (image.width, image.height) != (width - 10, height - 20):
+            got = (image.width, image.height)
             raise Fail(
                 "GetImage's omitted width and height are not the rest of the sensor",
                 (width - 10, height - 20),
@@ -175,7 +174,8 @@ def image_defaults(ctx: Context) -> str:
         _refused(conn, ErrorCode.OUT_OF_RANGE, "SS-5.12", C.SET_READOUT_WINDOW, width - 8, 16)
         window = (width - 16, 16)  # the last 16 columns: valid on any sensor
         conn.ok(C.SET_READOUT_WINDOW, *window)
-        seen = other.ok(C.GET_SETTINGS)[2:4]
+        now_in_force = other.ask(M.GetSettingsRequest())
+        seen = (now_in_force.first_column, now_in_force.columns)
         if tuple(seen) != window:
             raise Fail(
                 "a readout window set by one connection is not in force for another",
@@ -213,7 +213,7 @@ def sync_shapes(ctx: Context) -> None:
     family = socket.AF_INET6 if ":" in conn.sock.getsockname()[0] else socket.AF_INET
     sink = socket.socket(family, socket.SOCK_DGRAM)
     sink.bind((conn.sock.getsockname()[0], 0))
-    config = conn.ok(C.GET_SYNC_CONFIG)
+    config = conn.ask(M.GetSyncConfigRequest())
     try:
         _refused(conn, ErrorCode.OUT_OF_RANGE, "SY-5.6", C.SET_SYNC_DELAY, 1.5)
         _refused(conn, ErrorCode.OUT_OF_RANGE, "SY-5.6", C.SET_SYNC_DELAY, -1.5)
@@ -221,7 +221,7 @@ def sync_shapes(ctx: Context) -> None:
         _refused(conn, ErrorCode.OUT_OF_RANGE, "SY-5.6", C.START_TRIGGERS, 10.0, -1)
     finally:
         conn.call(C.STOP_TRIGGERS)
-        conn.call(C.SET_SENSOR_ENDPOINT, config[0], config[1])
+        conn.call(C.SET_SENSOR_ENDPOINT, config.host, config.port)
         conn.call(C.RELEASE_CONTROL)
         sink.close()
 
@@ -300,12 +300,11 @@ def trigger_times(ctx: Context) -> str:
     family = socket.AF_INET6 if ":" in conn.sock.getsockname()[0] else socket.AF_INET
     sink = socket.socket(family, socket.SOCK_DGRAM)
     sink.bind((conn.sock.getsockname()[0], 0))
-    config = conn.ok(C.GET_SYNC_CONFIG)
+    config = conn.ask(M.GetSyncConfigRequest())
     try:
         conn.ok(C.SET_SENSOR_ENDPOINT, *sink.getsockname()[:2])
         notes = []
-        now = conn.ok(C.GET_TIME)[0]
-        assert isinstance(now, float)
+        now = conn.ask(M.GetTimeRequest()).time
         offsets = (0.05, 0.1, 0.3)
         answer = conn.call(C.SCHEDULE_TRIGGERS, FloatArray([now + d for d in offsets]))
         if answer.error is None:
@@ -337,7 +336,7 @@ def trigger_times(ctx: Context) -> str:
         return "; ".join(notes)
     finally:
         conn.call(C.STOP_TRIGGERS)
-        conn.call(C.SET_SENSOR_ENDPOINT, config[0], config[1])
+        conn.call(C.SET_SENSOR_ENDPOINT, config.host, config.port)
         conn.call(C.RELEASE_CONTROL)
         sink.close()
 
@@ -365,15 +364,12 @@ def _sent(ctx: Context, conn: Conn, sink: socket.socket, n: int) -> list[Trigger
 
 def _advance_by_motion(conn: Conn) -> None:
     """Joint 1 by +2 degrees and back (the documented motion): time passes on any clock."""
-    status = conn.ok(C.ROBOT_STATUS)
-    if not status[0]:
+    if not conn.ask(M.RobotStatusRequest()).powered:
         conn.ok(C.ENABLE_POWER)
-    q = conn.ok(C.HEREJ)[0]
-    assert isinstance(q, Joints)
-    there = list(q.values)
-    there[0] += 2.0
+    start = list(conn.ask(M.HerejRequest()).joints.values)
+    there = [start[0] + 2.0, *start[1:]]
     conn.ok(C.JOINT_MOVE, Joints(there))
-    conn.ok(C.JOINT_MOVE, Joints(list(q.values)))
+    conn.ok(C.JOINT_MOVE, Joints(start))
     lease = conn.lease or 1.0
     for _ in range(40):
         if conn.ok(C.WAIT_END_MOVE, lease / 2, timeout=lease + 5.0)[0]:

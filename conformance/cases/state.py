@@ -8,6 +8,7 @@ from conformance.cases.robot import SLOW, STEP_DEG, _joints, _Motion, _status, _
 from conformance.connection import Conn
 from conformance.context import Context
 from conformance.model import Fail, Informational, Skip, case
+from spec import messages as M
 from spec.codec import Packet
 from spec.errors import ErrorCode
 from spec.params import Joints, Matrix
@@ -83,8 +84,8 @@ def last_error_only_moves(ctx: Context) -> str:
         after = _status(conn)
     finally:
         _release(conn)
-    was = (before.get("last_error"), before.get("last_message"))
-    now = (after.get("last_error"), after.get("last_message"))
+    was = (before.last_error, before.last_message)
+    now = (after.last_error, after.last_message)
     if now != was:
         raise Fail(
             "a refusal of a command that queues no move changed last_error",
@@ -227,7 +228,7 @@ def restart_without_stop(ctx: Context) -> str:
                 _code(answer),
                 requirement="RS-5.54",
             )
-        if status.get("moving") or status.get("queue") != 0:
+        if status.moving or status.queue != 0:
             raise Fail(
                 "RestartMove without StopMove started something",
                 "not moving, queue 0",
@@ -357,7 +358,7 @@ def joint_speed_scales(ctx: Context) -> str:
     cruise implies is reported; the descriptor and the power state are restored."""
     with _Motion(ctx) as m:
         conn = m.conn
-        was_powered = bool(_status(conn).get("powered"))
+        was_powered = bool(_status(conn).powered)
         m.power()
         start = _joints(conn)
         legs = (
@@ -368,13 +369,11 @@ def joint_speed_scales(ctx: Context) -> str:
         try:  # both moves first, so the arm is back before anything is judged
             for pct, q_from, q_to in legs:
                 conn.ok(C.SET_MOTION_DESC, pct, SLOW, SLOW, 50.0, 20.0, 0.0)
-                since = conn.ok(C.GET_TIME)[0]
-                assert isinstance(since, float)
+                since = conn.ask(M.GetTimeRequest()).time
                 conn.ok(C.JOINT_MOVE, Joints([q_to, *start[1:]]))
                 if not _wait_still(conn, 30.0):
                     raise Fail(f"a 2 degree move at {pct:g} % did not end within 30 s", True, False)
-                log = conn.ok(C.GET_JOINT_LOG, since - 0.01)[0]
-                assert isinstance(log, Matrix)
+                log = conn.ask(M.GetJointLogRequest(since - 0.01)).log
                 logs.append((pct, log, q_from, q_to))
         finally:
             if not was_powered and not conn.closed:

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from conformance.connection import UdpConn
 from conformance.context import Context
 from conformance.model import EndpointTimeout, Fail, Informational, NotApplicable, case
+from spec import messages as M
 from spec import wire
 from spec.datagrams import (
     INDEX_MODULUS,
@@ -29,7 +30,7 @@ from spec.datagrams import (
     encode_trigger,
 )
 from spec.errors import DatagramError, ErrorCode
-from spec.params import FloatArray, Matrix
+from spec.params import FloatArray
 from spec.registry import BY_ID
 from spec.registry import CommandId as C
 from spec.vectorgen import load
@@ -365,7 +366,6 @@ def measure_stream(ctx: Context) -> str:
 # --- the robot's side: the harness plays the sensor ---------------------------------------
 
 ROBOT_SYNC = [C.SET_SENSOR_ENDPOINT, C.GET_SYNC_CONFIG, C.START_TRIGGERS, C.STOP_TRIGGERS]
-CONFIG_FIELDS = tuple(p.name for p in BY_ID[C.GET_SYNC_CONFIG].reply)
 STAT_FIELDS = tuple(p.name for p in BY_ID[C.GET_SYNC_STATISTICS].reply)
 
 
@@ -394,21 +394,21 @@ def before_endpoint(ctx: Context) -> None:
     SetSensorEndpoint("", 0) cleared one [SY-5.8]; an endpoint found set is set again."""
     conn = ctx.connect()
     ctx.take_control(conn)
-    cfg = dict(zip(CONFIG_FIELDS, conn.ok(C.GET_SYNC_CONFIG), strict=False))
+    cfg = conn.ask(M.GetSyncConfigRequest())
     try:
-        if cfg["port"] != 0:
+        if cfg.port != 0:
             cleared = conn.call(C.SET_SENSOR_ENDPOINT, "", 0)
             if cleared.error is not None:
                 raise NotApplicable(
-                    f"a sensor endpoint is already set ({cfg['host']!r}:{cfg['port']!r}) and"
+                    f"a sensor endpoint is already set ({cfg.host!r}:{cfg.port!r}) and"
                     f' SetSensorEndpoint("", 0) does not clear it [SY-5.8]: {cleared.error}'
                 )
         conn.error(C.START_TRIGGERS, ErrorCode.BAD_STATE, 10.0, 1)
         if C.SCHEDULE_TRIGGERS in ctx.advertised:
             conn.error(C.SCHEDULE_TRIGGERS, ErrorCode.BAD_STATE, FloatArray([1e9]))
     finally:
-        if cfg["port"] != 0:
-            conn.call(C.SET_SENSOR_ENDPOINT, cfg["host"], cfg["port"])
+        if cfg.port != 0:
+            conn.call(C.SET_SENSOR_ENDPOINT, cfg.host, cfg.port)
         conn.call(C.RELEASE_CONTROL)
 
 
@@ -425,7 +425,7 @@ def endpoint_clear(ctx: Context) -> str:
     StartTriggers is BAD_STATE again; the endpoint in force before is set again."""
     conn = ctx.connect()
     ctx.take_control(conn)
-    cfg = dict(zip(CONFIG_FIELDS, conn.ok(C.GET_SYNC_CONFIG), strict=False))
+    cfg = conn.ask(M.GetSyncConfigRequest())
     sink = _sink(ctx, conn.sock.getsockname()[0])
     try:
         conn.ok(C.SET_SENSOR_ENDPOINT, sink.getsockname()[0], sink.getsockname()[1])
@@ -434,7 +434,7 @@ def endpoint_clear(ctx: Context) -> str:
         start = conn.call(C.START_TRIGGERS, 10.0, 1)
     finally:
         conn.call(C.STOP_TRIGGERS)
-        conn.call(C.SET_SENSOR_ENDPOINT, cfg["host"], cfg["port"])
+        conn.call(C.SET_SENSOR_ENDPOINT, cfg.host, cfg.port)
         conn.call(C.RELEASE_CONTROL)
         sink.close()
     got = (
@@ -462,19 +462,18 @@ def sync_ranges(ctx: Context) -> None:
     """Trigger rates outside 0 < rate <= 1000 Hz and non-increasing times give OUT_OF_RANGE."""
     conn = ctx.connect()
     ctx.take_control(conn)
-    cfg = dict(zip(CONFIG_FIELDS, conn.ok(C.GET_SYNC_CONFIG), strict=False))
+    cfg = conn.ask(M.GetSyncConfigRequest())
     sink = _sink(ctx, conn.sock.getsockname()[0])
     try:
         conn.ok(C.SET_SENSOR_ENDPOINT, sink.getsockname()[0], sink.getsockname()[1])
         for rate in (0.0, -1.0, 1000.5, math.inf):
             conn.error(C.START_TRIGGERS, ErrorCode.OUT_OF_RANGE, rate, 1)
-        now = conn.ok(C.GET_TIME)[0]
-        assert isinstance(now, float)
+        now = conn.ask(M.GetTimeRequest()).time
         conn.error(C.SCHEDULE_TRIGGERS, ErrorCode.OUT_OF_RANGE, FloatArray([now + 5, now + 4]))
     finally:
         conn.call(C.STOP_TRIGGERS)
         # As it was, also when none was set: ("", 0) clears it [SY-5.8].
-        conn.call(C.SET_SENSOR_ENDPOINT, cfg["host"], cfg["port"])
+        conn.call(C.SET_SENSOR_ENDPOINT, cfg.host, cfg.port)
         conn.call(C.RELEASE_CONTROL)
         sink.close()
 
@@ -628,24 +627,23 @@ def sync_matching(ctx: Context) -> str:
     t_S = t_T + ΔT."""
     conn = ctx.connect()
     ctx.take_control(conn)
-    cfg = dict(zip(CONFIG_FIELDS, conn.ok(C.GET_SYNC_CONFIG), strict=False))
+    cfg = conn.ask(M.GetSyncConfigRequest())
     sink = _sink(ctx, conn.sock.getsockname()[0])
     u = UdpConn(sink, ("", 0), ctx.log, 99)
     n = len(MATCHING_PLAN)
     try:
         conn.ok(C.SET_SENSOR_ENDPOINT, sink.getsockname()[0], sink.getsockname()[1])
-        before = dict(zip(STAT_FIELDS, conn.ok(C.GET_SYNC_STATISTICS), strict=False))
-        first = conn.ok(C.START_TRIGGERS, 50.0, n)[0]
-        assert isinstance(first, int)
+        before = conn.ask(M.GetSyncStatisticsRequest()).as_dict()
+        first = conn.ask(M.StartTriggersRequest(50.0, n)).first_index
         indices = _play_sensor(ctx, u, first)
         time.sleep(0.2)
-        after = dict(zip(STAT_FIELDS, conn.ok(C.GET_SYNC_STATISTICS), strict=False))
-        points = conn.ok(C.GET_SEAM_POINTS, first - 1)[0]
-        delta_t = conn.ok(C.GET_SYNC_CONFIG)[2]
+        after = conn.ask(M.GetSyncStatisticsRequest()).as_dict()
+        points = conn.ask(M.GetSeamPointsRequest(first - 1)).points
+        delta_t = conn.ask(M.GetSyncConfigRequest()).delta_t
     finally:
         conn.call(C.STOP_TRIGGERS)
         # As it was, also when none was set: ("", 0) clears it [SY-5.8].
-        conn.call(C.SET_SENSOR_ENDPOINT, cfg["host"], cfg["port"])
+        conn.call(C.SET_SENSOR_ENDPOINT, cfg.host, cfg.port)
         conn.call(C.RELEASE_CONTROL)
         sink.close()
     if len(indices) < n:
@@ -672,7 +670,6 @@ def sync_matching(ctx: Context) -> str:
                 diff[name],
                 requirement=rule,
             )
-    assert isinstance(points, Matrix) and isinstance(delta_t, float)
     rows = points.to_rows()
     got_idx = [int(r[0]) for r in rows]
     if got_idx != sorted(got_idx):
