@@ -11,6 +11,7 @@ the motion descriptor, control, the back-off...): that is a bug of the case's is
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 
@@ -174,3 +175,33 @@ def test_take_control_waits_for_a_holder_that_is_going_away() -> None:
             patient.take_control(patient.connect())
         ctx.close_all()
         patient.close_all()
+
+
+@pytest.mark.parametrize(("late_sleeps", "want"), [(1, Outcome.PASS), (3, Outcome.SKIPPED)])
+def test_a_harness_too_late_to_keep_its_lease_judges_nothing(
+    monkeypatch: pytest.MonkeyPatch, late_sleeps: int, want: Outcome
+) -> None:
+    """Seen in a full run beside two others: control.watchdog's harness sent no frame for
+    0.45 s against a 0.3 s lease and failed the robot for losing control. A try whose own
+    frames were that far apart now judges nothing: control is taken again and the try
+    repeated; three late tries skip the case, naming the gap."""
+    real_sleep = time.sleep
+    stalls = [late_sleeps]
+
+    def stalled(seconds: float) -> None:
+        # a late try ends at its first pause, so the first ``late_sleeps`` pauses of a lease's
+        # period / 4 are the first pauses of as many tries: the harness is not run for 0.4 s
+        if abs(seconds - 0.075) < 1e-9 and stalls[0] > 0:
+            stalls[0] -= 1
+            seconds = 0.4
+        real_sleep(seconds)
+
+    monkeypatch.setattr(time, "sleep", stalled)  # the case's pauses (control.time)
+    case = next(c for c in all_cases() if c.id == "control.watchdog")
+    with robot_server() as (host, port):
+        reachable, hello, why = negotiate("robot", host, port, OPTIONS)
+        assert reachable, why
+        result = run_case(case, Context("robot", host, port, OPTIONS, hello, Shared()))
+    assert result.outcome is want, result.message
+    if want is Outcome.SKIPPED:
+        assert "could not keep its own pace" in result.message

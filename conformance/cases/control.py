@@ -6,7 +6,7 @@ import statistics
 import threading
 import time
 
-from conformance.connection import Closed
+from conformance.connection import Closed, Conn
 from conformance.context import Context
 from conformance.model import EndpointTimeout, Fail, NotApplicable, Skip, case
 from spec.errors import ErrorCode
@@ -274,17 +274,7 @@ def watchdog(ctx: Context) -> str:
         raise NotApplicable("the endpoint grants no control lease (a 1.0 TakeControl)")
     if abs(conn.lease - period) > 1e-9:
         raise Fail("the watchdog period asked for was not granted", period, conn.lease)
-    for _ in range(8):  # 1.2 s of Pings, each well inside the period
-        time.sleep(period / 4)
-        conn.ok(C.PING, b"lease")
-    answer = conn.call(probe)
-    if answer.error is not None:
-        raise Fail(
-            "a controller that kept sending frames lost control",
-            "control kept",
-            answer.error,
-            requirement="RS-7.13",
-        )
+    _keep_lease(ctx, conn, probe, period)
     time.sleep(period * 2 + 0.2)
     answer = conn.call(probe)
     if answer.error is None or answer.error[0] != ErrorCode.NOT_IN_CONTROL:
@@ -309,6 +299,44 @@ def watchdog(ctx: Context) -> str:
         )
     conn.call(C.RELEASE_CONTROL)
     return f"lease {period:g} s kept by Pings, lost after silence"
+
+
+#: Tries of the keep-alive part of control.watchdog before a harness too late to keep its own
+#: pace gives up (a busy machine: a case cannot judge a lease it did not keep itself).
+KEEP_TRIES = 3
+
+
+def _keep_lease(ctx: Context, conn: Conn, probe: int, period: float) -> None:
+    """1.2 s of Pings, each well inside the lease ``period``, then ``probe`` still has
+    control [RS-7.13]. A gap between the harness's own frames near the lease (the harness's
+    process not run in time) judges nothing: control is taken again and the part repeated;
+    after ``KEEP_TRIES`` such tries the case is skipped with the gap, never failed."""
+    gap = 0.0
+    for _ in range(KEEP_TRIES):
+        last, gap = time.monotonic(), 0.0
+        for ping in range(9):  # 8 Pings, then the probe
+            time.sleep(period / 4)
+            now = time.monotonic()
+            gap, last = max(gap, now - last), now
+            if gap > 0.8 * period:
+                break
+            if ping < 8:
+                conn.ok(C.PING, b"lease")
+                continue
+            answer = conn.call(probe)
+            if answer.error is not None:
+                raise Fail(
+                    "a controller that kept sending frames lost control",
+                    "control kept",
+                    answer.error,
+                    requirement="RS-7.13",
+                )
+            return
+        ctx.take_control(conn, watchdog=period)  # the lease may be lost: take it again
+    raise Skip(
+        f"the harness could not keep its own pace: {gap:.3f} s between two of its frames "
+        f"against a {period:g} s lease (a busy machine; try again, or --timeout-scale)"
+    )
 
 
 #: [RS-7.13] the longest default lease a server may grant a TakeControl without a period.
