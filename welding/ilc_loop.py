@@ -59,9 +59,11 @@ __all__ = [
     "IlcTrial",
     "LinePass",
     "PassGeometry",
+    "TrialChecks",
     "job_path",
     "line_pass",
     "run_ilc",
+    "trial_trust",
 ]
 
 log = logging.getLogger(__name__)
@@ -72,6 +74,10 @@ SOURCES = ("seam", "joints")
 #: the table is judged and learned (a second or two of numpy on a busy machine), longer
 #: than the 0.25 s default a moving controller should keep.
 LEASE_S = 3.0
+#: A trial is not trusted where the sensor's readings over the laser's part are further apart
+#: than this many trigger periods (at 200 Hz 15 ms, 3.75 mm at 250 mm/s): its seam error
+#: there would be a line drawn across what was not measured.
+GAP_TRIGGERS = 3.0
 
 
 @dataclass(frozen=True)
@@ -122,6 +128,10 @@ class IlcTrial:
     profile: FloatArray = field(default_factory=lambda: np.zeros((0, 2)), repr=False)
     #: the tracked weld with the learned table after the learning (``track``): not learned
     tracked: bool = False
+    #: why the trial's measurement cannot be trusted (:func:`trial_trust`; "" when it can):
+    #: such a trial is reported, not learned from
+    untrusted: str = ""
+    checks: TrialChecks | None = None
 
     def summary(self) -> dict[str, object]:
         return {
@@ -132,6 +142,9 @@ class IlcTrial:
             "correction_max_mm": self.correction_max_mm,
             "stopped": self.stopped,
             "tracked": self.tracked,
+            "trusted": not self.untrusted,
+            "untrusted": self.untrusted,
+            "checks": None if self.checks is None else self.checks.summary(),
         }
 
 
@@ -235,6 +248,7 @@ def run_ilc(
     progress: Callable[[IlcTrial], None] | None = None,
     record: Callable[[], None] | None = None,
     line: LinePass | None = None,
+    real_time: bool = False,
 ) -> tuple[list[IlcTrial], Convergence, IlcTable]:
     """Run the trials on the robot of ``client`` (its sensor's trigger address
     ``sensor_endpoint``): refuse a learning that diverges (:class:`LearningDiverges`,
@@ -243,10 +257,13 @@ def run_ilc(
     profile) after ``record()`` was called before it; the table is handed to ``save`` after
     every trial. With ``track``, one tracked weld with the learned table follows (none after
     a stopped trial), the last of the trials returned. ``line``: a job's path (its speed and
-    length, not ``settings``'); without it, the cell's pass from where the arm stands."""
+    length, not ``settings``'); without it, the cell's pass from where the arm stands.
+    ``real_time``: the robot runs on the wall clock (:class:`RobotLink`). A trial whose
+    measurement cannot be trusted (:func:`trial_trust`) is returned with the reason and not
+    learned from: the next repeats its table."""
     settings.check()
     period = 0.004
-    link = RobotLink(client, sensor_endpoint, period=period)
+    link = RobotLink(client, sensor_endpoint, period=period, real_time=real_time)
     info = client.call(CommandId.HELLO, wire.VERSION_MAJOR, wire.VERSION_MINOR, "ilc")
     model = get_model(str(info[3]))
     geometry = _geometry(link, laser_tool, sensor_tool, settings, line)
@@ -290,6 +307,7 @@ def run_ilc(
         taught = _teach(link, geometry, settings)
         u = np.zeros((n, 3))
         done = 0
+    first = done
     seam_of = IlcTable(period, speed, u, taught, settings.source, done, key)
     reference = seam_of.offsets(geometry.weld.s_at(geometry.times))
     trials: list[IlcTrial] = []
@@ -309,33 +327,48 @@ def run_ilc(
         )
         outcome = weld_tracked(link, plan)
         truth_max, truth_rms, profile = judge(outcome, geometry)
-        if settings.source == "seam":
-            ref_at = _along(geometry, seam_of.offsets)
-            e_base = _seam_error(geometry, outcome, seam_of.offsets, ref_at, settings.latency_s)
-        else:
-            e_base = _joint_error(client, model, geometry, outcome, reference)
+        log_rows = _joint_log(client, outcome)
+        checks = trial_trust(outcome, geometry, settings, log_rows, period)
+        untrusted = checks.reason
+        e_base = (
+            _seam_error(
+                geometry,
+                outcome,
+                seam_of.offsets,
+                _along(geometry, seam_of.offsets),
+                settings.latency_s,
+            )
+            if settings.source == "seam"
+            else _joint_error(model, geometry, outcome, reference, log_rows)
+        )
         e_path = e_base @ R  # rows in (along, lateral, height)
         seen = mask * np.repeat(np.any(e_base != 0.0, axis=1), 3)
         window = np.repeat(geometry.window(), 3) * seen
         measured = float(np.abs(e_path.ravel() * window).max()) if n else math.nan
         trial = IlcTrial(
-            done + j,
+            first + j,
             truth_max,
             truth_rms,
-            measured,
+            math.nan if untrusted else measured,
             float(np.linalg.norm(u, axis=1).max()),
             outcome.stopped,
             profile,
+            untrusted=untrusted,
+            checks=checks,
         )
         trials.append(trial)
         if progress is not None:
             progress(trial)
         if outcome.stopped:
             break
+        if untrusted:
+            # the next trial repeats this one's table: a correction learned from data that
+            # cannot be trusted would be a plausible wrong one
+            continue
         up = (u @ R).ravel()
         up = Q @ (up + L @ (e_path.ravel() * seen))
         u = up.reshape(n, 3) @ R.T
-        learned = IlcTable(period, speed, u, taught, settings.source, done + j, key)
+        learned = IlcTable(period, speed, u, taught, settings.source, first + j, key)
         if save is not None:
             save(learned)
     if settings.track and not (trials and trials[-1].stopped):
@@ -344,25 +377,109 @@ def run_ilc(
             record()
         outcome = weld_tracked(link, _tracked_plan(geometry, settings, taught, u, sensor_tool))
         truth_max, truth_rms, profile = judge(outcome, geometry)
-        trial = IlcTrial(
-            done + len(trials) + 1,
-            truth_max,
-            truth_rms,
-            math.nan,
-            float(np.linalg.norm(u, axis=1).max()),
-            outcome.stopped,
-            profile,
-            tracked=True,
+        checks = trial_trust(outcome, geometry, settings, _joint_log(client, outcome), period)
+        trials.append(
+            IlcTrial(
+                first + len(trials) + 1,
+                truth_max,
+                truth_rms,
+                math.nan,
+                float(np.linalg.norm(u, axis=1).max()),
+                outcome.stopped,
+                profile,
+                tracked=True,
+                untrusted=checks.reason,
+                checks=checks,
+            )
         )
-        trials.append(trial)
         if progress is not None:
-            progress(trial)
-    learned_trials = sum(1 for t in trials if not t.tracked)
-    return (
-        trials,
-        conv,
-        IlcTable(period, speed, u, taught, settings.source, done + learned_trials, key),
-    )
+            progress(trials[-1])
+    run = sum(1 for t in trials if not t.tracked)
+    return trials, conv, IlcTable(period, speed, u, taught, settings.source, first + run, key)
+
+
+@dataclass(frozen=True)
+class TrialChecks:
+    """What a trial's data is worth (:func:`trial_trust`): ``reason`` why it cannot be
+    trusted ("" when it can), and the counts it was judged by."""
+
+    reason: str
+    #: corrections that reached the robot after their cycle during the laser's part
+    late: int
+    #: cycles the robot held a correction because the next had not come
+    held: int
+    start_on_grid: bool
+    #: joint log samples missing over the move (-1: the log does not cover it)
+    joint_log_missing: int
+    #: the longest stretch of the laser's part without a sensor reading (ms; seam source)
+    reading_gap_ms: float | None
+
+    def summary(self) -> dict[str, object]:
+        return {
+            "late_corrections": self.late,
+            "held_cycles": self.held,
+            "start_on_grid": self.start_on_grid,
+            "joint_log_missing": self.joint_log_missing,
+            "reading_gap_ms": self.reading_gap_ms,
+        }
+
+
+def trial_trust(
+    outcome: TrackOutcome,
+    g: PassGeometry,
+    settings: IlcSettings,
+    joint_log: FloatArray,
+    period: float,
+) -> TrialChecks:
+    """Whether a trial's data can be trusted, from the robot's stamps and counts only (never
+    from when this process ran): not when corrections reached the robot after their cycle
+    during the laser's part or it had to hold one, when the cycle the move started on is not
+    known exactly (every error is placed on the grid from it), when joint log samples are
+    missing over the move (``joint_log`` rows (t, q (6,))), or, for the seam source, when
+    the sensor's readings over the laser's part are more than :data:`GAP_TRIGGERS` trigger
+    periods apart somewhere."""
+    reasons: list[str] = []
+    v = outcome.verdict
+    late, held = (v.late, v.held) if v is not None else (0, 0)
+    if late:
+        reasons.append(f"{late} corrections reached the robot after their cycle during the"
+                       " laser's part")  # fmt: skip
+    if held:
+        reasons.append(f"the robot held a correction for {held} cycles")
+    if not outcome.start_on_grid:
+        reasons.append("the cycle the move started on is not known exactly")
+    t_end = outcome.t0 + float(g.times[-1])
+    t = joint_log[:, 0] if len(joint_log) else np.zeros(0)
+    if not len(t) or t[0] > outcome.t0 + 1e-6 or t[-1] < t_end - 1e-6:
+        missing = -1
+        reasons.append("the joint log does not cover the move")
+    else:
+        steps = np.round(np.diff(t[(t >= outcome.t0 - period) & (t <= t_end + period)]) / period)
+        missing = int(np.sum(steps - 1))
+        if missing:
+            reasons.append(f"{missing} joint log samples missing over the move")
+    gap_ms = None
+    if settings.source == "seam":
+        gap, at = _reading_gap(outcome, g, settings.latency_s)
+        gap_ms = round(gap * 1e3, 3)
+        if gap > GAP_TRIGGERS / settings.rate_hz:
+            reasons.append(f"no sensor reading for {gap * 1e3:.0f} ms at {at:.1f} mm of the weld")
+    return TrialChecks("; ".join(reasons), late, held, outcome.start_on_grid, missing, gap_ms)
+
+
+def _reading_gap(outcome: TrackOutcome, g: PassGeometry, latency_s: float) -> tuple[float, float]:
+    """The longest stretch (s) of the laser's part without a sensor reading (the readings at
+    their exposure, as :func:`_seam_error` places them) and where it starts (mm of the
+    weld)."""
+    w = g.times[g.window()]
+    if not len(w):
+        return 0.0, 0.0
+    rows = outcome.rows[outcome.rows[:, 3] == 0] if len(outcome.rows) else outcome.rows
+    t = np.sort(rows[:, 2] - latency_s - outcome.t0) if len(rows) else np.zeros(0)
+    pts = np.concatenate([[w[0]], t[(t > w[0]) & (t < w[-1])], [w[-1]]])
+    gaps = np.diff(pts)
+    i = int(np.argmax(gaps))
+    return float(gaps[i]), float(g.weld.s_at(pts[i])) - g.laser_from_mm
 
 
 def _check_table(table: IlcTable, n: int, speed_mm_s: float, key: str) -> None:
@@ -579,13 +696,18 @@ def _seam_error(
     return out
 
 
-def _joint_error(
-    client: FramedClient, model: RobotModel, g: PassGeometry, outcome: TrackOutcome, ref: FloatArray
-) -> FloatArray:
-    """(N, 3) reference − the laser's path from the measured joints (GetJointLog), base."""
+def _joint_log(client: FramedClient, outcome: TrackOutcome) -> FloatArray:
+    """The joint log (GetJointLog) from just before the trial's move: rows (t, q (6,))."""
     m = client.call(CommandId.GET_JOINT_LOG, float(outcome.t0 - 0.01))[0]
     assert isinstance(m, Matrix)
-    rows = np.array(m.values, dtype=np.float64).reshape(m.rows, m.cols)
+    return np.array(m.values, dtype=np.float64).reshape(m.rows, m.cols)
+
+
+def _joint_error(
+    model: RobotModel, g: PassGeometry, outcome: TrackOutcome, ref: FloatArray, rows: FloatArray
+) -> FloatArray:
+    """(N, 3) reference − the laser's path from the measured joints (the joint log's
+    ``rows``), base."""
     t = rows[:, 0] - outcome.t0
     laser = laser_path(model, rows[:, 1:], g.laser_tool)
     actual = np.column_stack([np.interp(g.times, t, laser[:, c]) for c in range(3)])
