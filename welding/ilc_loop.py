@@ -31,6 +31,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 
 from kinematics.dynamics import RX90B, ElasticParams
 from kinematics.robot import RobotModel, get_model
@@ -62,6 +63,7 @@ __all__ = [
     "TrialChecks",
     "job_path",
     "line_pass",
+    "on_time",
     "run_ilc",
     "trial_trust",
 ]
@@ -78,6 +80,12 @@ LEASE_S = 3.0
 #: than this many trigger periods (at 200 Hz 15 ms, 3.75 mm at 250 mm/s): its seam error
 #: there would be a line drawn across what was not measured.
 GAP_TRIGGERS = 3.0
+#: A sensor that keeps up with the trigger rate is busy with a frame for less than this share
+#: of a trigger period: :func:`on_time` takes each frame to be that long.
+BUSY_SHARE = 0.75
+#: A reading whose exposure may have started more than this (s) after its trigger's t_T + ΔT
+#: is left out: the start jitter of the paper's sensor.
+START_SLACK_S = 0.25e-3
 
 
 @dataclass(frozen=True)
@@ -337,6 +345,7 @@ def run_ilc(
                 seam_of.offsets,
                 _along(geometry, seam_of.offsets),
                 settings.latency_s,
+                settings.rate_hz,
             )
             if settings.source == "seam"
             else _joint_error(model, geometry, outcome, reference, log_rows)
@@ -413,6 +422,8 @@ class TrialChecks:
     joint_log_missing: int
     #: the longest stretch of the laser's part without a sensor reading (ms; seam source)
     reading_gap_ms: float | None
+    #: readings left out as perhaps exposed late (:func:`on_time`; seam source)
+    late_readings: int = 0
 
     def summary(self) -> dict[str, object]:
         return {
@@ -421,6 +432,7 @@ class TrialChecks:
             "start_on_grid": self.start_on_grid,
             "joint_log_missing": self.joint_log_missing,
             "reading_gap_ms": self.reading_gap_ms,
+            "late_readings": self.late_readings,
         }
 
 
@@ -458,23 +470,56 @@ def trial_trust(
         missing = int(np.sum(steps - 1))
         if missing:
             reasons.append(f"{missing} joint log samples missing over the move")
-    gap_ms = None
+    gap_ms, dropped = None, 0
     if settings.source == "seam":
-        gap, at = _reading_gap(outcome, g, settings.latency_s)
+        if len(outcome.rows):
+            dropped = int(np.count_nonzero(~on_time(outcome.rows, settings.rate_hz)))
+        gap, at = _reading_gap(outcome, g, settings.latency_s, settings.rate_hz)
         gap_ms = round(gap * 1e3, 3)
         if gap > GAP_TRIGGERS / settings.rate_hz:
             reasons.append(f"no sensor reading for {gap * 1e3:.0f} ms at {at:.1f} mm of the weld")
-    return TrialChecks("; ".join(reasons), late, held, outcome.start_on_grid, missing, gap_ms)
+    return TrialChecks(
+        "; ".join(reasons), late, held, outcome.start_on_grid, missing, gap_ms, dropped
+    )
 
 
-def _reading_gap(outcome: TrackOutcome, g: PassGeometry, latency_s: float) -> tuple[float, float]:
+def on_time(rows: FloatArray, rate_hz: float) -> npt.NDArray[np.bool_]:
+    """(M,) bool: the seam points ``rows`` (GetSeamPoints, in index order) whose exposure
+    started on time, as far as the trigger stamps tell. A sender that got the CPU late sends
+    overdue triggers back to back, and a sensor still busy with the last frame starts the
+    next only when it is done, so that reading's t_T + ΔT is early by up to a frame (3 ms
+    and more were seen beside 2 CPU hogs: 0.75 mm at 250 mm/s). Each frame is taken to
+    occupy the sensor :data:`BUSY_SHARE` of a trigger period from its (modelled) start; a
+    reading whose start that pushes past its trigger by more than :data:`START_SLACK_S` is
+    not on time, nor any it delays in turn."""
+    busy = BUSY_SHARE / rate_hz
+    out = np.ones(len(rows), dtype=bool)
+    start = -math.inf
+    for i, t in enumerate(rows[:, 1].tolist()):
+        start = max(t, start + busy)
+        out[i] = start - t <= START_SLACK_S
+    return out
+
+
+def _readings(outcome: TrackOutcome, rate_hz: float) -> FloatArray:
+    """The seam points of ``outcome`` that found the seam and were exposed on time."""
+    rows = outcome.rows
+    if not len(rows):
+        return rows
+    kept: FloatArray = rows[(rows[:, 3] == 0) & on_time(rows, rate_hz)]
+    return kept
+
+
+def _reading_gap(
+    outcome: TrackOutcome, g: PassGeometry, latency_s: float, rate_hz: float
+) -> tuple[float, float]:
     """The longest stretch (s) of the laser's part without a sensor reading (the readings at
     their exposure, as :func:`_seam_error` places them) and where it starts (mm of the
     weld)."""
     w = g.times[g.window()]
     if not len(w):
         return 0.0, 0.0
-    rows = outcome.rows[outcome.rows[:, 3] == 0] if len(outcome.rows) else outcome.rows
+    rows = _readings(outcome, rate_hz)
     t = np.sort(rows[:, 2] - latency_s - outcome.t0) if len(rows) else np.zeros(0)
     pts = np.concatenate([[w[0]], t[(t > w[0]) & (t < w[-1])], [w[-1]]])
     gaps = np.diff(pts)
@@ -634,7 +679,7 @@ def _teach(link: RobotLink, g: PassGeometry, settings: IlcSettings) -> FloatArra
     if outcome.stopped:
         raise TrackingError(f"teaching the seam failed: {outcome.stopped}")
     seam = SeamModel(slow)
-    seam.add(outcome.rows[outcome.rows[:, 3] == 0][:, 11:14])
+    seam.add(_readings(outcome, settings.rate_hz)[:, 11:14])
     rows = []
     for s in np.arange(math.ceil(seam.first), seam.furthest, 0.5):
         with contextlib.suppress(TrackingError):
@@ -670,6 +715,7 @@ def _seam_error(
     offsets: Callable[[FloatArray], FloatArray],
     reference: Callable[[FloatArray], FloatArray],
     latency_s: float,
+    rate_hz: float,
 ) -> FloatArray:
     """(N, 3) reference − actual of the laser, base frame, from the sensor's ^S_G T: what it
     read of the seam ``offsets`` (taught) against what it would read with the laser on its
@@ -678,7 +724,8 @@ def _seam_error(
     where it read nothing.
     ``latency_s``: the joint log's lag; a seam point's time (t_sync = trigger + ΔT) is where
     the *measured* joints saw the image, the exposure itself was that much earlier."""
-    rows = outcome.rows[(outcome.rows[:, 3] == 0) & (outcome.rows[:, 2] >= outcome.t0)]
+    rows = _readings(outcome, rate_hz)
+    rows = rows[rows[:, 2] >= outcome.t0]
     n = len(g.times)
     if len(rows) < 2:
         return np.zeros((n, 3))
