@@ -65,6 +65,7 @@ __all__ = [
     "line_pass",
     "on_time",
     "run_ilc",
+    "start_from_joint_log",
     "trial_trust",
 ]
 
@@ -335,8 +336,7 @@ def run_ilc(
         )
         outcome = weld_tracked(link, plan)
         truth_max, truth_rms, profile = judge(outcome, geometry)
-        log_rows = _joint_log(client, outcome)
-        checks = trial_trust(outcome, geometry, settings, log_rows, period)
+        checks, log_rows = _checked(client, model, outcome, geometry, settings, period)
         untrusted = checks.reason
         e_base = (
             _seam_error(
@@ -386,7 +386,7 @@ def run_ilc(
             record()
         outcome = weld_tracked(link, _tracked_plan(geometry, settings, taught, u, sensor_tool))
         truth_max, truth_rms, profile = judge(outcome, geometry)
-        checks = trial_trust(outcome, geometry, settings, _joint_log(client, outcome), period)
+        checks, _ = _checked(client, model, outcome, geometry, settings, period)
         trials.append(
             IlcTrial(
                 first + len(trials) + 1,
@@ -424,6 +424,10 @@ class TrialChecks:
     reading_gap_ms: float | None
     #: readings left out as perhaps exposed late (:func:`on_time`; seam source)
     late_readings: int = 0
+    #: the start cycle, not known when the move was queued, found from the joint log
+    #: (:func:`start_from_joint_log`): the cycles after the one the corrections were timed
+    #: for (0: that one), None where not needed or not found
+    start_found: int | None = None
 
     def summary(self) -> dict[str, object]:
         return {
@@ -433,6 +437,7 @@ class TrialChecks:
             "joint_log_missing": self.joint_log_missing,
             "reading_gap_ms": self.reading_gap_ms,
             "late_readings": self.late_readings,
+            "start_found": self.start_found,
         }
 
 
@@ -442,6 +447,7 @@ def trial_trust(
     settings: IlcSettings,
     joint_log: FloatArray,
     period: float,
+    start_found: int | None = None,
 ) -> TrialChecks:
     """Whether a trial's data can be trusted, from the robot's stamps and counts only (never
     from when this process ran): not when corrections reached the robot after their cycle
@@ -449,7 +455,9 @@ def trial_trust(
     known exactly (every error is placed on the grid from it), when joint log samples are
     missing over the move (``joint_log`` rows (t, q (6,))), or, for the seam source, when
     the sensor's readings over the laser's part are more than :data:`GAP_TRIGGERS` trigger
-    periods apart somewhere."""
+    periods apart somewhere. ``start_found``: where the queued move's start cycle was not
+    known, the one :func:`start_from_joint_log` found (cycles after the one the corrections
+    were timed for; 0 is that one), None for not found."""
     reasons: list[str] = []
     v = outcome.verdict
     late, held = (v.late, v.held) if v is not None else (0, 0)
@@ -458,8 +466,11 @@ def trial_trust(
                        " laser's part")  # fmt: skip
     if held:
         reasons.append(f"the robot held a correction for {held} cycles")
-    if not outcome.start_on_grid:
+    if not outcome.start_on_grid and start_found is None:
         reasons.append("the cycle the move started on is not known exactly")
+    elif not outcome.start_on_grid and start_found:
+        reasons.append(f"the move started {start_found} cycles after the one its corrections"
+                       " were timed for")  # fmt: skip
     t_end = outcome.t0 + float(g.times[-1])
     t = joint_log[:, 0] if len(joint_log) else np.zeros(0)
     if not len(t) or t[0] > outcome.t0 + 1e-6 or t[-1] < t_end - 1e-6:
@@ -479,8 +490,57 @@ def trial_trust(
         if gap > GAP_TRIGGERS / settings.rate_hz:
             reasons.append(f"no sensor reading for {gap * 1e3:.0f} ms at {at:.1f} mm of the weld")
     return TrialChecks(
-        "; ".join(reasons), late, held, outcome.start_on_grid, missing, gap_ms, dropped
+        "; ".join(reasons),
+        late,
+        held,
+        outcome.start_on_grid,
+        missing,
+        gap_ms,
+        dropped,
+        None if outcome.start_on_grid else start_found,
     )
+
+
+#: The later start cycles :func:`start_from_joint_log` weighs (the stand's reply can be a few
+#: cycles late; its send was not).
+START_CYCLES = 4
+
+
+def start_from_joint_log(
+    outcome: TrackOutcome,
+    g: PassGeometry,
+    joint_log: FloatArray,
+    model: RobotModel,
+    latency_s: float,
+    period: float,
+) -> int | None:
+    """The cycle a queued move started on when the robot's reply did not tell (a reply that
+    came in a later cycle than the request was sent in: the robot took it in one of them),
+    from the joint log's own grid stamps: how many cycles after ``outcome.t0`` (the earliest
+    possible) it started, or None when the log does not tell.
+
+    Along the line the motors follow their setpoint to within a small servo lag (velocity
+    feedforward and an integral), and the log lags them by the encoder latency, so at the
+    pass's constant speed the log is ``latency_s`` plus that lag behind the nominal law (2.3
+    ms against 2.8 on the emulated elastic arm, scatter 0.7 ms); each cycle of start
+    hypothesis moves that by 4 ms. The start whose lag lies within half a cycle of
+    ``latency_s`` is the one; none or two: None."""
+    if not len(joint_log):
+        return None
+    v = g.weld.speed_mm_s
+    laser = laser_path(model, joint_log[:, 1:], g.laser_tool)
+    s_meas = (laser - g.weld.start) @ g.weld.direction
+    ramp = v / g.weld.accel_mm_s2
+    found = []
+    for m in range(START_CYCLES):
+        t = joint_log[:, 0] - (outcome.t0 + m * period)
+        steady = (t > ramp + 0.05) & (t < g.weld.duration - ramp - 0.05)
+        if np.count_nonzero(steady) < 10:
+            return None
+        lag = float(np.mean(g.weld.s_at(t[steady]) - s_meas[steady])) / v
+        if abs(lag - latency_s) < period / 2:
+            found.append(m)
+    return found[0] if len(found) == 1 else None
 
 
 def on_time(rows: FloatArray, rate_hz: float) -> npt.NDArray[np.bool_]:
@@ -741,6 +801,23 @@ def _seam_error(
     for c in range(3):
         out[inside, c] = -np.interp(g.times[inside], t, deviation[:, c])
     return out
+
+
+def _checked(
+    client: FramedClient,
+    model: RobotModel,
+    outcome: TrackOutcome,
+    g: PassGeometry,
+    settings: IlcSettings,
+    period: float,
+) -> tuple[TrialChecks, FloatArray]:
+    """The trial's checks (:func:`trial_trust`, the start found from the joint log where the
+    reply did not tell it) and its joint log."""
+    rows = _joint_log(client, outcome)
+    found = None
+    if not outcome.start_on_grid:
+        found = start_from_joint_log(outcome, g, rows, model, settings.latency_s, period)
+    return trial_trust(outcome, g, settings, rows, period, found), rows
 
 
 def _joint_log(client: FramedClient, outcome: TrackOutcome) -> FloatArray:

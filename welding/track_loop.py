@@ -546,7 +546,10 @@ class RobotLink:
         before = self.time()
         self._send_path(np.array([0.0, HOLD_S]), np.array([locs[0], locs[0]]), tool)
         k = self._cycle_of(before)
-        certain = k == self._cycle_of(self.time())
+        after = self.time()
+        certain = k == self._cycle_of(after)
+        log.debug("the stand before the path: sent %.2f ms into cycle %d, reply after %.2f ms",
+                  (before - k * self.period) * 1e3, k, (after - before) * 1e3)  # fmt: skip
         t0 = k * self.period + HOLD_S
         self._send_path(times, locs, tool)
         certain = certain and self.time() < t0 - self.period
