@@ -41,6 +41,7 @@ from welding.ilc_loop import (
     IlcTrial,
     LinePass,
     PassGeometry,
+    check_learnable,
     job_path,
     line_pass,
     run_ilc,
@@ -274,7 +275,9 @@ def cmd_ilc(args: argparse.Namespace) -> int:
             has_frame=lambda n: n in (CELL_FRAME, BUILTIN_FRAME),
         )
         try:
-            name = job_path(job, args.path).name
+            learned_path = job_path(job, args.path)
+            check_learnable(learned_path)  # before a cell is built
+            name = learned_path.name
         except ValueError as exc:
             print(f"python -m welding: error: {exc}", file=sys.stderr)
             return ExitCode.USAGE
@@ -375,6 +378,7 @@ def plot_trials(result: dict[str, Any], profiles: list[np.ndarray], out_dir: Pat
     ax.semilogy(k, [t["error_max_mm"] for t in result["trials"]], "o-", label="max")
     ax.semilogy(k, [t["error_rms_mm"] for t in result["trials"]], "s--", label="rms")
     ax.axhline(0.1, color="grey", linewidth=0.8, label="0.1 mm")
+    ax.set_xticks(k)  # whole trials: there is no trial 1.5
     ax.set_xlabel("trial")
     ax.set_ylabel("error against the truth (mm)")
     ax.set_title(title, fontsize=8)

@@ -61,6 +61,7 @@ __all__ = [
     "LinePass",
     "PassGeometry",
     "TrialChecks",
+    "check_learnable",
     "job_path",
     "line_pass",
     "on_time",
@@ -217,23 +218,46 @@ def job_path(job: J.Job, name: str | None) -> J.Path:
     return found[0]
 
 
-def line_pass(path: J.Path, tables: Tables) -> LinePass:
-    """A job's ``path`` as a :class:`LinePass`, its tool and frame from ``tables``;
-    ValueError when it is not one straight line with one tool and orientation (the pass the
-    ILC learns: its lifted model is of one line)."""
-    if len(path.segments) != 1 or not isinstance(path.segments[0], J.Line):
-        raise ValueError(f"path {path.name!r}: the ILC learns a path of one <line>")
+def check_learnable(path: J.Path) -> None:
+    """ValueError, one line naming what is not supported, when the ILC cannot learn ``path``:
+    its lifted model is of one straight line with one tool (arcs and corners need a model
+    along the path, docs/ILC.md "Not done"). Needs no tool table: checked before a cell is
+    built or control taken."""
+    kinds = [type(seg).__name__.lower() for seg in path.segments]
+    if kinds != ["line"]:
+        unsupported = ["<arc> segments"] if "arc" in kinds else []
+        if len(kinds) > 1:
+            unsupported.append(f"{len(kinds)} segments (the corners between them)")
+        raise ValueError(
+            f"path {path.name!r} ({' '.join(f'<{k}>' for k in kinds) or 'no segment'}): the"
+            f" ILC learns one straight <line>; not supported: {' and '.join(unsupported) or '-'}"
+        )
     end = path.segments[0].to
     if end.tool != path.start.tool:
-        raise ValueError(f"path {path.name!r}: the ILC learns a path of one tool")
+        raise ValueError(
+            f"path {path.name!r} changes tool ({path.start.tool} to {end.tool}): the ILC learns"
+            " a path of one tool"
+        )
+
+
+def line_pass(path: J.Path, tables: Tables) -> LinePass:
+    """A job's ``path`` as a :class:`LinePass`, its tool and frame from ``tables``;
+    ValueError when it is not one straight line with one tool and orientation
+    (:func:`check_learnable`; the pass the ILC learns: its lifted model is of one line)."""
+    check_learnable(path)
+    end = path.segments[0].to
     poses = [
         location_to_transform(np.array(tables.frame(loc.frame).location, dtype=np.float64))
         @ location_to_transform(np.array(loc.values, dtype=np.float64))
         for loc in (path.start, end)
     ]
     turn = poses[0][:3, :3].T @ poses[1][:3, :3]
-    if math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(turn) - 1.0) / 2.0)))) > 0.01:
-        raise ValueError(f"path {path.name!r}: the ILC learns a path that keeps the orientation")
+    angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(turn) - 1.0) / 2.0))))
+    if angle > 0.01:
+        raise ValueError(
+            f"path {path.name!r}: the tool turns {angle:.2f} deg along it; the ILC learns a path"
+            " that keeps the orientation"
+        )
     angles = transform_to_location(poses[0])[3:]
     line = LinePass(poses[0][:3, 3], poses[1][:3, 3], np.asarray(angles), path.velocity)
     if line.length_mm < 1.0:
