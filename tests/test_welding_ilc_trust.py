@@ -150,8 +150,9 @@ def test_an_untrusted_trial_is_not_learned_from_and_the_run_exits_untrusted(
     out = tmp_path / "ilc.json"
     code = main(["ilc", "--emulate", "--dynamics", "elastic", "--length", "60", "--trials",
                  "3", "--json", str(out)])  # fmt: skip
-    stdout, _ = capsys.readouterr()
+    stdout, err = capsys.readouterr()
     assert code == ExitCode.UNTRUSTED
+    assert err == "trial 2: 2 corrections reached the robot after their cycle\n"
     trials = json.loads(out.read_text())["trials"]
     assert [t["trusted"] for t in trials] == [True, False, True]
     assert trials[1]["untrusted"] == "2 corrections reached the robot after their cycle"

@@ -324,9 +324,10 @@ def cmd_ilc(args: argparse.Namespace) -> int:
         print(
             f"UNTRUSTED: {len(untrusted)} of {len(trials)} trials"
             f" ({', '.join(str(t['trial']) for t in untrusted)}) could not be measured on time,"
-            f" so no convergence is claimed; trial {untrusted[0]['trial']}:"
-            f" {untrusted[0]['untrusted']}"
+            " so no convergence is claimed"
         )
+        for t in untrusted:  # the reasons on stderr, as every tool's UNTRUSTED (docs/CLI.md)
+            print(f"trial {t['trial']}: {t['untrusted']}", file=sys.stderr)
         return ExitCode.UNTRUSTED
     learned = [t["error_max_mm"] for t in trials if not t["tracked"]]
     tracked = [t["error_max_mm"] for t in trials if t["tracked"]]
@@ -360,7 +361,8 @@ def plot_trials(result: dict[str, Any], profiles: list[np.ndarray], out_dir: Pat
     out_dir.mkdir(parents=True, exist_ok=True)
     title = (
         f"{result['seam']} seam, {result['speed_mm_s']:g} mm/s, dynamics {result['dynamics']}, "
-        f"source {result['source']}" + (", tracked" if result["track"] else "")
+        f"source {result['source']}, {result.get('clock', 'sim')} clock"
+        + (", tracked" if result["track"] else "")
     )
     fig, ax = plt.subplots(figsize=(10, 4))
     for t, p in zip(result["trials"], profiles, strict=True):
