@@ -148,7 +148,7 @@ def test_an_untrusted_trial_is_not_learned_from_and_the_run_exits_untrusted(
 
     monkeypatch.setattr(ilc_loop, "trial_trust", fake)
     out = tmp_path / "ilc.json"
-    code = main(["ilc", "--emulate", "--dynamics", "elastic", "--length", "60", "--trials",
+    code = main(["ilc", "--emulate", "--dynamics", "elastic", "--length", "20", "--trials",
                  "3", "--json", str(out)])  # fmt: skip
     stdout, err = capsys.readouterr()
     assert code == ExitCode.UNTRUSTED
