@@ -11,6 +11,7 @@ from shared memory, the rest forwarded) and SensorSocket (forwarded).
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -43,12 +44,19 @@ def build_cell(config: dict[str, Any]) -> ChildParts:
     assert cell.listener is not None
     listener = cell.listener
     recorder = WeldRecorder(cell)
-    queries = {
+
+    def acquisitions(first: int = 0) -> list[tuple[int, float, float]]:
+        """The sensor's own record of each acquisition from index ``first`` on: (index,
+        t_trigger, time its seam column was exposed) (the truth of a reading's time)."""
+        return [(r.index, r.t_trigger, r.t_seam) for r in cell.delta_t.records if r.index >= first]
+
+    queries: dict[str, Callable[..., Any]] = {
         "weld_record": recorder.start,
         "weld_truth": recorder.truth,
         "true_delta_t": cell.true_delta_t_s,
         "io_log": lambda: list(cell.robot.io_log),
         "measured_delta_t": cell.measured_delta_t,
+        "acquisitions": acquisitions,
         "next_index": lambda: cell.core.next_index,
         "jitter": cell.robot.jitter,
         "kernel_timestamps": lambda: listener.kernel_timestamps,

@@ -38,6 +38,11 @@ class WeldTruth:
     laser_on: bool
     #: robot time (s) of each of the N cycles
     times: FloatArray = field(default_factory=lambda: np.zeros(0))
+    #: every cycle recorded, the laser on or not: robot times (M,) and the laser focal point
+    #: (M, 3): a weld judged over the cycles its window's stamps give, not over those its
+    #: laser was on (switched by a client, so when that client's thread ran)
+    cycle_times: FloatArray = field(default_factory=lambda: np.zeros(0))
+    cycle_laser: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
 
 
 class WeldRecorder:
@@ -77,10 +82,14 @@ class WeldRecorder:
             times = np.array(self._t)
         on = [i for i, v in enumerate(lasing) if v]
         cell = self.cell
+        every = np.zeros((0, 3))
+        if q:
+            every = (cell.robot.model.flange2base_batch(np.array(q)) @ cell.laser2flange)[:, :3, 3]
         if on:
-            f2b = cell.robot.model.flange2base_batch(np.array(q)[on])
-            laser = (f2b @ cell.laser2flange)[:, :3, 3]
+            laser = every[on]
             corr = np.array(applied)[on, :3]
         else:
             laser, corr = np.zeros((0, 3)), np.zeros((0, 3))
-        return WeldTruth(laser, corr, cell.scene, cell.robot.read_io("laser")[0], times[on])
+        return WeldTruth(
+            laser, corr, cell.scene, cell.robot.read_io("laser")[0], times[on], times, every
+        )

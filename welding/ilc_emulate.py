@@ -15,23 +15,37 @@ import math
 import sys
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from cell.cell import CellTiming, EmulatedCell
 from cell.options import timing_kwargs
+from cell.rtcell import CellProcess
 from cell.seams import cell_seam
-from cell.truth import WeldRecorder
+from cell.truth import WeldRecorder, WeldTruth
 from kinematics.types import IDENTITY_LOC, Loc
+from robotsocket.rtprocess import ChildStartError
 from spec.client import FramedClient
+from spec.clocks import ClockKind
 from spec.errors import ProtocolError
 from spec.exitcodes import ExitCode
 from spec.files import write_atomically
+from spec.realtime import realtime_threads
+from spec.registry import CommandId
 from welding import job as J
-from welding.emulate import CELL_FRAME, CELL_TOOLS, cell_tables
-from welding.ilc import IlcTable, LearningDiverges
-from welding.ilc_loop import IlcSettings, IlcTrial, PassGeometry, job_path, line_pass, run_ilc
+from welding.emulate import CELL_FRAME, CELL_TOOLS, TRACKER_PRIORITY, cell_tables
+from welding.ilc import Convergence, IlcTable, LearningDiverges
+from welding.ilc_loop import (
+    IlcSettings,
+    IlcTrial,
+    LinePass,
+    PassGeometry,
+    check_learnable,
+    job_path,
+    line_pass,
+    run_ilc,
+)
 from welding.tools import BUILTIN_FRAME, BUILTIN_TOOL
 from welding.track_loop import TrackOutcome
 from welding.tracking import seam_error
@@ -54,8 +68,9 @@ def run_ilc_emulated(
     table: IlcTable | None = None,
     save: Any = None,
     progress: Any = None,
+    clock: ClockKind = "sim",
 ) -> dict[str, Any]:
-    """The trials on a simulated cell (``seam`` of ``welding track``, ``dynamics``); the
+    """The trials on an emulated cell (``seam`` of ``welding track``, ``dynamics``); the
     result as the JSON of ``welding ilc`` (trials in order, each with ``error_max_mm``
     against the truth), plus ``"profiles"`` (per trial (arc length, error) arrays) and
     ``"table"`` (the learned :class:`IlcTable`), which the JSON leaves out.
@@ -63,62 +78,53 @@ def run_ilc_emulated(
     a workpiece placed otherwise than the one a ``table`` was learned on. ``job``: learn its
     ``path`` (:func:`welding.ilc_loop.job_path`; tools ``laser``, ``sensor`` and frame
     ``workpiece`` of :func:`welding.emulate.cell_tables`) at its velocity instead of the
-    cell's pass at ``settings.speed_mm_s``."""
+    cell's pass at ``settings.speed_mm_s``. ``clock="real"``: the cell's real-time part in a
+    child process (:class:`~cell.rtcell.CellProcess`, as ``track --clock real``), the trials
+    a client of its servers on the wall clock; ValueError when the child cannot start."""
     shape, placement = cell_seam(seam, workpiece_error or IDENTITY_LOC)
-    cell = EmulatedCell(
-        clock="sim",
-        timing=timing or CellTiming(),
-        seam=shape,
-        workpiece_error=placement,
-        seed=seed,
-        dynamics=dynamics,
-    )
-    cell.core.set_delay(cell.true_delta_t_s())  # as `track --true-delta-t`
-    recorder = WeldRecorder(cell)
-    scene = cell.scene
-
-    def judge(_outcome: TrackOutcome, g: PassGeometry) -> tuple[float, float, np.ndarray]:
-        truth = recorder.truth()
-        lat, hgt = seam_error(
-            truth.laser, scene.base2workpiece, scene.path.lateral, scene.joint.seam_height_mm
-        )
-        err = np.hypot(lat, hgt)
-        if not len(err):
-            return math.nan, math.nan, np.zeros((0, 2))
-        profile = np.column_stack([g.weld.project(truth.laser) - g.laser_from_mm, err])
-        return float(err.max()), float(np.sqrt(np.mean(err**2))), profile
-
-    line = None if job is None else line_pass(job_path(job, path), cell_tables(cell))
+    config: dict[str, Any] = {
+        "timing": timing or CellTiming(),
+        "seam": shape,
+        "workpiece_error": placement,
+        "seed": seed,
+        "dynamics": dynamics,
+    }
+    line = None
+    if clock == "real":
+        try:
+            child = CellProcess(**config)
+        except ChildStartError as exc:
+            raise ValueError(f"the real-time cell did not start: {exc}") from None
+        try:
+            # this process is the controller: real-time below the child's own threads
+            with realtime_threads(TRACKER_PRIORITY) as got:
+                log.info("ILC threads: scheduling %s", got)
+                side: _Side = _ChildSide(child.start())
+                if job is not None:
+                    line = line_pass(job_path(job, path), cell_tables(child))
+                result = _learn(side, settings, line, table, save, progress)
+        finally:
+            child.close()
+    else:
+        cell = EmulatedCell(clock="sim", **config)
+        cell.core.set_delay(cell.true_delta_t_s())  # as `track --true-delta-t`
+        side = _SimSide(cell)
+        if job is not None:
+            line = line_pass(job_path(job, path), cell_tables(cell))
+        cell.start()
+        try:
+            result = _learn(side, settings, line, table, save, progress)
+        finally:
+            cell.close()
     if line is not None:
         settings = replace(settings, speed_mm_s=line.speed_mm_s, weld_mm=line.length_mm)
-    cell.start()
-    try:
-        client = FramedClient(*cell.robot_address, timeout=30.0, client_name="ilc")
-        try:
-            trials, conv, learned = run_ilc(
-                client,
-                cell.udp_address,
-                settings,
-                judge,
-                laser_tool=cell.laser_tool,
-                sensor_tool=cell.sensor_tool,
-                table=table,
-                save=save,
-                progress=progress,
-                record=recorder.start,
-                line=line,
-            )
-        finally:
-            with contextlib.suppress(OSError, ProtocolError):  # not held, or gone
-                client.release_control()
-            client.close()
-    finally:
-        cell.close()
+    trials, conv, learned = result
     return {
         "seam": seam,
         "job": None if job is None else job.name,
         "path": None if job is None else job_path(job, path).name,
         "dynamics": dynamics,
+        "clock": clock,
         "speed_mm_s": settings.speed_mm_s,
         "source": settings.source,
         "track": settings.track,
@@ -127,10 +133,106 @@ def run_ilc_emulated(
         "model_payload_kg": settings.model_payload_kg,
         "arm_payload_kg": settings.params.payload_kg,
         "convergence": conv.summary(),
+        "trusted": all(not t.untrusted for t in trials),
         "trials": [t.summary() for t in trials],
         "profiles": [t.profile for t in trials],
         "table": learned,
     }
+
+
+class _Side(Protocol):
+    """What the trials need of the emulated cell, in this process or in the real-time child."""
+
+    robot_address: tuple[str, int]
+    udp_address: tuple[str, int]
+    laser_tool: Loc
+    sensor_tool: Loc
+    real_time: bool
+
+    def record(self) -> None: ...
+    def truth(self) -> WeldTruth: ...
+
+
+class _SimSide:
+    def __init__(self, cell: EmulatedCell) -> None:
+        self.robot_address = cell.robot_address
+        self.udp_address = cell.udp_address
+        self.laser_tool = cell.laser_tool
+        self.sensor_tool = cell.sensor_tool
+        self.real_time = False
+        recorder = WeldRecorder(cell)
+        self.record = recorder.start
+        self.truth = recorder.truth
+
+
+class _ChildSide:
+    """The cell in the real-time child: its servers, facts and record of the laser's path;
+    the ΔT in force set to its true one (as ``track --true-delta-t``)."""
+
+    def __init__(self, child: CellProcess) -> None:
+        facts = child.child.facts
+        self.robot_address = child.robot_address
+        self.udp_address = child.udp_address
+        self.laser_tool: Loc = tuple(facts["laser_tool"])
+        self.sensor_tool: Loc = tuple(facts["sensor_tool"])
+        self.real_time = True
+        self.record = child.record_weld
+        self.truth = child.weld_truth
+        with FramedClient(*self.robot_address, timeout=10.0, client_name="ilc") as c:
+            c.take_control()
+            c.call(CommandId.SET_SYNC_DELAY, child.true_delta_t_s())
+            c.release_control()
+
+
+def _learn(
+    side: _Side,
+    settings: IlcSettings,
+    line: LinePass | None,
+    table: IlcTable | None,
+    save: Any,
+    progress: Any,
+) -> tuple[list[IlcTrial], Convergence, IlcTable]:
+    def judge(outcome: TrackOutcome, g: PassGeometry) -> tuple[float, float, np.ndarray]:
+        # over the cycles of the laser's window by their stamps (the move's start on the
+        # robot's grid), not over those the laser was on: a client switches the laser, so
+        # those are when its thread ran
+        truth = side.truth()
+        s = g.weld.s_at(truth.cycle_times - outcome.t0)
+        inside = (truth.cycle_times >= outcome.t0) & (s >= g.laser_from_mm)
+        inside &= s <= g.laser_to_mm
+        laser = truth.cycle_laser[inside]
+        scene = truth.scene
+        lat, hgt = seam_error(
+            laser, scene.base2workpiece, scene.path.lateral, scene.joint.seam_height_mm
+        )
+        err = np.hypot(lat, hgt)
+        if not len(err):
+            return math.nan, math.nan, np.zeros((0, 2))
+        profile = np.column_stack([g.weld.project(laser) - g.laser_from_mm, err])
+        return float(err.max()), float(np.sqrt(np.mean(err**2))), profile
+
+    if line is not None:
+        settings = replace(settings, speed_mm_s=line.speed_mm_s, weld_mm=line.length_mm)
+    client = FramedClient(*side.robot_address, timeout=30.0, client_name="ilc")
+    try:
+        return run_ilc(
+            client,
+            side.udp_address,
+            settings,
+            judge,
+            laser_tool=side.laser_tool,
+            sensor_tool=side.sensor_tool,
+            table=table,
+            save=save,
+            progress=progress,
+            record=side.record,
+            line=line,
+            real_time=side.real_time,
+        )
+    finally:
+        with contextlib.suppress(OSError, ProtocolError):  # not held, or gone
+            client.release_control()
+        client.close()
 
 
 def _line(trial: IlcTrial) -> str:
@@ -138,6 +240,9 @@ def _line(trial: IlcTrial) -> str:
         f"error against the truth max {trial.error_max_mm:.4f} mm, rms {trial.error_rms_mm:.4f} mm"
     )
     stopped = f"; STOPPED: {trial.stopped}" if trial.stopped else ""
+    if trial.untrusted:
+        what = "tracked, with the table" if trial.tracked else "not learned from"
+        return f"trial {trial.trial} UNTRUSTED ({what}): {trial.untrusted}; {truth}{stopped}"
     if trial.tracked:
         return (
             f"trial {trial.trial} (tracked, with the table): {truth}; table up to "
@@ -170,7 +275,9 @@ def cmd_ilc(args: argparse.Namespace) -> int:
             has_frame=lambda n: n in (CELL_FRAME, BUILTIN_FRAME),
         )
         try:
-            name = job_path(job, args.path).name
+            learned_path = job_path(job, args.path)
+            check_learnable(learned_path)  # before a cell is built
+            name = learned_path.name
         except ValueError as exc:
             print(f"python -m welding: error: {exc}", file=sys.stderr)
             return ExitCode.USAGE
@@ -198,6 +305,7 @@ def cmd_ilc(args: argparse.Namespace) -> int:
             table=table,
             save=(lambda t: t.save(table_path)) if table_path else None,
             progress=lambda t: print(_line(t), flush=True),
+            clock=args.clock,
         )
     except (LearningDiverges, ValueError) as exc:
         print(f"python -m welding: error: {exc}", file=sys.stderr)
@@ -211,6 +319,16 @@ def cmd_ilc(args: argparse.Namespace) -> int:
     trials = result["trials"]
     if any(t["stopped"] for t in trials):
         return ExitCode.FAILED
+    untrusted = [t for t in trials if not t["trusted"]]
+    if untrusted:
+        print(
+            f"UNTRUSTED: {len(untrusted)} of {len(trials)} trials"
+            f" ({', '.join(str(t['trial']) for t in untrusted)}) could not be measured on time,"
+            " so no convergence is claimed"
+        )
+        for t in untrusted:  # the reasons on stderr, as every tool's UNTRUSTED (docs/CLI.md)
+            print(f"trial {t['trial']}: {t['untrusted']}", file=sys.stderr)
+        return ExitCode.UNTRUSTED
     learned = [t["error_max_mm"] for t in trials if not t["tracked"]]
     tracked = [t["error_max_mm"] for t in trials if t["tracked"]]
     line = (
@@ -243,7 +361,8 @@ def plot_trials(result: dict[str, Any], profiles: list[np.ndarray], out_dir: Pat
     out_dir.mkdir(parents=True, exist_ok=True)
     title = (
         f"{result['seam']} seam, {result['speed_mm_s']:g} mm/s, dynamics {result['dynamics']}, "
-        f"source {result['source']}" + (", tracked" if result["track"] else "")
+        f"source {result['source']}, {result.get('clock', 'sim')} clock"
+        + (", tracked" if result["track"] else "")
     )
     fig, ax = plt.subplots(figsize=(10, 4))
     for t, p in zip(result["trials"], profiles, strict=True):
@@ -261,6 +380,7 @@ def plot_trials(result: dict[str, Any], profiles: list[np.ndarray], out_dir: Pat
     ax.semilogy(k, [t["error_max_mm"] for t in result["trials"]], "o-", label="max")
     ax.semilogy(k, [t["error_rms_mm"] for t in result["trials"]], "s--", label="rms")
     ax.axhline(0.1, color="grey", linewidth=0.8, label="0.1 mm")
+    ax.set_xticks(k)  # whole trials: there is no trial 1.5
     ax.set_xlabel("trial")
     ax.set_ylabel("error against the truth (mm)")
     ax.set_title(title, fontsize=8)

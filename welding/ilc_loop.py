@@ -31,6 +31,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 
 from kinematics.dynamics import RX90B, ElasticParams
 from kinematics.robot import RobotModel, get_model
@@ -59,9 +60,14 @@ __all__ = [
     "IlcTrial",
     "LinePass",
     "PassGeometry",
+    "TrialChecks",
+    "check_learnable",
     "job_path",
     "line_pass",
+    "on_time",
     "run_ilc",
+    "start_from_joint_log",
+    "trial_trust",
 ]
 
 log = logging.getLogger(__name__)
@@ -72,6 +78,16 @@ SOURCES = ("seam", "joints")
 #: the table is judged and learned (a second or two of numpy on a busy machine), longer
 #: than the 0.25 s default a moving controller should keep.
 LEASE_S = 3.0
+#: A trial is not trusted where the sensor's readings over the laser's part are further apart
+#: than this many trigger periods (at 200 Hz 15 ms, 3.75 mm at 250 mm/s): its seam error
+#: there would be a line drawn across what was not measured.
+GAP_TRIGGERS = 3.0
+#: A sensor that keeps up with the trigger rate is busy with a frame for less than this share
+#: of a trigger period: :func:`on_time` takes each frame to be that long.
+BUSY_SHARE = 0.75
+#: A reading whose exposure may have started more than this (s) after its trigger's t_T + ΔT
+#: is left out: the start jitter of the paper's sensor.
+START_SLACK_S = 0.25e-3
 
 
 @dataclass(frozen=True)
@@ -122,6 +138,10 @@ class IlcTrial:
     profile: FloatArray = field(default_factory=lambda: np.zeros((0, 2)), repr=False)
     #: the tracked weld with the learned table after the learning (``track``): not learned
     tracked: bool = False
+    #: why the trial's measurement cannot be trusted (:func:`trial_trust`; "" when it can):
+    #: such a trial is reported, not learned from
+    untrusted: str = ""
+    checks: TrialChecks | None = None
 
     def summary(self) -> dict[str, object]:
         return {
@@ -132,6 +152,9 @@ class IlcTrial:
             "correction_max_mm": self.correction_max_mm,
             "stopped": self.stopped,
             "tracked": self.tracked,
+            "trusted": not self.untrusted,
+            "untrusted": self.untrusted,
+            "checks": None if self.checks is None else self.checks.summary(),
         }
 
 
@@ -195,23 +218,46 @@ def job_path(job: J.Job, name: str | None) -> J.Path:
     return found[0]
 
 
-def line_pass(path: J.Path, tables: Tables) -> LinePass:
-    """A job's ``path`` as a :class:`LinePass`, its tool and frame from ``tables``;
-    ValueError when it is not one straight line with one tool and orientation (the pass the
-    ILC learns: its lifted model is of one line)."""
-    if len(path.segments) != 1 or not isinstance(path.segments[0], J.Line):
-        raise ValueError(f"path {path.name!r}: the ILC learns a path of one <line>")
+def check_learnable(path: J.Path) -> None:
+    """ValueError, one line naming what is not supported, when the ILC cannot learn ``path``:
+    its lifted model is of one straight line with one tool (arcs and corners need a model
+    along the path, docs/ILC.md "Not done"). Needs no tool table: checked before a cell is
+    built or control taken."""
+    kinds = [type(seg).__name__.lower() for seg in path.segments]
+    if kinds != ["line"]:
+        unsupported = ["<arc> segments"] if "arc" in kinds else []
+        if len(kinds) > 1:
+            unsupported.append(f"{len(kinds)} segments (the corners between them)")
+        raise ValueError(
+            f"path {path.name!r} ({' '.join(f'<{k}>' for k in kinds) or 'no segment'}): the"
+            f" ILC learns one straight <line>; not supported: {' and '.join(unsupported) or '-'}"
+        )
     end = path.segments[0].to
     if end.tool != path.start.tool:
-        raise ValueError(f"path {path.name!r}: the ILC learns a path of one tool")
+        raise ValueError(
+            f"path {path.name!r} changes tool ({path.start.tool} to {end.tool}): the ILC learns"
+            " a path of one tool"
+        )
+
+
+def line_pass(path: J.Path, tables: Tables) -> LinePass:
+    """A job's ``path`` as a :class:`LinePass`, its tool and frame from ``tables``;
+    ValueError when it is not one straight line with one tool and orientation
+    (:func:`check_learnable`; the pass the ILC learns: its lifted model is of one line)."""
+    check_learnable(path)
+    end = path.segments[0].to
     poses = [
         location_to_transform(np.array(tables.frame(loc.frame).location, dtype=np.float64))
         @ location_to_transform(np.array(loc.values, dtype=np.float64))
         for loc in (path.start, end)
     ]
     turn = poses[0][:3, :3].T @ poses[1][:3, :3]
-    if math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(turn) - 1.0) / 2.0)))) > 0.01:
-        raise ValueError(f"path {path.name!r}: the ILC learns a path that keeps the orientation")
+    angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(turn) - 1.0) / 2.0))))
+    if angle > 0.01:
+        raise ValueError(
+            f"path {path.name!r}: the tool turns {angle:.2f} deg along it; the ILC learns a path"
+            " that keeps the orientation"
+        )
     angles = transform_to_location(poses[0])[3:]
     line = LinePass(poses[0][:3, 3], poses[1][:3, 3], np.asarray(angles), path.velocity)
     if line.length_mm < 1.0:
@@ -235,6 +281,7 @@ def run_ilc(
     progress: Callable[[IlcTrial], None] | None = None,
     record: Callable[[], None] | None = None,
     line: LinePass | None = None,
+    real_time: bool = False,
 ) -> tuple[list[IlcTrial], Convergence, IlcTable]:
     """Run the trials on the robot of ``client`` (its sensor's trigger address
     ``sensor_endpoint``): refuse a learning that diverges (:class:`LearningDiverges`,
@@ -243,10 +290,13 @@ def run_ilc(
     profile) after ``record()`` was called before it; the table is handed to ``save`` after
     every trial. With ``track``, one tracked weld with the learned table follows (none after
     a stopped trial), the last of the trials returned. ``line``: a job's path (its speed and
-    length, not ``settings``'); without it, the cell's pass from where the arm stands."""
+    length, not ``settings``'); without it, the cell's pass from where the arm stands.
+    ``real_time``: the robot runs on the wall clock (:class:`RobotLink`). A trial whose
+    measurement cannot be trusted (:func:`trial_trust`) is returned with the reason and not
+    learned from: the next repeats its table."""
     settings.check()
     period = 0.004
-    link = RobotLink(client, sensor_endpoint, period=period)
+    link = RobotLink(client, sensor_endpoint, period=period, real_time=real_time)
     info = client.call(CommandId.HELLO, wire.VERSION_MAJOR, wire.VERSION_MINOR, "ilc")
     model = get_model(str(info[3]))
     geometry = _geometry(link, laser_tool, sensor_tool, settings, line)
@@ -290,6 +340,7 @@ def run_ilc(
         taught = _teach(link, geometry, settings)
         u = np.zeros((n, 3))
         done = 0
+    first = done
     seam_of = IlcTable(period, speed, u, taught, settings.source, done, key)
     reference = seam_of.offsets(geometry.weld.s_at(geometry.times))
     trials: list[IlcTrial] = []
@@ -309,33 +360,48 @@ def run_ilc(
         )
         outcome = weld_tracked(link, plan)
         truth_max, truth_rms, profile = judge(outcome, geometry)
-        if settings.source == "seam":
-            ref_at = _along(geometry, seam_of.offsets)
-            e_base = _seam_error(geometry, outcome, seam_of.offsets, ref_at, settings.latency_s)
-        else:
-            e_base = _joint_error(client, model, geometry, outcome, reference)
+        checks, log_rows = _checked(client, model, outcome, geometry, settings, period)
+        untrusted = checks.reason
+        e_base = (
+            _seam_error(
+                geometry,
+                outcome,
+                seam_of.offsets,
+                _along(geometry, seam_of.offsets),
+                settings.latency_s,
+                settings.rate_hz,
+            )
+            if settings.source == "seam"
+            else _joint_error(model, geometry, outcome, reference, log_rows)
+        )
         e_path = e_base @ R  # rows in (along, lateral, height)
         seen = mask * np.repeat(np.any(e_base != 0.0, axis=1), 3)
         window = np.repeat(geometry.window(), 3) * seen
         measured = float(np.abs(e_path.ravel() * window).max()) if n else math.nan
         trial = IlcTrial(
-            done + j,
+            first + j,
             truth_max,
             truth_rms,
-            measured,
+            math.nan if untrusted else measured,
             float(np.linalg.norm(u, axis=1).max()),
             outcome.stopped,
             profile,
+            untrusted=untrusted,
+            checks=checks,
         )
         trials.append(trial)
         if progress is not None:
             progress(trial)
         if outcome.stopped:
             break
+        if untrusted:
+            # the next trial repeats this one's table: a correction learned from data that
+            # cannot be trusted would be a plausible wrong one
+            continue
         up = (u @ R).ravel()
         up = Q @ (up + L @ (e_path.ravel() * seen))
         u = up.reshape(n, 3) @ R.T
-        learned = IlcTable(period, speed, u, taught, settings.source, done + j, key)
+        learned = IlcTable(period, speed, u, taught, settings.source, first + j, key)
         if save is not None:
             save(learned)
     if settings.track and not (trials and trials[-1].stopped):
@@ -344,25 +410,205 @@ def run_ilc(
             record()
         outcome = weld_tracked(link, _tracked_plan(geometry, settings, taught, u, sensor_tool))
         truth_max, truth_rms, profile = judge(outcome, geometry)
-        trial = IlcTrial(
-            done + len(trials) + 1,
-            truth_max,
-            truth_rms,
-            math.nan,
-            float(np.linalg.norm(u, axis=1).max()),
-            outcome.stopped,
-            profile,
-            tracked=True,
+        checks, _ = _checked(client, model, outcome, geometry, settings, period)
+        trials.append(
+            IlcTrial(
+                first + len(trials) + 1,
+                truth_max,
+                truth_rms,
+                math.nan,
+                float(np.linalg.norm(u, axis=1).max()),
+                outcome.stopped,
+                profile,
+                tracked=True,
+                untrusted=checks.reason,
+                checks=checks,
+            )
         )
-        trials.append(trial)
         if progress is not None:
-            progress(trial)
-    learned_trials = sum(1 for t in trials if not t.tracked)
-    return (
-        trials,
-        conv,
-        IlcTable(period, speed, u, taught, settings.source, done + learned_trials, key),
+            progress(trials[-1])
+    run = sum(1 for t in trials if not t.tracked)
+    return trials, conv, IlcTable(period, speed, u, taught, settings.source, first + run, key)
+
+
+@dataclass(frozen=True)
+class TrialChecks:
+    """What a trial's data is worth (:func:`trial_trust`): ``reason`` why it cannot be
+    trusted ("" when it can), and the counts it was judged by."""
+
+    reason: str
+    #: corrections that reached the robot after their cycle during the laser's part
+    late: int
+    #: cycles the robot held a correction because the next had not come
+    held: int
+    start_on_grid: bool
+    #: joint log samples missing over the move (-1: the log does not cover it)
+    joint_log_missing: int
+    #: the longest stretch of the laser's part without a sensor reading (ms; seam source)
+    reading_gap_ms: float | None
+    #: readings left out as perhaps exposed late (:func:`on_time`; seam source)
+    late_readings: int = 0
+    #: the start cycle, not known when the move was queued, found from the joint log
+    #: (:func:`start_from_joint_log`): the cycles after the one the corrections were timed
+    #: for (0: that one), None where not needed or not found
+    start_found: int | None = None
+
+    def summary(self) -> dict[str, object]:
+        return {
+            "late_corrections": self.late,
+            "held_cycles": self.held,
+            "start_on_grid": self.start_on_grid,
+            "joint_log_missing": self.joint_log_missing,
+            "reading_gap_ms": self.reading_gap_ms,
+            "late_readings": self.late_readings,
+            "start_found": self.start_found,
+        }
+
+
+def trial_trust(
+    outcome: TrackOutcome,
+    g: PassGeometry,
+    settings: IlcSettings,
+    joint_log: FloatArray,
+    period: float,
+    start_found: int | None = None,
+) -> TrialChecks:
+    """Whether a trial's data can be trusted, from the robot's stamps and counts only (never
+    from when this process ran): not when corrections reached the robot after their cycle
+    during the laser's part or it had to hold one, when the cycle the move started on is not
+    known exactly (every error is placed on the grid from it), when joint log samples are
+    missing over the move (``joint_log`` rows (t, q (6,))), or, for the seam source, when
+    the sensor's readings over the laser's part are more than :data:`GAP_TRIGGERS` trigger
+    periods apart somewhere. ``start_found``: where the queued move's start cycle was not
+    known, the one :func:`start_from_joint_log` found (cycles after the one the corrections
+    were timed for; 0 is that one), None for not found."""
+    reasons: list[str] = []
+    v = outcome.verdict
+    late, held = (v.late, v.held) if v is not None else (0, 0)
+    if late:
+        reasons.append(f"{late} corrections reached the robot after their cycle during the"
+                       " laser's part")  # fmt: skip
+    if held:
+        reasons.append(f"the robot held a correction for {held} cycles")
+    if not outcome.start_on_grid and start_found is None:
+        reasons.append("the cycle the move started on is not known exactly")
+    elif not outcome.start_on_grid and start_found:
+        reasons.append(f"the move started {start_found} cycles after the one its corrections"
+                       " were timed for")  # fmt: skip
+    t_end = outcome.t0 + float(g.times[-1])
+    t = joint_log[:, 0] if len(joint_log) else np.zeros(0)
+    if not len(t) or t[0] > outcome.t0 + 1e-6 or t[-1] < t_end - 1e-6:
+        missing = -1
+        reasons.append("the joint log does not cover the move")
+    else:
+        steps = np.round(np.diff(t[(t >= outcome.t0 - period) & (t <= t_end + period)]) / period)
+        missing = int(np.sum(steps - 1))
+        if missing:
+            reasons.append(f"{missing} joint log samples missing over the move")
+    gap_ms, dropped = None, 0
+    if settings.source == "seam":
+        if len(outcome.rows):
+            dropped = int(np.count_nonzero(~on_time(outcome.rows, settings.rate_hz)))
+        gap, at = _reading_gap(outcome, g, settings.latency_s, settings.rate_hz)
+        gap_ms = round(gap * 1e3, 3)
+        if gap > GAP_TRIGGERS / settings.rate_hz:
+            reasons.append(f"no sensor reading for {gap * 1e3:.0f} ms at {at:.1f} mm of the weld")
+    return TrialChecks(
+        "; ".join(reasons),
+        late,
+        held,
+        outcome.start_on_grid,
+        missing,
+        gap_ms,
+        dropped,
+        None if outcome.start_on_grid else start_found,
     )
+
+
+#: The later start cycles :func:`start_from_joint_log` weighs (the stand's reply can be a few
+#: cycles late; its send was not).
+START_CYCLES = 4
+
+
+def start_from_joint_log(
+    outcome: TrackOutcome,
+    g: PassGeometry,
+    joint_log: FloatArray,
+    model: RobotModel,
+    latency_s: float,
+    period: float,
+) -> int | None:
+    """The cycle a queued move started on when the robot's reply did not tell (a reply that
+    came in a later cycle than the request was sent in: the robot took it in one of them),
+    from the joint log's own grid stamps: how many cycles after ``outcome.t0`` (the earliest
+    possible) it started, or None when the log does not tell.
+
+    Along the line the motors follow their setpoint to within a small servo lag (velocity
+    feedforward and an integral), and the log lags them by the encoder latency, so at the
+    pass's constant speed the log is ``latency_s`` plus that lag behind the nominal law (2.3
+    ms against 2.8 on the emulated elastic arm, scatter 0.7 ms); each cycle of start
+    hypothesis moves that by 4 ms. The start whose lag lies within half a cycle of
+    ``latency_s`` is the one; none or two: None."""
+    if not len(joint_log):
+        return None
+    v = g.weld.speed_mm_s
+    laser = laser_path(model, joint_log[:, 1:], g.laser_tool)
+    s_meas = (laser - g.weld.start) @ g.weld.direction
+    ramp = v / g.weld.accel_mm_s2
+    found = []
+    for m in range(START_CYCLES):
+        t = joint_log[:, 0] - (outcome.t0 + m * period)
+        steady = (t > ramp + 0.05) & (t < g.weld.duration - ramp - 0.05)
+        if np.count_nonzero(steady) < 10:
+            return None
+        lag = float(np.mean(g.weld.s_at(t[steady]) - s_meas[steady])) / v
+        if abs(lag - latency_s) < period / 2:
+            found.append(m)
+    return found[0] if len(found) == 1 else None
+
+
+def on_time(rows: FloatArray, rate_hz: float) -> npt.NDArray[np.bool_]:
+    """(M,) bool: the seam points ``rows`` (GetSeamPoints, in index order) whose exposure
+    started on time, as far as the trigger stamps tell. A sender that got the CPU late sends
+    overdue triggers back to back, and a sensor still busy with the last frame starts the
+    next only when it is done, so that reading's t_T + ΔT is early by up to a frame (3 ms
+    and more were seen beside 2 CPU hogs: 0.75 mm at 250 mm/s). Each frame is taken to
+    occupy the sensor :data:`BUSY_SHARE` of a trigger period from its (modelled) start; a
+    reading whose start that pushes past its trigger by more than :data:`START_SLACK_S` is
+    not on time, nor any it delays in turn."""
+    busy = BUSY_SHARE / rate_hz
+    out = np.ones(len(rows), dtype=bool)
+    start = -math.inf
+    for i, t in enumerate(rows[:, 1].tolist()):
+        start = max(t, start + busy)
+        out[i] = start - t <= START_SLACK_S
+    return out
+
+
+def _readings(outcome: TrackOutcome, rate_hz: float) -> FloatArray:
+    """The seam points of ``outcome`` that found the seam and were exposed on time."""
+    rows = outcome.rows
+    if not len(rows):
+        return rows
+    kept: FloatArray = rows[(rows[:, 3] == 0) & on_time(rows, rate_hz)]
+    return kept
+
+
+def _reading_gap(
+    outcome: TrackOutcome, g: PassGeometry, latency_s: float, rate_hz: float
+) -> tuple[float, float]:
+    """The longest stretch (s) of the laser's part without a sensor reading (the readings at
+    their exposure, as :func:`_seam_error` places them) and where it starts (mm of the
+    weld)."""
+    w = g.times[g.window()]
+    if not len(w):
+        return 0.0, 0.0
+    rows = _readings(outcome, rate_hz)
+    t = np.sort(rows[:, 2] - latency_s - outcome.t0) if len(rows) else np.zeros(0)
+    pts = np.concatenate([[w[0]], t[(t > w[0]) & (t < w[-1])], [w[-1]]])
+    gaps = np.diff(pts)
+    i = int(np.argmax(gaps))
+    return float(gaps[i]), float(g.weld.s_at(pts[i])) - g.laser_from_mm
 
 
 def _check_table(table: IlcTable, n: int, speed_mm_s: float, key: str) -> None:
@@ -517,7 +763,7 @@ def _teach(link: RobotLink, g: PassGeometry, settings: IlcSettings) -> FloatArra
     if outcome.stopped:
         raise TrackingError(f"teaching the seam failed: {outcome.stopped}")
     seam = SeamModel(slow)
-    seam.add(outcome.rows[outcome.rows[:, 3] == 0][:, 11:14])
+    seam.add(_readings(outcome, settings.rate_hz)[:, 11:14])
     rows = []
     for s in np.arange(math.ceil(seam.first), seam.furthest, 0.5):
         with contextlib.suppress(TrackingError):
@@ -553,6 +799,7 @@ def _seam_error(
     offsets: Callable[[FloatArray], FloatArray],
     reference: Callable[[FloatArray], FloatArray],
     latency_s: float,
+    rate_hz: float,
 ) -> FloatArray:
     """(N, 3) reference − actual of the laser, base frame, from the sensor's ^S_G T: what it
     read of the seam ``offsets`` (taught) against what it would read with the laser on its
@@ -561,7 +808,8 @@ def _seam_error(
     where it read nothing.
     ``latency_s``: the joint log's lag; a seam point's time (t_sync = trigger + ΔT) is where
     the *measured* joints saw the image, the exposure itself was that much earlier."""
-    rows = outcome.rows[(outcome.rows[:, 3] == 0) & (outcome.rows[:, 2] >= outcome.t0)]
+    rows = _readings(outcome, rate_hz)
+    rows = rows[rows[:, 2] >= outcome.t0]
     n = len(g.times)
     if len(rows) < 2:
         return np.zeros((n, 3))
@@ -579,13 +827,35 @@ def _seam_error(
     return out
 
 
-def _joint_error(
-    client: FramedClient, model: RobotModel, g: PassGeometry, outcome: TrackOutcome, ref: FloatArray
-) -> FloatArray:
-    """(N, 3) reference − the laser's path from the measured joints (GetJointLog), base."""
+def _checked(
+    client: FramedClient,
+    model: RobotModel,
+    outcome: TrackOutcome,
+    g: PassGeometry,
+    settings: IlcSettings,
+    period: float,
+) -> tuple[TrialChecks, FloatArray]:
+    """The trial's checks (:func:`trial_trust`, the start found from the joint log where the
+    reply did not tell it) and its joint log."""
+    rows = _joint_log(client, outcome)
+    found = None
+    if not outcome.start_on_grid:
+        found = start_from_joint_log(outcome, g, rows, model, settings.latency_s, period)
+    return trial_trust(outcome, g, settings, rows, period, found), rows
+
+
+def _joint_log(client: FramedClient, outcome: TrackOutcome) -> FloatArray:
+    """The joint log (GetJointLog) from just before the trial's move: rows (t, q (6,))."""
     m = client.call(CommandId.GET_JOINT_LOG, float(outcome.t0 - 0.01))[0]
     assert isinstance(m, Matrix)
-    rows = np.array(m.values, dtype=np.float64).reshape(m.rows, m.cols)
+    return np.array(m.values, dtype=np.float64).reshape(m.rows, m.cols)
+
+
+def _joint_error(
+    model: RobotModel, g: PassGeometry, outcome: TrackOutcome, ref: FloatArray, rows: FloatArray
+) -> FloatArray:
+    """(N, 3) reference − the laser's path from the measured joints (the joint log's
+    ``rows``), base."""
     t = rows[:, 0] - outcome.t0
     laser = laser_path(model, rows[:, 1:], g.laser_tool)
     actual = np.column_stack([np.interp(g.times, t, laser[:, c]) for c in range(3)])

@@ -64,6 +64,10 @@ FOLLOW_ON_MM = 10.0
 #: Timed corrections go on past the move's end this long (s): the robot holds none of the
 #: move's cycles, and the counts read just after it are of the weld alone.
 TAIL_S = 0.2
+#: An untracked weld's corrections (zero, or a learned table) are known before the move: they
+#: are queued this far ahead of their cycle (s; 250 entries of the 16 384 RS-5.43 holds), so a
+#: loop that stalls for less than this makes none of them late (the real-clock ILC).
+UNTRACKED_AHEAD_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -292,7 +296,10 @@ def weld_tracked(  # noqa: C901
                     s_k = float(nominal.s_at(t_k - t0))
                     due = t_k <= t_cycle + period + 1e-9
                     beyond = s_k > weld.laser_to_mm + FOLLOW_ON_MM
-                    if s_k > ready_s and not (due or beyond):
+                    if not track:
+                        if t_k > t_cycle + UNTRACKED_AHEAD_S:
+                            break  # known now, but the queue need not hold the whole move
+                    elif s_k > ready_s and not (due or beyond):
                         break  # final once its fit window is measured
                     if not track:
                         held = np.zeros(6)
@@ -552,7 +559,10 @@ class RobotLink:
         before = self.time()
         self._send_path(np.array([0.0, HOLD_S]), np.array([locs[0], locs[0]]), tool)
         k = self._cycle_of(before)
-        certain = k == self._cycle_of(self.time())
+        after = self.time()
+        certain = k == self._cycle_of(after)
+        log.debug("the stand before the path: sent %.2f ms into cycle %d, reply after %.2f ms",
+                  (before - k * self.period) * 1e3, k, (after - before) * 1e3)  # fmt: skip
         t0 = k * self.period + HOLD_S
         self._send_path(times, locs, tool)
         certain = certain and self.time() < t0 - self.period

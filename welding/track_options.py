@@ -114,7 +114,16 @@ def add_ilc_options(p: argparse.ArgumentParser) -> None:
         "--emulate",
         action="store_true",
         required=True,
-        help="learn on the emulated cell (simulated clock, through its servers); required",
+        help="learn on the emulated cell (through its servers; --clock); required",
+    )
+    p.add_argument(
+        "--clock",
+        choices=CLOCK_KINDS,
+        default="sim",
+        help="sim: the cell's simulated clock (deterministic); real: its 4 ms cycle on the "
+        "wall clock in a real-time child process; a trial whose corrections came late or "
+        "whose readings have gaps is reported UNTRUSTED, not learned from, and the run "
+        "exits 4 (default %(default)s)",
     )
     add_seam_option(p, "sine")
     p.add_argument("--speed", type=cliargs.number_in(1.0, 500.0), default=250.0, help="mm/s")
