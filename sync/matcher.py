@@ -27,6 +27,12 @@ invalid        FOUND status with a non-finite seam pose: dropped (the      ``inv
 
 Data with t_i^S newer than the latest joint sample waits (it is never extrapolated).
 
+Late exposures [SY-3.8]. A found reading whose sensor-clock lag from trigger arrival to
+exposure start exceeds the sensor's usual lag (the median of recent readings,
+:class:`~sync.exposure_lag.ExposureLag`) by more than its threshold was exposed late (the
+chip was still busy with the previous frame): it is placed at t_i^T + ΔT + that extra lag,
+counted as ``exposed_late``. Every other reading keeps t_i^T + ΔT exactly.
+
 Ordering. Points are released strictly in index order: a point waits until every lower index
 is resolved (point, not found, lost or expired), so the concatenated output of :meth:`poll`
 is the seam trajectory ordered by index whatever the arrival order ("only the order of
@@ -51,6 +57,7 @@ from numpy.typing import ArrayLike, NDArray
 from kinematics.transforms import location_to_transform
 from spec.datagrams import INDEX_MODULUS, SensorData, serial_diff
 from spec.wire import SensorStatus
+from sync.exposure_lag import ExposureLag
 from sync.interpolate import InterpStatus, interpolate_joints, lerp_inside
 from sync.joint_buffer import JointBuffer
 from sync.seam_chain import FlangeToBase, seam2base
@@ -88,10 +95,12 @@ def _location_transform(seam: Sequence[float]) -> NDArray[np.float64] | None:
 class SeamPoint:
     """One synchronised seam measurement.
 
-    ``joints`` (6,) degrees at ``t_sensor`` = t_i^T + ΔT (s); ``seam2sensor`` and
-    ``seam2base`` (4, 4) mm; ``seam2base`` is ``None`` when the matcher has no kinematics.
-    ``sensor_times``: the datagram's (trigger arrival, exposure start, exposure end), s on
-    the sensor's clock (not used for matching: only t_i^T is on the robot clock).
+    ``joints`` (6,) degrees at ``t_sensor`` = t_i^T + ΔT (+ ``extra_lag_s``) (s);
+    ``seam2sensor`` and ``seam2base`` (4, 4) mm; ``seam2base`` is ``None`` when the matcher
+    has no kinematics. ``sensor_times``: the datagram's (trigger arrival, exposure start,
+    exposure end), s on the sensor's clock (only their difference is used, for the extra lag
+    of a late exposure [SY-3.8]: the sensor clock is not the robot's). ``extra_lag_s``: 0.0,
+    or for a reading exposed late the lag it was placed later by.
     """
 
     index: int
@@ -102,6 +111,7 @@ class SeamPoint:
     seam2base: NDArray[np.float64] | None
     quality: float
     sensor_times: tuple[float, ...]
+    extra_lag_s: float = 0.0
 
 
 class DataOutcome(Enum):
@@ -137,6 +147,9 @@ class MatcherCounters:
     reordered: int = 0
     expired: int = 0
     invalid: int = 0
+    #: points placed later than t_i^T + ΔT by their extra exposure lag [SY-3.8] (included in
+    #: ``points``, not a resolution of their own)
+    exposed_late: int = 0
 
 
 class _State(Enum):
@@ -158,6 +171,7 @@ class _Entry:
     data: SensorData | None = None
     seam2sensor: NDArray[np.float64] | None = None
     point: SeamPoint | None = None
+    extra_lag_s: float = 0.0
 
 
 class TriggerLog:
@@ -209,6 +223,9 @@ class SyncMatcher:
         keep_trajectory: also keep every released point for :meth:`trajectory`. Off by
             default: a long-running matcher would otherwise grow by one point per trigger
             (about 1 GB an hour at 250 Hz); turn it on only for a bounded recording.
+        exposure_lag: the sensor's usual trigger-to-exposure lag and its threshold, which
+            tell a reading exposed late [SY-3.8] (default :class:`ExposureLag`: 0.5 ms over
+            the median of the last 64 found readings; its ``max_lag_s`` is the loss timeout).
     """
 
     delta_t_s: float
@@ -218,6 +235,7 @@ class SyncMatcher:
     history: int = 4096
     keep_trajectory: bool = False
     counters: MatcherCounters = field(default_factory=MatcherCounters)
+    exposure_lag: ExposureLag | None = None
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.delta_t_s):
@@ -228,6 +246,9 @@ class SyncMatcher:
             raise MatcherError("history must be >= 1")
         if (self.flange2base is None) != (self.sensor2flange is None):
             raise MatcherError("give both flange2base and sensor2flange, or neither")
+        if self.exposure_lag is None:
+            self.exposure_lag = ExposureLag(max_lag_s=self.timeout_s)
+        self._lag = self.exposure_lag
         self._sensor2flange: NDArray[np.float64] | None = None
         if self.sensor2flange is not None:
             sensor2flange = np.asarray(self.sensor2flange, dtype=np.float64)
@@ -283,6 +304,7 @@ class SyncMatcher:
             self.counters.not_found += 1
         else:
             entry.seam2sensor = seam2sensor
+            entry.extra_lag_s = self._lag.extra(data.t_arrival, data.t_exposure_start)
             entry.state = _State.READY
             self._ready[seq] = None
         return DataOutcome.ACCEPTED
@@ -335,6 +357,9 @@ class SyncMatcher:
         seqs = list(self._ready)
         d = self.delta_t_s
         t_list = [entries[s].t_trigger + d for s in seqs]  # eq. 4
+        for i, s in enumerate(seqs):
+            if entries[s].extra_lag_s:  # exposed late [SY-3.8]: the data is late, not wrong
+                t_list[i] += entries[s].extra_lag_s
         t_lo, t_hi = min(t_list), max(t_list)
         t_s = np.array(t_list)
         times, q = joints.covering(t_lo)
@@ -378,10 +403,13 @@ class SyncMatcher:
                 seam2base=None if in_base is None else in_base[row],
                 quality=float(data.quality),
                 sensor_times=(data.t_arrival, data.t_exposure_start, data.t_exposure_end),
+                extra_lag_s=entry.extra_lag_s,
             )
             row += 1
             entry.state = _State.POINT
             self.counters.points += 1
+            if entry.extra_lag_s:
+                self.counters.exposed_late += 1
 
     @staticmethod
     def _seam2sensor(entry: _Entry) -> NDArray[np.float64]:

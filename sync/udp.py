@@ -447,7 +447,9 @@ class RobotSyncCore:
             }
 
     def statistics(self) -> dict[str, int]:
-        """The GetSyncStatistics counters (stale data is counted as late)."""
+        """The GetSyncStatistics counters (stale data is counted as late), and some the wire
+        does not carry: ``not_found``, ``invalid``, ``unexpected`` and ``exposed_late``
+        (points placed later by their extra exposure lag, SY-3.8)."""
         with self.lock:
             c = self.matcher.counters
             return {
@@ -465,6 +467,7 @@ class RobotSyncCore:
                 "not_found": c.not_found,
                 "invalid": c.invalid,
                 "unexpected": self._stats.unexpected,
+                "exposed_late": c.exposed_late,
             }
 
 
