@@ -61,6 +61,7 @@ __all__ = [
     "ExperimentSettings",
     "analyse",
     "judge",
+    "reading_times",
     "record_sine",
     "run_delay_experiment",
     "run_sweep",
@@ -75,6 +76,10 @@ Progress = Callable[[float, str], None]
 DEFAULT_SWEEP_HZ = (0.1, 0.2, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 7.0, 10.0)
 _SY = SEAM_POINT_COLUMNS.index("sy")
 _TT = SEAM_POINT_COLUMNS.index("t_trigger")
+_TS = SEAM_POINT_COLUMNS.index("t_sync")
+#: t_S - t_T - ΔT of a seam point below this (s) is the rounding of t_T + ΔT, not an extra
+#: exposure lag the robot placed the reading later by [SY-3.8] (0.5 ms and more).
+_EXTRA_LAG_FLOOR_S = 1e-6
 _IDX = SEAM_POINT_COLUMNS.index("index")
 
 
@@ -153,7 +158,12 @@ def sine_path(s: ExperimentSettings) -> tuple[FloatArray, FloatArray]:
 
 @dataclass(frozen=True)
 class ExperimentData:
-    """Recorded signals: robot (K,) times s and y^R mm; sensor (I,) t_i^T s and y^S mm."""
+    """Recorded signals: robot (K,) times s and y^R mm; sensor (I,) t_i^T s and y^S mm.
+
+    ``t_trigger`` is a reading's t_i^T plus the extra exposure lag the robot placed it later
+    by (t_S - t_T - ΔT, for a reading exposed late [SY-3.8]; t_i^T itself for every other):
+    ΔT is then the delay of a reading exposed on time, the one the robot adds to t_i^T.
+    """
 
     t_robot: FloatArray
     y_robot: FloatArray
@@ -430,7 +440,7 @@ def record_sine(
     poses = model.flange2base_batch(jl[:, 1:7]) @ sensor2flange
     # y of the sensor origin in the start frame S0: (R0^T (p - p0))_y
     y_r = (poses[:, :3, 3] - s0[:3, 3]) @ s0[:3, 1]
-    t_t = pt[:, _TT]
+    t_t = reading_times(pt, _f(config["delta_t"]))
     sy = pt[:, _SY]
     rest = t_t < t_start + 0.8 * s.rest_s
     sy_ref = float(np.median(sy[rest])) if np.count_nonzero(rest) >= 5 else float(np.mean(sy))
@@ -444,6 +454,21 @@ def record_sine(
         model=model.name,
         statistics=stats,
     )
+
+
+def reading_times(rows: FloatArray, delta_t_s: float) -> FloatArray:
+    """(M,) the trigger time t_i^T of each GetSeamPoints row, plus the extra exposure lag the
+    robot placed a reading exposed late by [SY-3.8] (its t_S - t_T beyond ``delta_t_s``, the
+    ΔT in force): the time the reading belongs to on the t_i^T scale. Readings on time keep
+    t_i^T to the bit; so do all of a robot that places every reading at t_i^T + ΔT."""
+    t_t: FloatArray = rows[:, _TT]
+    extra = (rows[:, _TS] - t_t) - delta_t_s
+    late = extra > _EXTRA_LAG_FLOOR_S
+    if not late.any():
+        return t_t
+    out = t_t.copy()
+    out[late] += extra[late]
+    return out
 
 
 def analyse(

@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from spec.datagrams import SensorData
 from spec.wire import SensorStatus
+from sync.experiment import reading_times
 from sync.exposure_lag import DEFAULT_LAG_THRESHOLD_S, ExposureLag
 from sync.joint_buffer import JointBuffer
 from sync.matcher import SyncMatcher
@@ -125,3 +126,20 @@ def test_bad_settings_raise() -> None:
     for kw in ({"threshold_s": -1.0}, {"window": 0}, {"min_readings": 65}, {"max_lag_s": 0.0}):
         with pytest.raises(ValueError):
             ExposureLag(**kw)
+
+
+def test_the_delay_experiment_puts_a_reading_placed_later_at_its_exposure() -> None:
+    """sync.experiment.reading_times: t_T, plus the extra lag where the robot's t_S says it
+    placed the reading later; t_T to the bit for the others (and for a robot that places
+    every reading at t_T + ΔT)."""
+    m = _run([1e-4] * 12 + [2.6e-3] + [1e-4] * 7)
+    pts = m.trajectory()
+    rows = np.zeros((len(pts), 17))
+    rows[:, 1] = [p.t_trigger for p in pts]
+    rows[:, 2] = [p.t_sensor for p in pts]
+    t = reading_times(rows, DT)
+    assert [a == b for a, b in zip(t, rows[:, 1], strict=True)] == [i != 12 for i in range(20)]
+    assert t[12] == pytest.approx(rows[12, 1] + 2.5e-3, abs=1e-12)
+    plain = rows.copy()
+    plain[:, 2] = plain[:, 1] + DT
+    assert (reading_times(plain, DT) == plain[:, 1]).all()
