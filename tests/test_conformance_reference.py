@@ -67,3 +67,28 @@ def test_simulated_robot_stamps_triggers_with_their_own_times() -> None:
         endpoint.stop()
     (outcome,) = [(r.outcome, r.message) for r in result.results]
     assert outcome[0] is Outcome.PASS, outcome
+
+
+def test_robot_places_a_late_exposure_by_its_extra_lag_over_udp() -> None:
+    """[SY-3.8] our robot (server, UDP endpoint, matcher) against the harness playing a sensor
+    that exposes one trigger 2 ms late by its own stamps: that seam point's t_S is t_T + ΔT +
+    2 ms, every other one's t_T + ΔT, and the robot counts one point exposed late."""
+    from robotsocket.emulator import RobotEmulator
+    from robotsocket.service import RobotService
+    from robotsocket.sync_service import attach_udp_sync
+    from spec.server import FramedServer
+
+    robot = RobotEmulator(clock="real")
+    service = RobotService(robot)
+    _, endpoint = attach_udp_sync(service, robot, delta_t_s=0.0049)
+    endpoint.start()
+    try:
+        with FramedServer(service, "127.0.0.1", 0) as srv:
+            selection = Selection("core", select=("robot.sync.exposure_lag",))
+            result = run("robot", *srv.address, Options(), selection)
+    finally:
+        endpoint.stop()
+        robot.close()
+    (outcome,) = [(r.outcome, r.message) for r in result.results]
+    assert outcome[0] is Outcome.PASS, outcome
+    assert endpoint.core.statistics()["exposed_late"] == 1

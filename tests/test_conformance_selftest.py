@@ -13,6 +13,7 @@ import dataclasses
 import itertools
 import math
 import socket
+import statistics
 import struct
 import threading
 import time
@@ -960,10 +961,14 @@ class MiniSyncRobot(MiniRobot):
     )
     LOSS_TIMEOUT = 0.1
 
-    def __init__(self, *, count_duplicates: bool = True, any_source: bool = False) -> None:
+    def __init__(
+        self, *, count_duplicates: bool = True, any_source: bool = False, lag_blind: bool = False
+    ) -> None:
         super().__init__()
         self.count_duplicates = count_duplicates
         self.any_source = any_source  # broken on purpose: takes data from anyone [SY-3.7]
+        self.lag_blind = lag_blind  # broken on purpose: ignores late exposures [SY-3.8]
+        self.lags: list[float] = []
         self.endpoint: tuple[str, int] = ("", 0)
         self.delta_t = 0.005
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -1048,12 +1053,19 @@ class MiniSyncRobot(MiniRobot):
             self.points[i] = [
                 i,
                 t_t,
-                t_t + self.delta_t,
+                t_t + self.delta_t + self._extra_lag(d),
                 int(d.status),
                 d.quality,
                 *d.seam,
                 *([0.0] * 6),
             ]
+
+    def _extra_lag(self, d: SensorData) -> float:
+        """[SY-3.8] the lag over the median of the earlier readings' when beyond 0.5 ms."""
+        lag = d.t_exposure_start - d.t_arrival
+        ref = statistics.median(self.lags[-64:]) if len(self.lags) >= 8 else lag
+        self.lags.append(lag)
+        return 0.0 if self.lag_blind or lag - ref <= 0.5e-3 else lag - ref
 
     def handle(
         self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
@@ -1131,6 +1143,17 @@ def test_robot_not_counting_duplicates_is_caught() -> None:
         service.stop.set()
     _caught(result, "robot.sync.matching")
     assert "SY-3.2" in problems(result)["robot.sync.matching"]
+
+
+def test_robot_placing_a_late_exposure_at_t_t_plus_delta_t_is_caught() -> None:
+    service = MiniSyncRobot(lag_blind=True)
+    try:
+        with serving(FramedServer(service, policy=POLICY)) as address:
+            result = check("robot", address, ("robot.sync.exposure_lag",), scale=0.5)
+    finally:
+        service.stop.set()
+    assert outcomes(result)["robot.sync.exposure_lag"] is Outcome.NON_STRICT  # a SHOULD
+    assert "SY-3.8" in problems(result)["robot.sync.exposure_lag"]
 
 
 def test_robot_taking_data_from_anyone_is_caught() -> None:

@@ -712,3 +712,96 @@ def sync_expired(ctx: Context) -> str:
         " the 100 ms loss timeout turns into 'late' first; and 'never extrapolates' has no"
         " wire-visible effect beyond SY-5.2. Checked by the robot's own tests."
     )
+
+
+#: robot.sync.exposure_lag: triggers answered, the one of LAG_LATE_AT exposed LAG_EXTRA_S
+#: later after its arrival than the others (sensor clock), after LAG_LATE_AT on time.
+LAG_TRIGGERS = 16
+LAG_LATE_AT = 12
+LAG_USUAL_S = 1e-4
+LAG_EXTRA_S = 2e-3
+LAG_TOLERANCE_S = 0.1e-3
+
+
+def _play_lagged_sensor(ctx: Context, u: UdpConn, first: int) -> list[int]:
+    """Answer the robot's triggers FOUND, exposure start LAG_USUAL_S after each arrival by
+    the harness's stamps, LAG_USUAL_S + LAG_EXTRA_S for trigger ``first + LAG_LATE_AT`` (a
+    sensor still busy with the previous frame); return the indices received."""
+    indices: list[int] = []
+    deadline = time.monotonic() + LAG_TRIGGERS / 50 + ctx.scaled(1.0) + 0.5
+    while time.monotonic() < deadline and len(indices) < LAG_TRIGGERS:
+        got = u.recv(0.02)
+        if got is None:
+            continue
+        raw, source, t = got
+        trig = _robot_trigger(raw)
+        indices.append(trig.index)
+        late = (trig.index - first) % INDEX_MODULUS == LAG_LATE_AT
+        start = t + LAG_USUAL_S + (LAG_EXTRA_S if late else 0.0)
+        found = (0.0, 1.25, 80.0, 0.0, 0.0, 0.0)
+        data = SensorData(
+            trig.index, SensorStatus.FOUND, found, 0.9, trig.t_trigger, t, start, start + 3.5e-3
+        )
+        u.target = source
+        u.send(encode_data(data), f"data {trig.index}" + (" exposed 2 ms late" if late else ""))
+    time.sleep(0.3)
+    return indices
+
+
+@case(
+    "robot.sync.exposure_lag",
+    requirements=["SY-3.8"],
+    level="SHOULD",
+    tags=["sync", "robot"],
+    service="robot",
+    commands=[*ROBOT_SYNC, C.GET_SEAM_POINTS],
+    budget=10.0,
+)
+def sync_exposure_lag(ctx: Context) -> str:
+    """Sixteen triggers at 50 Hz answered found, each exposure started 0.1 ms after the
+    trigger's arrival by the harness's (the sensor's) stamps, the thirteenth 2.1 ms after:
+    that point's t_S must be t_T + ΔT + 2 ms (within 0.1 ms), every other one's t_T + ΔT."""
+    conn = ctx.connect()
+    ctx.take_control(conn)
+    cfg = conn.ask(M.GetSyncConfigRequest())
+    sink = _sink(ctx, conn.sock.getsockname()[0])
+    u = UdpConn(sink, ("", 0), ctx.log, 99)
+    try:
+        conn.ok(C.SET_SENSOR_ENDPOINT, sink.getsockname()[0], sink.getsockname()[1])
+        first = conn.ask(M.StartTriggersRequest(50.0, LAG_TRIGGERS)).first_index
+        indices = _play_lagged_sensor(ctx, u, first)
+        rows = conn.ask(M.GetSeamPointsRequest(first - 1)).points.to_rows()
+        delta_t = conn.ask(M.GetSyncConfigRequest()).delta_t
+    finally:
+        conn.call(C.STOP_TRIGGERS)
+        # As it was, also when none was set: ("", 0) clears it [SY-5.8].
+        conn.call(C.SET_SENSOR_ENDPOINT, cfg.host, cfg.port)
+        conn.call(C.RELEASE_CONTROL)
+        sink.close()
+    late_index = (first + LAG_LATE_AT) % INDEX_MODULUS
+    by_index = {int(r[0]): r for r in rows}
+    if late_index not in indices or late_index not in by_index:
+        raise Fail(
+            "the trigger answered with a late exposure gave no seam point",
+            late_index,
+            sorted(by_index),
+            requirement="SY-3.6",
+        )
+    for i, r in by_index.items():
+        if i != late_index and abs(r[2] - (r[1] + delta_t)) > 1e-9:
+            raise Fail(
+                "a reading exposed on time is not at t_T + ΔT",
+                r[1] + delta_t,
+                r[2],
+                requirement="SY-3.8",
+            )
+    r = by_index[late_index]
+    extra = r[2] - r[1] - delta_t
+    if abs(extra - LAG_EXTRA_S) > LAG_TOLERANCE_S:
+        raise Fail(
+            "a reading exposed 2 ms late is not placed 2 ms later than t_T + ΔT",
+            f"t_S - t_T - ΔT = {LAG_EXTRA_S * 1e3:.2f} ms",
+            f"{extra * 1e3:.3f} ms",
+            requirement="SY-3.8",
+        )
+    return f"{len(by_index)} seam points; the late one placed {extra * 1e3:.3f} ms later"
