@@ -1,4 +1,4 @@
-"""What an ILC trial's data is worth (welding/ilc_loop.py: ``trial_trust``, ``on_time``), from
+"""What an ILC trial's data is worth (welding/ilc_loop.py: ``trial_trust``, ``placed_later``), from
 the robot's stamps and counts only, and what the command line does with a trial it cannot
 trust: reports it, does not learn from it, exits UNTRUSTED."""
 
@@ -18,7 +18,7 @@ from welding.cli import main
 from welding.ilc_loop import (
     IlcSettings,
     PassGeometry,
-    on_time,
+    placed_later,
     start_from_joint_log,
     trial_trust,
 )
@@ -120,12 +120,17 @@ def test_each_kind_of_untrustworthy_data_is_named() -> None:
     )
 
 
-def test_readings_after_back_to_back_triggers_are_left_out() -> None:
-    """Two triggers 0.4 ms apart: the sensor, busy with the first frame, exposes the second
-    late, and the next (3.6 ms after it) is pushed late too; then it catches up."""
-    t = np.array([0.0, 0.005, 0.0054, 0.009, 0.0165, 0.021])
-    assert on_time(_rows(t), RATE).tolist() == [True, True, False, False, True, True]
-    assert on_time(_rows(np.arange(0.0, 1.0, 1.0 / RATE)), RATE).all()
+def test_readings_the_robot_placed_later_are_counted_not_left_out() -> None:
+    """[SY-3.8] the robot places a reading its sensor exposed late at t_T + ΔT + its extra
+    lag: the trial counts it (late_readings) and keeps it, at that t_S."""
+    g = _geometry()
+    triggers = 1.0 + np.arange(0.0, float(g.times[-1]) + 0.01, 1.0 / RATE)
+    rows = _rows(triggers)
+    assert not placed_later(rows).any()
+    rows[70, 2] += 2.7e-3  # exposed 2.7 ms late, under the laser
+    assert placed_later(rows).tolist() == [i == 70 for i in range(len(rows))]
+    checks = trial_trust(_outcome(g, rows), g, IlcSettings(), _joint_log(1.0, len(g.times)), PERIOD)
+    assert checks.reason == "" and checks.late_readings == 1
 
 
 def test_an_untrusted_trial_is_not_learned_from_and_the_run_exits_untrusted(

@@ -64,7 +64,7 @@ __all__ = [
     "check_learnable",
     "job_path",
     "line_pass",
-    "on_time",
+    "placed_later",
     "run_ilc",
     "start_from_joint_log",
     "trial_trust",
@@ -82,12 +82,10 @@ LEASE_S = 3.0
 #: than this many trigger periods (at 200 Hz 15 ms, 3.75 mm at 250 mm/s): its seam error
 #: there would be a line drawn across what was not measured.
 GAP_TRIGGERS = 3.0
-#: A sensor that keeps up with the trigger rate is busy with a frame for less than this share
-#: of a trigger period: :func:`on_time` takes each frame to be that long.
-BUSY_SHARE = 0.75
-#: A reading whose exposure may have started more than this (s) after its trigger's t_T + ΔT
-#: is left out: the start jitter of the paper's sensor.
-START_SLACK_S = 0.25e-3
+#: A seam point's t_S - t_T beyond the trial's usual (ΔT) by more than this (s) was placed
+#: later by the robot for an exposure its sensor started late [SY-3.8] (0.5 ms and more);
+#: below it, the rounding of t_T + ΔT.
+PLACED_LATER_FLOOR_S = 1e-6
 
 
 @dataclass(frozen=True)
@@ -369,7 +367,6 @@ def run_ilc(
                 seam_of.offsets,
                 _along(geometry, seam_of.offsets),
                 settings.latency_s,
-                settings.rate_hz,
             )
             if settings.source == "seam"
             else _joint_error(model, geometry, outcome, reference, log_rows)
@@ -446,7 +443,8 @@ class TrialChecks:
     joint_log_missing: int
     #: the longest stretch of the laser's part without a sensor reading (ms; seam source)
     reading_gap_ms: float | None
-    #: readings left out as perhaps exposed late (:func:`on_time`; seam source)
+    #: readings the robot placed later for a late exposure (:func:`placed_later`; seam
+    #: source): counted, not left out, since their t_S is their exposure's [SY-3.8]
     late_readings: int = 0
     #: the start cycle, not known when the move was queued, found from the joint log
     #: (:func:`start_from_joint_log`): the cycles after the one the corrections were timed
@@ -508,8 +506,8 @@ def trial_trust(
     gap_ms, dropped = None, 0
     if settings.source == "seam":
         if len(outcome.rows):
-            dropped = int(np.count_nonzero(~on_time(outcome.rows, settings.rate_hz)))
-        gap, at = _reading_gap(outcome, g, settings.latency_s, settings.rate_hz)
+            dropped = int(np.count_nonzero(placed_later(outcome.rows)))
+        gap, at = _reading_gap(outcome, g, settings.latency_s)
         gap_ms = round(gap * 1e3, 3)
         if gap > GAP_TRIGGERS / settings.rate_hz:
             reasons.append(f"no sensor reading for {gap * 1e3:.0f} ms at {at:.1f} mm of the weld")
@@ -567,43 +565,37 @@ def start_from_joint_log(
     return found[0] if len(found) == 1 else None
 
 
-def on_time(rows: FloatArray, rate_hz: float) -> npt.NDArray[np.bool_]:
-    """(M,) bool: the seam points ``rows`` (GetSeamPoints, in index order) whose exposure
-    started on time, as far as the trigger stamps tell. A sender that got the CPU late sends
-    overdue triggers back to back, and a sensor still busy with the last frame starts the
-    next only when it is done, so that reading's t_T + ΔT is early by up to a frame (3 ms
-    and more were seen beside 2 CPU hogs: 0.75 mm at 250 mm/s). Each frame is taken to
-    occupy the sensor :data:`BUSY_SHARE` of a trigger period from its (modelled) start; a
-    reading whose start that pushes past its trigger by more than :data:`START_SLACK_S` is
-    not on time, nor any it delays in turn."""
-    busy = BUSY_SHARE / rate_hz
-    out = np.ones(len(rows), dtype=bool)
-    start = -math.inf
-    for i, t in enumerate(rows[:, 1].tolist()):
-        start = max(t, start + busy)
-        out[i] = start - t <= START_SLACK_S
-    return out
+def placed_later(rows: FloatArray) -> npt.NDArray[np.bool_]:
+    """(M,) bool: the seam points ``rows`` (GetSeamPoints) the robot placed later than t_T +
+    ΔT, by the extra lag of an exposure their sensor started late [SY-3.8] (a trigger sent
+    right after another reaches a sensor still busy with the last frame: up to 3.2 ms beside
+    CPU hogs, 0.8 mm along the seam at 250 mm/s). ΔT is the median of t_S - t_T (most
+    readings are on time). Such a reading's t_S is its exposure's, so it is used; this only
+    counts them."""
+    if not len(rows):
+        return np.zeros(0, dtype=bool)
+    lag = rows[:, 2] - rows[:, 1]
+    later: npt.NDArray[np.bool_] = lag - float(np.median(lag)) > PLACED_LATER_FLOOR_S
+    return later
 
 
-def _readings(outcome: TrackOutcome, rate_hz: float) -> FloatArray:
-    """The seam points of ``outcome`` that found the seam and were exposed on time."""
+def _readings(outcome: TrackOutcome) -> FloatArray:
+    """The seam points of ``outcome`` that found the seam."""
     rows = outcome.rows
     if not len(rows):
         return rows
-    kept: FloatArray = rows[(rows[:, 3] == 0) & on_time(rows, rate_hz)]
+    kept: FloatArray = rows[rows[:, 3] == 0]
     return kept
 
 
-def _reading_gap(
-    outcome: TrackOutcome, g: PassGeometry, latency_s: float, rate_hz: float
-) -> tuple[float, float]:
+def _reading_gap(outcome: TrackOutcome, g: PassGeometry, latency_s: float) -> tuple[float, float]:
     """The longest stretch (s) of the laser's part without a sensor reading (the readings at
     their exposure, as :func:`_seam_error` places them) and where it starts (mm of the
     weld)."""
     w = g.times[g.window()]
     if not len(w):
         return 0.0, 0.0
-    rows = _readings(outcome, rate_hz)
+    rows = _readings(outcome)
     t = np.sort(rows[:, 2] - latency_s - outcome.t0) if len(rows) else np.zeros(0)
     pts = np.concatenate([[w[0]], t[(t > w[0]) & (t < w[-1])], [w[-1]]])
     gaps = np.diff(pts)
@@ -763,7 +755,7 @@ def _teach(link: RobotLink, g: PassGeometry, settings: IlcSettings) -> FloatArra
     if outcome.stopped:
         raise TrackingError(f"teaching the seam failed: {outcome.stopped}")
     seam = SeamModel(slow)
-    seam.add(_readings(outcome, settings.rate_hz)[:, 11:14])
+    seam.add(_readings(outcome)[:, 11:14])
     rows = []
     for s in np.arange(math.ceil(seam.first), seam.furthest, 0.5):
         with contextlib.suppress(TrackingError):
@@ -799,17 +791,18 @@ def _seam_error(
     offsets: Callable[[FloatArray], FloatArray],
     reference: Callable[[FloatArray], FloatArray],
     latency_s: float,
-    rate_hz: float,
 ) -> FloatArray:
     """(N, 3) reference − actual of the laser, base frame, from the sensor's ^S_G T: what it
     read of the seam ``offsets`` (taught) against what it would read with the laser on its
     ``reference`` (offsets (M, 3) from the nominal line at times (M,) since the move's
     start; the tool keeps its orientation, so the laser moved as the sensor did); zero
     where it read nothing.
-    ``latency_s``: the joint log's lag; a seam point's time (t_sync = trigger + ΔT) is where
-    the *measured* joints saw the image, the exposure itself was that much earlier."""
-    rows = _readings(outcome, rate_hz)
+    ``latency_s``: the joint log's lag; a seam point's time (t_sync = trigger + ΔT, plus the
+    extra lag of an exposure started late [SY-3.8]) is where the *measured* joints saw the
+    image, the exposure itself was that much earlier."""
+    rows = _readings(outcome)
     rows = rows[rows[:, 2] >= outcome.t0]
+    rows = rows[np.argsort(rows[:, 2], kind="stable")]  # by exposure, for the interpolation
     n = len(g.times)
     if len(rows) < 2:
         return np.zeros((n, 3))
