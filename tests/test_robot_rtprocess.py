@@ -32,6 +32,7 @@ from robotsocket.rtprocess import (
 )
 from robotsocket.service import RobotService
 from spec.errors import ErrorCode, ProtocolError, RemoteError
+from spec.messages import PingRequest
 from spec.params import FloatArray, Joints, Location, Value
 from spec.registry import CommandId
 from spec.server import FramedServer, SessionView
@@ -301,7 +302,7 @@ def test_an_unknown_pipe_message_is_answered_not_left_to_time_out(child: Realtim
 @pytest.mark.parametrize(
     "request_",
     [
-        Command("no-such-service", int(C.PING), (), Who(1, ("", 0), False, False)),
+        Command("no-such-service", PingRequest(), Who(1, ("", 0), False, False)),
         ControlLost("no-such-service", "test"),
         ControlReleased("no-such-service"),
         Query("no-such-query"),

@@ -31,6 +31,7 @@ from robotsocket.emulator import HOME, RobotEmulator
 from robotsocket.service import RobotService
 from spec.codec import encode_packet, request
 from spec.errors import ErrorCode
+from spec.messages import StopTriggersRequest
 from spec.params import Joints, Location
 from spec.registry import CommandId, commands_for
 from spec.server import FramedServer, ServerPolicy
@@ -269,7 +270,7 @@ def test_controller_disconnect_during_a_move_stops_on_the_path() -> None:
 
 def test_extra_handlers_can_be_registered() -> None:
     service = RobotService(RobotEmulator())
-    service.register(CommandId.STOP_TRIGGERS, lambda session, params: ())
+    service.register(StopTriggersRequest, lambda session, request: ())
     assert int(CommandId.STOP_TRIGGERS) in service.implemented()
     with FramedServer(service, "127.0.0.1", 0) as srv, RobotClient(*srv.address) as c:
         c.take_control()
