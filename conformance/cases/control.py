@@ -6,9 +6,11 @@ import statistics
 import threading
 import time
 
+from conformance.cases._util import endpoint_status
 from conformance.connection import Closed
 from conformance.context import Context
 from conformance.model import EndpointTimeout, Fail, NotApplicable, Skip, case
+from spec import messages as M
 from spec.errors import ErrorCode
 from spec.registry import CommandId as C
 
@@ -18,10 +20,6 @@ RESERVED_CLOSE_S = 5.0
 RESERVED_OPEN_S = 1.0
 #: ... measured from the BUSY frame's arrival, which follows the accept by a little.
 RESERVED_SLACK_S = 0.05
-
-
-def _read_only(ctx: Context) -> int:
-    return int(C.ROBOT_STATUS if ctx.service == "robot" else C.SENSOR_STATUS)
 
 
 def _control_probe(ctx: Context) -> int:
@@ -63,12 +61,10 @@ def read_only_open(ctx: Context) -> None:
     a, b = ctx.connect(), ctx.connect()
     ctx.take_control(a)
     try:
-        b.ok(_read_only(ctx))
+        endpoint_status(ctx, b)
         b.ok(C.GET_TIME)
         probe = _control_probe(ctx)
-        args = (False,) if probe == C.SET_LASER else ()
-        if probe == C.SET_LASER:
-            args = (bool(a.ok(C.SENSOR_STATUS)[0]),)
+        args = (a.ask(M.SensorStatusRequest()).laser,) if probe == C.SET_LASER else ()
         b.error(probe, ErrorCode.NOT_IN_CONTROL, *args)
     finally:
         a.call(C.RELEASE_CONTROL)
@@ -227,10 +223,10 @@ def load_round_trip(ctx: Context) -> str:
             for k in range(50):
                 data = f"{i}:{k}".encode()
                 t0 = time.perf_counter()
-                reply = conn.ok(C.PING, data)
+                echo = conn.ask(M.PingRequest(data)).data
                 dt = time.perf_counter() - t0
-                if reply[:1] != (data,):
-                    errors.append(f"client {i} request {k}: echo {reply[:1]!r}")
+                if echo != data:
+                    errors.append(f"client {i} request {k}: echo {echo!r}")
                     return
                 with lock:
                     rtts.append(dt)
@@ -295,8 +291,7 @@ def watchdog(ctx: Context) -> str:
             requirement="RS-7.13",
         )
     other = ctx.connect()
-    status = other.ok(_read_only(ctx))
-    controlled = status[5] if ctx.service == "robot" else status[4]
+    controlled = endpoint_status(ctx, other).controlled
     if controlled is not False:
         raise Fail("control still held after the watchdog", "controlled false", controlled)
     bad = conn.call(C.TAKE_CONTROL, ctx.options.token, 1.0e6)

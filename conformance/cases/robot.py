@@ -11,14 +11,14 @@ from __future__ import annotations
 import itertools
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from conformance.connection import ENDPOINT_ERRORS, Conn
 from conformance.context import Context
 from conformance.model import Fail, Informational, NotApplicable, Skip, case
 from spec import messages as M
 from spec.errors import ErrorCode
-from spec.params import IDENTITY_LOCATION, FloatArray, Joints, Location, Matrix, Value
+from spec.params import IDENTITY_LOCATION, FloatArray, Joints, Location, Matrix
 from spec.registry import CommandId as C
 
 Mat = list[list[float]]
@@ -84,6 +84,11 @@ def _limits(conn: Conn) -> list[tuple[float, float]]:
 
 def _status(conn: Conn) -> M.RobotStatusReply:
     return conn.ask(M.RobotStatusRequest())
+
+
+def motion_desc(conn: Conn) -> M.SetMotionDescRequest:
+    """The motion descriptor in force, as the SetMotionDesc that sets it (again)."""
+    return M.SetMotionDescRequest(**conn.ask(M.GetMotionDescRequest()).as_dict())
 
 
 def _flange(conn: Conn) -> Location:
@@ -218,23 +223,23 @@ def motiondesc_range(ctx: Context) -> None:
     conn = ctx.connect()
     ctx.take_control(conn)
     try:
-        before = conn.ok(C.GET_MOTION_DESC)[:6]
-        good = [float(v) for v in before]  # type: ignore[arg-type]
-        for index, bad in (
-            (0, 0.0),
-            (0, 150.0),
-            (1, -1.0),
-            (2, 101.0),
-            (3, 0.0),
-            (4, -5.0),
-            (5, -1.0),
+        before = motion_desc(conn)
+        for field, bad in (
+            ("joint_speed", 0.0),
+            ("joint_speed", 150.0),
+            ("joint_accel", -1.0),
+            ("joint_decel", 101.0),
+            ("tool_speed", 0.0),
+            ("tool_rot_speed", -5.0),
+            ("blend", -1.0),
         ):
-            args = list(good)
-            args[index] = bad
-            conn.error(C.SET_MOTION_DESC, ErrorCode.OUT_OF_RANGE, *args)
-        after = conn.ok(C.GET_MOTION_DESC)[:6]
+            wrong = replace(before, **{field: bad})
+            conn.error(C.SET_MOTION_DESC, ErrorCode.OUT_OF_RANGE, *wrong.encode())
+        after = motion_desc(conn)
         if after != before:
-            raise Fail("a refused SetMotionDesc changed the descriptor", before, after)
+            raise Fail(
+                "a refused SetMotionDesc changed the descriptor", before.encode(), after.encode()
+            )
     finally:
         conn.call(C.RELEASE_CONTROL)
 
@@ -267,7 +272,7 @@ class _Motion:
     def __init__(self, ctx: Context) -> None:
         self.ctx = ctx
         self.conn = ctx.connect()
-        self.saved: tuple[Value, ...] = ()
+        self.saved: M.SetMotionDescRequest | None = None
 
     def __enter__(self) -> _Motion:
         conn = self.conn
@@ -277,7 +282,7 @@ class _Motion:
             raise Skip("the arm is already moving")
         if status.estop:
             conn.ok(C.RESET_EMERGENCY_STOP)
-        self.saved = conn.ok(C.GET_MOTION_DESC)[:6]
+        self.saved = motion_desc(conn)
         conn.ok(C.SET_MOTION_DESC, SLOW, SLOW, SLOW, 50.0, 20.0, 0.0)
         return self
 
@@ -286,8 +291,8 @@ class _Motion:
 
     def __exit__(self, *exc: object) -> None:
         try:
-            if self.saved and not self.conn.closed:
-                self.conn.call(C.SET_MOTION_DESC, *self.saved)
+            if self.saved is not None and not self.conn.closed:
+                self.conn.call(C.SET_MOTION_DESC, *self.saved.encode())
             if not self.conn.closed:
                 self.conn.call(C.RELEASE_CONTROL)
         except ENDPOINT_ERRORS:  # cleanup: the case's verdict is already made
@@ -299,7 +304,7 @@ def _wait_still(conn: Conn, timeout: float) -> bool:
     remaining = timeout
     while True:
         piece = remaining if conn.lease is None else min(remaining, conn.lease / 2)
-        done = bool(conn.ok(C.WAIT_END_MOVE, piece, timeout=piece + 5.0)[0])
+        done = conn.ask(M.WaitEndMoveRequest(piece), timeout=piece + 5.0).done
         remaining -= piece
         if done or remaining <= 1e-9:
             return done
@@ -384,15 +389,16 @@ def motion_stopped_is_not_done(ctx: Context) -> str:
         conn.ok(C.JOINT_MOVE, Joints(target))
         time.sleep(0.05)
         conn.ok(C.RESET_MOTION)
-        reply = conn.ok(C.WAIT_END_MOVE, 10.0, timeout=15.0)
-        if len(reply) < 3:
-            raise Fail("WaitEndMove has no outcome (a 1.2 reply)", "done, outcome, reason", reply)
-        if reply[0] is not False or reply[1] != "stopped" or not reply[2]:
-            raise Fail("a move cut short by ResetMotion", "(False, 'stopped', reason)", reply)
-        stopped = reply
+        cut = conn.ask(M.WaitEndMoveRequest(10.0), timeout=15.0)
+        stopped = cut.encode()
+        if cut.reason is None:
+            raise Fail("WaitEndMove has no outcome (a 1.2 reply)", "done, outcome, reason", stopped)
+        if cut.done is not False or cut.outcome != "stopped" or not cut.reason:
+            raise Fail("a move cut short by ResetMotion", "(False, 'stopped', reason)", stopped)
         conn.ok(C.JOINT_MOVE, Joints(start))
-        reply = conn.ok(C.WAIT_END_MOVE, 10.0, timeout=15.0)
-        if tuple(reply[:3]) != (True, "reached", ""):
+        ended = conn.ask(M.WaitEndMoveRequest(10.0), timeout=15.0)
+        reply = ended.encode()
+        if (ended.done, ended.outcome, ended.reason) != (True, "reached", ""):
             raise Fail("a move that reached its target", "(True, 'reached', '')", reply)
     return f"ResetMotion: {stopped!r}; run to its end: {reply!r}"
 
@@ -550,7 +556,7 @@ def motion_queued(ctx: Context) -> str:
         status = _status(conn)
         queue = status.queue
         still_moving = bool(status.moving) or (isinstance(queue, int) and queue > 0)
-        early = conn.ok(C.WAIT_END_MOVE, 0.001)[0] if still_moving else None
+        early = conn.ask(M.WaitEndMoveRequest(0.001)).done if still_moving else None
         if not _wait_still(conn, 30.0):
             raise Fail("WaitEndMove(30 s) did not see the end of a 2 degree move", True, False)
         move_s = time.monotonic() - t0
