@@ -55,7 +55,7 @@ class MiniRobot(Service):
     """A robot service without motion: status, joints, Here, motion descriptor, I/O, log."""
 
     identity = Identity("robot", vendor="test", model="mini-robot", serial="1")
-    COMMANDS = (
+    COMMANDS: tuple[C, ...] = (
         C.ROBOT_STATUS,
         C.HEREJ,
         C.HERE,
@@ -561,7 +561,8 @@ class RawServer:
     def __init__(self, handle: Any) -> None:
         self.handle = handle
         self.listener = socket.create_server(("127.0.0.1", 0))
-        self.address = self.listener.getsockname()[:2]
+        host, port = self.listener.getsockname()[:2]
+        self.address: tuple[str, int] = (host, port)
         self.stop = threading.Event()
         self.conns: list[socket.socket] = []
         self.thread = threading.Thread(target=self._serve, daemon=True)
@@ -756,7 +757,8 @@ class MiniTriggerListener:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
         self.sock.settimeout(0.05)
-        self.address = self.sock.getsockname()[:2]
+        host, port = self.sock.getsockname()[:2]
+        self.address: tuple[str, int] = (host, port)
         self.drop_every, self.duplicate, self.delay = drop_every, duplicate, delay
         self.answer_malformed, self.no_dedup, self.bad_times = answer_malformed, no_dedup, bad_times
         self.seen: set[int] = set()
@@ -1334,7 +1336,9 @@ def test_cartesian_commands_not_offered_are_a_scope_not_a_failure(
             decoder = FrameDecoder()
             while not (events := list(decoder.events())):
                 decoder.feed(raw.recv(4096))
-        assert events[0].error is not None and events[0].error[0] == code
+        answer = events[0]
+        assert isinstance(answer, Packet) and answer.error is not None
+        assert answer.error[0] == code
         result = check("robot", address, profile="core")
     assert problems(result) == {}, problems(result)
     got = outcomes(result)
