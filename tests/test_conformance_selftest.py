@@ -33,6 +33,7 @@ from spec import messages as M
 from spec import wire
 from spec.auth import AuthBackoff
 from spec.codec import FrameDecoder, Packet, Rejected, decode_packet, encode_packet
+from spec.control import Admission, Slots
 from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data, encode_trigger
 from spec.errors import DatagramError, ErrorCode, ProtocolError
 from spec.exitcodes import ExitCode
@@ -1721,3 +1722,104 @@ def test_refusing_requests_queued_behind_a_wait_is_caught(
     assert entry.outcome is want, (entry.outcome, entry.message)
     if want is Outcome.FAIL:
         assert "[RS-7.27]" in entry.message
+
+
+# --- issue 32's leftovers: the reserved slots' eviction, the joint speed's scaling ----------
+
+
+class _NewestFirstSlots(Slots[Session]):
+    """Makes room on a full server by closing the newest reserved connection, not the oldest
+    (a stack where the rule wants a queue)."""
+
+    def add(self, session: Session, admission: Admission, reserved: int) -> Session | None:
+        if admission.reserved and len(self.reserved) >= reserved:
+            evicted = self.reserved.pop()
+            self.reserved.append(session)
+            return evicted
+        return super().add(session, admission, reserved)
+
+
+class NewestFirstServer(FramedServer):
+    """A server whose reserved connections make room newest first."""
+
+    def __init__(self, service: Service, *, policy: ServerPolicy) -> None:
+        super().__init__(service, policy=policy)
+        self.slots = _NewestFirstSlots()
+
+
+@pytest.mark.parametrize(
+    ("server_class", "want"), [(FramedServer, Outcome.PASS), (NewestFirstServer, Outcome.FAIL)]
+)
+def test_a_full_server_that_closes_another_than_the_oldest_reserved_is_caught(
+    server_class: type[FramedServer], want: Outcome
+) -> None:
+    """[RS-7.14] with every reserved slot taken, a new connection closes the oldest reserved
+    one (row 16 of CONFORMANCE.md's guesses): ours passes, one that closes the newest fails."""
+    with serving(server_class(MiniRobot(), policy=POLICY)) as address:
+        result = check("robot", address, ("connections.reserved.oldest_closed",), "full")
+    (entry,) = result.results
+    assert entry.outcome is want, (entry.outcome, entry.message)
+    if want is Outcome.PASS:  # POLICY: 15 served from one address, then 4 reserved
+        assert entry.message == "4 reserved connection(s) held; connection 5 closed the oldest"
+    else:
+        assert "[RS-7.14]" in entry.message and entry.actual == "reserved connection(s) 4 closed"
+
+
+class MovingRobot(MiniRobot):
+    """Moves joint 1 in a straight line at ``deg_s`` degrees per second, times joint_speed in
+    % when ``scales`` (else at that speed whatever the descriptor says); logs every 4 ms."""
+
+    COMMANDS = (*MiniRobot.COMMANDS, C.ENABLE_POWER, C.DISABLE_POWER, C.JOINT_MOVE)
+    blocking = frozenset({int(C.WAIT_END_MOVE)})
+
+    def __init__(self, deg_s: float, *, scales: bool) -> None:
+        super().__init__()
+        self.deg_s, self.scales = deg_s, scales
+        # (start time, duration, from, to) of the last move
+        self.move = (0.0, 0.0, list(self.q), list(self.q))
+
+    def joints_at(self, t: float) -> list[float]:
+        t0, duration, a, b = self.move
+        f = 1.0 if duration <= 0.0 else min(max((t - t0) / duration, 0.0), 1.0)
+        return [x + (y - x) * f for x, y in zip(a, b, strict=True)]
+
+    def handle(self, session: SessionView, request: M.Request[Any]) -> tuple[Value, ...]:
+        now = self.clock()
+        t0, duration, _, _ = self.move
+        end = t0 + duration
+        if request.command in (C.ENABLE_POWER, C.DISABLE_POWER):
+            return ()
+        if isinstance(request, M.JointMoveRequest):
+            start, target = self.joints_at(now), list(request.joints.values)
+            speed = self.deg_s * (self.mdesc[0] if self.scales else 1.0)
+            travel = max(abs(b - a) for a, b in zip(start, target, strict=True))
+            self.move = (now, travel / speed, start, target)
+            return (1,)
+        if request.command == C.HEREJ:
+            return (Joints(self.joints_at(now)),)
+        if request.command == C.ROBOT_STATUS:
+            mine, held = session.in_control, session.control_held
+            return RobotStatusReply(False, False, now < end, 0, mine, held, 0, "", now).encode()
+        if isinstance(request, M.WaitEndMoveRequest):
+            time.sleep(min(request.timeout, max(end - now, 0.0)))
+            return (self.clock() >= end,)
+        if isinstance(request, M.GetJointLogRequest):
+            since = max(request.since, now - 10.0)
+            times = [k * 0.004 for k in range(math.floor(since / 0.004) + 1, int(now / 0.004))]
+            rows = [[t, *self.joints_at(t)] for t in times]
+            return (Matrix(len(rows), 7, [v for r in rows for v in r]), 0.004)
+        return super().handle(session, request)
+
+
+@pytest.mark.parametrize(("scales", "want"), [(True, Outcome.PASS), (False, Outcome.FAIL)])
+def test_a_robot_whose_joint_speed_does_not_scale_is_caught(scales: bool, want: Outcome) -> None:
+    """[RS-5.57] joint 1 cruising at the same speed at 1 % and 2 % joint speed fails
+    robot.motiondesc.joint_speed_scales; one that cruises twice as fast at 2 % passes."""
+    with serving(FramedServer(MovingRobot(10.0, scales=scales), policy=POLICY)) as address:
+        options = Options(timeout_scale=SCALE, allow_motion=True)
+        selection = Selection("full", ("robot.motiondesc.joint_speed_scales",))
+        result = run("robot", *address, options, selection)
+    (entry,) = result.results
+    assert entry.outcome is want, (entry.outcome, entry.message)
+    if want is Outcome.FAIL:
+        assert "[RS-5.57]" in entry.message and str(entry.actual).startswith("ratio 1.000")
