@@ -310,6 +310,34 @@ def _wait_still(conn: Conn, timeout: float) -> bool:
             return done
 
 
+@dataclass(frozen=True)
+class _Step:
+    """The documented motion's way out, queued: joint 1 from ``start`` to ``target`` (deg)."""
+
+    start: list[float]
+    target: list[float]
+    #: When JointMove went out (time.monotonic()), and how long its reply took (s).
+    sent_at: float
+    reply_s: float
+
+
+def _step_out(conn: Conn) -> _Step:
+    """JointMove joint 1 by +STEP_DEG from where the arm stands (the documented motion's way
+    out); returns at JointMove's reply while the move runs on [RS-5.11]."""
+    start = _joints(conn)
+    target = [start[0] + STEP_DEG, *start[1:]]
+    sent_at = time.monotonic()
+    conn.ok(C.JOINT_MOVE, Joints(target))
+    return _Step(start, target, sent_at, time.monotonic() - sent_at)
+
+
+def _step_back(conn: Conn, step: _Step) -> bool:
+    """JointMove back to where ``step`` started, then wait (30 s at most) until the arm
+    stands: a case leaves joint 1 as it found it. False if the arm did not stand in time."""
+    conn.ok(C.JOINT_MOVE, Joints(step.start))
+    return _wait_still(conn, 30.0)
+
+
 MOTION = [C.JOINT_MOVE, C.ENABLE_POWER, C.DISABLE_POWER, C.WAIT_END_MOVE, C.SET_MOTION_DESC]
 
 
@@ -383,10 +411,7 @@ def motion_stopped_is_not_done(ctx: Context) -> str:
     with _Motion(ctx) as m:
         conn = m.conn
         m.power()
-        start = _joints(conn)
-        target = list(start)
-        target[0] += STEP_DEG
-        conn.ok(C.JOINT_MOVE, Joints(target))
+        step = _step_out(conn)
         time.sleep(0.05)
         conn.ok(C.RESET_MOTION)
         cut = conn.ask(M.WaitEndMoveRequest(10.0), timeout=15.0)
@@ -395,7 +420,7 @@ def motion_stopped_is_not_done(ctx: Context) -> str:
             raise Fail("WaitEndMove has no outcome (a 1.2 reply)", "done, outcome, reason", stopped)
         if cut.done is not False or cut.outcome != "stopped" or not cut.reason:
             raise Fail("a move cut short by ResetMotion", "(False, 'stopped', reason)", stopped)
-        conn.ok(C.JOINT_MOVE, Joints(start))
+        conn.ok(C.JOINT_MOVE, Joints(step.start))
         ended = conn.ask(M.WaitEndMoveRequest(10.0), timeout=15.0)
         reply = ended.encode()
         if (ended.done, ended.outcome, ended.reason) != (True, "reached", ""):
@@ -478,20 +503,17 @@ def stop_restart(ctx: Context) -> str:
     with _Motion(ctx) as m:
         conn = m.conn
         m.power()
-        start = _joints(conn)
-        target = list(start)
-        target[0] += STEP_DEG
-        conn.ok(C.JOINT_MOVE, Joints(target))
+        step = _step_out(conn)
         conn.ok(C.STOP_MOVE)
         held = _held_still(conn, 10.0)
         at = _joints(conn)
         if held.moving:
             raise Fail("GetStatus while StopMove holds the arm", "moving false", held,
                        requirement="RS-5.59")  # fmt: skip
-        if held.queue != 1 or abs(at[0] - target[0]) < 0.01:
+        if held.queue != 1 or abs(at[0] - step.target[0]) < 0.01:
             raise Fail(
                 "StopMove during a move: held short of the target with the move queued",
-                f"queue 1, joint 1 short of {target[0]:.3f}",
+                f"queue 1, joint 1 short of {step.target[0]:.3f}",
                 f"queue {held.queue!r}, joint 1 at {at[0]:.3f}",
                 requirement="RS-5.59",
             )
@@ -502,11 +524,11 @@ def stop_restart(ctx: Context) -> str:
         if not _wait_still(conn, 30.0):
             raise Fail("the restarted move did not end within 30 s", True, False)
         reached = _joints(conn)
-        if abs(reached[0] - target[0]) > 0.05:
-            raise Fail("RestartMove resumes the held move to its target", target[0],
+        if abs(reached[0] - step.target[0]) > 0.05:
+            raise Fail("RestartMove resumes the held move to its target", step.target[0],
                        reached[0], requirement="RS-5.54")  # fmt: skip
         # the way back: stopped, dropped, and not started again by RestartMove
-        conn.ok(C.JOINT_MOVE, Joints(start))
+        conn.ok(C.JOINT_MOVE, Joints(step.start))
         conn.ok(C.STOP_MOVE)
         _held_still(conn, 10.0)
         conn.ok(C.RESET_MOTION)
@@ -515,8 +537,7 @@ def stop_restart(ctx: Context) -> str:
         conn.ok(C.RESTART_MOVE)
         time.sleep(0.5)
         after, status = _joints(conn), _status(conn)
-        conn.ok(C.JOINT_MOVE, Joints(start))  # back where the case began
-        _wait_still(conn, 30.0)
+        _step_back(conn, step)  # back where the case began
         conn.ok(C.DISABLE_POWER)
         if dropped.queue != 0 or status.moving or abs(after[0] - before[0]) > 0.01:
             raise Fail(
@@ -527,7 +548,7 @@ def stop_restart(ctx: Context) -> str:
                 requirement="RS-5.54",
             )
     return (
-        f"held at {at[0] - start[0]:+.3f} deg of {STEP_DEG:g}, resumed to the target; "
+        f"held at {at[0] - step.start[0]:+.3f} deg of {STEP_DEG:g}, resumed to the target; "
         "a dropped move stays dropped"
     )
 
@@ -547,25 +568,20 @@ def motion_queued(ctx: Context) -> str:
     with _Motion(ctx) as m:
         conn = m.conn
         m.power()
-        start = _joints(conn)
-        target = list(start)
-        target[0] += STEP_DEG
-        t0 = time.monotonic()
-        conn.ok(C.JOINT_MOVE, Joints(target))
-        reply_s = time.monotonic() - t0
+        step = _step_out(conn)
+        reply_s = step.reply_s
         status = _status(conn)
         queue = status.queue
         still_moving = bool(status.moving) or (isinstance(queue, int) and queue > 0)
         early = conn.ask(M.WaitEndMoveRequest(0.001)).done if still_moving else None
         if not _wait_still(conn, 30.0):
             raise Fail("WaitEndMove(30 s) did not see the end of a 2 degree move", True, False)
-        move_s = time.monotonic() - t0
+        move_s = time.monotonic() - step.sent_at
         reached = _joints(conn)
         settled = _status(conn)
-        if abs(reached[0] - target[0]) > 0.05:
-            raise Fail("the arm did not reach the target", target[0], reached[0])
-        conn.ok(C.JOINT_MOVE, Joints(start))
-        _wait_still(conn, 30.0)
+        if abs(reached[0] - step.target[0]) > 0.05:
+            raise Fail("the arm did not reach the target", step.target[0], reached[0])
+        _step_back(conn, step)
         if settled.moving or settled.queue != 0:
             raise Fail(
                 "GetStatus after WaitEndMove said done",
@@ -602,9 +618,7 @@ def release_keeps_moves(ctx: Context) -> str:
     with _Motion(ctx) as m:
         conn = m.conn
         m.power()
-        start = _joints(conn)
-        target = [start[0] + STEP_DEG, *start[1:]]
-        conn.ok(C.JOINT_MOVE, Joints(target))
+        step = _step_out(conn)
         conn.ok(C.RELEASE_CONTROL)
         released = _status(conn)
         # WaitEndMove needs no control: the former controller waits for its move's end.
@@ -612,15 +626,14 @@ def release_keeps_moves(ctx: Context) -> str:
         after = _status(conn)
         reached = _joints(conn)
         ctx.take_control(conn)
-        conn.ok(C.JOINT_MOVE, Joints(start))
-        _wait_still(conn, 30.0)
+        _step_back(conn, step)
     was_moving = bool(released.moving) or released.queue != 0
     if not was_moving:
         raise Informational("the move was over before ReleaseControl was answered")
-    if not done or abs(reached[0] - target[0]) > 0.05:
+    if not done or abs(reached[0] - step.target[0]) > 0.05:
         raise Fail(
             "a move queued before ReleaseControl did not reach its target",
-            f"joint 1 at {target[0]:.3f} deg, WaitEndMove done",
+            f"joint 1 at {step.target[0]:.3f} deg, WaitEndMove done",
             f"joint 1 at {reached[0]:.3f} deg, done {done}",
             requirement="RS-7.11",
         )
@@ -671,11 +684,8 @@ def _lose_controller_mid_move(ctx: Context, *, wait_pending: bool, requirement: 
     with _Motion(ctx) as m:
         conn = m.conn
         m.power()
-        start = _joints(conn)
-        target = list(start)
-        target[0] += STEP_DEG
-        conn.ok(C.JOINT_MOVE, Joints(target))
-        conn.ok(C.JOINT_MOVE, Joints(start))
+        step = _step_out(conn)
+        conn.ok(C.JOINT_MOVE, Joints(step.start))
         if wait_pending:
             conn.request(C.WAIT_END_MOVE, 60.0)
             time.sleep(0.05)
@@ -695,7 +705,7 @@ def _lose_controller_mid_move(ctx: Context, *, wait_pending: bool, requirement: 
             requirement=requirement,
         )
     stopped_after = time.monotonic() - closed
-    ran_to_the_end = abs(_joints(watcher)[0] - start[0]) < 0.05
+    ran_to_the_end = abs(_joints(watcher)[0] - step.start[0]) < 0.05
     stood = time.monotonic()
     powered = bool(status.powered)
     while powered and time.monotonic() < stood + 1.0:
@@ -704,8 +714,7 @@ def _lose_controller_mid_move(ctx: Context, *, wait_pending: bool, requirement: 
     # Bring joint 1 back to where it started.
     ctx.take_control(watcher)
     watcher.ok(C.ENABLE_POWER)
-    watcher.ok(C.JOINT_MOVE, Joints(start))
-    _wait_still(watcher, 30.0)
+    _step_back(watcher, step)
     watcher.call(C.RELEASE_CONTROL)
     return _Lost(status, stopped_after, ran_to_the_end, powered)
 

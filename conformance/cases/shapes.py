@@ -9,6 +9,7 @@ import socket
 import time
 
 from conformance.cases._util import endpoint_status
+from conformance.cases.robot import _step_back, _step_out
 from conformance.connection import Conn, typed_reply
 from conformance.context import Context
 from conformance.model import Fail, Informational, NotApplicable, case
@@ -361,11 +362,4 @@ def _advance_by_motion(conn: Conn) -> None:
     """Joint 1 by +2 degrees and back (the documented motion): time passes on any clock."""
     if not conn.ask(M.RobotStatusRequest()).powered:
         conn.ok(C.ENABLE_POWER)
-    start = list(conn.ask(M.HerejRequest()).joints.values)
-    there = [start[0] + 2.0, *start[1:]]
-    conn.ok(C.JOINT_MOVE, Joints(there))
-    conn.ok(C.JOINT_MOVE, Joints(start))
-    lease = conn.lease or 1.0
-    for _ in range(40):
-        if conn.ask(M.WaitEndMoveRequest(lease / 2), timeout=lease + 5.0).done:
-            break
+    _step_back(conn, _step_out(conn))

@@ -12,6 +12,8 @@ from conformance.cases.robot import (
     _joints,
     _Motion,
     _status,
+    _step_back,
+    _step_out,
     _wait_still,
     motion_desc,
 )
@@ -284,9 +286,7 @@ def queued_behind_wait(ctx: Context) -> str:
     with _Motion(ctx) as m:
         conn = m.conn
         m.power()
-        start = _joints(conn)
-        target = [start[0] + STEP_DEG, *start[1:]]
-        conn.ok(C.JOINT_MOVE, Joints(target))
+        step = _step_out(conn)
         piece = 5.0 if conn.lease is None else min(5.0, conn.lease / 2)
         wait_id = conn.request(C.WAIT_END_MOVE, piece)
         ids = [conn.request(C.HEREJ) for _ in range(count)]
@@ -296,8 +296,7 @@ def queued_behind_wait(ctx: Context) -> str:
             packet = conn.recv_packet(timeout=piece + 10.0)
             got[packet.request_id] = packet
         _wait_still(conn, 30.0)
-        conn.ok(C.JOINT_MOVE, Joints(start))
-        _wait_still(conn, 30.0)
+        _step_back(conn, step)
     if set(got) != {wait_id, *ids}:
         raise Fail("answers that echo no request", sorted(ids), sorted(got), requirement="RS-3.4")
     answers = [got[rid] for rid in ids]
