@@ -11,7 +11,7 @@ keeps the TCP connections.
   Herej, Here, RobotStatus, GetTime and WaitEndMove from it without asking the child.
 - **A pipe** (a socket pair carrying pickled ``(request ID, message)`` pairs, each message a
   dataclass of this module): every other command is forwarded as a :class:`Command`
-  (service, command ID, parameters, what the session holds) to the child's own
+  (service, the request the shell decoded, what the session holds) to the child's own
   :class:`~spec.server.HandlerService`, which answers exactly as in-process; its error
   packets come back with their codes. The child runs the service's urgent commands
   (EmergencyStop, StopMove, ResetMotion) and a lost controller the moment they arrive, the
@@ -52,11 +52,11 @@ from robotsocket.interface import OutOfRangeError, RobotError, RobotStatus
 from robotsocket.service import RobotService, error_code, status_reply, wait_reply
 from robotsocket.shared_state import SharedState, Snapshot
 from robotsocket.sync_service import attach_udp_sync
+from spec import messages as M
 from spec.errors import ErrorCode, ProtocolError
 from spec.params import Joints, Location, Value
 from spec.realtime import promote_current_thread
-from spec.registry import CommandId, lookup
-from spec.server import Handler, HandlerService, Identity, SessionView
+from spec.server import HandlerService, Identity, SessionView
 from spec.wire import MoveOutcome
 
 __all__ = [
@@ -206,11 +206,11 @@ class Who:
 
 @dataclass(frozen=True)
 class Command:
-    """Execute command ``cid`` of service ``service`` for the session ``who``."""
+    """Execute ``request`` (decoded and checked by the server process's shell) on service
+    ``service`` for the session ``who``."""
 
     service: str
-    cid: int
-    params: tuple[Value, ...]
+    request: M.Request[Any]
     who: Who
 
 
@@ -338,15 +338,13 @@ class _ChildHost:
 
     def _execute(self, rid: int, cmd: Command) -> None:
         service = self.parts.services[cmd.service]
-        spec = lookup(cmd.cid, service.identity.service)
         answer: Answer
         try:
-            assert spec is not None
-            answer = Ok(service.handle(cmd.who, spec, cmd.params))
+            answer = Ok(service.handle(cmd.who, cmd.request))
         except ProtocolError as exc:
             answer = Err(int(exc.code), exc.message)
         except Exception as exc:
-            log.exception("forwarded command 0x%04x failed", cmd.cid)
+            log.exception("forwarded command 0x%04x failed", cmd.request.command)
             answer = Err(int(ErrorCode.INTERNAL_ERROR), f"internal error: {exc!r}")
         self.publish()  # before the reply: a poll after it sees the command's effect
         self._send(rid, answer)
@@ -389,8 +387,8 @@ class _ChildHost:
     def _dispatch(self, rid: int, msg: object) -> None:
         """Answer ``msg`` now, or queue it on its service's worker (which answers it)."""
         match msg:
-            case Command(service=name, cid=cid) if name in self.parts.services:
-                if cid in self.parts.services[name].urgent:
+            case Command(service=name, request=request) if name in self.parts.services:
+                if request.command in self.parts.services[name].urgent:
                     self._execute(rid, msg)  # overtakes queued commands
                 else:
                     self._queues[name].put((rid, msg))
@@ -587,9 +585,9 @@ class RealtimeProcess:
         return reply.value
 
     def command(
-        self, name: str, cid: int, params: tuple[Value, ...], session: SessionView
+        self, name: str, request: M.Request[Any], session: SessionView
     ) -> tuple[Value, ...]:
-        out: tuple[Value, ...] = self._call(Command(name, cid, params, Who.of(session)))
+        out: tuple[Value, ...] = self._call(Command(name, request, Who.of(session)))
         return out
 
     def control_lost(self, name: str, why: str = "") -> None:
@@ -631,13 +629,10 @@ class ForwardedService(HandlerService):
         self.urgent = info.urgent
         self.blocking = info.blocking
         for cid in info.implemented:
-            self.register(cid, self._forwarder(cid))
+            self.register(M.REQUESTS[cid], self._forward)
 
-    def _forwarder(self, cid: int) -> Handler:
-        def handler(session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-            return self.child.command(self.name, cid, params, session)
-
-        return handler
+    def _forward(self, session: SessionView, request: M.Request[Any]) -> tuple[Value, ...]:
+        return self.child.command(self.name, request, session)
 
     def clock(self) -> float:
         return self.child.state.now()
@@ -663,11 +658,10 @@ class RobotProcess(ForwardedService):
         super().__init__(child, name)
         self.model = get_model(self.identity.model)
         self.period = float(child.facts.get("period", 0.004))
-        C = CommandId
-        self.register(C.HEREJ, self._herej)
-        self.register(C.HERE, self._here)
-        self.register(C.ROBOT_STATUS, self._status)
-        self.register(C.WAIT_END_MOVE, self._wait_end_move)
+        self.register(M.HerejRequest, self._herej)
+        self.register(M.HereRequest, self._here)
+        self.register(M.RobotStatusRequest, self._status)
+        self.register(M.WaitEndMoveRequest, self._wait_end_move)
 
     def error_code(self, exc: Exception) -> ErrorCode | None:
         return error_code(exc) if isinstance(exc, RobotError) else None
@@ -676,23 +670,23 @@ class RobotProcess(ForwardedService):
         self.child.check_alive()
         return self.child.state.read()
 
-    def _herej(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _herej(self, session: SessionView, request: M.HerejRequest) -> tuple[Value, ...]:
         return (Joints(list(self.snapshot().measured)),)
 
-    def _here(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        tool, frame = params
-        assert isinstance(tool, Location) and isinstance(frame, Location)
+    def _here(self, session: SessionView, request: M.HereRequest) -> tuple[Value, ...]:
         q = np.array(self.snapshot().measured)
-        return (Location(*here_at(self.model, q, tool.as_tuple(), frame.as_tuple())),)
+        here = here_at(self.model, q, request.tool.as_tuple(), request.frame.as_tuple())
+        return (Location(*here),)
 
-    def _status(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _status(self, session: SessionView, request: M.RobotStatusRequest) -> tuple[Value, ...]:
         s = self.snapshot()
         st = RobotStatus(s.powered, s.estop, s.moving, s.queue, None, self.child.state.now())
         return status_reply(st, s.error_code, s.error_message, session)
 
-    def _wait_end_move(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        (timeout,) = params
-        assert isinstance(timeout, float)
+    def _wait_end_move(
+        self, session: SessionView, request: M.WaitEndMoveRequest
+    ) -> tuple[Value, ...]:
+        timeout = request.timeout
         if not (0.0 < timeout <= 3600.0):
             raise OutOfRangeError(f"timeout must be in (0, 3600] s, got {timeout}")
         # the child publishes every cycle: look once a cycle until settled (or standing

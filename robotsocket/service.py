@@ -15,10 +15,10 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
-from kinematics.types import Loc
 from robotsocket.interface import (
     BadStateError,
     BusyError,
@@ -33,17 +33,9 @@ from robotsocket.interface import (
     SingularityError,
     UnreachableError,
 )
+from spec import messages as M
 from spec.errors import ErrorCode, ProtocolError
-from spec.messages import (
-    AlterQueueReply,
-    GetJointLogReply,
-    GetMotionDescReply,
-    ListIOReply,
-    ReadIOReply,
-    RobotStatusReply,
-    WaitEndMoveReply,
-)
-from spec.params import FloatArray, Joints, Location, Matrix, Value
+from spec.params import Joints, Location, Matrix, Value
 from spec.registry import CommandId
 from spec.server import Handler, HandlerService, Identity, SessionView
 from spec.wire import MoveOutcome
@@ -75,7 +67,7 @@ def status_reply(
     st: RobotStatus, code: int, message: str, session: SessionView
 ) -> tuple[Value, ...]:
     """The RobotStatus reply parameters (the last error as its wire code and message)."""
-    return RobotStatusReply(
+    return M.RobotStatusReply(
         st.powered,
         st.estop,
         st.moving,
@@ -90,17 +82,7 @@ def status_reply(
 
 def wait_reply(outcome: MoveOutcome, why: str) -> tuple[Value, ...]:
     """[RS-5.50] WaitEndMove's reply: done only for a move that reached its target."""
-    return WaitEndMoveReply(outcome is MoveOutcome.REACHED, outcome.value, why).encode()
-
-
-def _loc(value: Value) -> Loc:
-    assert isinstance(value, Location)
-    return value.as_tuple()
-
-
-def _float(value: Value) -> float:
-    assert isinstance(value, float)
-    return value
+    return M.WaitEndMoveReply(outcome is MoveOutcome.REACHED, outcome.value, why).encode()
 
 
 class RobotService(HandlerService):
@@ -121,39 +103,35 @@ class RobotService(HandlerService):
         info = robot.info()
         self.identity = Identity("robot", info.vendor, info.model, info.serial, software)
         self.control_lost_hooks: list[Callable[[], None]] = []
-        C = CommandId
-        for cid, handler in (
-            (C.ROBOT_STATUS, self._status),
-            (C.HEREJ, self._herej),
-            (C.HERE, self._here),
-            (C.ENABLE_POWER, self._enable_power),
-            (C.DISABLE_POWER, self._disable_power),
-            (C.JOINT_MOVE, self._joint_move),
-            (C.TOOL_MOVE_J, self._tool_move_j),
-            (C.TOOL_MOVE_L, self._tool_move_l),
-            (C.SET_MOTION_DESC, self._set_mdesc),
-            (C.GET_MOTION_DESC, self._get_mdesc),
-            (C.WAIT_END_MOVE, self._wait_end_move),
-            (C.STOP_MOVE, self._simple(robot.stop_move)),
-            (C.RESTART_MOVE, self._simple(robot.restart_move)),
-            (C.RESET_MOTION, self._simple(robot.reset_motion)),
-            (C.EMERGENCY_STOP, self._estop),
-            (C.RESET_EMERGENCY_STOP, self._simple(robot.reset_emergency_stop)),
-            (C.SET_OUTPUT, self._set_output),
-            (C.READ_IO, self._read_io),
-            (C.LIST_IO, self._list_io),
-            (C.GET_JOINT_LOG, self._joint_log),
-            (C.GET_JOINT_LIMITS, self._joint_limits),
-            (C.TOOL_MOVE_TRAJECTORY, self._tool_move_trajectory),
-        ):
-            self.register(cid, handler)
+        self.register(M.RobotStatusRequest, self._status)
+        self.register(M.HerejRequest, self._herej)
+        self.register(M.HereRequest, self._here)
+        self.register(M.EnablePowerRequest, self._simple(robot.enable_power))
+        self.register(M.DisablePowerRequest, self._simple(robot.disable_power))
+        self.register(M.JointMoveRequest, self._joint_move)
+        self.register(M.ToolMoveJRequest, self._tool_move_j)
+        self.register(M.ToolMoveLRequest, self._tool_move_l)
+        self.register(M.SetMotionDescRequest, self._set_mdesc)
+        self.register(M.GetMotionDescRequest, self._get_mdesc)
+        self.register(M.WaitEndMoveRequest, self._wait_end_move)
+        self.register(M.StopMoveRequest, self._simple(robot.stop_move))
+        self.register(M.RestartMoveRequest, self._simple(robot.restart_move))
+        self.register(M.ResetMotionRequest, self._simple(robot.reset_motion))
+        self.register(M.EmergencyStopRequest, self._estop)
+        self.register(M.ResetEmergencyStopRequest, self._simple(robot.reset_emergency_stop))
+        self.register(M.SetOutputRequest, self._set_output)
+        self.register(M.ReadIORequest, self._read_io)
+        self.register(M.ListIORequest, self._list_io)
+        self.register(M.GetJointLogRequest, self._joint_log)
+        self.register(M.GetJointLimitsRequest, self._joint_limits)
+        self.register(M.ToolMoveTrajectoryRequest, self._tool_move_trajectory)
         # alter mode is optional: listed in Hello only when the robot implements it
         if type(robot).alter_begin is not RobotInterface.alter_begin:
-            self.register(C.ALTER_BEGIN, self._alter_begin)
-            self.register(C.ALTER, self._alter)
-            self.register(C.ALTER_END, self._alter_end)
+            self.register(M.AlterBeginRequest, self._alter_begin)
+            self.register(M.AlterRequest, self._alter)
+            self.register(M.AlterEndRequest, self._alter_end)
         if type(robot).alter_queue is not RobotInterface.alter_queue:
-            self.register(C.ALTER_QUEUE, self._alter_queue)
+            self.register(M.AlterQueueRequest, self._alter_queue)
 
     # --- Service -----------------------------------------------------------------------------
 
@@ -182,57 +160,59 @@ class RobotService(HandlerService):
     # --- handlers ----------------------------------------------------------------------------
 
     @staticmethod
-    def _simple(fn: Callable[[], None]) -> Handler:
-        def handler(session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _simple(fn: Callable[[], None]) -> Handler[Any]:
+        """A handler of a command without parameters or reply: ``fn()``."""
+
+        def handler(session: SessionView, request: Any) -> tuple[Value, ...]:
             fn()
             return ()
 
         return handler
 
-    def _status(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _status(self, session: SessionView, request: M.RobotStatusRequest) -> tuple[Value, ...]:
         st = self.robot.status()
         err = st.last_error
         code, message = (0, "") if err is None else (int(error_code(err)), str(err))
         return status_reply(st, code, message, session)
 
-    def _herej(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _herej(self, session: SessionView, request: M.HerejRequest) -> tuple[Value, ...]:
         return (Joints(self.robot.herej_values()),)
 
-    def _here(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        return (Location(*self.robot.here(_loc(params[0]), _loc(params[1]))),)
+    def _here(self, session: SessionView, request: M.HereRequest) -> tuple[Value, ...]:
+        here = self.robot.here(request.tool.as_tuple(), request.frame.as_tuple())
+        return (Location(*here),)
 
-    def _enable_power(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        self.robot.enable_power()
-        return ()
+    def _joint_move(self, session: SessionView, request: M.JointMoveRequest) -> tuple[Value, ...]:
+        joints = request.joints.values
+        if len(joints) != 6:
+            raise InvalidArgumentError(f"JointMove needs 6 joints, got {len(joints)}")
+        return (self.robot.joint_move(np.array(joints)),)
 
-    def _disable_power(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        self.robot.disable_power()
-        return ()
+    def _tool_move_j(self, session: SessionView, request: M.ToolMoveJRequest) -> tuple[Value, ...]:
+        r = request
+        return (
+            self.robot.tool_move_j(r.location.as_tuple(), r.tool.as_tuple(), r.frame.as_tuple()),
+        )
 
-    def _joint_move(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        joints = params[0]
-        assert isinstance(joints, Joints)
-        if len(joints.values) != 6:
-            raise InvalidArgumentError(f"JointMove needs 6 joints, got {len(joints.values)}")
-        return (self.robot.joint_move(np.array(joints.values)),)
-
-    def _tool_move_j(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        return (self.robot.tool_move_j(_loc(params[0]), _loc(params[1]), _loc(params[2])),)
-
-    def _tool_move_l(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        return (self.robot.tool_move_l(_loc(params[0]), _loc(params[1]), _loc(params[2])),)
+    def _tool_move_l(self, session: SessionView, request: M.ToolMoveLRequest) -> tuple[Value, ...]:
+        r = request
+        return (
+            self.robot.tool_move_l(r.location.as_tuple(), r.tool.as_tuple(), r.frame.as_tuple()),
+        )
 
     def _tool_move_trajectory(
-        self, session: SessionView, params: tuple[Value, ...]
+        self, session: SessionView, request: M.ToolMoveTrajectoryRequest
     ) -> tuple[Value, ...]:
-        times, locations, tool, frame = params
-        assert isinstance(times, FloatArray) and isinstance(locations, Matrix)
+        locations = request.locations
         if locations.cols != 6:
             raise InvalidArgumentError(f"locations must have 6 columns, got {locations.cols}")
         locs = np.array(locations.values, dtype=np.float64).reshape(locations.rows, 6)
         try:
             move_id = self.robot.tool_move_trajectory(
-                np.array(times.values, dtype=np.float64), locs, _loc(tool), _loc(frame)
+                np.array(request.times.values, dtype=np.float64),
+                locs,
+                request.tool.as_tuple(),
+                request.frame.as_tuple(),
             )
         except NotImplementedError:
             raise ProtocolError(
@@ -240,37 +220,36 @@ class RobotService(HandlerService):
             ) from None
         return (move_id,)
 
-    def _alter_begin(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _alter_begin(self, session: SessionView, request: M.AlterBeginRequest) -> tuple[Value, ...]:
         try:
-            self.robot.alter_begin(_loc(params[0]), _float(params[1]))
+            self.robot.alter_begin(request.tool.as_tuple(), request.timeout)
         except NotImplementedError:
             raise ProtocolError("alter mode not implemented", ErrorCode.NOT_SUPPORTED) from None
         return ()
 
-    def _alter(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _alter(self, session: SessionView, request: M.AlterRequest) -> tuple[Value, ...]:
         try:
-            applied = self.robot.alter(_loc(params[0]))
+            applied = self.robot.alter(request.correction.as_tuple())
         except NotImplementedError:
             raise ProtocolError("alter mode not implemented", ErrorCode.NOT_SUPPORTED) from None
         return (Location(*(float(v) for v in applied)),)
 
-    def _alter_end(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _alter_end(self, session: SessionView, request: M.AlterEndRequest) -> tuple[Value, ...]:
         try:
             self.robot.alter_end()
         except NotImplementedError:
             raise ProtocolError("alter mode not implemented", ErrorCode.NOT_SUPPORTED) from None
         return ()
 
-    def _alter_queue(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        times, table = params
-        assert isinstance(times, FloatArray) and isinstance(table, Matrix)
-        t = np.array(times.values, dtype=np.float64)
+    def _alter_queue(self, session: SessionView, request: M.AlterQueueRequest) -> tuple[Value, ...]:
+        table = request.corrections
+        t = np.array(request.times.values, dtype=np.float64)
         c = np.array(table.values, dtype=np.float64).reshape(table.rows, table.cols)
         try:
             report, applied, now = self.robot.alter_queue(t, c)
         except NotImplementedError:
             raise ProtocolError("AlterQueue not implemented", ErrorCode.NOT_SUPPORTED) from None
-        return AlterQueueReply(
+        return M.AlterQueueReply(
             report.accepted,
             report.late,
             report.depth,
@@ -281,13 +260,21 @@ class RobotService(HandlerService):
             float(now),
         ).encode()
 
-    def _set_mdesc(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        self.robot.set_motion_desc(MotionDesc(*(_float(p) for p in params)))
+    def _set_mdesc(
+        self, session: SessionView, request: M.SetMotionDescRequest
+    ) -> tuple[Value, ...]:
+        r = request
+        desc = MotionDesc(
+            r.joint_speed, r.joint_accel, r.joint_decel, r.tool_speed, r.tool_rot_speed, r.blend
+        )
+        self.robot.set_motion_desc(desc)
         return ()
 
-    def _get_mdesc(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _get_mdesc(
+        self, session: SessionView, request: M.GetMotionDescRequest
+    ) -> tuple[Value, ...]:
         d = self.robot.motion_desc()
-        return GetMotionDescReply(
+        return M.GetMotionDescReply(
             d.joint_speed,
             d.joint_accel,
             d.joint_decel,
@@ -296,42 +283,42 @@ class RobotService(HandlerService):
             d.blend,
         ).encode()
 
-    def _wait_end_move(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        ended = self.robot.wait_end_move(_float(params[0]))
+    def _wait_end_move(
+        self, session: SessionView, request: M.WaitEndMoveRequest
+    ) -> tuple[Value, ...]:
+        ended = self.robot.wait_end_move(request.timeout)
         outcome, why = self.robot.move_outcome() if ended else (MoveOutcome.MOVING, "")
         return wait_reply(outcome, why)
 
-    def _estop(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _estop(self, session: SessionView, request: M.EmergencyStopRequest) -> tuple[Value, ...]:
         log.warning("emergency stop requested by session %d (%s)", session.id, session.peer[0])
         self.robot.emergency_stop()
         return ()
 
-    def _set_output(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        name, value = params
-        assert isinstance(name, str) and isinstance(value, bool)
-        self.robot.set_output(name, value)
+    def _set_output(self, session: SessionView, request: M.SetOutputRequest) -> tuple[Value, ...]:
+        self.robot.set_output(request.name, request.value)
         return ()
 
-    def _read_io(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        name = params[0]
-        assert isinstance(name, str)
-        value, is_output = self.robot.read_io(name)
-        return ReadIOReply(value, is_output).encode()
+    def _read_io(self, session: SessionView, request: M.ReadIORequest) -> tuple[Value, ...]:
+        value, is_output = self.robot.read_io(request.name)
+        return M.ReadIOReply(value, is_output).encode()
 
-    def _list_io(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _list_io(self, session: SessionView, request: M.ListIORequest) -> tuple[Value, ...]:
         outputs, inputs = self.robot.list_io()
-        return ListIOReply(",".join(outputs), ",".join(inputs)).encode()
+        return M.ListIOReply(",".join(outputs), ",".join(inputs)).encode()
 
-    def _joint_log(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        since = _float(params[0])
+    def _joint_log(self, session: SessionView, request: M.GetJointLogRequest) -> tuple[Value, ...]:
+        since = request.since
         if math.isnan(since):
             # [RS-5.58] NaN is no time; ±inf are (the whole buffer, no sample).
             raise ProtocolError("GetJointLog since must be a time, got NaN", ErrorCode.OUT_OF_RANGE)
         times, joints = self.robot.joint_log(since)
         rows = np.column_stack([times, joints]) if len(times) else np.zeros((0, 7))
         log = Matrix(rows.shape[0], 7, rows.ravel().tolist())
-        return GetJointLogReply(log, float(self.robot.period)).encode()
+        return M.GetJointLogReply(log, float(self.robot.period)).encode()
 
-    def _joint_limits(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _joint_limits(
+        self, session: SessionView, request: M.GetJointLimitsRequest
+    ) -> tuple[Value, ...]:
         lim = self.robot.joint_limits()
         return (Matrix(6, 2, lim.ravel().tolist()),)

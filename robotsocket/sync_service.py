@@ -22,10 +22,10 @@ from kinematics.transforms import location_to_transform, transform_to_location
 from kinematics.types import Loc
 from robotsocket.interface import BadStateError, OutOfRangeError, RobotInterface
 from robotsocket.service import RobotService
-from spec.messages import GetSyncConfigReply
-from spec.params import FloatArray, Location, Matrix, Value
-from spec.registry import BY_ID, SEAM_POINT_COLUMNS, CommandId
-from spec.server import Handler, SessionView
+from spec import messages as M
+from spec.params import Location, Matrix, Value
+from spec.registry import SEAM_POINT_COLUMNS
+from spec.server import SessionView
 from sync.seam_chain import FlangeToBase
 from sync.udp import RobotSyncCore, SyncStateError, UdpSyncEndpoint
 
@@ -80,20 +80,15 @@ class SyncService:
 
     def install(self, service: RobotService) -> None:
         """Register the handlers of 0x3001-0x3009 on ``service``."""
-        C = CommandId
-        handlers: tuple[tuple[int, Handler], ...] = (
-            (C.SET_SENSOR_ENDPOINT, self._set_endpoint),
-            (C.SET_SYNC_DELAY, self._set_delay),
-            (C.SET_SENSOR_TOOL, self._set_tool),
-            (C.GET_SYNC_CONFIG, self._get_config),
-            (C.START_TRIGGERS, self._start),
-            (C.SCHEDULE_TRIGGERS, self._schedule),
-            (C.STOP_TRIGGERS, self._stop),
-            (C.GET_SEAM_POINTS, self._points),
-            (C.GET_SYNC_STATISTICS, self._statistics),
-        )
-        for cid, handler in handlers:
-            service.register(cid, handler)
+        service.register(M.SetSensorEndpointRequest, self._set_endpoint)
+        service.register(M.SetSyncDelayRequest, self._set_delay)
+        service.register(M.SetSensorToolRequest, self._set_tool)
+        service.register(M.GetSyncConfigRequest, self._get_config)
+        service.register(M.StartTriggersRequest, self._start)
+        service.register(M.ScheduleTriggersRequest, self._schedule)
+        service.register(M.StopTriggersRequest, self._stop)
+        service.register(M.GetSeamPointsRequest, self._points)
+        service.register(M.GetSyncStatisticsRequest, self._statistics)
         # [RS-7.10] the triggers a lost controller started stop with the arm.
         service.control_lost_hooks.append(self.stop_on_control_lost)
 
@@ -140,34 +135,34 @@ class SyncService:
 
     # --- handlers ----------------------------------------------------------------------------
 
-    def _set_endpoint(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        host, port = params
-        assert isinstance(host, str) and isinstance(port, int)
-        self.set_endpoint(host, port)
+    def _set_endpoint(
+        self, session: SessionView, request: M.SetSensorEndpointRequest
+    ) -> tuple[Value, ...]:
+        self.set_endpoint(request.host, request.port)
         return ()
 
-    def _set_delay(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        (delta_t,) = params
-        assert isinstance(delta_t, float)
+    def _set_delay(self, session: SessionView, request: M.SetSyncDelayRequest) -> tuple[Value, ...]:
+        delta_t = request.delta_t
         if not (math.isfinite(delta_t) and abs(delta_t) <= 1.0):
             raise OutOfRangeError(f"delta_t must be within ±1 s, got {delta_t}")
         self.core.set_delay(delta_t)
         return ()
 
-    def _set_tool(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        (loc,) = params
-        assert isinstance(loc, Location)
+    def _set_tool(self, session: SessionView, request: M.SetSensorToolRequest) -> tuple[Value, ...]:
+        sensor2flange = location_to_transform(np.array(request.sensor2flange.as_tuple()))
         with self.core.lock:
-            self.core.sensor2flange = location_to_transform(np.array(loc.as_tuple()))
+            self.core.sensor2flange = sensor2flange
         return ()
 
-    def _get_config(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _get_config(
+        self, session: SessionView, request: M.GetSyncConfigRequest
+    ) -> tuple[Value, ...]:
         host, port = self.endpoint if self.endpoint is not None else ("", 0)
         with self.core.lock:
             s2f = transform_to_location(self.core.sensor2flange)
             triggering = self.core.scheduler.active
             rate = self.core.scheduler.rate
-        return GetSyncConfigReply(
+        return M.GetSyncConfigReply(
             host,
             port,
             float(self.core.delta_t_s),
@@ -176,30 +171,27 @@ class SyncService:
             float(rate),
         ).encode()
 
-    def _start(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        rate, count = params
-        assert isinstance(rate, float) and isinstance(count, int)
-        return (self.start(rate, count),)
+    def _start(self, session: SessionView, request: M.StartTriggersRequest) -> tuple[Value, ...]:
+        return (self.start(request.rate, request.count),)
 
-    def _schedule(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        (times,) = params
-        assert isinstance(times, FloatArray)
-        return (self.schedule(list(times.values)),)
+    def _schedule(
+        self, session: SessionView, request: M.ScheduleTriggersRequest
+    ) -> tuple[Value, ...]:
+        return (self.schedule(list(request.times.values)),)
 
-    def _stop(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _stop(self, session: SessionView, request: M.StopTriggersRequest) -> tuple[Value, ...]:
         self.core.stop()
         return ()
 
-    def _points(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        (since,) = params
-        assert isinstance(since, int)
-        rows = self.core.points_since(since, MAX_ROWS)
+    def _points(self, session: SessionView, request: M.GetSeamPointsRequest) -> tuple[Value, ...]:
+        rows = self.core.points_since(request.since, MAX_ROWS)
         return (Matrix(rows.shape[0], len(SEAM_POINT_COLUMNS), rows.ravel().tolist()),)
 
-    def _statistics(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _statistics(
+        self, session: SessionView, request: M.GetSyncStatisticsRequest
+    ) -> tuple[Value, ...]:
         s = self.core.statistics()
-        keys = [p.name for p in BY_ID[CommandId.GET_SYNC_STATISTICS].reply]
-        return tuple(s[k] for k in keys)
+        return tuple(s[p.name] for p in M.GetSyncStatisticsReply.table)
 
 
 def attach_udp_sync(

@@ -18,16 +18,10 @@ import math
 import numpy as np
 
 from sensorsocket.sensor import Reading, Sensor, SensorError
+from spec import messages as M
 from spec.codec import PreparedParams, prepare_params
 from spec.errors import ErrorCode, ProtocolError
-from spec.messages import (
-    GetDataReply,
-    GetSettingsReply,
-    GetTriggerEndpointReply,
-    SensorStatusReply,
-)
 from spec.params import Image, Location, Matrix, Value
-from spec.registry import CommandId
 from spec.server import HandlerService, Identity, SessionView
 from spec.wire import PixelFormat, PixelOrder, SensorStatus
 
@@ -56,19 +50,16 @@ class SensorService(HandlerService):
         # The full-frame reply of the latest reading: transposing 128 KiB costs ~70 µs and
         # its CRC a pass over it, so both are done once per frame, not once per GetImage.
         self._full_reply: tuple[Reading, PreparedParams] | None = None
-        for command, handler in {
-            CommandId.SENSOR_STATUS: self._status,
-            CommandId.GET_DATA: self._get_data,
-            CommandId.GET_IMAGE: self._get_image,
-            CommandId.GET_PROFILE: self._get_profile,
-            CommandId.SET_LASER: self._set_laser,
-            CommandId.SET_EXPOSURE: self._set_exposure,
-            CommandId.SET_READOUT_WINDOW: self._set_readout_window,
-            CommandId.GET_SETTINGS: self._get_settings,
-            CommandId.ACQUIRE: self._acquire,
-            CommandId.GET_TRIGGER_ENDPOINT: self._trigger_endpoint,
-        }.items():
-            self.register(command, handler)
+        self.register(M.SensorStatusRequest, self._status)
+        self.register(M.GetDataRequest, self._get_data)
+        self.register(M.GetImageRequest, self._get_image)
+        self.register(M.GetProfileRequest, self._get_profile)
+        self.register(M.SetLaserRequest, self._set_laser)
+        self.register(M.SetExposureRequest, self._set_exposure)
+        self.register(M.SetReadoutWindowRequest, self._set_readout_window)
+        self.register(M.GetSettingsRequest, self._get_settings)
+        self.register(M.AcquireRequest, self._acquire)
+        self.register(M.GetTriggerEndpointRequest, self._trigger_endpoint)
 
     def clock(self) -> float:
         return self.sensor.clock()
@@ -94,9 +85,9 @@ class SensorService(HandlerService):
             raise ProtocolError("no measurement yet: trigger or Acquire first", ErrorCode.NO_DATA)
         return reading
 
-    def _status(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _status(self, session: SessionView, request: M.SensorStatusRequest) -> tuple[Value, ...]:
         latest = self.sensor.latest
-        return SensorStatusReply(
+        return M.SensorStatusReply(
             self.sensor.settings.laser,
             self.sensor.frames,
             -1 if latest is None else latest.index,
@@ -105,13 +96,13 @@ class SensorService(HandlerService):
             float(self.sensor.clock()),
         ).encode()
 
-    def _get_data(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _get_data(self, session: SessionView, request: M.GetDataRequest) -> tuple[Value, ...]:
         r = self._latest()
         found = r.status is SensorStatus.FOUND
         seam = Location(*r.seam) if found else Location(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         # [SS-5.1] index, status, ^S_G T, quality, and the three sensor-clock times, which
         # satisfy t_arrival <= t_exposure_start <= t_exposure_end [SS-5.5].
-        return GetDataReply(
+        return M.GetDataReply(
             r.index,
             int(r.status),
             seam,
@@ -121,16 +112,15 @@ class SensorService(HandlerService):
             float(r.t_exposure_end),
         ).encode()
 
-    def _get_image(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _get_image(self, session: SessionView, request: M.GetImageRequest) -> tuple[Value, ...]:
         r = self._latest()
-        if not params:
+        if request.column is None:
             return self._full(r)
         width, height = self.sensor.width, self.sensor.height
-        ints = [int(p) for p in params if isinstance(p, int)]
-        column = ints[0] if len(ints) > 0 else 0
-        row = ints[1] if len(ints) > 1 else 0
-        w = ints[2] if len(ints) > 2 else width - column
-        h = ints[3] if len(ints) > 3 else height - row
+        column = request.column
+        row = 0 if request.row is None else request.row
+        w = width - column if request.width is None else request.width
+        h = height - row if request.height is None else request.height
         if not (
             0 <= column < width and 0 <= row < height and w >= 1 and h >= 1
             and column + w <= width and row + h <= height
@@ -159,15 +149,17 @@ class SensorService(HandlerService):
         self._full_reply = (r, reply)
         return reply
 
-    def _get_profile(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _get_profile(self, session: SessionView, request: M.GetProfileRequest) -> tuple[Value, ...]:
         r = self._latest()
         # [SS-5.9] N x 3 stripe points in S, mm.
         points = np.ascontiguousarray(r.points, dtype=np.float64).reshape(-1, 3)
         return (r.index, Matrix(points.shape[0], 3, points.ravel().tolist()))
 
-    def _get_settings(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _get_settings(
+        self, session: SessionView, request: M.GetSettingsRequest
+    ) -> tuple[Value, ...]:
         s = self.sensor.settings
-        return GetSettingsReply(
+        return M.GetSettingsReply(
             s.laser,
             float(s.exposure_s),
             s.first_column,
@@ -178,33 +170,33 @@ class SensorService(HandlerService):
         ).encode()
 
     def _trigger_endpoint(
-        self, session: SessionView, params: tuple[Value, ...]
+        self, session: SessionView, request: M.GetTriggerEndpointRequest
     ) -> tuple[Value, ...]:
         host, port = self.trigger_endpoint
-        return GetTriggerEndpointReply(host, int(port)).encode()
+        return M.GetTriggerEndpointReply(host, int(port)).encode()
 
     # --- need control (checked by the shell) [RS-7.4] ---------------------------------------
 
-    def _set_laser(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        self.sensor.set_laser(bool(params[0]))
+    def _set_laser(self, session: SessionView, request: M.SetLaserRequest) -> tuple[Value, ...]:
+        self.sensor.set_laser(request.on)
         return ()
 
-    def _set_exposure(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        exposure = params[0]
-        assert isinstance(exposure, float)
+    def _set_exposure(
+        self, session: SessionView, request: M.SetExposureRequest
+    ) -> tuple[Value, ...]:
+        exposure = request.exposure
         # [SS-5.6] outside 1e-6..0.01 s: OUT_OF_RANGE (SensorError is mapped in handle).
         self.sensor.set_exposure(exposure if math.isfinite(exposure) else math.nan)
         return ()
 
     def _set_readout_window(
-        self, session: SessionView, params: tuple[Value, ...]
+        self, session: SessionView, request: M.SetReadoutWindowRequest
     ) -> tuple[Value, ...]:
-        first, columns = params
-        assert isinstance(first, int) and isinstance(columns, int)
         # [SS-5.6] [SS-5.7] replies with the acquisition time, proportional to the columns.
-        return (float(self.sensor.set_readout_window(first, columns)),)
+        window = self.sensor.set_readout_window(request.first_column, request.columns)
+        return (float(window),)
 
-    def _acquire(self, session: SessionView, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _acquire(self, session: SessionView, request: M.AcquireRequest) -> tuple[Value, ...]:
         return (self.sensor.acquire().index,)
 
 

@@ -91,7 +91,9 @@ class Message:
     what: ClassVar[str] = ""
     #: Trailing parameters beyond the table are ignored (replies [RS-5.6]), else refused.
     allow_extra: ClassVar[bool] = False
-    _classes: ClassVar[tuple[type, ...]] = ()
+    #: The Python class of each field when every field is given (``None`` for a table whose
+    #: last field repeats): parameters of exactly these classes are ``cls(*params)``.
+    exact: ClassVar[tuple[type, ...] | None] = ()
     _required: ClassVar[int] = 0
     _get: ClassVar[Callable[[Any], tuple[Any, ...]]] = _getter(())
     _trim: ClassVar[bool] = False  # some trailing fields are optional
@@ -110,14 +112,14 @@ class Message:
         cls._repeated = bool(table) and table[-1].repeated
         cls._trim = any(p.optional for p in table)
         # An exact-class tuple the fast path compares with; a repeated table never matches it.
-        cls._classes = () if cls._repeated else tuple(CLASS_OF[p.type] for p in table)
+        cls.exact = None if cls._repeated else tuple(CLASS_OF[p.type] for p in table)
         cls._get = _getter(tuple(p.name for p in table))
 
     @classmethod
     def decode(cls: type[M], params: Sequence[Value]) -> M:
         """The message of parameter tuple ``params``; :class:`MessageError` (naming the command,
         the field, the expected and the got type) when they do not fit its table."""
-        if tuple(map(type, params)) == cls._classes:
+        if tuple(map(type, params)) == cls.exact:
             return cast("Callable[..., M]", cls)(*params)  # nearly always: the declared types
         return cast("Callable[..., M]", cls)(*cls._checked(params))
 
@@ -144,6 +146,11 @@ class Message:
             k = len(table) - 1
             return [*values[:k], tuple(values[k:])]
         return values + [None] * (len(table) - len(values))  # optional ones left off
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # Pickled as its class and its fields (the real-time pipe carries requests): a third
+        # cheaper than the frozen dataclass's own state protocol.
+        return (type(self), type(self)._get(self))
 
     def as_dict(self) -> dict[str, Any]:
         """The fields by name, in table order (e.g. for a JSON report)."""

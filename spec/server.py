@@ -41,7 +41,7 @@ from collections import Counter, deque
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from types import FrameType
-from typing import Any
+from typing import Any, NamedTuple, TypeVar
 
 from spec import wire
 from spec.auth import Network, address_allowed
@@ -56,8 +56,17 @@ from spec.codec import (
 )
 from spec.control import ControlState, SessionView, Slots, WrongToken
 from spec.errors import ErrorCode, PeerError, ProtocolError
+from spec.messages import (
+    REQUESTS,
+    HelloReply,
+    HelloRequest,
+    PingRequest,
+    Request,
+    SetFrameCrcRequest,
+    TakeControlRequest,
+)
 from spec.params import IntArray, Value
-from spec.registry import CommandId, CommandSpec, check_params, commands_for, lookup
+from spec.registry import BY_ID, CommandId, CommandSpec, check_params, commands_for, lookup
 from spec.shells import register
 from spec.sockopt import set_kernel_timeouts
 from spec.wire import PacketKind
@@ -281,12 +290,11 @@ class Service:
     #: Commands that may block (WaitEndMove): run on the session's worker [RS-7.12].
     blocking: frozenset[int] = frozenset()
 
-    def handle(
-        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
-    ) -> tuple[Value, ...]:
-        """Execute a request whose parameters already match ``spec``; return the reply
-        parameters or raise :class:`ProtocolError`."""
-        raise ProtocolError(f"{spec.name} not implemented", ErrorCode.UNKNOWN_COMMAND)
+    def handle(self, session: SessionView, request: Request[Any]) -> tuple[Value, ...]:
+        """Execute ``request``, decoded by the shell after its parameters matched the
+        registry; return the reply parameters or raise :class:`ProtocolError`."""
+        what = BY_ID[request.command].name
+        raise ProtocolError(f"{what} not implemented", ErrorCode.UNKNOWN_COMMAND)
 
     def implemented(self) -> tuple[int, ...]:
         """Command IDs this service answers (default: all of its service in the registry)."""
@@ -308,7 +316,10 @@ class Service:
         """A connection closed (after control was released)."""
 
 
-Handler = Callable[[SessionView, tuple[Value, ...]], tuple[Value, ...]]
+#: The request class a handler takes.
+Q = TypeVar("Q", bound="Request[Any]")
+#: A handler of request class ``Q``: ``handler(session, request) -> reply parameters``.
+Handler = Callable[[SessionView, Q], tuple[Value, ...]]
 
 
 class HandlerService(Service):
@@ -316,14 +327,15 @@ class HandlerService(Service):
 
     :meth:`register` adds or replaces a handler (before the server is constructed: the shell
     reads :meth:`implemented` once); :meth:`error_code` maps the service's own exceptions to
-    wire codes in one place."""
+    wire codes in one place. A handler takes the typed request of its command
+    (``session, AlterRequest -> reply parameters``) and reads its fields by name."""
 
     def __init__(self) -> None:
-        self._handlers: dict[int, Handler] = {}
+        self._handlers: dict[int, Handler[Any]] = {}
 
-    def register(self, command: int, handler: Handler) -> None:
-        """Serve ``command`` with ``handler(session, params) -> reply params``."""
-        self._handlers[int(command)] = handler
+    def register(self, request: type[Q], handler: Handler[Q]) -> None:
+        """Serve the command of request class ``request`` with ``handler``."""
+        self._handlers[int(request.command)] = handler
 
     def implemented(self) -> tuple[int, ...]:
         return tuple(sorted(self._handlers))
@@ -332,14 +344,12 @@ class HandlerService(Service):
         """The wire code of a service exception; None lets it become INTERNAL_ERROR."""
         return None
 
-    def handle(
-        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
-    ) -> tuple[Value, ...]:
-        handler = self._handlers.get(spec.id)  # an IntEnum hashes as its int
+    def handle(self, session: SessionView, request: Request[Any]) -> tuple[Value, ...]:
+        handler = self._handlers.get(request.command)  # an IntEnum hashes as its int
         if handler is None:  # the shell answers unknown IDs before: only a direct call
-            raise ProtocolError(f"{spec.name} not implemented", ErrorCode.UNKNOWN_COMMAND)
+            return super().handle(session, request)
         try:
-            return handler(session, params)
+            return handler(session, request)
         except ProtocolError:
             raise
         except Exception as exc:
@@ -347,6 +357,21 @@ class HandlerService(Service):
             if code is None:
                 raise
             raise ProtocolError(str(exc), code) from None
+
+
+class _Command(NamedTuple):
+    """What the shell knows of a command it serves, found by one look-up per request."""
+
+    spec: CommandSpec
+    message: type[Request[Any]]
+    #: The field classes of a request with every field (:attr:`Message.exact`).
+    exact: tuple[type, ...] | None
+    #: The request class as the constructor of such a request.
+    make: Callable[..., Request[Any]]
+    #: The one instance of a request without fields (None if it has fields).
+    bare: Request[Any] | None
+    #: The shell's own handler of a common command (None: the service's command).
+    common: _Handler | None
 
 
 def listen(host: str, port: int) -> socket.socket:
@@ -409,11 +434,14 @@ class FramedServer:
         self._implemented = frozenset(service.implemented()) | {int(c) for c in _COMMON}
         # Per request, one dict look-up finds what the shell needs to know of a command.
         name = service.identity.service
-        self._specs: dict[int, CommandSpec] = {}
+        self._specs: dict[int, _Command] = {}
         for command in self._implemented:
             spec = lookup(command, name)
             if spec is not None:
-                self._specs[command] = spec
+                message = REQUESTS[command]
+                bare = None if message.table else message()  # immutable: one serves all
+                common = _COMMON.get(command)
+                self._specs[command] = _Command(spec, message, message.exact, message, bare, common)
         self._urgent = frozenset(service.urgent)
         self._blocking = frozenset(service.blocking)
 
@@ -850,8 +878,8 @@ class FramedServer:
         session.send_parts(parts)
 
     def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
-        spec = self._specs.get(packet.command)
-        if spec is None:
+        entry = self._specs.get(packet.command)
+        if entry is None:
             service = self.service.identity.service
             known = lookup(packet.command, service)
             if known is not None:
@@ -864,27 +892,35 @@ class FramedServer:
                 f"unknown command 0x{packet.command:04x} for the {service} service",
                 ErrorCode.UNKNOWN_COMMAND,
             )
+        spec, message, exact, make, bare, common = entry
         if session.reserved and packet.command != CommandId.EMERGENCY_STOP:
             # [RS-7.14] a reserved connection serves EmergencyStop only.
             raise ProtocolError(
                 f"client limit reached: only EmergencyStop is served here, not {spec.name}",
                 ErrorCode.BUSY,
             )
-        if packet.params or spec.params:  # nothing to check for Herej, RobotStatus, ...
-            check_params(spec.params, packet.params, spec.name)
+        # Decoded once, here: every handler reads its request's fields by name.
+        params = packet.params
+        request: Request[Any]
+        if bare is not None and not params:
+            request = bare  # Herej, RobotStatus, ...: nothing to check
+        elif tuple(map(type, params)) == exact:
+            request = make(*params)  # nearly always: every field, of its declared class
+        else:
+            check_params(spec.params, params, spec.name)  # [RS-5.4] in its own words
+            request = message.decode(params)  # optional fields left off
         if spec.needs_control and not session.in_control:
             # [RS-7.4] commands that move or switch anything need control.
             why = self.control.refusal(session.control_lost)
             raise ProtocolError(f"{spec.name} needs control ({why})", ErrorCode.NOT_IN_CONTROL)
-        common = _COMMON.get(spec.id)
         if common is not None:
-            return common(self, session, packet.params)
-        return self.service.handle(session, spec, packet.params)
+            return common(self, session, request)
+        return self.service.handle(session, request)
 
     # --- common commands ---------------------------------------------------------------------
 
-    def _hello(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        major = params[0]
+    def _hello(self, session: Session, request: HelloRequest) -> tuple[Value, ...]:
+        major = request.major
         if major != wire.VERSION_MAJOR:
             # [RS-5.2] a client that cannot speak our major version is told so.
             raise ProtocolError(
@@ -892,7 +928,7 @@ class FramedServer:
                 ErrorCode.UNSUPPORTED_VERSION,
             )
         ident = self.service.identity
-        return (
+        return HelloReply(
             wire.VERSION,
             ident.service,
             ident.vendor,
@@ -904,15 +940,13 @@ class FramedServer:
             self.policy.max_clients,
             float(self.policy.idle_timeout),
             float(self.policy.frame_timeout),
-        )
+        ).encode()
 
-    def _ping(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        data = params[0] if params else b""
-        return (data,)
+    def _ping(self, session: Session, request: PingRequest) -> tuple[Value, ...]:
+        return (b"" if request.data is None else request.data,)
 
-    def _take_control(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        token, policy = params[0], self.policy
-        assert isinstance(token, str)  # check_params made sure of it
+    def _take_control(self, session: Session, request: TakeControlRequest) -> tuple[Value, ...]:
+        token, policy = request.token, self.policy
         address = session.peer[0]
         try:
             with self._lock:  # the back-off table is shared by every session's reader
@@ -925,10 +959,8 @@ class FramedServer:
                 session.id, address, exc.failures, exc.delay,
             )  # fmt: skip
             raise
-        asked = params[1] if len(params) > 1 else None
-        assert asked is None or isinstance(asked, float)
         watchdog = self.control.check_lease(
-            asked, policy.watchdog, policy.watchdog_min, policy.watchdog_max
+            request.watchdog, policy.watchdog, policy.watchdog_min, policy.watchdog_max
         )
         with self._control:
             # The wait for a lost controller's controlled stop is here; the rule is take's.
@@ -941,22 +973,22 @@ class FramedServer:
         log.info("session %d took control (watchdog %g s)", session.id, watchdog)
         return (watchdog,)
 
-    def _release_control(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _release_control(self, session: Session, request: Request[Any]) -> tuple[Value, ...]:
         # [RS-7.21] the outputs are off before the reply: a client that reads them after
         # it finds them off.
         self._end_control(session, "released", lost=False)
         return ()
 
-    def _get_time(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
+    def _get_time(self, session: Session, request: Request[Any]) -> tuple[Value, ...]:
         return (float(self.service.clock()),)
 
-    def _set_frame_crc(self, session: Session, params: tuple[Value, ...]) -> tuple[Value, ...]:
-        session.crc = bool(params[0])
+    def _set_frame_crc(self, session: Session, request: SetFrameCrcRequest) -> tuple[Value, ...]:
+        session.crc = request.enabled
         log.info("session %d: frame CRC %s", session.id, "on" if session.crc else "off")
         return (session.crc,)
 
 
-_Handler = Callable[[FramedServer, Session, tuple[Value, ...]], tuple[Value, ...]]
+_Handler = Callable[[FramedServer, Session, Any], tuple[Value, ...]]
 _COMMON: dict[int, _Handler] = {
     CommandId.HELLO: FramedServer._hello,
     CommandId.PING: FramedServer._ping,

@@ -34,13 +34,13 @@ from kinematics.robot import RobotModel, get_model
 from kinematics.transforms import location_to_transform
 from kinematics.types import FloatArray
 from spec import params as wire_params
-from spec.client import ClientTimeout, FramedClient, wait_end_move
-from spec.errors import RemoteError
+from spec.client import ClientTimeout, FramedClient, wait_end_move, wait_move
+from spec.errors import ErrorCode, RemoteError
 from spec.exitcodes import ExitCode
 from spec.files import atomic_path, prepare_output_path, write_atomically
 from spec.params import IDENTITY_LOCATION, IntArray, Location, Matrix, Value
 from spec.registry import BY_ID, SEAM_POINT_COLUMNS, CommandId
-from spec.wire import SensorStatus
+from spec.wire import MoveOutcome, SensorStatus
 from sync.delay import (
     DelayEstimate,
     QualityLimits,
@@ -339,6 +339,26 @@ def _check_endpoints(
     return model
 
 
+def _stop_triggers(robot: FramedClient) -> None:
+    """StopTriggers; a robot that has taken control away stopped them itself [RS-7.10]
+    (so the error that ended the run is the one reported)."""
+    try:
+        robot.call(CommandId.STOP_TRIGGERS)
+    except RemoteError as exc:
+        if exc.code is not ErrorCode.NOT_IN_CONTROL:
+            raise
+
+
+def _sine_done(robot: FramedClient, wait_s: float) -> bool:
+    """Wait up to ``wait_s`` for the sine move: True once it has reached its end. A move
+    stopped short (the robot took control away, an emergency stop) or failed ends the run:
+    its data would fit only a part of the sine, and waiting on would never end."""
+    moved = wait_move(robot, wait_s)
+    if moved.outcome in (MoveOutcome.STOPPED, MoveOutcome.FAILED):
+        raise ExperimentError(f"the sine move {moved.outcome}: {moved.reason}")
+    return moved.reached
+
+
 def record_sine(
     robot: FramedClient,
     sensor: FramedClient | None,
@@ -394,7 +414,7 @@ def record_sine(
         chunk = s.rest_s if s.rest_s >= _MIN_REST_CHECK_S else float(s.chunk_s)
         while True:
             if not done:
-                done = wait_end_move(robot, chunk)
+                done = _sine_done(robot, chunk)
             rows = _matrix(_reply(robot, CommandId.GET_JOINT_LOG, float(log_since))["log"])
             if rows.size:
                 logs.append(rows)
@@ -422,7 +442,7 @@ def record_sine(
             if done:
                 break
     finally:
-        robot.call(CommandId.STOP_TRIGGERS)
+        _stop_triggers(robot)
     # This run's own counts; "pending" is a level, not a count.
     stats = {
         k: v - (stats_before.get(k, 0) if k != "pending" else 0)

@@ -17,7 +17,7 @@ from spec.client import FramedClient
 from spec.errors import ErrorCode, RemoteError
 from spec.params import FloatArray, Location, Matrix
 from spec.registry import SEAM_POINT_COLUMNS, CommandId
-from sync.experiment import ExperimentSettings, run_delay_experiment
+from sync.experiment import ExperimentError, ExperimentSettings, run_delay_experiment
 from sync.interpolate import lerp_inside
 from sync.network import DelayLink
 
@@ -243,3 +243,33 @@ def test_node_poses_hook_matches_column_poses() -> None:
         # outside the known setpoints the hook declines
         assert hook(np.array([buf_t[-1] + 1e-3])) is None
         assert hook(np.array([buf_t[0] - 1.0])) is None
+
+
+def test_a_delay_run_whose_control_is_taken_away_ends_with_the_reason(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The client stalls past its 0.25 s lease (its keep-alive with it) during the sine: the
+    robot takes control away and stops the arm [RS-7.10]. The run ends with that reason
+    (it once waited for the stopped move forever: a 600 s test timeout in a loaded run)."""
+    import time
+
+    from spec import client as spec_client
+    from sync import experiment
+
+    original = spec_client.wait_move
+    calls = [0]
+
+    def stalled(client: FramedClient, timeout: float) -> object:
+        calls[0] += 1
+        if calls[0] == 2:
+            client._stop_keeper()
+            time.sleep(1.0)  # four leases
+        return original(client, timeout)
+
+    monkeypatch.setattr(experiment, "wait_move", stalled)
+    with EmulatedCell(clock="sim", seed=3, timing=PAPER) as cell:
+        with pytest.raises(ExperimentError, match=r"the sine move stopped: .*control"):
+            run_delay_experiment(
+                cell.robot_address, cell.sensor_address, ExperimentSettings(duration_s=3.0)
+            )
+        assert not cell.robot.status().moving

@@ -30,15 +30,17 @@ from conformance.context import Options
 from conformance.model import Outcome
 from conformance.runner import RunResult, Selection, exit_code, run
 from kinematics.transforms import concat, invert, location_to_transform, transform_to_location
+from spec import messages as M
 from spec import wire
 from spec.auth import AuthBackoff
 from spec.codec import FrameDecoder, Packet, Rejected, decode_packet, encode_packet
+from spec.control import Admission, Slots
 from spec.datagrams import SensorData, Trigger, decode_datagram, encode_data, encode_trigger
 from spec.errors import DatagramError, ErrorCode, ProtocolError
 from spec.exitcodes import ExitCode
 from spec.messages import RobotStatusReply
 from spec.params import Image, Joints, Location, Matrix, Value
-from spec.registry import BY_ID, CommandSpec, check_params, commands_for, profiles_for
+from spec.registry import BY_ID, check_params, commands_for, profiles_for
 from spec.registry import CommandId as C
 from spec.server import FramedServer, Identity, ServerPolicy, Service, Session, SessionView
 from spec.wire import PacketKind, SensorStatus
@@ -55,7 +57,7 @@ class MiniRobot(Service):
     """A robot service without motion: status, joints, Here, motion descriptor, I/O, log."""
 
     identity = Identity("robot", vendor="test", model="mini-robot", serial="1")
-    COMMANDS = (
+    COMMANDS: tuple[C, ...] = (
         C.ROBOT_STATUS,
         C.HEREJ,
         C.HERE,
@@ -86,48 +88,46 @@ class MiniRobot(Service):
         return location_to_transform([400 + q[0], q[1], 600 + q[2], q[3], q[4] + 90, q[5]])
 
     def handle(  # noqa: C901  a fake server: one branch per command it answers
-        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
+        self, session: SessionView, request: M.Request[Any]
     ) -> tuple[Value, ...]:
-        c, now = spec.id, self.clock()
+        c, now = request.command, self.clock()
         if c == C.ROBOT_STATUS:
             mine, held = session.in_control, session.control_held
             return RobotStatusReply(False, False, False, 0, mine, held, 0, "", now).encode()
         if c == C.HEREJ:
             return (Joints(self.q),)
-        if c == C.HERE:
-            tool, frame = params
-            assert isinstance(tool, Location) and isinstance(frame, Location)
+        if isinstance(request, M.HereRequest):
             t = concat(
-                invert(location_to_transform(frame.as_tuple())),
+                invert(location_to_transform(request.frame.as_tuple())),
                 self.flange(),
-                location_to_transform(tool.as_tuple()),
+                location_to_transform(request.tool.as_tuple()),
             )
             return (Location.of(transform_to_location(t)),)
         if c == C.GET_MOTION_DESC:
             return tuple(self.mdesc)
-        if c == C.SET_MOTION_DESC:
-            v = [float(p) for p in params]  # type: ignore[arg-type]
+        if isinstance(request, M.SetMotionDescRequest):
+            v = [float(x) for x in request.as_dict().values()]
             if not (all(0 < x <= 100 for x in v[:3]) and v[3] > 0 and v[4] > 0 and v[5] >= 0):
                 raise ProtocolError("motion descriptor out of range", ErrorCode.OUT_OF_RANGE)
             self.mdesc = v
             return ()
-        if c == C.WAIT_END_MOVE:
-            if not 0 < float(params[0]) <= 3600:  # type: ignore[arg-type]
+        if isinstance(request, M.WaitEndMoveRequest):
+            if not 0 < request.timeout <= 3600:
                 raise ProtocolError("timeout out of (0, 3600] s", ErrorCode.OUT_OF_RANGE)
             return (True,)
         if c in (C.STOP_MOVE, C.RESET_MOTION):
             return ()
         if c == C.LIST_IO:
             return (",".join(self.outputs), ",".join(self.inputs))
-        if c == C.READ_IO:
-            name = params[0]
+        if isinstance(request, M.ReadIORequest):
+            name = request.name
             if name in self.outputs:
-                return (self.outputs[str(name)], True)
+                return (self.outputs[name], True)
             if name in self.inputs:
-                return (self.inputs[str(name)], False)
+                return (self.inputs[name], False)
             raise ProtocolError(f"no I/O named {name!r}", ErrorCode.OUT_OF_RANGE)
-        if c == C.GET_JOINT_LOG:
-            since = float(params[0])  # type: ignore[arg-type]
+        if isinstance(request, M.GetJointLogRequest):
+            since = request.since
             if math.isnan(since):
                 raise ProtocolError("since is NaN", ErrorCode.OUT_OF_RANGE)  # [RS-5.58]
             k1 = int((now - self.t0) / 0.004)
@@ -145,7 +145,7 @@ class MiniRobot(Service):
                 (-270, 270),
             ]
             return (Matrix(6, 2, [v for r in lims for v in r]),)
-        raise ProtocolError(f"{spec.name} not implemented", ErrorCode.NOT_SUPPORTED)
+        raise ProtocolError(f"{BY_ID[c].name} not implemented", ErrorCode.NOT_SUPPORTED)
 
 
 class MiniSensor(Service):
@@ -170,9 +170,9 @@ class MiniSensor(Service):
             self.laser = False  # [RS-7.23] a lost controller's laser goes off
 
     def handle(  # noqa: C901  a fake server: one branch per command it answers
-        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
+        self, session: SessionView, request: M.Request[Any]
     ) -> tuple[Value, ...]:
-        c = spec.id
+        c = request.command
         with self.lock:
             if c == C.SENSOR_STATUS:
                 return (
@@ -196,41 +196,39 @@ class MiniSensor(Service):
                 if self.reading is None:
                     raise ProtocolError("no measurement yet", ErrorCode.NO_DATA)
                 return self.reading
-            if c == C.GET_IMAGE:
+            if isinstance(request, M.GetImageRequest):
                 if self.reading is None:
                     raise ProtocolError("no image yet", ErrorCode.NO_DATA)
                 # [SS-5.10] left-off width and height: the rest of the sensor.
-                col, row = ([*list(params), 0, 0])[:2]
-                assert isinstance(col, int) and isinstance(row, int)
-                col, row, w, h = (
-                    list(params) + [col, row, self.W - col, self.H - row][len(params) :]
-                )[:4]
-                assert all(isinstance(v, int) for v in (col, row, w, h))
+                col = request.column or 0
+                row = request.row or 0
+                w = self.W - col if request.width is None else request.width
+                h = self.H - row if request.height is None else request.height
                 if not (
                     col >= 0
                     and row >= 0
                     and w > 0
-                    and h > 0  # type: ignore[operator]
+                    and h > 0
                     and col + w <= self.W
                     and row + h <= self.H
                 ):
                     raise ProtocolError("region outside the sensor", ErrorCode.OUT_OF_RANGE)
-                return (self.index, Image(int(w), int(h), bytes(int(w) * int(h))))
+                return (self.index, Image(w, h, bytes(w * h)))
             if c == C.GET_PROFILE:
                 if self.reading is None:
                     raise ProtocolError("no profile yet", ErrorCode.NO_DATA)
                 return (self.index, Matrix(2, 3, [0, 1, 80, 1, 1, 80]))
-            if c == C.SET_LASER:
-                self.laser = bool(params[0])
+            if isinstance(request, M.SetLaserRequest):
+                self.laser = request.on
                 return ()
-            if c == C.SET_EXPOSURE:
-                e = float(params[0])  # type: ignore[arg-type]
+            if isinstance(request, M.SetExposureRequest):
+                e = request.exposure
                 if not 1e-6 <= e <= 0.01:
                     raise ProtocolError("exposure out of range", ErrorCode.OUT_OF_RANGE)
                 self.exposure = e
                 return ()
-            if c == C.SET_READOUT_WINDOW:
-                first, cols = int(params[0]), int(params[1])
+            if isinstance(request, M.SetReadoutWindowRequest):
+                first, cols = request.first_column, request.columns
                 if not (first >= 0 and cols >= 16 and first + cols <= self.W):
                     raise ProtocolError("window out of range", ErrorCode.OUT_OF_RANGE)
                 self.window = (first, cols)
@@ -239,7 +237,7 @@ class MiniSensor(Service):
                 return (self.laser, self.exposure, *self.window, self.acq_time(), self.W, self.H)
             if c == C.GET_TRIGGER_ENDPOINT:
                 return ("", 0)
-        raise ProtocolError(f"{spec.name} not implemented", ErrorCode.NOT_SUPPORTED)
+        raise ProtocolError(f"{BY_ID[c].name} not implemented", ErrorCode.NOT_SUPPORTED)
 
 
 @contextmanager
@@ -489,7 +487,7 @@ class UnlistedServer(FramedServer):
         if packet.command == C.GET_JOINT_LIMITS:
             spec = BY_ID[C.GET_JOINT_LIMITS]
             check_params(spec.params, packet.params)
-            return self.service.handle(session, spec, packet.params)
+            return self.service.handle(session, M.request_of(spec.id, packet.params))
         return super()._execute(session, packet)
 
 
@@ -502,11 +500,9 @@ def test_command_missing_from_hello_is_caught() -> None:
 class WrongStatusTypeRobot(MiniRobot):
     """Answers GetStatus with ``powered`` as the INT 1 instead of a BOOL."""
 
-    def handle(
-        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
-    ) -> tuple[Value, ...]:
-        reply = super().handle(session, spec, params)
-        return (1, *reply[1:]) if spec.id == C.ROBOT_STATUS else reply
+    def handle(self, session: SessionView, request: M.Request[Any]) -> tuple[Value, ...]:
+        reply = super().handle(session, request)
+        return (1, *reply[1:]) if request.command == C.ROBOT_STATUS else reply
 
 
 def test_a_reply_field_of_the_wrong_type_is_a_fail_of_its_requirement() -> None:
@@ -526,11 +522,10 @@ def test_a_reply_field_of_the_wrong_type_is_a_fail_of_its_requirement() -> None:
 class ShortImageSensor(MiniSensor):
     """Answers GetImage of a region with the index alone, the image left out."""
 
-    def handle(
-        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
-    ) -> tuple[Value, ...]:
-        reply = super().handle(session, spec, params)
-        return reply[:1] if spec.id == C.GET_IMAGE and params else reply
+    def handle(self, session: SessionView, request: M.Request[Any]) -> tuple[Value, ...]:
+        reply = super().handle(session, request)
+        region = isinstance(request, M.GetImageRequest) and request.column is not None
+        return reply[:1] if region else reply
 
 
 def test_a_reply_missing_a_field_is_a_fail_not_a_harness_fault() -> None:
@@ -568,7 +563,8 @@ class RawServer:
     def __init__(self, handle: Any) -> None:
         self.handle = handle
         self.listener = socket.create_server(("127.0.0.1", 0))
-        self.address = self.listener.getsockname()[:2]
+        host, port = self.listener.getsockname()[:2]
+        self.address: tuple[str, int] = (host, port)
         self.stop = threading.Event()
         self.conns: list[socket.socket] = []
         self.thread = threading.Thread(target=self._serve, daemon=True)
@@ -763,7 +759,8 @@ class MiniTriggerListener:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
         self.sock.settimeout(0.05)
-        self.address = self.sock.getsockname()[:2]
+        host, port = self.sock.getsockname()[:2]
+        self.address: tuple[str, int] = (host, port)
         self.drop_every, self.duplicate, self.delay = drop_every, duplicate, delay
         self.answer_malformed, self.no_dedup, self.bad_times = answer_malformed, no_dedup, bad_times
         self.seen: set[int] = set()
@@ -1067,18 +1064,16 @@ class MiniSyncRobot(MiniRobot):
         self.lags.append(lag)
         return 0.0 if self.lag_blind or lag - ref <= 0.5e-3 else lag - ref
 
-    def handle(
-        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
-    ) -> tuple[Value, ...]:
-        c = spec.id
+    def handle(self, session: SessionView, request: M.Request[Any]) -> tuple[Value, ...]:
+        c = request.command
         with self.lock:
-            if c == C.SET_SENSOR_ENDPOINT:
-                self.endpoint = (str(params[0]), int(params[1]))
+            if isinstance(request, M.SetSensorEndpointRequest):
+                self.endpoint = (request.host, request.port)
                 return ()
-            if c == C.SET_SYNC_DELAY:
-                if not abs(float(params[0])) <= 1.0:  # type: ignore[arg-type]
+            if isinstance(request, M.SetSyncDelayRequest):
+                if not abs(request.delta_t) <= 1.0:
                     raise ProtocolError("delta_t beyond 1 s", ErrorCode.OUT_OF_RANGE)
-                self.delta_t = float(params[0])  # type: ignore[arg-type]
+                self.delta_t = request.delta_t
                 return ()
             if c == C.SET_SENSOR_TOOL:
                 return ()
@@ -1090,31 +1085,31 @@ class MiniSyncRobot(MiniRobot):
                     bool(self.to_send),
                     self.rate,
                 )
-            if c in (C.START_TRIGGERS, C.SCHEDULE_TRIGGERS):
+            if isinstance(request, M.StartTriggersRequest | M.ScheduleTriggersRequest):
                 if not self.endpoint[1]:
                     raise ProtocolError("no sensor endpoint", ErrorCode.BAD_STATE)
-                if c == C.START_TRIGGERS:
-                    rate, count = float(params[0]), int(params[1])  # type: ignore[arg-type,call-overload]
+                if isinstance(request, M.StartTriggersRequest):
+                    rate, count = request.rate, request.count
                     if not 0 < rate <= 1000 or count < 0:
                         raise ProtocolError("rate out of range", ErrorCode.OUT_OF_RANGE)
                     self.rate, self.to_send, self.next_t = rate, count, time.monotonic()
                     return (self.next_index,)
-                times = params[0].values  # type: ignore[union-attr]
+                times = request.times.values
                 if any(b <= a for a, b in itertools.pairwise(times)):
                     raise ProtocolError("times must increase", ErrorCode.OUT_OF_RANGE)
                 raise ProtocolError("scheduling not offered", ErrorCode.NOT_SUPPORTED)
             if c == C.STOP_TRIGGERS:
                 self.to_send = 0
                 return ()
-            if c == C.GET_SEAM_POINTS:
-                since = int(params[0])
+            if isinstance(request, M.GetSeamPointsRequest):
+                since = request.since
                 rows = [self.points[i] for i in sorted(self.points) if i > since]
                 return (Matrix(len(rows), 17, [v for r in rows for v in r]),)
             if c == C.GET_SYNC_STATISTICS:
                 return tuple(
                     self.stats[k] if k != "pending" else len(self.sent) for k in self.stats
                 )
-        return super().handle(session, spec, params)
+        return super().handle(session, request)
 
 
 ROBOT_SYNC_CASES = ("robot.sync.*", "commands.sync.*")
@@ -1251,8 +1246,10 @@ def test_silent_udp_endpoint_gives_timeouts_not_fails() -> None:
 def test_set_frame_crc_that_keeps_the_crc_is_caught(monkeypatch: Any) -> None:
     import spec.server
 
-    def says_off_keeps_crc(self: FramedServer, session: Session, params: tuple[Any, ...]) -> Any:
-        return (bool(params[0]),)  # reports the new setting, never applies it
+    def says_off_keeps_crc(
+        self: FramedServer, session: Session, request: M.SetFrameCrcRequest
+    ) -> tuple[Value, ...]:
+        return (request.enabled,)  # reports the new setting, never applies it
 
     monkeypatch.setitem(spec.server._COMMON, C.SET_FRAME_CRC, says_off_keeps_crc)
     server = FramedServer(MiniRobot(), policy=POLICY)
@@ -1280,12 +1277,10 @@ class NoKinematicsRobot(MiniRobot):
 
     COMMANDS = (*MiniRobot.COMMANDS, C.TOOL_MOVE_J, C.TOOL_MOVE_L, C.TOOL_MOVE_TRAJECTORY)
 
-    def handle(
-        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
-    ) -> tuple[Value, ...]:
-        if spec.id == C.HERE:
+    def handle(self, session: SessionView, request: M.Request[Any]) -> tuple[Value, ...]:
+        if request.command == C.HERE:
             raise ProtocolError("no kinematics", ErrorCode.NOT_SUPPORTED)
-        return super().handle(session, spec, params)
+        return super().handle(session, request)
 
 
 def _sent(result: Any, case_id: str) -> list[Packet]:
@@ -1365,7 +1360,9 @@ def test_cartesian_commands_not_offered_are_a_scope_not_a_failure(
             decoder = FrameDecoder()
             while not (events := list(decoder.events())):
                 decoder.feed(raw.recv(4096))
-        assert events[0].error is not None and events[0].error[0] == code
+        answer = events[0]
+        assert isinstance(answer, Packet) and answer.error is not None
+        assert answer.error[0] == code
         result = check("robot", address, profile="core")
     assert problems(result) == {}, problems(result)
     got = outcomes(result)
@@ -1389,19 +1386,17 @@ class EstopRobot(MiniRobot):
         self.estop = False
         self.estops = 0
 
-    def handle(
-        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
-    ) -> tuple[Value, ...]:
-        if spec.id == C.EMERGENCY_STOP:
+    def handle(self, session: SessionView, request: M.Request[Any]) -> tuple[Value, ...]:
+        if request.command == C.EMERGENCY_STOP:
             self.estop, self.estops = True, self.estops + 1
             return ()
-        if spec.id == C.RESET_EMERGENCY_STOP:
+        if request.command == C.RESET_EMERGENCY_STOP:
             self.estop = False
             return ()
-        if spec.id == C.ROBOT_STATUS:
+        if request.command == C.ROBOT_STATUS:
             mine, held = session.in_control, session.control_held
             return (False, self.estop, False, 0, mine, held, 0, "", 0.0)
-        return super().handle(session, spec, params)
+        return super().handle(session, request)
 
 
 def test_emergency_stop_when_full_is_not_confused_with_an_earlier_answer() -> None:
@@ -1644,12 +1639,10 @@ def test_a_sensor_without_triggering_is_judged_on_its_core() -> None:
 class NanLogRobot(MiniRobot):
     """1.2 behaviour: GetJointLog since NaN answers an empty log."""
 
-    def handle(
-        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
-    ) -> tuple[Value, ...]:
-        if spec.id == C.GET_JOINT_LOG and math.isnan(float(params[0])):  # type: ignore[arg-type]
+    def handle(self, session: SessionView, request: M.Request[Any]) -> tuple[Value, ...]:
+        if isinstance(request, M.GetJointLogRequest) and math.isnan(request.since):
             return (Matrix(0, 7, []), 0.004)
-        return super().handle(session, spec, params)
+        return super().handle(session, request)
 
 
 class StickyErrorRobot(MiniRobot):
@@ -1657,14 +1650,12 @@ class StickyErrorRobot(MiniRobot):
 
     last = (0, "")
 
-    def handle(
-        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
-    ) -> tuple[Value, ...]:
-        if spec.id == C.ROBOT_STATUS:
+    def handle(self, session: SessionView, request: M.Request[Any]) -> tuple[Value, ...]:
+        if request.command == C.ROBOT_STATUS:
             mine, held = session.in_control, session.control_held
             return (False, False, False, 0, mine, held, *self.last, 0.0)
         try:
-            return super().handle(session, spec, params)
+            return super().handle(session, request)
         except ProtocolError as exc:
             self.last = (int(exc.code), exc.message)
             raise
@@ -1724,17 +1715,15 @@ class SlowWaitRobot(MiniRobot):
     COMMANDS = (*MiniRobot.COMMANDS, C.ENABLE_POWER, C.DISABLE_POWER, C.JOINT_MOVE)
     blocking = frozenset({int(C.WAIT_END_MOVE)})
 
-    def handle(
-        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
-    ) -> tuple[Value, ...]:
-        if spec.id in (C.ENABLE_POWER, C.DISABLE_POWER):
+    def handle(self, session: SessionView, request: M.Request[Any]) -> tuple[Value, ...]:
+        if request.command in (C.ENABLE_POWER, C.DISABLE_POWER):
             return ()
-        if spec.id == C.JOINT_MOVE:
+        if request.command == C.JOINT_MOVE:
             return (1,)
-        if spec.id == C.WAIT_END_MOVE:
-            time.sleep(min(0.3, float(params[0])))  # type: ignore[arg-type]
+        if isinstance(request, M.WaitEndMoveRequest):
+            time.sleep(min(0.3, request.timeout))
             return (True,)
-        return super().handle(session, spec, params)
+        return super().handle(session, request)
 
 
 @pytest.mark.parametrize(("limit", "want"), [(None, Outcome.PASS), (4, Outcome.FAIL)])
@@ -1756,3 +1745,104 @@ def test_refusing_requests_queued_behind_a_wait_is_caught(
     assert entry.outcome is want, (entry.outcome, entry.message)
     if want is Outcome.FAIL:
         assert "[RS-7.27]" in entry.message
+
+
+# --- issue 32's leftovers: the reserved slots' eviction, the joint speed's scaling ----------
+
+
+class _NewestFirstSlots(Slots[Session]):
+    """Makes room on a full server by closing the newest reserved connection, not the oldest
+    (a stack where the rule wants a queue)."""
+
+    def add(self, session: Session, admission: Admission, reserved: int) -> Session | None:
+        if admission.reserved and len(self.reserved) >= reserved:
+            evicted = self.reserved.pop()
+            self.reserved.append(session)
+            return evicted
+        return super().add(session, admission, reserved)
+
+
+class NewestFirstServer(FramedServer):
+    """A server whose reserved connections make room newest first."""
+
+    def __init__(self, service: Service, *, policy: ServerPolicy) -> None:
+        super().__init__(service, policy=policy)
+        self.slots = _NewestFirstSlots()
+
+
+@pytest.mark.parametrize(
+    ("server_class", "want"), [(FramedServer, Outcome.PASS), (NewestFirstServer, Outcome.FAIL)]
+)
+def test_a_full_server_that_closes_another_than_the_oldest_reserved_is_caught(
+    server_class: type[FramedServer], want: Outcome
+) -> None:
+    """[RS-7.14] with every reserved slot taken, a new connection closes the oldest reserved
+    one (row 16 of CONFORMANCE.md's guesses): ours passes, one that closes the newest fails."""
+    with serving(server_class(MiniRobot(), policy=POLICY)) as address:
+        result = check("robot", address, ("connections.reserved.oldest_closed",), "full")
+    (entry,) = result.results
+    assert entry.outcome is want, (entry.outcome, entry.message)
+    if want is Outcome.PASS:  # POLICY: 15 served from one address, then 4 reserved
+        assert entry.message == "4 reserved connection(s) held; connection 5 closed the oldest"
+    else:
+        assert "[RS-7.14]" in entry.message and entry.actual == "reserved connection(s) 4 closed"
+
+
+class MovingRobot(MiniRobot):
+    """Moves joint 1 in a straight line at ``deg_s`` degrees per second, times joint_speed in
+    % when ``scales`` (else at that speed whatever the descriptor says); logs every 4 ms."""
+
+    COMMANDS = (*MiniRobot.COMMANDS, C.ENABLE_POWER, C.DISABLE_POWER, C.JOINT_MOVE)
+    blocking = frozenset({int(C.WAIT_END_MOVE)})
+
+    def __init__(self, deg_s: float, *, scales: bool) -> None:
+        super().__init__()
+        self.deg_s, self.scales = deg_s, scales
+        # (start time, duration, from, to) of the last move
+        self.move = (0.0, 0.0, list(self.q), list(self.q))
+
+    def joints_at(self, t: float) -> list[float]:
+        t0, duration, a, b = self.move
+        f = 1.0 if duration <= 0.0 else min(max((t - t0) / duration, 0.0), 1.0)
+        return [x + (y - x) * f for x, y in zip(a, b, strict=True)]
+
+    def handle(self, session: SessionView, request: M.Request[Any]) -> tuple[Value, ...]:
+        now = self.clock()
+        t0, duration, _, _ = self.move
+        end = t0 + duration
+        if request.command in (C.ENABLE_POWER, C.DISABLE_POWER):
+            return ()
+        if isinstance(request, M.JointMoveRequest):
+            start, target = self.joints_at(now), list(request.joints.values)
+            speed = self.deg_s * (self.mdesc[0] if self.scales else 1.0)
+            travel = max(abs(b - a) for a, b in zip(start, target, strict=True))
+            self.move = (now, travel / speed, start, target)
+            return (1,)
+        if request.command == C.HEREJ:
+            return (Joints(self.joints_at(now)),)
+        if request.command == C.ROBOT_STATUS:
+            mine, held = session.in_control, session.control_held
+            return RobotStatusReply(False, False, now < end, 0, mine, held, 0, "", now).encode()
+        if isinstance(request, M.WaitEndMoveRequest):
+            time.sleep(min(request.timeout, max(end - now, 0.0)))
+            return (self.clock() >= end,)
+        if isinstance(request, M.GetJointLogRequest):
+            since = max(request.since, now - 10.0)
+            times = [k * 0.004 for k in range(math.floor(since / 0.004) + 1, int(now / 0.004))]
+            rows = [[t, *self.joints_at(t)] for t in times]
+            return (Matrix(len(rows), 7, [v for r in rows for v in r]), 0.004)
+        return super().handle(session, request)
+
+
+@pytest.mark.parametrize(("scales", "want"), [(True, Outcome.PASS), (False, Outcome.FAIL)])
+def test_a_robot_whose_joint_speed_does_not_scale_is_caught(scales: bool, want: Outcome) -> None:
+    """[RS-5.57] joint 1 cruising at the same speed at 1 % and 2 % joint speed fails
+    robot.motiondesc.joint_speed_scales; one that cruises twice as fast at 2 % passes."""
+    with serving(FramedServer(MovingRobot(10.0, scales=scales), policy=POLICY)) as address:
+        options = Options(timeout_scale=SCALE, allow_motion=True)
+        selection = Selection("full", ("robot.motiondesc.joint_speed_scales",))
+        result = run("robot", *address, options, selection)
+    (entry,) = result.results
+    assert entry.outcome is want, (entry.outcome, entry.message)
+    if want is Outcome.FAIL:
+        assert "[RS-5.57]" in entry.message and str(entry.actual).startswith("ratio 1.000")

@@ -30,7 +30,7 @@ from welding.console.access import Access
 from welding.console.app import create_app
 from welding.console.audit import AuditLog
 from welding.console.auth import Sessions
-from welding.console.backend import DEADMAN_S, Console
+from welding.console.backend import CONSOLE_LEASE_S, DEADMAN_S, Console
 from welding.console.cli import demo_job
 from welding.emulate import cell_tables, realtime_cell
 
@@ -125,6 +125,16 @@ def _release(client: TestClient) -> None:
     """The tests share one console, and xdist runs any of them before any other: whichever
     ran before may have left it in control."""
     assert call(client, "POST", "/api/control", {"take": False}).status_code == 200
+
+
+def test_the_console_holds_control_on_a_1_s_lease(env: Any) -> None:
+    """The server's 0.25 s default was lost by a live console on a busy PC (mid step jog):
+    the console asks for 1 s, the backstop behind its 0.4 s dead-man [RS-7.13]."""
+    client, console, _ = env
+    _release(client)
+    assert call(client, "POST", "/api/control", {"take": True}).status_code == 200
+    assert console.control.lease == CONSOLE_LEASE_S == 1.0
+    _release(client)
 
 
 def test_status_stream_updates_and_refusals_before_control(env: Any) -> None:

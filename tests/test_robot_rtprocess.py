@@ -32,6 +32,7 @@ from robotsocket.rtprocess import (
 )
 from robotsocket.service import RobotService
 from spec.errors import ErrorCode, ProtocolError, RemoteError
+from spec.messages import HereReply, PingRequest, RobotStatusReply
 from spec.params import FloatArray, Joints, Location, Value
 from spec.registry import CommandId
 from spec.server import FramedServer, SessionView
@@ -70,7 +71,14 @@ def _settled_fields(reply: tuple[Any, ...]) -> tuple[Any, ...]:
     """RobotStatus without ``moving``: at rest it turns False only once the cycles one encoder
     latency (2.8 ms) past the last motion have run, which depends on wall-clock time, not on
     the commands; it is compared where it is determined (after JointMove, after WaitEndMove)."""
-    return (*reply[:2], *reply[3:8])
+    s = RobotStatusReply.decode(reply)
+    return (s.powered, s.estop, s.queue, s.in_control, s.controlled, s.last_error, s.last_message)
+
+
+def _here_rounded(reply: tuple[Value, ...]) -> list[float]:
+    """Here's location, rounded to 9 decimals."""
+    rounded: list[float] = np.round(HereReply.decode(reply).location.as_tuple(), 9).tolist()
+    return rounded
 
 
 SEQUENCE: list[tuple[int, tuple[Value, ...], Callable[[tuple[Value, ...]], Any] | None]] = [
@@ -87,7 +95,7 @@ SEQUENCE: list[tuple[int, tuple[Value, ...], Callable[[tuple[Value, ...]], Any] 
     (C.WAIT_END_MOVE, (0.0,), None),  # a bad timeout
     (C.WAIT_END_MOVE, (20.0,), None),
     (C.HEREJ, (), None),
-    (C.HERE, (TOOL, WORLD), lambda r: np.round(r[0].as_tuple(), 9).tolist()),
+    (C.HERE, (TOOL, WORLD), _here_rounded),
     (C.ROBOT_STATUS, (), lambda r: r[:8]),
     (C.SET_OUTPUT, ("laser", True), None),
     (C.READ_IO, ("laser",), None),
@@ -301,7 +309,7 @@ def test_an_unknown_pipe_message_is_answered_not_left_to_time_out(child: Realtim
 @pytest.mark.parametrize(
     "request_",
     [
-        Command("no-such-service", int(C.PING), (), Who(1, ("", 0), False, False)),
+        Command("no-such-service", PingRequest(), Who(1, ("", 0), False, False)),
         ControlLost("no-such-service", "test"),
         ControlReleased("no-such-service"),
         Query("no-such-query"),

@@ -29,8 +29,9 @@ from robotsocket.client import (
 )
 from robotsocket.emulator import HOME, RobotEmulator
 from robotsocket.service import RobotService
-from spec.codec import encode_packet, request
+from spec.codec import FrameDecoder, Packet, encode_packet, request
 from spec.errors import ErrorCode
+from spec.messages import StopTriggersRequest
 from spec.params import Joints, Location
 from spec.registry import CommandId, commands_for
 from spec.server import FramedServer, ServerPolicy
@@ -133,7 +134,7 @@ def test_full_motion_session(client: RobotClient, robot: RobotEmulator) -> None:
     client.tool_move_l(goal)
     assert client.wait_end_move(30.0)
     assert client.here() == pytest.approx(tuple(goal), abs=1e-6)
-    client.tool_move_j(start)
+    client.tool_move_j(start.tolist())
     assert client.wait_end_move(30.0)
     assert client.here() == pytest.approx(tuple(start), abs=1e-6)
     t, _ = client.joint_log(0.5)
@@ -269,7 +270,7 @@ def test_controller_disconnect_during_a_move_stops_on_the_path() -> None:
 
 def test_extra_handlers_can_be_registered() -> None:
     service = RobotService(RobotEmulator())
-    service.register(CommandId.STOP_TRIGGERS, lambda session, params: ())
+    service.register(StopTriggersRequest, lambda session, request: ())
     assert int(CommandId.STOP_TRIGGERS) in service.implemented()
     with FramedServer(service, "127.0.0.1", 0) as srv, RobotClient(*srv.address) as c:
         c.take_control()
@@ -280,15 +281,15 @@ def test_raw_frames_get_the_request_id_echoed(server: FramedServer) -> None:
     with socket.create_connection(server.address, timeout=5.0) as s:
         s.sendall(encode_packet(request(CommandId.HEREJ, 77)))
         s.sendall(encode_packet(request(CommandId.JOINT_MOVE, 78, Joints(TARGET))))
-        from spec.codec import FrameDecoder
-
         dec = FrameDecoder()
-        got = []
+        got: list[Packet] = []
         while len(got) < 2:
             dec.feed(s.recv(4096))
-            got.extend(dec.events())
+            for event in dec.events():
+                assert isinstance(event, Packet), event  # no frame of the server's rejected
+                got.append(event)
     assert [p.request_id for p in got] == [77, 78]
-    assert got[1].error[0] == ErrorCode.NOT_IN_CONTROL
+    assert got[1].error is not None and got[1].error[0] == ErrorCode.NOT_IN_CONTROL
 
 
 def test_long_simulated_wait_of_a_bystander_does_not_freeze_the_server(

@@ -14,6 +14,7 @@ from robotsocket.interface import BadStateError, OutOfRangeError, RobotInfo
 from robotsocket.service import RobotService
 from robotsocket.sync_service import MAX_ROWS, SyncService, flange2base_for
 from spec.errors import ErrorCode, ProtocolError
+from spec.messages import request_of
 from spec.params import FloatArray, Location, Matrix, Value
 from spec.registry import BY_ID, SEAM_POINT_COLUMNS, CommandId
 from spec.server import SessionView
@@ -45,7 +46,7 @@ class Rig:
         self.sync.install(self.service)
 
     def call(self, command: CommandId, *params: Value) -> tuple[Value, ...]:
-        return self.service.handle(SESSION, BY_ID[command], params)
+        return self.service.handle(SESSION, request_of(command, params))
 
     def refused(self, command: CommandId, *params: Value) -> ErrorCode:
         with pytest.raises(ProtocolError) as e:

@@ -132,7 +132,7 @@ def test_fast_parameter_check_agrees_with_the_reference(
         values = [CLASS_SAMPLE[s.type] for s in specs]
     elif values and values[0] == "s":  # or a prefix of them (optional ones left off)
         values = [CLASS_SAMPLE[s.type] for s in specs][: len(values) % (len(specs) + 1)]
-    outcomes = []
+    outcomes: list[str | None] = []
     for check in (check_params, check_params_reference):
         try:
             check(specs, tuple(values), "x", allow_extra=allow_extra)  # type: ignore[arg-type]

@@ -7,7 +7,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import pytest
 
@@ -17,8 +17,9 @@ from robotsocket.service import RobotService
 from spec.codec import Packet, error_packet
 from spec.errors import ErrorCode
 from spec.exitcodes import ExitCode
+from spec.messages import Request
 from spec.params import Joints, Value
-from spec.registry import CommandId, CommandSpec
+from spec.registry import CommandId
 from spec.replay import compare
 from spec.server import FramedServer, SessionView
 from spec.wire import PacketKind
@@ -36,11 +37,9 @@ class Planted(RobotService):
         super().__init__(RobotEmulator())
         self.offset, self.delay = offset, delay
 
-    def handle(
-        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
-    ) -> tuple[Value, ...]:
-        reply = super().handle(session, spec, params)
-        if spec.id != CommandId.HEREJ:
+    def handle(self, session: SessionView, request: Request[Any]) -> tuple[Value, ...]:
+        reply = super().handle(session, request)
+        if request.command != CommandId.HEREJ:
             return reply
         time.sleep(self.delay)  # the planted slowness itself, not a wait in the test
         (joints,) = reply

@@ -5,7 +5,7 @@ from __future__ import annotations
 import socket
 import threading
 import time
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import pytest
 from hypothesis import given, settings
@@ -15,8 +15,9 @@ from spec import wire
 from spec.client import ClientTimeout, ConnectionClosed, FramedClient
 from spec.codec import FrameDecoder, Packet, encode_packet, request
 from spec.errors import ErrorCode, ProtocolError, RemoteError
+from spec.messages import Request, WaitEndMoveRequest
 from spec.params import Joints, Value
-from spec.registry import CommandId, CommandSpec
+from spec.registry import CommandId
 from spec.server import (
     FRAME_ALLOWANCE_BYTES,
     FramedServer,
@@ -55,18 +56,14 @@ class EchoRobot(Service):
             CommandId.EMERGENCY_STOP,
         )
 
-    def handle(
-        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
-    ) -> tuple[Value, ...]:
-        if spec.id == CommandId.HEREJ:
+    def handle(self, session: SessionView, request: Request[Any]) -> tuple[Value, ...]:
+        if request.command == CommandId.HEREJ:
             return (Joints([1, 2, 3, 4, 5, 6]),)
-        if spec.id == CommandId.ENABLE_POWER:
+        if request.command == CommandId.ENABLE_POWER:
             return ()
-        if spec.id == CommandId.WAIT_END_MOVE:  # "the move ends" when EmergencyStop comes
-            timeout = params[0]
-            assert isinstance(timeout, float)
-            return (self.stopped.wait(timeout),)
-        if spec.id == CommandId.EMERGENCY_STOP:
+        if isinstance(request, WaitEndMoveRequest):  # "the move ends" when EmergencyStop comes
+            return (self.stopped.wait(request.timeout),)
+        if request.command == CommandId.EMERGENCY_STOP:
             self.stopped.set()
             return ()
         raise ZeroDivisionError("deliberate handler bug")
@@ -666,11 +663,9 @@ class ThreadNotingRobot(EchoRobot):
         super().__init__()
         self.threads: list[tuple[int, str]] = []
 
-    def handle(
-        self, session: SessionView, spec: CommandSpec, params: tuple[Value, ...]
-    ) -> tuple[Value, ...]:
-        self.threads.append((int(spec.id), threading.current_thread().name))
-        return super().handle(session, spec, params)
+    def handle(self, session: SessionView, request: Request[Any]) -> tuple[Value, ...]:
+        self.threads.append((int(request.command), threading.current_thread().name))
+        return super().handle(session, request)
 
 
 def test_requests_that_cannot_block_are_answered_by_the_thread_that_read_them(

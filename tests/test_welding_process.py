@@ -15,7 +15,10 @@ import numpy as np
 import pytest
 
 from kinematics.transforms import invert, location_to_transform
+from robotsocket.client import RobotClient
 from sensorsocket.scene import JogPath
+from spec.client import MoveResult
+from spec.registry import CommandId
 from welding import job as J
 from welding.emulate import EmulatedSession
 from welding.process import (
@@ -226,10 +229,10 @@ def test_dry_run_moves_with_every_output_off(session: EmulatedSession) -> None:
 def interrupt_mid_seam(session: EmulatedSession, exc: BaseException) -> list[float]:
     """Make the runner's wait during the seam end after 1 s of motion with ``exc``."""
     robot = session.robot
-    real_wait = robot.wait_end_move
+    real_wait = robot.wait_move
     stopped_at: list[float] = []
 
-    def wait(timeout: float = 60.0) -> bool:
+    def wait(timeout: float = 60.0) -> MoveResult:
         if robot.read_io("laser"):
             real_wait(1.0)
             stopped_at.append(robot.get_time())
@@ -240,7 +243,7 @@ def interrupt_mid_seam(session: EmulatedSession, exc: BaseException) -> list[flo
             raise exc
         return real_wait(timeout)
 
-    robot.wait_end_move = wait  # type: ignore[method-assign]
+    robot.wait_move = wait  # type: ignore[method-assign]
     return stopped_at
 
 
@@ -275,12 +278,12 @@ def test_cancel_from_another_thread_ends_the_wait_laser_off_first(
     session: EmulatedSession,
 ) -> None:
     robot = session.robot
-    real_wait = robot.wait_end_move
+    real_wait = robot.wait_move
     runner = JobRunner(robot, session.tables, dwell=session.dwell, poll=0.1)
     pieces: list[float] = []
     cancelled_at: list[int] = []
 
-    def wait(timeout: float = 60.0) -> bool:
+    def wait(timeout: float = 60.0) -> MoveResult:
         pieces.append(timeout)
         if robot.read_io("laser") and not runner.cancelled:
             # the operator's abort arrives from another thread during the seam
@@ -290,7 +293,7 @@ def test_cancel_from_another_thread_ends_the_wait_laser_off_first(
             cancelled_at.append(len(pieces))
         return real_wait(timeout)
 
-    robot.wait_end_move = wait  # type: ignore[method-assign]
+    robot.wait_move = wait  # type: ignore[method-assign]
     with pytest.raises(JobAborted) as info:
         runner.run(JOB)
     assert info.value.reason == "cancelled"
@@ -298,6 +301,31 @@ def test_cancel_from_another_thread_ends_the_wait_laser_off_first(
     assert max(pieces) == 0.1 and cancelled_at == [len(pieces)]
     assert [e.item for e in info.value.log if e.event == "abort"] == ["seam"]
     check_stopped_safely(session, info.value)
+
+
+def test_a_move_stopped_by_an_emergency_stop_aborts_at_once(session: EmulatedSession) -> None:
+    """An emergency stop from another client mid-seam: the job aborts with the robot's
+    reason as soon as the wait returns (it waited for its 120 s move timeout, then said
+    "the move did not end")."""
+    robot = session.robot
+    real_wait = robot.wait_move
+    calls: list[float] = []
+
+    def wait(timeout: float = 60.0) -> MoveResult:
+        calls.append(timeout)
+        if robot.read_io("laser") and len(calls) < 100:
+            real_wait(0.2)
+            with RobotClient(*session.cell.robot_address, client_name="e-stop") as other:
+                other.call(CommandId.EMERGENCY_STOP)
+        return real_wait(timeout)
+
+    robot.wait_move = wait  # type: ignore[method-assign]
+    runner = JobRunner(robot, session.tables, dwell=session.dwell, poll=0.1)
+    with pytest.raises(JobAborted) as info:
+        runner.run(JOB)
+    assert info.value.reason == "move stopped", info.value.message
+    assert "stopped" in info.value.message and "emergency" in info.value.message.lower()
+    assert len(calls) < 5  # no polling out the move timeout
 
 
 def test_error_reply_switches_the_laser_off_first(session: EmulatedSession) -> None:

@@ -53,6 +53,7 @@ from spec.client import ConnectionClosed
 from spec.errors import ProtocolError, RemoteError, error_text
 from spec.params import Location as Location6
 from spec.registry import CommandId
+from spec.wire import MoveOutcome
 from welding.job import Item, Job, Line, Location, Path, Pause, Stitch, Via
 from welding.tools import Tables, ToolDBError
 from welding.track_loop import RobotLink, TrackedWeld, weld_tracked
@@ -397,10 +398,15 @@ class OutOfTolerance(Exception):
     tolerance (the laser is already off): the job stops there, as for a lost seam."""
 
 
+class MoveStopped(Exception):
+    """A move was stopped short of its target (an emergency stop, control taken away) or
+    failed, with the robot's reason [RS-5.50]."""
+
+
 class JobAborted(Exception):
     """The job stopped before its end: ``reason`` ("interrupted", "cancelled", "connection
-    lost", "error reply", "timeout", "seam lost", "out of tolerance" or "error"), ``log`` up
-    to and including the safe stop."""
+    lost", "error reply", "timeout", "move stopped", "seam lost", "out of tolerance" or
+    "error"), ``log`` up to and including the safe stop."""
 
     def __init__(self, reason: str, message: str, log: list[LogEntry]) -> None:
         super().__init__(f"job aborted ({reason}): {message}")
@@ -508,8 +514,8 @@ class JobRunner:
                     self.robot.tool_move_l(step.loc, step.tool, step.frame)
                 elif isinstance(step, Track):
                     self._track(step, item)
-                elif not self._wait_end_move():
-                    raise TimeoutError(f"the move did not end within {self.move_timeout:g} s")
+                else:
+                    self._wait_end_move()
             self.robot.set_motion_desc(desc)
         except BaseException as exc:
             reason = _reason(exc)
@@ -547,18 +553,25 @@ class JobRunner:
         if verdict is not None and not verdict.within and step.laser:
             raise OutOfTolerance(verdict.line())
 
-    def _wait_end_move(self) -> bool:
-        if self.poll is None:
-            return self.robot.wait_end_move(self.move_timeout)
+    def _wait_end_move(self) -> None:
+        """Wait for the queued moves to reach their target, in pieces of ``poll`` s that
+        let the operator cancel; a move stopped short or failed ends the wait at once, with
+        the robot's reason (not as a timeout after ``move_timeout``)."""
         waited = 0.0
-        while waited < self.move_timeout:
-            piece = min(self.poll, self.move_timeout - waited)
-            if self.robot.wait_end_move(piece):
-                return True
+        while True:
+            piece = self.move_timeout - waited
+            if self.poll is not None:
+                piece = min(self.poll, piece)
+            result = self.robot.wait_move(piece)
+            if result.reached:
+                return
+            if result.outcome is not MoveOutcome.MOVING:
+                raise MoveStopped(f"the move {result.outcome}: {result.reason}")
             waited += piece
+            if waited >= self.move_timeout - 1e-9:
+                raise TimeoutError(f"the move did not end within {self.move_timeout:g} s")
             if self._cancel.is_set():
                 raise JobCancelled("cancelled by the operator")
-        return False
 
     def _desc(self, sent: MotionDesc, wanted: MotionDesc) -> MotionDesc:
         if wanted != sent:
@@ -615,6 +628,8 @@ def _reason(exc: BaseException) -> str:
         return "error reply"
     if isinstance(exc, TimeoutError):
         return "timeout"
+    if isinstance(exc, MoveStopped):
+        return "move stopped"
     if isinstance(exc, SeamLost):
         return "seam lost"
     if isinstance(exc, OutOfTolerance):

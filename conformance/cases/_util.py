@@ -6,6 +6,7 @@ import math
 import struct
 import time
 import zlib
+from typing import Any
 
 from conformance.connection import ENDPOINT_ERRORS, Closed, Conn
 from conformance.context import Context
@@ -127,9 +128,9 @@ def still_answers(conn: Conn, what: str) -> None:
     expected = "Ping echoed on the same connection" if ping else "Hello answered on it"
     try:
         if ping:
-            reply = conn.ok(C.PING, b"after")
+            echo = conn.ask(M.PingRequest(b"after")).data
         else:
-            conn.ok(C.HELLO, 1, 0, "conformance")
+            conn.ask(M.HelloRequest(1, 0, "conformance"))
             return
     except Fail as exc:
         raise Fail(
@@ -145,8 +146,15 @@ def still_answers(conn: Conn, what: str) -> None:
             f"{type(exc).__name__}: {exc}",
             requirement="RS-3.9",
         ) from None
-    if reply[:1] != (b"after",):
-        raise Fail("Ping does not echo its bytes", b"after", reply[:1], requirement="RS-5.8")
+    if echo != b"after":
+        raise Fail("Ping does not echo its bytes", b"after", echo, requirement="RS-5.8")
+
+
+def endpoint_status(ctx: Context, conn: Conn) -> M.RobotStatusReply | M.SensorStatusReply:
+    """The endpoint's GetStatus: a read-only command every robot and sensor answers."""
+    if ctx.service == "robot":
+        return conn.ask(M.RobotStatusRequest())
+    return conn.ask(M.SensorStatusRequest())
 
 
 def io_names(conn: Conn) -> tuple[list[str], list[str]]:
@@ -168,16 +176,17 @@ _FIXED_ARGS: dict[int, tuple[Value, ...]] = {
     C.GET_IMAGE: (),
     C.GET_SEAM_POINTS: (-1,),
 }
-#: Setters given their current values: the getter and the part of its reply they take.
-_CURRENT_ARGS: dict[int, tuple[int, slice]] = {
-    C.JOINT_MOVE: (C.HEREJ, slice(0, 1)),
-    C.SET_MOTION_DESC: (C.GET_MOTION_DESC, slice(0, 6)),
-    C.SET_LASER: (C.SENSOR_STATUS, slice(0, 1)),
-    C.SET_EXPOSURE: (C.GET_SETTINGS, slice(1, 2)),
-    C.SET_READOUT_WINDOW: (C.GET_SETTINGS, slice(2, 4)),
-    C.SET_SENSOR_ENDPOINT: (C.GET_SYNC_CONFIG, slice(0, 2)),
-    C.SET_SYNC_DELAY: (C.GET_SYNC_CONFIG, slice(2, 3)),
-    C.SET_SENSOR_TOOL: (C.GET_SYNC_CONFIG, slice(3, 4)),
+#: Setters given their current values: the getter, and the fields of its reply they take
+#: (none named: the setter's own fields, which the getter's reply names alike).
+_CURRENT_ARGS: dict[int, tuple[M.Request[Any], tuple[str, ...]]] = {
+    C.JOINT_MOVE: (M.HerejRequest(), ()),
+    C.SET_MOTION_DESC: (M.GetMotionDescRequest(), ()),
+    C.SET_LASER: (M.SensorStatusRequest(), ("laser",)),
+    C.SET_EXPOSURE: (M.GetSettingsRequest(), ()),
+    C.SET_READOUT_WINDOW: (M.GetSettingsRequest(), ()),
+    C.SET_SENSOR_ENDPOINT: (M.GetSyncConfigRequest(), ()),
+    C.SET_SYNC_DELAY: (M.GetSyncConfigRequest(), ()),
+    C.SET_SENSOR_TOOL: (M.GetSyncConfigRequest(), ()),
 }
 
 
@@ -187,12 +196,13 @@ def valid_args(ctx: Context, conn: Conn, spec: CommandSpec) -> tuple[Value, ...]
     if c in _FIXED_ARGS:
         return _FIXED_ARGS[c]
     if c in _CURRENT_ARGS:
-        getter, part = _CURRENT_ARGS[c]
-        return conn.ok(getter)[part]
+        getter, fields = _CURRENT_ARGS[c]
+        current = conn.ask(getter)
+        return tuple(getattr(current, name) for name in fields or [p.name for p in spec.params])
     if c == C.TAKE_CONTROL:
         return (ctx.options.token,)
     if c in (C.TOOL_MOVE_J, C.TOOL_MOVE_L):
-        here = conn.ok(C.HERE, IDENTITY_LOCATION, IDENTITY_LOCATION)[0]
+        here = conn.ask(M.HereRequest(IDENTITY_LOCATION, IDENTITY_LOCATION)).location
         return (here, IDENTITY_LOCATION, IDENTITY_LOCATION)
     if c == C.TOOL_MOVE_TRAJECTORY:
         here = conn.ask(M.HereRequest(IDENTITY_LOCATION, IDENTITY_LOCATION)).location
@@ -220,8 +230,7 @@ def _io_args(ctx: Context, conn: Conn, c: int) -> tuple[Value, ...]:
         raise NotApplicable("the robot lists no digital I/O")
     if c == C.READ_IO:
         return (names[0],)
-    value = conn.ok(C.READ_IO, names[0])[0]
-    return (names[0], value)
+    return (names[0], conn.ask(M.ReadIORequest(names[0])).value)
 
 
 def wrong_type(spec_type: wire.ParamType) -> Value:

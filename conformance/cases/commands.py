@@ -20,6 +20,7 @@ from conformance.cases._util import NOT_OFFERED, valid_args, wrong_type
 from conformance.connection import ENDPOINT_ERRORS, Conn, typed_reply
 from conformance.context import Context
 from conformance.model import Case, Fail, Informational, Skip, add_case
+from spec import messages as M
 from spec.errors import ErrorCode
 from spec.messages import REPLIES
 from spec.params import (
@@ -137,7 +138,8 @@ def _power_for(ctx: Context, conn: Conn, spec: CommandSpec) -> bool:
     emergency stop) so that a motion command's reply is checked, not answered NOT_POWERED."""
     if ctx.service != "robot" or spec.id not in _NEED_POWER or not ctx.options.allow_motion:
         return False
-    powered, estop = conn.ok(C.ROBOT_STATUS)[:2]
+    status = conn.ask(M.RobotStatusRequest())
+    powered, estop = status.powered, status.estop
     if estop and C.RESET_EMERGENCY_STOP in ctx.advertised:
         conn.ok(C.RESET_EMERGENCY_STOP)
     if not powered and C.ENABLE_POWER in ctx.advertised:

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import select
 import statistics
 import threading
 import time
 
+from conformance.cases._util import endpoint_status
 from conformance.connection import Closed, Conn
 from conformance.context import Context
-from conformance.model import EndpointTimeout, Fail, NotApplicable, Skip, case
+from conformance.model import EndpointTimeout, Fail, Informational, NotApplicable, Skip, case
+from spec import messages as M
 from spec.errors import ErrorCode
 from spec.registry import CommandId as C
 
@@ -18,10 +21,6 @@ RESERVED_CLOSE_S = 5.0
 RESERVED_OPEN_S = 1.0
 #: ... measured from the BUSY frame's arrival, which follows the accept by a little.
 RESERVED_SLACK_S = 0.05
-
-
-def _read_only(ctx: Context) -> int:
-    return int(C.ROBOT_STATUS if ctx.service == "robot" else C.SENSOR_STATUS)
 
 
 def _control_probe(ctx: Context) -> int:
@@ -63,12 +62,10 @@ def read_only_open(ctx: Context) -> None:
     a, b = ctx.connect(), ctx.connect()
     ctx.take_control(a)
     try:
-        b.ok(_read_only(ctx))
+        endpoint_status(ctx, b)
         b.ok(C.GET_TIME)
         probe = _control_probe(ctx)
-        args = (False,) if probe == C.SET_LASER else ()
-        if probe == C.SET_LASER:
-            args = (bool(a.ok(C.SENSOR_STATUS)[0]),)
+        args = (a.ask(M.SensorStatusRequest()).laser,) if probe == C.SET_LASER else ()
         b.error(probe, ErrorCode.NOT_IN_CONTROL, *args)
     finally:
         a.call(C.RELEASE_CONTROL)
@@ -207,6 +204,107 @@ def max_clients(ctx: Context) -> str:
             conn.close()
 
 
+#: Reserved connections the eviction case fills before it gives up finding the limit.
+RESERVED_TRIED = 16
+
+
+def _closed_now(conns: list[Conn], wait: float) -> list[int]:
+    """The indices of ``conns`` the endpoint has closed (each had nothing left to read): EOF
+    arrives at once on a closed connection, so one short ``select`` finds them all."""
+    readable, _, _ = select.select([c.sock for c in conns], [], [], wait)
+    closed = []
+    for i, conn in enumerate(conns):
+        if conn.sock in readable:
+            try:
+                conn.expect_closed(wait)
+            except EndpointTimeout:
+                continue  # a frame, not the close: the caller judges what it is not
+            closed.append(i)
+    return closed
+
+
+def _reserved(conn: Conn) -> bool:
+    """Whether ``conn`` was refused at connect (BUSY with request ID 0, [RS-7.2]); then its
+    GetStatus is answered BUSY too (a reserved connection serves EmergencyStop only)."""
+    rid = conn.request(C.ROBOT_STATUS)
+    first = conn.recv_packet()
+    if first.error is None or first.request_id != 0:
+        return False
+    answer = conn.answer_to(C.ROBOT_STATUS, rid)
+    if answer.error is None or answer.error[0] != ErrorCode.BUSY:
+        raise Fail(
+            "a reserved connection served GetStatus",
+            "BUSY for every request but EmergencyStop",
+            answer.error or "a reply",
+            requirement="RS-7.14",
+        )
+    return True
+
+
+@case(
+    "connections.reserved.oldest_closed",
+    requirements=["RS-7.14"],
+    tags=["robot", "safety", "limits", "concurrency"],
+    service="robot",
+    profiles=("full",),
+    budget=30.0,
+    order=67,
+    commands=[C.ROBOT_STATUS],
+)
+def reserved_oldest_closed(ctx: Context) -> str:
+    """With the client limit reached and every reserved connection taken, one connection more
+    makes the robot close the oldest reserved connection, not the newest (which keeps its
+    chance of an EmergencyStop) nor any other."""
+    limit = int(ctx.hello.number("max_clients", 0)) if ctx.hello else 0
+    if not 0 < limit <= 256:
+        raise Skip(f"max_clients {limit} is not in 1..256; not tried")
+    conns: list[Conn] = []
+    reserved: list[Conn] = []
+    first_at = 0.0
+    try:
+        for _ in range(limit + RESERVED_TRIED + 1):
+            conn = ctx.connect()
+            conns.append(conn)
+            try:
+                if not _reserved(conn):
+                    continue  # served (a slot may come free as an earlier case's closes)
+            except Closed:
+                pass  # closed at once: the newest is one of those closed, judged below
+            reserved.append(conn)
+            if len(reserved) == 1:
+                first_at = time.monotonic()
+            closed = _closed_now(reserved, ctx.scaled(0.02))
+            age = time.monotonic() - first_at
+            if age >= RESERVED_OPEN_S - RESERVED_SLACK_S:
+                # The oldest may close on its own time now: an eviction is not told apart.
+                raise Informational(
+                    f"{len(reserved)} reserved connections in {age:.2f} s: the oldest may have"
+                    " timed out by now, so which one makes room is not judged"
+                )
+            if not closed:
+                continue
+            n = len(reserved)
+            if n == 1:
+                raise Fail(
+                    "a robot's refused connection closed at once",
+                    f"open at least {RESERVED_OPEN_S:g} s after the BUSY frame (reserved)",
+                    "closed",
+                    requirement="RS-7.14",
+                )
+            if closed != [0]:
+                raise Fail(
+                    "the reserved connection closed to make room is not the oldest",
+                    f"connection 1 of the {n} reserved closed, connection {n} open",
+                    f"reserved connection(s) {', '.join(str(i + 1) for i in closed)} closed",
+                    requirement="RS-7.14",
+                )
+            return f"{n - 1} reserved connection(s) held; connection {n} closed the oldest"
+        raise Informational(f"{RESERVED_TRIED} reserved connections held, none closed")
+    finally:
+        for conn in conns:
+            conn.close()
+
+
 @case(
     "connections.load.round_trip",
     requirements=["RS-7.1", "RS-3.10"],
@@ -227,10 +325,10 @@ def load_round_trip(ctx: Context) -> str:
             for k in range(50):
                 data = f"{i}:{k}".encode()
                 t0 = time.perf_counter()
-                reply = conn.ok(C.PING, data)
+                echo = conn.ask(M.PingRequest(data)).data
                 dt = time.perf_counter() - t0
-                if reply[:1] != (data,):
-                    errors.append(f"client {i} request {k}: echo {reply[:1]!r}")
+                if echo != data:
+                    errors.append(f"client {i} request {k}: echo {echo!r}")
                     return
                 with lock:
                     rtts.append(dt)
@@ -285,8 +383,7 @@ def watchdog(ctx: Context) -> str:
             requirement="RS-7.13",
         )
     other = ctx.connect()
-    status = other.ok(_read_only(ctx))
-    controlled = status[5] if ctx.service == "robot" else status[4]
+    controlled = endpoint_status(ctx, other).controlled
     if controlled is not False:
         raise Fail("control still held after the watchdog", "controlled false", controlled)
     bad = conn.call(C.TAKE_CONTROL, ctx.options.token, 1.0e6)

@@ -227,12 +227,12 @@ def ping_echo(ctx: Context) -> None:
     """Ping echoes its BYTES (all 256 byte values) and answers an empty BYTES without one."""
     conn = ctx.connect()
     data = bytes(range(256)) * 4
-    reply = conn.ok(C.PING, data)
-    if reply[:1] != (data,):
-        raise Fail("Ping does not echo its bytes", data.hex()[:32] + "...", repr(reply)[:80])
-    reply = conn.ok(C.PING)
-    if reply[:1] != (b"",):
-        raise Fail("Ping without a parameter does not echo empty BYTES", b"", reply[:1])
+    echo = conn.ask(M.PingRequest(data)).data
+    if echo != data:
+        raise Fail("Ping does not echo its bytes", data.hex()[:32] + "...", repr(echo)[:80])
+    echo = conn.ask(M.PingRequest()).data
+    if echo != b"":
+        raise Fail("Ping without a parameter does not echo empty BYTES", b"", echo)
 
 
 @case(
@@ -327,14 +327,14 @@ def no_crc(ctx: Context) -> str:
     conn = ctx.connect()
     other = ctx.connect()
     # The harness decoder checks CRCs: a reply arriving here had a valid one.
-    (enabled,) = conn.ok(C.SET_FRAME_CRC, False)
+    enabled = conn.ask(M.SetFrameCrcRequest(False)).enabled
     if enabled is not False:
         raise Fail("SetFrameCrc(false) did not report CRCs off", "enabled false", enabled)
     _no_crc_ping(ctx, conn, 501, no_crc=True)
     _no_crc_ping(ctx, other, 502, no_crc=False)
     # The reply to SetFrameCrc(true) still goes out without CRC, the next one with it.
     conn.decoder.accept_no_crc = True
-    (enabled,) = conn.ok(C.SET_FRAME_CRC, True)
+    enabled = conn.ask(M.SetFrameCrcRequest(True)).enabled
     conn.decoder.accept_no_crc = False
     if enabled is not True:
         raise Fail("SetFrameCrc(true) did not report CRCs on", "enabled true", enabled)

@@ -32,7 +32,7 @@ def ping_liveness(ctx: Context) -> str:
     payload = b"conformance-liveness"
     conn = ctx.connect()
     try:
-        echoed = conn.ok(C.PING, payload, timeout=ctx.timeout * PING_PATIENCE)[:1]
+        echoed = conn.ask(M.PingRequest(payload), timeout=ctx.timeout * PING_PATIENCE).data
     except EndpointTimeout:
         other = ctx.connect()
         other.ok(C.HELLO, 1, 0, "conformance")  # a timeout here too: the endpoint hangs
@@ -42,8 +42,8 @@ def ping_liveness(ctx: Context) -> str:
             f"no answer within {ctx.timeout * PING_PATIENCE:g} s",
             requirement="RS-5.8",
         ) from None
-    if echoed != (payload,):
-        raise Fail("Ping does not echo its bytes", (payload,), echoed, requirement="RS-5.8")
+    if echoed != payload:
+        raise Fail("Ping does not echo its bytes", payload, echoed, requirement="RS-5.8")
     return "Ping echoed on a new connection"
 
 

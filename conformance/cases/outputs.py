@@ -13,6 +13,7 @@ from conformance.cases._util import io_names
 from conformance.connection import Conn
 from conformance.context import Context
 from conformance.model import Fail, NotApplicable, case
+from spec import messages as M
 from spec.errors import ErrorCode
 from spec.registry import CommandId as C
 
@@ -32,7 +33,17 @@ def _on(conn: Conn, names: list[str]) -> dict[str, bool]:
     """Switch ``names`` on; return what ReadIO says of each."""
     for name in names:
         conn.ok(C.SET_OUTPUT, name, True)
-    return {name: bool(conn.ok(C.READ_IO, name)[0]) for name in names}
+    return {name: conn.ask(M.ReadIORequest(name)).value for name in names}
+
+
+def _still_on(conn: Conn, names: list[str]) -> list[str]:
+    """Those of ``names`` that ReadIO reads on."""
+    return [name for name in names if conn.ask(M.ReadIORequest(name)).value]
+
+
+def _laser(conn: Conn) -> bool:
+    """Whether the sensor's laser is on (SensorStatus)."""
+    return conn.ask(M.SensorStatusRequest()).laser
 
 
 @case(
@@ -52,7 +63,7 @@ def off_on_release(ctx: Context) -> str:
         was = _on(conn, names)
     finally:
         conn.ok(C.RELEASE_CONTROL)
-    still = [n for n in names if conn.ok(C.READ_IO, n)[0]]
+    still = _still_on(conn, names)
     if still:
         raise Fail("outputs stayed on after ReleaseControl", "all off", f"on: {', '.join(still)}")
     return f"{', '.join(n for n in names if was[n])} on, off after the release"
@@ -77,7 +88,7 @@ def off_on_close(ctx: Context) -> str:
     conn.close()
     closed = time.monotonic()
     while True:
-        still = [n for n in names if watcher.ok(C.READ_IO, n)[0]]
+        still = _still_on(watcher, names)
         if not still:
             return f"off {time.monotonic() - closed:.3f} s after the close (harness clock)"
         if time.monotonic() > closed + ctx.timeout:
@@ -107,7 +118,7 @@ def off_on_estop(ctx: Context) -> str:
     try:
         _on(conn, names)
         conn.ok(C.EMERGENCY_STOP)
-        still = [n for n in names if conn.ok(C.READ_IO, n)[0]]
+        still = _still_on(conn, names)
         if still:
             raise Fail(
                 "outputs stayed on after EmergencyStop",
@@ -151,17 +162,17 @@ def sensor_laser_release_and_loss(ctx: Context) -> str:
     """The measuring laser stays on over ReleaseControl and goes off when the controller's
     connection closes; the case leaves it as it found it."""
     watcher = ctx.connect()
-    was = bool(watcher.ok(C.SENSOR_STATUS)[0])
+    was = _laser(watcher)
     conn = ctx.connect()
     ctx.take_control(conn)
     conn.ok(C.SET_LASER, True)
     conn.ok(C.RELEASE_CONTROL)
-    if not watcher.ok(C.SENSOR_STATUS)[0]:
+    if not _laser(watcher):
         raise Fail("the sensor laser went off on ReleaseControl", "on", "off")
     ctx.take_control(conn)
     conn.close()
     closed = time.monotonic()
-    while watcher.ok(C.SENSOR_STATUS)[0]:
+    while _laser(watcher):
         if time.monotonic() > closed + ctx.timeout:
             raise Fail("the sensor laser stayed on after its controller was lost", "off", "on")
         time.sleep(0.01)

@@ -7,6 +7,7 @@ from __future__ import annotations
 from conformance.cases._util import NOT_OFFERED, seal
 from conformance.context import Context
 from conformance.model import Fail, case
+from spec import messages as M
 from spec import wire
 from spec.codec import encode_packet, request
 from spec.errors import ErrorCode
@@ -75,8 +76,8 @@ def precedence(ctx: Context) -> str:
         raise Fail("wrong error for TakeControl while held", "AUTH_FAILED or BUSY", answer.error)
     # 12: power before values, for a robot that is powered off.
     if ctx.service == "robot" and C.JOINT_MOVE in ctx.advertised:
-        status = holder.ok(C.ROBOT_STATUS)
-        if status[0] is False and status[1] is False:
+        status = holder.ask(M.RobotStatusRequest())
+        if not status.powered and not status.estop:
             answer = holder.call(C.JOINT_MOVE, Joints([1000.0] * 6))
             _expect(answer.error, ErrorCode.NOT_POWERED, "JointMove to 1000 deg, power off")
             checked.append("power<range")

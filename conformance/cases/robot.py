@@ -11,14 +11,14 @@ from __future__ import annotations
 import itertools
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from conformance.connection import ENDPOINT_ERRORS, Conn
 from conformance.context import Context
 from conformance.model import Fail, Informational, NotApplicable, Skip, case
 from spec import messages as M
 from spec.errors import ErrorCode
-from spec.params import IDENTITY_LOCATION, FloatArray, Joints, Location, Matrix, Value
+from spec.params import IDENTITY_LOCATION, FloatArray, Joints, Location, Matrix
 from spec.registry import CommandId as C
 
 Mat = list[list[float]]
@@ -84,6 +84,11 @@ def _limits(conn: Conn) -> list[tuple[float, float]]:
 
 def _status(conn: Conn) -> M.RobotStatusReply:
     return conn.ask(M.RobotStatusRequest())
+
+
+def motion_desc(conn: Conn) -> M.SetMotionDescRequest:
+    """The motion descriptor in force, as the SetMotionDesc that sets it (again)."""
+    return M.SetMotionDescRequest(**conn.ask(M.GetMotionDescRequest()).as_dict())
 
 
 def _flange(conn: Conn) -> Location:
@@ -218,23 +223,23 @@ def motiondesc_range(ctx: Context) -> None:
     conn = ctx.connect()
     ctx.take_control(conn)
     try:
-        before = conn.ok(C.GET_MOTION_DESC)[:6]
-        good = [float(v) for v in before]  # type: ignore[arg-type]
-        for index, bad in (
-            (0, 0.0),
-            (0, 150.0),
-            (1, -1.0),
-            (2, 101.0),
-            (3, 0.0),
-            (4, -5.0),
-            (5, -1.0),
+        before = motion_desc(conn)
+        for field, bad in (
+            ("joint_speed", 0.0),
+            ("joint_speed", 150.0),
+            ("joint_accel", -1.0),
+            ("joint_decel", 101.0),
+            ("tool_speed", 0.0),
+            ("tool_rot_speed", -5.0),
+            ("blend", -1.0),
         ):
-            args = list(good)
-            args[index] = bad
-            conn.error(C.SET_MOTION_DESC, ErrorCode.OUT_OF_RANGE, *args)
-        after = conn.ok(C.GET_MOTION_DESC)[:6]
+            wrong = replace(before, **{field: bad})
+            conn.error(C.SET_MOTION_DESC, ErrorCode.OUT_OF_RANGE, *wrong.encode())
+        after = motion_desc(conn)
         if after != before:
-            raise Fail("a refused SetMotionDesc changed the descriptor", before, after)
+            raise Fail(
+                "a refused SetMotionDesc changed the descriptor", before.encode(), after.encode()
+            )
     finally:
         conn.call(C.RELEASE_CONTROL)
 
@@ -267,7 +272,7 @@ class _Motion:
     def __init__(self, ctx: Context) -> None:
         self.ctx = ctx
         self.conn = ctx.connect()
-        self.saved: tuple[Value, ...] = ()
+        self.saved: M.SetMotionDescRequest | None = None
 
     def __enter__(self) -> _Motion:
         conn = self.conn
@@ -277,7 +282,7 @@ class _Motion:
             raise Skip("the arm is already moving")
         if status.estop:
             conn.ok(C.RESET_EMERGENCY_STOP)
-        self.saved = conn.ok(C.GET_MOTION_DESC)[:6]
+        self.saved = motion_desc(conn)
         conn.ok(C.SET_MOTION_DESC, SLOW, SLOW, SLOW, 50.0, 20.0, 0.0)
         return self
 
@@ -286,8 +291,8 @@ class _Motion:
 
     def __exit__(self, *exc: object) -> None:
         try:
-            if self.saved and not self.conn.closed:
-                self.conn.call(C.SET_MOTION_DESC, *self.saved)
+            if self.saved is not None and not self.conn.closed:
+                self.conn.call(C.SET_MOTION_DESC, *self.saved.encode())
             if not self.conn.closed:
                 self.conn.call(C.RELEASE_CONTROL)
         except ENDPOINT_ERRORS:  # cleanup: the case's verdict is already made
@@ -299,10 +304,38 @@ def _wait_still(conn: Conn, timeout: float) -> bool:
     remaining = timeout
     while True:
         piece = remaining if conn.lease is None else min(remaining, conn.lease / 2)
-        done = bool(conn.ok(C.WAIT_END_MOVE, piece, timeout=piece + 5.0)[0])
+        done = conn.ask(M.WaitEndMoveRequest(piece), timeout=piece + 5.0).done
         remaining -= piece
         if done or remaining <= 1e-9:
             return done
+
+
+@dataclass(frozen=True)
+class _Step:
+    """The documented motion's way out, queued: joint 1 from ``start`` to ``target`` (deg)."""
+
+    start: list[float]
+    target: list[float]
+    #: When JointMove went out (time.monotonic()), and how long its reply took (s).
+    sent_at: float
+    reply_s: float
+
+
+def _step_out(conn: Conn) -> _Step:
+    """JointMove joint 1 by +STEP_DEG from where the arm stands (the documented motion's way
+    out); returns at JointMove's reply while the move runs on [RS-5.11]."""
+    start = _joints(conn)
+    target = [start[0] + STEP_DEG, *start[1:]]
+    sent_at = time.monotonic()
+    conn.ok(C.JOINT_MOVE, Joints(target))
+    return _Step(start, target, sent_at, time.monotonic() - sent_at)
+
+
+def _step_back(conn: Conn, step: _Step) -> bool:
+    """JointMove back to where ``step`` started, then wait (30 s at most) until the arm
+    stands: a case leaves joint 1 as it found it. False if the arm did not stand in time."""
+    conn.ok(C.JOINT_MOVE, Joints(step.start))
+    return _wait_still(conn, 30.0)
 
 
 MOTION = [C.JOINT_MOVE, C.ENABLE_POWER, C.DISABLE_POWER, C.WAIT_END_MOVE, C.SET_MOTION_DESC]
@@ -378,21 +411,19 @@ def motion_stopped_is_not_done(ctx: Context) -> str:
     with _Motion(ctx) as m:
         conn = m.conn
         m.power()
-        start = _joints(conn)
-        target = list(start)
-        target[0] += STEP_DEG
-        conn.ok(C.JOINT_MOVE, Joints(target))
+        step = _step_out(conn)
         time.sleep(0.05)
         conn.ok(C.RESET_MOTION)
-        reply = conn.ok(C.WAIT_END_MOVE, 10.0, timeout=15.0)
-        if len(reply) < 3:
-            raise Fail("WaitEndMove has no outcome (a 1.2 reply)", "done, outcome, reason", reply)
-        if reply[0] is not False or reply[1] != "stopped" or not reply[2]:
-            raise Fail("a move cut short by ResetMotion", "(False, 'stopped', reason)", reply)
-        stopped = reply
-        conn.ok(C.JOINT_MOVE, Joints(start))
-        reply = conn.ok(C.WAIT_END_MOVE, 10.0, timeout=15.0)
-        if tuple(reply[:3]) != (True, "reached", ""):
+        cut = conn.ask(M.WaitEndMoveRequest(10.0), timeout=15.0)
+        stopped = cut.encode()
+        if cut.reason is None:
+            raise Fail("WaitEndMove has no outcome (a 1.2 reply)", "done, outcome, reason", stopped)
+        if cut.done is not False or cut.outcome != "stopped" or not cut.reason:
+            raise Fail("a move cut short by ResetMotion", "(False, 'stopped', reason)", stopped)
+        conn.ok(C.JOINT_MOVE, Joints(step.start))
+        ended = conn.ask(M.WaitEndMoveRequest(10.0), timeout=15.0)
+        reply = ended.encode()
+        if (ended.done, ended.outcome, ended.reason) != (True, "reached", ""):
             raise Fail("a move that reached its target", "(True, 'reached', '')", reply)
     return f"ResetMotion: {stopped!r}; run to its end: {reply!r}"
 
@@ -472,20 +503,17 @@ def stop_restart(ctx: Context) -> str:
     with _Motion(ctx) as m:
         conn = m.conn
         m.power()
-        start = _joints(conn)
-        target = list(start)
-        target[0] += STEP_DEG
-        conn.ok(C.JOINT_MOVE, Joints(target))
+        step = _step_out(conn)
         conn.ok(C.STOP_MOVE)
         held = _held_still(conn, 10.0)
         at = _joints(conn)
         if held.moving:
             raise Fail("GetStatus while StopMove holds the arm", "moving false", held,
                        requirement="RS-5.59")  # fmt: skip
-        if held.queue != 1 or abs(at[0] - target[0]) < 0.01:
+        if held.queue != 1 or abs(at[0] - step.target[0]) < 0.01:
             raise Fail(
                 "StopMove during a move: held short of the target with the move queued",
-                f"queue 1, joint 1 short of {target[0]:.3f}",
+                f"queue 1, joint 1 short of {step.target[0]:.3f}",
                 f"queue {held.queue!r}, joint 1 at {at[0]:.3f}",
                 requirement="RS-5.59",
             )
@@ -496,11 +524,11 @@ def stop_restart(ctx: Context) -> str:
         if not _wait_still(conn, 30.0):
             raise Fail("the restarted move did not end within 30 s", True, False)
         reached = _joints(conn)
-        if abs(reached[0] - target[0]) > 0.05:
-            raise Fail("RestartMove resumes the held move to its target", target[0],
+        if abs(reached[0] - step.target[0]) > 0.05:
+            raise Fail("RestartMove resumes the held move to its target", step.target[0],
                        reached[0], requirement="RS-5.54")  # fmt: skip
         # the way back: stopped, dropped, and not started again by RestartMove
-        conn.ok(C.JOINT_MOVE, Joints(start))
+        conn.ok(C.JOINT_MOVE, Joints(step.start))
         conn.ok(C.STOP_MOVE)
         _held_still(conn, 10.0)
         conn.ok(C.RESET_MOTION)
@@ -509,8 +537,7 @@ def stop_restart(ctx: Context) -> str:
         conn.ok(C.RESTART_MOVE)
         time.sleep(0.5)
         after, status = _joints(conn), _status(conn)
-        conn.ok(C.JOINT_MOVE, Joints(start))  # back where the case began
-        _wait_still(conn, 30.0)
+        _step_back(conn, step)  # back where the case began
         conn.ok(C.DISABLE_POWER)
         if dropped.queue != 0 or status.moving or abs(after[0] - before[0]) > 0.01:
             raise Fail(
@@ -521,7 +548,7 @@ def stop_restart(ctx: Context) -> str:
                 requirement="RS-5.54",
             )
     return (
-        f"held at {at[0] - start[0]:+.3f} deg of {STEP_DEG:g}, resumed to the target; "
+        f"held at {at[0] - step.start[0]:+.3f} deg of {STEP_DEG:g}, resumed to the target; "
         "a dropped move stays dropped"
     )
 
@@ -541,25 +568,20 @@ def motion_queued(ctx: Context) -> str:
     with _Motion(ctx) as m:
         conn = m.conn
         m.power()
-        start = _joints(conn)
-        target = list(start)
-        target[0] += STEP_DEG
-        t0 = time.monotonic()
-        conn.ok(C.JOINT_MOVE, Joints(target))
-        reply_s = time.monotonic() - t0
+        step = _step_out(conn)
+        reply_s = step.reply_s
         status = _status(conn)
         queue = status.queue
         still_moving = bool(status.moving) or (isinstance(queue, int) and queue > 0)
-        early = conn.ok(C.WAIT_END_MOVE, 0.001)[0] if still_moving else None
+        early = conn.ask(M.WaitEndMoveRequest(0.001)).done if still_moving else None
         if not _wait_still(conn, 30.0):
             raise Fail("WaitEndMove(30 s) did not see the end of a 2 degree move", True, False)
-        move_s = time.monotonic() - t0
+        move_s = time.monotonic() - step.sent_at
         reached = _joints(conn)
         settled = _status(conn)
-        if abs(reached[0] - target[0]) > 0.05:
-            raise Fail("the arm did not reach the target", target[0], reached[0])
-        conn.ok(C.JOINT_MOVE, Joints(start))
-        _wait_still(conn, 30.0)
+        if abs(reached[0] - step.target[0]) > 0.05:
+            raise Fail("the arm did not reach the target", step.target[0], reached[0])
+        _step_back(conn, step)
         if settled.moving or settled.queue != 0:
             raise Fail(
                 "GetStatus after WaitEndMove said done",
@@ -596,9 +618,7 @@ def release_keeps_moves(ctx: Context) -> str:
     with _Motion(ctx) as m:
         conn = m.conn
         m.power()
-        start = _joints(conn)
-        target = [start[0] + STEP_DEG, *start[1:]]
-        conn.ok(C.JOINT_MOVE, Joints(target))
+        step = _step_out(conn)
         conn.ok(C.RELEASE_CONTROL)
         released = _status(conn)
         # WaitEndMove needs no control: the former controller waits for its move's end.
@@ -606,15 +626,14 @@ def release_keeps_moves(ctx: Context) -> str:
         after = _status(conn)
         reached = _joints(conn)
         ctx.take_control(conn)
-        conn.ok(C.JOINT_MOVE, Joints(start))
-        _wait_still(conn, 30.0)
+        _step_back(conn, step)
     was_moving = bool(released.moving) or released.queue != 0
     if not was_moving:
         raise Informational("the move was over before ReleaseControl was answered")
-    if not done or abs(reached[0] - target[0]) > 0.05:
+    if not done or abs(reached[0] - step.target[0]) > 0.05:
         raise Fail(
             "a move queued before ReleaseControl did not reach its target",
-            f"joint 1 at {target[0]:.3f} deg, WaitEndMove done",
+            f"joint 1 at {step.target[0]:.3f} deg, WaitEndMove done",
             f"joint 1 at {reached[0]:.3f} deg, done {done}",
             requirement="RS-7.11",
         )
@@ -665,11 +684,8 @@ def _lose_controller_mid_move(ctx: Context, *, wait_pending: bool, requirement: 
     with _Motion(ctx) as m:
         conn = m.conn
         m.power()
-        start = _joints(conn)
-        target = list(start)
-        target[0] += STEP_DEG
-        conn.ok(C.JOINT_MOVE, Joints(target))
-        conn.ok(C.JOINT_MOVE, Joints(start))
+        step = _step_out(conn)
+        conn.ok(C.JOINT_MOVE, Joints(step.start))
         if wait_pending:
             conn.request(C.WAIT_END_MOVE, 60.0)
             time.sleep(0.05)
@@ -689,7 +705,7 @@ def _lose_controller_mid_move(ctx: Context, *, wait_pending: bool, requirement: 
             requirement=requirement,
         )
     stopped_after = time.monotonic() - closed
-    ran_to_the_end = abs(_joints(watcher)[0] - start[0]) < 0.05
+    ran_to_the_end = abs(_joints(watcher)[0] - step.start[0]) < 0.05
     stood = time.monotonic()
     powered = bool(status.powered)
     while powered and time.monotonic() < stood + 1.0:
@@ -698,8 +714,7 @@ def _lose_controller_mid_move(ctx: Context, *, wait_pending: bool, requirement: 
     # Bring joint 1 back to where it started.
     ctx.take_control(watcher)
     watcher.ok(C.ENABLE_POWER)
-    watcher.ok(C.JOINT_MOVE, Joints(start))
-    _wait_still(watcher, 30.0)
+    _step_back(watcher, step)
     watcher.call(C.RELEASE_CONTROL)
     return _Lost(status, stopped_after, ran_to_the_end, powered)
 

@@ -21,6 +21,7 @@ from conformance.model import (
     add_case,
     case,
 )
+from spec import messages as M
 from spec import wire
 from spec.codec import encode_packet, request
 from spec.errors import ErrorCode
@@ -340,7 +341,7 @@ def max_payload_accepted(ctx: Context) -> str:
     limit = _limit(ctx)
     data = bytes(i % 251 for i in range(limit - 2 - 1 - 4))  # count, tag, BYTES length
     conn = ctx.connect()
-    reply = conn.ok(C.PING, data, timeout=ctx.timeout * 10)
-    if reply[:1] != (data,):
+    echo = conn.ask(M.PingRequest(data), timeout=ctx.timeout * 10).data
+    if echo != data:
         raise Fail("a maximum-size Ping is not echoed", f"{len(data)} bytes", "different bytes")
     return f"{limit} byte payload echoed"

@@ -8,6 +8,8 @@ import itertools
 import socket
 import time
 
+from conformance.cases._util import endpoint_status
+from conformance.cases.robot import _step_back, _step_out
 from conformance.connection import Conn, typed_reply
 from conformance.context import Context
 from conformance.model import Fail, Informational, NotApplicable, case
@@ -16,15 +18,9 @@ from spec import wire
 from spec.codec import Packet
 from spec.datagrams import Trigger, decode_datagram
 from spec.errors import DatagramError, ErrorCode
-from spec.params import FloatArray, Joints, Matrix
+from spec.params import FloatArray, Joints
 from spec.registry import SEAM_POINT_COLUMNS
 from spec.registry import CommandId as C
-
-
-def _matrix(value: object, what: str) -> Matrix:
-    if not isinstance(value, Matrix):
-        raise Fail(f"{what} is not a MATRIX", "MATRIX", type(value).__name__)
-    return value
 
 
 def _refused(conn: Conn, code: ErrorCode, requirement: str, command: int, *params: object) -> None:
@@ -49,16 +45,16 @@ def robot_shapes(ctx: Context) -> None:
     """GetJointLog is N x 7 (t, q1..q6), increasing t; GetJointLimits 6 x 2 (lower < upper);
     ListIO names are comma-separated without spaces."""
     conn = ctx.connect()
-    log, period = conn.ok(C.GET_JOINT_LOG, -1.0)
-    m = _matrix(log, "GetJointLog log")
+    joint_log = conn.ask(M.GetJointLogRequest(-1.0))
+    m, period = joint_log.log, joint_log.period
     if m.cols != 7:
         raise Fail("GetJointLog rows are not (t, q1..q6)", 7, m.cols, requirement="RS-5.25")
     times = [m.row(i)[0] for i in range(m.rows)]
     if any(b <= a for a, b in itertools.pairwise(times)):
         raise Fail("GetJointLog times do not increase", "increasing", times[:5])
-    if not isinstance(period, float) or not 0 < period < 1:
+    if not 0 < period < 1:
         raise Fail("GetJointLog period is not T_r in s", "0 < period < 1", period)
-    limits = _matrix(conn.ok(C.GET_JOINT_LIMITS)[0], "GetJointLimits limits")
+    limits = conn.ask(M.GetJointLimitsRequest()).limits
     if (limits.rows, limits.cols) != (6, 2) or any(
         not limits.row(j)[0] < limits.row(j)[1] for j in range(limits.rows)
     ):
@@ -68,8 +64,9 @@ def robot_shapes(ctx: Context) -> None:
             f"{limits.rows} x {limits.cols}",
             requirement="RS-5.26",
         )
-    for names in conn.ok(C.LIST_IO):
-        if not isinstance(names, str) or " " in names or (names and "" in names.split(",")):
+    io = conn.ask(M.ListIORequest())
+    for names in (io.outputs, io.inputs):
+        if " " in names or (names and "" in names.split(",")):
             raise Fail(
                 "ListIO names are not comma-separated without spaces",
                 "a,b,c",
@@ -109,16 +106,15 @@ def status_fields(ctx: Context) -> None:
     """GetStatus in_control is per connection and controlled is for any connection; Hello's
     version is "major.minor" as in the frame header, and service names the service."""
     a, b = ctx.connect(), ctx.connect()
-    status = C.ROBOT_STATUS if ctx.service == "robot" else C.SENSOR_STATUS
-    at = 4 if ctx.service == "robot" else 3  # index of in_control; controlled follows
     ctx.take_control(a)
     try:
-        mine, theirs = a.ok(status), b.ok(status)
-        if (mine[at], mine[at + 1], theirs[at], theirs[at + 1]) != (True, True, False, True):
+        mine, theirs = endpoint_status(ctx, a), endpoint_status(ctx, b)
+        got = (mine.in_control, mine.controlled, theirs.in_control, theirs.controlled)
+        if got != (True, True, False, True):
             raise Fail(
                 "in_control / controlled do not tell this connection from any connection",
                 "holder (True, True), other (False, True)",
-                f"holder {mine[at : at + 2]}, other {theirs[at : at + 2]}",
+                f"holder {got[:2]}, other {got[2:]}",
                 requirement="RS-5.30",
             )
     finally:
@@ -201,7 +197,7 @@ def sync_shapes(ctx: Context) -> None:
     """GetSeamPoints is N x 17; SetSyncDelay beyond ±1 s and a negative trigger count are
     OUT_OF_RANGE."""
     conn = ctx.connect()
-    points = _matrix(conn.ok(C.GET_SEAM_POINTS, -1)[0], "GetSeamPoints points")
+    points = conn.ask(M.GetSeamPointsRequest(-1)).points
     if points.cols != len(SEAM_POINT_COLUMNS):
         raise Fail(
             "GetSeamPoints rows do not have the 17 columns of the table",
@@ -366,11 +362,4 @@ def _advance_by_motion(conn: Conn) -> None:
     """Joint 1 by +2 degrees and back (the documented motion): time passes on any clock."""
     if not conn.ask(M.RobotStatusRequest()).powered:
         conn.ok(C.ENABLE_POWER)
-    start = list(conn.ask(M.HerejRequest()).joints.values)
-    there = [start[0] + 2.0, *start[1:]]
-    conn.ok(C.JOINT_MOVE, Joints(there))
-    conn.ok(C.JOINT_MOVE, Joints(start))
-    lease = conn.lease or 1.0
-    for _ in range(40):
-        if conn.ok(C.WAIT_END_MOVE, lease / 2, timeout=lease + 5.0)[0]:
-            break
+    _step_back(conn, _step_out(conn))

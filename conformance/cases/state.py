@@ -4,7 +4,19 @@ RestartMove in every state (PROTOCOL.md sections 5.3 and 7)."""
 
 from __future__ import annotations
 
-from conformance.cases.robot import SLOW, STEP_DEG, _joints, _Motion, _status, _wait_still
+from dataclasses import replace
+
+from conformance.cases.robot import (
+    SLOW,
+    STEP_DEG,
+    _joints,
+    _Motion,
+    _status,
+    _step_back,
+    _step_out,
+    _wait_still,
+    motion_desc,
+)
 from conformance.connection import Conn
 from conformance.context import Context
 from conformance.model import Fail, Informational, Skip, case
@@ -47,8 +59,7 @@ def jointlog_since_nan(ctx: Context) -> str:
     )
     rows = {}
     for since in (float("inf"), float("-inf")):
-        log = conn.ok(C.GET_JOINT_LOG, since)[0]
-        rows[since] = getattr(log, "rows", -1)
+        rows[since] = conn.ask(M.GetJointLogRequest(since)).log.rows
     if rows[float("inf")] != 0 or rows[float("-inf")] < 1:
         raise Fail(
             "GetJointLog with an infinite since",
@@ -78,8 +89,8 @@ def last_error_only_moves(ctx: Context) -> str:
     ctx.take_control(conn)
     try:
         with ctx.precondition("refusals of SetMotionDesc 150 % and WaitEndMove -1 s"):
-            desc = conn.ok(C.GET_MOTION_DESC)[:6]
-            conn.error(C.SET_MOTION_DESC, ErrorCode.OUT_OF_RANGE, 150.0, *desc[1:])
+            too_fast = replace(motion_desc(conn), joint_speed=150.0)
+            conn.error(C.SET_MOTION_DESC, ErrorCode.OUT_OF_RANGE, *too_fast.encode())
             conn.error(C.WAIT_END_MOVE, ErrorCode.OUT_OF_RANGE, -1.0)
         after = _status(conn)
     finally:
@@ -108,21 +119,21 @@ def motiondesc_owned_by_robot(ctx: Context) -> str:
     also after the first released control; the descriptor is restored afterwards."""
     a, b = ctx.connect(), ctx.connect()
     ctx.take_control(a)
-    saved = a.ok(C.GET_MOTION_DESC)[:6]
+    saved = motion_desc(a)
     try:
-        wanted = (7.0, 55.0, 45.0, 123.0, 33.0, 0.5)
-        a.ok(C.SET_MOTION_DESC, *wanted)
+        wanted = M.SetMotionDescRequest(7.0, 55.0, 45.0, 123.0, 33.0, 0.5)
+        a.ask(wanted)
         _release(a)
-        seen = tuple(b.ok(C.GET_MOTION_DESC)[:6])
+        seen = motion_desc(b)
     finally:
         ctx.take_control(a)
-        a.call(C.SET_MOTION_DESC, *saved)
+        a.call(C.SET_MOTION_DESC, *saved.encode())
         _release(a)
     if seen != wanted:
         raise Fail(
             "another connection does not see the motion descriptor in force",
-            wanted,
-            seen,
+            wanted.encode(),
+            seen.encode(),
             requirement="RS-5.56",
         )
     return "shared across connections and kept over ReleaseControl"
@@ -275,9 +286,7 @@ def queued_behind_wait(ctx: Context) -> str:
     with _Motion(ctx) as m:
         conn = m.conn
         m.power()
-        start = _joints(conn)
-        target = [start[0] + STEP_DEG, *start[1:]]
-        conn.ok(C.JOINT_MOVE, Joints(target))
+        step = _step_out(conn)
         piece = 5.0 if conn.lease is None else min(5.0, conn.lease / 2)
         wait_id = conn.request(C.WAIT_END_MOVE, piece)
         ids = [conn.request(C.HEREJ) for _ in range(count)]
@@ -287,8 +296,7 @@ def queued_behind_wait(ctx: Context) -> str:
             packet = conn.recv_packet(timeout=piece + 10.0)
             got[packet.request_id] = packet
         _wait_still(conn, 30.0)
-        conn.ok(C.JOINT_MOVE, Joints(start))
-        _wait_still(conn, 30.0)
+        _step_back(conn, step)
     if set(got) != {wait_id, *ids}:
         raise Fail("answers that echo no request", sorted(ids), sorted(got), requirement="RS-3.4")
     answers = [got[rid] for rid in ids]

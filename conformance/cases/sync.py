@@ -430,7 +430,8 @@ def endpoint_clear(ctx: Context) -> str:
     try:
         conn.ok(C.SET_SENSOR_ENDPOINT, sink.getsockname()[0], sink.getsockname()[1])
         cleared = conn.call(C.SET_SENSOR_ENDPOINT, "", 0)
-        now = tuple(conn.ok(C.GET_SYNC_CONFIG)[:2])
+        now_cfg = conn.ask(M.GetSyncConfigRequest())
+        now = (now_cfg.host, now_cfg.port)
         start = conn.call(C.START_TRIGGERS, 10.0, 1)
     finally:
         conn.call(C.STOP_TRIGGERS)

@@ -34,7 +34,7 @@ import numpy as np
 from robotsocket.client import MotionDesc, RobotClient
 from sensorsocket.client import SensorClient
 from spec.callcli import unreachable
-from spec.errors import ProtocolError, RemoteError
+from spec.errors import ErrorCode, ProtocolError, RemoteError
 from welding import job as J
 from welding.console.activities import (
     Activity,
@@ -63,6 +63,10 @@ log = logging.getLogger("welding.console")
 STATUS_HZ = 20.0
 #: A jog stops when no "hold" came for this long (the browser sends one every 100 ms).
 DEADMAN_S = 0.4
+#: The control lease the console asks for [RS-7.13]: the backstop for a console process that
+#: freezes (the dead-man above stops a jog first). The server's 0.25 s default was lost by a
+#: live console whose keep-alive waited for the GIL on a busy PC, stopping a good move.
+CONSOLE_LEASE_S = 1.0
 #: How far one jog press may go at most: mm for x, y, z; degrees for rx, ry, rz.
 JOG_REACH_MM = 100.0
 JOG_REACH_DEG = 45.0
@@ -341,7 +345,12 @@ class Console:
             holder = self.controller
         if holder is not None and holder != user and self.in_control:
             raise ConsoleError(f"{holder} holds control", 409)
-        self.control.take_control(self.token)
+        try:
+            self.control.take_control(self.token, watchdog=CONSOLE_LEASE_S)
+        except RemoteError as exc:
+            if exc.code is not ErrorCode.OUT_OF_RANGE:
+                raise
+            self.control.take_control(self.token)  # a robot whose leases are shorter
         with self._lock:
             self.in_control = True
             self.controller = user
