@@ -20,7 +20,7 @@ import time
 import zlib
 from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import Any, Literal
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -959,12 +959,20 @@ class MiniSyncRobot(MiniRobot):
     LOSS_TIMEOUT = 0.1
 
     def __init__(
-        self, *, count_duplicates: bool = True, any_source: bool = False, lag_blind: bool = False
+        self,
+        *,
+        count_duplicates: bool = True,
+        any_source: bool = False,
+        lag_blind: bool = False,
+        exposed_late: Literal["counted", "uncounted", "absent"] = "counted",
     ) -> None:
         super().__init__()
         self.count_duplicates = count_duplicates
         self.any_source = any_source  # broken on purpose: takes data from anyone [SY-3.7]
         self.lag_blind = lag_blind  # broken on purpose: ignores late exposures [SY-3.8]
+        # broken on purpose unless "counted": places late exposures right but its counter
+        # stays 0, or it sends the eleven counters of a robot from before [SY-5.9]
+        self.exposed_late = exposed_late
         self.lags: list[float] = []
         self.endpoint: tuple[str, int] = ("", 0)
         self.delta_t = 0.005
@@ -989,6 +997,7 @@ class MiniSyncRobot(MiniRobot):
                 "expired",
                 "malformed",
                 "pending",
+                "exposed_late",
             ),
             0,
         )
@@ -1062,7 +1071,10 @@ class MiniSyncRobot(MiniRobot):
         lag = d.t_exposure_start - d.t_arrival
         ref = statistics.median(self.lags[-64:]) if len(self.lags) >= 8 else lag
         self.lags.append(lag)
-        return 0.0 if self.lag_blind or lag - ref <= 0.5e-3 else lag - ref
+        if self.lag_blind or lag - ref <= 0.5e-3:
+            return 0.0
+        self.stats["exposed_late"] += 1 if self.exposed_late == "counted" else 0
+        return lag - ref
 
     def handle(self, session: SessionView, request: M.Request[Any]) -> tuple[Value, ...]:
         c = request.command
@@ -1106,9 +1118,10 @@ class MiniSyncRobot(MiniRobot):
                 rows = [self.points[i] for i in sorted(self.points) if i > since]
                 return (Matrix(len(rows), 17, [v for r in rows for v in r]),)
             if c == C.GET_SYNC_STATISTICS:
-                return tuple(
-                    self.stats[k] if k != "pending" else len(self.sent) for k in self.stats
-                )
+                stats = {**self.stats, "pending": len(self.sent)}
+                if self.exposed_late == "absent":
+                    del stats["exposed_late"]
+                return tuple(stats.values())
         return super().handle(session, request)
 
 
@@ -1149,6 +1162,22 @@ def test_robot_placing_a_late_exposure_at_t_t_plus_delta_t_is_caught() -> None:
         service.stop.set()
     assert outcomes(result)["robot.sync.exposure_lag"] is Outcome.NON_STRICT  # a SHOULD
     assert "SY-3.8" in problems(result)["robot.sync.exposure_lag"]
+
+
+@pytest.mark.parametrize("exposed_late", ["uncounted", "absent"])
+def test_robot_not_counting_a_late_exposure_is_caught(
+    exposed_late: Literal["uncounted", "absent"],
+) -> None:
+    """A robot that places the late reading right but leaves exposed_late at 0, or sends
+    the eleven counters of a robot from before SY-5.9 (which the harness still decodes)."""
+    service = MiniSyncRobot(exposed_late=exposed_late)
+    try:
+        with serving(FramedServer(service, policy=POLICY)) as address:
+            result = check("robot", address, ("robot.sync.exposure_lag",), scale=0.5)
+    finally:
+        service.stop.set()
+    assert outcomes(result)["robot.sync.exposure_lag"] is Outcome.NON_STRICT  # a SHOULD
+    assert "SY-5.9" in problems(result)["robot.sync.exposure_lag"]
 
 
 def test_robot_taking_data_from_anyone_is_caught() -> None:
