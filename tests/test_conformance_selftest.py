@@ -416,6 +416,21 @@ def test_wrong_error_code_is_caught() -> None:
     _caught(result, "framing.error.shape", "negotiation.hello.commands_complete")
 
 
+class OldHelloServer(FramedServer):
+    """Frames carry its minor version; its Hello says 1.0 all the same [RS-5.31 broken]."""
+
+    def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
+        params = super()._execute(session, packet)
+        return ("1.0", *params[1:]) if packet.command == C.HELLO else params
+
+
+def test_hello_version_unlike_the_frame_header_is_caught() -> None:
+    with serving(OldHelloServer(MiniRobot(), policy=POLICY)) as address:
+        result = check("robot", address, ("control.status_fields",))
+    _caught(result, "control.status_fields")
+    assert "RS-5.31" in problems(result)["control.status_fields"]
+
+
 class ClosingServer(FramedServer):
     """Closes the connection on an unknown command instead of answering."""
 
