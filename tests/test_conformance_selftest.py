@@ -1143,13 +1143,17 @@ class MiniSyncRobot(MiniRobot):
 ROBOT_SYNC_CASES = ("robot.sync.*", "commands.sync.*")
 
 
-def test_minimal_sync_robot_scores_100_percent() -> None:
-    service = MiniSyncRobot()
+def _check_sync_robot(service: MiniSyncRobot, select: tuple[str, ...]) -> RunResult:
+    """The cases ``select`` against ``service`` on loopback; its trigger thread stops after."""
     try:
         with serving(FramedServer(service, policy=POLICY)) as address:
-            result = check("robot", address, ROBOT_SYNC_CASES, scale=0.5)
+            return check("robot", address, select, scale=0.5)
     finally:
         service.stop.set()
+
+
+def test_minimal_sync_robot_scores_100_percent() -> None:
+    result = _check_sync_robot(MiniSyncRobot(), ROBOT_SYNC_CASES)
     assert problems(result) == {}
     got = outcomes(result)
     assert got["robot.sync.matching"] is Outcome.PASS
@@ -1158,23 +1162,13 @@ def test_minimal_sync_robot_scores_100_percent() -> None:
 
 
 def test_robot_not_counting_duplicates_is_caught() -> None:
-    service = MiniSyncRobot(count_duplicates=False)
-    try:
-        with serving(FramedServer(service, policy=POLICY)) as address:
-            result = check("robot", address, ("robot.sync.matching",), scale=0.5)
-    finally:
-        service.stop.set()
+    result = _check_sync_robot(MiniSyncRobot(count_duplicates=False), ("robot.sync.matching",))
     _caught(result, "robot.sync.matching")
     assert "SY-3.2" in problems(result)["robot.sync.matching"]
 
 
 def test_robot_placing_a_late_exposure_at_t_t_plus_delta_t_is_caught() -> None:
-    service = MiniSyncRobot(lag_blind=True)
-    try:
-        with serving(FramedServer(service, policy=POLICY)) as address:
-            result = check("robot", address, ("robot.sync.exposure_lag",), scale=0.5)
-    finally:
-        service.stop.set()
+    result = _check_sync_robot(MiniSyncRobot(lag_blind=True), ("robot.sync.exposure_lag",))
     assert outcomes(result)["robot.sync.exposure_lag"] is Outcome.NON_STRICT  # a SHOULD
     assert "SY-3.8" in problems(result)["robot.sync.exposure_lag"]
 
@@ -1185,23 +1179,15 @@ def test_robot_not_counting_a_late_exposure_is_caught(
 ) -> None:
     """A robot that places the late reading right but leaves exposed_late at 0, or sends
     the eleven counters of a robot from before SY-5.9 (which the harness still decodes)."""
-    service = MiniSyncRobot(exposed_late=exposed_late)
-    try:
-        with serving(FramedServer(service, policy=POLICY)) as address:
-            result = check("robot", address, ("robot.sync.exposure_lag",), scale=0.5)
-    finally:
-        service.stop.set()
+    result = _check_sync_robot(
+        MiniSyncRobot(exposed_late=exposed_late), ("robot.sync.exposure_lag",)
+    )
     assert outcomes(result)["robot.sync.exposure_lag"] is Outcome.NON_STRICT  # a SHOULD
     assert "SY-5.9" in problems(result)["robot.sync.exposure_lag"]
 
 
 def test_robot_taking_data_from_anyone_is_caught() -> None:
-    service = MiniSyncRobot(any_source=True)
-    try:
-        with serving(FramedServer(service, policy=POLICY)) as address:
-            result = check("robot", address, ("robot.sync.foreign_data",), scale=0.5)
-    finally:
-        service.stop.set()
+    result = _check_sync_robot(MiniSyncRobot(any_source=True), ("robot.sync.foreign_data",))
     assert outcomes(result)["robot.sync.foreign_data"] is Outcome.NON_STRICT  # a SHOULD
 
 
