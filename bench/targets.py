@@ -56,6 +56,7 @@ def _value(op: str, bound: float) -> Check:
 
 
 _HEREJ = "robot herej"
+_ILC = "ilc real clock, sine 250 mm/s, elastic arm"
 TARGETS: tuple[Target, ...] = (
     Target(
         "Herej p50 across processes ≤ pyModbusTCP's",
@@ -99,6 +100,22 @@ TARGETS: tuple[Target, ...] = (
         for joint in ("butt", "fillet", "lap")
     ),
     Target("ΔT estimate ≤ 1 ms", "sync.estimate_delay", (_value("≤", 1.0),)),
+    *(
+        t
+        for hogs in (0, 2)
+        for t in (
+            Target(
+                f"ILC, real clock, {hogs} hogs: trial 5 ≤ trial 1 / 10 (issue 31)",
+                f"{_ILC}, {hogs} hogs: trial 5 error max",
+                (_ratio("≤", 0.1),),
+            ),
+            Target(
+                f"ILC table + tracking, real clock, {hogs} hogs: ≤ 0.1 mm (issue 31)",
+                f"{_ILC}, {hogs} hogs: tracked with the table",
+                (_value("≤", 0.1),),
+            ),
+        )
+    ),
 )
 
 

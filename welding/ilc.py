@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +42,7 @@ __all__ = [
     "LearningDiverges",
     "check_convergence",
     "learning_matrix",
+    "lever_error",
     "lifted_model",
     "q_filter",
 ]
@@ -104,6 +105,31 @@ def lifted_model(
         mix = np.outer(J[:3, i], Jinv[i, :3])
         G += np.kron(toeplitz[i], mix)
     return G
+
+
+def lever_error(
+    params: ElasticParams,
+    model: Any,
+    q_cmd_deg: FloatArray,
+    laser2flange: FloatArray,
+    sensor2flange: FloatArray,
+    period: float,
+) -> FloatArray:
+    """The model's laser error less its sensor's (N, 3) mm, base frame, at the end of each
+    of the N cycles of a pass commanded through joints ``q_cmd_deg`` (N + 1, 6) deg, from
+    rest at the first (:func:`kinematics.dynamics.simulate`, the link inertia of each
+    cycle's pose): (R_link − R_cmd)·(laser − sensor), the flange's turn off its command
+    acting on the lever between the two tools (flange frame, ``laser2flange`` and
+    ``sensor2flange`` (4, 4)). The sensor measures where it went; the laser, 40 mm behind
+    it on the same flange, went there too only where the tool did not turn."""
+    q = np.asarray(q_cmd_deg, dtype=np.float64)
+    jl = np.array([link_inertia(model, qk, params) for qk in q[1:]])
+    _, link = simulate(params, jl, np.radians(q), period=period)
+    turned = model.flange2base_batch(np.degrees(link))[:, :3, :3]
+    commanded = model.flange2base_batch(q[1:])[:, :3, :3]
+    lever = laser2flange[:3, 3] - sensor2flange[:3, 3]
+    out: FloatArray = (turned - commanded) @ lever
+    return out
 
 
 def _toeplitz(h: FloatArray) -> FloatArray:
@@ -208,7 +234,11 @@ class IlcTable:
     length along the nominal line mm, offset from it (3,) mm, base frame), which the laser
     follows (empty: the nominal line, a tracked pass); and what it was learned for: ``key``
     names a job's pass (its line in the base frame, ``""`` the cell's own pass), so a table
-    is not reused on a path that moved."""
+    is not reused on a path that moved. ``seen``: where the sensor read the seam off the
+    taught one in the last trial learned from (rows (arc length, offset (3,)); empty: none
+    yet): the arm's repeatable error where the sensor looks, 40 mm ahead of the laser, which
+    a tracked weld with the table must not take for the workpiece's
+    (:attr:`welding.tracking.Tracker.expected`)."""
 
     period: float
     speed_mm_s: float
@@ -217,6 +247,7 @@ class IlcTable:
     source: str
     trials: int
     key: str = ""
+    seen: FloatArray = field(default_factory=lambda: np.zeros((0, 4)))
 
     def offsets(self, s: FloatArray) -> FloatArray:
         """The taught seam's offsets (M, 3) at arc lengths ``s`` (M,), linear between its
@@ -239,6 +270,7 @@ class IlcTable:
             "correction": np.round(self.correction, 9).tolist(),
             "seam": np.round(self.seam, 9).tolist(),
             "pass": self.key,
+            "seen": np.round(self.seen, 9).tolist(),
         }
         write_atomically(path, json.dumps(data) + "\n")
 
@@ -257,10 +289,13 @@ class IlcTable:
                 str(data["source"]),
                 int(data["trials"]),
                 str(data.get("pass", "")),
+                # absent in a table written before the field existed: none seen
+                np.array(data.get("seen", []), dtype=np.float64).reshape(-1, 4),
             )
         except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
             raise ValueError(f"{path}: not an ILC table ({exc})") from None
-        ok = np.all(np.isfinite(table.correction)) and np.all(np.isfinite(table.seam))
-        if not ok or (len(table.seam) > 1 and not np.all(np.diff(table.seam[:, 0]) > 0)):
+        rows = (table.seam, table.seen)
+        ok = np.all(np.isfinite(table.correction)) and all(np.all(np.isfinite(r)) for r in rows)
+        if not ok or any(len(r) > 1 and not np.all(np.diff(r[:, 0]) > 0) for r in rows):
             raise ValueError(f"{path}: not an ILC table (bad correction or seam)")
         return table

@@ -131,6 +131,7 @@ def run_ilc_emulated(
         "gain": settings.gain,
         "q_hz": settings.q_hz,
         "model_payload_kg": settings.model_payload_kg,
+        "run_up_mm": settings.run_up_mm,
         "arm_payload_kg": settings.params.payload_kg,
         "convergence": conv.summary(),
         "trusted": all(not t.untrusted for t in trials),
@@ -265,6 +266,7 @@ def cmd_ilc(args: argparse.Namespace) -> int:
         q_hz=args.q_hz,
         track=args.track,
         model_payload_kg=args.model_payload_kg,
+        run_up_mm=args.run_up,
     )
     job = None
     table_path = args.table

@@ -48,6 +48,7 @@ from welding.ilc import (
     LearningDiverges,
     check_convergence,
     learning_matrix,
+    lever_error,
     lifted_model,
     q_filter,
 )
@@ -111,10 +112,18 @@ class IlcSettings:
     model_payload_kg: float = RX90B.payload_kg
     latency_s: float = 0.0028
     params: ElasticParams = RX90B
+    #: the pass starts this far (mm) before the sensor's look-ahead does: the move's
+    #: constant-acceleration ramp rings the elastic arm at its first resonance (19.5 Hz,
+    #: decaying over 1/(ζω) ≈ 0.16 s), and without it the weld's first 20 mm would be
+    #: welded in that ringing, the part a learned table reaches worst (trial 5 0.059-0.072 mm
+    #: there against 0.037-0.038 with 40 mm, simulated, seeds 0 and 3)
+    run_up_mm: float = 40.0
 
     def check(self) -> None:
         if self.source not in SOURCES:
             raise ValueError(f"source must be {' or '.join(SOURCES)}, got {self.source!r}")
+        if not (0.0 <= self.run_up_mm <= 500.0):
+            raise ValueError(f"run-up must be 0..500 mm, got {self.run_up_mm}")
         if not (0 <= self.trials <= 100):
             raise ValueError(f"trials must be 0..100, got {self.trials}")
         if self.trials == 0 and not self.track:
@@ -304,6 +313,7 @@ def run_ilc(
     q_start = client.call(CommandId.HEREJ)[0]
     assert isinstance(q_start, Joints)
     laser2flange = location_to_transform(np.array(laser_tool, dtype=np.float64))
+    sensor2flange = location_to_transform(np.array(sensor_tool, dtype=np.float64))
     q_mid = _joints_at(model, geometry, laser2flange, np.array(q_start.values), 0.5)
     params = settings.params.with_payload(settings.model_payload_kg)
     side = "link" if settings.source == "seam" else "motor"
@@ -328,7 +338,7 @@ def run_ilc(
         )
     if table is not None:
         _check_table(table, n, speed, key)
-        taught, u = table.seam, table.correction.copy()
+        taught, u, seen_error = table.seam, table.correction.copy(), table.seen
         done = table.trials
     client.take_control(watchdog=LEASE_S)
     client.call(CommandId.ENABLE_POWER)
@@ -337,6 +347,7 @@ def run_ilc(
     if table is None:
         taught = _teach(link, geometry, settings)
         u = np.zeros((n, 3))
+        seen_error = np.zeros((0, 4))
         done = 0
     first = done
     seam_of = IlcTable(period, speed, u, taught, settings.source, done, key)
@@ -367,12 +378,16 @@ def run_ilc(
                 seam_of.offsets,
                 _along(geometry, seam_of.offsets),
                 settings.latency_s,
+                _lever_error(
+                    model, params, geometry, reference + u, laser2flange, sensor2flange, q_mid
+                ),
             )
             if settings.source == "seam"
             else _joint_error(model, geometry, outcome, reference, log_rows)
         )
+        read = np.any(e_base != 0.0, axis=1)
         e_path = e_base @ R  # rows in (along, lateral, height)
-        seen = mask * np.repeat(np.any(e_base != 0.0, axis=1), 3)
+        seen = mask * np.repeat(read, 3)
         window = np.repeat(geometry.window(), 3) * seen
         measured = float(np.abs(e_path.ravel() * window).max()) if n else math.nan
         trial = IlcTrial(
@@ -395,17 +410,21 @@ def run_ilc(
             # the next trial repeats this one's table: a correction learned from data that
             # cannot be trusted would be a plausible wrong one
             continue
+        seen_error = _seen_error(
+            geometry, outcome, taught, _along(geometry, seam_of.offsets), settings.latency_s
+        )
         up = (u @ R).ravel()
         up = Q @ (up + L @ (e_path.ravel() * seen))
         u = up.reshape(n, 3) @ R.T
-        learned = IlcTable(period, speed, u, taught, settings.source, first + j, key)
+        learned = IlcTable(period, speed, u, taught, settings.source, first + j, key, seen_error)
         if save is not None:
             save(learned)
     if settings.track and not (trials and trials[-1].stopped):
         _back_to_start(client, geometry)
         if record is not None:
             record()
-        outcome = weld_tracked(link, _tracked_plan(geometry, settings, taught, u, sensor_tool))
+        plan = _tracked_plan(geometry, settings, taught, u, sensor_tool, seen_error)
+        outcome = weld_tracked(link, plan)
         truth_max, truth_rms, profile = judge(outcome, geometry)
         checks, _ = _checked(client, model, outcome, geometry, settings, period)
         trials.append(
@@ -425,7 +444,8 @@ def run_ilc(
         if progress is not None:
             progress(trials[-1])
     run = sum(1 for t in trials if not t.tracked)
-    return trials, conv, IlcTable(period, speed, u, taught, settings.source, first + run, key)
+    learned = IlcTable(period, speed, u, taught, settings.source, first + run, key, seen_error)
+    return trials, conv, learned
 
 
 @dataclass(frozen=True)
@@ -619,17 +639,25 @@ def _check_table(table: IlcTable, n: int, speed_mm_s: float, key: str) -> None:
 
 
 def _tracked_plan(
-    g: PassGeometry, settings: IlcSettings, taught: FloatArray, u: FloatArray, sensor_tool: Loc
+    g: PassGeometry,
+    settings: IlcSettings,
+    taught: FloatArray,
+    u: FloatArray,
+    sensor_tool: Loc,
+    seen_error: FloatArray,
 ) -> TrackedWeld:
     """A tracked weld with the learned table: the tracker follows the workpiece's deviation
-    from the taught seam (a wide fit: a placement error is smooth, the arm's fast error is
-    the table's), from the sensor's readings placed on the sensor's reference pose; the
-    correction sent is the taught seam, that deviation and the table."""
+    from the seam as the sensor saw it in the last trial learned from (``seen_error`` off
+    the taught one, :func:`_seen_error`; the taught seam where none was:
+    :attr:`Tracker.expected`; a wide fit: a placement error is smooth, the arm's
+    fast error is the table's), from the sensor's readings placed on the sensor's reference
+    pose; the correction sent is the taught seam, that deviation and the table."""
     tracker = Tracker(
         g.weld,
         g.look_ahead_mm,
         fit_half_width_mm=settings.track_fit_mm,
         taught=OffsetWeld(g.weld, taught),
+        expected=OffsetWeld(g.weld, _seen_seam(taught, seen_error)) if len(seen_error) else None,
     )
     return TrackedWeld(
         tracker,
@@ -673,18 +701,20 @@ def _geometry(
                 " ILC learns a path the sensor looks ahead on (10 mm at least)"
             )
         weld_mm, speed = line.length_mm, line.speed_mm_s
-        start = np.concatenate([line.start - look_ahead * direction, line.angles])
+        before = look_ahead + settings.run_up_mm
+        start = np.concatenate([line.start - before * direction, line.angles])
         s2b = location_to_transform(start) @ sensor2laser
     ramp_mm = speed**2 / (2.0 * 2500.0)
+    laser_from = look_ahead + settings.run_up_mm
     weld = NominalWeld(
         start=start[:3],
         direction=direction,
         angles=start[3:],
-        length_mm=look_ahead + weld_mm + ramp_mm + 1.0,
+        length_mm=laser_from + weld_mm + ramp_mm + 1.0,
         speed_mm_s=speed,
     )
     times, _ = weld.timed_path(link.period)
-    return PassGeometry(weld, laser_tool, s2b, look_ahead, look_ahead, look_ahead + weld_mm, times)
+    return PassGeometry(weld, laser_tool, s2b, look_ahead, laser_from, laser_from + weld_mm, times)
 
 
 def _back_to_start(client: FramedClient, g: PassGeometry) -> None:
@@ -709,6 +739,28 @@ def _joints_at(
     flange = location_to_transform(loc) @ np.linalg.inv(laser2flange)
     q: FloatArray = model.ik(flange, near=near)[0].joints_deg
     return q
+
+
+def _lever_error(
+    model: RobotModel,
+    params: ElasticParams,
+    g: PassGeometry,
+    correction: FloatArray,
+    laser2flange: FloatArray,
+    sensor2flange: FloatArray,
+    near: FloatArray,
+) -> FloatArray:
+    """:func:`welding.ilc.lever_error` (N, 3) of the pass commanded with ``correction``
+    (N, 3): the laser on the nominal path plus it at each cycle, the path's orientation."""
+    pose = location_to_transform(np.concatenate([np.zeros(3), g.weld.angles]))
+    to_flange = np.linalg.inv(laser2flange)
+    q = []
+    for p in g.weld.point(g.weld.s_at(g.times)) + correction:
+        pose[:3, 3] = p
+        near = model.ik(pose @ to_flange, near=near)[0].joints_deg
+        q.append(near)
+    period = float(g.times[1] - g.times[0])
+    return lever_error(params, model, np.array([q[0], *q]), laser2flange, sensor2flange, period)
 
 
 def _feedforward(times: FloatArray, table: FloatArray) -> Callable[[float], FloatArray]:
@@ -756,14 +808,21 @@ def _teach(link: RobotLink, g: PassGeometry, settings: IlcSettings) -> FloatArra
         raise TrackingError(f"teaching the seam failed: {outcome.stopped}")
     seam = SeamModel(slow)
     seam.add(_readings(outcome)[:, 11:14])
-    rows = []
-    for s in np.arange(math.ceil(seam.first), seam.furthest, 0.5):
-        with contextlib.suppress(TrackingError):
-            rows.append([s, *seam.offset_at(float(s))])
+    rows = _sampled(seam)
     if len(rows) > 2:
-        rows = _lead_in(np.array(rows)) + rows
+        rows = np.vstack([np.array(_lead_in(rows), dtype=np.float64).reshape(-1, 4), rows])
     log.info("seam taught from %d points over %.0f..%.0f mm", seam.count, seam.first,
              seam.furthest)  # fmt: skip
+    return rows
+
+
+def _sampled(seam: SeamModel) -> FloatArray:
+    """``seam``'s fit, rows (arc length, offset (3,)) every 0.5 mm where it is measured."""
+    rows = []
+    if seam.count:
+        for s in np.arange(math.ceil(seam.first), seam.furthest, 0.5):
+            with contextlib.suppress(TrackingError):
+                rows.append([s, *seam.offset_at(float(s))])
     return np.array(rows, dtype=np.float64).reshape(-1, 4)
 
 
@@ -785,39 +844,81 @@ def _lead_in(rows: FloatArray) -> list[list[float]]:
     return out
 
 
-def _seam_error(
+def _sensor_deviation(
     g: PassGeometry,
     outcome: TrackOutcome,
     offsets: Callable[[FloatArray], FloatArray],
     reference: Callable[[FloatArray], FloatArray],
     latency_s: float,
-) -> FloatArray:
-    """(N, 3) reference − actual of the laser, base frame, from the sensor's ^S_G T: what it
-    read of the seam ``offsets`` (taught) against what it would read with the laser on its
-    ``reference`` (offsets (M, 3) from the nominal line at times (M,) since the move's
-    start; the tool keeps its orientation, so the laser moved as the sensor did); zero
-    where it read nothing.
-    ``latency_s``: the joint log's lag; a seam point's time (t_sync = trigger + ΔT, plus the
-    extra lag of an exposure started late [SY-3.8]) is where the *measured* joints saw the
-    image, the exposure itself was that much earlier."""
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """What the sensor's ^S_G T says of the tool: (exposure times (M,) s since the move's
+    start, the seam's arc lengths the sensor saw (M,), actual − reference of the laser (M, 3),
+    base frame), by exposure. It read the seam ``offsets`` (taught) against what it would
+    read with the laser on its ``reference`` (offsets (M, 3) from the nominal line at times
+    (M,) since the move's start; the tool keeps its orientation, so the laser moved as the
+    sensor did). ``latency_s``: the joint log's lag; a seam point's time (t_sync = trigger +
+    ΔT, plus the extra lag of an exposure started late [SY-3.8]) is where the *measured*
+    joints saw the image, the exposure itself was that much earlier."""
     rows = _readings(outcome)
     rows = rows[rows[:, 2] >= outcome.t0]
     rows = rows[np.argsort(rows[:, 2], kind="stable")]  # by exposure, for the interpolation
-    n = len(g.times)
-    if len(rows) < 2:
-        return np.zeros((n, 3))
     t = rows[:, 2] - latency_s - outcome.t0  # the exposure, robot clock, since the start
     s_l = g.weld.s_at(t)
     s_s = s_l + g.look_ahead_mm
     a = g.sensor2base[:3, 3] - g.weld.start  # laser -> sensor, base frame
     expected = g.weld.point(s_s) + offsets(s_s) - g.weld.point(s_l) - reference(t) - a
     measured = rows[:, 5:8] @ g.sensor2base[:3, :3].T
-    deviation = expected - measured  # actual - reference
+    return t, s_s, expected - measured
+
+
+def _seam_error(
+    g: PassGeometry,
+    outcome: TrackOutcome,
+    offsets: Callable[[FloatArray], FloatArray],
+    reference: Callable[[FloatArray], FloatArray],
+    latency_s: float,
+    lever: FloatArray,
+) -> FloatArray:
+    """(N, 3) reference − actual of the laser at each cycle, base frame, from the sensor's
+    readings (:func:`_sensor_deviation`); zero where it read nothing. The sensor saw where
+    it went, not the laser: ``lever`` (N, 3), the model's laser error less its sensor's
+    (:func:`_lever_error`), is what the laser went further."""
+    t, _, deviation = _sensor_deviation(g, outcome, offsets, reference, latency_s)
+    n = len(g.times)
     out = np.zeros((n, 3))
+    if len(t) < 2:
+        return out
     inside = (g.times >= t.min()) & (g.times <= t.max())
     for c in range(3):
-        out[inside, c] = -np.interp(g.times[inside], t, deviation[:, c])
+        out[inside, c] = -np.interp(g.times[inside], t, deviation[:, c]) - lever[inside, c]
     return out
+
+
+def _seen_error(
+    g: PassGeometry,
+    outcome: TrackOutcome,
+    taught: FloatArray,
+    reference: Callable[[FloatArray], FloatArray],
+    latency_s: float,
+) -> FloatArray:
+    """Where a tracker placing the sensor's readings on its reference pose would see the
+    seam off the ``taught`` one (rows (arc length, offset (3,))) in this trial: the tool's
+    reference − actual where the sensor was (:func:`_sensor_deviation`), fitted as the
+    teaching's (rows (arc length, error (3,)) every 0.5 mm; empty when it read nothing)."""
+    offsets = OffsetWeld(g.weld, taught).offsets
+    _, s_s, deviation = _sensor_deviation(g, outcome, offsets, reference, latency_s)
+    seam = SeamModel(OffsetWeld(g.weld, taught))
+    seam.add(g.weld.point(s_s) + offsets(s_s) - deviation)
+    return _sampled(seam)
+
+
+def _seen_seam(taught: FloatArray, error: FloatArray) -> FloatArray:
+    """The ``taught`` seam's rows moved by the sensor's ``error`` (:func:`_seen_error`,
+    linear between its rows, its ends held): the seam as the sensor sees it on this arm."""
+    rows = taught.copy()
+    for c in range(3):
+        rows[:, 1 + c] += np.interp(rows[:, 0], error[:, 0], error[:, 1 + c])
+    return rows
 
 
 def _checked(

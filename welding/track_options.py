@@ -155,6 +155,14 @@ def add_ilc_options(p: argparse.ArgumentParser) -> None:
         help="cutoff of the zero-phase Q-filter (Hz, default 50)",
     )
     p.add_argument(
+        "--run-up",
+        type=cliargs.number_in(0.0, 500.0),
+        default=40.0,
+        metavar="MM",
+        help="the pass starts this far before the sensor's look-ahead: the elastic arm's "
+        "ringing after the start's acceleration dies out before the weld (default 40)",
+    )
+    p.add_argument(
         "--track",
         action="store_true",
         help="after the trials, one tracked weld with the learned table (the tracker follows "

@@ -269,10 +269,16 @@ class Tracker:
     #: a taught seam on ``weld`` (its base): the model measures the workpiece's deviation
     #: from it and the correction is the taught offset plus that deviation
     taught: OffsetWeld | None = None
+    #: with ``taught``: the seam as this arm's sensor reads it where the workpiece is the
+    #: taught one (an ILC table's last trial, :attr:`welding.ilc.IlcTable.seen`): the arm's
+    #: repeatable error at the sensor, 40 mm ahead of the laser, is in it and is not the
+    #: workpiece's; the deviation is measured from it (default: from ``taught``)
+    expected: OffsetWeld | None = None
     model: SeamModel = field(init=False)
 
     def __post_init__(self) -> None:
-        self.model = SeamModel(self.taught or self.weld, self.fit_half_width_mm)
+        base = self.taught if self.expected is None else self.expected
+        self.model = SeamModel(base or self.weld, self.fit_half_width_mm)
 
     def base_correction(self, s: float) -> FloatArray:
         """The correction (6,) before any seam point: the taught offset at ``s`` (zero
