@@ -261,40 +261,25 @@ def test_ilc_learns_a_jobs_path_and_keeps_the_table_beside_the_job(
     assert "the table was learned on line" in capsys.readouterr().err
 
 
-ARC_REFUSED = (
-    "the ILC learns <line> segments (corners rounded with R 32 mm); not supported: <arc> segments"
-)
-
-
 def _at(x: float, y: float, tool: str = "laser") -> J.Location:
     return J.Location(x, y, 300.0, 180.0, 0.0, 0.0, tool=tool, frame="world")
 
 
-@pytest.mark.parametrize(
-    ("segments", "unsupported"),
-    [
-        ("arc", f"(<arc>): {ARC_REFUSED}"),
-        ("both", f"(<line> <arc>): {ARC_REFUSED}"),
-        ("tool", "changes tool (laser to sensor): the ILC learns a path of one tool"),
-    ],
-)
-def test_a_path_the_ilc_cannot_learn_is_refused_in_one_line_before_any_cell(
-    capsys: pytest.CaptureFixture[str], tmp_path: Path, segments: str, unsupported: str
+def test_a_path_that_changes_tool_is_refused_in_one_line_before_any_cell(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
-    """Arcs and a tool change: the ILC learns lines with one tool, so ``welding ilc JOB.xml``
-    names what is not supported in one line and exits 2 (USAGE) before it builds a cell
-    (no table, no JSON)."""
-    line, arc = J.Line(_at(600.0, 0.0)), J.Arc(_at(620.0, 20.0), _at(600.0, 40.0))
-    shapes = {
-        "arc": (arc,),
-        "both": (line, arc),
-        "tool": (line, J.Line(_at(600.0, 60.0, tool="sensor"))),
-    }
-    job = tmp_path / "curved.xml"
-    J.save(J.Job("curved", (J.Path("p", _at(500.0, 0.0), shapes[segments], 100.0),)), job)
+    """The ILC learns a path of one tool, so ``welding ilc JOB.xml`` names the change in one
+    line and exits 2 (USAGE) before it builds a cell (no table, no JSON). Lines, corners and
+    arcs are learned (tests/test_welding_ilc_path.py)."""
+    segments = (J.Line(_at(600.0, 0.0)), J.Line(_at(600.0, 60.0, tool="sensor")))
+    job = tmp_path / "two.xml"
+    J.save(J.Job("two", (J.Path("p", _at(500.0, 0.0), segments, 100.0),)), job)
     out = tmp_path / "ilc.json"
     code = main(["ilc", str(job), "--emulate", "--clock", "real", "--json", str(out)])
     _, err = capsys.readouterr()
     assert code == 2
-    assert err == f"python -m welding: error: path 'p' {unsupported}\n"
+    assert err == (
+        "python -m welding: error: path 'p' changes tool (laser to sensor): the ILC learns a"
+        " path of one tool\n"
+    )
     assert not out.exists() and not job_table(job, "p").exists()

@@ -21,8 +21,8 @@ from sensorsocket.scene import JogPath
 from welding import job as J
 from welding.cli import main
 from welding.ilc import IlcTable, lifted_model, lifted_model_along
-from welding.ilc_emulate import job_table
-from welding.ilc_loop import PassGeometry, PathPass, _seam_error
+from welding.ilc_emulate import job_table, run_ilc_emulated
+from welding.ilc_loop import IlcSettings, PassGeometry, PathPass, _seam_error
 from welding.track_loop import TrackOutcome
 from welding.tracking import PolylineWeld
 
@@ -148,21 +148,35 @@ def test_the_sensor_reading_through_a_corner_is_the_lasers_error_across_its_path
     assert np.abs(np.abs(lateral) - 0.3).max() > 0.005
 
 
-def _jog_job(path: Path, tail_mm: float, *, moved_mm: float = 0.0) -> None:
-    """A job of one path over the cell's ``arc`` seam: the lines whose corners, rounded with
-    R 32 mm, are the seam's two 15° arcs (the workpiece frame, the laser's height at the ready
-    pose), ``tail_mm`` on after the jog; the last point ``moved_mm`` along y."""
+def _jog_job(path: Path, tail_mm: float, *, moved_mm: float = 0.0, arcs: bool = False) -> None:
+    """A job of one path over the cell's ``arc`` seam (the workpiece frame, the laser's
+    height at the ready pose), ``tail_mm`` on after the jog, the last point ``moved_mm``
+    along y: lines whose corners, rounded with R 32 mm, are the seam's two 15° arcs, or with
+    ``arcs`` the seam itself, its arcs as ``<arc>`` segments."""
     cell = EmulatedCell(clock="sim", seam="jog")
     laser2base = cell.ready_flange2base() @ location_to_transform(np.array(cell.laser_tool))
     z = float((np.linalg.inv(cell.scene.workpiece2base) @ laser2base)[2, 3])
+
+    def at(x: float, y: float) -> J.Location:
+        return J.Location(x, y, z, 180.0, 0.0, 0.0, "laser", "workpiece")
+
     jog = JogPath()
-    x1, y1, x2, y2, _x3, h = jog._knots()
-    t = math.tan(math.radians(jog.angle_deg))
-    pts = [(0.0, 0.0), (x1 - y1 / t, 0.0), (x2 + (h - y2) / t, h)]
-    pts.append((pts[-1][0] + tail_mm, h + moved_mm))
-    locs = [J.Location(x, y, z, 180.0, 0.0, 0.0, "laser", "workpiece") for x, y in pts]
-    lines = tuple(J.Line(p) for p in locs[1:])
-    J.save(J.Job("jog", (J.Path("seam", locs[0], lines, 250.0, tracked=False),)), path)
+    x1, y1, x2, y2, x3, h = jog._knots()
+    end = at(x3 + tail_mm, h + moved_mm)
+    segments: tuple[J.Line | J.Arc, ...]
+    if arcs:
+        r, a, half = jog.radius_mm, jog.start_x_mm, math.radians(jog.angle_deg / 2)
+        segments = (
+            J.Line(at(a, 0.0)),
+            J.Arc(at(a + r * math.sin(half), r - r * math.cos(half)), at(x1, y1)),
+            J.Line(at(x2, y2)),
+            J.Arc(at(x3 - r * math.sin(half), h - r + r * math.cos(half)), at(x3, h)),
+            J.Line(end),
+        )
+    else:
+        t = math.tan(math.radians(jog.angle_deg))
+        segments = (J.Line(at(x1 - y1 / t, 0.0)), J.Line(at(x2 + (h - y2) / t, h)), J.Line(end))
+    J.save(J.Job("jog", (J.Path("seam", at(0.0, 0.0), segments, 250.0, tracked=False),)), path)
 
 
 def test_ilc_learns_a_job_with_corners_and_refuses_its_table_on_another_path(
@@ -187,6 +201,40 @@ def test_ilc_learns_a_job_with_corners_and_refuses_its_table_on_another_path(
     assert main([*args, "--trials", "1"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "the table was learned on path" in err
+
+
+def test_ilc_learns_a_job_with_arcs(tmp_path: Path) -> None:
+    """The same seam as the job's own ``<line> <arc> <line> <arc> <line>`` (the seam's R 32 mm
+    arcs): each ``<arc>`` is an arc of the pass, and the error falls at every trial."""
+    job_file = tmp_path / "jog.xml"
+    _jog_job(job_file, 30.0, arcs=True)
+    job = J.load(job_file, has_tool=lambda n: True, has_frame=lambda n: True)
+    result = run_ilc_emulated(IlcSettings(trials=3), seam="arc", job=job)
+    errors = [t["error_max_mm"] for t in result["trials"]]
+    assert all(b < a for a, b in itertools.pairwise(errors)), errors
+    assert errors[-1] < errors[0] / 6, errors
+    assert len(result["table"].key.split()) == 1 + (6 + 2) * 3 + 3 + 1  # vertices, middles
+
+
+def test_an_arc_that_kinks_is_refused_in_one_line(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """An ``<arc>`` is not rounded: one that leaves its line at an angle is refused, exit 2,
+    naming the job's point, before control is taken."""
+    cell = EmulatedCell(clock="sim", seam="straight")
+    laser2base = cell.ready_flange2base() @ location_to_transform(np.array(cell.laser_tool))
+    z = float((np.linalg.inv(cell.scene.workpiece2base) @ laser2base)[2, 3])
+
+    def at(x: float, y: float) -> J.Location:
+        return J.Location(x, y, z, 180.0, 0.0, 0.0, "laser", "workpiece")
+
+    segments = (J.Line(at(60.0, 0.0)), J.Arc(at(80.0, 3.0), at(100.0, 4.0)))
+    job = tmp_path / "kink.xml"
+    J.save(J.Job("k", (J.Path("p", at(0.0, 0.0), segments, 250.0),)), job)
+    assert main(["ilc", str(job), "--emulate", "--dynamics", "elastic"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "path 'p', point 2: the path kinks by" in err and "an arc must be tangent" in err
 
 
 def test_a_path_key_names_every_vertex() -> None:

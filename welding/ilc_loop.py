@@ -211,14 +211,17 @@ class PassGeometry:
 
 @dataclass(frozen=True)
 class PathPass:
-    """A job's path to learn: the laser through ``vertices`` (K, 3) (base frame, mm; its
-    corners rounded with R 32 mm, :class:`~welding.tracking.PolylineWeld`) with the tool's
-    ``angles`` (3,) (deg) throughout, at ``speed_mm_s``."""
+    """A job's path to learn: the laser through ``vertices`` (K, 3) (base frame, mm) with the
+    tool's ``angles`` (3,) (deg) throughout, at ``speed_mm_s``; ``arcs`` (K - 1, 3) the
+    middle point of each segment that is an ``<arc>`` (NaN rows for lines; None: lines
+    only). Corners between lines are rounded with R 32 mm, an arc is tangent to what is
+    beside it (:class:`~welding.tracking.PolylineWeld`)."""
 
     vertices: FloatArray
     angles: FloatArray
     speed_mm_s: float
     name: str = ""
+    arcs: FloatArray | None = None
 
     @property
     def start(self) -> FloatArray:
@@ -226,18 +229,29 @@ class PathPass:
         return out
 
     @property
+    def straight(self) -> bool:
+        """One line."""
+        return len(self.vertices) == 2 and (self.arcs is None or bool(np.isnan(self.arcs).all()))
+
+    def weld(self) -> PolylineWeld:
+        """The path itself at its speed (CornerError when it cannot be rounded or kinks)."""
+        return PolylineWeld(self.vertices, self.angles, self.speed_mm_s, arcs=self.arcs)
+
+    @property
     def length_mm(self) -> float:
         """The laser's path length (mm), corners rounded."""
-        if len(self.vertices) == 2:
+        if self.straight:
             return float(np.linalg.norm(self.vertices[1] - self.vertices[0]))
-        return PolylineWeld(self.vertices, self.angles, self.speed_mm_s).length_mm
+        return self.weld().length_mm
 
     @property
     def key(self) -> str:
-        """What a table learned on this pass is for (:attr:`IlcTable.key`): every vertex,
-        the angles and the speed, 0.01 mm, deg (``line …`` for one line, ``path …``)."""
-        nums = [*self.vertices.ravel(), *self.angles, self.speed_mm_s]
-        kind = "line" if len(self.vertices) == 2 else "path"
+        """What a table learned on this pass is for (:attr:`IlcTable.key`): every vertex (and
+        every arc's middle point), the angles and the speed, 0.01 mm, deg (``line …`` for one
+        line, ``path …``)."""
+        mids = np.zeros(0) if self.arcs is None else self.arcs[~np.isnan(self.arcs[:, 0])].ravel()
+        nums = [*self.vertices.ravel(), *mids, *self.angles, self.speed_mm_s]
+        kind = "line" if self.straight else "path"
         return f"{kind} " + " ".join(f"{v:.2f}" for v in nums)
 
 
@@ -254,48 +268,49 @@ def job_path(job: J.Job, name: str | None) -> J.Path:
 
 def check_learnable(path: J.Path) -> None:
     """ValueError, one line naming what is not supported, when the ILC cannot learn ``path``:
-    it learns ``<line>`` segments (the corners between them rounded as a tracked path's,
-    :class:`~welding.tracking.PolylineWeld`) with one tool. Needs no tool table: checked
-    before a cell is built or control taken."""
-    kinds = [type(seg).__name__.lower() for seg in path.segments]
-    if not kinds or "arc" in kinds:
-        raise ValueError(
-            f"path {path.name!r} ({' '.join(f'<{k}>' for k in kinds) or 'no segment'}): the"
-            " ILC learns <line> segments (corners rounded with R 32 mm); not supported:"
-            f" {'<arc> segments' if kinds else 'a path without segments'}"
-        )
-    tools = [loc.tool for loc in path.locations()]
-    for tool in tools[1:]:
-        if tool != path.start.tool:
+    it learns ``<line>`` and ``<arc>`` segments (the corners between lines rounded as a
+    tracked path's, :class:`~welding.tracking.PolylineWeld`) with one tool. Needs no tool
+    table: checked before a cell is built or control taken."""
+    if not path.segments:
+        raise ValueError(f"path {path.name!r} has no segment: no pass to learn")
+    for loc in path.locations():
+        if loc.tool != path.start.tool:
             raise ValueError(
-                f"path {path.name!r} changes tool ({path.start.tool} to {tool}): the ILC"
+                f"path {path.name!r} changes tool ({path.start.tool} to {loc.tool}): the ILC"
                 " learns a path of one tool"
             )
 
 
 def path_pass(path: J.Path, tables: Tables) -> PathPass:
     """A job's ``path`` as a :class:`PathPass`, its tool and frame from ``tables``;
-    ValueError when it is not lines with one tool and orientation (:func:`check_learnable`)
-    or its corners cannot be rounded (:class:`~welding.tracking.CornerError`, naming the
-    job's point)."""
+    ValueError when it changes tool or orientation (:func:`check_learnable`) or cannot be
+    followed (:class:`~welding.tracking.CornerError`: a corner whose rounding does not fit, an
+    arc not tangent to what is beside it; naming the job's point)."""
     check_learnable(path)
-    poses = [
-        location_to_transform(np.array(tables.frame(loc.frame).location, dtype=np.float64))
-        @ location_to_transform(np.array(loc.values, dtype=np.float64))
-        for loc in path.locations()
+
+    def pose(loc: J.Location) -> FloatArray:
+        out: FloatArray = location_to_transform(
+            np.array(tables.frame(loc.frame).location, dtype=np.float64)
+        ) @ location_to_transform(np.array(loc.values, dtype=np.float64))
+        return out
+
+    first = pose(path.start)
+    locations = list(path.locations())
+    for k, loc in enumerate(locations[1:], 2):
+        _check_orientation(path.name, first, pose(loc), k, len(locations) == 2)
+    vertices = [first[:3, 3]] + [pose(seg.to)[:3, 3] for seg in path.segments]
+    arcs = [
+        pose(seg.mid)[:3, 3] if isinstance(seg, J.Arc) else np.full(3, np.nan)
+        for seg in path.segments
     ]
-    for k, pose in enumerate(poses[1:], 2):
-        turn = poses[0][:3, :3].T @ pose[:3, :3]
-        angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(turn) - 1.0) / 2.0))))
-        if angle > 0.01:
-            where = "along it" if len(poses) == 2 else f"to point {k}"
-            raise ValueError(
-                f"path {path.name!r}: the tool turns {angle:.2f} deg {where}; the ILC learns a"
-                " path that keeps the orientation"
-            )
-    angles = transform_to_location(poses[0])[3:]
-    vertices = np.array([p[:3, 3] for p in poses])
-    one = PathPass(vertices, np.asarray(angles), path.velocity, path.name)
+    angles = transform_to_location(first)[3:]
+    one = PathPass(
+        np.array(vertices),
+        np.asarray(angles),
+        path.velocity,
+        path.name,
+        np.array(arcs) if any(isinstance(seg, J.Arc) for seg in path.segments) else None,
+    )
     try:
         length = one.length_mm
     except CornerError as exc:
@@ -303,6 +318,19 @@ def path_pass(path: J.Path, tables: Tables) -> PathPass:
     if length < 1.0:
         raise ValueError(f"path {path.name!r}: {length:.2f} mm is no pass to learn")
     return one
+
+
+def _check_orientation(name: str, first: FloatArray, pose: FloatArray, k: int, one: bool) -> None:
+    """ValueError unless ``pose`` (point ``k`` of path ``name``) keeps ``first``'s
+    orientation."""
+    turn = first[:3, :3].T @ pose[:3, :3]
+    angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(turn) - 1.0) / 2.0))))
+    if angle > 0.01:
+        where = "along it" if one else f"to point {k}"
+        raise ValueError(
+            f"path {name!r}: the tool turns {angle:.2f} deg {where}; the ILC learns a"
+            " path that keeps the orientation"
+        )
 
 
 Judge = Callable[[TrackOutcome, PassGeometry], tuple[float, float, FloatArray]]
@@ -715,9 +743,11 @@ def _geometry(
     s2b = location_to_transform(start) @ sensor2laser
     if job_pass is None:
         direction = s2b[:3, 0]
-    else:
+    elif job_pass.straight:
         v = job_pass.vertices
         direction = (v[1] - v[0]) / np.linalg.norm(v[1] - v[0])
+    else:
+        direction = job_pass.weld().direction
     look_ahead = float((s2b[:3, 3] - start[:3]) @ direction)
     weld_mm, speed = settings.weld_mm, settings.speed_mm_s
     if job_pass is not None:
@@ -731,7 +761,7 @@ def _geometry(
         s2b = location_to_transform(start) @ sensor2laser
     ramp_mm = speed**2 / (2.0 * 2500.0)
     weld: NominalWeld | PolylineWeld
-    if job_pass is None or len(job_pass.vertices) == 2:
+    if job_pass is None or job_pass.straight:
         weld = NominalWeld(
             start=start[:3],
             direction=direction,
@@ -748,13 +778,23 @@ def _geometry(
 def _polyline(
     job_pass: PathPass, start: FloatArray, run_out_mm: float, sensor2base: FloatArray
 ) -> PolylineWeld:
-    """The pass of a job's lines: from ``start`` onto the path's first line, through its
-    corners, ``run_out_mm`` on along the last; the sensor (^B_S T at the start) must see the
-    path all along."""
+    """The pass of a job's path: from ``start`` onto the path along its first tangent,
+    through it, ``run_out_mm`` on along its last; the sensor (^B_S T at the start) must see
+    the path all along."""
+    own = job_pass.weld()
+    h = min(1e-3, own.length_mm / 4)
+    last = own.point(own.length_mm) - own.point(own.length_mm - h)
+    last /= np.linalg.norm(last)
     v = job_pass.vertices
-    last = (v[-1] - v[-2]) / np.linalg.norm(v[-1] - v[-2])
+    arcs = None
+    if job_pass.arcs is not None:
+        none = np.full((1, 3), np.nan)
+        arcs = np.vstack([none, job_pass.arcs, none])
     weld = PolylineWeld(
-        np.vstack([start, v, v[-1] + run_out_mm * last]), job_pass.angles, job_pass.speed_mm_s
+        np.vstack([start, v, v[-1] + run_out_mm * last]),
+        job_pass.angles,
+        job_pass.speed_mm_s,
+        arcs=arcs,
     )
     try:
         check_sensor_view(weld, sensor2base[:3, 3] - start, sensor2base[:3, 0], sensor2base[:3, 1])
