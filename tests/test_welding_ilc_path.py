@@ -141,11 +141,12 @@ def test_the_sensor_reading_through_a_corner_is_the_lasers_error_across_its_path
     oblique = seen & (weld.s_at(times) + 40.0 > 110.0)
     assert np.count_nonzero(oblique) > 50
     np.testing.assert_allclose(e[seen], expected, atol=2e-5)
-    # what the old reading (the sensor's plane taken as the path's cross-section) gave
+    # read at the laser's arc length plus the look-ahead, as on a straight line: off by
+    # as much as the error itself where the seam turns
     lateral = np.einsum(
         "kc,kc->k", rows[:, 5:8] - (weld.point(s_l + 40.0) - sensor), frames[:, :, 1]
     )
-    assert np.abs(np.abs(lateral) - 0.3).max() > 0.005
+    assert np.abs(np.abs(lateral) - 0.3).max() > 0.1
 
 
 def _jog_job(path: Path, tail_mm: float, *, moved_mm: float = 0.0, arcs: bool = False) -> None:

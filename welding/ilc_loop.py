@@ -73,6 +73,7 @@ __all__ = [
     "IlcTrial",
     "PassGeometry",
     "PathPass",
+    "SeamNotTaught",
     "TrialChecks",
     "check_learnable",
     "job_path",
@@ -908,16 +909,21 @@ def _teach(link: RobotLink, g: PassGeometry, settings: IlcSettings) -> FloatArra
 TAUGHT_GAP_MM = 2.0
 
 
+class SeamNotTaught(ValueError):
+    """The teaching pass did not see the seam all along the laser's part of the pass."""
+
+
 def _check_taught(g: PassGeometry, s: FloatArray) -> None:
-    """ValueError, one line, unless the taught seam's rows (arc lengths ``s``) cover the
-    laser's part of the pass: the sensor lost the seam somewhere (the pass keeps the tool's
-    orientation, so a seam turning away from the sensor's x axis leaves its field)."""
+    """:class:`SeamNotTaught`, one line, unless the taught seam's rows (arc lengths ``s``)
+    cover the laser's part of the pass: the sensor lost the seam somewhere (the pass keeps
+    the tool's orientation, so a seam turning away from the sensor's x axis leaves its
+    field). Names the first stretch not seen."""
     inside = s[(s >= g.laser_from_mm) & (s <= g.laser_to_mm)]
     pts = np.concatenate([[g.laser_from_mm], inside, [g.laser_to_mm]])
-    gaps = np.diff(pts)
-    i = int(np.argmax(gaps))
-    if gaps[i] > TAUGHT_GAP_MM:
-        raise ValueError(
+    holes = np.nonzero(np.diff(pts) > TAUGHT_GAP_MM)[0]
+    if len(holes):
+        i = int(holes[0])
+        raise SeamNotTaught(
             f"the sensor did not see the seam over {pts[i] - g.laser_from_mm:.1f} to"
             f" {pts[i + 1] - g.laser_from_mm:.1f} mm of the weld while teaching it: the pass"
             " keeps the tool's orientation, so the seam must stay within the sensor's field"
