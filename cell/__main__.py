@@ -46,6 +46,7 @@ from spec.server import ServerPolicy, serve_until_signal
 from sync.experiment import (
     ExperimentError,
     ExperimentSettings,
+    exposed_late_text,
     judge,
     run_delay_experiment,
     write_plots,
@@ -301,7 +302,7 @@ def _experiment(cell: EmulatedCell, args: argparse.Namespace, out: Path) -> bool
     st = result.data.statistics
     print(
         f"  datagrams this run: {st.get('sent', 0)} triggers sent, {st.get('matched', 0)} seam "
-        f"points, {st.get('lost', 0)} lost, {st.get('late', 0)} late"
+        f"points, {st.get('lost', 0)} lost, {st.get('late', 0)} late; {exposed_late_text(st)}"
     )
     try:
         files = write_plots(out, result)

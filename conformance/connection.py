@@ -92,6 +92,9 @@ class Conn:
             kinds=frozenset({PacketKind.REPLY, PacketKind.ERROR, PacketKind.EVENT}),
         )
         self.events_seen = 0
+        #: The minor protocol version in the header of the endpoint's last reply or error
+        #: frame (None before the first), for rules that compare a field with it [RS-5.31].
+        self.version_minor: int | None = None
         self.closed = False
         #: Control lease (s) the endpoint granted this connection, None when it has none.
         self.lease: float | None = None
@@ -213,6 +216,7 @@ class Conn:
                     continue
                 if event.kind is PacketKind.ERROR:
                     check_error_shape(event)
+                self.version_minor = event.version_minor
                 return event
             self._fill(deadline)
 

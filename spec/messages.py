@@ -1070,6 +1070,7 @@ class GetSyncStatisticsReply(Reply):
     expired: int
     malformed: int
     pending: int
+    exposed_late: int | None = None
 
 
 #: Each command's request class, by command ID.

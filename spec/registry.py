@@ -702,7 +702,7 @@ COMMANDS: tuple[CommandSpec, ...] = (
         CommandId.GET_SYNC_STATISTICS,
         "GetSyncStatistics",
         "sync",
-        "Datagram counters of the synchronisation.",
+        "Datagram counters of the synchronisation (exposed_late: 1.3).",
         reply=(
             P("sent", T.INT),
             P("received", T.INT),
@@ -715,6 +715,14 @@ COMMANDS: tuple[CommandSpec, ...] = (
             P("expired", T.INT),
             P("malformed", T.INT),
             P("pending", T.INT),
+            P(
+                "exposed_late",
+                T.INT,
+                "",
+                "seam points placed later by their extra exposure lag [SY-3.8] (absent from "
+                "servers before it)",
+                optional=True,
+            ),
         ),
     ),
 )

@@ -255,7 +255,7 @@ local COMMANDS = {
     reply = { { name = "points", type = 11, unit = "" } } },
   [0x3009] = { name = "GetSyncStatistics", service = "sync",
     params = {},
-    reply = { { name = "sent", type = 1, unit = "" }, { name = "received", type = 1, unit = "" }, { name = "matched", type = 1, unit = "" }, { name = "lost", type = 1, unit = "" }, { name = "late", type = 1, unit = "" }, { name = "duplicate", type = 1, unit = "" }, { name = "reordered", type = 1, unit = "" }, { name = "unknown", type = 1, unit = "" }, { name = "expired", type = 1, unit = "" }, { name = "malformed", type = 1, unit = "" }, { name = "pending", type = 1, unit = "" } } },
+    reply = { { name = "sent", type = 1, unit = "" }, { name = "received", type = 1, unit = "" }, { name = "matched", type = 1, unit = "" }, { name = "lost", type = 1, unit = "" }, { name = "late", type = 1, unit = "" }, { name = "duplicate", type = 1, unit = "" }, { name = "reordered", type = 1, unit = "" }, { name = "unknown", type = 1, unit = "" }, { name = "expired", type = 1, unit = "" }, { name = "malformed", type = 1, unit = "" }, { name = "pending", type = 1, unit = "" }, { name = "exposed_late", type = 1, unit = "", opt = true } } },
 }
 
 -- ---- the dissector ---------------------------------------------------------------------

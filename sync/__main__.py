@@ -35,6 +35,7 @@ from sync.experiment import (
     DelayResult,
     ExperimentError,
     ExperimentSettings,
+    exposed_late_text,
     judge,
     run_delay_experiment,
     run_sweep,
@@ -198,6 +199,7 @@ def _print_result(r: DelayResult, verdict: Verdict) -> None:
         f"  this run: {st.get('sent', 0)} triggers, {verdict.lost_fraction:.1%} without data "
         f"in time ({verdict.lost_on_wire} lost on the wire, {verdict.dropped_late} late)"
     )
+    print(f"  {exposed_late_text(st)}")
     if math.isfinite(verdict.spread_s):
         print(
             f"  ΔT per window: spread {verdict.spread_s * 1e3:.3f} ms over "

@@ -23,7 +23,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -279,6 +279,16 @@ def _sync_statistics(robot: FramedClient) -> dict[str, int]:
     """GetSyncStatistics by field name (the counters since the robot's server started)."""
     reply = _reply(robot, CommandId.GET_SYNC_STATISTICS)
     return {k: v for k, v in reply.items() if isinstance(v, int) and not isinstance(v, bool)}
+
+
+def exposed_late_text(statistics: Mapping[str, int]) -> str:
+    """What a run's counters say of the readings the robot placed later by their extra
+    exposure lag [SY-3.8]: their count [SY-5.9], or that the robot does not report it (one
+    from before SY-5.9 leaves the counter off; not reported is not 0)."""
+    n = statistics.get("exposed_late")
+    if n is None:
+        return "readings exposed late: not reported by this robot (GetSyncStatistics before SY-5.9)"
+    return f"{n} readings exposed late (the sensor busy; placed later by their extra lag)"
 
 
 #: How long the robot and the sensor get to answer Hello (s): a connection check, as the

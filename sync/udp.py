@@ -447,9 +447,9 @@ class RobotSyncCore:
             }
 
     def statistics(self) -> dict[str, int]:
-        """The GetSyncStatistics counters (stale data is counted as late), and some the wire
-        does not carry: ``not_found``, ``invalid``, ``unexpected`` and ``exposed_late``
-        (points placed later by their extra exposure lag, SY-3.8)."""
+        """The GetSyncStatistics counters (stale data is counted as late; ``exposed_late``:
+        points placed later by their extra exposure lag, SY-3.8 and SY-5.9), and some the
+        wire does not carry: ``not_found``, ``invalid`` and ``unexpected``."""
         with self.lock:
             c = self.matcher.counters
             return {

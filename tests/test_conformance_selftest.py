@@ -20,7 +20,7 @@ import time
 import zlib
 from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import Any, Literal
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -414,6 +414,21 @@ def test_wrong_error_code_is_caught() -> None:
     with serving(WrongCodeServer(MiniRobot(), policy=POLICY)) as address:
         result = check("robot", address, ("framing.error.shape", "negotiation.hello.*"))
     _caught(result, "framing.error.shape", "negotiation.hello.commands_complete")
+
+
+class OldHelloServer(FramedServer):
+    """Frames carry its minor version; its Hello says 1.0 all the same [RS-5.31 broken]."""
+
+    def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
+        params = super()._execute(session, packet)
+        return ("1.0", *params[1:]) if packet.command == C.HELLO else params
+
+
+def test_hello_version_unlike_the_frame_header_is_caught() -> None:
+    with serving(OldHelloServer(MiniRobot(), policy=POLICY)) as address:
+        result = check("robot", address, ("control.status_fields",))
+    _caught(result, "control.status_fields")
+    assert "RS-5.31" in problems(result)["control.status_fields"]
 
 
 class ClosingServer(FramedServer):
@@ -959,12 +974,20 @@ class MiniSyncRobot(MiniRobot):
     LOSS_TIMEOUT = 0.1
 
     def __init__(
-        self, *, count_duplicates: bool = True, any_source: bool = False, lag_blind: bool = False
+        self,
+        *,
+        count_duplicates: bool = True,
+        any_source: bool = False,
+        lag_blind: bool = False,
+        exposed_late: Literal["counted", "uncounted", "absent"] = "counted",
     ) -> None:
         super().__init__()
         self.count_duplicates = count_duplicates
         self.any_source = any_source  # broken on purpose: takes data from anyone [SY-3.7]
         self.lag_blind = lag_blind  # broken on purpose: ignores late exposures [SY-3.8]
+        # broken on purpose unless "counted": places late exposures right but its counter
+        # stays 0, or it sends the eleven counters of a robot from before [SY-5.9]
+        self.exposed_late = exposed_late
         self.lags: list[float] = []
         self.endpoint: tuple[str, int] = ("", 0)
         self.delta_t = 0.005
@@ -989,6 +1012,7 @@ class MiniSyncRobot(MiniRobot):
                 "expired",
                 "malformed",
                 "pending",
+                "exposed_late",
             ),
             0,
         )
@@ -1062,7 +1086,10 @@ class MiniSyncRobot(MiniRobot):
         lag = d.t_exposure_start - d.t_arrival
         ref = statistics.median(self.lags[-64:]) if len(self.lags) >= 8 else lag
         self.lags.append(lag)
-        return 0.0 if self.lag_blind or lag - ref <= 0.5e-3 else lag - ref
+        if self.lag_blind or lag - ref <= 0.5e-3:
+            return 0.0
+        self.stats["exposed_late"] += 1 if self.exposed_late == "counted" else 0
+        return lag - ref
 
     def handle(self, session: SessionView, request: M.Request[Any]) -> tuple[Value, ...]:
         c = request.command
@@ -1106,22 +1133,27 @@ class MiniSyncRobot(MiniRobot):
                 rows = [self.points[i] for i in sorted(self.points) if i > since]
                 return (Matrix(len(rows), 17, [v for r in rows for v in r]),)
             if c == C.GET_SYNC_STATISTICS:
-                return tuple(
-                    self.stats[k] if k != "pending" else len(self.sent) for k in self.stats
-                )
+                stats = {**self.stats, "pending": len(self.sent)}
+                if self.exposed_late == "absent":
+                    del stats["exposed_late"]
+                return tuple(stats.values())
         return super().handle(session, request)
 
 
 ROBOT_SYNC_CASES = ("robot.sync.*", "commands.sync.*")
 
 
-def test_minimal_sync_robot_scores_100_percent() -> None:
-    service = MiniSyncRobot()
+def _check_sync_robot(service: MiniSyncRobot, select: tuple[str, ...]) -> RunResult:
+    """The cases ``select`` against ``service`` on loopback; its trigger thread stops after."""
     try:
         with serving(FramedServer(service, policy=POLICY)) as address:
-            result = check("robot", address, ROBOT_SYNC_CASES, scale=0.5)
+            return check("robot", address, select, scale=0.5)
     finally:
         service.stop.set()
+
+
+def test_minimal_sync_robot_scores_100_percent() -> None:
+    result = _check_sync_robot(MiniSyncRobot(), ROBOT_SYNC_CASES)
     assert problems(result) == {}
     got = outcomes(result)
     assert got["robot.sync.matching"] is Outcome.PASS
@@ -1130,34 +1162,32 @@ def test_minimal_sync_robot_scores_100_percent() -> None:
 
 
 def test_robot_not_counting_duplicates_is_caught() -> None:
-    service = MiniSyncRobot(count_duplicates=False)
-    try:
-        with serving(FramedServer(service, policy=POLICY)) as address:
-            result = check("robot", address, ("robot.sync.matching",), scale=0.5)
-    finally:
-        service.stop.set()
+    result = _check_sync_robot(MiniSyncRobot(count_duplicates=False), ("robot.sync.matching",))
     _caught(result, "robot.sync.matching")
     assert "SY-3.2" in problems(result)["robot.sync.matching"]
 
 
 def test_robot_placing_a_late_exposure_at_t_t_plus_delta_t_is_caught() -> None:
-    service = MiniSyncRobot(lag_blind=True)
-    try:
-        with serving(FramedServer(service, policy=POLICY)) as address:
-            result = check("robot", address, ("robot.sync.exposure_lag",), scale=0.5)
-    finally:
-        service.stop.set()
+    result = _check_sync_robot(MiniSyncRobot(lag_blind=True), ("robot.sync.exposure_lag",))
     assert outcomes(result)["robot.sync.exposure_lag"] is Outcome.NON_STRICT  # a SHOULD
     assert "SY-3.8" in problems(result)["robot.sync.exposure_lag"]
 
 
+@pytest.mark.parametrize("exposed_late", ["uncounted", "absent"])
+def test_robot_not_counting_a_late_exposure_is_caught(
+    exposed_late: Literal["uncounted", "absent"],
+) -> None:
+    """A robot that places the late reading right but leaves exposed_late at 0, or sends
+    the eleven counters of a robot from before SY-5.9 (which the harness still decodes)."""
+    result = _check_sync_robot(
+        MiniSyncRobot(exposed_late=exposed_late), ("robot.sync.exposure_lag",)
+    )
+    assert outcomes(result)["robot.sync.exposure_lag"] is Outcome.NON_STRICT  # a SHOULD
+    assert "SY-5.9" in problems(result)["robot.sync.exposure_lag"]
+
+
 def test_robot_taking_data_from_anyone_is_caught() -> None:
-    service = MiniSyncRobot(any_source=True)
-    try:
-        with serving(FramedServer(service, policy=POLICY)) as address:
-            result = check("robot", address, ("robot.sync.foreign_data",), scale=0.5)
-    finally:
-        service.stop.set()
+    result = _check_sync_robot(MiniSyncRobot(any_source=True), ("robot.sync.foreign_data",))
     assert outcomes(result)["robot.sync.foreign_data"] is Outcome.NON_STRICT  # a SHOULD
 
 

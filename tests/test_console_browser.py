@@ -544,7 +544,18 @@ window.done = (async () => {
   f.method = "POST"; f.action = target + "/api/control"; f.target = "sink";
   f.enctype = "text/plain";
   const i = document.createElement("input"); i.name = '{"take":true,"x":"'; i.value = '"}';
-  f.appendChild(i); document.body.appendChild(f); f.submit();
+  f.appendChild(i); document.body.appendChild(f);
+  // the form's answer loads into the sink frame: wait for that load, not for a time (a
+  // cross-origin document's location throws; the initial about:blank does not count)
+  const sink = document.querySelector("iframe[name=sink]");
+  const posted = new Promise((res) => {
+    sink.onload = () => {
+      try { if (sink.contentWindow.location.href === "about:blank") return; } catch (e) {}
+      res("answered");
+    };
+    setTimeout(() => res("no answer to the form POST in 15 s"), 15000);
+  });
+  f.submit();
   await new Promise((res) => {
     const ws = new WebSocket(target.replace("http", "ws") + "/ws");
     ws.onopen = () => {
@@ -554,8 +565,8 @@ window.done = (async () => {
     };
     ws.onerror = ws.onclose = () => res("refused");
   }).then((v) => { window.wsResult = v; });
-  await new Promise((r) => setTimeout(r, 1000));
-  return "done";
+  const form = await posted;
+  return form === "answered" ? "done" : form;
 })();
 </script><iframe name="sink"></iframe>"""
 

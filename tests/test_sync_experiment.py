@@ -22,6 +22,7 @@ from sync.experiment import (
     ExperimentData,
     ExperimentSettings,
     analyse,
+    exposed_late_text,
     sine_path,
     write_json,
 )
@@ -90,7 +91,16 @@ def test_cli_emulate_writes_json_with_the_truth_and_says_what_apply_set(
     assert j["true_delta_t_ms"] == pytest.approx(5.9)
     assert abs(j["delta_t_ms"] - 5.9) < 0.15
     said = f"SetSyncDelay: the robot now synchronises with ΔT = {j['delta_t_ms']:.3f} ms\n"
-    assert said in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert said in printed
+    # [SY-5.9] the robot's count travels on the wire, into the JSON and onto the screen
+    late = j["statistics"]["exposed_late"]
+    assert isinstance(late, int) and f"  {late} readings exposed late (" in printed
+
+
+def test_exposed_late_not_reported_by_an_older_robot_is_not_zero() -> None:
+    assert exposed_late_text({"sent": 5, "exposed_late": 0}).startswith("0 readings exposed late")
+    assert "not reported" in exposed_late_text({"sent": 5})  # a robot from before SY-5.9
 
 
 def test_cli_untrusted_run_exits_untrusted_with_its_reason_on_a_line_of_its_own(

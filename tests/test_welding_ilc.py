@@ -68,7 +68,7 @@ def test_lifted_ilc_converges_exactly_where_the_criterion_says(
             if conv.norm < 1.0:
                 assert now <= last * (1 + 1e-9) + 1e-12
             last = now
-        assert last <= 1e-6 * max(np.linalg.norm(u_star), 1e-9)
+        assert last <= 1e-6 * max(float(np.linalg.norm(u_star)), 1e-9)
     else:
         bound = 1e3 * np.linalg.norm(Q @ L @ r)
         for _ in range(5000):
@@ -225,7 +225,8 @@ def _cell_pass_job(path: Path, shift_mm: float = 0.0) -> None:
     angles = transform_to_location(laser2base)[3:]
 
     def at(p: np.ndarray) -> J.Location:
-        return J.Location(*(float(v) for v in (*p, *angles)), tool="laser", frame="world")
+        x, y, z, rx, ry, rz = (float(v) for v in (*p, *angles))
+        return J.Location(x, y, z, rx, ry, rz, tool="laser", frame="world")
 
     seam = J.Path("seam", at(start), (J.Line(at(start + 60.0 * d)),), 250.0, tracked=False)
     J.save(J.Job("ilc-pass", (seam,)), path)

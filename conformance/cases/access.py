@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import time
 
-from conformance.cases.sync import ROBOT_SYNC, _int, _sink
+from conformance.cases.sync import ROBOT_SYNC, _int, _sink, playing_sensor
 from conformance.connection import UdpConn
 from conformance.context import Context
 from conformance.model import Fail, Informational, NotApplicable, case
@@ -90,16 +90,12 @@ def token_backoff(ctx: Context) -> str:
 def foreign_data(ctx: Context) -> str:
     """Two triggers: the first answered from another port than the sensor endpoint, the second
     from the sensor endpoint. Only the second may become a seam point."""
-    conn = ctx.connect()
-    ctx.take_control(conn)
-    cfg = conn.ask(M.GetSyncConfigRequest())
-    host = conn.sock.getsockname()[0]
-    sink, stranger = _sink(ctx, host), _sink(ctx, host)
-    u = UdpConn(sink, ("", 0), ctx.log, 98)
-    other = UdpConn(stranger, ("", 0), ctx.log, 97)
     answered: list[int] = []
-    try:
-        conn.ok(C.SET_SENSOR_ENDPOINT, sink.getsockname()[0], sink.getsockname()[1])
+    with (
+        playing_sensor(ctx, 98) as (conn, u),
+        _sink(ctx, conn.sock.getsockname()[0]) as stranger,
+    ):
+        other = UdpConn(stranger, ("", 0), ctx.log, 97)
         before = conn.ask(M.GetSyncStatisticsRequest()).as_dict()
         first = conn.ask(M.StartTriggersRequest(50.0, 2)).first_index
         deadline = time.monotonic() + ctx.scaled(2.0)
@@ -135,13 +131,6 @@ def foreign_data(ctx: Context) -> str:
         time.sleep(0.3)  # the robot matches data once the joint samples around t_S are in
         after = conn.ask(M.GetSyncStatisticsRequest()).as_dict()
         points = conn.ask(M.GetSeamPointsRequest(first - 1)).points
-    finally:
-        conn.call(C.STOP_TRIGGERS)
-        # As it was, also when none was set: ("", 0) clears it [SY-5.8].
-        conn.call(C.SET_SENSOR_ENDPOINT, cfg.host, cfg.port)
-        conn.call(C.RELEASE_CONTROL)
-        sink.close()
-        stranger.close()
     if len(answered) < 2:
         raise Informational(f"the robot sent {len(answered)} of 2 triggers; cannot judge")
     got_idx = {int(r[0]) for r in points.to_rows()}

@@ -15,7 +15,6 @@ from conformance.context import Context
 from conformance.model import Fail, Informational, NotApplicable, case
 from spec import messages as M
 from spec import wire
-from spec.codec import Packet
 from spec.datagrams import Trigger, decode_datagram
 from spec.errors import DatagramError, ErrorCode
 from spec.params import FloatArray, Joints
@@ -119,14 +118,13 @@ def status_fields(ctx: Context) -> None:
             )
     finally:
         a.call(C.RELEASE_CONTROL)
-    answer: Packet = a.call(C.HELLO, 1, 0, "conformance")
-    version, service = answer.params[:2] if answer.error is None else ("", "")
-    expected = f"{wire.VERSION_MAJOR}.{answer.version_minor}"
-    if version != expected or service != ctx.service:
+    hello = a.ask(M.HelloRequest(1, 0, "conformance"))
+    expected = f"{wire.VERSION_MAJOR}.{a.version_minor}"  # the header of that reply
+    if hello.version != expected or hello.service != ctx.service:
         raise Fail(
             "Hello version/service do not match the frame header and the service",
             f"{expected!r}, {ctx.service!r}",
-            f"{version!r}, {service!r}",
+            f"{hello.version!r}, {hello.service!r}",
             requirement="RS-5.31",
         )
 

@@ -14,9 +14,11 @@ import math
 import socket
 import statistics
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
-from conformance.connection import UdpConn
+from conformance.connection import Conn, UdpConn
 from conformance.context import Context
 from conformance.model import EndpointTimeout, Fail, Informational, NotApplicable, case
 from spec import messages as M
@@ -381,6 +383,26 @@ def _sink(ctx: Context, local_host: str) -> socket.socket:
     return sock
 
 
+@contextmanager
+def playing_sensor(ctx: Context, number: int = 99) -> Iterator[tuple[Conn, UdpConn]]:
+    """A connection holding control of the robot, whose sensor endpoint is a harness socket
+    (``UdpConn`` ``number`` in the wire log, its target set from the first trigger): the
+    harness plays the sensor. On leaving, triggering stops, the endpoint in force before is
+    set again (also when none was: ("", 0) clears it [SY-5.8]) and control is released."""
+    conn = ctx.connect()
+    ctx.take_control(conn)
+    cfg = conn.ask(M.GetSyncConfigRequest())
+    sink = _sink(ctx, conn.sock.getsockname()[0])
+    try:
+        conn.ok(C.SET_SENSOR_ENDPOINT, sink.getsockname()[0], sink.getsockname()[1])
+        yield conn, UdpConn(sink, ("", 0), ctx.log, number)
+    finally:
+        conn.call(C.STOP_TRIGGERS)
+        conn.call(C.SET_SENSOR_ENDPOINT, cfg.host, cfg.port)
+        conn.call(C.RELEASE_CONTROL)
+        sink.close()
+
+
 @case(
     "robot.sync.before_endpoint",
     requirements=["SY-5.4"],
@@ -423,21 +445,11 @@ def before_endpoint(ctx: Context) -> None:
 def endpoint_clear(ctx: Context) -> str:
     """SetSensorEndpoint("", 0) after an endpoint was set: GetSyncConfig reports ("", 0) and
     StartTriggers is BAD_STATE again; the endpoint in force before is set again."""
-    conn = ctx.connect()
-    ctx.take_control(conn)
-    cfg = conn.ask(M.GetSyncConfigRequest())
-    sink = _sink(ctx, conn.sock.getsockname()[0])
-    try:
-        conn.ok(C.SET_SENSOR_ENDPOINT, sink.getsockname()[0], sink.getsockname()[1])
+    with playing_sensor(ctx) as (conn, _):
         cleared = conn.call(C.SET_SENSOR_ENDPOINT, "", 0)
         now_cfg = conn.ask(M.GetSyncConfigRequest())
         now = (now_cfg.host, now_cfg.port)
         start = conn.call(C.START_TRIGGERS, 10.0, 1)
-    finally:
-        conn.call(C.STOP_TRIGGERS)
-        conn.call(C.SET_SENSOR_ENDPOINT, cfg.host, cfg.port)
-        conn.call(C.RELEASE_CONTROL)
-        sink.close()
     got = (
         cleared.error or "cleared",
         now,
@@ -461,22 +473,11 @@ def endpoint_clear(ctx: Context) -> str:
 )
 def sync_ranges(ctx: Context) -> None:
     """Trigger rates outside 0 < rate <= 1000 Hz and non-increasing times give OUT_OF_RANGE."""
-    conn = ctx.connect()
-    ctx.take_control(conn)
-    cfg = conn.ask(M.GetSyncConfigRequest())
-    sink = _sink(ctx, conn.sock.getsockname()[0])
-    try:
-        conn.ok(C.SET_SENSOR_ENDPOINT, sink.getsockname()[0], sink.getsockname()[1])
+    with playing_sensor(ctx) as (conn, _):
         for rate in (0.0, -1.0, 1000.5, math.inf):
             conn.error(C.START_TRIGGERS, ErrorCode.OUT_OF_RANGE, rate, 1)
         now = conn.ask(M.GetTimeRequest()).time
         conn.error(C.SCHEDULE_TRIGGERS, ErrorCode.OUT_OF_RANGE, FloatArray([now + 5, now + 4]))
-    finally:
-        conn.call(C.STOP_TRIGGERS)
-        # As it was, also when none was set: ("", 0) clears it [SY-5.8].
-        conn.call(C.SET_SENSOR_ENDPOINT, cfg.host, cfg.port)
-        conn.call(C.RELEASE_CONTROL)
-        sink.close()
 
 
 @dataclass(frozen=True)
@@ -626,14 +627,8 @@ def sync_matching(ctx: Context) -> str:
     lost one, a late one, two reordered, an unknown index and a malformed datagram. Checks
     the robot's counters and that the seam points come back ordered by index with
     t_S = t_T + ΔT."""
-    conn = ctx.connect()
-    ctx.take_control(conn)
-    cfg = conn.ask(M.GetSyncConfigRequest())
-    sink = _sink(ctx, conn.sock.getsockname()[0])
-    u = UdpConn(sink, ("", 0), ctx.log, 99)
     n = len(MATCHING_PLAN)
-    try:
-        conn.ok(C.SET_SENSOR_ENDPOINT, sink.getsockname()[0], sink.getsockname()[1])
+    with playing_sensor(ctx) as (conn, u):
         before = conn.ask(M.GetSyncStatisticsRequest()).as_dict()
         first = conn.ask(M.StartTriggersRequest(50.0, n)).first_index
         indices = _play_sensor(ctx, u, first)
@@ -641,12 +636,6 @@ def sync_matching(ctx: Context) -> str:
         after = conn.ask(M.GetSyncStatisticsRequest()).as_dict()
         points = conn.ask(M.GetSeamPointsRequest(first - 1)).points
         delta_t = conn.ask(M.GetSyncConfigRequest()).delta_t
-    finally:
-        conn.call(C.STOP_TRIGGERS)
-        # As it was, also when none was set: ("", 0) clears it [SY-5.8].
-        conn.call(C.SET_SENSOR_ENDPOINT, cfg.host, cfg.port)
-        conn.call(C.RELEASE_CONTROL)
-        sink.close()
     if len(indices) < n:
         raise Fail(
             f"the robot did not send the {n} triggers asked for",
@@ -661,7 +650,8 @@ def sync_matching(ctx: Context) -> str:
             indices,
             requirement="SY-1.3",
         )
-    diff = {k: _int(after[k]) - _int(before[k]) for k in STAT_FIELDS}
+    # a counter the robot does not report (exposed_late before SY-5.9) is left out, not 0
+    diff = {k: _int(after[k]) - _int(before[k]) for k in STAT_FIELDS if after[k] is not None}
     ctx.details["statistics_delta"] = diff
     for name, rule, least in MATCHING_COUNTERS:
         if diff[name] < least:
@@ -751,34 +741,25 @@ def _play_lagged_sensor(ctx: Context, u: UdpConn, first: int) -> list[int]:
 
 @case(
     "robot.sync.exposure_lag",
-    requirements=["SY-3.8"],
+    requirements=["SY-3.8", "SY-5.9"],
     level="SHOULD",
     tags=["sync", "robot"],
     service="robot",
-    commands=[*ROBOT_SYNC, C.GET_SEAM_POINTS],
+    commands=[*ROBOT_SYNC, C.GET_SEAM_POINTS, C.GET_SYNC_STATISTICS],
     budget=10.0,
 )
 def sync_exposure_lag(ctx: Context) -> str:
     """Sixteen triggers at 50 Hz answered found, each exposure started 0.1 ms after the
     trigger's arrival by the harness's (the sensor's) stamps, the thirteenth 2.1 ms after:
-    that point's t_S must be t_T + ΔT + 2 ms (within 0.1 ms), every other one's t_T + ΔT."""
-    conn = ctx.connect()
-    ctx.take_control(conn)
-    cfg = conn.ask(M.GetSyncConfigRequest())
-    sink = _sink(ctx, conn.sock.getsockname()[0])
-    u = UdpConn(sink, ("", 0), ctx.log, 99)
-    try:
-        conn.ok(C.SET_SENSOR_ENDPOINT, sink.getsockname()[0], sink.getsockname()[1])
+    that point's t_S must be t_T + ΔT + 2 ms (within 0.1 ms), every other one's t_T + ΔT,
+    and GetSyncStatistics' ``exposed_late`` must have gone up by exactly one."""
+    with playing_sensor(ctx) as (conn, u):
+        before = conn.ask(M.GetSyncStatisticsRequest()).exposed_late
         first = conn.ask(M.StartTriggersRequest(50.0, LAG_TRIGGERS)).first_index
         indices = _play_lagged_sensor(ctx, u, first)
         rows = conn.ask(M.GetSeamPointsRequest(first - 1)).points.to_rows()
+        after = conn.ask(M.GetSyncStatisticsRequest()).exposed_late
         delta_t = conn.ask(M.GetSyncConfigRequest()).delta_t
-    finally:
-        conn.call(C.STOP_TRIGGERS)
-        # As it was, also when none was set: ("", 0) clears it [SY-5.8].
-        conn.call(C.SET_SENSOR_ENDPOINT, cfg.host, cfg.port)
-        conn.call(C.RELEASE_CONTROL)
-        sink.close()
     late_index = (first + LAG_LATE_AT) % INDEX_MODULUS
     by_index = {int(r[0]): r for r in rows}
     if late_index not in indices or late_index not in by_index:
@@ -805,4 +786,21 @@ def sync_exposure_lag(ctx: Context) -> str:
             f"{extra * 1e3:.3f} ms",
             requirement="SY-3.8",
         )
-    return f"{len(by_index)} seam points; the late one placed {extra * 1e3:.3f} ms later"
+    if before is None or after is None:
+        raise Fail(
+            "GetSyncStatistics does not report exposed_late",
+            "a 12th counter, exposed_late",
+            "the 11 counters without it",
+            requirement="SY-5.9",
+        )
+    if after - before != 1:
+        raise Fail(
+            "exposed_late did not count the one reading exposed late",
+            "+1",
+            f"{after - before:+d}",
+            requirement="SY-5.9",
+        )
+    return (
+        f"{len(by_index)} seam points; the late one placed {extra * 1e3:.3f} ms later "
+        "and counted in exposed_late"
+    )
