@@ -269,17 +269,19 @@ def simulate(
 ) -> tuple[FloatArray, FloatArray]:
     """Run the arm over setpoints (..., N + 1, 6) rad, starting at rest at the first one
     (or in the state ``initial`` (..., 5, 6): θm, θm', θl, θl', ∫e), with link inertias
-    ``jl`` (N, 6) per cycle (or (6,) throughout). Returns (motor, link) (..., N, 6) rad at
-    the end of each of the N cycles."""
+    ``jl`` (N, 6) per cycle (or (6,) throughout; or broadcastable to (..., N, 6): one arm
+    of its own inertias per leading index). Returns (motor, link) (..., N, 6) rad at the end
+    of each of the N cycles."""
     r = np.asarray(setpoints_rad, dtype=np.float64)
     n = r.shape[-2] - 1
-    jl_all = np.broadcast_to(np.asarray(jl, dtype=np.float64), (n, 6))
+    jl_all = np.asarray(jl, dtype=np.float64)
+    jl_all = np.broadcast_to(jl_all, (*jl_all.shape[:-2], n, 6))
     c = _Coefficients(params)
     x = rest_state(r[..., 0, :]) if initial is None else np.array(initial, dtype=np.float64)
     motor = np.empty((*r.shape[:-2], n, 6))
     link = np.empty_like(motor)
     for k in range(n):
-        x = c.cycle(x, r[..., k, :], r[..., k + 1, :], jl_all[k], period, substeps)
+        x = c.cycle(x, r[..., k, :], r[..., k + 1, :], jl_all[..., k, :], period, substeps)
         motor[..., k, :] = x[..., 0, :]
         link[..., k, :] = x[..., 2, :]
     return motor, link

@@ -262,40 +262,25 @@ def test_ilc_learns_a_jobs_path_and_keeps_the_table_beside_the_job(
     assert "the table was learned on line" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize(
-    ("segments", "unsupported"),
-    [
-        ("arc", "(<arc>): the ILC learns one straight <line>; not supported: <arc> segments"),
-        (
-            "corner",
-            "(<line> <line>): the ILC learns one straight <line>; not supported: 2 segments"
-            " (the corners between them)",
-        ),
-        (
-            "both",
-            "(<line> <arc>): the ILC learns one straight <line>; not supported: <arc> segments"
-            " and 2 segments (the corners between them)",
-        ),
-    ],
-)
-def test_a_path_the_ilc_cannot_learn_is_refused_in_one_line_before_any_cell(
-    capsys: pytest.CaptureFixture[str], tmp_path: Path, segments: str, unsupported: str
+def _at(x: float, y: float, tool: str = "laser") -> J.Location:
+    return J.Location(x, y, 300.0, 180.0, 0.0, 0.0, tool=tool, frame="world")
+
+
+def test_a_path_that_changes_tool_is_refused_in_one_line_before_any_cell(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
-    """Arcs and corners: the lifted model is of one straight line, so ``welding ilc JOB.xml``
-    names what is not supported in one line and exits 2 (USAGE) before it builds a cell
-    (no table, no JSON)."""
-
-    def at(x: float, y: float) -> J.Location:
-        return J.Location(x, y, 300.0, 180.0, 0.0, 0.0, tool="laser", frame="world")
-
-    line, arc = J.Line(at(600.0, 0.0)), J.Arc(at(620.0, 20.0), at(600.0, 40.0))
-    shapes: dict[str, tuple[J.Segment, ...]]
-    shapes = {"arc": (arc,), "corner": (line, J.Line(at(600.0, 60.0))), "both": (line, arc)}
-    job = tmp_path / "curved.xml"
-    J.save(J.Job("curved", (J.Path("p", at(500.0, 0.0), shapes[segments], 100.0),)), job)
+    """The ILC learns a path of one tool, so ``welding ilc JOB.xml`` names the change in one
+    line and exits 2 (USAGE) before it builds a cell (no table, no JSON). Lines, corners and
+    arcs are learned (tests/test_welding_ilc_path.py)."""
+    segments = (J.Line(_at(600.0, 0.0)), J.Line(_at(600.0, 60.0, tool="sensor")))
+    job = tmp_path / "two.xml"
+    J.save(J.Job("two", (J.Path("p", _at(500.0, 0.0), segments, 100.0),)), job)
     out = tmp_path / "ilc.json"
     code = main(["ilc", str(job), "--emulate", "--clock", "real", "--json", str(out)])
     _, err = capsys.readouterr()
     assert code == 2
-    assert err == f"python -m welding: error: path 'p' {unsupported}\n"
+    assert err == (
+        "python -m welding: error: path 'p' changes tool (laser to sensor): the ILC learns a"
+        " path of one tool\n"
+    )
     assert not out.exists() and not job_table(job, "p").exists()

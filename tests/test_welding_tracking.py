@@ -150,6 +150,31 @@ def test_polyline_rounds_its_corners_and_projects_back() -> None:
     assert np.array_equal(line.timed_path(0.004)[1], _weld().timed_path(0.004)[1])
 
 
+def test_polyline_with_an_explicit_arc_runs_on_its_circle_and_refuses_a_kink() -> None:
+    """A job's ``<arc>`` (from its vertex through a middle point to the next): a quarter
+    circle of R 50 mm between two lines tangent to it; arc length is the parameter, the
+    path projects back onto itself, the arc's points lie on the circle. An arc that meets
+    its line at an angle is a kink, refused (it is not rounded)."""
+    c = np.array([100.0, 50.0, 0.0])  # the circle's centre
+    v = np.array([[0.0, 0.0, 0.0], [100.0, 0.0, 0.0], [150.0, 50.0, 0.0], [150.0, 150.0, 0.0]])
+    arcs = np.full((3, 3), np.nan)
+    arcs[1] = c + 50.0 * np.array([np.sin(np.pi / 4), -np.cos(np.pi / 4), 0.0])
+    weld = PolylineWeld(v, np.zeros(3), 250.0, arcs=arcs)
+    assert weld.length_mm == pytest.approx(200.0 + 50.0 * np.pi / 2)
+    s = np.linspace(-5.0, weld.length_mm + 5.0, 4001)
+    p = weld.point(s)
+    assert np.abs(weld.project(p) - s).max() < 1e-9
+    step = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    assert step.max() - step.min() < 1e-6
+    on_arc = (s > 100.0) & (s < 100.0 + 50.0 * np.pi / 2)
+    assert np.abs(np.linalg.norm(p[on_arc] - c, axis=1) - 50.0).max() < 1e-9
+    assert weld.corner_s() == []  # nothing rounded
+    kinked = arcs.copy()
+    kinked[1] = [135.0, 10.0, 0.0]  # a circle through it is not tangent to the first line
+    with pytest.raises(CornerError, match=r"the path kinks by .* an arc must be tangent"):
+        PolylineWeld(v, np.zeros(3), 250.0, arcs=kinked)
+
+
 def test_polyline_corner_is_tracked_within_target() -> None:
     # the true seam runs 1.5 mm beside the rounded path, measured with 10 µm noise at the
     # spacing of 200 Hz at 250 mm/s: the fitted offset follows it through the corner

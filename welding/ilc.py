@@ -44,6 +44,7 @@ __all__ = [
     "learning_matrix",
     "lever_error",
     "lifted_model",
+    "lifted_model_along",
     "q_filter",
 ]
 
@@ -59,18 +60,20 @@ class LearningDiverges(ValueError):
 def axis_pulse_responses(
     params: ElasticParams, jl: FloatArray, n: int, period: float, *, latency_s: float = 0.0
 ) -> tuple[FloatArray, FloatArray]:
-    """Responses (n, 6) of the link and of the measured motor (delayed by ``latency_s``,
-    linearly between cycles as the robot's joint log is) of each axis to a setpoint pulse
-    of 1 rad in the first cycle, at the end of each cycle from that one on."""
-    r = np.zeros((n + 1, 6))
-    r[1] = 1.0
-    motor, link = simulate(params, jl, r, period=period)
+    """Responses (..., n, 6) of the link and of the measured motor (delayed by
+    ``latency_s``, linearly between cycles as the robot's joint log is) of each axis to a
+    setpoint pulse of 1 rad in the first cycle, at the end of each cycle from that one on;
+    ``jl`` (..., 6) the link inertias (one arm per leading index)."""
+    jl = np.asarray(jl, dtype=np.float64)
+    r = np.zeros((*jl.shape[:-1], n + 1, 6))
+    r[..., 1, :] = 1.0
+    motor, link = simulate(params, jl[..., None, :], r, period=period)
     if latency_s > 0.0:
         shift = latency_s / period
         whole = math.floor(shift)
         w = shift - whole
-        padded = np.vstack([np.zeros((whole + 1, 6)), motor])
-        motor = (1.0 - w) * padded[1 : n + 1] + w * padded[:n]
+        padded = np.concatenate([np.zeros((*jl.shape[:-1], whole + 1, 6)), motor], axis=-2)
+        motor = (1.0 - w) * padded[..., 1 : n + 1, :] + w * padded[..., :n, :]
     return link, motor
 
 
@@ -129,6 +132,47 @@ def lever_error(
     commanded = model.flange2base_batch(q[1:])[:, :3, :3]
     lever = laser2flange[:3, 3] - sensor2flange[:3, 3]
     out: FloatArray = (turned - commanded) @ lever
+    return out
+
+
+def lifted_model_along(
+    params: ElasticParams,
+    model: Any,
+    q_deg: FloatArray,
+    laser2flange: FloatArray,
+    period: float,
+    *,
+    side: str = "link",
+    latency_s: float = 0.0,
+    block: int | None = None,
+) -> FloatArray:
+    """The time-varying G (3N, 3N) of a pass whose cycle k has the arm at joints ``q_deg``
+    (N, 6), ordered as :func:`lifted_model`: a translation Δp at cycle m asks the axes for
+    J(q_m)⁻¹ Δp, each axis answers with its pulse response h_i, and the laser moves by
+    J(q_k) δq at cycle k:
+
+        G[k, m] = Σ_i h_i^(m)(k − m) · J_k[:3, i] ⊗ J_m⁻¹[i, :3]
+
+    (the linear time-varying model of ref. [10]). h_i^(m) is for the link inertia at the
+    middle cycle of the pass, or with ``block`` at the middle of m's block of that many
+    cycles. With one pose throughout it is :func:`lifted_model`'s G."""
+    if side not in ("link", "motor"):
+        raise ValueError(f"side must be link or motor, got {side!r}")
+    q = np.asarray(q_deg, dtype=np.float64)
+    n = len(q)
+    J = np.array([model.jacobian(qk, tool=laser2flange) for qk in q])  # (N, 6, 6)
+    Jinv = np.linalg.inv(J)
+    block = block or n
+    mids = np.minimum(np.arange(0, n, block) + block // 2, n - 1)
+    jl = np.array([link_inertia(model, q[m], params) for m in mids])  # (B, 6)
+    link, motor = axis_pulse_responses(params, jl, n, period, latency_s=latency_s)
+    h = link if side == "link" else motor  # (B, N, 6)
+    k = np.arange(n)
+    lag = k[:, None] - k[None, :]
+    # T[k, m, i]: axis i's response at k to a pulse at m (m's block's inertia)
+    T = np.where((lag >= 0)[..., None], h[(k // block)[None, :], np.clip(lag, 0, n - 1)], 0.0)
+    G4 = np.einsum("kmi,kai,mib->kamb", T, J[:, :3, :], Jinv[:, :, :3], optimize=True)
+    out: FloatArray = G4.reshape(3 * n, 3 * n)
     return out
 
 

@@ -39,11 +39,11 @@ from welding.ilc import Convergence, IlcTable, LearningDiverges
 from welding.ilc_loop import (
     IlcSettings,
     IlcTrial,
-    LinePass,
     PassGeometry,
+    PathPass,
     check_learnable,
     job_path,
-    line_pass,
+    path_pass,
     run_ilc,
 )
 from welding.tools import BUILTIN_FRAME, BUILTIN_TOOL
@@ -89,7 +89,7 @@ def run_ilc_emulated(
         "seed": seed,
         "dynamics": dynamics,
     }
-    line = None
+    line: PathPass | None = None
     if clock == "real":
         try:
             child = CellProcess(**config)
@@ -101,7 +101,7 @@ def run_ilc_emulated(
                 log.info("ILC threads: scheduling %s", got)
                 side: _Side = _ChildSide(child.start())
                 if job is not None:
-                    line = line_pass(job_path(job, path), cell_tables(child))
+                    line = path_pass(job_path(job, path), cell_tables(child))
                 result = _learn(side, settings, line, table, save, progress)
         finally:
             child.close()
@@ -110,7 +110,7 @@ def run_ilc_emulated(
         cell.core.set_delay(cell.true_delta_t_s())  # as `track --true-delta-t`
         side = _SimSide(cell)
         if job is not None:
-            line = line_pass(job_path(job, path), cell_tables(cell))
+            line = path_pass(job_path(job, path), cell_tables(cell))
         cell.start()
         try:
             result = _learn(side, settings, line, table, save, progress)
@@ -188,7 +188,7 @@ class _ChildSide:
 def _learn(
     side: _Side,
     settings: IlcSettings,
-    line: LinePass | None,
+    line: PathPass | None,
     table: IlcTable | None,
     save: Any,
     progress: Any,
@@ -227,7 +227,7 @@ def _learn(
             save=save,
             progress=progress,
             record=side.record,
-            line=line,
+            job_pass=line,
             real_time=side.real_time,
         )
     finally:

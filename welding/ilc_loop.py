@@ -1,9 +1,12 @@
 """The ILC trials through the protocol only: teach the seam, repeat the pass, learn.
 
 One pass is the ``track`` pass over the cell's seam (the laser's straight nominal line along
-the sensor's x axis, the laser on over ``weld_mm``), a ToolMoveTrajectory with a timed
-correction for every 4 ms cycle (AlterQueue, RS-5.39): the reference the laser should
-follow plus the learned correction u_j (:mod:`welding.ilc`). The reference is the seam as
+the sensor's x axis, the laser on over ``weld_mm``) or a job's path of lines (its corners
+rounded, :class:`~welding.tracking.PolylineWeld`; the tool keeps its orientation), a
+ToolMoveTrajectory with a timed correction for every 4 ms cycle (AlterQueue, RS-5.39): the
+reference the laser should follow plus the learned correction u_j (:mod:`welding.ilc`; the
+lifted model time-varying along the path, the error in each cycle's frame of the path:
+along, lateral, height). The reference is the seam as
 the sensor measured it on a slow teaching pass first (at 50 mm/s the arm's own error is a
 few µm), saved with the table; with ``track`` the tracker corrects the workpiece live and
 the table learns only the arm's repeatable error on top of it.
@@ -28,7 +31,7 @@ import contextlib
 import logging
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -49,22 +52,33 @@ from welding.ilc import (
     check_convergence,
     learning_matrix,
     lever_error,
-    lifted_model,
+    lifted_model_along,
     q_filter,
 )
 from welding.tools import Tables
 from welding.track_loop import RobotLink, TrackedWeld, TrackOutcome, laser_path, weld_tracked
-from welding.tracking import NominalWeld, OffsetWeld, SeamModel, Tracker, TrackingError
+from welding.tracking import (
+    CornerError,
+    NominalWeld,
+    OffsetWeld,
+    PolylineWeld,
+    SeamModel,
+    Tracker,
+    TrackingError,
+    WeldPath,
+    check_sensor_view,
+)
 
 __all__ = [
     "IlcSettings",
     "IlcTrial",
-    "LinePass",
     "PassGeometry",
+    "PathPass",
+    "SeamNotTaught",
     "TrialChecks",
     "check_learnable",
     "job_path",
-    "line_pass",
+    "path_pass",
     "placed_later",
     "run_ilc",
     "start_from_joint_log",
@@ -118,6 +132,9 @@ class IlcSettings:
     #: welded in that ringing, the part a learned table reaches worst (trial 5 0.059-0.072 mm
     #: there against 0.037-0.038 with 40 mm, simulated, seeds 0 and 3)
     run_up_mm: float = 40.0
+    #: the model's axis responses for the link inertia at the pass's middle (0), or per
+    #: block of this many cycles along it (:func:`~welding.ilc.lifted_model_along`)
+    model_block_cycles: int = 0
 
     def check(self) -> None:
         if self.source not in SOURCES:
@@ -126,6 +143,8 @@ class IlcSettings:
             raise ValueError(f"run-up must be 0..500 mm, got {self.run_up_mm}")
         if not (0 <= self.trials <= 100):
             raise ValueError(f"trials must be 0..100, got {self.trials}")
+        if self.model_block_cycles < 0:
+            raise ValueError(f"model_block_cycles must be >= 0, got {self.model_block_cycles}")
         if self.trials == 0 and not self.track:
             raise ValueError("0 trials weld nothing without track (the tracked weld)")
 
@@ -167,10 +186,12 @@ class IlcTrial:
 
 @dataclass(frozen=True)
 class PassGeometry:
-    """The pass: the nominal laser line (``weld``), the laser tool, the sensor's pose at the
-    start (^B_S T, nominal tool), the look-ahead (mm), the laser window, the grid."""
+    """The pass: the nominal laser path (``weld``: the cell's line, or a job's lines with
+    their corners rounded), the laser tool, the sensor's pose at the start (^B_S T, nominal
+    tool; the tool keeps its orientation along the pass), the look-ahead (mm), the laser
+    window, the grid."""
 
-    weld: NominalWeld
+    weld: NominalWeld | PolylineWeld
     laser_tool: Loc
     sensor2base: FloatArray
     look_ahead_mm: float
@@ -178,14 +199,19 @@ class PassGeometry:
     laser_to_mm: float
     times: FloatArray  # (N,) s since the move's start, one per cycle
 
-    @property
-    def frame(self) -> FloatArray:
-        """(3, 3) columns: along the seam, across it (lateral), the third (height)."""
-        d = self.weld.direction
+    def frames_at(self, s: FloatArray) -> FloatArray:
+        """(M, 3, 3) at arc lengths ``s`` (M,), columns: along the path (its tangent), across
+        it (lateral), the third (height)."""
+        d = _tangents(self.weld, np.asarray(s, dtype=np.float64))
         up = self.sensor2base[:3, 2]
         lat = np.cross(up, d)
-        lat /= np.linalg.norm(lat)
-        return np.column_stack([d, lat, np.cross(d, lat)])
+        lat /= np.linalg.norm(lat, axis=1)[:, None]
+        out: FloatArray = np.stack([d, lat, np.cross(d, lat)], axis=-1)
+        return out
+
+    def frames(self) -> FloatArray:
+        """(N, 3, 3): :meth:`frames_at` the laser's nominal place at each cycle."""
+        return self.frames_at(self.weld.s_at(self.times))
 
     def window(self) -> FloatArray:
         """(N,) bool: the cycles with the laser on."""
@@ -194,24 +220,49 @@ class PassGeometry:
 
 
 @dataclass(frozen=True)
-class LinePass:
-    """A job's path to learn: the laser from ``start`` to ``end`` (3,) (base frame, mm) with
-    the tool's ``angles`` (3,) (deg) at ``speed_mm_s``."""
+class PathPass:
+    """A job's path to learn: the laser through ``vertices`` (K, 3) (base frame, mm) with the
+    tool's ``angles`` (3,) (deg) throughout, at ``speed_mm_s``; ``arcs`` (K - 1, 3) the
+    middle point of each segment that is an ``<arc>`` (NaN rows for lines; None: lines
+    only). Corners between lines are rounded with R 32 mm, an arc is tangent to what is
+    beside it (:class:`~welding.tracking.PolylineWeld`)."""
 
-    start: FloatArray
-    end: FloatArray
+    vertices: FloatArray
     angles: FloatArray
     speed_mm_s: float
+    name: str = ""
+    arcs: FloatArray | None = None
+
+    @property
+    def start(self) -> FloatArray:
+        out: FloatArray = self.vertices[0]
+        return out
+
+    @property
+    def straight(self) -> bool:
+        """One line."""
+        return len(self.vertices) == 2 and (self.arcs is None or bool(np.isnan(self.arcs).all()))
+
+    def weld(self) -> PolylineWeld:
+        """The path itself at its speed (CornerError when it cannot be rounded or kinks)."""
+        return PolylineWeld(self.vertices, self.angles, self.speed_mm_s, arcs=self.arcs)
 
     @property
     def length_mm(self) -> float:
-        return float(np.linalg.norm(self.end - self.start))
+        """The laser's path length (mm), corners rounded."""
+        if self.straight:
+            return float(np.linalg.norm(self.vertices[1] - self.vertices[0]))
+        return self.weld().length_mm
 
     @property
     def key(self) -> str:
-        """What a table learned on this pass is for (:attr:`IlcTable.key`): 0.01 mm, deg."""
-        nums = [*self.start, *self.end, *self.angles, self.speed_mm_s]
-        return "line " + " ".join(f"{v:.2f}" for v in nums)
+        """What a table learned on this pass is for (:attr:`IlcTable.key`): every vertex (and
+        every arc's middle point), the angles and the speed, 0.01 mm, deg (``line …`` for one
+        line, ``path …``)."""
+        mids = np.zeros(0) if self.arcs is None else self.arcs[~np.isnan(self.arcs[:, 0])].ravel()
+        nums = [*self.vertices.ravel(), *mids, *self.angles, self.speed_mm_s]
+        kind = "line" if self.straight else "path"
+        return f"{kind} " + " ".join(f"{v:.2f}" for v in nums)
 
 
 def job_path(job: J.Job, name: str | None) -> J.Path:
@@ -227,49 +278,69 @@ def job_path(job: J.Job, name: str | None) -> J.Path:
 
 def check_learnable(path: J.Path) -> None:
     """ValueError, one line naming what is not supported, when the ILC cannot learn ``path``:
-    its lifted model is of one straight line with one tool (arcs and corners need a model
-    along the path, docs/ILC.md "Not done"). Needs no tool table: checked before a cell is
-    built or control taken."""
-    kinds = [type(seg).__name__.lower() for seg in path.segments]
-    if kinds != ["line"]:
-        unsupported = ["<arc> segments"] if "arc" in kinds else []
-        if len(kinds) > 1:
-            unsupported.append(f"{len(kinds)} segments (the corners between them)")
-        raise ValueError(
-            f"path {path.name!r} ({' '.join(f'<{k}>' for k in kinds) or 'no segment'}): the"
-            f" ILC learns one straight <line>; not supported: {' and '.join(unsupported) or '-'}"
-        )
-    end = path.segments[0].to
-    if end.tool != path.start.tool:
-        raise ValueError(
-            f"path {path.name!r} changes tool ({path.start.tool} to {end.tool}): the ILC learns"
-            " a path of one tool"
-        )
+    it learns ``<line>`` and ``<arc>`` segments (the corners between lines rounded as a
+    tracked path's, :class:`~welding.tracking.PolylineWeld`) with one tool. Needs no tool
+    table: checked before a cell is built or control taken."""
+    if not path.segments:
+        raise ValueError(f"path {path.name!r} has no segment: no pass to learn")
+    for loc in path.locations():
+        if loc.tool != path.start.tool:
+            raise ValueError(
+                f"path {path.name!r} changes tool ({path.start.tool} to {loc.tool}): the ILC"
+                " learns a path of one tool"
+            )
 
 
-def line_pass(path: J.Path, tables: Tables) -> LinePass:
-    """A job's ``path`` as a :class:`LinePass`, its tool and frame from ``tables``;
-    ValueError when it is not one straight line with one tool and orientation
-    (:func:`check_learnable`; the pass the ILC learns: its lifted model is of one line)."""
+def path_pass(path: J.Path, tables: Tables) -> PathPass:
+    """A job's ``path`` as a :class:`PathPass`, its tool and frame from ``tables``;
+    ValueError when it changes tool or orientation (:func:`check_learnable`) or cannot be
+    followed (:class:`~welding.tracking.CornerError`: a corner whose rounding does not fit, an
+    arc not tangent to what is beside it; naming the job's point)."""
     check_learnable(path)
-    end = path.segments[0].to
-    poses = [
-        location_to_transform(np.array(tables.frame(loc.frame).location, dtype=np.float64))
-        @ location_to_transform(np.array(loc.values, dtype=np.float64))
-        for loc in (path.start, end)
+
+    def pose(loc: J.Location) -> FloatArray:
+        out: FloatArray = location_to_transform(
+            np.array(tables.frame(loc.frame).location, dtype=np.float64)
+        ) @ location_to_transform(np.array(loc.values, dtype=np.float64))
+        return out
+
+    first = pose(path.start)
+    locations = list(path.locations())
+    for k, loc in enumerate(locations[1:], 2):
+        _check_orientation(path.name, first, pose(loc), k, len(locations) == 2)
+    vertices = [first[:3, 3]] + [pose(seg.to)[:3, 3] for seg in path.segments]
+    arcs = [
+        pose(seg.mid)[:3, 3] if isinstance(seg, J.Arc) else np.full(3, np.nan)
+        for seg in path.segments
     ]
-    turn = poses[0][:3, :3].T @ poses[1][:3, :3]
+    angles = transform_to_location(first)[3:]
+    one = PathPass(
+        np.array(vertices),
+        np.asarray(angles),
+        path.velocity,
+        path.name,
+        np.array(arcs) if any(isinstance(seg, J.Arc) for seg in path.segments) else None,
+    )
+    try:
+        length = one.length_mm
+    except CornerError as exc:
+        raise ValueError(f"path {path.name!r}, point {exc.corner + 1}: {exc}") from None
+    if length < 1.0:
+        raise ValueError(f"path {path.name!r}: {length:.2f} mm is no pass to learn")
+    return one
+
+
+def _check_orientation(name: str, first: FloatArray, pose: FloatArray, k: int, one: bool) -> None:
+    """ValueError unless ``pose`` (point ``k`` of path ``name``) keeps ``first``'s
+    orientation."""
+    turn = first[:3, :3].T @ pose[:3, :3]
     angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(turn) - 1.0) / 2.0))))
     if angle > 0.01:
+        where = "along it" if one else f"to point {k}"
         raise ValueError(
-            f"path {path.name!r}: the tool turns {angle:.2f} deg along it; the ILC learns a path"
-            " that keeps the orientation"
+            f"path {name!r}: the tool turns {angle:.2f} deg {where}; the ILC learns a"
+            " path that keeps the orientation"
         )
-    angles = transform_to_location(poses[0])[3:]
-    line = LinePass(poses[0][:3, 3], poses[1][:3, 3], np.asarray(angles), path.velocity)
-    if line.length_mm < 1.0:
-        raise ValueError(f"path {path.name!r}: {line.length_mm:.2f} mm is no pass to learn")
-    return line
 
 
 Judge = Callable[[TrackOutcome, PassGeometry], tuple[float, float, FloatArray]]
@@ -287,7 +358,7 @@ def run_ilc(
     save: Callable[[IlcTable], None] | None = None,
     progress: Callable[[IlcTrial], None] | None = None,
     record: Callable[[], None] | None = None,
-    line: LinePass | None = None,
+    job_pass: PathPass | None = None,
     real_time: bool = False,
 ) -> tuple[list[IlcTrial], Convergence, IlcTable]:
     """Run the trials on the robot of ``client`` (its sensor's trigger address
@@ -296,8 +367,8 @@ def run_ilc(
     ``trials`` passes, each judged by ``judge(outcome, geometry)`` -> (truth max, truth rms,
     profile) after ``record()`` was called before it; the table is handed to ``save`` after
     every trial. With ``track``, one tracked weld with the learned table follows (none after
-    a stopped trial), the last of the trials returned. ``line``: a job's path (its speed and
-    length, not ``settings``'); without it, the cell's pass from where the arm stands.
+    a stopped trial), the last of the trials returned. ``job_pass``: a job's path (its speed
+    and length, not ``settings``'); without it, the cell's pass from where the arm stands.
     ``real_time``: the robot runs on the wall clock (:class:`RobotLink`). A trial whose
     measurement cannot be trusted (:func:`trial_trust`) is returned with the reason and not
     learned from: the next repeats its table."""
@@ -306,23 +377,29 @@ def run_ilc(
     link = RobotLink(client, sensor_endpoint, period=period, real_time=real_time)
     info = client.call(CommandId.HELLO, wire.VERSION_MAJOR, wire.VERSION_MINOR, "ilc")
     model = get_model(str(info[3]))
-    geometry = _geometry(link, laser_tool, sensor_tool, settings, line)
-    key = "" if line is None else line.key
+    geometry = _geometry(link, laser_tool, sensor_tool, settings, job_pass)
+    key = "" if job_pass is None else job_pass.key
     speed = geometry.weld.speed_mm_s
     n = len(geometry.times)
     q_start = client.call(CommandId.HEREJ)[0]
     assert isinstance(q_start, Joints)
     laser2flange = location_to_transform(np.array(laser_tool, dtype=np.float64))
     sensor2flange = location_to_transform(np.array(sensor_tool, dtype=np.float64))
-    q_mid = _joints_at(model, geometry, laser2flange, np.array(q_start.values), 0.5)
+    q_path = _joints_along(model, geometry, laser2flange, np.array(q_start.values))
     params = settings.params.with_payload(settings.model_payload_kg)
     side = "link" if settings.source == "seam" else "motor"
-    G = lifted_model(
-        params, model, q_mid, laser2flange, n, period, side=side, latency_s=settings.latency_s
+    G = lifted_model_along(
+        params,
+        model,
+        q_path,
+        laser2flange,
+        period,
+        side=side,
+        latency_s=settings.latency_s,
+        block=settings.model_block_cycles or None,
     )
-    R = geometry.frame
-    big_r = np.kron(np.eye(n), R)
-    Gp = big_r.T @ G @ big_r  # in (along, lateral, height) per cycle
+    R = geometry.frames()  # (N, 3, 3): each cycle's (along, lateral, height)
+    Gp = _in_frames(G, R)
     # learned over the whole pass (the lead-in onto the seam matters for the weld's start),
     # from the cycles where the error was measured
     mask = np.ones(3 * n)
@@ -342,7 +419,7 @@ def run_ilc(
         done = table.trials
     client.take_control(watchdog=LEASE_S)
     client.call(CommandId.ENABLE_POWER)
-    if line is not None:
+    if job_pass is not None:
         _back_to_start(client, geometry)  # the cell's pass starts where the arm stands
     if table is None:
         taught = _teach(link, geometry, settings)
@@ -379,15 +456,14 @@ def run_ilc(
                 _along(geometry, seam_of.offsets),
                 settings.latency_s,
                 _lever_error(
-                    model, params, geometry, reference + u, laser2flange, sensor2flange, q_mid
+                    model, params, geometry, reference + u, laser2flange, sensor2flange, q_path[0]
                 ),
             )
             if settings.source == "seam"
             else _joint_error(model, geometry, outcome, reference, log_rows)
         )
-        read = np.any(e_base != 0.0, axis=1)
-        e_path = e_base @ R  # rows in (along, lateral, height)
-        seen = mask * np.repeat(read, 3)
+        e_path = np.einsum("kc,kca->ka", e_base, R)  # rows in (along, lateral, height)
+        seen = mask * np.repeat(np.any(e_base != 0.0, axis=1), 3)
         window = np.repeat(geometry.window(), 3) * seen
         measured = float(np.abs(e_path.ravel() * window).max()) if n else math.nan
         trial = IlcTrial(
@@ -413,9 +489,9 @@ def run_ilc(
         seen_error = _seen_error(
             geometry, outcome, taught, _along(geometry, seam_of.offsets), settings.latency_s
         )
-        up = (u @ R).ravel()
+        up = np.einsum("kc,kca->ka", u, R).ravel()
         up = Q @ (up + L @ (e_path.ravel() * seen))
-        u = up.reshape(n, 3) @ R.T
+        u = np.einsum("ka,kca->kc", up.reshape(n, 3), R)
         learned = IlcTable(period, speed, u, taught, settings.source, first + j, key, seen_error)
         if save is not None:
             save(learned)
@@ -571,7 +647,7 @@ def start_from_joint_log(
         return None
     v = g.weld.speed_mm_s
     laser = laser_path(model, joint_log[:, 1:], g.laser_tool)
-    s_meas = (laser - g.weld.start) @ g.weld.direction
+    s_meas = g.weld.project(laser)
     ramp = v / g.weld.accel_mm_s2
     found = []
     for m in range(START_CYCLES):
@@ -649,9 +725,9 @@ def _tracked_plan(
     """A tracked weld with the learned table: the tracker follows the workpiece's deviation
     from the seam as the sensor saw it in the last trial learned from (``seen_error`` off
     the taught one, :func:`_seen_error`; the taught seam where none was:
-    :attr:`Tracker.expected`; a wide fit: a placement error is smooth, the arm's
-    fast error is the table's), from the sensor's readings placed on the sensor's reference
-    pose; the correction sent is the taught seam, that deviation and the table."""
+    :attr:`Tracker.expected`; a wide fit: a placement error is smooth, the arm's fast error
+    is the table's), from the sensor's readings placed on the sensor's reference pose; the
+    correction sent is the taught seam, that deviation and the table."""
     tracker = Tracker(
         g.weld,
         g.look_ahead_mm,
@@ -677,44 +753,85 @@ def _geometry(
     laser_tool: Loc,
     sensor_tool: Loc,
     settings: IlcSettings,
-    line: LinePass | None = None,
+    job_pass: PathPass | None = None,
 ) -> PassGeometry:
     """The ``track`` pass from where the arm stands (as :func:`welding.emulate._track_on`),
-    or a job's ``line``: the motion starts the sensor's look-ahead before the path's start,
-    so the sensor has seen the seam where the laser starts."""
-    if line is None:
+    or a job's path: the motion starts the sensor's look-ahead before the path's start
+    (along its first line), so the sensor has seen the seam where the laser starts, and runs
+    out along its last line. ValueError when the sensor would not see the path through one
+    of its corners (:func:`~welding.tracking.check_sensor_view`, naming the job's point)."""
+    if job_pass is None:
         start = np.array(link.here(laser_tool))
     else:
-        start = np.concatenate([line.start, line.angles])
+        start = np.concatenate([job_pass.start, job_pass.angles])
     laser2flange = location_to_transform(np.array(laser_tool, dtype=np.float64))
     sensor2laser = np.linalg.inv(laser2flange) @ location_to_transform(
         np.array(sensor_tool, dtype=np.float64)
     )
     s2b = location_to_transform(start) @ sensor2laser
-    direction = s2b[:3, 0] if line is None else (line.end - line.start) / line.length_mm
+    if job_pass is None:
+        direction = s2b[:3, 0]
+    elif job_pass.straight:
+        v = job_pass.vertices
+        direction = (v[1] - v[0]) / np.linalg.norm(v[1] - v[0])
+    else:
+        direction = job_pass.weld().direction
     look_ahead = float((s2b[:3, 3] - start[:3]) @ direction)
     weld_mm, speed = settings.weld_mm, settings.speed_mm_s
-    if line is not None:
+    if job_pass is not None:
         if look_ahead < 10.0:
             raise ValueError(
                 f"the sensor is {look_ahead:.1f} mm ahead of the laser along the path: the"
                 " ILC learns a path the sensor looks ahead on (10 mm at least)"
             )
-        weld_mm, speed = line.length_mm, line.speed_mm_s
+        weld_mm, speed = job_pass.length_mm, job_pass.speed_mm_s
         before = look_ahead + settings.run_up_mm
-        start = np.concatenate([line.start - before * direction, line.angles])
+        start = np.concatenate([job_pass.start - before * direction, job_pass.angles])
         s2b = location_to_transform(start) @ sensor2laser
     ramp_mm = speed**2 / (2.0 * 2500.0)
     laser_from = look_ahead + settings.run_up_mm
-    weld = NominalWeld(
-        start=start[:3],
-        direction=direction,
-        angles=start[3:],
-        length_mm=laser_from + weld_mm + ramp_mm + 1.0,
-        speed_mm_s=speed,
-    )
+    weld: NominalWeld | PolylineWeld
+    if job_pass is None or job_pass.straight:
+        weld = NominalWeld(
+            start=start[:3],
+            direction=direction,
+            angles=start[3:],
+            length_mm=laser_from + weld_mm + ramp_mm + 1.0,
+            speed_mm_s=speed,
+        )
+    else:
+        weld = _polyline(job_pass, start[:3], ramp_mm + 1.0, s2b)
     times, _ = weld.timed_path(link.period)
     return PassGeometry(weld, laser_tool, s2b, look_ahead, laser_from, laser_from + weld_mm, times)
+
+
+def _polyline(
+    job_pass: PathPass, start: FloatArray, run_out_mm: float, sensor2base: FloatArray
+) -> PolylineWeld:
+    """The pass of a job's path: from ``start`` onto the path along its first tangent,
+    through it, ``run_out_mm`` on along its last; the sensor (^B_S T at the start) must see
+    the path all along."""
+    own = job_pass.weld()
+    h = min(1e-3, own.length_mm / 4)
+    last = own.point(own.length_mm) - own.point(own.length_mm - h)
+    last /= np.linalg.norm(last)
+    v = job_pass.vertices
+    arcs = None
+    if job_pass.arcs is not None:
+        none = np.full((1, 3), np.nan)
+        arcs = np.vstack([none, job_pass.arcs, none])
+    weld = PolylineWeld(
+        np.vstack([start, v, v[-1] + run_out_mm * last]),
+        job_pass.angles,
+        job_pass.speed_mm_s,
+        arcs=arcs,
+    )
+    try:
+        check_sensor_view(weld, sensor2base[:3, 3] - start, sensor2base[:3, 0], sensor2base[:3, 1])
+    except CornerError as exc:  # vertex k of the pass is the job's point k (the start is 0)
+        point = min(max(exc.corner, 1), len(v))
+        raise ValueError(f"path {job_pass.name!r}, point {point} of the path: {exc}") from None
+    return weld
 
 
 def _back_to_start(client: FramedClient, g: PassGeometry) -> None:
@@ -730,15 +847,40 @@ def _back_to_start(client: FramedClient, g: PassGeometry) -> None:
     client.call(CommandId.WAIT_END_MOVE, 60.0, timeout=120.0)
 
 
-def _joints_at(
-    model: RobotModel, g: PassGeometry, laser2flange: FloatArray, near: FloatArray, fraction: float
+def _joints_along(
+    model: RobotModel, g: PassGeometry, laser2flange: FloatArray, near: FloatArray
 ) -> FloatArray:
-    """The joints (6,) with the laser at ``fraction`` of the nominal pass."""
-    p = g.weld.point(fraction * g.weld.length_mm)
-    loc = np.concatenate([p, g.weld.angles])
-    flange = location_to_transform(loc) @ np.linalg.inv(laser2flange)
-    q: FloatArray = model.ik(flange, near=near)[0].joints_deg
-    return q
+    """The joints (N, 6) with the laser on the nominal pass at each cycle (each solution the
+    one nearest the last, the first nearest ``near``)."""
+    pts = g.weld.point(g.weld.s_at(g.times))
+    tool2flange = np.linalg.inv(laser2flange)
+    out = np.empty((len(pts), 6))
+    q = near
+    for k, p in enumerate(pts):
+        flange = location_to_transform(np.concatenate([p, g.weld.angles])) @ tool2flange
+        q = model.ik(flange, near=q)[0].joints_deg
+        out[k] = q
+    return out
+
+
+def _in_frames(G: FloatArray, R: FloatArray) -> FloatArray:
+    """G (3N, 3N) of base-frame translations in each cycle's frame ``R`` (N, 3, 3) instead:
+    Rᵀ G R with R block-diagonal."""
+    n = len(R)
+    G4 = G.reshape(n, 3, n, 3)
+    out: FloatArray = np.einsum("kca,kcmd,mdb->kamb", R, G4, R, optimize=True).reshape(G.shape)
+    return out
+
+
+def _tangents(weld: WeldPath, s: FloatArray) -> FloatArray:
+    """Unit tangents (M, 3) of the nominal path at arc lengths ``s`` (M,): a line's
+    direction, else a central difference over 0.01 mm."""
+    if isinstance(weld, NominalWeld):
+        return np.tile(weld.direction, (len(s), 1))
+    h = 5e-3
+    d = weld.point(s + h) - weld.point(s - h)
+    out: FloatArray = d / np.linalg.norm(d, axis=1)[:, None]
+    return out
 
 
 def _lever_error(
@@ -761,6 +903,16 @@ def _lever_error(
         q.append(near)
     period = float(g.times[1] - g.times[0])
     return lever_error(params, model, np.array([q[0], *q]), laser2flange, sensor2flange, period)
+
+
+def _sampled(seam: SeamModel) -> FloatArray:
+    """``seam``'s fit, rows (arc length, offset (3,)) every 0.5 mm where it is measured."""
+    rows = []
+    if seam.count:
+        for s in np.arange(math.ceil(seam.first), seam.furthest, 0.5):
+            with contextlib.suppress(TrackingError):
+                rows.append([s, *seam.offset_at(float(s))])
+    return np.array(rows, dtype=np.float64).reshape(-1, 4)
 
 
 def _feedforward(times: FloatArray, table: FloatArray) -> Callable[[float], FloatArray]:
@@ -791,13 +943,7 @@ def _along(
 def _teach(link: RobotLink, g: PassGeometry, settings: IlcSettings) -> FloatArray:
     """A dry pass at the teaching speed with the sensor measuring the seam (the laser off):
     the seam taught, rows (arc length, offset (3,)) every 0.5 mm where it was measured."""
-    slow = NominalWeld(
-        start=g.weld.start,
-        direction=g.weld.direction,
-        angles=g.weld.angles,
-        length_mm=g.weld.length_mm,
-        speed_mm_s=settings.teach_speed_mm_s,
-    )
+    slow = replace(g.weld, speed_mm_s=settings.teach_speed_mm_s)
     tracker = Tracker(slow, g.look_ahead_mm)
     plan = TrackedWeld(
         tracker, g.laser_tool, g.laser_from_mm, g.laser_to_mm, settings.rate_hz,
@@ -808,22 +954,42 @@ def _teach(link: RobotLink, g: PassGeometry, settings: IlcSettings) -> FloatArra
         raise TrackingError(f"teaching the seam failed: {outcome.stopped}")
     seam = SeamModel(slow)
     seam.add(_readings(outcome)[:, 11:14])
-    rows = _sampled(seam)
-    if len(rows) > 2:
-        rows = np.vstack([np.array(_lead_in(rows), dtype=np.float64).reshape(-1, 4), rows])
+    rows = []
+    for s in np.arange(math.ceil(seam.first), seam.furthest, 0.5):
+        with contextlib.suppress(TrackingError):
+            rows.append([s, *seam.offset_at(float(s))])
+    _check_taught(g, np.array([r[0] for r in rows]))
+    rows = _lead_in(np.array(rows)) + rows
     log.info("seam taught from %d points over %.0f..%.0f mm", seam.count, seam.first,
              seam.furthest)  # fmt: skip
-    return rows
-
-
-def _sampled(seam: SeamModel) -> FloatArray:
-    """``seam``'s fit, rows (arc length, offset (3,)) every 0.5 mm where it is measured."""
-    rows = []
-    if seam.count:
-        for s in np.arange(math.ceil(seam.first), seam.furthest, 0.5):
-            with contextlib.suppress(TrackingError):
-                rows.append([s, *seam.offset_at(float(s))])
     return np.array(rows, dtype=np.float64).reshape(-1, 4)
+
+
+#: The taught seam may miss this much (mm) of the laser's part at its start (the rows begin
+#: on the next whole mm after the first reading) or inside it (two rows 0.5 mm apart).
+TAUGHT_GAP_MM = 2.0
+
+
+class SeamNotTaught(ValueError):
+    """The teaching pass did not see the seam all along the laser's part of the pass."""
+
+
+def _check_taught(g: PassGeometry, s: FloatArray) -> None:
+    """:class:`SeamNotTaught`, one line, unless the taught seam's rows (arc lengths ``s``)
+    cover the laser's part of the pass: the sensor lost the seam somewhere (the pass keeps
+    the tool's orientation, so a seam turning away from the sensor's x axis leaves its
+    field). Names the first stretch not seen."""
+    inside = s[(s >= g.laser_from_mm) & (s <= g.laser_to_mm)]
+    pts = np.concatenate([[g.laser_from_mm], inside, [g.laser_to_mm]])
+    holes = np.nonzero(np.diff(pts) > TAUGHT_GAP_MM)[0]
+    if len(holes):
+        i = int(holes[0])
+        raise SeamNotTaught(
+            f"the sensor did not see the seam over {pts[i] - g.laser_from_mm:.1f} to"
+            f" {pts[i + 1] - g.laser_from_mm:.1f} mm of the weld while teaching it: the pass"
+            " keeps the tool's orientation, so the seam must stay within the sensor's field"
+            f" {g.look_ahead_mm:.0f} mm ahead of the laser"
+        )
 
 
 #: The reference leaves the seam's start tangentially over this (mm) before the first point
@@ -844,33 +1010,6 @@ def _lead_in(rows: FloatArray) -> list[list[float]]:
     return out
 
 
-def _sensor_deviation(
-    g: PassGeometry,
-    outcome: TrackOutcome,
-    offsets: Callable[[FloatArray], FloatArray],
-    reference: Callable[[FloatArray], FloatArray],
-    latency_s: float,
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """What the sensor's ^S_G T says of the tool: (exposure times (M,) s since the move's
-    start, the seam's arc lengths the sensor saw (M,), actual − reference of the laser (M, 3),
-    base frame), by exposure. It read the seam ``offsets`` (taught) against what it would
-    read with the laser on its ``reference`` (offsets (M, 3) from the nominal line at times
-    (M,) since the move's start; the tool keeps its orientation, so the laser moved as the
-    sensor did). ``latency_s``: the joint log's lag; a seam point's time (t_sync = trigger +
-    ΔT, plus the extra lag of an exposure started late [SY-3.8]) is where the *measured*
-    joints saw the image, the exposure itself was that much earlier."""
-    rows = _readings(outcome)
-    rows = rows[rows[:, 2] >= outcome.t0]
-    rows = rows[np.argsort(rows[:, 2], kind="stable")]  # by exposure, for the interpolation
-    t = rows[:, 2] - latency_s - outcome.t0  # the exposure, robot clock, since the start
-    s_l = g.weld.s_at(t)
-    s_s = s_l + g.look_ahead_mm
-    a = g.sensor2base[:3, 3] - g.weld.start  # laser -> sensor, base frame
-    expected = g.weld.point(s_s) + offsets(s_s) - g.weld.point(s_l) - reference(t) - a
-    measured = rows[:, 5:8] @ g.sensor2base[:3, :3].T
-    return t, s_s, expected - measured
-
-
 def _seam_error(
     g: PassGeometry,
     outcome: TrackOutcome,
@@ -879,19 +1018,74 @@ def _seam_error(
     latency_s: float,
     lever: FloatArray,
 ) -> FloatArray:
-    """(N, 3) reference − actual of the laser at each cycle, base frame, from the sensor's
-    readings (:func:`_sensor_deviation`); zero where it read nothing. The sensor saw where
-    it went, not the laser: ``lever`` (N, 3), the model's laser error less its sensor's
-    (:func:`_lever_error`), is what the laser went further."""
-    t, _, deviation = _sensor_deviation(g, outcome, offsets, reference, latency_s)
+    """(N, 3) reference − actual of the laser, base frame, from the sensor's ^S_G T: what it
+    read of the seam ``offsets`` (taught) against what it would read with the laser on its
+    ``reference`` (offsets (M, 3) from the nominal path at times (M,) since the move's
+    start; the tool keeps its orientation, so the laser moved as the sensor did); zero
+    where it read nothing.
+
+    The sensor reads the seam where it crosses its laser plane: a tool off by d moves that
+    reading by P d, P the projection onto the plane along the seam's tangent there (a
+    seam crossing the plane obliquely shows a move along the path as one across it). Along
+    the path the laser's own error is not seen; the laser is taken to be off across its
+    path (lateral, height at its cycle's frame) by what explains the reading. The sensor saw
+    where it went, not the laser: ``lever`` (N, 3), the model's laser error less its
+    sensor's (:func:`_lever_error`), is what the laser went further.
+    ``latency_s``: the joint log's lag; a seam point's time (t_sync = trigger + ΔT, plus the
+    extra lag of an exposure started late [SY-3.8]) is where the *measured* joints saw the
+    image, the exposure itself was that much earlier."""
     n = len(g.times)
+    reading = _sensor_reading(g, outcome, offsets, reference, latency_s)
+    if reading is None:
+        return np.zeros((n, 3))
+    t, s_l, _, tangent, deviation = reading
+    normal = g.sensor2base[:3, 0]
+    # P = I - t nᵀ / (t·n); the laser's error across its path that P maps onto the reading
+    frames = g.frames_at(s_l)[:, :, 1:]  # (M, 3, 2) lateral, height
+    along = (frames.transpose(0, 2, 1) @ normal)[:, None, :]  # (M, 1, 2) n·lateral, n·height
+    A = frames - tangent[:, :, None] * along / (tangent @ normal)[:, None, None]
+    AtA = np.einsum("mci,mcj->mij", A, A)
+    Atd = np.einsum("mci,mc->mi", A, deviation)
+    across = np.linalg.solve(AtA, Atd[..., None])[..., 0]  # (M, 2) lateral, height
+    actual = np.einsum("mci,mi->mc", frames, across)  # actual - reference, base frame
     out = np.zeros((n, 3))
-    if len(t) < 2:
-        return out
     inside = (g.times >= t.min()) & (g.times <= t.max())
     for c in range(3):
-        out[inside, c] = -np.interp(g.times[inside], t, deviation[:, c]) - lever[inside, c]
+        out[inside, c] = -np.interp(g.times[inside], t, actual[:, c]) - lever[inside, c]
     return out
+
+
+def _sensor_reading(
+    g: PassGeometry,
+    outcome: TrackOutcome,
+    offsets: Callable[[FloatArray], FloatArray],
+    reference: Callable[[FloatArray], FloatArray],
+    latency_s: float,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray] | None:
+    """The sensor's readings of the trial against the seam ``offsets`` it would read with the
+    laser on its ``reference`` (:func:`_seam_error`): (exposure times (M,) s since the move's
+    start, the laser's arc lengths (M,), the seam's where it crossed the laser plane (M,),
+    its tangents there (M, 3), expected − measured (M, 3), base frame), by exposure; None
+    with fewer than two readings."""
+    rows = _readings(outcome)
+    rows = rows[rows[:, 2] >= outcome.t0]
+    rows = rows[np.argsort(rows[:, 2], kind="stable")]  # by exposure, for the interpolation
+    if len(rows) < 2:
+        return None
+    t = rows[:, 2] - latency_s - outcome.t0  # the exposure, robot clock, since the start
+    s_l = g.weld.s_at(t)
+    a = g.sensor2base[:3, 3] - g.weld.point(0.0)  # laser -> sensor, base frame
+    sensor = g.weld.point(s_l) + reference(t) + a
+    normal = g.sensor2base[:3, 0]  # of the sensor's laser plane
+
+    def seam(s: FloatArray) -> FloatArray:
+        out: FloatArray = g.weld.point(s) + offsets(s)
+        return out
+
+    s_c, tangent = _crossing(seam, sensor, normal, s_l + g.look_ahead_mm)
+    expected = seam(s_c) - sensor
+    measured = rows[:, 5:8] @ g.sensor2base[:3, :3].T
+    return t, s_l, s_c, tangent, expected - measured  # P (actual - reference)
 
 
 def _seen_error(
@@ -902,13 +1096,16 @@ def _seen_error(
     latency_s: float,
 ) -> FloatArray:
     """Where a tracker placing the sensor's readings on its reference pose would see the
-    seam off the ``taught`` one (rows (arc length, offset (3,))) in this trial: the tool's
-    reference − actual where the sensor was (:func:`_sensor_deviation`), fitted as the
-    teaching's (rows (arc length, error (3,)) every 0.5 mm; empty when it read nothing)."""
-    offsets = OffsetWeld(g.weld, taught).offsets
-    _, s_s, deviation = _sensor_deviation(g, outcome, offsets, reference, latency_s)
-    seam = SeamModel(OffsetWeld(g.weld, taught))
-    seam.add(g.weld.point(s_s) + offsets(s_s) - deviation)
+    seam off the ``taught`` one (rows (arc length, offset (3,))) in this trial: the reading
+    less what the taught seam gives there (:func:`_sensor_reading`), fitted as the
+    teaching's (rows (arc length, error (3,)) every 0.5 mm; empty when it read too little)."""
+    on_taught = OffsetWeld(g.weld, taught)
+    reading = _sensor_reading(g, outcome, on_taught.offsets, reference, latency_s)
+    if reading is None:
+        return np.zeros((0, 4))
+    _, _, s_c, _, deviation = reading
+    seam = SeamModel(on_taught)
+    seam.add(on_taught.point(s_c) - deviation)
     return _sampled(seam)
 
 
@@ -919,6 +1116,28 @@ def _seen_seam(taught: FloatArray, error: FloatArray) -> FloatArray:
     for c in range(3):
         rows[:, 1 + c] += np.interp(rows[:, 0], error[:, 0], error[:, 1 + c])
     return rows
+
+
+#: Newton steps of :func:`_crossing` (from the look-ahead, a seam within the sensor's field
+#: converges in two or three).
+CROSSING_STEPS = 4
+
+
+def _crossing(
+    seam: Callable[[FloatArray], FloatArray], sensor: FloatArray, normal: FloatArray, s0: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Arc lengths (M,) where ``seam`` (points (M, 3) at arc lengths) crosses the laser plane
+    (``normal`` (3,)) of sensors at ``sensor`` (M, 3), from ``s0`` (M,), and the seam's unit
+    tangents (M, 3) there."""
+    h = 5e-3
+    s = np.asarray(s0, dtype=np.float64)
+    for _ in range(CROSSING_STEPS):
+        d = (seam(s + h) - seam(s - h)) / (2.0 * h)
+        f = (seam(s) - sensor) @ normal
+        s = s - f / np.maximum(d @ normal, 0.2)  # a seam at > 78° to the path is not seen
+    d = seam(s + h) - seam(s - h)
+    tangent: FloatArray = d / np.linalg.norm(d, axis=1)[:, None]
+    return s, tangent
 
 
 def _checked(

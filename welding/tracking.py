@@ -351,28 +351,37 @@ class CornerError(ValueError):
         self.corner = corner
 
 
+#: One primitive of a :class:`PolylineWeld`: kind (0 line, 1 arc), start s, and per kind the
+#: geometry (see :func:`_build`), its length and radius (an arc's; 0 for a line).
+Prim = tuple[int, float, FloatArray, FloatArray, FloatArray, float, float]
+#: An explicit arc meets the line or arc beside it tangentially to within this (deg): it is
+#: not rounded, so a kink would be one the arm and the tracker cannot follow.
+ARC_KINK_DEG = 0.5
+
+
 @dataclass(frozen=True)
 class PolylineWeld(WeldPath):
     """A nominal laser path through ``vertices`` (K, 3) mm, base frame, its corners rounded
     with ``radius_mm`` (tangent arcs: the path a seam tracker can follow at speed); law as
     :class:`NominalWeld`. Two vertices give the straight line of :class:`NominalWeld` with
-    the same arithmetic. Raises :class:`CornerError` for a corner whose rounding does not
-    fit between its neighbours."""
+    the same arithmetic. ``arcs`` (K - 1, 3): a point each segment's circular arc passes
+    through (a job's ``<arc>``: from its vertex through that point to the next), NaN rows
+    for lines; an arc must be tangent to what is beside it. Raises :class:`CornerError` for
+    a corner whose rounding does not fit between its neighbours, or a kink at an arc."""
 
     vertices: FloatArray
     angles: FloatArray
     speed_mm_s: float
     accel_mm_s2: float = 2500.0
     radius_mm: float = CORNER_RADIUS_MM
+    arcs: FloatArray | None = None
     length_mm: float = field(init=False)
-    #: primitives: kind (0 line, 1 arc), start s, and per kind the geometry (see _build)
-    _prims: tuple[tuple[int, float, FloatArray, FloatArray, FloatArray, float], ...] = field(
-        init=False, repr=False
-    )
+    _prims: tuple[Prim, ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        prims = _build(np.asarray(self.vertices, dtype=np.float64), self.radius_mm)
-        _kind, s0, _, _, _, length = prims[-1]
+        arcs = None if self.arcs is None else np.asarray(self.arcs, dtype=np.float64)
+        prims = _build(np.asarray(self.vertices, dtype=np.float64), self.radius_mm, arcs)
+        _kind, s0, _, _, _, length, _r = prims[-1]
         object.__setattr__(self, "_prims", prims)
         object.__setattr__(self, "length_mm", s0 + length)
         self._check_law()
@@ -383,8 +392,9 @@ class PolylineWeld(WeldPath):
 
     @property
     def direction(self) -> FloatArray:
-        """Direction (3,) of the first segment."""
-        return self._prims[0][3]
+        """Direction (3,) of the path at its start."""
+        kind, _s0, _a, b, c, _length, _r = self._prims[0]
+        return b if kind == 0 else c
 
     def point(self, s: FloatArray | float) -> FloatArray:
         """Nominal laser points (..., 3) at arc lengths ``s`` (the end segments extended)."""
@@ -392,7 +402,7 @@ class PolylineWeld(WeldPath):
         starts = np.array([p[1] for p in self._prims])
         idx = np.clip(np.searchsorted(starts, ss, side="right") - 1, 0, len(starts) - 1)
         out = np.empty((*ss.shape, 3))
-        for k, (kind, s0, a, b, c, _length) in enumerate(self._prims):
+        for k, (kind, s0, a, b, c, _length, r) in enumerate(self._prims):
             m = idx == k
             if not np.any(m):
                 continue
@@ -400,8 +410,7 @@ class PolylineWeld(WeldPath):
             if kind == 0:  # line: a + u·b
                 out[m] = a + u[..., None] * b
             else:  # arc: centre a, start radius direction -n = b, start tangent c
-                th = u / self.radius_mm
-                r = self.radius_mm
+                th = u / r
                 out[m] = a + r * (np.cos(th)[..., None] * b + np.sin(th)[..., None] * c)
         return out
 
@@ -411,16 +420,18 @@ class PolylineWeld(WeldPath):
         best_s = np.zeros(len(p))
         best_d = np.full(len(p), np.inf)
         last = len(self._prims) - 1
-        for k, (kind, s0, a, b, c, length) in enumerate(self._prims):
+        for k, (kind, s0, a, b, c, length, r) in enumerate(self._prims):
             if kind == 0:
                 u = (p - a) @ b
                 u = np.clip(u, -np.inf if k == 0 else 0.0, np.inf if k == last else length)
                 q = a + u[:, None] * b
             else:
-                th = np.arctan2((p - a) @ c, (p - a) @ b)
-                u = np.clip(th, 0.0, length / self.radius_mm) * self.radius_mm
-                th = u / self.radius_mm
-                q = a + self.radius_mm * (np.cos(th)[:, None] * b + np.sin(th)[:, None] * c)
+                sweep = length / r
+                th = np.mod(np.arctan2((p - a) @ c, (p - a) @ b), 2.0 * math.pi)
+                # beyond the sweep: the nearer end (before the start is just under 2π)
+                th = np.where(th > sweep, np.where(th - sweep < 2.0 * math.pi - th, sweep, 0.0), th)
+                u = th * r
+                q = a + r * (np.cos(th)[:, None] * b + np.sin(th)[:, None] * c)
             d = np.linalg.norm(p - q, axis=1)
             better = d < best_d
             best_d = np.where(better, d, best_d)
@@ -428,30 +439,83 @@ class PolylineWeld(WeldPath):
         return best_s
 
     def corner_s(self) -> list[tuple[int, float]]:
-        """(vertex index, arc length of the middle of its rounding) of every corner."""
+        """(vertex index, arc length of the middle of its rounding) of every rounded corner
+        (between two lines)."""
         v = np.asarray(self.vertices, dtype=np.float64)
         d = np.diff(v, axis=0)
         d /= np.linalg.norm(d, axis=1)[:, None]
-        turns = [k for k in range(1, len(v) - 1) if float(d[k - 1] @ d[k]) < 1.0 - 1e-12]
+        line = [not _is_arc(self.arcs, k) for k in range(len(d))]
+        turns = [
+            k
+            for k in range(1, len(v) - 1)
+            if line[k - 1] and line[k] and float(d[k - 1] @ d[k]) < 1.0 - 1e-12
+        ]
         return [(k, float(self.project(v[k])[0])) for k in turns]
 
 
-def _build(
-    v: FloatArray, radius: float
-) -> tuple[tuple[int, float, FloatArray, FloatArray, FloatArray, float], ...]:
-    """Lines (0, s0, start, direction, -, length) and arcs (1, s0, centre, start radius
-    direction, start tangent, length) of the rounded polyline; collinear vertices pass."""
+def _is_arc(arcs: FloatArray | None, k: int) -> bool:
+    return arcs is not None and bool(np.all(np.isfinite(arcs[k])))
+
+
+def _circle(
+    k: int, p0: FloatArray, mid: FloatArray, p1: FloatArray
+) -> tuple[FloatArray, float, FloatArray, FloatArray, float]:
+    """The arc from ``p0`` through ``mid`` to ``p1``: (centre, radius, start radius direction,
+    start tangent, sweep rad); CornerError (at vertex ``k``) when the points are on a line."""
+    u, w = p1 - p0, mid - p0
+    n = np.cross(u, w)
+    nn = float(n @ n)
+    if nn < 1e-9 * float(u @ u) * float(w @ w) or nn == 0.0:
+        raise CornerError(k, "the arc's three points are on one line")
+    centre = p0 + (float(w @ w) * np.cross(n, u) + float(u @ u) * np.cross(w, n)) / (2.0 * nn)
+    r = float(np.linalg.norm(p0 - centre))
+    b = (p0 - centre) / r
+    t = np.cross(n / math.sqrt(nn), b)
+
+    def angle(p: FloatArray, tan: FloatArray) -> float:
+        return float(np.mod(math.atan2((p - centre) @ tan, (p - centre) @ b), 2.0 * math.pi))
+
+    if angle(mid, t) > angle(p1, t):
+        t = -t  # the other way round reaches the middle point first
+    return centre, r, b, t, angle(p1, t)
+
+
+def _build(v: FloatArray, radius: float, arcs: FloatArray | None = None) -> tuple[Prim, ...]:
+    """Lines (0, s0, start, direction, -, length, 0) and arcs (1, s0, centre, start radius
+    direction, start tangent, length, radius) of the rounded polyline with its explicit
+    ``arcs``; collinear vertices pass."""
     if v.ndim != 2 or v.shape[1] != 3 or len(v) < 2 or not np.all(np.isfinite(v)):
         raise ValueError("a polyline needs at least two finite vertices (K, 3)")
+    if arcs is not None and arcs.shape != (len(v) - 1, 3):
+        raise ValueError("arcs must be (K - 1, 3): a point per segment, NaN for a line")
     seg = np.diff(v, axis=0)
     lengths = np.linalg.norm(seg, axis=1)
     if np.any(lengths < 1e-9):
         raise CornerError(int(np.argmin(lengths)) + 1, "two consecutive vertices coincide")
     dirs = seg / lengths[:, None]
+    circles = {
+        k: _circle(k, v[k], arcs[k], v[k + 1])
+        for k in range(len(seg))
+        if arcs is not None and _is_arc(arcs, k)
+    }
+    first = list(dirs)  # each segment's tangent at its start and at its end
+    last = list(dirs)
+    for k, (_centre, _r, b, t, sweep) in circles.items():
+        first[k] = t
+        last[k] = -math.sin(sweep) * b + math.cos(sweep) * t
     turns = [0.0]  # tangent length of the rounding at each vertex
     for k in range(1, len(v) - 1):
-        cos_phi = float(np.clip(dirs[k - 1] @ dirs[k], -1.0, 1.0))
+        cos_phi = float(np.clip(last[k - 1] @ first[k], -1.0, 1.0))
         phi = math.acos(cos_phi)
+        if k - 1 in circles or k in circles:
+            if phi > math.radians(ARC_KINK_DEG):
+                raise CornerError(
+                    k,
+                    f"the path kinks by {math.degrees(phi):.1f}° there: an arc must be"
+                    " tangent to the line or arc beside it",
+                )
+            turns.append(0.0)
+            continue
         if phi > math.radians(179.0):
             raise CornerError(k, f"the path turns back on itself ({math.degrees(phi):.0f}°)")
         turns.append(radius * math.tan(phi / 2.0))
@@ -465,14 +529,19 @@ def _build(
                 f"the line from point {k} to point {k + 1} is {length:.1f} mm long: rounding"
                 f" its corners with R {radius:g} mm needs {need:.1f} mm",
             )
-    prims: list[tuple[int, float, FloatArray, FloatArray, FloatArray, float]] = []
+    prims: list[Prim] = []
     s = 0.0
     none = np.zeros(3)
     for k, length in enumerate(lengths):
+        if k in circles:
+            centre, r, b, t, sweep = circles[k]
+            prims.append((1, s, centre, b, t, r * sweep, r))
+            s += r * sweep
+            continue
         a = v[k] + turns[k] * dirs[k]
         run = float(length - turns[k] - turns[k + 1])
         if run > 0.0 or k == 0 or k == len(lengths) - 1:
-            prims.append((0, s, v[k] if k == 0 else a, dirs[k], none, run))
+            prims.append((0, s, v[k] if k == 0 else a, dirs[k], none, run, 0.0))
             s += run
         if k + 1 < len(lengths) and turns[k + 1] > 0.0:
             d0, d1 = dirs[k], dirs[k + 1]
@@ -480,7 +549,7 @@ def _build(
             n /= np.linalg.norm(n)
             phi = math.acos(float(np.clip(d0 @ d1, -1.0, 1.0)))
             start = v[k + 1] - turns[k + 1] * d0
-            prims.append((1, s, start + radius * n, -n, d0, radius * phi))
+            prims.append((1, s, start + radius * n, -n, d0, radius * phi, radius))
             s += radius * phi
     return tuple(prims)
 

@@ -927,7 +927,7 @@ class Console:
     def ilc(self, body: Any) -> None:
         """ILC trials (:func:`welding.ilc_emulate.run_ilc_emulated`) on a copy of the emulated
         cell with elastic joints, scored against its truth: only with ``--emulate``."""
-        from welding.ilc_loop import IlcSettings
+        from welding.ilc_loop import IlcSettings, SeamNotTaught
 
         b, seam = self._emulated_seam(body, "the ILC runs")
         trials = b.get("trials", 5)
@@ -945,7 +945,7 @@ class Console:
             act,
             partial(run_ilc, act, cancelled, str(seam), settings),
             cancelled,
-            expected=(LearningDiverges,),
+            expected=(LearningDiverges, SeamNotTaught),
             aborts=(IlcCancelled,),
         )
 
