@@ -848,11 +848,18 @@ def _back_to_start(client: FramedClient, g: PassGeometry) -> None:
 
 
 def _joints_along(
-    model: RobotModel, g: PassGeometry, laser2flange: FloatArray, near: FloatArray
+    model: RobotModel,
+    g: PassGeometry,
+    laser2flange: FloatArray,
+    near: FloatArray,
+    correction: FloatArray | None = None,
 ) -> FloatArray:
-    """The joints (N, 6) with the laser on the nominal pass at each cycle (each solution the
-    one nearest the last, the first nearest ``near``)."""
+    """The joints (N, 6) with the laser on the nominal pass at each cycle, moved by
+    ``correction`` (N, 3) where given (each solution the one nearest the last, the first
+    nearest ``near``)."""
     pts = g.weld.point(g.weld.s_at(g.times))
+    if correction is not None:
+        pts = pts + correction
     tool2flange = np.linalg.inv(laser2flange)
     out = np.empty((len(pts), 6))
     q = near
@@ -894,15 +901,9 @@ def _lever_error(
 ) -> FloatArray:
     """:func:`welding.ilc.lever_error` (N, 3) of the pass commanded with ``correction``
     (N, 3): the laser on the nominal path plus it at each cycle, the path's orientation."""
-    pose = location_to_transform(np.concatenate([np.zeros(3), g.weld.angles]))
-    to_flange = np.linalg.inv(laser2flange)
-    q = []
-    for p in g.weld.point(g.weld.s_at(g.times)) + correction:
-        pose[:3, 3] = p
-        near = model.ik(pose @ to_flange, near=near)[0].joints_deg
-        q.append(near)
+    q = _joints_along(model, g, laser2flange, near, correction)
     period = float(g.times[1] - g.times[0])
-    return lever_error(params, model, np.array([q[0], *q]), laser2flange, sensor2flange, period)
+    return lever_error(params, model, np.vstack([q[:1], q]), laser2flange, sensor2flange, period)
 
 
 def _sampled(seam: SeamModel) -> FloatArray:
@@ -954,15 +955,12 @@ def _teach(link: RobotLink, g: PassGeometry, settings: IlcSettings) -> FloatArra
         raise TrackingError(f"teaching the seam failed: {outcome.stopped}")
     seam = SeamModel(slow)
     seam.add(_readings(outcome)[:, 11:14])
-    rows = []
-    for s in np.arange(math.ceil(seam.first), seam.furthest, 0.5):
-        with contextlib.suppress(TrackingError):
-            rows.append([s, *seam.offset_at(float(s))])
-    _check_taught(g, np.array([r[0] for r in rows]))
-    rows = _lead_in(np.array(rows)) + rows
+    rows = _sampled(seam)
+    _check_taught(g, rows[:, 0])
+    lead_in = np.array(_lead_in(rows), dtype=np.float64).reshape(-1, 4)
     log.info("seam taught from %d points over %.0f..%.0f mm", seam.count, seam.first,
              seam.furthest)  # fmt: skip
-    return np.array(rows, dtype=np.float64).reshape(-1, 4)
+    return np.vstack([lead_in, rows])
 
 
 #: The taught seam may miss this much (mm) of the laser's part at its start (the rows begin
