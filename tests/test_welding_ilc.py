@@ -19,9 +19,16 @@ from kinematics import get_model, location_to_transform, transform_to_location
 from kinematics.dynamics import RX90B, link_inertia, simulate
 from welding import job as J
 from welding.__main__ import main
-from welding.ilc import IlcTable, check_convergence, learning_matrix, lifted_model, q_filter
+from welding.ilc import (
+    IlcTable,
+    check_convergence,
+    ilc_update,
+    learning_matrix,
+    lifted_model,
+    q_filter,
+)
 from welding.ilc_emulate import job_table, run_ilc_emulated
-from welding.ilc_loop import IlcSettings
+from welding.ilc_loop import AVERAGE_WINDOW, IlcSettings
 
 PERIOD = 0.004
 
@@ -63,7 +70,7 @@ def test_lifted_ilc_converges_exactly_where_the_criterion_says(
         u_star = np.linalg.solve(np.eye(n) - M, Q @ L @ r)
         last = np.linalg.norm(u - u_star)
         for _ in range(2000):
-            u = Q @ (u + L @ (r - G @ u))
+            u = ilc_update(u, r - G @ u, Q, L)
             now = np.linalg.norm(u - u_star)
             if conv.norm < 1.0:
                 assert now <= last * (1 + 1e-9) + 1e-12
@@ -72,10 +79,76 @@ def test_lifted_ilc_converges_exactly_where_the_criterion_says(
     else:
         bound = 1e3 * np.linalg.norm(Q @ L @ r)
         for _ in range(5000):
-            u = Q @ (u + L @ (r - G @ u))
+            u = ilc_update(u, r - G @ u, Q, L)
             if np.linalg.norm(u) > bound:
                 break
         assert np.linalg.norm(u) > bound
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    gain=st.floats(0.05, 1.9),
+    a=st.floats(0.2, 0.95),
+    model_error=st.floats(0.6, 1.4),
+    weights=st.lists(st.floats(0.05, 1.0), min_size=5, max_size=40),
+)
+def test_an_averaging_update_keeps_the_laws_fixed_point_and_its_monotony(
+    gain: float, a: float, model_error: float, weights: list[float]
+) -> None:
+    """Any weights in (0, 1] (the averaging table's): where Norrlöf's norm is below 1 the
+    correction approaches the law's own fixed point at every trial."""
+    n = 30
+    G = _first_order(n, a, 1.0 - a)
+    Q = q_filter(n, 40.0, PERIOD, channels=1)
+    L = learning_matrix(model_error * G, gain, np.ones(n), 1e-3)
+    M = Q @ (np.eye(n) - L @ G)
+    assume(check_convergence(Q, L, G, channels=1).norm < 0.999)
+    r = np.sin(np.linspace(0.0, 3.0, n))
+    u_star = np.linalg.solve(np.eye(n) - M, Q @ L @ r)
+    u = np.zeros(n)
+    last = np.linalg.norm(u - u_star)
+    for w in weights:
+        u = ilc_update(u, r - G @ u, Q, L, w)
+        now = np.linalg.norm(u - u_star)
+        assert now <= last * (1 + 1e-9) + 1e-12
+        last = now
+
+
+def test_averaging_the_updates_averages_the_sensors_trial_to_trial_error() -> None:
+    """A measurement whose error changes from trial to trial (noise, jitter): learned anew
+    every trial (weight 1) it stays in the correction at its full size; averaged from
+    trial 3 on (IlcSettings.average_from) it falls as 1/√trials, up to the window's 8. The
+    laser's error against the law's own fixed point (what no measurement error would
+    leave), rms over trials 31-40, exact model."""
+    n, sigma = 60, 0.01
+    G = _first_order(n, 0.8, 0.2)
+    Q = q_filter(n, 50.0, PERIOD, channels=1)
+    L = learning_matrix(G, 1.0, np.ones(n), 1e-6)
+    r = np.sin(np.linspace(0.0, 6.0, n))
+    u_star = np.linalg.solve(np.eye(n) - Q @ (np.eye(n) - L @ G), Q @ L @ r)
+    noise = np.random.default_rng(7).normal(0.0, sigma, (40, n))
+    spread = {}
+    for average_from in (0, 3):
+        plan = IlcSettings(average_from=average_from, trials=40)
+        u = np.zeros(n)
+        off = []
+        for j in range(1, 41):
+            off.append(float(np.sqrt(np.mean((G @ (u - u_star)) ** 2))))
+            u = ilc_update(u, r - G @ u + noise[j - 1], Q, L, plan.weight_after(j))
+        spread[average_from] = float(np.mean(off[-10:]))
+    assert spread[0] > 0.3 * sigma, spread  # learned anew: the noise through Q
+    assert spread[3] < spread[0] / 2, spread  # √8 ≈ 2.8 expected
+
+
+def test_the_averaging_weights() -> None:
+    plan = IlcSettings(average_from=3)
+    assert [plan.weight_after(j) for j in range(1, 7)] == [1.0, 1.0, 1 / 2, 1 / 3, 1 / 4, 1 / 5]
+    assert plan.weight_after(50) == 1 / AVERAGE_WINDOW
+    assert IlcSettings().weight_after(9) == 1.0
+    with pytest.raises(ValueError, match="average_from"):
+        IlcSettings(average_from=-1).check()
+    with pytest.raises(ValueError, match="weight"):
+        ilc_update(np.zeros(3), np.zeros(3), np.eye(3), np.eye(3), 0.0)
 
 
 def test_a_gain_on_the_exact_model_converges_up_to_two() -> None:

@@ -41,6 +41,7 @@ __all__ = [
     "IlcTable",
     "LearningDiverges",
     "check_convergence",
+    "ilc_update",
     "learning_matrix",
     "lever_error",
     "lifted_model",
@@ -215,6 +216,21 @@ def learning_matrix(G: FloatArray, gain: float, weights: FloatArray, beta: float
     GW = G.T * weights[None, :]
     A = GW @ G + beta * np.eye(G.shape[1])
     out: FloatArray = np.asarray(gain * np.linalg.solve(A, GW), dtype=np.float64)
+    return out
+
+
+def ilc_update(
+    u: FloatArray, e: FloatArray, Q: FloatArray, L: FloatArray, weight: float = 1.0
+) -> FloatArray:
+    """The next correction (lifted): ``weight`` (0..1] of the way from ``u`` to
+    Q(u + L e). Weight 1 is the learning law above; a smaller one averages the updates
+    (:attr:`welding.ilc_loop.IlcSettings.average_from`). Its loop has the fixed point of
+    the law's and the norm |(1 − w)I + w·Q(I − LG)| <= (1 − w) + w·|Q(I − LG)|, so where
+    Norrlöf's criterion holds for the law it holds for every weight."""
+    if not (0.0 < weight <= 1.0):
+        raise ValueError(f"the update's weight must be in (0, 1], got {weight}")
+    target = Q @ (u + L @ e)
+    out: FloatArray = u + weight * (target - u)
     return out
 
 

@@ -132,6 +132,7 @@ def run_ilc_emulated(
         "q_hz": settings.q_hz,
         "model_payload_kg": settings.model_payload_kg,
         "run_up_mm": settings.run_up_mm,
+        "average_from": settings.average_from,
         "arm_payload_kg": settings.params.payload_kg,
         "convergence": conv.summary(),
         "trusted": all(not t.untrusted for t in trials),
@@ -267,6 +268,7 @@ def cmd_ilc(args: argparse.Namespace) -> int:
         track=args.track,
         model_payload_kg=args.model_payload_kg,
         run_up_mm=args.run_up,
+        average_from=args.average_from,
     )
     job = None
     table_path = args.table

@@ -50,6 +50,7 @@ from welding.ilc import (
     IlcTable,
     LearningDiverges,
     check_convergence,
+    ilc_update,
     learning_matrix,
     lever_error,
     lifted_model_along,
@@ -103,6 +104,10 @@ GAP_TRIGGERS = 3.0
 PLACED_LATER_FLOOR_S = 1e-6
 
 
+#: the most trials the averaging table is the mean of (IlcSettings.average_from)
+AVERAGE_WINDOW = 8
+
+
 @dataclass(frozen=True)
 class IlcSettings:
     """What to learn and how. ``gain`` γ, ``q_hz`` the Q-filter's cutoff, ``beta`` the
@@ -135,6 +140,21 @@ class IlcSettings:
     #: the model's axis responses for the link inertia at the pass's middle (0), or per
     #: block of this many cycles along it (:func:`~welding.ilc.lifted_model_along`)
     model_block_cycles: int = 0
+    #: from this trial on the table averages (0: never): after trial j >= average_from the
+    #: table moves 1/(j − average_from + 2) of the way to the trial's update
+    #: (:func:`~welding.ilc.ilc_update`), so it is the running mean of the updates learned
+    #: since trial average_from − 1: the trial-to-trial part of the sensor's error (its
+    #: trigger-to-exposure jitter, its noise) falls as 1/√trials instead of being learned
+    #: anew in every trial; over at most AVERAGE_WINDOW trials, so a table reused for
+    #: weeks still follows an arm that changes
+    average_from: int = 3
+
+    def weight_after(self, trial: int) -> float:
+        """How far (0..1] the table moves to the update learned from ``trial`` (1-based,
+        counted over the table's life)."""
+        if self.average_from <= 0 or trial < self.average_from:
+            return 1.0
+        return 1.0 / min(trial - self.average_from + 2, AVERAGE_WINDOW)
 
     def check(self) -> None:
         if self.source not in SOURCES:
@@ -143,6 +163,8 @@ class IlcSettings:
             raise ValueError(f"run-up must be 0..500 mm, got {self.run_up_mm}")
         if not (0 <= self.trials <= 100):
             raise ValueError(f"trials must be 0..100, got {self.trials}")
+        if self.average_from < 0:
+            raise ValueError(f"average_from must be >= 0, got {self.average_from}")
         if self.model_block_cycles < 0:
             raise ValueError(f"model_block_cycles must be >= 0, got {self.model_block_cycles}")
         if self.trials == 0 and not self.track:
@@ -490,7 +512,8 @@ def run_ilc(
             geometry, outcome, taught, _along(geometry, seam_of.offsets), settings.latency_s
         )
         up = np.einsum("kc,kca->ka", u, R).ravel()
-        up = Q @ (up + L @ (e_path.ravel() * seen))
+        w = settings.weight_after(first + j)
+        up = ilc_update(up, e_path.ravel() * seen, Q, L, w)
         u = np.einsum("ka,kca->kc", up.reshape(n, 3), R)
         learned = IlcTable(period, speed, u, taught, settings.source, first + j, key, seen_error)
         if save is not None:

@@ -149,6 +149,15 @@ def add_ilc_options(p: argparse.ArgumentParser) -> None:
         help="learning gain γ (default 1; a gain the model says diverges is refused)",
     )
     p.add_argument(
+        "--average-from",
+        type=cliargs.int_in(0, 100),
+        default=3,
+        metavar="TRIAL",
+        help="from this trial on, the table is the running mean of the updates learned since "
+        "the trial before it: the sensor's trial-to-trial error (jitter, noise) is averaged "
+        "out instead of learned anew in every trial (default 3; 0: never)",
+    )
+    p.add_argument(
         "--q-hz",
         type=cliargs.number_in(1.0, 120.0),
         default=50.0,
