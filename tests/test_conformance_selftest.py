@@ -1876,3 +1876,44 @@ def test_a_robot_whose_joint_speed_does_not_scale_is_caught(scales: bool, want: 
     assert entry.outcome is want, (entry.outcome, entry.message)
     if want is Outcome.FAIL:
         assert "[RS-5.57]" in entry.message and str(entry.actual).startswith("ratio 1.000")
+
+
+class StoppedMoveRobot(MiniRobot):
+    """Takes JointMove, but something outside the harness (another client's StopMove) stops
+    every move at once: WaitEndMove says so at once, as 1.3 does [RS-5.50], or (``legacy``)
+    as a 1.2 robot does, ``done`` false only, its GetStatus ``moving`` false [RS-5.59]."""
+
+    COMMANDS = (*MiniRobot.COMMANDS, C.ENABLE_POWER, C.DISABLE_POWER, C.JOINT_MOVE)
+
+    def __init__(self, *, legacy: bool) -> None:
+        super().__init__()
+        self.legacy = legacy
+
+    def handle(self, session: SessionView, request: M.Request[Any]) -> tuple[Value, ...]:
+        if request.command in (C.ENABLE_POWER, C.DISABLE_POWER):
+            return ()
+        if isinstance(request, M.JointMoveRequest):
+            return (1,)
+        if isinstance(request, M.WaitEndMoveRequest):
+            return (False,) if self.legacy else (False, "stopped", "StopMove by connection 7")
+        return super().handle(session, request)
+
+
+@pytest.mark.parametrize(
+    ("legacy", "said"),
+    [(False, "ended 'stopped' (StopMove by connection 7)"), (True, "stands still")],
+)
+def test_a_stopped_null_move_ends_the_wait_and_is_reported(legacy: bool, said: str) -> None:
+    """JointMove.reply waits for the end of the null move it queued: a move the robot says
+    was stopped (or, 1.2, that stands still short of its target) ends the wait at the first
+    WaitEndMove, not after 30 s of them, and the case says how the move ended."""
+    with serving(FramedServer(StoppedMoveRobot(legacy=legacy), policy=POLICY)) as address:
+        options = Options(timeout_scale=SCALE, allow_motion=True)
+        result = run(
+            "robot", *address, options, Selection("core", ("commands.robot.JointMove.reply",))
+        )
+    (entry,) = result.results
+    assert entry.outcome is Outcome.INFORMATIONAL, (entry.outcome, entry.message)
+    assert said in entry.message and "not 'reached'" in entry.message, entry.message
+    sent = [p.command for p in _sent(result, "commands.robot.JointMove.reply")]
+    assert sent.count(C.WAIT_END_MOVE) == 1, sent
