@@ -11,7 +11,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
-from conformance.connection import ENDPOINT_ERRORS, Closed, Conn, UdpConn, WireLog
+from conformance.connection import ENDPOINT_ERRORS, Closed, Conn, UdpConn, WireLog, typed_reply
 from conformance.model import (
     Blocked,
     EndpointGone,
@@ -20,6 +20,7 @@ from conformance.model import (
     NotApplicable,
     Skip,
 )
+from spec import messages as M
 from spec.codec import Packet
 from spec.errors import ErrorCode
 from spec.params import IntArray, Value
@@ -210,8 +211,10 @@ class Context:
         if answer.kind is PacketKind.ERROR:
             code, message = answer.error or (0, "")
             raise Skip(f"cannot take control of the endpoint (error {code}: {message})")
-        granted = answer.params[0] if answer.params else None
-        conn.lease = granted if isinstance(granted, float) else None
+        # By field name [RS-5.6]: a newer minor version's trailing fields are passed over, and a
+        # reply that breaks the table blocks the case rather than passing for "no lease" (1.0).
+        with self.precondition("TakeControl's reply"):
+            conn.lease = typed_reply(M.TakeControlReply, answer.params).watchdog
 
     def alive(self) -> bool:
         """True when a new connection answers the liveness probe (quietly; not logged)."""

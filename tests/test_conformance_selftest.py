@@ -1917,3 +1917,38 @@ def test_a_stopped_null_move_ends_the_wait_and_is_reported(legacy: bool, said: s
     assert said in entry.message and "not 'reached'" in entry.message, entry.message
     sent = [p.command for p in _sent(result, "commands.robot.JointMove.reply")]
     assert sent.count(C.WAIT_END_MOVE) == 1, sent
+
+
+class TakeControlReplyServer(FramedServer):
+    """Rewrites TakeControl's reply: ``extra`` appends fields (a newer minor version [RS-5.6]),
+    ``as_int`` sends the period as an INT (a reply that breaks the table)."""
+
+    def __init__(
+        self, service: Service, *, extra: tuple[Value, ...] = (), as_int: bool = False
+    ) -> None:
+        super().__init__(service, policy=POLICY)
+        self.extra, self.as_int = extra, as_int
+
+    def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
+        params = super()._execute(session, packet)
+        if packet.command != C.TAKE_CONTROL:
+            return params
+        if self.as_int:
+            params = tuple(int(v) if isinstance(v, float) else v for v in params)
+        return (*params, *self.extra)
+
+
+def test_take_control_reads_the_granted_period_by_name() -> None:
+    """The harness reads the lease TakeControl granted by field name: trailing fields a newer
+    version appends are passed over, and a period of the wrong type blocks the case naming
+    TakeControl's reply instead of passing for a 1.0 server that grants no period."""
+    only = Selection("core", ("control.take_control.order",))
+    options = Options(timeout_scale=SCALE)
+    newer = TakeControlReplyServer(MiniRobot(), extra=("future", 7))
+    with serving(newer) as address:
+        (entry,) = run("robot", *address, options, only).results
+    assert entry.outcome is Outcome.PASS, (entry.outcome, entry.message)
+    with serving(TakeControlReplyServer(MiniRobot(), as_int=True)) as address:
+        (entry,) = run("robot", *address, options, only).results
+    assert entry.outcome is Outcome.BLOCKED, (entry.outcome, entry.message)
+    assert "TakeControl's reply" in entry.message and "RS-5.5" in entry.message, entry.message
