@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import secrets
 import socket
 import threading
@@ -175,6 +176,9 @@ class Context:
         self.log.add("--", number, b"", f"connected to {self.host}:{self.port}")
         conn.alive = self.alive
         conn.probe_command = self.shared.probe_command
+        idle = self.hello.number("idle_timeout", conn.idle_timeout) if self.hello else 0.0
+        if 0.0 < idle < math.inf:  # a broken value is the negotiation cases' to judge
+            conn.idle_timeout = idle
         if hello:
             conn.ok(CommandId.HELLO, 1, 0, "conformance")
         return conn

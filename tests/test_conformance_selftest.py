@@ -1143,10 +1143,12 @@ class MiniSyncRobot(MiniRobot):
 ROBOT_SYNC_CASES = ("robot.sync.*", "commands.sync.*")
 
 
-def _check_sync_robot(service: MiniSyncRobot, select: tuple[str, ...]) -> RunResult:
+def _check_sync_robot(
+    service: MiniSyncRobot, select: tuple[str, ...], policy: ServerPolicy = POLICY
+) -> RunResult:
     """The cases ``select`` against ``service`` on loopback; its trigger thread stops after."""
     try:
-        with serving(FramedServer(service, policy=POLICY)) as address:
+        with serving(FramedServer(service, policy=policy)) as address:
             return check("robot", address, select, scale=0.5)
     finally:
         service.stop.set()
@@ -1159,6 +1161,20 @@ def test_minimal_sync_robot_scores_100_percent() -> None:
     assert got["robot.sync.matching"] is Outcome.PASS
     assert got["robot.sync.before_endpoint"] is Outcome.PASS
     assert got["robot.sync.ranges"] is Outcome.PASS
+
+
+def test_sync_cases_live_with_the_idle_timeout_the_robot_announces() -> None:
+    """robot.sync.matching and .exposure_lag play the sensor over UDP for most of a second,
+    during which their TCP connection has nothing to ask. A robot announcing an idle timeout
+    of 0.3 s in Hello [RS-7.6] (which a conforming client lives with) must not see the
+    harness go silent for longer: the cases keep the connection with Pings and pass."""
+    short = dataclasses.replace(POLICY, idle_timeout=0.3)
+    result = _check_sync_robot(
+        MiniSyncRobot(), ("robot.sync.matching", "robot.sync.exposure_lag"), short
+    )
+    assert problems(result) == {}
+    (entry,) = [r for r in result.results if r.case.id == "robot.sync.matching"]
+    assert any(e.note.startswith("request Ping") for e in entry.wire)  # kept, not lucky
 
 
 def test_robot_not_counting_duplicates_is_caught() -> None:
