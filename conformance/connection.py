@@ -27,6 +27,9 @@ from spec.wire import PacketKind
 R = TypeVar("R", bound=Reply)
 
 MAX_LOG_ENTRIES = 200  # per case
+#: The idle timeout (s) of an endpoint that did not say its own in Hello [RS-7.6].
+DEFAULT_IDLE_TIMEOUT = 300.0
+KEEP_ALIVE_PAYLOAD = b"conformance-keep-alive"
 MAX_LOG_BYTES = 4096  # bytes kept of one send or receive
 
 
@@ -106,6 +109,13 @@ class Conn:
         self.alive: Callable[[], bool] | None = None
         #: Set by the context: the run's liveness probe (Hello when Ping is not answered).
         self.probe_command: int = CommandId.PING
+        #: Set by the context from Hello: the endpoint closes the connection after this long
+        #: without a frame from the harness [RS-7.6]; :meth:`keep_alive` stays within it.
+        self.idle_timeout = DEFAULT_IDLE_TIMEOUT
+        #: When the harness last sent on this connection (time.monotonic()).
+        self.last_sent = time.monotonic()
+        #: Request IDs of keep-alive Pings not answered yet: their answers are passed over.
+        self._keep_alive_ids: set[int] = set()
 
     # --- raw bytes ---------------------------------------------------------------------------
 
@@ -116,6 +126,7 @@ class Conn:
         except OSError as exc:
             self.log.add("--", self.number, b"", f"send failed: {exc}")
             raise EndpointGone(f"connection lost while sending: {exc}") from None
+        self.last_sent = time.monotonic()
 
     def send_bytewise(self, data: bytes, note: str = "") -> None:
         """Send one byte per TCP segment (TCP_NODELAY and a short pause between bytes)."""
@@ -127,6 +138,24 @@ class Conn:
             except OSError as exc:
                 raise EndpointGone(f"connection lost while sending byte {i}: {exc}") from None
             time.sleep(0.0005)
+        self.last_sent = time.monotonic()
+
+    def keep_alive(self) -> None:
+        """A Ping when the harness has sent nothing for half the endpoint's idle timeout, so
+        that a case busy elsewhere (playing the sensor over UDP, waiting for an effect) is
+        not closed as idle [RS-7.6]: a conforming client lives with the timeout the endpoint
+        announces. Not waited for, so it never delays the caller: the next call passes its
+        answer over."""
+        if not self.closed and time.monotonic() - self.last_sent >= self.idle_timeout / 2:
+            rid = self.request(CommandId.PING, KEEP_ALIVE_PAYLOAD)
+            self._keep_alive_ids.add(rid)
+
+    def pause(self, seconds: float) -> None:
+        """Sleep ``seconds`` with the connection kept alive (:meth:`keep_alive`)."""
+        end = time.monotonic() + seconds
+        while (left := end - time.monotonic()) > 0:
+            self.keep_alive()
+            time.sleep(min(left, self.idle_timeout / 4))
 
     def next_request_id(self) -> int:
         """A request ID not used before on this connection [RS-3.13] (IDs 1..2^32-1)."""
@@ -161,7 +190,10 @@ class Conn:
             earlier = self.pending.get(answer.request_id)
             if answer.request_id != request_id and earlier == answer.command:
                 del self.pending[answer.request_id]
-                self.log.add("--", self.number, b"", f"late answer to id {answer.request_id}")
+                if answer.request_id in self._keep_alive_ids:
+                    self._keep_alive_ids.discard(answer.request_id)
+                else:
+                    self.log.add("--", self.number, b"", f"late answer to id {answer.request_id}")
                 continue
             check_echo(answer, command, request_id)
 
@@ -190,11 +222,17 @@ class Conn:
             raise _not_a_frame(exc) from None
 
     def recv_packet(self, timeout: float | None = None) -> Packet:
-        """The next reply or error frame (event frames are counted and skipped [RS-3.14])."""
-        packet = self._recv(timeout)
-        if self.pending.get(packet.request_id) == packet.command:
-            del self.pending[packet.request_id]
-        return packet
+        """The next reply or error frame (event frames are counted and skipped [RS-3.14];
+        answers to :meth:`keep_alive` Pings too)."""
+        deadline = time.monotonic() + (self.timeout if timeout is None else timeout)
+        while True:
+            packet = self._recv(max(deadline - time.monotonic(), 0.0))
+            if self.pending.get(packet.request_id) == packet.command:
+                del self.pending[packet.request_id]
+                if packet.request_id in self._keep_alive_ids:
+                    self._keep_alive_ids.discard(packet.request_id)
+                    continue
+            return packet
 
     def _recv(self, timeout: float | None) -> Packet:
         deadline = time.monotonic() + (self.timeout if timeout is None else timeout)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import secrets
 import socket
 import threading
@@ -11,7 +12,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
-from conformance.connection import ENDPOINT_ERRORS, Closed, Conn, UdpConn, WireLog
+from conformance.connection import ENDPOINT_ERRORS, Closed, Conn, UdpConn, WireLog, typed_reply
 from conformance.model import (
     Blocked,
     EndpointGone,
@@ -20,6 +21,7 @@ from conformance.model import (
     NotApplicable,
     Skip,
 )
+from spec import messages as M
 from spec.codec import Packet
 from spec.errors import ErrorCode
 from spec.params import IntArray, Value
@@ -174,6 +176,9 @@ class Context:
         self.log.add("--", number, b"", f"connected to {self.host}:{self.port}")
         conn.alive = self.alive
         conn.probe_command = self.shared.probe_command
+        idle = self.hello.number("idle_timeout", conn.idle_timeout) if self.hello else 0.0
+        if 0.0 < idle < math.inf:  # a broken value is the negotiation cases' to judge
+            conn.idle_timeout = idle
         if hello:
             conn.ok(CommandId.HELLO, 1, 0, "conformance")
         return conn
@@ -210,8 +215,10 @@ class Context:
         if answer.kind is PacketKind.ERROR:
             code, message = answer.error or (0, "")
             raise Skip(f"cannot take control of the endpoint (error {code}: {message})")
-        granted = answer.params[0] if answer.params else None
-        conn.lease = granted if isinstance(granted, float) else None
+        # By field name [RS-5.6]: a newer minor version's trailing fields are passed over, and a
+        # reply that breaks the table blocks the case rather than passing for "no lease" (1.0).
+        with self.precondition("TakeControl's reply"):
+            conn.lease = typed_reply(M.TakeControlReply, answer.params).watchdog
 
     def alive(self) -> bool:
         """True when a new connection answers the liveness probe (quietly; not logged)."""

@@ -1143,10 +1143,12 @@ class MiniSyncRobot(MiniRobot):
 ROBOT_SYNC_CASES = ("robot.sync.*", "commands.sync.*")
 
 
-def _check_sync_robot(service: MiniSyncRobot, select: tuple[str, ...]) -> RunResult:
+def _check_sync_robot(
+    service: MiniSyncRobot, select: tuple[str, ...], policy: ServerPolicy = POLICY
+) -> RunResult:
     """The cases ``select`` against ``service`` on loopback; its trigger thread stops after."""
     try:
-        with serving(FramedServer(service, policy=POLICY)) as address:
+        with serving(FramedServer(service, policy=policy)) as address:
             return check("robot", address, select, scale=0.5)
     finally:
         service.stop.set()
@@ -1159,6 +1161,20 @@ def test_minimal_sync_robot_scores_100_percent() -> None:
     assert got["robot.sync.matching"] is Outcome.PASS
     assert got["robot.sync.before_endpoint"] is Outcome.PASS
     assert got["robot.sync.ranges"] is Outcome.PASS
+
+
+def test_sync_cases_live_with_the_idle_timeout_the_robot_announces() -> None:
+    """robot.sync.matching and .exposure_lag play the sensor over UDP for most of a second,
+    during which their TCP connection has nothing to ask. A robot announcing an idle timeout
+    of 0.3 s in Hello [RS-7.6] (which a conforming client lives with) must not see the
+    harness go silent for longer: the cases keep the connection with Pings and pass."""
+    short = dataclasses.replace(POLICY, idle_timeout=0.3)
+    result = _check_sync_robot(
+        MiniSyncRobot(), ("robot.sync.matching", "robot.sync.exposure_lag"), short
+    )
+    assert problems(result) == {}
+    (entry,) = [r for r in result.results if r.case.id == "robot.sync.matching"]
+    assert any(e.note.startswith("request Ping") for e in entry.wire)  # kept, not lucky
 
 
 def test_robot_not_counting_duplicates_is_caught() -> None:
@@ -1876,3 +1892,79 @@ def test_a_robot_whose_joint_speed_does_not_scale_is_caught(scales: bool, want: 
     assert entry.outcome is want, (entry.outcome, entry.message)
     if want is Outcome.FAIL:
         assert "[RS-5.57]" in entry.message and str(entry.actual).startswith("ratio 1.000")
+
+
+class StoppedMoveRobot(MiniRobot):
+    """Takes JointMove, but something outside the harness (another client's StopMove) stops
+    every move at once: WaitEndMove says so at once, as 1.3 does [RS-5.50], or (``legacy``)
+    as a 1.2 robot does, ``done`` false only, its GetStatus ``moving`` false [RS-5.59]."""
+
+    COMMANDS = (*MiniRobot.COMMANDS, C.ENABLE_POWER, C.DISABLE_POWER, C.JOINT_MOVE)
+
+    def __init__(self, *, legacy: bool) -> None:
+        super().__init__()
+        self.legacy = legacy
+
+    def handle(self, session: SessionView, request: M.Request[Any]) -> tuple[Value, ...]:
+        if request.command in (C.ENABLE_POWER, C.DISABLE_POWER):
+            return ()
+        if isinstance(request, M.JointMoveRequest):
+            return (1,)
+        if isinstance(request, M.WaitEndMoveRequest):
+            return (False,) if self.legacy else (False, "stopped", "StopMove by connection 7")
+        return super().handle(session, request)
+
+
+@pytest.mark.parametrize(
+    ("legacy", "said"),
+    [(False, "ended 'stopped' (StopMove by connection 7)"), (True, "stands still")],
+)
+def test_a_stopped_null_move_ends_the_wait_and_is_reported(legacy: bool, said: str) -> None:
+    """JointMove.reply waits for the end of the null move it queued: a move the robot says
+    was stopped (or, 1.2, that stands still short of its target) ends the wait at the first
+    WaitEndMove, not after 30 s of them, and the case says how the move ended."""
+    with serving(FramedServer(StoppedMoveRobot(legacy=legacy), policy=POLICY)) as address:
+        options = Options(timeout_scale=SCALE, allow_motion=True)
+        result = run(
+            "robot", *address, options, Selection("core", ("commands.robot.JointMove.reply",))
+        )
+    (entry,) = result.results
+    assert entry.outcome is Outcome.INFORMATIONAL, (entry.outcome, entry.message)
+    assert said in entry.message and "not 'reached'" in entry.message, entry.message
+    sent = [p.command for p in _sent(result, "commands.robot.JointMove.reply")]
+    assert sent.count(C.WAIT_END_MOVE) == 1, sent
+
+
+class TakeControlReplyServer(FramedServer):
+    """Rewrites TakeControl's reply: ``extra`` appends fields (a newer minor version [RS-5.6]),
+    ``as_int`` sends the period as an INT (a reply that breaks the table)."""
+
+    def __init__(
+        self, service: Service, *, extra: tuple[Value, ...] = (), as_int: bool = False
+    ) -> None:
+        super().__init__(service, policy=POLICY)
+        self.extra, self.as_int = extra, as_int
+
+    def _execute(self, session: Session, packet: Packet) -> tuple[Value, ...]:
+        params = super()._execute(session, packet)
+        if packet.command != C.TAKE_CONTROL:
+            return params
+        if self.as_int:
+            params = tuple(int(v) if isinstance(v, float) else v for v in params)
+        return (*params, *self.extra)
+
+
+def test_take_control_reads_the_granted_period_by_name() -> None:
+    """The harness reads the lease TakeControl granted by field name: trailing fields a newer
+    version appends are passed over, and a period of the wrong type blocks the case naming
+    TakeControl's reply instead of passing for a 1.0 server that grants no period."""
+    only = Selection("core", ("control.take_control.order",))
+    options = Options(timeout_scale=SCALE)
+    newer = TakeControlReplyServer(MiniRobot(), extra=("future", 7))
+    with serving(newer) as address:
+        (entry,) = run("robot", *address, options, only).results
+    assert entry.outcome is Outcome.PASS, (entry.outcome, entry.message)
+    with serving(TakeControlReplyServer(MiniRobot(), as_int=True)) as address:
+        (entry,) = run("robot", *address, options, only).results
+    assert entry.outcome is Outcome.BLOCKED, (entry.outcome, entry.message)
+    assert "TakeControl's reply" in entry.message and "RS-5.5" in entry.message, entry.message

@@ -100,6 +100,7 @@ def foreign_data(ctx: Context) -> str:
         first = conn.ask(M.StartTriggersRequest(50.0, 2)).first_index
         deadline = time.monotonic() + ctx.scaled(2.0)
         while len(answered) < 2 and time.monotonic() < deadline:
+            conn.keep_alive()
             got = u.recv(0.05)
             if got is None:
                 continue
@@ -128,7 +129,7 @@ def foreign_data(ctx: Context) -> str:
                 data, f"data {trig.index} from {'another port' if not answered else 'the sensor'}"
             )
             answered.append(trig.index)
-        time.sleep(0.3)  # the robot matches data once the joint samples around t_S are in
+        conn.pause(0.3)  # the robot matches data once the joint samples around t_S are in
         after = conn.ask(M.GetSyncStatisticsRequest()).as_dict()
         points = conn.ask(M.GetSeamPointsRequest(first - 1)).points
     if len(answered) < 2:

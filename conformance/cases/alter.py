@@ -132,7 +132,7 @@ def alter_stream_lost(ctx: Context) -> None:
         p0 = _here(conn)
         conn.ok(C.ALTER_BEGIN, IDENTITY_LOCATION, 0.05)
         conn.ok(C.ALTER, Location(0.0, 0.0, 0.5, 0.0, 0.0, 0.0))
-        time.sleep(0.5)
+        conn.pause(0.5)  # no Alter: a Ping is no correction
         answer = conn.call(C.ALTER, Location(0.0, 0.0, 0.5, 0.0, 0.0, 0.0))
         if answer.error is None or answer.error[0] != ErrorCode.BAD_STATE:
             conn.call(C.ALTER_END)

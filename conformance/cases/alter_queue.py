@@ -208,7 +208,7 @@ def alter_queue_applied(ctx: Context) -> str:
                     r.held_total,
                     requirement="RS-5.44",
                 )
-            time.sleep(0.5)  # past the 0.2 s timeout after the last entry
+            conn.pause(0.5)  # past the 0.2 s timeout after the last entry
             answer = conn.call(C.ALTER_QUEUE, FloatArray([]), Matrix(0, 6, []))
             if answer.error is None or answer.error[0] != ErrorCode.BAD_STATE:
                 raise Fail(

@@ -14,6 +14,7 @@ parameter count, which a conforming server rejects before anything executes.
 from __future__ import annotations
 
 import contextlib
+import time
 from collections.abc import Callable
 
 from conformance.cases._util import NOT_OFFERED, valid_args, wrong_type
@@ -35,7 +36,7 @@ from spec.params import (
 )
 from spec.registry import COMMANDS, CommandSpec
 from spec.registry import CommandId as C
-from spec.wire import ParamType
+from spec.wire import MoveOutcome, ParamType
 
 #: Errors a correct request may get in some states of the endpoint (not a reply-table break).
 STATE_ERRORS = (
@@ -96,8 +97,10 @@ def _reply_case(spec: CommandSpec) -> Callable[[Context], str | None]:
                 powered = _power_for(ctx, conn, spec)
                 args = valid_args(ctx, conn, spec)
             answer = conn.call(spec.id, *args, timeout=ctx.timeout * 2)
+            ended = None
             if powered:
-                _settle(conn)
+                with ctx.precondition(f"WaitEndMove and GetStatus after {spec.name}"):
+                    ended = _settle(conn)
             if answer.error is not None and answer.error[0] in STATE_ERRORS:
                 raise Informational(
                     f"{spec.name} answered {ErrorCode(answer.error[0]).name} in the current"
@@ -113,6 +116,12 @@ def _reply_case(spec: CommandSpec) -> Callable[[Context], str | None]:
                 )
             # The reply's parameters against the table: a Fail of RS-5.5 when they break it.
             typed_reply(REPLIES[spec.id], answer.params)
+            if ended is not None and spec.id in _QUEUE_A_MOVE:
+                # Not this case's rule, but later cases would meet a robot not left as found.
+                raise Informational(
+                    f"{spec.name}'s reply matches its table, but the move it queued (to where"
+                    f" the arm stands) {ended}, not 'reached'"
+                )
             if spec.id == C.EMERGENCY_STOP and C.RESET_EMERGENCY_STOP in ctx.advertised:
                 ctx.take_control(conn)
                 conn.ok(C.RESET_EMERGENCY_STOP)
@@ -131,6 +140,9 @@ def _reply_case(spec: CommandSpec) -> Callable[[Context], str | None]:
 
 #: Motion commands whose reply needs a powered arm (the power commands test themselves).
 _NEED_POWER = {C.JOINT_MOVE, C.TOOL_MOVE_J, C.TOOL_MOVE_L, C.RESTART_MOVE, C.TOOL_MOVE_TRAJECTORY}
+#: Of those, the ones that queue a move of their own (RestartMove resumes a held one, so how
+#: the last move ended after it may be another case's).
+_QUEUE_A_MOVE = _NEED_POWER - {C.RESTART_MOVE}
 
 
 def _power_for(ctx: Context, conn: Conn, spec: CommandSpec) -> bool:
@@ -147,13 +159,33 @@ def _power_for(ctx: Context, conn: Conn, spec: CommandSpec) -> bool:
     return True
 
 
-def _settle(conn: Conn) -> None:
-    """Wait for the (null) move to end, in pieces that keep the control lease."""
+#: How long a case waits for the (null) move it queued to end (s).
+SETTLE_S = 30.0
+
+
+def _settle(conn: Conn) -> str | None:
+    """Wait for the (null) move to end, in pieces that keep the control lease; None when the
+    robot says it reached its target, else how it ended instead, for the case to report.
+
+    The wait ends as soon as the move no longer runs, whichever way [RS-5.50]: ``done``;
+    ``outcome`` stopped or failed (1.3); or, from a 1.2 reply (``done`` false for a stop and
+    an unfinished wait alike), GetStatus' ``moving`` false [RS-5.59]."""
     piece = (conn.lease or 1.0) / 2
-    for _ in range(int(30 / piece) + 1):
+    deadline = time.monotonic() + SETTLE_S
+    while True:
         answer = conn.call(C.WAIT_END_MOVE, piece, timeout=piece + 5.0)
-        if answer.error is not None or answer.params[:1] == (True,):
-            return
+        if answer.error is not None:
+            code, message = answer.error
+            return f"WaitEndMove was refused (error {code}: {message})"
+        ended = typed_reply(M.WaitEndMoveReply, answer.params)
+        if ended.done:
+            return None
+        if ended.outcome is not None and ended.outcome != MoveOutcome.MOVING:
+            return f"ended {ended.outcome!r} ({ended.reason or 'no reason given'})"
+        if ended.outcome is None and not conn.ask(M.RobotStatusRequest()).moving:
+            return "stands still without having reached its target (a 1.2 WaitEndMove reply)"
+        if time.monotonic() >= deadline:
+            return f"still moving after {SETTLE_S:g} s"
 
 
 def _release(conn: Conn) -> None:

@@ -535,7 +535,7 @@ def stop_restart(ctx: Context) -> str:
         dropped = _held_still(conn, 10.0)
         before = _joints(conn)
         conn.ok(C.RESTART_MOVE)
-        time.sleep(0.5)
+        conn.pause(0.5)
         after, status = _joints(conn), _status(conn)
         _step_back(conn, step)  # back where the case began
         conn.ok(C.DISABLE_POWER)

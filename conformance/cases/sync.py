@@ -553,15 +553,16 @@ def _robot_trigger(raw: bytes) -> Trigger:
     return trig
 
 
-def _play_sensor(ctx: Context, u: UdpConn, first: int) -> list[int]:
+def _play_sensor(ctx: Context, conn: Conn, u: UdpConn, first: int) -> list[int]:
     """Receive the robot's triggers and answer trigger ``first + k`` as ``MATCHING_PLAN[k]``
-    says; return the indices received, in order."""
+    says, keeping ``conn`` alive meanwhile; return the indices received, in order."""
     indices: list[int] = []
     due: list[_Due] = []
     held: bytes | None = None
     n = len(MATCHING_PLAN)
     deadline = time.monotonic() + n / 50 + ctx.scaled(1.0) + 0.5
     while time.monotonic() < deadline and len(indices) < n:
+        conn.keep_alive()
         got = u.recv(0.02)
         due = _send_due(u, due)
         if got is None:
@@ -597,6 +598,7 @@ def _play_sensor(ctx: Context, u: UdpConn, first: int) -> list[int]:
             u.send(b"SY" + b"\x00" * 20, "malformed datagram")
     end = time.monotonic() + 0.4
     while time.monotonic() < end or due:
+        conn.keep_alive()
         due = _send_due(u, due)
         time.sleep(0.01)
     return indices
@@ -631,8 +633,8 @@ def sync_matching(ctx: Context) -> str:
     with playing_sensor(ctx) as (conn, u):
         before = conn.ask(M.GetSyncStatisticsRequest()).as_dict()
         first = conn.ask(M.StartTriggersRequest(50.0, n)).first_index
-        indices = _play_sensor(ctx, u, first)
-        time.sleep(0.2)
+        indices = _play_sensor(ctx, conn, u, first)
+        conn.pause(0.2)
         after = conn.ask(M.GetSyncStatisticsRequest()).as_dict()
         points = conn.ask(M.GetSeamPointsRequest(first - 1)).points
         delta_t = conn.ask(M.GetSyncConfigRequest()).delta_t
@@ -714,13 +716,15 @@ LAG_EXTRA_S = 2e-3
 LAG_TOLERANCE_S = 0.1e-3
 
 
-def _play_lagged_sensor(ctx: Context, u: UdpConn, first: int) -> list[int]:
+def _play_lagged_sensor(ctx: Context, conn: Conn, u: UdpConn, first: int) -> list[int]:
     """Answer the robot's triggers FOUND, exposure start LAG_USUAL_S after each arrival by
     the harness's stamps, LAG_USUAL_S + LAG_EXTRA_S for trigger ``first + LAG_LATE_AT`` (a
-    sensor still busy with the previous frame); return the indices received."""
+    sensor still busy with the previous frame), keeping ``conn`` alive meanwhile; return the
+    indices received."""
     indices: list[int] = []
     deadline = time.monotonic() + LAG_TRIGGERS / 50 + ctx.scaled(1.0) + 0.5
     while time.monotonic() < deadline and len(indices) < LAG_TRIGGERS:
+        conn.keep_alive()
         got = u.recv(0.02)
         if got is None:
             continue
@@ -735,7 +739,7 @@ def _play_lagged_sensor(ctx: Context, u: UdpConn, first: int) -> list[int]:
         )
         u.target = source
         u.send(encode_data(data), f"data {trig.index}" + (" exposed 2 ms late" if late else ""))
-    time.sleep(0.3)
+    conn.pause(0.3)
     return indices
 
 
@@ -756,7 +760,7 @@ def sync_exposure_lag(ctx: Context) -> str:
     with playing_sensor(ctx) as (conn, u):
         before = conn.ask(M.GetSyncStatisticsRequest()).exposed_late
         first = conn.ask(M.StartTriggersRequest(50.0, LAG_TRIGGERS)).first_index
-        indices = _play_lagged_sensor(ctx, u, first)
+        indices = _play_lagged_sensor(ctx, conn, u, first)
         rows = conn.ask(M.GetSeamPointsRequest(first - 1)).points.to_rows()
         after = conn.ask(M.GetSyncStatisticsRequest()).exposed_late
         delta_t = conn.ask(M.GetSyncConfigRequest()).delta_t
