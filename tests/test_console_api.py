@@ -134,6 +134,7 @@ def test_the_console_holds_control_on_a_1_s_lease(env: Any) -> None:
     _release(client)
     assert call(client, "POST", "/api/control", {"take": True}).status_code == 200
     assert console.control.lease == CONSOLE_LEASE_S == 1.0
+    assert console.sensor is not None and console.sensor.lease == CONSOLE_LEASE_S
     _release(client)
 
 

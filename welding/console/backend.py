@@ -356,7 +356,14 @@ class Console:
             self.controller = user
         if self.sensor is not None:
             try:
-                self.sensor.take_control(self.token)
+                # the same 1 s as the robot's: the sensor's 0.25 s default was lost under
+                # load, and with it the laser (switched off by the sensor's watchdog)
+                try:
+                    self.sensor.take_control(self.token, watchdog=CONSOLE_LEASE_S)
+                except RemoteError as exc:
+                    if exc.code is not ErrorCode.OUT_OF_RANGE:
+                        raise
+                    self.sensor.take_control(self.token)  # a sensor whose leases are shorter
                 self.sensor_in_control = True
             except RemoteError as exc:
                 log.warning("sensor control refused: %s", exc)
