@@ -141,6 +141,11 @@ class ExperimentSettings:
         return self.duration_s + 2 * self.rest_s
 
 
+#: Control lease asked for (s): the server's 0.25 s default was lost mid-sine on a loaded
+#: 2-core machine (a full test run beside the sweep), which stopped the sweep.
+EXPERIMENT_LEASE_S = 1.0
+
+
 def sine_path(s: ExperimentSettings) -> tuple[FloatArray, FloatArray]:
     """The commanded lateral displacement: times (N,) s on the 4 ms grid from 0, y (N,) mm."""
     n = math.ceil(s.total_s / s.sample_period_s - 1e-9)
@@ -369,6 +374,15 @@ def _sine_done(robot: FramedClient, wait_s: float) -> bool:
     return moved.reached
 
 
+def _take_control(robot: FramedClient, token: str) -> None:
+    try:
+        robot.take_control(token, watchdog=EXPERIMENT_LEASE_S)
+    except RemoteError as exc:
+        if exc.code is not ErrorCode.OUT_OF_RANGE:
+            raise
+        robot.take_control(token)  # a robot whose leases are shorter
+
+
 def record_sine(
     robot: FramedClient,
     sensor: FramedClient | None,
@@ -382,7 +396,7 @@ def record_sine(
     """
     s = settings
     model = _check_endpoints(robot, sensor, s)
-    robot.take_control(s.token)
+    _take_control(robot, s.token)
     if sensor is not None:
         host, port = _endpoint(sensor)
         robot.call(CommandId.SET_SENSOR_ENDPOINT, host, port)
