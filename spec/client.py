@@ -423,6 +423,16 @@ class FramedClient:
             self._start_keeper(lease)
         return lease
 
+    def take_control_asking(self, token: str, watchdog: float) -> float | None:
+        """:meth:`take_control` asking for ``watchdog`` (s); a server whose leases are
+        shorter (OUT_OF_RANGE) gives its default instead. Returns the period in force."""
+        try:
+            return self.take_control(token, watchdog=watchdog)
+        except RemoteError as exc:
+            if exc.code is not ErrorCode.OUT_OF_RANGE:
+                raise
+            return self.take_control(token)
+
     def release_control(self) -> None:
         self._stop_keeper()
         self.lease = None

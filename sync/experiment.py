@@ -374,15 +374,6 @@ def _sine_done(robot: FramedClient, wait_s: float) -> bool:
     return moved.reached
 
 
-def _take_control(robot: FramedClient, token: str) -> None:
-    try:
-        robot.take_control(token, watchdog=EXPERIMENT_LEASE_S)
-    except RemoteError as exc:
-        if exc.code is not ErrorCode.OUT_OF_RANGE:
-            raise
-        robot.take_control(token)  # a robot whose leases are shorter
-
-
 def record_sine(
     robot: FramedClient,
     sensor: FramedClient | None,
@@ -396,7 +387,7 @@ def record_sine(
     """
     s = settings
     model = _check_endpoints(robot, sensor, s)
-    _take_control(robot, s.token)
+    robot.take_control_asking(s.token, EXPERIMENT_LEASE_S)
     if sensor is not None:
         host, port = _endpoint(sensor)
         robot.call(CommandId.SET_SENSOR_ENDPOINT, host, port)

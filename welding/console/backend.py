@@ -34,7 +34,7 @@ import numpy as np
 from robotsocket.client import MotionDesc, RobotClient
 from sensorsocket.client import SensorClient
 from spec.callcli import unreachable
-from spec.errors import ErrorCode, ProtocolError, RemoteError
+from spec.errors import ProtocolError, RemoteError
 from welding import job as J
 from welding.console.activities import (
     Activity,
@@ -345,12 +345,7 @@ class Console:
             holder = self.controller
         if holder is not None and holder != user and self.in_control:
             raise ConsoleError(f"{holder} holds control", 409)
-        try:
-            self.control.take_control(self.token, watchdog=CONSOLE_LEASE_S)
-        except RemoteError as exc:
-            if exc.code is not ErrorCode.OUT_OF_RANGE:
-                raise
-            self.control.take_control(self.token)  # a robot whose leases are shorter
+        self.control.take_control_asking(self.token, CONSOLE_LEASE_S)
         with self._lock:
             self.in_control = True
             self.controller = user
@@ -358,12 +353,7 @@ class Console:
             try:
                 # the same 1 s as the robot's: the sensor's 0.25 s default was lost under
                 # load, and with it the laser (switched off by the sensor's watchdog)
-                try:
-                    self.sensor.take_control(self.token, watchdog=CONSOLE_LEASE_S)
-                except RemoteError as exc:
-                    if exc.code is not ErrorCode.OUT_OF_RANGE:
-                        raise
-                    self.sensor.take_control(self.token)  # a sensor whose leases are shorter
+                self.sensor.take_control_asking(self.token, CONSOLE_LEASE_S)
                 self.sensor_in_control = True
             except RemoteError as exc:
                 log.warning("sensor control refused: %s", exc)
