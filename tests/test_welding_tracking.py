@@ -77,8 +77,10 @@ def test_tracker_stops_when_the_seam_ahead_is_not_measured() -> None:
     assert float(weld.s_at(t_20)) == pytest.approx(20.0)
     c = tracker.correction(t_20)
     assert c[1] == pytest.approx(2.0 * np.sin(2.0 * np.pi * 20.0 / 50.0), abs=1e-3)
+    # seam points late by 30 mm of the 40 mm look-ahead: the laser goes on over measured seam
+    tracker.correction(0.1 + (49.0 - 12.5) / 250.0)
     with pytest.raises(TrackingError, match="not measured"):
-        tracker.correction(0.1 + (40.0 - 12.5) / 250.0)  # sensor at 80 mm, seam up to 59
+        tracker.correction(0.1 + (50.0 - 12.5) / 250.0)  # the laser at 50 mm, seam up to 59
 
 
 @pytest.mark.parametrize(

@@ -28,8 +28,11 @@ from robotsocket.alter import MAX_OFFSET_MM
 FIT_HALF_WIDTH_MM = 4.0
 #: Fewest seam points a fit needs.
 MIN_FIT_POINTS = 4
-#: The seam must be measured this far ahead of the laser (mm) or the weld stops: the
-#: look-ahead minus the distance travelled while a seam point is on its way (ΔT, matching).
+#: The seam must be measured this far ahead of the laser (mm) or the weld stops: the fit
+#: window around the laser point, a point's spacing and the cycles the stop takes to reach
+#: the robot. The rest of the sensor's look-ahead is room for late seam points (ΔT,
+#: matching, a busy machine: late, not wrong); a silent sensor still stops the weld before
+#: the laser leaves the measured seam.
 MIN_AHEAD_MM = 10.0
 
 
@@ -295,15 +298,16 @@ class Tracker:
         return self.correction_at(float(self.weld.s_at(t_move)))
 
     def check_ahead(self, t_move: float) -> None:
-        """TrackingError unless the seam is measured ahead of the laser at ``t_move`` s after
-        the move start as far as a live sensor measures it (a silent sensor stops the weld)."""
+        """TrackingError unless the seam is measured :data:`MIN_AHEAD_MM` ahead of the laser
+        at ``t_move`` s after the move start (near the seam's end: to that much before it),
+        so a silent sensor stops the weld and a late one does not."""
         s = float(self.weld.s_at(t_move))
         end = self.weld.length_mm if self.seam_end_mm is None else self.seam_end_mm
-        sensor_at = min(s + self.look_ahead_mm, end)
-        if self.model.furthest < sensor_at - MIN_AHEAD_MM:
+        need = min(s + MIN_AHEAD_MM, end - MIN_AHEAD_MM)
+        if self.model.furthest < need:
             raise TrackingError(
                 f"seam not measured ahead of the laser: furthest point {self.model.furthest:.1f}"
-                f" mm, sensor at {sensor_at:.1f} mm"
+                f" mm, laser at {s:.1f} mm (the weld needs {need:.1f} mm)"
             )
 
     def correction_at(self, s: float) -> FloatArray:
