@@ -16,7 +16,9 @@ import socket
 import subprocess
 import sys
 import textwrap
+import threading
 import time
+import traceback
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -49,6 +51,17 @@ class Cell:
                 return True
             time.sleep(0.005)
         return False
+
+    def control_state(self) -> str:
+        """Who holds control, whose controlled stop runs, and every thread's stack: what a
+        wait for free control that timed out needs to say (it failed once under load)."""
+        control = self.server.control
+        stacks = "\n".join(
+            f"--- {names.get(ident, ident)}\n" + "".join(traceback.format_stack(frame))
+            for names in [{t.ident: t.name for t in threading.enumerate()}]
+            for ident, frame in sys._current_frames().items()
+        )
+        return f"holder {control.holder}, stopping for {control.stopping_for}\n{stacks}"
 
     def moving(self) -> bool:
         return self.robot.status().moving
@@ -306,7 +319,9 @@ def test_a_streamed_trajectory_stops_when_its_controller_dies_or_freezes(
         assert cell.wait_until(cell.moving)
         y0 = cell.robot.here()[1]
         proc.send_signal(sig)
-        assert cell.wait_until(lambda: not cell.moving() and cell.server.control_free)
+        assert cell.wait_until(lambda: not cell.moving() and cell.server.control_free), (
+            cell.control_state()
+        )
         assert cell.robot.read_io("laser") == (False, True)
         assert abs(cell.robot.here()[1] - y0) < 50.0  # stopped, far short of the 100 mm path
         assert cell.robot.status().queue == 0
@@ -319,7 +334,7 @@ def test_an_idle_controller_that_dies_or_freezes_leaves_the_outputs_off(
     with controller(cell, IDLE, "idle") as proc:
         assert cell.robot.read_io("laser") == (True, True)
         proc.send_signal(sig)
-        assert cell.wait_until(lambda: cell.server.control_free)
+        assert cell.wait_until(lambda: cell.server.control_free), cell.control_state()
         assert cell.robot.read_io("laser") == (False, True)
         assert cell.robot.read_io("gas") == (False, True)
 
@@ -358,7 +373,7 @@ def test_a_controller_killed_or_interrupted_with_the_laser_on_leaves_it_off(
     with controller(cell, IDLE, "idle") as proc:
         assert cell.robot.read_io("laser") == (True, True)
         proc.send_signal(sig)
-        assert cell.wait_until(lambda: cell.server.control_free)
+        assert cell.wait_until(lambda: cell.server.control_free), cell.control_state()
         assert cell.robot.read_io("laser") == (False, True)
         assert cell.robot.read_io("gas") == (False, True)
         offs = [name for _, name, value in cell.robot.io_log if not value]
