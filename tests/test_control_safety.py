@@ -281,8 +281,11 @@ STREAMING = textwrap.dedent(
 
 IDLE = textwrap.dedent(
     """
-    import sys, time
+    import signal, sys, time
     from robotsocket.client import RobotClient
+    # Ctrl-C as in a terminal, even where the test runner's worker ignores SIGINT (a child
+    # started with SIGINT ignored keeps it ignored)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     robot = RobotClient(sys.argv[1], int(sys.argv[2]))
     robot.take_control()
     robot.set_output("laser", True)
